@@ -1,0 +1,120 @@
+// MIEM on organized scans (rows = laser profiles): the four-direction angle test, iteration,
+// local heights and defects. The exact rules are in docs/SPEC.md.
+#pragma once
+
+#include <cstdint>
+#include <limits>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "miem/plane.hpp"
+#include "miem/views.hpp"
+
+namespace miem {
+
+/// Point labels (uint8 in every output).
+enum Label : std::uint8_t {
+  kNormal = 0,    ///< on the surface
+  kAbnormal = 1,  ///< flagged in every available direction (or isolated): grind / discard
+  kEdge = 2,      ///< flagged in some directions only: a designed feature edge; never ground
+  kInvalid = 3,   ///< non-finite coordinates (dropout)
+};
+
+/// Which cells get a local height (METHOD section 6).
+enum class HeightMode : std::uint8_t {
+  kAll = 0,       ///< every finite cell (box-summed window fits, O(1) per cell)
+  kAbnormal = 1,  ///< ABNORMAL cells only (direct window fits); others NaN. Much faster.
+};
+
+/// Detection parameters. Defaults are the paper's settings.
+struct DetectParams {
+  double theta0_deg = 75.0;       ///< flag a direction when its angle <= theta0 (0 < theta0 < 180)
+  std::vector<int> scales{1};     ///< neighbour scales in cells (each >= 1)
+  int max_gap = 1;                ///< unusable cells that may be skipped to find a neighbour
+  double min_step = -1.0;         ///< < 0: off; else neighbours at least s * min_step away
+  int max_reach = 32;             ///< extra cells searched for min_step (used only with it)
+  int min_directions = 0;         ///< 0: all available directions; else 1..4
+  int max_iterations = 10;        ///< passes at most (>= 1)
+  int window = 21;                ///< height-plane window in cells (odd >= 3)
+  HeightMode height_mode = HeightMode::kAll;  ///< which cells get a height
+  int num_threads = 0;            ///< 0: all available; the labels never depend on it
+};
+
+/// Throws std::invalid_argument naming the offending parameter.
+void validate(const DetectParams& params);
+
+/// Defect kinds.
+enum class DefectKind : std::uint8_t { kProtrusion = 0, kPit = 1, kIsolated = 2 };
+
+/// "protrusion", "pit" or "isolated".
+const char* to_string(DefectKind kind) noexcept;
+
+/// One connected group of ABNORMAL cells (8-connected).
+struct Defect {
+  int id = 0;                                ///< rank by |peak_height| (0 = largest)
+  std::vector<std::int64_t> indices;         ///< flat cell indices r * cols + c, ascending
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  Eigen::Vector3d normal = Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN());
+  double peak_height = 0.0;                  ///< signed, largest magnitude (NaN if none)
+  double mean_height = 0.0;                  ///< NaN if no member has a height
+  double extent = 0.0;                       ///< diameter in the tangent plane
+  DefectKind kind = DefectKind::kProtrusion;
+};
+
+/// Caller-owned output buffers, each rows * cols, row-major. `labels` is required; the others may
+/// be null when not wanted (height is needed for defects and is then kept internally).
+struct OrganizedOutput {
+  std::uint8_t* labels = nullptr;
+  std::uint8_t* flags = nullptr;     ///< bit k: direction k flagged (0 along, 1 across, 2, 3 diag)
+  double* angle_deg = nullptr;       ///< smallest angle seen, NaN where none
+  double* height = nullptr;          ///< signed height over the local plane, NaN where none
+};
+
+/// What a detection run returns besides the per-cell buffers.
+struct DetectSummary {
+  int iterations = 0;
+  std::optional<Plane> plane;        ///< the MIEM plane (eigen fit of non-ABNORMAL points)
+  std::vector<Defect> defects;       ///< ordered by |peak_height| descending
+};
+
+/// Everything, owned (convenience for callers that do not manage buffers).
+struct DetectResult {
+  std::ptrdiff_t rows = 0, cols = 0;
+  std::vector<std::uint8_t> labels, flags;
+  std::vector<double> angle_deg, height;
+  DetectSummary summary;
+};
+
+/// Reusable organized detector: keeps its work buffers between runs, so repeated runs on grids of
+/// the same size do not allocate except for the defect list.
+class OrganizedDetector {
+ public:
+  /// Throws std::invalid_argument on bad parameters.
+  explicit OrganizedDetector(DetectParams params);
+
+  const DetectParams& params() const { return params_; }
+
+  /// Detect on `grid` writing into `out`. Throws std::invalid_argument when the grid is empty,
+  /// has fewer than 3 finite points, or `out.labels` is null.
+  template <typename T>
+  DetectSummary run(const GridView<T>& grid, const OrganizedOutput& out);
+
+ private:
+  DetectParams params_;
+  std::vector<std::uint8_t> usable_;
+  std::vector<std::uint32_t> stamp_;
+  std::uint32_t stamp_counter_ = 0;
+  std::vector<std::int64_t> fresh_, candidates_;
+  std::vector<double> height_scratch_;
+  std::vector<double> tile_scratch_;
+  std::vector<std::int64_t> queue_;
+};
+
+/// One-call organized detection with owned outputs.
+template <typename T>
+DetectResult detect_organized(const GridView<T>& grid, const DetectParams& params);
+
+}  // namespace miem

@@ -1,0 +1,60 @@
+// Non-owning, strided, read-only views of caller memory (NumPy arrays, sensor buffers).
+// Nothing is copied: float and double coordinates are widened to double per value.
+#pragma once
+
+#include <cstddef>
+
+#include <Eigen/Core>
+
+namespace miem {
+
+/// N points of 3 coordinates each, anywhere in memory. Strides are counted in elements of T.
+template <typename T>
+struct PointsView {
+  const T* data = nullptr;
+  std::ptrdiff_t size = 0;          ///< number of points
+  std::ptrdiff_t point_stride = 3;  ///< elements from one point to the next
+  std::ptrdiff_t coord_stride = 1;  ///< elements from x to y to z of one point
+
+  /// Point i, widened to double.
+  Eigen::Vector3d operator[](std::ptrdiff_t i) const {
+    const T* p = data + i * point_stride;
+    return {static_cast<double>(p[0]), static_cast<double>(p[coord_stride]),
+            static_cast<double>(p[2 * coord_stride])};
+  }
+};
+
+/// An organized scan: rows x cols cells of 3 coordinates (row = one laser profile).
+/// Strides are counted in elements of T.
+template <typename T>
+struct GridView {
+  const T* data = nullptr;
+  std::ptrdiff_t rows = 0;
+  std::ptrdiff_t cols = 0;
+  std::ptrdiff_t row_stride = 0;    ///< elements from (r, c) to (r + 1, c)
+  std::ptrdiff_t col_stride = 3;    ///< elements from (r, c) to (r, c + 1)
+  std::ptrdiff_t coord_stride = 1;  ///< elements from x to y to z
+
+  /// A dense row-major rows x cols x 3 buffer.
+  static GridView dense(const T* data, std::ptrdiff_t rows, std::ptrdiff_t cols) {
+    return GridView{data, rows, cols, cols * 3, 3, 1};
+  }
+
+  /// Cell (r, c), widened to double.
+  Eigen::Vector3d operator()(std::ptrdiff_t r, std::ptrdiff_t c) const {
+    const T* p = data + r * row_stride + c * col_stride;
+    return {static_cast<double>(p[0]), static_cast<double>(p[coord_stride]),
+            static_cast<double>(p[2 * coord_stride])};
+  }
+
+  /// True when all three coordinates of cell (r, c) are finite.
+  bool finite(std::ptrdiff_t r, std::ptrdiff_t c) const {
+    const T* p = data + r * row_stride + c * col_stride;
+    // x - x is 0 for finite x and NaN for inf/NaN: one test for all three.
+    const T s = (p[0] - p[0]) + (p[coord_stride] - p[coord_stride]) +
+                (p[2 * coord_stride] - p[2 * coord_stride]);
+    return s == T(0);
+  }
+};
+
+}  // namespace miem

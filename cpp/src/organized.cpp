@@ -1,0 +1,569 @@
+// MIEM on organized scans. One judge per cell reads only the usable mask and the grid, so cells
+// are independent within a pass (Jacobi): row-parallel, and identical for any thread count.
+// Later passes re-judge only the cells whose rays cross a newly removed cell.
+#include "miem/organized.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <numeric>
+#include <stdexcept>
+#include <string>
+
+#include <Eigen/Eigenvalues>
+
+#include "parallel.hpp"
+
+namespace miem {
+
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+constexpr double kRadToDeg = 57.29577951308232;
+constexpr double kDegToRad = 0.017453292519943295;
+constexpr int kDirRow[4] = {0, 1, 1, 1};
+constexpr int kDirCol[4] = {1, 0, 1, -1};
+
+// Judges single cells against a fixed usable mask.
+template <typename T>
+class CellJudge {
+ public:
+  CellJudge(const GridView<T>& grid, const std::uint8_t* usable, const DetectParams& p)
+      : g_(grid),
+        usable_(usable),
+        rows_(grid.rows),
+        cols_(grid.cols),
+        p_(p),
+        cos0_(std::cos(p.theta0_deg * kDegToRad)),
+        has_min_step_(p.min_step >= 0.0),
+        min_step_(p.min_step) {}
+
+  // Writes flags and smallest angle; returns the label of a finite, not yet abnormal cell.
+  std::uint8_t judge(std::ptrdiff_t r, std::ptrdiff_t c, std::uint8_t* flags,
+                     double* angle_deg) const {
+    if (isolated(r, c)) {
+      *flags = 0;
+      *angle_deg = kNaN;
+      return kAbnormal;
+    }
+    const Eigen::Vector3d P = g_(r, c);
+    int avail = 0, flagged = 0;
+    std::uint8_t mask = 0;
+    double best_cos = -2.0;
+    for (int k = 0; k < 4; ++k) {
+      bool dir_avail = false, dir_flag = false;
+      for (int s : p_.scales) {
+        Eigen::Vector3d a, b;
+        if (!neighbour(r, c, P, -1, k, s, &a) || !neighbour(r, c, P, +1, k, s, &b)) continue;
+        const Eigen::Vector3d u = a - P, v = b - P;
+        const double uu = u.squaredNorm(), vv = v.squaredNorm();
+        if (uu == 0.0 || vv == 0.0) continue;
+        const double cs = std::clamp(u.dot(v) / std::sqrt(uu * vv), -1.0, 1.0);
+        dir_avail = true;
+        if (cs >= cos0_) dir_flag = true;
+        if (cs > best_cos) best_cos = cs;
+      }
+      avail += dir_avail;
+      if (dir_flag) {
+        ++flagged;
+        mask |= static_cast<std::uint8_t>(1u << k);
+      }
+    }
+    *flags = mask;
+    *angle_deg = best_cos > -2.0 ? std::acos(best_cos) * kRadToDeg : kNaN;
+    const int need = p_.min_directions > 0 ? std::min(avail, p_.min_directions) : avail;
+    if (avail >= 2 && flagged >= need) return kAbnormal;
+    return flagged > 0 ? kEdge : kNormal;
+  }
+
+ private:
+  bool usable(std::ptrdiff_t r, std::ptrdiff_t c) const { return usable_[r * cols_ + c] != 0; }
+
+  bool isolated(std::ptrdiff_t r, std::ptrdiff_t c) const {
+    const std::ptrdiff_t reach = 1 + static_cast<std::ptrdiff_t>(p_.max_gap);
+    for (int k = 0; k < 4; ++k) {
+      for (int sgn = -1; sgn <= 1; sgn += 2) {
+        for (std::ptrdiff_t step = 1; step <= reach; ++step) {
+          const std::ptrdiff_t rr = r + sgn * step * kDirRow[k], cc = c + sgn * step * kDirCol[k];
+          if (rr < 0 || rr >= rows_ || cc < 0 || cc >= cols_) break;
+          if (usable(rr, cc)) return false;
+        }
+      }
+    }
+    return true;
+  }
+
+  bool neighbour(std::ptrdiff_t r, std::ptrdiff_t c, const Eigen::Vector3d& P, int sgn, int k,
+                 int s, Eigen::Vector3d* out) const {
+    const std::ptrdiff_t dr = sgn * kDirRow[k], dc = sgn * kDirCol[k];
+    const std::ptrdiff_t last = static_cast<std::ptrdiff_t>(s) + p_.max_gap + p_.max_reach;
+    const double min_len = has_min_step_ ? s * min_step_ : 0.0;
+    int gaps = 0;
+    for (std::ptrdiff_t step = s;; ++step) {
+      if (has_min_step_ && step > last) return false;
+      const std::ptrdiff_t rr = r + step * dr, cc = c + step * dc;
+      if (rr < 0 || rr >= rows_ || cc < 0 || cc >= cols_) return false;
+      if (!usable(rr, cc)) {
+        if (++gaps > p_.max_gap) return false;
+        continue;
+      }
+      const Eigen::Vector3d q = g_(rr, cc);
+      if (!has_min_step_ || (q - P).norm() >= min_len) {
+        *out = q;
+        return true;
+      }
+    }
+  }
+
+  const GridView<T>& g_;
+  const std::uint8_t* usable_;
+  std::ptrdiff_t rows_, cols_;
+  const DetectParams& p_;
+  double cos0_;
+  bool has_min_step_;
+  double min_step_;
+};
+
+// Eigen fit of the NORMAL cells in the window around (r, c), computed directly (two-pass).
+template <typename T>
+PlaneStatus window_plane(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t r,
+                         std::ptrdiff_t c, int half, Plane* out) {
+  const std::ptrdiff_t r0 = std::max<std::ptrdiff_t>(0, r - half);
+  const std::ptrdiff_t r1 = std::min<std::ptrdiff_t>(g.rows - 1, r + half);
+  const std::ptrdiff_t c0 = std::max<std::ptrdiff_t>(0, c - half);
+  const std::ptrdiff_t c1 = std::min<std::ptrdiff_t>(g.cols - 1, c + half);
+  Moments m;
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  for (std::ptrdiff_t rr = r0; rr <= r1; ++rr)
+    for (std::ptrdiff_t cc = c0; cc <= c1; ++cc)
+      if (labels[rr * g.cols + cc] == kNormal) {
+        sum += g(rr, cc);
+        ++m.n;
+      }
+  if (m.n < 3) return PlaneStatus::kTooFewPoints;
+  m.mean = sum / static_cast<double>(m.n);
+  for (std::ptrdiff_t rr = r0; rr <= r1; ++rr)
+    for (std::ptrdiff_t cc = c0; cc <= c1; ++cc)
+      if (labels[rr * g.cols + cc] == kNormal) {
+        const Eigen::Vector3d q = g(rr, cc) - m.mean;
+        m.scatter.noalias() += q * q.transpose();
+      }
+  return eigen_plane_from_moments(m, out);
+}
+
+// Heights of every finite cell from box sums of the NORMAL cells' moments. Tiles keep the sums in
+// tile-local coordinates (far-from-origin scans lose no precision); each thread owns its buffer.
+template <typename T>
+void heights_all(const GridView<T>& g, const std::uint8_t* labels, int window, int num_threads,
+                 std::vector<double>& scratch, double* height) {
+  constexpr std::ptrdiff_t kTile = 64;
+  constexpr int kM = 10;  // n, x, y, z, xx, xy, xz, yy, yz, zz
+  const std::ptrdiff_t H = g.rows, W = g.cols, half = window / 2;
+  const std::ptrdiff_t tiles_r = (H + kTile - 1) / kTile, tiles_c = (W + kTile - 1) / kTile;
+  const std::ptrdiff_t ntiles = tiles_r * tiles_c;
+  const std::ptrdiff_t side = kTile + 2 * half + 1;
+  const std::ptrdiff_t per_thread = side * side * kM;
+  const int nt = detail::thread_count(num_threads, H * W);
+  if (scratch.size() < static_cast<std::size_t>(per_thread * nt)) scratch.resize(per_thread * nt);
+
+#pragma omp parallel for schedule(dynamic, 1) num_threads(nt) if (nt > 1)
+  for (std::ptrdiff_t t = 0; t < ntiles; ++t) {
+    int tid = 0;
+#ifdef MIEM_HAVE_OPENMP
+    tid = omp_get_thread_num();
+#endif
+    double* I = scratch.data() + per_thread * tid;
+    const std::ptrdiff_t tr0 = (t / tiles_c) * kTile, tc0 = (t % tiles_c) * kTile;
+    const std::ptrdiff_t tr1 = std::min(H, tr0 + kTile), tc1 = std::min(W, tc0 + kTile);
+    const std::ptrdiff_t R0 = std::max<std::ptrdiff_t>(0, tr0 - half);
+    const std::ptrdiff_t R1 = std::min(H, tr1 + half);
+    const std::ptrdiff_t C0 = std::max<std::ptrdiff_t>(0, tc0 - half);
+    const std::ptrdiff_t C1 = std::min(W, tc1 + half);
+    const std::ptrdiff_t nr = R1 - R0, nc = C1 - C0, stride = (nc + 1) * kM;
+    // Local origin: the first NORMAL cell of the region.
+    Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+    bool any = false;
+    for (std::ptrdiff_t r = R0; r < R1 && !any; ++r)
+      for (std::ptrdiff_t c = C0; c < C1; ++c)
+        if (labels[r * W + c] == kNormal) {
+          origin = g(r, c);
+          any = true;
+          break;
+        }
+    if (!any) {
+      for (std::ptrdiff_t r = tr0; r < tr1; ++r)
+        for (std::ptrdiff_t c = tc0; c < tc1; ++c) height[r * W + c] = kNaN;
+      continue;
+    }
+    std::fill(I, I + stride, 0.0);  // row 0 of the integral image
+    for (std::ptrdiff_t i = 0; i < nr; ++i) {
+      double* row = I + (i + 1) * stride;
+      const double* up = I + i * stride;
+      double acc[kM] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
+      std::fill(row, row + kM, 0.0);
+      for (std::ptrdiff_t j = 0; j < nc; ++j) {
+        const std::ptrdiff_t r = R0 + i, c = C0 + j;
+        if (labels[r * W + c] == kNormal) {
+          const Eigen::Vector3d q = g(r, c) - origin;
+          acc[0] += 1.0;
+          acc[1] += q.x();
+          acc[2] += q.y();
+          acc[3] += q.z();
+          acc[4] += q.x() * q.x();
+          acc[5] += q.x() * q.y();
+          acc[6] += q.x() * q.z();
+          acc[7] += q.y() * q.y();
+          acc[8] += q.y() * q.z();
+          acc[9] += q.z() * q.z();
+        }
+        double* dst = row + (j + 1) * kM;
+        const double* src = up + (j + 1) * kM;
+        for (int m = 0; m < kM; ++m) dst[m] = src[m] + acc[m];
+      }
+    }
+    for (std::ptrdiff_t r = tr0; r < tr1; ++r) {
+      for (std::ptrdiff_t c = tc0; c < tc1; ++c) {
+        double& h = height[r * W + c];
+        h = kNaN;
+        if (labels[r * W + c] == kInvalid) continue;
+        const std::ptrdiff_t i0 = std::max<std::ptrdiff_t>(0, r - half) - R0;
+        const std::ptrdiff_t i1 = std::min(H - 1, r + half) - R0 + 1;
+        const std::ptrdiff_t j0 = std::max<std::ptrdiff_t>(0, c - half) - C0;
+        const std::ptrdiff_t j1 = std::min(W - 1, c + half) - C0 + 1;
+        const double* a = I + i1 * stride + j1 * kM;
+        const double* b = I + i0 * stride + j1 * kM;
+        const double* d = I + i1 * stride + j0 * kM;
+        const double* e = I + i0 * stride + j0 * kM;
+        double s[kM];
+        for (int m = 0; m < kM; ++m) s[m] = (a[m] - b[m]) - (d[m] - e[m]);
+        const double n = std::round(s[0]);
+        if (n < 3.0) continue;
+        const Eigen::Vector3d mean(s[1] / n, s[2] / n, s[3] / n);
+        Eigen::Matrix3d M;
+        M(0, 0) = s[4] - n * mean.x() * mean.x();
+        M(0, 1) = M(1, 0) = s[5] - n * mean.x() * mean.y();
+        M(0, 2) = M(2, 0) = s[6] - n * mean.x() * mean.z();
+        M(1, 1) = s[7] - n * mean.y() * mean.y();
+        M(1, 2) = M(2, 1) = s[8] - n * mean.y() * mean.z();
+        M(2, 2) = s[9] - n * mean.z() * mean.z();
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+        es.computeDirect(M);
+        const Eigen::Vector3d ev = es.eigenvalues();
+        if (!(ev(2) > 0.0) || ev(1) <= 1e-12 * ev(2)) continue;
+        const Eigen::Vector3d nrm = orient_normal(es.eigenvectors().col(0).normalized());
+        h = nrm.dot(g(r, c) - origin - mean);
+      }
+    }
+  }
+}
+
+}  // namespace
+
+void validate(const DetectParams& p) {
+  if (!std::isfinite(p.theta0_deg) || p.theta0_deg <= 0.0 || p.theta0_deg >= 180.0) {
+    throw std::invalid_argument("theta0: must be a finite angle in degrees with 0 < theta0 < 180");
+  }
+  if (p.scales.empty()) throw std::invalid_argument("scales: must not be empty");
+  for (int s : p.scales) {
+    if (s < 1) throw std::invalid_argument("scales: every scale must be an integer >= 1");
+  }
+  if (p.max_gap < 0) throw std::invalid_argument("max_gap: must be an integer >= 0");
+  if (std::isnan(p.min_step) || std::isinf(p.min_step)) {
+    throw std::invalid_argument("min_step: must be finite (negative = off)");
+  }
+  if (p.max_reach < 1) throw std::invalid_argument("max_reach: must be an integer >= 1");
+  if (p.min_directions < 0 || p.min_directions > 4) {
+    throw std::invalid_argument("min_directions: must be 0 (all) or 1..4");
+  }
+  if (p.max_iterations < 1) throw std::invalid_argument("max_iterations: must be >= 1");
+  if (p.window < 3 || p.window % 2 == 0) {
+    throw std::invalid_argument("window: must be an odd integer >= 3");
+  }
+  if (p.num_threads < 0) throw std::invalid_argument("num_threads: must be >= 0");
+}
+
+const char* to_string(DefectKind kind) noexcept {
+  switch (kind) {
+    case DefectKind::kProtrusion:
+      return "protrusion";
+    case DefectKind::kPit:
+      return "pit";
+    case DefectKind::kIsolated:
+      return "isolated";
+  }
+  return "unknown";
+}
+
+OrganizedDetector::OrganizedDetector(DetectParams params) : params_(std::move(params)) {
+  validate(params_);
+}
+
+template <typename T>
+DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput& out) {
+  if (g.rows < 1 || g.cols < 1 || g.data == nullptr) {
+    throw std::invalid_argument("grid: must have at least one row and one column");
+  }
+  if (out.labels == nullptr) throw std::invalid_argument("out.labels: must not be null");
+  const DetectParams& p = params_;
+  const std::ptrdiff_t H = g.rows, W = g.cols, N = H * W;
+  const int nt = detail::thread_count(p.num_threads, N);
+  std::uint8_t* labels = out.labels;
+  usable_.resize(static_cast<std::size_t>(N));
+  std::uint8_t* usable = usable_.data();
+
+  // Pass 0: finiteness.
+  std::ptrdiff_t n_finite = 0;
+#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1) reduction(+ : n_finite)
+  for (std::ptrdiff_t r = 0; r < H; ++r) {
+    for (std::ptrdiff_t c = 0; c < W; ++c) {
+      const std::ptrdiff_t i = r * W + c;
+      const bool fin = g.finite(r, c);
+      usable[i] = fin;
+      labels[i] = fin ? kNormal : kInvalid;
+      n_finite += fin;
+      if (out.flags) out.flags[i] = 0;
+      if (out.angle_deg) out.angle_deg[i] = kNaN;
+    }
+  }
+  if (n_finite < 3) {
+    throw std::invalid_argument("grid: fewer than 3 finite points (found " +
+                                std::to_string(n_finite) + ")");
+  }
+
+  const CellJudge<T> judge(g, usable, p);
+  auto judge_cell = [&](std::ptrdiff_t i) {
+    std::uint8_t fl = 0;
+    double an = kNaN;
+    labels[i] = judge.judge(i / W, i % W, &fl, &an);
+    if (out.flags) out.flags[i] = fl;
+    if (out.angle_deg) out.angle_deg[i] = an;
+  };
+
+  // Pass 1: every finite cell.
+#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
+  for (std::ptrdiff_t r = 0; r < H; ++r) {
+    for (std::ptrdiff_t c = 0; c < W; ++c) {
+      const std::ptrdiff_t i = r * W + c;
+      if (usable[i]) judge_cell(i);
+    }
+  }
+  fresh_.clear();
+  for (std::ptrdiff_t i = 0; i < N; ++i)
+    if (labels[i] == kAbnormal) fresh_.push_back(i);
+  int iterations = 1;
+
+  // Later passes: only cells whose rays meet a newly removed cell.
+  const int max_scale = *std::max_element(p.scales.begin(), p.scales.end());
+  const std::ptrdiff_t reach = static_cast<std::ptrdiff_t>(max_scale) + p.max_gap +
+                               (p.min_step >= 0.0 ? p.max_reach : 0);
+  if (stamp_.size() != static_cast<std::size_t>(N)) {
+    stamp_.assign(static_cast<std::size_t>(N), 0u);
+    stamp_counter_ = 0;
+  }
+  while (!fresh_.empty() && iterations < p.max_iterations) {
+    for (std::int64_t i : fresh_) usable[i] = 0;
+    if (++stamp_counter_ == 0) {
+      std::fill(stamp_.begin(), stamp_.end(), 0u);
+      stamp_counter_ = 1;
+    }
+    candidates_.clear();
+    for (std::int64_t i : fresh_) {
+      const std::ptrdiff_t r = i / W, c = i % W;
+      for (int k = 0; k < 4; ++k) {
+        for (int sgn = -1; sgn <= 1; sgn += 2) {
+          for (std::ptrdiff_t step = 1; step <= reach; ++step) {
+            const std::ptrdiff_t rr = r + sgn * step * kDirRow[k];
+            const std::ptrdiff_t cc = c + sgn * step * kDirCol[k];
+            if (rr < 0 || rr >= H || cc < 0 || cc >= W) break;
+            const std::ptrdiff_t q = rr * W + cc;
+            if (usable[q] && stamp_[q] != stamp_counter_) {
+              stamp_[q] = stamp_counter_;
+              candidates_.push_back(q);
+            }
+          }
+        }
+      }
+    }
+    const std::ptrdiff_t nc = static_cast<std::ptrdiff_t>(candidates_.size());
+    const int ntc = detail::thread_count(p.num_threads, nc, 4096);
+#pragma omp parallel for schedule(static) num_threads(ntc) if (ntc > 1)
+    for (std::ptrdiff_t j = 0; j < nc; ++j) judge_cell(candidates_[j]);
+    fresh_.clear();
+    for (std::int64_t q : candidates_)
+      if (labels[q] == kAbnormal) fresh_.push_back(q);
+    ++iterations;
+  }
+
+  DetectSummary summary;
+  summary.iterations = iterations;
+
+  // The MIEM plane: finite, non-ABNORMAL cells; per-row moments merged in a fixed tree order.
+  {
+    std::vector<Moments> rows(static_cast<std::size_t>(H));
+#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
+    for (std::ptrdiff_t r = 0; r < H; ++r) {
+      Moments m;
+      Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+      for (std::ptrdiff_t c = 0; c < W; ++c) {
+        const std::uint8_t l = labels[r * W + c];
+        if (l == kNormal || l == kEdge) {
+          sum += g(r, c);
+          ++m.n;
+        }
+      }
+      if (m.n > 0) {
+        m.mean = sum / static_cast<double>(m.n);
+        for (std::ptrdiff_t c = 0; c < W; ++c) {
+          const std::uint8_t l = labels[r * W + c];
+          if (l == kNormal || l == kEdge) {
+            const Eigen::Vector3d q = g(r, c) - m.mean;
+            m.scatter.noalias() += q * q.transpose();
+          }
+        }
+      }
+      rows[r] = m;
+    }
+    for (std::ptrdiff_t width = 1; width < H; width *= 2)
+      for (std::ptrdiff_t b = 0; b + width < H; b += 2 * width) rows[b].merge(rows[b + width]);
+    Plane plane;
+    if (eigen_plane_from_moments(rows[0], &plane) == PlaneStatus::kOk) summary.plane = plane;
+  }
+
+  // Heights.
+  double* height = out.height;
+  if (height == nullptr) {
+    height_scratch_.resize(static_cast<std::size_t>(N));
+    height = height_scratch_.data();
+  }
+  const int half = p.window / 2;
+  if (p.height_mode == HeightMode::kAll) {
+    heights_all(g, labels, p.window, p.num_threads, tile_scratch_, height);
+  } else {
+#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
+    for (std::ptrdiff_t r = 0; r < H; ++r) {
+      for (std::ptrdiff_t c = 0; c < W; ++c) {
+        const std::ptrdiff_t i = r * W + c;
+        height[i] = kNaN;
+        if (labels[i] != kAbnormal) continue;
+        Plane pl;
+        if (window_plane(g, labels, r, c, half, &pl) == PlaneStatus::kOk) {
+          height[i] = pl.signed_distance(g(r, c));
+        }
+      }
+    }
+  }
+
+  // Defects: 8-connected ABNORMAL components, found in row-major order.
+  if (++stamp_counter_ == 0) {
+    std::fill(stamp_.begin(), stamp_.end(), 0u);
+    stamp_counter_ = 1;
+  }
+  const std::uint32_t seen = stamp_counter_;
+  for (std::ptrdiff_t start = 0; start < N; ++start) {
+    if (labels[start] != kAbnormal || stamp_[start] == seen) continue;
+    queue_.clear();
+    queue_.push_back(start);
+    stamp_[start] = seen;
+    bool touches_surface = false;
+    for (std::size_t head = 0; head < queue_.size(); ++head) {
+      const std::ptrdiff_t i = queue_[head], r = i / W, c = i % W;
+      for (std::ptrdiff_t dr = -1; dr <= 1; ++dr) {
+        for (std::ptrdiff_t dc = -1; dc <= 1; ++dc) {
+          const std::ptrdiff_t rr = r + dr, cc = c + dc;
+          if ((dr == 0 && dc == 0) || rr < 0 || rr >= H || cc < 0 || cc >= W) continue;
+          const std::ptrdiff_t q = rr * W + cc;
+          const std::uint8_t l = labels[q];
+          if (l == kAbnormal) {
+            if (stamp_[q] != seen) {
+              stamp_[q] = seen;
+              queue_.push_back(q);
+            }
+          } else if (l != kInvalid) {
+            touches_surface = true;
+          }
+        }
+      }
+    }
+    Defect d;
+    d.indices.assign(queue_.begin(), queue_.end());
+    std::sort(d.indices.begin(), d.indices.end());
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    double hsum = 0.0;
+    int hcount = 0;
+    std::int64_t peak_idx = -1;
+    d.peak_height = kNaN;
+    for (std::int64_t i : d.indices) {
+      sum += g(i / W, i % W);
+      const double h = height[i];
+      if (std::isfinite(h)) {
+        hsum += h;
+        ++hcount;
+        if (peak_idx < 0 || std::abs(h) > std::abs(d.peak_height)) {
+          d.peak_height = h;
+          peak_idx = i;
+        }
+      }
+    }
+    d.centroid = sum / static_cast<double>(d.indices.size());
+    d.mean_height = hcount > 0 ? hsum / hcount : kNaN;
+    if (peak_idx >= 0) {
+      Plane pl;
+      if (window_plane(g, labels, peak_idx / W, peak_idx % W, half, &pl) == PlaneStatus::kOk) {
+        d.normal = pl.normal;
+      }
+    }
+    const bool has_normal = d.normal.allFinite();
+    double max_r = 0.0;
+    for (std::int64_t i : d.indices) {
+      Eigen::Vector3d w = g(i / W, i % W) - d.centroid;
+      if (has_normal) w -= w.dot(d.normal) * d.normal;
+      max_r = std::max(max_r, w.norm());
+    }
+    d.extent = 2.0 * max_r;
+    if (!touches_surface || std::isnan(d.peak_height)) {
+      d.kind = DefectKind::kIsolated;
+    } else {
+      d.kind = d.peak_height < 0 ? DefectKind::kPit : DefectKind::kProtrusion;
+    }
+    summary.defects.push_back(std::move(d));
+  }
+  std::stable_sort(summary.defects.begin(), summary.defects.end(),
+                   [](const Defect& a, const Defect& b) {
+                     const bool na = std::isnan(a.peak_height), nb = std::isnan(b.peak_height);
+                     if (na != nb) return nb;  // NaN last
+                     if (!na && std::abs(a.peak_height) != std::abs(b.peak_height)) {
+                       return std::abs(a.peak_height) > std::abs(b.peak_height);
+                     }
+                     return a.indices.front() < b.indices.front();
+                   });
+  for (std::size_t k = 0; k < summary.defects.size(); ++k) {
+    summary.defects[k].id = static_cast<int>(k);
+  }
+  return summary;
+}
+
+template <typename T>
+DetectResult detect_organized(const GridView<T>& grid, const DetectParams& params) {
+  OrganizedDetector det(params);
+  DetectResult res;
+  res.rows = grid.rows;
+  res.cols = grid.cols;
+  const std::size_t n = static_cast<std::size_t>(std::max<std::ptrdiff_t>(0, grid.rows * grid.cols));
+  res.labels.resize(n);
+  res.flags.resize(n);
+  res.angle_deg.resize(n);
+  res.height.resize(n);
+  OrganizedOutput out{res.labels.data(), res.flags.data(), res.angle_deg.data(),
+                      res.height.data()};
+  res.summary = det.run(grid, out);
+  return res;
+}
+
+template DetectSummary OrganizedDetector::run<float>(const GridView<float>&,
+                                                     const OrganizedOutput&);
+template DetectSummary OrganizedDetector::run<double>(const GridView<double>&,
+                                                      const OrganizedOutput&);
+template DetectResult detect_organized<float>(const GridView<float>&, const DetectParams&);
+template DetectResult detect_organized<double>(const GridView<double>&, const DetectParams&);
+
+}  // namespace miem

@@ -1,0 +1,192 @@
+// Plane fits from centred, block-merged moments: one pass over memory, double accumulation,
+// deterministic for any thread count.
+#include "miem/plane.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include <Eigen/Eigenvalues>
+
+#include "parallel.hpp"
+
+namespace miem {
+
+namespace {
+
+constexpr std::ptrdiff_t kBlock = 4096;  // points per block: stays in L1/L2 for the second pass
+
+template <typename T>
+Moments block_moments(const PointsView<T>& pts, std::ptrdiff_t begin, std::ptrdiff_t end) {
+  Moments m;
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  std::int64_t n = 0;
+  for (std::ptrdiff_t i = begin; i < end; ++i) {
+    const Eigen::Vector3d p = pts[i];
+    if (!p.allFinite()) continue;
+    sum += p;
+    ++n;
+  }
+  if (n == 0) return m;
+  m.n = n;
+  m.mean = sum / static_cast<double>(n);
+  // Second pass over the (cached) block, centred on its own mean.
+  double sxx = 0, sxy = 0, sxz = 0, syy = 0, syz = 0, szz = 0;
+  for (std::ptrdiff_t i = begin; i < end; ++i) {
+    const Eigen::Vector3d p = pts[i];
+    if (!p.allFinite()) continue;
+    const Eigen::Vector3d q = p - m.mean;
+    sxx += q.x() * q.x();
+    sxy += q.x() * q.y();
+    sxz += q.x() * q.z();
+    syy += q.y() * q.y();
+    syz += q.y() * q.z();
+    szz += q.z() * q.z();
+  }
+  m.scatter << sxx, sxy, sxz, sxy, syy, syz, sxz, syz, szz;
+  return m;
+}
+
+}  // namespace
+
+void Moments::merge(const Moments& other) {
+  if (other.n == 0) return;
+  if (n == 0) {
+    *this = other;
+    return;
+  }
+  const double na = static_cast<double>(n), nb = static_cast<double>(other.n);
+  const double nt = na + nb;
+  const Eigen::Vector3d delta = other.mean - mean;
+  mean += delta * (nb / nt);
+  scatter += other.scatter + (delta * delta.transpose()) * (na * nb / nt);
+  n += other.n;
+}
+
+const char* to_string(PlaneStatus status) noexcept {
+  switch (status) {
+    case PlaneStatus::kOk:
+      return "ok";
+    case PlaneStatus::kTooFewPoints:
+      return "fewer than 3 finite points";
+    case PlaneStatus::kDegenerate:
+      return "degenerate points (all equal or collinear)";
+  }
+  return "unknown";
+}
+
+Eigen::Vector3d orient_normal(const Eigen::Vector3d& n) noexcept {
+  double sign = 1.0;
+  if (n.z() != 0.0) {
+    sign = n.z() > 0 ? 1.0 : -1.0;
+  } else if (n.x() != 0.0) {
+    sign = n.x() > 0 ? 1.0 : -1.0;
+  } else if (n.y() != 0.0) {
+    sign = n.y() > 0 ? 1.0 : -1.0;
+  }
+  return n * sign;
+}
+
+PlaneStatus eigen_plane_from_moments(const Moments& m, Plane* out) noexcept {
+  if (m.n < 3) return PlaneStatus::kTooFewPoints;
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(m.scatter, Eigen::ComputeEigenvectors);
+  if (es.info() != Eigen::Success) return PlaneStatus::kDegenerate;
+  const Eigen::Vector3d ev = es.eigenvalues();
+  if (!(ev(2) > 0.0) || ev(1) <= 1e-12 * ev(2)) return PlaneStatus::kDegenerate;
+  Plane p;
+  p.normal = orient_normal(es.eigenvectors().col(0).normalized());
+  p.centroid = m.mean;
+  p.d = -p.normal.dot(m.mean);
+  p.rms = std::sqrt(std::max(ev(0), 0.0) / static_cast<double>(m.n));
+  p.n_points = m.n;
+  p.eigenvalues = ev;
+  *out = p;
+  return PlaneStatus::kOk;
+}
+
+PlaneStatus lstsq_plane_from_moments(const Moments& m, Plane* out) noexcept {
+  if (m.n < 3) return PlaneStatus::kTooFewPoints;
+  const Eigen::Matrix3d& s = m.scatter;
+  const double sxx = s(0, 0), sxy = s(0, 1), syy = s(1, 1);
+  const double det = sxx * syy - sxy * sxy;
+  if (!(sxx * syy > 0.0) || det <= 1e-12 * (sxx * syy)) return PlaneStatus::kDegenerate;
+  const double a = (s(0, 2) * syy - s(1, 2) * sxy) / det;
+  const double b = (s(1, 2) * sxx - s(0, 2) * sxy) / det;
+  Plane p;
+  p.normal = Eigen::Vector3d(-a, -b, 1.0).normalized();
+  p.centroid = m.mean;
+  p.d = -p.normal.dot(m.mean);
+  const double ss = p.normal.dot(s * p.normal);  // sum of squared orthogonal distances
+  p.rms = std::sqrt(std::max(ss, 0.0) / static_cast<double>(m.n));
+  p.n_points = m.n;
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(s, Eigen::EigenvaluesOnly);
+  p.eigenvalues = es.eigenvalues();
+  *out = p;
+  return PlaneStatus::kOk;
+}
+
+template <typename T>
+Moments compute_moments(const PointsView<T>& points, int num_threads) {
+  const std::ptrdiff_t n = points.size;
+  const std::ptrdiff_t nblocks = (n + kBlock - 1) / kBlock;
+  if (nblocks <= 1) return block_moments(points, 0, n);
+  std::vector<Moments> blocks(static_cast<std::size_t>(nblocks));
+  const int nt = detail::thread_count(num_threads, n);
+#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
+  for (std::ptrdiff_t b = 0; b < nblocks; ++b) {
+    blocks[b] = block_moments(points, b * kBlock, std::min(n, (b + 1) * kBlock));
+  }
+  // Fixed merge order (pairwise tree) -> identical result whatever the thread count.
+  for (std::ptrdiff_t width = 1; width < nblocks; width *= 2) {
+    for (std::ptrdiff_t b = 0; b + width < nblocks; b += 2 * width) blocks[b].merge(blocks[b + width]);
+  }
+  return blocks[0];
+}
+
+namespace {
+template <typename T>
+void check_view(const PointsView<T>& points) {
+  if (points.size < 0 || (points.size > 0 && points.data == nullptr)) {
+    throw std::invalid_argument("points: null data");
+  }
+}
+}  // namespace
+
+template <typename T>
+Plane fit_plane_eigen(const PointsView<T>& points, int num_threads) {
+  check_view(points);
+  Plane p;
+  const PlaneStatus st = eigen_plane_from_moments(compute_moments(points, num_threads), &p);
+  if (st != PlaneStatus::kOk) {
+    throw std::invalid_argument(std::string("points: cannot fit a plane: ") + to_string(st));
+  }
+  return p;
+}
+
+template <typename T>
+Plane fit_plane_lstsq(const PointsView<T>& points, int num_threads) {
+  check_view(points);
+  Plane p;
+  const PlaneStatus st = lstsq_plane_from_moments(compute_moments(points, num_threads), &p);
+  if (st == PlaneStatus::kDegenerate) {
+    throw std::invalid_argument(
+        "points: cannot fit z = ax + by + c: the x, y coordinates are collinear or equal");
+  }
+  if (st != PlaneStatus::kOk) {
+    throw std::invalid_argument(std::string("points: cannot fit a plane: ") + to_string(st));
+  }
+  return p;
+}
+
+template Moments compute_moments<float>(const PointsView<float>&, int);
+template Moments compute_moments<double>(const PointsView<double>&, int);
+template Plane fit_plane_eigen<float>(const PointsView<float>&, int);
+template Plane fit_plane_eigen<double>(const PointsView<double>&, int);
+template Plane fit_plane_lstsq<float>(const PointsView<float>&, int);
+template Plane fit_plane_lstsq<double>(const PointsView<double>&, int);
+
+const char* version() noexcept { return MIEM_VERSION_STRING; }
+
+}  // namespace miem

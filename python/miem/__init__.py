@@ -1,0 +1,42 @@
+"""miem: abnormal-point detection in laser scans of workpieces.
+
+Implements the Multidimensional Improved Eigenvalue Method (MIEM): each scan point is tested in
+several directions by the angle its neighbours make; points flagged in every direction are
+abnormal (burr tips, spatter, dust, pits), points flagged in some only are designed edges.
+
+>>> import miem
+>>> res = miem.detect(grid)            # grid: (H, W, 3) organized scan, NaN = dropout
+>>> res.labels, res.height, res.defects
+"""
+
+from ._api import (
+    ABNORMAL,
+    EDGE,
+    INVALID,
+    NORMAL,
+    Defect,
+    DetectResult,
+    Label,
+    Plane,
+    detect,
+    fit_plane,
+    scan_line_angles,
+    scan_line_heights,
+)
+from ._core import __version__
+
+__all__ = [
+    "ABNORMAL",
+    "EDGE",
+    "INVALID",
+    "NORMAL",
+    "Defect",
+    "DetectResult",
+    "Label",
+    "Plane",
+    "__version__",
+    "detect",
+    "fit_plane",
+    "scan_line_angles",
+    "scan_line_heights",
+]

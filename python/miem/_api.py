@@ -1,0 +1,454 @@
+"""Typed Python API over the C++ core: argument checks, conversions and result types."""
+
+from __future__ import annotations
+
+import enum
+import numbers
+from dataclasses import dataclass, field
+from typing import Literal, Optional, Sequence, Union
+
+import numpy as np
+
+from . import _core
+
+__all__ = [
+    "Label",
+    "NORMAL",
+    "ABNORMAL",
+    "EDGE",
+    "INVALID",
+    "Plane",
+    "Defect",
+    "DetectResult",
+    "fit_plane",
+    "scan_line_angles",
+    "scan_line_heights",
+    "detect",
+]
+
+
+class Label(enum.IntEnum):
+    """Per-point labels (stored as ``uint8``)."""
+
+    NORMAL = 0  #: on the surface
+    ABNORMAL = 1  #: flagged in every available direction, or a lone return: grind or discard
+    EDGE = 2  #: flagged in some directions only: a designed feature edge, never ground
+    INVALID = 3  #: non-finite coordinates (a dropout)
+
+
+NORMAL = Label.NORMAL
+ABNORMAL = Label.ABNORMAL
+EDGE = Label.EDGE
+INVALID = Label.INVALID
+
+
+@dataclass(frozen=True)
+class Plane:
+    """A plane ``normal . p + d = 0`` with a unit normal oriented so that ``normal[2] > 0``.
+
+    Attributes
+    ----------
+    normal : ndarray, shape (3,), float64
+        Unit normal.
+    d : float
+        Offset, in the points' units: ``d = -normal . centroid``.
+    centroid : ndarray, shape (3,), float64
+        Mean of the fitted points.
+    rms : float
+        RMS orthogonal distance of the fitted points from the plane (the paper's standard
+        deviation), in the points' units.
+    n_points : int
+        Number of finite points used.
+    eigenvalues : ndarray, shape (3,), float64
+        Eigenvalues of the scatter matrix, ascending (units squared).
+    method : str
+        ``"eigen"`` or ``"lstsq"``.
+    """
+
+    normal: np.ndarray
+    d: float
+    centroid: np.ndarray
+    rms: float
+    n_points: int
+    eigenvalues: np.ndarray
+    method: str = "eigen"
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """Signed distances of points from the plane.
+
+        Parameters
+        ----------
+        points : array_like, shape (..., 3)
+            Points in the plane's units.
+
+        Returns
+        -------
+        ndarray, shape (...), float64
+            ``normal . p + d``: positive on the side the normal points to, NaN for non-finite
+            points.
+        """
+        pts = _as_float_array(points, "points")
+        if pts.ndim < 1 or pts.shape[-1] != 3:
+            raise ValueError(f"points: expected shape (..., 3), got {pts.shape}")
+        # Subtract the centroid first: exact for far-from-origin coordinates.
+        return (pts.astype(np.float64, copy=False) - self.centroid) @ self.normal
+
+
+@dataclass(frozen=True)
+class Defect:
+    """One connected group of ABNORMAL points (8-connected cells of an organized scan).
+
+    Attributes
+    ----------
+    id : int
+        Rank by ``|peak_height|`` (0 is the largest).
+    indices : ndarray, shape (count,), int64
+        Flat point indices (``row * W + col`` for a grid), ascending.
+    cells : ndarray, shape (count, 2), int64
+        ``(row, col)`` of each point.
+    count : int
+        Number of points.
+    centroid : ndarray, shape (3,), float64
+        Mean of the points.
+    normal : ndarray, shape (3,), float64
+        Local surface normal (tool axis) at the peak point; NaN when no local plane exists.
+    peak_height : float
+        Signed height of largest magnitude over the local surface (protrusion > 0, pit < 0).
+    mean_height : float
+        Mean height of the points.
+    extent : float
+        Diameter of the group in the local tangent plane, in the points' units.
+    kind : str
+        ``"protrusion"``, ``"pit"`` or ``"isolated"`` (a floating return with no surface around).
+    """
+
+    id: int
+    indices: np.ndarray
+    cells: np.ndarray
+    count: int
+    centroid: np.ndarray
+    normal: np.ndarray
+    peak_height: float
+    mean_height: float
+    extent: float
+    kind: str
+
+
+@dataclass(frozen=True)
+class DetectResult:
+    """What :func:`detect` returns. Per-point arrays have the grid's ``(H, W)`` shape.
+
+    Attributes
+    ----------
+    labels : ndarray, (H, W), uint8
+        :class:`Label` values.
+    flags : ndarray, (H, W), uint8
+        Bit ``k`` set when direction ``k`` was flagged: 0 along the profile, 1 across profiles,
+        2 the ``(1, 1)`` diagonal, 3 the ``(1, -1)`` diagonal.
+    angle : ndarray, (H, W), float64
+        Smallest interior angle seen at the point, degrees; NaN where no direction was available.
+    height : ndarray, (H, W), float64
+        Signed distance from the plane of the NORMAL points in a ``window`` square around the
+        point (protrusion > 0, pit < 0), in the grid's units; NaN where no such plane exists.
+    plane : Plane or None
+        The MIEM plane: eigenvalue fit of every finite non-ABNORMAL point (None if degenerate).
+    iterations : int
+        Passes run.
+    defects : list of Defect
+        Connected ABNORMAL groups, largest ``|peak_height|`` first.
+    params : dict
+        The parameters used.
+    """
+
+    labels: np.ndarray
+    flags: np.ndarray
+    angle: np.ndarray
+    height: np.ndarray
+    plane: Optional[Plane]
+    iterations: int
+    defects: list = field(default_factory=list)
+    params: dict = field(default_factory=dict)
+
+    @property
+    def abnormal(self) -> np.ndarray:
+        """Boolean mask of ABNORMAL points, shape (H, W)."""
+        return self.labels == Label.ABNORMAL
+
+    def counts(self) -> dict:
+        """Number of points per label name."""
+        return {lab.name: int(np.count_nonzero(self.labels == lab)) for lab in Label}
+
+
+# ---------------------------------------------------------------------------------------------
+# argument checks
+
+
+def _as_float_array(a: object, name: str) -> np.ndarray:
+    """A float32/float64 native-order array view of `a` (copied only when it must be)."""
+    try:
+        arr = np.asarray(a)
+    except Exception as exc:  # pragma: no cover - numpy raises many kinds here
+        raise ValueError(f"{name}: cannot be converted to an array ({exc})") from None
+    kind = arr.dtype.kind
+    if kind in "iu" or (kind == "f" and arr.dtype.itemsize not in (4, 8)):
+        arr = arr.astype(np.float64)
+    elif kind != "f":
+        raise ValueError(f"{name}: expected a real numeric array, got dtype {arr.dtype}")
+    if not arr.dtype.isnative:
+        arr = arr.astype(arr.dtype.newbyteorder("="))
+    item = arr.itemsize
+    if not arr.flags.aligned or any(s % item for s in arr.strides):
+        arr = np.ascontiguousarray(arr)
+    return arr
+
+
+def _int(name: str, value: object, minimum: int) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        raise ValueError(f"{name}: expected an integer >= {minimum}, got {value!r}")
+    v = int(value)
+    if v < minimum:
+        raise ValueError(f"{name}: expected an integer >= {minimum}, got {v}")
+    if v > 2**30:
+        raise ValueError(f"{name}: {v} is too large")
+    return v
+
+
+def _real(name: str, value: object) -> float:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise ValueError(f"{name}: expected a real number, got {value!r}")
+    v = float(value)
+    if not np.isfinite(v):
+        raise ValueError(f"{name}: must be finite, got {v}")
+    return v
+
+
+def _threads(num_threads: Optional[int]) -> int:
+    return 0 if num_threads is None else _int("num_threads", num_threads, 1)
+
+
+def _plane(t: tuple, method: str) -> Plane:
+    normal, d, centroid, rms, n, ev = t
+    return Plane(normal, float(d), centroid, float(rms), int(n), ev, method)
+
+
+# ---------------------------------------------------------------------------------------------
+# public functions
+
+
+def fit_plane(
+    points: np.ndarray,
+    method: Literal["eigen", "lstsq"] = "eigen",
+    *,
+    num_threads: Optional[int] = None,
+) -> Plane:
+    """Fit a plane to points.
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 3) or (..., 3)
+        Coordinates (float32 or float64 are used without a copy; integers are converted).
+        Rows with a non-finite coordinate are ignored (dropouts).
+    method : {"eigen", "lstsq"}
+        ``"eigen"``: the eigenvalue method (smallest eigenvector of the centred scatter matrix,
+        paper eq. 4-17). ``"lstsq"``: least squares ``z = a x + b y + c`` (the paper's baseline).
+    num_threads : int, optional
+        Threads for large inputs (default: all cores). The result does not depend on it.
+
+    Returns
+    -------
+    Plane
+
+    Raises
+    ------
+    ValueError
+        Wrong shape or dtype, fewer than 3 finite points, or degenerate points (all equal,
+        collinear; for ``"lstsq"`` also a plane containing the z axis).
+    """
+    if method not in ("eigen", "lstsq"):
+        raise ValueError(f"method: expected 'eigen' or 'lstsq', got {method!r}")
+    pts = _as_float_array(points, "points")
+    if pts.ndim < 1 or pts.shape[-1] != 3:
+        raise ValueError(f"points: expected shape (N, 3) or (..., 3), got {pts.shape}")
+    pts = pts.reshape(-1, 3)
+    if pts.shape[0] < 3:
+        raise ValueError(f"points: need at least 3 points, got {pts.shape[0]}")
+    return _plane(_core.fit_plane(pts, method, _threads(num_threads)), method)
+
+
+def _line(line: np.ndarray, step: int) -> tuple:
+    arr = _as_float_array(line, "line")
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"line: expected shape (N, 3), got {arr.shape}")
+    return arr, _int("step", step, 1)
+
+
+def scan_line_angles(line: np.ndarray, step: int = 1) -> np.ndarray:
+    """Interior angle at every point of one scan line (paper eq. 18-19).
+
+    Parameters
+    ----------
+    line : array_like, shape (N, 3)
+        Points in scan order (one profile). Non-finite points are dropouts.
+    step : int
+        Neighbours are ``step`` points before and after.
+
+    Returns
+    -------
+    ndarray, shape (N,), float64
+        Angle in degrees, 180 on a straight run, small at a spike; NaN at the ends, next to
+        dropouts and where a neighbour coincides with the point.
+    """
+    arr, step = _line(line, step)
+    return _core.scan_line_angles(arr, step)
+
+
+def scan_line_heights(line: np.ndarray, step: int = 1) -> np.ndarray:
+    """Paper eq. 20: height of each point over the line through its predecessors.
+
+    ``D_i = sin(theta_{i-step}) * |P_i - P_{i-step}|``, with ``theta`` from
+    :func:`scan_line_angles`.
+
+    Parameters
+    ----------
+    line : array_like, shape (N, 3)
+        Points in scan order.
+    step : int
+        As for :func:`scan_line_angles`.
+
+    Returns
+    -------
+    ndarray, shape (N,), float64
+        Non-negative heights in the line's units; NaN where the angle is undefined.
+    """
+    arr, step = _line(line, step)
+    return _core.scan_line_heights(arr, step)
+
+
+def detect(
+    grid: np.ndarray,
+    theta0: float = 75.0,
+    scales: Union[int, Sequence[int]] = (1,),
+    max_gap: int = 1,
+    min_step: Optional[float] = None,
+    min_directions: Optional[int] = None,
+    max_iterations: int = 10,
+    window: int = 21,
+    *,
+    max_reach: int = 32,
+    heights: Literal["all", "abnormal"] = "all",
+    num_threads: Optional[int] = None,
+) -> DetectResult:
+    """Find abnormal points in an organized scan with MIEM.
+
+    Each finite point is tested in four directions (along the profile, across profiles, both
+    diagonals): a direction is flagged when the interior angle between its neighbours is at most
+    ``theta0``. Flagged in every available direction: ABNORMAL; in some only: EDGE (a designed
+    feature edge); in none: NORMAL. ABNORMAL points are removed and the rest judged again, up to
+    ``max_iterations`` passes. See ``docs/SPEC.md`` for the exact rules.
+
+    Parameters
+    ----------
+    grid : array_like, shape (H, W, 3)
+        Organized scan: row = one laser profile, column = position along it. float32 or
+        float64 are read in place (any strides); NaN (any non-finite coordinate) marks a dropout.
+    theta0 : float
+        Threshold angle in degrees, ``0 < theta0 < 180``. The paper's value is 75.
+    scales : int or sequence of int
+        Neighbour distances in cells; ``(1, 2)`` also catches defects two cells wide. The
+        paper's behaviour is ``(1,)``.
+    max_gap : int
+        Unusable cells (dropouts, removed points) that may be skipped to reach a neighbour.
+    min_step : float, optional
+        Minimum neighbour distance in the grid's units (per scale: ``s * min_step``), so that
+        the test sees the same physical scale along and across profiles. None: off.
+    min_directions : int, optional
+        Flagged directions needed for ABNORMAL (1-4); default: all available ones.
+    max_iterations : int
+        Maximum number of passes (>= 1).
+    window : int
+        Side, in cells, of the square used for the local plane under each point (odd, >= 3).
+    max_reach : int
+        With ``min_step``: how many cells beyond ``scale + max_gap`` the search may go.
+    heights : {"all", "abnormal"}
+        Which points get a height: all finite points, or only ABNORMAL ones (faster; the others
+        are NaN).
+    num_threads : int, optional
+        Threads (default: all cores). Labels do not depend on it.
+
+    Returns
+    -------
+    DetectResult
+
+    Raises
+    ------
+    ValueError
+        Wrong shape or dtype, fewer than 3 finite points, or a parameter out of range.
+
+    Examples
+    --------
+    >>> import numpy as np, miem
+    >>> y, x = np.mgrid[0:32, 0:32] * 0.5
+    >>> grid = np.dstack([x, y, np.zeros_like(x)])
+    >>> grid[10, 12, 2] = 3.0                     # a 3 mm spike
+    >>> res = miem.detect(grid)
+    >>> np.argwhere(res.labels == miem.ABNORMAL).tolist(), round(res.defects[0].peak_height, 6)
+    ([[10, 12]], 3.0)
+    """
+    arr = _as_float_array(grid, "grid")
+    if arr.ndim != 3 or arr.shape[2] != 3:
+        raise ValueError(f"grid: expected shape (H, W, 3), got {arr.shape}")
+    if arr.shape[0] * arr.shape[1] < 3:
+        raise ValueError(f"grid: need at least 3 points, got {arr.shape[0] * arr.shape[1]}")
+    theta0_v = _real("theta0", theta0)
+    if not 0.0 < theta0_v < 180.0:
+        raise ValueError(f"theta0: expected 0 < theta0 < 180 degrees, got {theta0_v}")
+    if isinstance(scales, numbers.Integral) and not isinstance(scales, (bool, np.bool_)):
+        scales = (scales,)
+    try:
+        scale_list = [_int("scales", s, 1) for s in scales]  # type: ignore[union-attr]
+    except TypeError:
+        raise ValueError(f"scales: expected integers >= 1, got {scales!r}") from None
+    if not scale_list:
+        raise ValueError("scales: must contain at least one scale")
+    gap = _int("max_gap", max_gap, 0)
+    if min_step is None:
+        step_v = -1.0
+    else:
+        step_v = _real("min_step", min_step)
+        if step_v < 0:
+            raise ValueError(f"min_step: expected a length >= 0 or None, got {step_v}")
+    md = 0 if min_directions is None else _int("min_directions", min_directions, 1)
+    if md > 4:
+        raise ValueError(f"min_directions: expected 1..4 or None, got {md}")
+    iters = _int("max_iterations", max_iterations, 1)
+    win = _int("window", window, 3)
+    if win % 2 == 0:
+        raise ValueError(f"window: expected an odd number of cells, got {win}")
+    reach = _int("max_reach", max_reach, 1)
+    if heights not in ("all", "abnormal"):
+        raise ValueError(f"heights: expected 'all' or 'abnormal', got {heights!r}")
+    nt = _threads(num_threads)
+
+    labels, flags, angle, height, plane_t, iterations, raw = _core.detect_organized(
+        arr, theta0_v, scale_list, gap, step_v, reach, md, iters, win,
+        0 if heights == "all" else 1, nt,
+    )
+    width = arr.shape[1]
+    defects = [
+        Defect(
+            id=int(i), indices=idx, cells=np.stack([idx // width, idx % width], axis=1),
+            count=int(idx.size), centroid=c, normal=n, peak_height=float(pk),
+            mean_height=float(mh), extent=float(ex), kind=str(kind),
+        )
+        for (i, idx, c, n, pk, mh, ex, kind) in raw
+    ]
+    params = dict(
+        theta0=theta0_v, scales=tuple(scale_list), max_gap=gap, min_step=min_step,
+        min_directions=min_directions, max_iterations=iters, window=win, max_reach=reach,
+        heights=heights,
+    )
+    return DetectResult(
+        labels=labels, flags=flags, angle=angle, height=height,
+        plane=None if plane_t is None else _plane(plane_t, "eigen"),
+        iterations=int(iterations), defects=defects, params=params,
+    )
