@@ -104,9 +104,7 @@ class OrganizedDetector {
 
  private:
   DetectParams params_;
-  std::vector<std::uint8_t> usable_;
-  std::vector<std::uint32_t> stamp_;
-  std::uint32_t stamp_counter_ = 0;
+  std::vector<std::uint8_t> usable_;  // bit 0 usable, bit 1 candidate, bit 2 visited
   std::vector<std::int64_t> fresh_, candidates_;
   std::vector<double> height_scratch_;
   std::vector<double> tile_scratch_;

@@ -1,0 +1,151 @@
+// Private building blocks of organized detection, shared by the batch detector and the
+// streaming detector: the per-cell judge (docs/SPEC.md) and the direct window plane fit.
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+
+#include <Eigen/Core>
+
+#include "miem/organized.hpp"
+#include "miem/plane.hpp"
+#include "miem/views.hpp"
+
+namespace miem::detail {
+
+inline constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+inline constexpr double kRadToDeg = 57.29577951308232;
+inline constexpr double kDegToRad = 0.017453292519943295;
+inline constexpr int kDirRow[4] = {0, 1, 1, 1};
+inline constexpr int kDirCol[4] = {1, 0, 1, -1};
+
+/// Judges single cells against a fixed usable mask (bit 0 of each byte = usable).
+template <typename T>
+class CellJudge {
+ public:
+  CellJudge(const GridView<T>& grid, const std::uint8_t* usable, const DetectParams& p)
+      : g_(grid),
+        usable_(usable),
+        rows_(grid.rows),
+        cols_(grid.cols),
+        p_(p),
+        cos0_(std::cos(p.theta0_deg * kDegToRad)),
+        has_min_step_(p.min_step >= 0.0),
+        min_step_(p.min_step) {}
+
+  // Writes flags and smallest angle; returns the label of a finite, not yet abnormal cell.
+  std::uint8_t judge(std::ptrdiff_t r, std::ptrdiff_t c, std::uint8_t* flags,
+                     double* angle_deg) const {
+    if (isolated(r, c)) {
+      *flags = 0;
+      *angle_deg = kNaN;
+      return kAbnormal;
+    }
+    const Eigen::Vector3d P = g_(r, c);
+    int avail = 0, flagged = 0;
+    std::uint8_t mask = 0;
+    double best_cos = -2.0;
+    for (int k = 0; k < 4; ++k) {
+      bool dir_avail = false, dir_flag = false;
+      for (int s : p_.scales) {
+        Eigen::Vector3d a, b;
+        if (!neighbour(r, c, P, -1, k, s, &a) || !neighbour(r, c, P, +1, k, s, &b)) continue;
+        const Eigen::Vector3d u = a - P, v = b - P;
+        const double uu = u.squaredNorm(), vv = v.squaredNorm();
+        if (uu == 0.0 || vv == 0.0) continue;
+        const double cs = std::clamp(u.dot(v) / std::sqrt(uu * vv), -1.0, 1.0);
+        dir_avail = true;
+        if (cs >= cos0_) dir_flag = true;
+        if (cs > best_cos) best_cos = cs;
+      }
+      avail += dir_avail;
+      if (dir_flag) {
+        ++flagged;
+        mask |= static_cast<std::uint8_t>(1u << k);
+      }
+    }
+    *flags = mask;
+    *angle_deg = best_cos > -2.0 ? std::acos(best_cos) * kRadToDeg : kNaN;
+    const int need = p_.min_directions > 0 ? std::min(avail, p_.min_directions) : avail;
+    if (avail >= 2 && flagged >= need) return kAbnormal;
+    return flagged > 0 ? kEdge : kNormal;
+  }
+
+ private:
+  bool usable(std::ptrdiff_t r, std::ptrdiff_t c) const { return (usable_[r * cols_ + c] & 1) != 0; }
+
+  bool isolated(std::ptrdiff_t r, std::ptrdiff_t c) const {
+    const std::ptrdiff_t reach = 1 + static_cast<std::ptrdiff_t>(p_.max_gap);
+    for (int k = 0; k < 4; ++k) {
+      for (int sgn = -1; sgn <= 1; sgn += 2) {
+        for (std::ptrdiff_t step = 1; step <= reach; ++step) {
+          const std::ptrdiff_t rr = r + sgn * step * kDirRow[k], cc = c + sgn * step * kDirCol[k];
+          if (rr < 0 || rr >= rows_ || cc < 0 || cc >= cols_) break;
+          if (usable(rr, cc)) return false;
+        }
+      }
+    }
+    return true;
+  }
+
+  bool neighbour(std::ptrdiff_t r, std::ptrdiff_t c, const Eigen::Vector3d& P, int sgn, int k,
+                 int s, Eigen::Vector3d* out) const {
+    const std::ptrdiff_t dr = sgn * kDirRow[k], dc = sgn * kDirCol[k];
+    const std::ptrdiff_t last = static_cast<std::ptrdiff_t>(s) + p_.max_gap + p_.max_reach;
+    const double min_len = has_min_step_ ? s * min_step_ : 0.0;
+    int gaps = 0;
+    for (std::ptrdiff_t step = s;; ++step) {
+      if (has_min_step_ && step > last) return false;
+      const std::ptrdiff_t rr = r + step * dr, cc = c + step * dc;
+      if (rr < 0 || rr >= rows_ || cc < 0 || cc >= cols_) return false;
+      if (!usable(rr, cc)) {
+        if (++gaps > p_.max_gap) return false;
+        continue;
+      }
+      const Eigen::Vector3d q = g_(rr, cc);
+      if (!has_min_step_ || (q - P).norm() >= min_len) {
+        *out = q;
+        return true;
+      }
+    }
+  }
+
+  const GridView<T>& g_;
+  const std::uint8_t* usable_;
+  std::ptrdiff_t rows_, cols_;
+  const DetectParams& p_;
+  double cos0_;
+  bool has_min_step_;
+  double min_step_;
+};
+
+// Eigen fit of the NORMAL cells in the window around (r, c), computed directly (two-pass).
+template <typename T>
+PlaneStatus window_plane(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t r,
+                         std::ptrdiff_t c, int half, Plane* out) {
+  const std::ptrdiff_t r0 = std::max<std::ptrdiff_t>(0, r - half);
+  const std::ptrdiff_t r1 = std::min<std::ptrdiff_t>(g.rows - 1, r + half);
+  const std::ptrdiff_t c0 = std::max<std::ptrdiff_t>(0, c - half);
+  const std::ptrdiff_t c1 = std::min<std::ptrdiff_t>(g.cols - 1, c + half);
+  Moments m;
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  for (std::ptrdiff_t rr = r0; rr <= r1; ++rr)
+    for (std::ptrdiff_t cc = c0; cc <= c1; ++cc)
+      if (labels[rr * g.cols + cc] == kNormal) {
+        sum += g(rr, cc);
+        ++m.n;
+      }
+  if (m.n < 3) return PlaneStatus::kTooFewPoints;
+  m.mean = sum / static_cast<double>(m.n);
+  for (std::ptrdiff_t rr = r0; rr <= r1; ++rr)
+    for (std::ptrdiff_t cc = c0; cc <= c1; ++cc)
+      if (labels[rr * g.cols + cc] == kNormal) {
+        const Eigen::Vector3d q = g(rr, cc) - m.mean;
+        m.scatter.noalias() += q * q.transpose();
+      }
+  return eigen_plane_from_moments(m, out);
+}
+
+}  // namespace miem::detail
