@@ -111,7 +111,8 @@ class RefPlane:
         p = np.asarray(points, dtype=np.float64)
         if p.ndim < 1 or p.shape[-1] != 3:
             raise ValueError(f"points: expected shape (..., 3), got {p.shape}")
-        return _dot3(p, self.normal) + self.d
+        with np.errstate(invalid="ignore", over="ignore"):  # non-finite points give NaN / inf
+            return _dot3(p, self.normal) + self.d
 
 
 @dataclass(frozen=True, eq=False)
@@ -235,7 +236,7 @@ def _orient(normals: NDArray[np.float64]) -> NDArray[np.float64]:
     nx, ny, nz = normals[..., 0], normals[..., 1], normals[..., 2]
     lead = np.where(nz != 0, nz, np.where(nx != 0, nx, ny))
     sign = np.where(lead < 0, -1.0, 1.0)
-    return normals * sign[..., None]
+    return normals * sign[..., None] + 0.0  # + 0.0 turns -0.0 into 0.0
 
 
 # --------------------------------------------------------------------------------------------

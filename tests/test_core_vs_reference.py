@@ -1,0 +1,160 @@
+"""The C++ core against the independent NumPy reference (the oracle) on organized scans.
+
+Labels and flags must be equal exactly; angles, heights and planes to tight tolerances.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import miem
+from miem import reference as ref
+
+
+def make_grid(seed: int, shape=(48, 56), dx=0.25, dy=0.4, noise=0.004, nan_frac=0.02,
+              dtype=np.float64, offset=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """A curved, tilted surface with a crease, spikes, pits, 2x2 clusters, dust and dropouts."""
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    x, y = xx * dx, yy * dy
+    z = 0.05 * x - 0.03 * y + 0.3 * np.exp(-((x - 6.0) ** 2) / 20.0)
+    # a crease across the profiles: slope changes by ~20 degrees at column 3w/4
+    c0 = (3 * w) // 4
+    z += np.where(xx > c0, (xx - c0) * dx * np.tan(np.radians(20)), 0.0)
+    z += rng.normal(0.0, noise, z.shape)
+    grid = np.dstack([x, y, z])
+    for _ in range(6):  # single spikes and pits
+        r, c = rng.integers(3, h - 3), rng.integers(3, w - 3)
+        grid[r, c, 2] += rng.choice([-1.0, 1.0]) * rng.uniform(0.5, 3.0)
+    for _ in range(3):  # 2x2 clusters
+        r, c = rng.integers(3, h - 4), rng.integers(3, w - 4)
+        grid[r:r + 2, c:c + 2, 2] += rng.uniform(0.8, 2.0)
+    r, c = rng.integers(3, h - 3), rng.integers(3, w - 3)
+    grid[r, c, 2] += 25.0  # dust far above
+    drop = rng.random((h, w)) < nan_frac
+    grid[drop] = np.nan
+    # a lone return inside a dropout hole
+    grid[5:10, 5:10] = np.nan
+    grid[7, 7] = (7 * dx, 7 * dy, 0.0)
+    grid = grid + np.asarray(offset)
+    return grid.astype(dtype)
+
+
+PARAMS = [
+    {},
+    {"scales": (1, 2), "max_gap": 2},
+    {"min_step": 0.45},
+    {"theta0": 120.0, "min_directions": 2, "max_iterations": 3},
+    {"theta0": 60.0, "max_gap": 0, "window": 5},
+    {"scales": (2,), "min_step": 0.3, "max_reach": 3, "window": 7},
+    {"scales": (1, 3), "theta0": 100.0, "max_iterations": 1},
+]
+
+
+def assert_same(core: miem.DetectResult, oracle, atol_h=1e-8) -> None:
+    np.testing.assert_array_equal(core.labels, oracle.labels)
+    np.testing.assert_array_equal(core.flags, oracle.flags)
+    np.testing.assert_allclose(core.angle, oracle.angle, rtol=0, atol=1e-9, equal_nan=True)
+    np.testing.assert_allclose(core.height, oracle.height, rtol=0, atol=atol_h, equal_nan=True)
+    assert core.iterations == oracle.iterations
+    if oracle.plane is None:
+        assert core.plane is None
+    else:
+        np.testing.assert_allclose(core.plane.normal, oracle.plane.normal, atol=1e-10)
+        assert core.plane.d == pytest.approx(oracle.plane.d, rel=1e-9, abs=1e-9)
+        assert core.plane.rms == pytest.approx(oracle.plane.rms, rel=1e-7, abs=1e-12)
+        assert core.plane.n_points == oracle.plane.n_points
+    assert len(core.defects) == len(oracle.defects)
+    for a, b in zip(core.defects, oracle.defects):
+        assert a.id == b.id
+        np.testing.assert_array_equal(a.indices, b.indices)
+        assert a.count == b.count
+        assert a.kind == b.kind
+        np.testing.assert_allclose(a.centroid, b.centroid, rtol=1e-12)
+        np.testing.assert_allclose(a.peak_height, b.peak_height, atol=atol_h, equal_nan=True)
+        np.testing.assert_allclose(a.mean_height, b.mean_height, atol=atol_h, equal_nan=True)
+        np.testing.assert_allclose(a.normal, b.normal, atol=1e-9, equal_nan=True)
+        np.testing.assert_allclose(a.extent, b.extent, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("params", PARAMS, ids=lambda p: ",".join(f"{k}={v}" for k, v in p.items())
+                         or "defaults")
+def test_detect_matches_reference(seed: int, params: dict) -> None:
+    grid = make_grid(seed)
+    core = miem.detect(grid, **params)
+    oracle = ref.detect(grid, **params)
+    # the scene must exercise the rules: abnormal and invalid cells present (edges with defaults)
+    present = set(np.unique(oracle.labels).tolist())
+    assert {0, 1, 3} <= present
+    if not params:
+        assert 2 in present
+    assert_same(core, oracle)
+
+
+def test_float32_matches_reference_on_the_same_values() -> None:
+    grid = make_grid(5, dtype=np.float32)
+    core = miem.detect(grid, scales=(1, 2))
+    oracle = ref.detect(grid.astype(np.float64), scales=(1, 2))
+    assert_same(core, oracle, atol_h=1e-7)
+
+
+def test_far_from_origin_matches_reference() -> None:
+    grid = make_grid(7, offset=(1.0e5, -2.0e5, 3.0e4))
+    core = miem.detect(grid)
+    oracle = ref.detect(grid)
+    # heights of a 0.004-noise surface far from the origin: agree to 1e-7 of a unit
+    assert_same(core, oracle, atol_h=1e-7)
+
+
+@pytest.mark.parametrize("heights", ["all", "abnormal"])
+def test_same_results_for_any_thread_count(heights: str) -> None:
+    grid = make_grid(11, shape=(300, 320), nan_frac=0.05)  # large enough to run in parallel
+    one = miem.detect(grid, scales=(1, 2), num_threads=1, heights=heights)
+    two = miem.detect(grid, scales=(1, 2), num_threads=2, heights=heights)
+    for name in ("labels", "flags", "angle", "height"):
+        np.testing.assert_array_equal(getattr(one, name), getattr(two, name))
+    assert one.plane is not None and two.plane is not None
+    assert one.plane.normal.tolist() == two.plane.normal.tolist()
+    assert one.plane.d == two.plane.d
+    assert [d.indices.tolist() for d in one.defects] == [d.indices.tolist() for d in two.defects]
+
+
+def test_abnormal_only_heights_equal_full_heights_on_abnormal_cells() -> None:
+    grid = make_grid(3)
+    full = miem.detect(grid)
+    fast = miem.detect(grid, heights="abnormal")
+    np.testing.assert_array_equal(full.labels, fast.labels)
+    ab = full.labels == miem.ABNORMAL
+    np.testing.assert_allclose(fast.height[ab], full.height[ab], atol=1e-9, equal_nan=True)
+    assert np.isnan(fast.height[~ab]).all()
+
+
+@pytest.mark.parametrize("seed", [0, 4])
+def test_plane_fits_match_reference(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    pts = rng.normal(size=(5000, 3)) * (10.0, 4.0, 0.05) + (1e4, -3e3, 50.0)
+    pts[rng.random(5000) < 0.01] = np.nan
+    for method in ("eigen", "lstsq"):
+        a, b = miem.fit_plane(pts, method), ref.fit_plane(pts, method)
+        np.testing.assert_allclose(a.normal, b.normal, atol=1e-12)
+        np.testing.assert_allclose(a.centroid, b.centroid, rtol=1e-14)
+        assert a.d == pytest.approx(b.d, rel=1e-11)
+        assert a.rms == pytest.approx(b.rms, rel=1e-9)
+        assert a.n_points == b.n_points
+
+
+def test_scan_line_functions_match_reference() -> None:
+    rng = np.random.default_rng(9)
+    x = np.linspace(0, 10, 400)
+    line = np.stack([x, np.zeros_like(x), 0.1 * np.sin(x)], axis=1)
+    line[rng.integers(0, 400, 20), 2] += 1.0
+    line[rng.integers(0, 400, 10)] = np.nan
+    line[50] = line[51]  # a duplicate point: no angle at 50 or 51
+    for step in (1, 2, 5):
+        np.testing.assert_allclose(miem.scan_line_angles(line, step),
+                                   ref.scan_line_angles(line, step), atol=1e-9, equal_nan=True)
+        np.testing.assert_allclose(miem.scan_line_heights(line, step),
+                                   ref.scan_line_heights(line, step), atol=1e-12, equal_nan=True)
