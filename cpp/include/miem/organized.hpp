@@ -15,6 +15,26 @@
 
 namespace miem {
 
+namespace detail {
+/// Per-thread buffers of the row kernel (structure-of-arrays copies of a few rows).
+struct RowScratch {
+  std::vector<double> xyz;
+  std::vector<std::uint8_t> ok;
+  std::vector<double> best;
+  std::vector<std::uint8_t> avail, flag, slow, near;
+  void resize(std::ptrdiff_t rows, std::ptrdiff_t cols) {
+    const auto n = static_cast<std::size_t>(cols);
+    xyz.resize(static_cast<std::size_t>(rows) * 3 * n);
+    ok.resize(static_cast<std::size_t>(rows) * n);
+    best.resize(2 * n);
+    avail.resize(n);
+    flag.resize(n);
+    slow.resize(n);
+    near.resize(n);
+  }
+};
+}  // namespace detail
+
 /// Point labels (uint8 in every output).
 enum Label : std::uint8_t {
   kNormal = 0,    ///< on the surface
@@ -108,6 +128,7 @@ class OrganizedDetector {
   std::vector<std::int64_t> fresh_, candidates_;
   std::vector<double> height_scratch_;
   std::vector<double> tile_scratch_;
+  std::vector<detail::RowScratch> row_scratch_;
   std::vector<std::int64_t> queue_;
 };
 
