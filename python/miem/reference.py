@@ -24,6 +24,7 @@ Floating-point conventions (so that a careful core can match bit for bit where i
 
 from __future__ import annotations
 
+import itertools
 import math
 import numbers
 from collections.abc import Sequence
@@ -38,11 +39,16 @@ __all__ = [
     "DIRECTIONS",
     "EDGE",
     "INVALID",
+    "MAX_K",
     "NORMAL",
     "RefDefect",
+    "RefNormals",
     "RefPlane",
+    "RefPointsResult",
     "RefResult",
     "detect",
+    "detect_points",
+    "estimate_normals",
     "fit_plane",
     "scan_line_angles",
     "scan_line_heights",
@@ -857,3 +863,640 @@ def detect(
         iterations=passes,
         defects=defects,
     )
+
+
+# --------------------------------------------------------------------------------------------
+# Unorganized clouds (METHOD sections 3-7, SPEC "Unorganized clouds")
+# --------------------------------------------------------------------------------------------
+
+# Conventions of this section, where SPEC.md leaves the arithmetic open:
+#
+# * every distance (neighbourhood, link, spacing) is ``sqrt(dx*dx + dy*dy + dz*dz)`` of
+#   ``q - p``, compared with ``<=`` (not a comparison of squares); the k-d tree only proposes
+#   candidates;
+# * ``spacing`` is ``np.median`` (mean of the two middle values for an even count) of exact
+#   nearest-other distances; a duplicate is a nearest other point at distance 0;
+# * ``q != p`` means another row: duplicates of ``p`` are in ``Q`` (they count and enter the
+#   fit) but are never direction neighbours (``|t| = 0``);
+# * sector bound ``math.cos((90.0 / K) * math.pi / 180.0)``; direction coefficients
+#   ``math.cos(k * math.pi / K)``, ``math.sin(k * math.pi / K)``; side -1 tests ``-(t . d_k)``;
+# * the sign of ``e1`` cannot change any result (flipping it flips ``e2`` and every ``d_k``,
+#   which only swaps the two sides of each direction);
+# * plane fits are computed on offsets from the point (centred data); height is evaluated as
+#   ``-n . (c - p)``, which equals ``n . p + d`` up to rounding.
+
+#: Largest ``K`` accepted by :func:`detect_points` (the flag bitmask is ``uint8``).
+MAX_K: int = 8
+
+# Ball queries of the k-d tree are run with a radius enlarged by this relative amount; the exact
+# ``sqrt(dx*dx + dy*dy + dz*dz) <= r`` test is then applied to the candidates, so the k-d tree's
+# own rounding never decides membership.
+_BALL_SLACK = 1e-9
+
+
+@dataclass(frozen=True, eq=False)
+class RefPointsResult:
+    """Result of :func:`detect_points` on an unorganized cloud of shape ``(N, 3)``.
+
+    Attributes
+    ----------
+    labels : ndarray, shape (N,), uint8
+        NORMAL 0, ABNORMAL 1, EDGE 2, INVALID 3.
+    flags : ndarray, shape (N,), uint8
+        Bitmask of flagged directions (bit ``k`` for direction ``d_k``).
+    angle : ndarray, shape (N,), float64
+        Smallest interior angle seen, in degrees; NaN where no direction was available.
+    height : ndarray, shape (N,), float64
+        Signed distance from the plane of the NORMAL points within ``radius`` (protrusion > 0,
+        pit < 0); NaN where that plane cannot be fitted and for non-finite points.
+    degenerate : ndarray, shape (N,), bool
+        Points whose neighbourhood plane was degenerate (all equal or collinear) in the pass
+        that gave their label (such points are NORMAL).
+    plane : RefPlane or None
+        Eigenvalue fit of every finite non-ABNORMAL point (the MIEM plane); None if impossible.
+    iterations : int
+        Number of passes run.
+    defects : list of RefDefect
+        Groups of ABNORMAL points (``indices`` are row indices into the input), in SPEC.md order.
+    params : dict
+        Values used: ``spacing``, ``radius``, ``min_step``, ``link`` (floats, caller's length
+        unit) and ``K`` (int).
+    """
+
+    labels: NDArray[np.uint8]
+    flags: NDArray[np.uint8]
+    angle: NDArray[np.float64]
+    height: NDArray[np.float64]
+    degenerate: NDArray[np.bool_]
+    plane: RefPlane | None
+    iterations: int
+    defects: list[RefDefect]
+    params: dict[str, Any]
+
+
+@dataclass(frozen=True, eq=False)
+class RefNormals:
+    """Result of :func:`estimate_normals`.
+
+    Attributes
+    ----------
+    normals : ndarray, shape (N, 3), float64
+        Oriented unit normals (``n_z > 0``, or first non-zero component positive); NaN where
+        not valid.
+    rms : ndarray, shape (N,), float64
+        RMS orthogonal distance of the neighbourhood from its plane; NaN where not valid.
+    count : ndarray, shape (N,), int64
+        Number of finite points within ``radius`` (the point itself included); 0 for non-finite
+        rows.
+    valid : ndarray, shape (N,), bool
+        True where a plane could be fitted (finite point, at least 3 points, not degenerate).
+    """
+
+    normals: NDArray[np.float64]
+    rms: NDArray[np.float64]
+    count: NDArray[np.int64]
+    valid: NDArray[np.bool_]
+
+
+def _check_length(name: str, value: Any, allow_zero: bool) -> float:
+    """A finite length ``> 0`` (or ``>= 0`` with ``allow_zero``)."""
+    ok = _is_real(value) and math.isfinite(float(value))
+    ok = ok and (float(value) >= 0.0 if allow_zero else float(value) > 0.0)
+    if not ok:
+        rel = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"{name}: expected a finite length {rel}, got {value!r}")
+    return float(value)
+
+
+def _cloud_array(points: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """A float64 copy of an ``(N, 3)`` cloud (NaN in non-finite rows) and its finite mask."""
+    arr = _as_points_array("points", points)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"points: expected shape (N, 3), got {arr.shape}")
+    p = np.array(arr, dtype=np.float64, copy=True)
+    finite = np.all(np.isfinite(p), axis=1)
+    p[~finite] = np.nan
+    return p, finite
+
+
+def _kdtree(pts: NDArray[np.float64]) -> Any:
+    from scipy.spatial import cKDTree  # optional dependency, needed by the unorganized oracle
+
+    return cKDTree(pts)
+
+
+def _query_radius(r: float) -> float:
+    return r * (1.0 + _BALL_SLACK) if r < 1e300 else math.inf
+
+
+def _ball_pairs(
+    tree: Any,
+    pts: NDArray[np.float64],
+    queries: NDArray[np.float64],
+    radius: float,
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+    """All pairs ``(i, j)`` with ``|pts[j] - queries[i]| <= radius`` (exact test).
+
+    Returns ``i``, ``j`` (sorted by ``i`` then ``j``), the offsets ``w = pts[j] - queries[i]``
+    and their lengths ``sqrt(w.w)``.
+    """
+    nq = queries.shape[0]
+    if nq == 0 or pts.shape[0] == 0:
+        empty = np.zeros(0, dtype=np.int64)
+        return empty, empty.copy(), np.zeros((0, 3)), np.zeros(0)
+    lists = tree.query_ball_point(queries, _query_radius(radius), return_sorted=True)
+    counts = np.fromiter((len(x) for x in lists), dtype=np.int64, count=nq)
+    total = int(counts.sum())
+    pj = np.fromiter(itertools.chain.from_iterable(lists), dtype=np.int64, count=total)
+    pi = np.repeat(np.arange(nq, dtype=np.int64), counts)
+    w = pts[pj] - queries[pi]
+    dist = np.sqrt(_dot3(w, w))
+    keep = dist <= radius
+    return pi[keep], pj[keep], w[keep], dist[keep]
+
+
+def _spacing(tree: Any, pts: NDArray[np.float64]) -> float:
+    """Median over the points of the distance to the nearest other point (exact distances)."""
+    n = pts.shape[0]
+    kd_dist, kd_idx = tree.query(pts, k=2)
+    own = np.arange(n)
+    # First neighbour with a different index (with duplicates, the point itself may come second).
+    first_other = np.where(kd_idx[:, 0] != own, kd_dist[:, 0], kd_dist[:, 1])
+    # Re-derive the nearest distance with the exact formula among all points the k-d tree puts
+    # at (about) that distance, so that the k-d tree's rounding does not leak into the result.
+    radii = np.where(first_other < 1e300, first_other * (1.0 + _BALL_SLACK), np.inf)
+    lists = tree.query_ball_point(pts, radii, return_sorted=True)
+    nearest = np.empty(n)
+    for i in range(n):
+        js = np.array([j for j in lists[i] if j != i], dtype=np.int64)
+        w = pts[js] - pts[i]
+        nearest[i] = float(np.min(np.sqrt(_dot3(w, w))))
+    return float(np.median(nearest))
+
+
+def _group_fits(
+    gi: NDArray[np.int64], w: NDArray[np.float64], n_groups: int, fit: NDArray[np.bool_]
+) -> tuple[
+    NDArray[np.int64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.bool_],
+]:
+    """Eigenvalue plane fit of each group of offsets (SPEC "Plane fit", batched).
+
+    ``gi`` is the group of each offset ``w`` (an offset from the group's own point, so the fit
+    is on centred, origin-free data). Only groups with ``fit`` and at least 3 members are
+    fitted. Returns the member count, the centroid of the offsets ``(G, 3)``, the eigenvalues
+    ``(G, 3)`` (ascending), the eigenvectors ``(G, 3, 3)`` (columns) and the mask of groups whose
+    fit is possible (``l2 > 0`` and ``l1 > 1e-12 * l2``); NaN elsewhere.
+    """
+    cnt = np.bincount(gi, minlength=n_groups).astype(np.int64)
+    cen = np.full((n_groups, 3), np.nan)
+    evals = np.full((n_groups, 3), np.nan)
+    evecs = np.full((n_groups, 3, 3), np.nan)
+    ok = np.zeros(n_groups, dtype=bool)
+    todo = fit & (cnt >= 3)
+    if not todo.any():
+        return cnt, cen, evals, evecs, ok
+    sel = todo[gi]
+    g, ws = gi[sel], w[sel]
+    sums = np.stack([np.bincount(g, weights=ws[:, a], minlength=n_groups) for a in range(3)], 1)
+    cen[todo] = sums[todo] / cnt[todo, None]
+    dev = ws - cen[g]
+    scatter = np.zeros((n_groups, 3, 3))
+    for a in range(3):
+        for b in range(a, 3):
+            s_ab = np.bincount(g, weights=dev[:, a] * dev[:, b], minlength=n_groups)
+            scatter[:, a, b] = s_ab
+            scatter[:, b, a] = s_ab
+    ev, vec = np.linalg.eigh(scatter[todo])
+    evals[todo] = ev
+    evecs[todo] = vec
+    l1, l2 = ev[:, 1], ev[:, 2]
+    ok[todo] = (l2 > 0.0) & ~(l1 <= _EIGEN_RANK_TOL * l2)
+    return cnt, cen, evals, evecs, ok
+
+
+def _first_per_group(
+    cand: NDArray[np.bool_], gi: NDArray[np.int64], n_groups: int
+) -> NDArray[np.int64]:
+    """Position of the first True of ``cand`` in each group (``gi`` sorted); -1 where none."""
+    pos = np.flatnonzero(cand)
+    first = np.full(n_groups, -1, dtype=np.int64)
+    if pos.size:
+        g = gi[pos]
+        head = np.ones(pos.size, dtype=bool)
+        head[1:] = g[1:] != g[:-1]
+        first[g[head]] = pos[head]
+    return first
+
+
+def _tangent_basis(
+    evals: NDArray[np.float64],
+    evecs: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Oriented normal ``n``, ``e1`` and ``e2 = n x e1`` for stacks of eigenvalues ``(G, 3)``
+    (ascending) and eigenvector matrices ``(G, 3, 3)``.
+
+    ``e1`` is the largest-eigenvalue eigenvector when ``l2 - l1 > 1e-6 l2``, else the coordinate
+    axis least aligned with ``n`` projected onto the tangent plane; its component of largest
+    magnitude is made positive (SPEC.md)."""
+    n = _orient(evecs[:, :, 0])
+    e1 = evecs[:, :, 2].copy()
+    tie = ~(evals[:, 2] - evals[:, 1] > 1e-6 * evals[:, 2])
+    if tie.any():
+        nt = n[tie]
+        axis = np.argmin(np.abs(nt), axis=1)  # first on ties
+        a = np.zeros_like(nt)
+        a[np.arange(nt.shape[0]), axis] = 1.0
+        proj = a - _dot3(a, nt)[:, None] * nt
+        e1[tie] = proj / np.sqrt(_dot3(proj, proj))[:, None]
+    lead = np.argmax(np.abs(e1), axis=1)  # first on ties
+    sign = np.where(e1[np.arange(e1.shape[0]), lead] < 0.0, -1.0, 1.0)
+    e1 = e1 * sign[:, None] + 0.0
+    e2 = np.stack(
+        [
+            n[:, 1] * e1[:, 2] - n[:, 2] * e1[:, 1],
+            n[:, 2] * e1[:, 0] - n[:, 0] * e1[:, 2],
+            n[:, 0] * e1[:, 1] - n[:, 1] * e1[:, 0],
+        ],
+        axis=1,
+    )
+    return n, e1, e2
+
+
+def _points_pass(
+    pi: NDArray[np.int64],
+    pj: NDArray[np.int64],
+    w: NDArray[np.float64],
+    dist: NDArray[np.float64],
+    usable: NDArray[np.bool_],
+    cos0: float,
+    scales: tuple[int, ...],
+    min_step: float,
+    k_dirs: int,
+) -> tuple[
+    NDArray[np.int64],
+    NDArray[np.bool_],
+    NDArray[np.int64],
+    NDArray[np.int64],
+    NDArray[np.uint8],
+    NDArray[np.float64],
+]:
+    """One pass over the usable points of a cloud.
+
+    Returns, per point: the neighbourhood size ``|Q|``, the mask of possible neighbourhood
+    fits, the available and flagged direction counts, the flag bitmask and the smallest angle.
+    """
+    n_pts = usable.shape[0]
+    m = usable[pi] & usable[pj]  # usable p and usable q (q != p: self pairs are not in the list)
+    pi, pj, w, dist = pi[m], pj[m], w[m], dist[m]
+    cnt, _, evals, evecs, ok = _group_fits(pi, w, n_pts, usable)
+
+    n_avail = np.zeros(n_pts, dtype=np.int64)
+    n_flag = np.zeros(n_pts, dtype=np.int64)
+    flags = np.zeros(n_pts, dtype=np.uint8)
+    angle = np.full(n_pts, np.nan)
+    if not ok.any():
+        return cnt, ok, n_avail, n_flag, flags, angle
+
+    # Pairs of the points whose plane fit succeeded, ordered by (p, |w|, index of q).
+    sel = ok[pi]
+    pi, pj, w, dist = pi[sel], pj[sel], w[sel], dist[sel]
+    order = np.lexsort((pj, dist, pi))
+    pi, pj, w = pi[order], pj[order], w[order]
+
+    normal = np.full((n_pts, 3), np.nan)
+    e1 = np.full((n_pts, 3), np.nan)
+    e2 = np.full((n_pts, 3), np.nan)
+    normal[ok], e1[ok], e2[ok] = _tangent_basis(evals[ok], evecs[ok])
+
+    nq = normal[pi]
+    wn = _dot3(w, nq)
+    t = w - wn[:, None] * nq
+    tlen = np.sqrt(_dot3(t, t))
+    cos_half = math.cos((90.0 / k_dirs) * math.pi / 180.0)
+    bound = tlen * cos_half
+    positive = tlen > 0.0
+    step_ok = [tlen >= s * min_step for s in scales]
+
+    for k in range(k_dirs):
+        ck = math.cos(k * math.pi / k_dirs)
+        sk = math.sin(k * math.pi / k_dirs)
+        dk = ck * e1 + sk * e2
+        td = _dot3(t, dk[pi])
+        in_plus = positive & (td >= bound)
+        in_minus = positive & (-td >= bound)
+        dir_avail = np.zeros(n_pts, dtype=bool)
+        dir_flag = np.zeros(n_pts, dtype=bool)
+        for s_ok in step_ok:
+            first_a = _first_per_group(in_minus & s_ok, pi, n_pts)  # side -1: A
+            first_b = _first_per_group(in_plus & s_ok, pi, n_pts)  # side +1: B
+            both = (first_a >= 0) & (first_b >= 0)
+            u = w[first_a[both]]
+            v = w[first_b[both]]
+            uu = _dot3(u, u)
+            vv = _dot3(v, v)
+            uv = _dot3(u, v)
+            good = (uu != 0.0) & (vv != 0.0)
+            cos = np.clip(uv[good] / np.sqrt(uu[good] * vv[good]), -1.0, 1.0)
+            idx = np.flatnonzero(both)[good]
+            dir_avail[idx] = True
+            dir_flag[idx[cos >= cos0]] = True
+            angle[idx] = np.fmin(angle[idx], np.degrees(np.arccos(cos)))
+        n_avail += dir_avail
+        n_flag += dir_flag
+        flags[dir_flag] |= np.uint8(1 << k)
+    return cnt, ok, n_avail, n_flag, flags, angle
+
+
+def _points_defects(
+    pts: NDArray[np.float64],
+    rows: NDArray[np.int64],
+    abnormal: NDArray[np.bool_],
+    height: NDArray[np.float64],
+    normals: NDArray[np.float64],
+    link: float,
+) -> list[RefDefect]:
+    """Defects of a cloud: groups of ABNORMAL points under ``distance <= link``.
+
+    ``pts`` are the finite points (in input order), ``rows`` their row indices in the input;
+    ``height`` and ``normals`` are per finite point.
+    """
+    abn = np.flatnonzero(abnormal)
+    if abn.size == 0:
+        return []
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    a_pts = pts[abn]
+    a_tree = _kdtree(a_pts)
+    pi, pj, _, _ = _ball_pairs(a_tree, a_pts, a_pts, link)
+    graph = coo_matrix((np.ones(pi.size), (pi, pj)), shape=(abn.size, abn.size))
+    n_comp, comp = connected_components(graph, directed=False)
+
+    keep = np.flatnonzero(~abnormal)  # finite, non-ABNORMAL
+    touches = np.zeros(abn.size, dtype=bool)
+    if keep.size:
+        k_pts = pts[keep]
+        ti, _, _, _ = _ball_pairs(_kdtree(k_pts), k_pts, a_pts, link)
+        touches[ti] = True
+
+    raw = []
+    for c in range(n_comp):
+        loc = np.flatnonzero(comp == c)  # ascending, hence ascending input rows
+        members = a_pts[loc]
+        idx = rows[abn[loc]].astype(np.int64)
+        centroid = members.mean(axis=0)
+        hs = height[abn[loc]]
+        fin = np.isfinite(hs)
+        if fin.any():
+            pos = int(np.argmax(np.abs(hs[fin])))  # first in index order on ties
+            peak_pt = int(abn[loc][fin][pos])
+            peak = float(height[peak_pt])
+            mean_h = float(np.mean(hs[fin]))
+            normal = normals[peak_pt].copy()
+        else:
+            peak = math.nan
+            mean_h = math.nan
+            normal = np.full(3, np.nan)
+        off = members - centroid
+        if np.all(np.isfinite(normal)):
+            off = off - _dot3(off, normal)[:, None] * normal
+        extent = 2.0 * float(np.max(np.sqrt(_dot3(off, off))))
+        if not touches[loc].any() or math.isnan(peak):
+            kind = "isolated"
+        elif peak < 0:
+            kind = "pit"
+        else:
+            kind = "protrusion"
+        raw.append((idx, centroid, normal, peak, mean_h, extent, kind))
+
+    def order(item: tuple[Any, ...]) -> tuple[bool, float, int]:
+        peak_ = item[3]
+        nan = math.isnan(peak_)
+        return (nan, 0.0 if nan else -abs(peak_), int(item[0][0]))
+
+    raw.sort(key=order)
+    out = []
+    for i, (idx, centroid, normal, peak, mean_h, extent, kind) in enumerate(raw):
+        idx.setflags(write=False)
+        centroid.setflags(write=False)
+        normal.setflags(write=False)
+        out.append(
+            RefDefect(
+                id=i,
+                indices=idx,
+                count=int(idx.size),
+                centroid=centroid,
+                normal=normal,
+                peak_height=peak,
+                mean_height=mean_h,
+                extent=extent,
+                kind=kind,
+            )
+        )
+    return out
+
+
+def detect_points(
+    points: ArrayLike,
+    theta0: float = 75.0,
+    scales: Sequence[int] = (1,),
+    min_step: float | None = None,
+    min_directions: int | None = None,
+    max_iterations: int = 10,
+    radius: float | None = None,
+    K: int = 4,
+    link: float | None = None,
+) -> RefPointsResult:
+    """Detect abnormal points in an unorganized cloud (MIEM, reference implementation).
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 3), integer or floating
+        The cloud (caller's length unit), in no particular order. Rows with any non-finite
+        coordinate are INVALID and take no part. Never modified.
+    theta0 : float, optional
+        Threshold angle in degrees, in the open interval (0, 180): a direction is flagged when
+        its interior angle is ``<= theta0``.
+    scales : sequence of int, optional
+        Neighbour scales (each ``>= 1``): at scale ``s`` a neighbour's tangent offset must be at
+        least ``s * min_step`` long. A direction is available / flagged when it is at any scale.
+    min_step : float or None, optional
+        Shortest tangent offset of a direction neighbour (finite, ``>= 0``); None means
+        ``0.5 * spacing``.
+    min_directions : int or None, optional
+        If set (1..K), the number of flagged directions that suffices for ABNORMAL (capped at
+        the available count); None means all available directions.
+    max_iterations : int, optional
+        Maximum number of passes, ``>= 1``.
+    radius : float or None, optional
+        Neighbourhood radius (finite, ``> 0``); None means ``5 * spacing``, where ``spacing``
+        is the median distance from a finite point to its nearest other finite point.
+    K : int, optional
+        Number of directions, ``2 <= K <= 8``: ``d_k = cos(k pi/K) e1 + sin(k pi/K) e2`` in
+        the tangent plane, each with a sector of half-width ``90/K`` degrees on both sides.
+    link : float or None, optional
+        ABNORMAL points closer than this (``<=``) belong to the same defect (finite, ``> 0``);
+        None means ``radius``.
+
+    Returns
+    -------
+    RefPointsResult
+        Per-point labels, flags, angles (degrees), heights and degenerate mask, the MIEM plane,
+        the number of passes, the defects and the parameter values used.
+
+    Raises
+    ------
+    ValueError
+        Bad points (dtype, shape, fewer than 3 finite points, ``spacing == 0``) or a bad
+        parameter; the message names the argument.
+    """
+    theta0_deg, scale_tuple, _, _, _, iters, _, _ = _validate_detect_params(
+        theta0, scales, 1, min_step, None, max_iterations, 3, 1
+    )
+    k_dirs = _check_int("K", K, 2, MAX_K)
+    min_dir = (
+        None if min_directions is None else _check_int("min_directions", min_directions, 1, k_dirs)
+    )
+    r_in = None if radius is None else _check_length("radius", radius, allow_zero=False)
+    link_in = None if link is None else _check_length("link", link, allow_zero=False)
+
+    p, finite = _cloud_array(points)
+    n_all = p.shape[0]
+    rows = np.flatnonzero(finite).astype(np.int64)
+    pts = p[finite]
+    n_pts = pts.shape[0]
+    if n_pts < 3:
+        raise ValueError(f"points: need at least 3 finite points, got {n_pts}")
+
+    tree = _kdtree(pts)
+    spacing = _spacing(tree, pts)
+    if spacing == 0.0:
+        raise ValueError(
+            "points: spacing is 0 (more than half of the finite points are duplicates)"
+        )
+    r = 5.0 * spacing if r_in is None else r_in
+    step = 0.5 * spacing if min_step is None else float(min_step)
+    lnk = r if link_in is None else link_in
+    cos0 = math.cos(theta0_deg * math.pi / 180.0)
+
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        # Every pair (p, q), q != p, |q - p| <= radius, fixed for the whole run.
+        pi, pj, w, dist = _ball_pairs(tree, pts, pts, r)
+        not_self = pi != pj
+        pi, pj, w, dist = pi[not_self], pj[not_self], w[not_self], dist[not_self]
+
+        labels = np.full(n_pts, NORMAL, dtype=np.uint8)
+        flags = np.zeros(n_pts, dtype=np.uint8)
+        angle = np.full(n_pts, np.nan)
+        degenerate = np.zeros(n_pts, dtype=bool)
+        abnormal = np.zeros(n_pts, dtype=bool)
+        passes = 0
+        while True:
+            passes += 1
+            judged = ~abnormal  # usable = finite and not ABNORMAL; all of them are judged
+            cnt, fit_ok, n_avail, n_flag, pass_flags, pass_angle = _points_pass(
+                pi, pj, w, dist, judged, cos0, scale_tuple, step, k_dirs
+            )
+            small = judged & (cnt < 3)
+            need = n_avail if min_dir is None else np.minimum(n_avail, min_dir)
+            new_abn = small | (judged & fit_ok & (n_avail >= 2) & (n_flag >= need))
+            rest = judged & ~new_abn
+            labels[new_abn] = ABNORMAL
+            labels[rest & (n_flag > 0)] = EDGE
+            labels[rest & (n_flag == 0)] = NORMAL
+            flags[judged] = np.where(small, np.uint8(0), pass_flags)[judged]
+            angle[judged] = np.where(small, np.nan, pass_angle)[judged]
+            degenerate[judged] = (~small & ~fit_ok)[judged]
+            abnormal |= new_abn
+            if not new_abn.any() or passes >= iters:
+                break
+
+        plane = _eigen_plane(pts[~abnormal])
+
+        # Height: plane of the NORMAL points within radius, the point itself included.
+        is_normal = labels == NORMAL
+        own = np.arange(n_pts, dtype=np.int64)
+        hi = np.concatenate([pi, own])
+        hj = np.concatenate([pj, own])
+        hw = np.concatenate([w, np.zeros((n_pts, 3))])
+        sel = is_normal[hj]
+        hi, hw = hi[sel], hw[sel]
+        _, cen, _, evecs, ok = _group_fits(hi, hw, n_pts, np.ones(n_pts, dtype=bool))
+        h_normals = np.full((n_pts, 3), np.nan)
+        h_normals[ok] = _orient(evecs[ok][:, :, 0])
+        height = np.full(n_pts, np.nan)
+        # n . p + d with d = -n . c, evaluated as -n . (c - p) on the centred offsets.
+        height[ok] = -_dot3(h_normals[ok], cen[ok])
+
+        defects = _points_defects(pts, rows, abnormal, height, h_normals, lnk)
+
+    def scatter(values: NDArray[Any], fill: Any) -> NDArray[Any]:
+        out = np.full((n_all,) + values.shape[1:], fill, dtype=values.dtype)
+        out[rows] = values
+        return out
+
+    return RefPointsResult(
+        labels=scatter(labels, INVALID),
+        flags=scatter(flags, 0),
+        angle=scatter(angle, np.nan),
+        height=scatter(height, np.nan),
+        degenerate=scatter(degenerate, False),
+        plane=plane,
+        iterations=passes,
+        defects=defects,
+        params={"spacing": spacing, "radius": r, "min_step": step, "link": lnk, "K": k_dirs},
+    )
+
+
+def estimate_normals(points: ArrayLike, radius: float) -> RefNormals:
+    """Local surface normals of an unorganized cloud (reference implementation).
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 3), integer or floating
+        The cloud (caller's length unit). Rows with any non-finite coordinate get no normal.
+        Never modified.
+    radius : float
+        Neighbourhood radius (finite, ``> 0``): each finite point's plane is fitted to the
+        finite points within ``radius`` of it (``<=``), the point itself included.
+
+    Returns
+    -------
+    RefNormals
+        Oriented normals, rms, neighbourhood counts and the valid mask (False for non-finite
+        rows, fewer than 3 points, and degenerate neighbourhoods).
+
+    Raises
+    ------
+    ValueError
+        Bad points (dtype, shape) or bad ``radius``.
+    """
+    r = _check_length("radius", radius, allow_zero=False)
+    p, finite = _cloud_array(points)
+    n_all = p.shape[0]
+    rows = np.flatnonzero(finite)
+    pts = p[finite]
+    n_pts = pts.shape[0]
+    normals = np.full((n_all, 3), np.nan)
+    rms = np.full(n_all, np.nan)
+    count = np.zeros(n_all, dtype=np.int64)
+    valid = np.zeros(n_all, dtype=bool)
+    if n_pts == 0:
+        return RefNormals(normals=normals, rms=rms, count=count, valid=valid)
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        tree = _kdtree(pts)
+        pi, _, w, _ = _ball_pairs(tree, pts, pts, r)  # includes each point itself
+        cnt, _, evals, evecs, ok = _group_fits(pi, w, n_pts, np.ones(n_pts, dtype=bool))
+        nrm = np.full((n_pts, 3), np.nan)
+        nrm[ok] = _orient(evecs[ok][:, :, 0])
+        rr = np.full(n_pts, np.nan)
+        rr[ok] = np.sqrt(np.maximum(evals[ok, 0], 0.0) / cnt[ok])
+    normals[rows] = nrm
+    rms[rows] = rr
+    count[rows] = cnt
+    valid[rows] = ok
+    return RefNormals(normals=normals, rms=rms, count=count, valid=valid)

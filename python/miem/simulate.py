@@ -277,9 +277,15 @@ def _check_real(
     ok = math.isfinite(v) and (v > low if low_open else v >= low)
     ok = ok and (v < high if high_open else v <= high)
     if not ok:
-        lo = "(" if low_open else "["
-        hi = ")" if high_open else "]"
-        raise ValueError(f"{name} must be finite and in {lo}{low:g}, {high:g}{hi}, got {value!r}")
+        if high == math.inf and low == -math.inf:
+            want = "finite"
+        elif high == math.inf:
+            want = f"finite and {'>' if low_open else '>='} {low:g}"
+        else:
+            lo = "(" if low_open else "["
+            hi = ")" if high_open else "]"
+            want = f"finite and in {lo}{low:g}, {high:g}{hi}"
+        raise ValueError(f"{name} must be {want}, got {value!r}")
     return v
 
 
@@ -488,13 +494,22 @@ def paper_scan(
     by ``strip_height * step``. Seen along the profile and along the diagonals the crest is a
     sharp peak (interior angles 37 deg and 50 deg for the default 3 steps, below the paper's 75),
     but along the bead its neighbours are collinear (180 deg), so MIEM flags it in 3 of 4
-    directions and labels it EDGE, never ABNORMAL. Its neighbours stay NORMAL (angles >= 108 deg).
+    directions and labels it EDGE, never ABNORMAL. The cells beside it stay NORMAL (angles
+    >= 108 deg). A spike on a crest is sharp along the bead too, so it is flagged in all four
+    directions: ABNORMAL. (A bead needs its along-the-bead direction: two adjacent crest cells
+    removed would leave the next one flagged in every remaining direction, hence single-cell
+    defects on the strips and no dropouts near them.)
 
     The abnormal points are single cells whose ``z`` is offset by a height drawn uniformly from
     `height` (in steps): `n_on_edge` protrusions on the bead crests (round robin over the strips)
     and ``n_abnormal - n_on_edge`` on the normal surface, alternately a spike and a pit. They keep
     `margin` cells away from the border, from the strips (except the on-edge ones) and from each
     other, so each is judged against undisturbed neighbours.
+
+    With ``detect(theta0=75, scales=(1,))`` the labels equal `truth` exactly for z noise up to
+    0.05 step; up to 0.1 step a rare cell beside a bead dips enough to be flagged in one direction
+    (EDGE), but no cell other than the injected ones is ABNORMAL (checked for steps 0.2-0.5, ten
+    seeds each); from about 0.2 step on, noise along a bead starts to read as sharp angles.
 
     Parameters
     ----------
@@ -510,7 +525,8 @@ def paper_scan(
     seed : int or None, default 0
         Seed of ``np.random.default_rng``.
     strips : sequence of float, default (-25.0, 15.0)
-        ``x`` (mm) of the edge strips, snapped to the nearest column; may be empty.
+        ``x`` (mm) of the edge strips, snapped to the nearest column, at least 3 columns apart;
+        may be empty.
     strip_height : float, default 3.0
         Height of the bead crest over the surface, in steps (> 1.3 for the crest to be flagged).
     height : float or (float, float), default (4.0, 8.0)
@@ -560,7 +576,11 @@ def paper_scan(
     for s in strip_x:
         if not (math.isfinite(s) and x[0] < s < x[-1]):
             raise ValueError(f"strips must lie inside ({x[0]:g}, {x[-1]:g}) mm, got {s!r}")
-    cols = sorted({round((s - x[0]) / step) for s in strip_x})
+    cols = sorted(round((s - x[0]) / step) for s in strip_x)
+    if any(b - a < 3 for a, b in zip(cols, cols[1:])):
+        raise ValueError(
+            f"strips must be at least 3 columns ({3 * step:g} mm) apart, got {strips!r}"
+        )
     if n_on_edge > 0 and not cols:
         raise ValueError("n_on_edge > 0 needs at least one edge strip (strips is empty)")
 
@@ -1030,7 +1050,8 @@ def plane_deviation(plane: Any, ref: Any) -> tuple[float, float, float]:
     m = np.asarray(ref.normal, dtype=np.float64)
     angle = math.degrees(math.atan2(float(np.linalg.norm(np.cross(n, m))), float(n @ m)))
     dd = abs(float(plane.d) - float(ref.d))
-    return angle, dd, dd / abs(float(ref.d)) if float(ref.d) != 0.0 else dd
+    rel = dd / abs(float(ref.d)) if float(ref.d) != 0.0 else dd
+    return angle, dd, rel
 
 
 def _three_rows(
@@ -1260,7 +1281,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument("--step", type=float, default=0.5, help="grid step in mm (default 0.5)")
     parser.add_argument(
-        "--noise", type=float, default=0.0, help="z noise std as a fraction of the step (default 0)"
+        "--noise",
+        type=float,
+        default=0.0,
+        help="z noise std as a fraction of the step (default 0; the claim holds to ~0.1)",
     )
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument(
