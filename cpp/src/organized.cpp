@@ -14,6 +14,7 @@
 
 #include "angle_math.hpp"
 #include "judge.hpp"
+#include "plane_math.hpp"
 #include "parallel.hpp"
 
 namespace miem {
@@ -121,11 +122,11 @@ void heights_all(const GridView<T>& g, const std::uint8_t* labels, int window, i
         M(1, 1) = s[7] - n * mean.y() * mean.y();
         M(1, 2) = M(2, 1) = s[8] - n * mean.y() * mean.z();
         M(2, 2) = s[9] - n * mean.z() * mean.z();
-        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
-        es.computeDirect(M);
-        const Eigen::Vector3d ev = es.eigenvalues();
-        if (!(ev(2) > 0.0) || ev(1) <= 1e-12 * ev(2)) continue;
-        const Eigen::Vector3d nrm = orient_normal(es.eigenvectors().col(0).normalized());
+        double l0, l1, l2;
+        Eigen::Vector3d nv;
+        if (!detail::smallest_eigenpair(M, &l0, &l1, &l2, &nv)) continue;
+        if (!(l2 > 0.0) || l1 <= 1e-12 * l2) continue;
+        const Eigen::Vector3d nrm = orient_normal(nv);
         h = nrm.dot(g(r, c) - origin - mean);
       }
     }

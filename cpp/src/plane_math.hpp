@@ -1,0 +1,49 @@
+// The smallest eigenpair of a 3x3 scatter matrix without trigonometry, for the per-cell window
+// planes: Newton on the characteristic polynomial from 0 (monotone from below, since it is
+// concave and increasing left of the smallest root), then the largest cross product of two rows
+// of M - l0 I. Accurate when l0 is well separated from l1, which a surface patch always is.
+#pragma once
+
+#include <cmath>
+
+#include <Eigen/Core>
+
+namespace miem::detail {
+
+/// Eigenvalues l0 <= l1 <= l2 of a symmetric positive semi-definite M and the unit eigenvector
+/// of l0 (unoriented). Returns false when M is zero.
+inline bool smallest_eigenpair(const Eigen::Matrix3d& M, double* l0, double* l1, double* l2,
+                               Eigen::Vector3d* normal) {
+  const double a = M(0, 0), b = M(1, 1), c = M(2, 2), d = M(0, 1), e = M(1, 2), f = M(0, 2);
+  const double tr = a + b + c;
+  if (!(tr > 0.0)) return false;
+  const double c1 = (a * b + b * c + a * c) - (d * d + e * e + f * f);
+  const double det = a * b * c + 2.0 * d * e * f - a * e * e - b * f * f - c * d * d;
+  // q(x) = x^3 - tr x^2 + c1 x - det, q(0) = -det <= 0; Newton from 0 rises to the root.
+  double x = 0.0;
+  for (int it = 0; it < 64; ++it) {
+    const double q = ((x - tr) * x + c1) * x - det;
+    const double dq = (3.0 * x - 2.0 * tr) * x + c1;
+    if (!(dq > 0.0)) break;
+    const double step = q / dq;
+    if (!(step < 0.0)) break;  // q >= 0: at (or, by rounding, just past) the root
+    x -= step;
+    if (-step <= 1e-17 * tr) break;
+  }
+  const double s = tr - x, p = c1 - x * s;  // l1 + l2, l1 l2
+  const double disc = s * s - 4.0 * p;
+  const double hi = 0.5 * (s + std::sqrt(disc > 0.0 ? disc : 0.0));
+  *l0 = x;
+  *l2 = hi;
+  *l1 = hi > 0.0 ? p / hi : 0.0;
+  const Eigen::Vector3d r0(a - x, d, f), r1(d, b - x, e), r2(f, e, c - x);
+  const Eigen::Vector3d c01 = r0.cross(r1), c02 = r0.cross(r2), c12 = r1.cross(r2);
+  const double n01 = c01.squaredNorm(), n02 = c02.squaredNorm(), n12 = c12.squaredNorm();
+  const Eigen::Vector3d& best = n01 >= n02 ? (n01 >= n12 ? c01 : c12) : (n02 >= n12 ? c02 : c12);
+  const double nb = std::max(n01, std::max(n02, n12));
+  if (!(nb > 0.0)) return false;
+  *normal = best / std::sqrt(nb);
+  return true;
+}
+
+}  // namespace miem::detail
