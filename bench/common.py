@@ -1,0 +1,29 @@
+"""Inputs shared by the benchmark suites and the results script (seeded, reproducible)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def scan_grid(h: int, w: int, seed: int = 0, n_defects: int = 200) -> np.ndarray:
+    """A laser-scan-like organized grid: 0.2 mm steps, a gentle bump, 2 um noise, spikes, pits,
+    2x2 clusters and 0.5% dropouts."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:h, 0:w]
+    x, y = xx * 0.2, yy * 0.2
+    z = 0.4 * np.exp(-((x - 0.1 * w) ** 2) / 5000.0) + 0.01 * y / max(h, 1)
+    z = z + rng.normal(0.0, 0.002, z.shape)
+    grid = np.dstack([x, y, z])
+    flat = grid.reshape(-1, 3)
+    idx = rng.choice(h * w, size=min(n_defects, h * w // 10), replace=False)
+    flat[idx, 2] += rng.choice([-1.0, 1.0], idx.size) * rng.uniform(0.5, 3.0, idx.size)
+    flat[rng.random(h * w) < 0.005] = np.nan
+    return grid
+
+
+def plane_points(n: int, seed: int = 0) -> np.ndarray:
+    """n points near a tilted plane far from the origin (robot base frame)."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(-50.0, 50.0, size=(n, 2))
+    z = 0.1 * xy[:, 0] - 0.05 * xy[:, 1] + rng.normal(0.0, 0.01, n)
+    return np.column_stack([xy, z]) + np.array([1200.0, -300.0, 450.0])
