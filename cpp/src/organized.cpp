@@ -27,11 +27,19 @@ using detail::kDirRow;
 using detail::kNaN;
 using detail::window_plane;
 
-// Heights of every finite cell from box sums of the NORMAL cells' moments. Tiles keep the sums in
-// tile-local coordinates (far-from-origin scans lose no precision); each thread owns its buffer.
-template <typename T>
-void heights_all(const GridView<T>& g, const std::uint8_t* labels, int window, int num_threads,
-                 std::vector<double>& scratch, double* height) {
+// The window plane (SPEC "Height") of the NORMAL cells around a cell, from box sums.
+struct WindowFit {
+  bool ok = false;  // a plane exists (>= 3 cells, not degenerate)
+  double height = 0.0, n = 0.0, l0 = 0.0, l1 = 0.0, l2 = 0.0;
+};
+
+// Calls visit(r, c, fit) for every cell with want(r, c), with the window plane of the NORMAL
+// cells around it from box sums of their moments. Tiles keep the sums in tile-local coordinates
+// (far-from-origin scans lose no precision); each thread owns its buffer. Cells are independent,
+// so the result does not depend on the thread count.
+template <typename T, typename Want, typename Visit>
+void window_fits(const GridView<T>& g, const std::uint8_t* labels, int window, int num_threads,
+                 std::vector<double>& scratch, Want want, Visit visit) {
   constexpr std::ptrdiff_t kTile = 64;
   constexpr int kM = 10;  // n, x, y, z, xx, xy, xz, yy, yz, zz
   const std::ptrdiff_t H = g.rows, W = g.cols, half = window / 2;
@@ -51,6 +59,14 @@ void heights_all(const GridView<T>& g, const std::uint8_t* labels, int window, i
     double* I = scratch.data() + per_thread * tid;
     const std::ptrdiff_t tr0 = (t / tiles_c) * kTile, tc0 = (t % tiles_c) * kTile;
     const std::ptrdiff_t tr1 = std::min(H, tr0 + kTile), tc1 = std::min(W, tc0 + kTile);
+    bool wanted = false;
+    for (std::ptrdiff_t r = tr0; r < tr1 && !wanted; ++r)
+      for (std::ptrdiff_t c = tc0; c < tc1; ++c)
+        if (want(r, c)) {
+          wanted = true;
+          break;
+        }
+    if (!wanted) continue;
     const std::ptrdiff_t R0 = std::max<std::ptrdiff_t>(0, tr0 - half);
     const std::ptrdiff_t R1 = std::min(H, tr1 + half);
     const std::ptrdiff_t C0 = std::max<std::ptrdiff_t>(0, tc0 - half);
@@ -68,7 +84,8 @@ void heights_all(const GridView<T>& g, const std::uint8_t* labels, int window, i
         }
     if (!any) {
       for (std::ptrdiff_t r = tr0; r < tr1; ++r)
-        for (std::ptrdiff_t c = tc0; c < tc1; ++c) height[r * W + c] = kNaN;
+        for (std::ptrdiff_t c = tc0; c < tc1; ++c)
+          if (want(r, c)) visit(r, c, WindowFit{});
       continue;
     }
     std::fill(I, I + stride, 0.0);  // row 0 of the integral image
@@ -99,9 +116,8 @@ void heights_all(const GridView<T>& g, const std::uint8_t* labels, int window, i
     }
     for (std::ptrdiff_t r = tr0; r < tr1; ++r) {
       for (std::ptrdiff_t c = tc0; c < tc1; ++c) {
-        double& h = height[r * W + c];
-        h = kNaN;
-        if (labels[r * W + c] == kInvalid) continue;
+        if (!want(r, c)) continue;
+        WindowFit fit;
         const std::ptrdiff_t i0 = std::max<std::ptrdiff_t>(0, r - half) - R0;
         const std::ptrdiff_t i1 = std::min(H - 1, r + half) - R0 + 1;
         const std::ptrdiff_t j0 = std::max<std::ptrdiff_t>(0, c - half) - C0;
@@ -113,26 +129,28 @@ void heights_all(const GridView<T>& g, const std::uint8_t* labels, int window, i
         double s[kM];
         for (int m = 0; m < kM; ++m) s[m] = (a[m] - b[m]) - (d[m] - e[m]);
         const double n = std::round(s[0]);
-        if (n < 3.0) continue;
-        const Eigen::Vector3d mean(s[1] / n, s[2] / n, s[3] / n);
-        Eigen::Matrix3d M;
-        M(0, 0) = s[4] - n * mean.x() * mean.x();
-        M(0, 1) = M(1, 0) = s[5] - n * mean.x() * mean.y();
-        M(0, 2) = M(2, 0) = s[6] - n * mean.x() * mean.z();
-        M(1, 1) = s[7] - n * mean.y() * mean.y();
-        M(1, 2) = M(2, 1) = s[8] - n * mean.y() * mean.z();
-        M(2, 2) = s[9] - n * mean.z() * mean.z();
-        double l0, l1, l2;
-        Eigen::Vector3d nv;
-        if (!detail::smallest_eigenpair(M, &l0, &l1, &l2, &nv)) continue;
-        if (!(l2 > 0.0) || l1 <= 1e-12 * l2) continue;
-        const Eigen::Vector3d nrm = orient_normal(nv);
-        h = nrm.dot(g(r, c) - origin - mean);
+        if (n >= 3.0) {
+          const Eigen::Vector3d mean(s[1] / n, s[2] / n, s[3] / n);
+          Eigen::Matrix3d M;
+          M(0, 0) = s[4] - n * mean.x() * mean.x();
+          M(0, 1) = M(1, 0) = s[5] - n * mean.x() * mean.y();
+          M(0, 2) = M(2, 0) = s[6] - n * mean.x() * mean.z();
+          M(1, 1) = s[7] - n * mean.y() * mean.y();
+          M(1, 2) = M(2, 1) = s[8] - n * mean.y() * mean.z();
+          M(2, 2) = s[9] - n * mean.z() * mean.z();
+          Eigen::Vector3d nv;
+          if (detail::smallest_eigenpair(M, &fit.l0, &fit.l1, &fit.l2, &nv) && fit.l2 > 0.0 &&
+              fit.l1 > 1e-12 * fit.l2) {
+            fit.ok = true;
+            fit.n = n;
+            fit.height = orient_normal(nv).dot(g(r, c) - origin - mean);
+          }
+        }
+        visit(r, c, fit);
       }
     }
   }
 }
-
 
 // Pass 1 row kernel. In the common case (every neighbour candidate at exactly s cells is
 // usable) the search of SPEC.md returns that candidate, so whole rows are judged with straight-
@@ -281,7 +299,8 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
 }  // namespace
 
 void validate(const DetectParams& p) {
-  if (!std::isfinite(p.theta0_deg) || p.theta0_deg <= 0.0 || p.theta0_deg >= 180.0) {
+  if (!p.theta0_auto &&
+      (!std::isfinite(p.theta0_deg) || p.theta0_deg <= 0.0 || p.theta0_deg >= 180.0)) {
     throw std::invalid_argument("theta0: must be a finite angle in degrees with 0 < theta0 < 180");
   }
   if (p.scales.empty()) throw std::invalid_argument("scales: must not be empty");
@@ -301,6 +320,9 @@ void validate(const DetectParams& p) {
     throw std::invalid_argument("window: must be an odd integer >= 3");
   }
   if (p.num_threads < 0) throw std::invalid_argument("num_threads: must be >= 0");
+  if (!std::isfinite(p.height_abs) || !std::isfinite(p.height_k)) {
+    throw std::invalid_argument("height_tolerance: must be finite (<= 0 = off)");
+  }
 }
 
 const char* to_string(DefectKind kind) noexcept {
@@ -325,7 +347,8 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
     throw std::invalid_argument("grid: must have at least one row and one column");
   }
   if (out.labels == nullptr) throw std::invalid_argument("out.labels: must not be null");
-  const DetectParams& p = params_;
+  eff_ = params_;  // same-size assignment: no allocation after the first run
+  const DetectParams& p = eff_;
   const std::ptrdiff_t H = g.rows, W = g.cols, N = H * W;
   const int nt = detail::thread_count(p.num_threads, N);
   std::uint8_t* labels = out.labels;
@@ -351,7 +374,70 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
                                 std::to_string(n_finite) + ")");
   }
 
-  const CellJudge<T> judge(g, usable, p);
+  const int smax = *std::max_element(p.scales.begin(), p.scales.end());
+  const bool row_kernel = p.min_step < 0.0 && smax <= 64;
+  if (row_kernel) {
+    if (row_scratch_.size() < static_cast<std::size_t>(nt)) row_scratch_.resize(nt);
+    for (int t = 0; t < nt; ++t) row_scratch_[t].resize(2 * smax + 1, W);
+  }
+  // Pass 1 over every finite cell (row kernel; the scalar judge for min_step and fallbacks).
+  auto pass1 = [&](double* angle_out) {
+    const CellJudge<T> judge(g, usable, p);
+    if (row_kernel) {
+#pragma omp parallel num_threads(nt) if (nt > 1)
+      {
+        int tid = 0;
+#ifdef MIEM_HAVE_OPENMP
+        tid = omp_get_thread_num();
+#endif
+        // Contiguous row blocks, one per thread: each row is converted once per block.
+        const std::ptrdiff_t r0 = H * tid / nt, r1 = H * (tid + 1) / nt;
+        pass1_rows(g, usable, p, smax, r0, r1, row_scratch_[tid], judge, labels, out.flags,
+                   angle_out);
+      }
+    } else {
+#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
+      for (std::ptrdiff_t r = 0; r < H; ++r) {
+        for (std::ptrdiff_t c = 0; c < W; ++c) {
+          const std::ptrdiff_t i = r * W + c;
+          if (!usable[i]) continue;
+          std::uint8_t fl = 0;
+          double an = kNaN;
+          labels[i] = judge.judge(r, c, &fl, &an);
+          if (out.flags) out.flags[i] = fl;
+          if (angle_out) angle_out[i] = an;
+        }
+      }
+    }
+  };
+  if (p.theta0_auto) {
+    // Angle survey (independent of theta0), then theta0 = clip(180 - 6 sigma, 75, 170) with
+    // sigma = median(180 - angle) / 0.6745.
+    double* ang = out.angle_deg;
+    if (ang == nullptr) {
+      height_scratch_.resize(static_cast<std::size_t>(N));
+      ang = height_scratch_.data();
+    }
+    eff_.theta0_deg = 75.0;
+    pass1(ang);
+    survey_.clear();
+    for (std::ptrdiff_t i = 0; i < N; ++i)
+      if (usable[i] && std::isfinite(ang[i])) survey_.push_back(180.0 - ang[i]);
+    double theta0 = 75.0;
+    if (!survey_.empty()) {
+      const std::size_t m = survey_.size(), mid = m / 2;
+      std::nth_element(survey_.begin(), survey_.begin() + mid, survey_.end());
+      double med = survey_[mid];
+      if (m % 2 == 0) med = 0.5 * (med + *std::max_element(survey_.begin(), survey_.begin() + mid));
+      theta0 = std::clamp(180.0 - 6.0 * (med / 0.6745), 75.0, 170.0);
+    }
+    eff_.theta0_deg = theta0;
+    for (std::ptrdiff_t i = 0; i < N; ++i)
+      if (usable[i]) labels[i] = kNormal;
+  }
+  pass1(out.angle_deg);
+
+  const CellJudge<T> judge(g, usable, p);  // after theta0 is final
   auto judge_cell = [&](std::ptrdiff_t i) {
     std::uint8_t fl = 0;
     double an = kNaN;
@@ -360,33 +446,6 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
     if (out.angle_deg) out.angle_deg[i] = an;
   };
 
-  // Pass 1: every finite cell (row kernel; the scalar judge for min_step and fallbacks).
-  const int smax = *std::max_element(p.scales.begin(), p.scales.end());
-  const bool row_kernel = p.min_step < 0.0 && smax <= 64;
-  if (row_kernel) {
-    const int ntr = nt;
-    if (row_scratch_.size() < static_cast<std::size_t>(ntr)) row_scratch_.resize(ntr);
-    for (int t = 0; t < ntr; ++t) row_scratch_[t].resize(2 * smax + 1, W);
-#pragma omp parallel num_threads(ntr) if (ntr > 1)
-    {
-      int tid = 0;
-#ifdef MIEM_HAVE_OPENMP
-      tid = omp_get_thread_num();
-#endif
-      // Contiguous row blocks, one per thread: each row is converted once per block.
-      const std::ptrdiff_t r0 = H * tid / ntr, r1 = H * (tid + 1) / ntr;
-      pass1_rows(g, usable, p, smax, r0, r1, row_scratch_[tid], judge, labels, out.flags,
-                 out.angle_deg);
-    }
-  } else {
-#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
-    for (std::ptrdiff_t r = 0; r < H; ++r) {
-      for (std::ptrdiff_t c = 0; c < W; ++c) {
-        const std::ptrdiff_t i = r * W + c;
-        if (usable[i]) judge_cell(i);
-      }
-    }
-  }
   fresh_.clear();
   for (std::ptrdiff_t i = 0; i < N; ++i)
     if (labels[i] == kAbnormal) fresh_.push_back(i);
@@ -427,8 +486,38 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
     ++iterations;
   }
 
+  // Height passes (SPEC "Beyond the paper"): NORMAL cells too far from their window plane.
+  if (p.height_abs > 0.0 || p.height_k > 0.0) {
+    constexpr std::uint8_t kMark = 8;
+    for (int hp = 0; hp < p.max_iterations; ++hp) {
+      window_fits(
+          g, labels, p.window, p.num_threads, tile_scratch_,
+          [&](std::ptrdiff_t r, std::ptrdiff_t c) { return labels[r * W + c] == kNormal; },
+          [&](std::ptrdiff_t r, std::ptrdiff_t c, const WindowFit& f) {
+            if (!f.ok) return;
+            const double ah = std::abs(f.height);
+            const double rms = std::sqrt(std::max(f.l0, 0.0) / f.n);
+            const bool far = (p.height_abs > 0.0 && ah > p.height_abs) ||
+                             (p.height_k > 0.0 && ah > p.height_k * rms &&
+                              ah > 1e-9 * std::sqrt((f.l1 + f.l2) / f.n));
+            if (far) usable[r * W + c] |= kMark;
+          });
+      ++iterations;
+      std::ptrdiff_t added = 0;
+      for (std::ptrdiff_t i = 0; i < N; ++i) {
+        if (usable[i] & kMark) {
+          usable[i] = 0;
+          labels[i] = kAbnormal;
+          ++added;
+        }
+      }
+      if (added == 0) break;
+    }
+  }
+
   DetectSummary summary;
   summary.iterations = iterations;
+  summary.theta0_deg = p.theta0_deg;
 
   // The MIEM plane: finite, non-ABNORMAL cells; per-row moments merged in a fixed tree order.
   {
@@ -470,7 +559,12 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
   }
   const int half = p.window / 2;
   if (p.height_mode == HeightMode::kAll) {
-    heights_all(g, labels, p.window, p.num_threads, tile_scratch_, height);
+    window_fits(
+        g, labels, p.window, p.num_threads, tile_scratch_,
+        [&](std::ptrdiff_t, std::ptrdiff_t) { return true; },
+        [&](std::ptrdiff_t r, std::ptrdiff_t c, const WindowFit& f) {
+          height[r * W + c] = (f.ok && labels[r * W + c] != kInvalid) ? f.height : kNaN;
+        });
   } else {
 #pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
     for (std::ptrdiff_t r = 0; r < H; ++r) {

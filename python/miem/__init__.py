@@ -11,9 +11,11 @@ abnormal (burr tips, spatter, dust, pits), points flagged in some only are desig
 
 from ._api import (
     ABNORMAL,
+    DEFAULT_PRESET,
     EDGE,
     INVALID,
     NORMAL,
+    PRESETS,
     Defect,
     DetectResult,
     Label,
@@ -27,9 +29,11 @@ from ._core import __version__
 
 __all__ = [
     "ABNORMAL",
+    "DEFAULT_PRESET",
     "EDGE",
     "INVALID",
     "NORMAL",
+    "PRESETS",
     "Defect",
     "DetectResult",
     "Label",

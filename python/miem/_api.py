@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import enum
 import numbers
+import re
 from dataclasses import dataclass, field
-from typing import Literal, Optional, Sequence, Union
+from typing import Any, Literal, Optional, Sequence, Union
 
 import numpy as np
 
@@ -24,6 +25,8 @@ __all__ = [
     "scan_line_angles",
     "scan_line_heights",
     "detect",
+    "PRESETS",
+    "DEFAULT_PRESET",
 ]
 
 
@@ -324,16 +327,73 @@ def scan_line_heights(line: np.ndarray, step: int = 1) -> np.ndarray:
     return _core.scan_line_heights(arr, step)
 
 
+class _Default:
+    """Marks a parameter the caller did not give: its value comes from the preset."""
+
+    def __repr__(self) -> str:
+        return "<from preset>"
+
+
+DEFAULT: Any = _Default()
+
+#: Named parameter sets for :func:`detect`. ``"paper"`` is the paper's method exactly.
+PRESETS: dict = {
+    "paper": {
+        "theta0": 75.0,
+        "scales": (1,),
+        "max_gap": 1,
+        "min_step": None,
+        "min_directions": None,
+        "max_iterations": 10,
+        "window": 21,
+        "height_tolerance": None,
+    },
+}
+
+#: The preset used when ``preset`` is not given.
+DEFAULT_PRESET = "paper"
+
+_RMS = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*rms\s*$")
+
+
+def _height_tolerance(value: object) -> tuple:
+    """(absolute, k_rms) from None, a length or a '<k>rms' string; 0 means off."""
+    if value is None:
+        return 0.0, 0.0
+    if isinstance(value, str):
+        m = _RMS.match(value)
+        if not m or not float(m.group(1)) > 0 or not np.isfinite(float(m.group(1))):
+            raise ValueError(
+                f"height_tolerance: expected a length > 0, '<k>rms' with k > 0 (e.g. '4rms') "
+                f"or None, got {value!r}")
+        return 0.0, float(m.group(1))
+    v = _real("height_tolerance", value)
+    if not v > 0:
+        raise ValueError(f"height_tolerance: expected a length > 0, got {v}")
+    return v, 0.0
+
+
+def _resolve(preset: Optional[str], given: dict) -> dict:
+    name = DEFAULT_PRESET if preset is None else preset
+    if name not in PRESETS:
+        raise ValueError(f"preset: expected one of {sorted(PRESETS)}, got {preset!r}")
+    out = dict(PRESETS[name])
+    out.update({k: v for k, v in given.items() if v is not DEFAULT})
+    return out
+
+
 def detect(
     grid: np.ndarray,
-    theta0: float = 75.0,
-    scales: Union[int, Sequence[int]] = (1,),
-    max_gap: int = 1,
-    min_step: Optional[float] = None,
-    min_directions: Optional[int] = None,
-    max_iterations: int = 10,
-    window: int = 21,
+    theta0: Union[float, str] = DEFAULT,
+    scales: Union[int, Sequence[int]] = DEFAULT,
+    max_gap: int = DEFAULT,
+    min_step: Optional[float] = DEFAULT,
+    min_directions: Optional[int] = DEFAULT,
+    max_iterations: int = DEFAULT,
+    window: int = DEFAULT,
     *,
+    preset: Optional[str] = None,
+    height_tolerance: Union[None, float, str] = DEFAULT,
     max_reach: int = 32,
     heights: Literal["all", "abnormal"] = "all",
     num_threads: Optional[int] = None,
@@ -346,27 +406,38 @@ def detect(
     feature edge); in none: NORMAL. ABNORMAL points are removed and the rest judged again, up to
     ``max_iterations`` passes. See ``docs/SPEC.md`` for the exact rules.
 
+    Parameters not given come from ``preset`` (default ``"paper"``: the values in brackets).
+
     Parameters
     ----------
     grid : array_like, shape (H, W, 3)
         Organized scan: row = one laser profile, column = position along it. float32 or
         float64 are read in place (any strides); NaN (any non-finite coordinate) marks a dropout.
-    theta0 : float
-        Threshold angle in degrees, ``0 < theta0 < 180``. The paper's value is 75.
+    theta0 : float or "auto"
+        [75] Threshold angle in degrees, ``0 < theta0 < 180``. ``"auto"`` derives it from the
+        scan's own angle statistics: ``clip(180 - 6 sigma, 75, 170)`` with ``sigma`` a robust
+        spread of ``180 - angle``, so small burrs are caught on quiet scans without false alarms
+        on noisy ones (``result.params["theta0"]`` holds the value used).
     scales : int or sequence of int
-        Neighbour distances in cells; ``(1, 2)`` also catches defects two cells wide. The
-        paper's behaviour is ``(1,)``.
+        [(1,)] Neighbour distances in cells; ``(1, 2)`` also catches defects two cells wide.
     max_gap : int
-        Unusable cells (dropouts, removed points) that may be skipped to reach a neighbour.
+        [1] Unusable cells (dropouts, removed points) that may be skipped to reach a neighbour.
     min_step : float, optional
-        Minimum neighbour distance in the grid's units (per scale: ``s * min_step``), so that
-        the test sees the same physical scale along and across profiles. None: off.
+        [None] Minimum neighbour distance in the grid's units (per scale: ``s * min_step``), so
+        that the test sees the same physical scale along and across profiles. None: off.
     min_directions : int, optional
-        Flagged directions needed for ABNORMAL (1-4); default: all available ones.
+        [None] Flagged directions needed for ABNORMAL (1-4); None: all available ones.
     max_iterations : int
-        Maximum number of passes (>= 1).
+        [10] Maximum number of passes (>= 1).
     window : int
-        Side, in cells, of the square used for the local plane under each point (odd, >= 3).
+        [21] Side, in cells, of the square used for the local plane under each point (odd, >= 3).
+    preset : {"paper"}, optional
+        A named parameter set (:data:`miem.PRESETS`); explicit arguments override its values.
+    height_tolerance : float, str or None
+        [None] Height test, beyond the paper: after the angle passes, a NORMAL point farther than
+        this from its local plane becomes ABNORMAL (catches smooth spatter domes and wide burrs
+        the angle test cannot see; EDGE points are never changed). A length in the grid's units,
+        or ``"<k>rms"`` for ``k`` times the local plane's rms. None: off.
     max_reach : int
         With ``min_step``: how many cells beyond ``scale + max_gap`` the search may go.
     heights : {"all", "abnormal"}
@@ -394,44 +465,60 @@ def detect(
     >>> np.argwhere(res.labels == miem.ABNORMAL).tolist(), round(res.defects[0].peak_height, 6)
     ([[10, 12]], 3.0)
     """
+    cfg = _resolve(preset, {
+        "theta0": theta0, "scales": scales, "max_gap": max_gap, "min_step": min_step,
+        "min_directions": min_directions, "max_iterations": max_iterations, "window": window,
+        "height_tolerance": height_tolerance,
+    })
     arr = _as_float_array(grid, "grid")
     if arr.ndim != 3 or arr.shape[2] != 3:
         raise ValueError(f"grid: expected shape (H, W, 3), got {arr.shape}")
     if arr.shape[0] * arr.shape[1] < 3:
         raise ValueError(f"grid: need at least 3 points, got {arr.shape[0] * arr.shape[1]}")
-    theta0_v = _real("theta0", theta0)
-    if not 0.0 < theta0_v < 180.0:
-        raise ValueError(f"theta0: expected 0 < theta0 < 180 degrees, got {theta0_v}")
+    theta0 = cfg["theta0"]
+    auto = isinstance(theta0, str)
+    if auto:
+        if theta0 != "auto":
+            raise ValueError(f"theta0: expected degrees or 'auto', got {theta0!r}")
+        theta0_v = 75.0
+    else:
+        theta0_v = _real("theta0", theta0)
+        if not 0.0 < theta0_v < 180.0:
+            raise ValueError(f"theta0: expected 0 < theta0 < 180 degrees, got {theta0_v}")
+    scales = cfg["scales"]
     if isinstance(scales, numbers.Integral) and not isinstance(scales, (bool, np.bool_)):
         scales = (scales,)
     try:
-        scale_list = [_int("scales", s, 1) for s in scales]  # type: ignore[union-attr]
+        scale_list = [_int("scales", s, 1) for s in scales]
     except TypeError:
         raise ValueError(f"scales: expected integers >= 1, got {scales!r}") from None
     if not scale_list:
         raise ValueError("scales: must contain at least one scale")
-    gap = _int("max_gap", max_gap, 0)
+    gap = _int("max_gap", cfg["max_gap"], 0)
+    min_step = cfg["min_step"]
     if min_step is None:
         step_v = -1.0
     else:
         step_v = _real("min_step", min_step)
         if step_v < 0:
             raise ValueError(f"min_step: expected a length >= 0 or None, got {step_v}")
+    min_directions = cfg["min_directions"]
     md = 0 if min_directions is None else _int("min_directions", min_directions, 1)
     if md > 4:
         raise ValueError(f"min_directions: expected 1..4 or None, got {md}")
-    iters = _int("max_iterations", max_iterations, 1)
-    win = _int("window", window, 3)
+    iters = _int("max_iterations", cfg["max_iterations"], 1)
+    win = _int("window", cfg["window"], 3)
     if win % 2 == 0:
         raise ValueError(f"window: expected an odd number of cells, got {win}")
+    h_abs, h_k = _height_tolerance(cfg["height_tolerance"])
     reach = _int("max_reach", max_reach, 1)
     if heights not in ("all", "abnormal"):
         raise ValueError(f"heights: expected 'all' or 'abnormal', got {heights!r}")
     nt = _threads(num_threads)
 
-    labels, flags, angle, height, plane_t, iterations, raw = _core.detect_organized(
+    labels, flags, angle, height, plane_t, iterations, raw, theta0_used = _core.detect_organized(
         arr, theta0_v, scale_list, gap, step_v, reach, md, iters, win,
-        0 if heights == "all" else 1, nt,
+        0 if heights == "all" else 1, nt, auto, h_abs, h_k,
     )
     width = arr.shape[1]
     defects = [
@@ -443,9 +530,10 @@ def detect(
         for (i, idx, c, n, pk, mh, ex, kind) in raw
     ]
     params = dict(
-        theta0=theta0_v, scales=tuple(scale_list), max_gap=gap, min_step=min_step,
-        min_directions=min_directions, max_iterations=iters, window=win, max_reach=reach,
-        heights=heights,
+        preset=DEFAULT_PRESET if preset is None else preset, theta0=float(theta0_used),
+        theta0_auto=auto, scales=tuple(scale_list), max_gap=gap, min_step=min_step,
+        min_directions=min_directions, max_iterations=iters, window=win,
+        height_tolerance=cfg["height_tolerance"], max_reach=reach, heights=heights,
     )
     return DetectResult(
         labels=labels, flags=flags, angle=angle, height=height,

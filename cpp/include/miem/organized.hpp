@@ -60,6 +60,9 @@ struct DetectParams {
   int max_iterations = 10;        ///< passes at most (>= 1)
   int window = 21;                ///< height-plane window in cells (odd >= 3)
   HeightMode height_mode = HeightMode::kAll;  ///< which cells get a height
+  bool theta0_auto = false;       ///< derive theta0 from the scan's own angles (SPEC.md)
+  double height_abs = 0.0;        ///< > 0: height test, |height| above this is ABNORMAL
+  double height_k = 0.0;          ///< > 0: height test, |height| above k * local rms is ABNORMAL
   int num_threads = 0;            ///< 0: all available; the labels never depend on it
 };
 
@@ -95,7 +98,8 @@ struct OrganizedOutput {
 
 /// What a detection run returns besides the per-cell buffers.
 struct DetectSummary {
-  int iterations = 0;
+  int iterations = 0;                ///< angle passes plus height passes
+  double theta0_deg = 0.0;           ///< the threshold used (differs from params with auto)
   std::optional<Plane> plane;        ///< the MIEM plane (eigen fit of non-ABNORMAL points)
   std::vector<Defect> defects;       ///< ordered by |peak_height| descending
 };
@@ -129,6 +133,8 @@ class OrganizedDetector {
   std::vector<double> height_scratch_;
   std::vector<double> tile_scratch_;
   std::vector<detail::RowScratch> row_scratch_;
+  std::vector<double> survey_;
+  DetectParams eff_;
   std::vector<std::int64_t> queue_;
 };
 

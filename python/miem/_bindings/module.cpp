@@ -102,7 +102,8 @@ py::array_t<double> scan_line(const py::array& line, int step) {
 
 py::tuple detect_organized(const py::array& grid, double theta0, std::vector<int> scales,
                            int max_gap, double min_step, int max_reach, int min_directions,
-                           int max_iterations, int window, int height_mode, int num_threads) {
+                           int max_iterations, int window, int height_mode, int num_threads,
+                           bool theta0_auto, double height_abs, double height_k) {
   require_float(grid, "grid");
   if (grid.ndim() != 3 || grid.shape(2) != 3) {
     throw std::invalid_argument("grid: expected shape (H, W, 3)");
@@ -119,6 +120,9 @@ py::tuple detect_organized(const py::array& grid, double theta0, std::vector<int
   if (height_mode != 0 && height_mode != 1) throw std::invalid_argument("height: bad mode");
   p.height_mode = static_cast<miem::HeightMode>(height_mode);
   p.num_threads = num_threads;
+  p.theta0_auto = theta0_auto;
+  p.height_abs = height_abs;
+  p.height_k = height_k;
   miem::OrganizedDetector det(p);  // validates
 
   const py::ssize_t H = grid.shape(0), W = grid.shape(1);
@@ -144,7 +148,8 @@ py::tuple detect_organized(const py::array& grid, double theta0, std::vector<int
                                   d.mean_height, d.extent, miem::to_string(d.kind)));
   }
   py::object plane = s.plane ? py::object(plane_tuple(*s.plane)) : py::object(py::none());
-  return py::make_tuple(labels, flags, angle, height, plane, s.iterations, defects);
+  return py::make_tuple(labels, flags, angle, height, plane, s.iterations, defects,
+                        s.theta0_deg);
 }
 
 }  // namespace
@@ -163,5 +168,6 @@ PYBIND11_MODULE(_core, m) {
   m.def("detect_organized", &detect_organized, py::arg("grid"), py::arg("theta0"),
         py::arg("scales"), py::arg("max_gap"), py::arg("min_step"), py::arg("max_reach"),
         py::arg("min_directions"), py::arg("max_iterations"), py::arg("window"),
-        py::arg("height_mode"), py::arg("num_threads"));
+        py::arg("height_mode"), py::arg("num_threads"), py::arg("theta0_auto") = false,
+        py::arg("height_abs") = 0.0, py::arg("height_k") = 0.0);
 }
