@@ -1,0 +1,836 @@
+"""The ``miem`` command line: detect, fit, simulate, plot.
+
+``miem detect SCAN...`` labels scans and writes, per scan, the labelled cloud and a defect report
+(JSON and CSV) for the grinding robot, and prints a summary table. ``miem fit`` compares the
+least-squares, eigenvalue and MIEM planes; ``miem simulate`` writes the paper's surface or a
+generated scan; ``miem plot`` draws a labelled scan. Run ``miem COMMAND --help`` for the options.
+
+Exit status: 0 when every input was processed, 1 when at least one failed (the others are still
+processed), 2 on a usage error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import inspect
+import json
+import math
+import os
+import re
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+from . import io as mio
+
+__all__ = ["main"]
+
+# Command-line option -> miem.detect argument. Presets (--preset) are miem.PRESETS, the
+# detector's own named parameter sets: adding one there adds it here.
+_DETECT_OPTIONS = {
+    "theta0": "theta0",
+    "scales": "scales",
+    "max_gap": "max_gap",
+    "min_step": "min_step",
+    "min_directions": "min_directions",
+    "max_iterations": "max_iterations",
+    "window": "window",
+    "height_tolerance": "height_tolerance",
+    "max_reach": "max_reach",
+    "threads": "num_threads",
+}
+
+_WRITE_FORMATS = [name for name, spec in mio.FORMATS.items() if spec["write"]]
+_READ_FORMATS = list(mio.FORMATS)
+_AXES = {"x": 0, "y": 1, "z": 2}
+
+
+class _Failure(Exception):
+    """One input could not be processed; the message is printed, the batch goes on."""
+
+
+def _presets() -> tuple[dict[str, dict[str, Any]], str]:
+    from . import DEFAULT_PRESET, PRESETS
+
+    return PRESETS, DEFAULT_PRESET
+
+
+def _detect_defaults() -> dict[str, Any]:
+    """The default value of every detect option: the default preset, then detect's signature."""
+    from . import detect
+
+    presets, default = _presets()
+    sig = inspect.signature(detect)
+    out = {name: sig.parameters[name].default for name in _DETECT_OPTIONS.values()
+           if name in sig.parameters}
+    out.update(presets[default])
+    return out
+
+
+def _fmt_default(value: Any) -> str:
+    if value is None:
+        return "off"
+    if isinstance(value, (tuple, list)):
+        return " ".join(str(v) for v in value)
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+# ---------------------------------------------------------------------------------------------
+# argument parsing
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {v}")
+    return v
+
+
+def _nonneg_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {v}")
+    return v
+
+
+def _finite_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return v
+
+
+def _theta0(text: str) -> float | str:
+    return "auto" if text.strip().lower() == "auto" else _finite_float(text)
+
+
+def _height_tolerance(text: str) -> float | str:
+    t = text.strip().lower()
+    if t.endswith("rms"):
+        _finite_float(t[:-3] or "x")
+        return t
+    return _finite_float(text)
+
+
+def _add_detect_options(parser: argparse.ArgumentParser) -> None:
+    d = _detect_defaults()
+    presets, default = _presets()
+    g = parser.add_argument_group(
+        "detection parameters",
+        f"A preset (miem.PRESETS) sets them all; the defaults below are preset '{default}', "
+        "the paper's method. An option given here overrides the preset.",
+    )
+    g.add_argument("--preset", choices=sorted(presets), default=default,
+                   help=f"named parameter set (default: {default})")
+    g.add_argument("--theta0", type=_theta0, metavar="DEG",
+                   help="angle threshold in degrees, 0 < DEG < 180: a direction is flagged when "
+                        "the interior angle at the point is at most DEG; 'auto' derives it from "
+                        f"the scan's angle statistics (default: {_fmt_default(d['theta0'])})")
+    g.add_argument("--scales", type=_positive_int, nargs="+", metavar="N",
+                   help="neighbour distances in grid cells; '1 2' also finds defects two "
+                        f"points wide (default: {_fmt_default(d['scales'])})")
+    g.add_argument("--max-gap", type=_nonneg_int, metavar="CELLS",
+                   help="missing or removed cells that may be skipped to reach a neighbour "
+                        f"(default: {_fmt_default(d['max_gap'])})")
+    g.add_argument("--min-step", type=_finite_float, metavar="LENGTH",
+                   help="minimum neighbour distance in the scan's units (mm), so that "
+                        "directions with a small point spacing see the same physical scale "
+                        f"(default: {_fmt_default(d['min_step'])})")
+    g.add_argument("--min-directions", type=int, choices=[1, 2, 3, 4], metavar="N",
+                   help="flagged directions needed for ABNORMAL, 1-4 "
+                        "(default: all available directions)")
+    g.add_argument("--max-iterations", type=_positive_int, metavar="N",
+                   help="maximum detection passes; each pass removes the points found and "
+                        f"judges the rest again (default: {_fmt_default(d['max_iterations'])})")
+    g.add_argument("--window", type=_positive_int, metavar="CELLS",
+                   help="side of the square (odd number of cells) whose NORMAL points give "
+                        f"the local surface for heights (default: {_fmt_default(d['window'])})")
+    g.add_argument("--height-tolerance", type=_height_tolerance, metavar="LENGTH|Krms",
+                   help="height test (beyond the paper): a NORMAL point farther than LENGTH "
+                        "(scan units, mm) from its local plane, or K times that plane's rms "
+                        "('4rms'), becomes ABNORMAL; catches smooth spatter and wide burrs "
+                        f"(default: {_fmt_default(d.get('height_tolerance'))})")
+    g.add_argument("--max-reach", type=_positive_int, metavar="CELLS",
+                   help="with --min-step: how many cells further the neighbour search may go "
+                        f"(default: {_fmt_default(d['max_reach'])})")
+    g.add_argument("--threads", type=_positive_int, metavar="N",
+                   help="worker threads (default: all cores); results do not depend on it")
+    s = parser.add_argument_group(
+        "reading",
+        "Unorganized files (N x 3, e.g. a PCD with HEIGHT 1) are rebuilt into a grid from "
+        "their scan-line order (miem.io.grid_from_scanlines): a new profile starts where the "
+        "line coordinate changes.",
+    )
+    s.add_argument("--input-format", choices=_READ_FORMATS, metavar="FORMAT",
+                   help="read every input as FORMAT instead of guessing from its suffix "
+                        f"({', '.join(_READ_FORMATS)})")
+    s.add_argument("--line-step", type=_finite_float, metavar="LENGTH",
+                   help="point spacing along a profile, in the scan's units "
+                        "(default: estimated from the data)")
+    s.add_argument("--line-axis", choices=list(_AXES), default="y",
+                   help="coordinate that is constant within a profile (default: y)")
+    s.add_argument("--along-axis", choices=list(_AXES), default="x",
+                   help="coordinate that runs along a profile (default: x)")
+    s.add_argument("--line-tol", type=_finite_float, metavar="LENGTH",
+                   help="change of the line coordinate that starts a new profile "
+                        "(default: half the point spacing)")
+    s.add_argument("--duplicates", choices=["error", "first", "last"], default="error",
+                   help="two points in one grid cell: fail, or keep the first/last "
+                        "(default: error)")
+
+
+def _add_common(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--units", default="mm", metavar="NAME",
+                        help="name of the scan's length unit, for printing only (default: mm)")
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    from . import __version__
+
+    fmt = argparse.RawDescriptionHelpFormatter
+    parser = argparse.ArgumentParser(
+        prog="miem",
+        description="Find abnormal points (burr tips, weld spatter, dust, pits, dropouts) in "
+                    "laser scans with the Multidimensional Improved Eigenvalue Method.",
+        epilog="Run 'miem COMMAND --help' for the options of a command. Scan formats: PCD "
+               "(ascii, binary, binary_compressed), PLY, LAS/LAZ, XYZ/CSV/TXT columns, NumPy "
+               ".npy/.npz, Gocator CSV export (read only). Exit status: 0 all inputs done, 1 "
+               "some input failed, 2 usage error.",
+        formatter_class=fmt,
+    )
+    parser.add_argument("--version", action="version", version=f"miem {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    # detect
+    p = sub.add_parser(
+        "detect", formatter_class=fmt,
+        help="label scans, write labelled clouds and defect reports",
+        description="Label each scan (NORMAL, ABNORMAL, EDGE, INVALID) and write, per scan, "
+                    "into the output directory:\n"
+                    "  NAME.labels.EXT     the points with fields label (0 NORMAL, 1 ABNORMAL, "
+                    "2 EDGE, 3 INVALID),\n"
+                    "                      flags (bitmask of flagged directions), angle "
+                    "(degrees), height (signed\n"
+                    "                      distance from the local surface, scan units)\n"
+                    "  NAME.defects.json   defects: id, count, kind, centroid, normal (tool "
+                    "axis), peak height, peak point,\n"
+                    "                      mean height, extent, point indices into "
+                    "NAME.labels.EXT\n"
+                    "  NAME.defects.csv    the same, one row per defect (without indices)\n"
+                    "and print a summary table. A scan that fails is reported and the others are "
+                    "still processed.",
+    )
+    p.add_argument("scans", nargs="+", metavar="SCAN", help="scan files")
+    p.add_argument("-o", "--out-dir", default=".", metavar="DIR",
+                   help="output directory, created if missing (default: the current directory)")
+    p.add_argument("--format", choices=["same"] + _WRITE_FORMATS, default="same",
+                   help="format of the labelled cloud (default: same as the input; PCD for a "
+                        "Gocator CSV)")
+    p.add_argument("--encoding", choices=["binary", "binary_compressed", "ascii"],
+                   help="PCD/PLY encoding of the labelled cloud (default: binary; PLY has no "
+                        "compression, binary_compressed means binary there)")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="print nothing but errors")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bar on stderr (it is shown only on a terminal)")
+    _add_common(p)
+    _add_detect_options(p)
+    p.set_defaults(func=_cmd_detect)
+
+    # fit
+    p = sub.add_parser(
+        "fit", formatter_class=fmt,
+        help="compare the least-squares, eigenvalue and MIEM planes",
+        description="Fit a plane to each scan three ways and print them side by side: least "
+                    "squares z = ax + by + c (the paper's baseline), the eigenvalue method "
+                    "(all points) and MIEM (the eigenvalue fit without the ABNORMAL points). "
+                    "Planes are n . p + d = 0 with a unit normal n (n_z > 0); rms is the RMS "
+                    "orthogonal distance of the fitted points; tilt is the angle between a "
+                    "plane's normal and the MIEM normal.",
+    )
+    p.add_argument("scans", nargs="+", metavar="SCAN", help="scan files")
+    _add_common(p)
+    _add_detect_options(p)
+    p.set_defaults(func=_cmd_fit)
+
+    # simulate
+    from . import simulate as sim
+
+    p = sub.add_parser(
+        "simulate", formatter_class=fmt,
+        help="write the paper's surface or a generated scan",
+        description="Write a synthetic organized scan with ground truth in the field 'truth' "
+                    "(0 normal, 1 injected defect, 2 designed edge, 3 dropout).\n"
+                    "  paper  the paper's surface z = 2/5 exp(-x^2/50), x in [-50, 30], "
+                    "y in [-50, 50] mm,\n"
+                    "         two edge strips and 5 abnormal points (2 on the strips)\n"
+                    "  scan   a workpiece surface (--surface) with spikes, pits, dust, clusters",
+    )
+    p.add_argument("kind", choices=["paper", "scan"], help="what to generate")
+    p.add_argument("-o", "--output", required=True, metavar="FILE",
+                   help="output scan file; its suffix selects the format")
+    p.add_argument("--step", type=_finite_float, metavar="LENGTH",
+                   help="grid spacing in mm (default: 0.5 for paper, 0.3 for scan)")
+    p.add_argument("--noise", type=_finite_float, default=0.0, metavar="FRACTION",
+                   help="z noise standard deviation as a fraction of the step (default: 0)")
+    p.add_argument("--dropout", type=_finite_float, default=0.0, metavar="FRACTION",
+                   help="fraction of cells without a return (NaN), 0-0.5 (default: 0)")
+    p.add_argument("--seed", type=_nonneg_int, default=0, help="random seed (default: 0)")
+    p.add_argument("--shape", type=_positive_int, nargs=2, metavar=("H", "W"),
+                   default=[128, 128],
+                   help="scan: profiles and points per profile (default: 128 128)")
+    p.add_argument("--surface", choices=list(sim.SURFACES), default="plane",
+                   help="scan: the workpiece surface (default: plane)")
+    p.add_argument("--defects", default="spike=2,pit=2,dust=1", metavar="KIND=N,...",
+                   help=f"scan: defects to inject, kinds {', '.join(sim.DEFECT_KINDS)} "
+                        "(default: spike=2,pit=2,dust=1; 'none' for none)")
+    p.add_argument("--origin", type=_finite_float, nargs=3, metavar=("X", "Y", "Z"),
+                   default=[0.0, 0.0, 0.0],
+                   help="scan: shift of the whole scan in mm, e.g. a robot-base position "
+                        "(default: 0 0 0)")
+    p.add_argument("--encoding", choices=["binary", "binary_compressed", "ascii"],
+                   help="PCD/PLY encoding (default: binary)")
+    p.set_defaults(func=_cmd_simulate)
+
+    # plot
+    p = sub.add_parser(
+        "plot", formatter_class=fmt,
+        help="draw a scan coloured by label, with a height map and the largest defects",
+        description="Detect, then draw a PNG: the cloud coloured by label (ABNORMAL red, EDGE "
+                    "blue, NORMAL grey) with the largest defects numbered, a height map of z "
+                    "with those defects circled, and a table of them. Needs matplotlib "
+                    "(pip install \"miem[plot]\").",
+    )
+    p.add_argument("scan", metavar="SCAN", help="scan file")
+    p.add_argument("-o", "--output", metavar="PNG",
+                   help="output image (default: SCAN's name with .png, in the current "
+                        "directory)")
+    p.add_argument("--view", choices=["3d", "top"], default="3d",
+                   help="first panel: perspective or top view (default: 3d)")
+    p.add_argument("--title", help="figure title (default: the scan's file name)")
+    p.add_argument("--max-labels", type=_nonneg_int, default=10, metavar="N",
+                   help="defects to number and list, largest first (default: 10)")
+    p.add_argument("--size", type=_finite_float, nargs=2, default=[16.0, 6.0],
+                   metavar=("W", "H"), help="figure size in inches (default: 16 6)")
+    p.add_argument("--dpi", type=_positive_int, default=100,
+                   help="pixels per inch; the PNG is W*dpi x H*dpi pixels (default: 100)")
+    _add_common(p)
+    _add_detect_options(p)
+    p.set_defaults(func=_cmd_plot)
+    return parser
+
+
+# ---------------------------------------------------------------------------------------------
+# shared steps
+
+
+def _detect_kwargs(args: argparse.Namespace) -> dict[str, Any]:
+    """The miem.detect arguments: the preset, overridden by the options given.
+
+    Raises
+    ------
+    ValueError
+        A parameter out of range (checked once here, by miem.detect itself on a tiny grid, so
+        that a bad option is a usage error rather than a failure of every scan).
+    """
+    from . import detect
+
+    kwargs: dict[str, Any] = {"preset": args.preset}
+    for opt, name in _DETECT_OPTIONS.items():
+        value = getattr(args, opt)
+        if value is not None:
+            kwargs[name] = tuple(value) if opt == "scales" else value
+    r, c = np.mgrid[0:3, 0:3]
+    detect(np.dstack([c, r, np.zeros((3, 3))]).astype(np.float64), **kwargs)
+    return kwargs
+
+
+def _kwargs_or_exit(args: argparse.Namespace) -> dict[str, Any] | None:
+    try:
+        return _detect_kwargs(args)
+    except ValueError as exc:
+        print(f"miem: error: bad detection parameter: {exc}", file=sys.stderr)
+        return None
+
+
+class _Loaded:
+    """A scan ready for detection: the grid, and how to map cells back to the file's points."""
+
+    def __init__(self, data: mio.ScanData, grid: np.ndarray, index: np.ndarray | None) -> None:
+        self.data = data
+        self.grid = grid
+        self.index = index  # input point -> flat cell (-1: not in the grid); None if organized
+
+
+def _load(path: Path, args: argparse.Namespace) -> _Loaded:
+    try:
+        data = mio.read(path, format=args.input_format)
+    except (OSError, ValueError, ImportError) as exc:
+        raise _Failure(str(exc)) from exc
+    if data.organized:
+        return _Loaded(data, data.points, None)
+    try:
+        grid, index = mio.grid_from_scanlines(
+            data.points, step=args.line_step, line_axis=_AXES[args.line_axis],
+            along_axis=_AXES[args.along_axis], line_tol=args.line_tol,
+            duplicates=args.duplicates, return_index=True,
+        )
+    except ValueError as exc:
+        raise _Failure(
+            f"{path}: the file is unorganized ({data.points.shape[0]:,} points) and no grid "
+            f"could be rebuilt from its scan lines: {exc}. miem needs an organized scan "
+            "(rows = profiles); see --line-step, --line-axis, --along-axis, --line-tol"
+        ) from exc
+    return _Loaded(data, grid, index)
+
+
+def _detect(loaded: _Loaded, kwargs: dict[str, Any], path: Path) -> Any:
+    from . import detect
+
+    try:
+        return detect(loaded.grid, **kwargs)
+    except ValueError as exc:
+        raise _Failure(f"{path}: {exc}") from exc
+
+
+def _is_same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+# ---------------------------------------------------------------------------------------------
+# progress on stderr
+
+
+class _Progress:
+    """A one-line progress bar on stderr, drawn only when stderr is a terminal."""
+
+    def __init__(self, total: int, enabled: bool, stream: TextIO | None = None) -> None:
+        self.stream = stream or sys.stderr
+        self.total = max(total, 1)
+        self.enabled = enabled and getattr(self.stream, "isatty", lambda: False)()
+        self.width = 0
+
+    def show(self, done: float, text: str) -> None:
+        if not self.enabled:
+            return
+        frac = min(max(done / self.total, 0.0), 1.0)
+        bar = "#" * round(24 * frac)
+        line = f"[{bar:<24s}] {int(done)}/{self.total} {text}"
+        if len(line) > 100:
+            line = line[:97] + "..."
+        pad = max(self.width - len(line), 0)
+        self.stream.write("\r" + line + " " * pad)
+        self.stream.flush()
+        self.width = len(line)
+
+    def close(self) -> None:
+        if self.enabled and self.width:
+            self.stream.write("\r" + " " * self.width + "\r")
+            self.stream.flush()
+
+
+# ---------------------------------------------------------------------------------------------
+# detect
+
+
+def _json_float(v: float) -> float | None:
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+def _json_vec(v: np.ndarray) -> list[float | None]:
+    return [_json_float(x) for x in np.asarray(v, dtype=np.float64)]
+
+
+def _defect_rows(loaded: _Loaded, result: Any) -> list[dict[str, Any]]:
+    """Defects as plain dicts; indices refer to the points of the labelled output cloud."""
+    flat = loaded.grid.reshape(-1, 3)
+    height = np.asarray(result.height).reshape(-1)
+    inverse = None
+    if loaded.index is not None:
+        inverse = np.full(flat.shape[0], -1, dtype=np.int64)
+        ok = loaded.index >= 0
+        inverse[loaded.index[ok]] = np.flatnonzero(ok)
+    rows = []
+    for d in result.defects:
+        cells = np.asarray(d.indices, dtype=np.int64)
+        h = height[cells]
+        k = int(np.nanargmax(np.abs(h))) if np.isfinite(h).any() else 0
+        idx = cells if inverse is None else inverse[cells]
+        rows.append({
+            "id": int(d.id),
+            "kind": str(d.kind),
+            "count": int(d.count),
+            "centroid": _json_vec(d.centroid),
+            "normal": _json_vec(d.normal),
+            "peak_height": _json_float(d.peak_height),
+            "peak_point": _json_vec(flat[cells[k]]),
+            "mean_height": _json_float(d.mean_height),
+            "extent": _json_float(d.extent),
+            "indices": [int(i) for i in np.sort(idx)],
+        })
+    return rows
+
+
+def _compact_json(doc: Any) -> str:
+    """JSON with two-space indents but each list of numbers on one line."""
+    text = json.dumps(doc, indent=2, allow_nan=False)
+    return re.sub(r"\[\s+([-+0-9.eE,\snul]*?)\s+\]",
+                  lambda m: "[" + ", ".join(t.strip() for t in m.group(1).split(",")) + "]",
+                  text)
+
+
+def _write_reports(stem: Path, path: Path, loaded: _Loaded, result: Any, cloud: Path,
+                   seconds: float) -> tuple[Path, Path]:
+    from . import __version__
+
+    rows = _defect_rows(loaded, result)
+    plane = result.plane
+    grid_shape = list(loaded.grid.shape[:2])
+    doc = {
+        "miem_version": __version__,
+        "scan": str(path),
+        "format": loaded.data.format,
+        "points": int(np.prod(loaded.data.points.shape[:-1])),
+        "organized": bool(loaded.data.organized),
+        "grid": grid_shape,
+        "labelled_cloud": cloud.name,
+        "parameters": {k: (list(v) if isinstance(v, tuple) else v)
+                       for k, v in result.params.items()},
+        "iterations": int(result.iterations),
+        "counts": result.counts(),
+        "plane": None if plane is None else {
+            "normal": _json_vec(plane.normal), "d": _json_float(plane.d),
+            "rms": _json_float(plane.rms), "n_points": int(plane.n_points),
+        },
+        "seconds": round(seconds, 4),
+        "defects": rows,
+    }
+    json_path = stem.with_name(stem.name + ".defects.json")
+    csv_path = stem.with_name(stem.name + ".defects.csv")
+    with mio._atomic(json_path) as tmp:
+        tmp.write_text(_compact_json(doc) + "\n", encoding="utf-8")
+    header = ["id", "kind", "count", "peak_height", "mean_height", "extent",
+              "centroid_x", "centroid_y", "centroid_z", "normal_x", "normal_y", "normal_z",
+              "peak_x", "peak_y", "peak_z"]
+
+    def cell(v: Any) -> str:
+        return "nan" if v is None else (f"{v:.10g}" if isinstance(v, float) else str(v))
+
+    with mio._atomic(csv_path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(header)
+        for r in rows:
+            w.writerow([cell(v) for v in (r["id"], r["kind"], r["count"], r["peak_height"],
+                                          r["mean_height"], r["extent"], *r["centroid"],
+                                          *r["normal"], *r["peak_point"])])
+    return json_path, csv_path
+
+
+def _output_fields(loaded: _Loaded, result: Any) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Points and fields of the labelled cloud: the input's points in the input's order."""
+    res = mio.result_fields(result)
+    fields = {k: v for k, v in loaded.data.fields.items() if k not in res}
+    if loaded.index is None:
+        fields.update(res)
+        return loaded.data.points, fields
+    index = loaded.index
+    ok = index >= 0
+    for k, v in res.items():
+        flat = v.reshape(-1)
+        if v.dtype.kind == "f":
+            out = np.full(index.shape, np.nan, dtype=v.dtype)
+        else:
+            out = np.full(index.shape, 3 if k == "label" else 0, dtype=v.dtype)
+        out[ok] = flat[index[ok]]
+        fields[k] = out
+    return loaded.data.points, fields
+
+
+def _cmd_detect(args: argparse.Namespace) -> int:
+    kwargs = _kwargs_or_exit(args)
+    if kwargs is None:
+        return 2
+    out_dir = Path(args.out_dir)
+    scans = [Path(s) for s in args.scans]
+    # Output names are decided up front: two inputs must not write the same files, and no
+    # output may replace an input.
+    plan = []
+    seen: dict[str, Path] = {}
+    for path in scans:
+        stem = path.name[: -len(path.suffix)] if path.suffix else path.name
+        if stem in seen:
+            print(f"miem: error: {path} and {seen[stem]} would write the same outputs "
+                  f"({stem}.*); process them into different --out-dir", file=sys.stderr)
+            return 2
+        seen[stem] = path
+        plan.append((path, out_dir / stem))
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        print(f"miem: error: cannot create the output directory {out_dir}: {exc}",
+              file=sys.stderr)
+        return 2
+
+    progress = _Progress(len(scans), not (args.quiet or args.no_progress))
+    summary = []
+    failed = 0
+    for i, (path, stem) in enumerate(plan):
+        name = path.name
+        t0 = time.perf_counter()
+        try:
+            progress.show(i, f"{name}: reading")
+            loaded = _load(path, args)
+            progress.show(i + 0.3, f"{name}: detecting")
+            td = time.perf_counter()
+            result = _detect(loaded, kwargs, path)
+            t_detect = time.perf_counter() - td
+            fmt = args.format
+            if fmt == "same":
+                fmt = loaded.data.format if mio.FORMATS[loaded.data.format]["write"] else "pcd"
+            ext = mio.FORMATS[fmt]["suffixes"][0]
+            cloud = stem.with_name(stem.name + ".labels" + ext)
+            outputs = [cloud, stem.with_name(stem.name + ".defects.json"),
+                       stem.with_name(stem.name + ".defects.csv")]
+            for out in outputs:
+                for src in scans:
+                    if _is_same_file(out, src):
+                        raise _Failure(f"{path}: refusing to overwrite the input {src} with "
+                                       f"an output; choose another --out-dir")
+            progress.show(i + 0.6, f"{name}: writing")
+            pts, fields = _output_fields(loaded, result)
+            enc = args.encoding if fmt in ("pcd", "ply") else None
+            if fmt == "ply" and enc == "binary_compressed":
+                enc = "binary"
+            try:
+                mio.write(cloud, pts, fields, format=fmt, encoding=enc)
+            except (OSError, ValueError, ImportError) as exc:
+                raise _Failure(f"{path}: cannot write {cloud}: {exc}") from exc
+            seconds = time.perf_counter() - t0
+            _write_reports(stem, path, loaded, result, cloud, seconds)
+        except _Failure as exc:
+            failed += 1
+            progress.close()
+            print(f"miem: error: {exc}", file=sys.stderr)
+            continue
+        counts = result.counts()
+        peaks = [abs(d.peak_height) for d in result.defects if math.isfinite(d.peak_height)]
+        summary.append((name, int(np.prod(loaded.data.points.shape[:-1])),
+                        "x".join(str(n) for n in loaded.grid.shape[:2]), counts["ABNORMAL"],
+                        counts["EDGE"], len(result.defects), max(peaks) if peaks else math.nan,
+                        t_detect, seconds))
+    progress.close()
+    if not args.quiet and summary:
+        _print_summary(summary, args.units, out_dir, scans, failed)
+    return 1 if failed else 0
+
+
+def _print_summary(rows: list[tuple], units: str, out_dir: Path, scans: list[Path],
+                   failed: int) -> None:
+    head = ("scan", "points", "grid", "abnormal", "edge", "defects", f"max |peak| ({units})",
+            "detect s", "total s")
+    body = [(r[0], f"{r[1]:,}", r[2], f"{r[3]:,}", f"{r[4]:,}", f"{r[5]:,}",
+             "-" if not math.isfinite(r[6]) else f"{r[6]:.3f}", f"{r[7]:.2f}", f"{r[8]:.2f}")
+            for r in rows]
+    widths = [max(len(h), *(len(b[j]) for b in body)) for j, h in enumerate(head)]
+    left = {0}
+
+    def line(cells: Sequence[str]) -> str:
+        return "  ".join(c.ljust(w) if j in left else c.rjust(w)
+                         for j, (c, w) in enumerate(zip(cells, widths)))
+
+    print(line(head))
+    print("  ".join("-" * w for w in widths))
+    for b in body:
+        print(line(b))
+    done = len(rows)
+    tail = f"{done} of {len(scans)} scans done" + (f", {failed} failed" if failed else "")
+    print(f"{tail}; outputs in {out_dir}/ (NAME.labels.*, NAME.defects.json, "
+          "NAME.defects.csv)")
+
+
+# ---------------------------------------------------------------------------------------------
+# fit
+
+
+def _cmd_fit(args: argparse.Namespace) -> int:
+    from . import fit_plane
+
+    kwargs = _kwargs_or_exit(args)
+    if kwargs is None:
+        return 2
+    failed = 0
+    for n_scan, raw in enumerate(args.scans):
+        path = Path(raw)
+        try:
+            loaded = _load(path, args)
+            result = _detect(loaded, kwargs, path)
+            pts = loaded.grid
+            try:
+                planes = [("least squares", fit_plane(pts, "lstsq")),
+                          ("eigenvalue", fit_plane(pts, "eigen"))]
+            except ValueError as exc:
+                raise _Failure(f"{path}: {exc}") from exc
+        except _Failure as exc:
+            failed += 1
+            print(f"miem: error: {exc}", file=sys.stderr)
+            continue
+        planes.append(("MIEM", result.plane))
+        n_abn = result.counts()["ABNORMAL"]
+        if n_scan:
+            print()
+        print(f"{path.name}: {loaded.data.n_finite:,} finite points, {n_abn:,} ABNORMAL "
+              f"removed by MIEM ({result.iterations} passes)")
+        print("plane n . p + d = 0, |n| = 1, n_z > 0; rms = RMS orthogonal distance; tilt = "
+              "angle to the MIEM normal")
+        ref = result.plane
+        d_col, rms_col = f"d ({args.units})", f"rms ({args.units})"
+        hdr = (f"{'method':14s} {'n_x':>11s} {'n_y':>11s} {'n_z':>11s} {d_col:>13s} "
+               f"{rms_col:>13s} {'points':>10s} {'tilt (deg)':>11s}")
+        print(hdr)
+        print("-" * len(hdr))
+        for name, pl in planes:
+            if pl is None:
+                print(f"{name:14s} {'(no plane: too few or degenerate points)':>60s}")
+                continue
+            tilt = math.nan
+            if ref is not None:
+                c = float(np.clip(abs(np.dot(pl.normal, ref.normal)), -1.0, 1.0))
+                tilt = math.degrees(math.acos(c))
+            n = pl.normal
+            print(f"{name:14s} {n[0]:+11.6f} {n[1]:+11.6f} {n[2]:+11.6f} {pl.d:+13.6f} "
+                  f"{pl.rms:13.6g} {pl.n_points:10,d} {tilt:11.4g}")
+    return 1 if failed else 0
+
+
+# ---------------------------------------------------------------------------------------------
+# simulate
+
+
+def _parse_defects(text: str) -> dict[str, int]:
+    if text.strip().lower() in ("", "none"):
+        return {}
+    out: dict[str, int] = {}
+    for item in text.split(","):
+        kind, sep, count = item.partition("=")
+        kind = kind.strip()
+        try:
+            n = int(count) if sep else 1
+        except ValueError:
+            raise ValueError(f"--defects: bad count in {item!r} (expected KIND=N)") from None
+        out[kind] = out.get(kind, 0) + n
+    return out
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from . import simulate as sim
+
+    out = Path(args.output)
+    try:
+        mio.format_from_path(out)
+        if args.kind == "paper":
+            scan = sim.paper_scan(step=0.5 if args.step is None else args.step,
+                                  noise=args.noise, seed=args.seed, dropout=args.dropout)
+        else:
+            scan = sim.make_scan(shape=tuple(args.shape),
+                                 step=0.3 if args.step is None else args.step,
+                                 surface=args.surface, noise=args.noise,
+                                 defects=_parse_defects(args.defects), dropout=args.dropout,
+                                 seed=args.seed, origin=tuple(args.origin))
+        enc = args.encoding
+        if out.suffix.lower() == ".ply" and enc == "binary_compressed":
+            enc = "binary"
+        mio.write(out, scan.points, {"truth": scan.truth}, encoding=enc)
+    except (OSError, ValueError, ImportError) as exc:
+        print(f"miem: error: {exc}", file=sys.stderr)
+        return 1
+    h, w = scan.shape
+    kinds: dict[str, int] = {}
+    for d in scan.defects:
+        kinds[d.kind] = kinds.get(d.kind, 0) + 1
+    what = ", ".join(f"{n} {k}" for k, n in kinds.items()) or "none"
+    print(f"wrote {out}: {scan.surface} surface, {h} x {w} grid ({h * w:,} points, step "
+          f"{scan.step:g} mm), injected defects: {what}; ground truth in field 'truth' "
+          f"({int((scan.truth == 1).sum())} defect points, {int((scan.truth == 2).sum())} "
+          f"edge, {int((scan.truth == 3).sum())} dropouts)")
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------
+# plot
+
+
+def _cmd_plot(args: argparse.Namespace) -> int:
+    from ._plot import plot_scan
+
+    path = Path(args.scan)
+    out = Path(args.output) if args.output else Path(path.stem + ".png")
+    if _is_same_file(out, path):
+        print(f"miem: error: refusing to overwrite the input {path}", file=sys.stderr)
+        return 2
+    kwargs = _kwargs_or_exit(args)
+    if kwargs is None:
+        return 2
+    try:
+        loaded = _load(path, args)
+        result = _detect(loaded, kwargs, path)
+        plot_scan(loaded.grid, result, out, title=args.title or path.name, units=args.units,
+                  view=args.view, max_labels=args.max_labels, size=tuple(args.size),
+                  dpi=args.dpi)
+    except _Failure as exc:
+        print(f"miem: error: {exc}", file=sys.stderr)
+        return 1
+    except (OSError, ValueError, ImportError) as exc:
+        print(f"miem: error: {path}: {exc}", file=sys.stderr)
+        return 1
+    print(f"wrote {out} ({args.size[0] * args.dpi:.0f} x {args.size[1] * args.dpi:.0f} px): "
+          f"{len(result.defects):,} defects, {result.counts()['ABNORMAL']:,} ABNORMAL points")
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the ``miem`` command line.
+
+    Parameters
+    ----------
+    argv : sequence of str, optional
+        Arguments without the program name (default: ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        Exit status: 0 success, 1 some input failed, 2 usage error.
+    """
+    parser = _build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args))
+    except KeyboardInterrupt:
+        print("miem: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())
