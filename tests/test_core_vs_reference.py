@@ -50,6 +50,12 @@ PARAMS = [
     {"theta0": 60.0, "max_gap": 0, "window": 5},
     {"scales": (2,), "min_step": 0.3, "max_reach": 3, "window": 7},
     {"scales": (1, 3), "theta0": 100.0, "max_iterations": 1},
+    # beyond the paper
+    {"theta0": "auto"},
+    {"height_tolerance": "4rms"},
+    {"height_tolerance": 0.05, "max_iterations": 2},
+    {"theta0": "auto", "scales": (1, 2), "height_tolerance": "3rms"},
+    {"preset": "paper", "theta0": 90.0},
 ]
 
 
@@ -86,12 +92,34 @@ def test_detect_matches_reference(seed: int, params: dict) -> None:
     grid = make_grid(seed)
     core = miem.detect(grid, **params)
     oracle = ref.detect(grid, **params)
+    assert core.params["theta0"] == pytest.approx(oracle.params["theta0"], abs=1e-9)
     # the scene must exercise the rules: abnormal and invalid cells present (edges with defaults)
     present = set(np.unique(oracle.labels).tolist())
     assert {0, 1, 3} <= present
+    if params.get("theta0") == "auto":  # a quiet scan: the automatic threshold is well above 75
+        assert core.params["theta0"] > 120.0
     if not params:
         assert 2 in present
     assert_same(core, oracle)
+
+
+def test_height_test_finds_a_smooth_dome_like_the_reference() -> None:
+    rng = np.random.default_rng(21)
+    yy, xx = np.mgrid[0:60, 0:60] * 0.3
+    z = rng.normal(0.0, 0.003, xx.shape) + 0.1 * np.exp(-((xx - 9) ** 2 + (yy - 9) ** 2) / 0.4)
+    z += np.where(xx > 12, (xx - 12) * np.tan(np.radians(25)), 0.0)  # a designed crease
+    grid = np.dstack([xx, yy, z])
+    dome = ((xx - 9) ** 2 + (yy - 9) ** 2) < 0.5
+    plain = miem.detect(grid)
+    assert not plain.abnormal[dome].any()  # the angle test cannot see it
+    for tol in ("4rms", 0.04):
+        # theta0='auto' marks the crease EDGE; the height test abstains near designed edges
+        kw = {"theta0": "auto", "height_tolerance": tol}
+        core, oracle = miem.detect(grid, **kw), ref.detect(grid, **kw)
+        assert_same(core, oracle)
+        assert (core.labels[:, 40] == miem.EDGE).sum() > 50
+        assert core.abnormal[dome].any()
+        assert not core.abnormal[(xx > 11) & (xx < 13)].any()  # the crease is not flagged
 
 
 def test_float32_matches_reference_on_the_same_values() -> None:

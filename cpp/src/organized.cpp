@@ -31,6 +31,7 @@ using detail::window_plane;
 struct WindowFit {
   bool ok = false;  // a plane exists (>= 3 cells, not degenerate)
   double height = 0.0, n = 0.0, l0 = 0.0, l1 = 0.0, l2 = 0.0;
+  double edges = 0.0;  // EDGE cells in the window
 };
 
 // Calls visit(r, c, fit) for every cell with want(r, c), with the window plane of the NORMAL
@@ -41,7 +42,7 @@ template <typename T, typename Want, typename Visit>
 void window_fits(const GridView<T>& g, const std::uint8_t* labels, int window, int num_threads,
                  std::vector<double>& scratch, Want want, Visit visit) {
   constexpr std::ptrdiff_t kTile = 64;
-  constexpr int kM = 10;  // n, x, y, z, xx, xy, xz, yy, yz, zz
+  constexpr int kM = 11;  // n, x, y, z, xx, xy, xz, yy, yz, zz (NORMAL cells), EDGE count
   const std::ptrdiff_t H = g.rows, W = g.cols, half = window / 2;
   const std::ptrdiff_t tiles_r = (H + kTile - 1) / kTile, tiles_c = (W + kTile - 1) / kTile;
   const std::ptrdiff_t ntiles = tiles_r * tiles_c;
@@ -92,7 +93,7 @@ void window_fits(const GridView<T>& g, const std::uint8_t* labels, int window, i
     for (std::ptrdiff_t i = 0; i < nr; ++i) {
       double* row = I + (i + 1) * stride;
       const double* up = I + i * stride;
-      double acc[kM] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
+      double acc[kM] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
       std::fill(row, row + kM, 0.0);
       for (std::ptrdiff_t j = 0; j < nc; ++j) {
         const std::ptrdiff_t r = R0 + i, c = C0 + j;
@@ -108,6 +109,8 @@ void window_fits(const GridView<T>& g, const std::uint8_t* labels, int window, i
           acc[7] += q.y() * q.y();
           acc[8] += q.y() * q.z();
           acc[9] += q.z() * q.z();
+        } else if (labels[r * W + c] == kEdge) {
+          acc[10] += 1.0;
         }
         double* dst = row + (j + 1) * kM;
         const double* src = up + (j + 1) * kM;
@@ -129,6 +132,7 @@ void window_fits(const GridView<T>& g, const std::uint8_t* labels, int window, i
         double s[kM];
         for (int m = 0; m < kM; ++m) s[m] = (a[m] - b[m]) - (d[m] - e[m]);
         const double n = std::round(s[0]);
+        fit.edges = std::round(s[10]);
         if (n >= 3.0) {
           const Eigen::Vector3d mean(s[1] / n, s[2] / n, s[3] / n);
           Eigen::Matrix3d M;
@@ -494,7 +498,7 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
           g, labels, p.window, p.num_threads, tile_scratch_,
           [&](std::ptrdiff_t r, std::ptrdiff_t c) { return labels[r * W + c] == kNormal; },
           [&](std::ptrdiff_t r, std::ptrdiff_t c, const WindowFit& f) {
-            if (!f.ok) return;
+            if (!f.ok || f.edges > 0.0) return;  // designed features nearby: no plane model
             const double ah = std::abs(f.height);
             const double rms = std::sqrt(std::max(f.l0, 0.0) / f.n);
             const bool far = (p.height_abs > 0.0 && ah > p.height_abs) ||

@@ -19,7 +19,13 @@ Floating-point conventions (so that a careful core can match bit for bit where i
 * the threshold is ``math.cos(theta0 * math.pi / 180.0)`` and a direction is flagged when
   ``cos >= threshold`` with ``cos = clip(u.v / sqrt((u.u) * (v.v)), -1, 1)``;
 * the ``min_step`` test is ``sqrt(dx*dx + dy*dy + dz*dz) >= s * min_step`` (a real square root,
-  not a comparison of squares).
+  not a comparison of squares);
+* ``theta0="auto"``: ``angle = degrees(arccos(cos))`` as above, ``dev = 180.0 - angle``,
+  ``sigma = median(dev) / 0.6745`` (``np.median``), ``theta0 = min(max(180.0 - 6.0 * sigma,
+  75.0), 170.0)``, then the threshold cosine as above;
+* height test: ``h = n . P + d`` with ``d = -n . centroid`` of the window plane; absolute form
+  ``|h| > t``; rms form ``|h| > k * sqrt(max(l0, 0) / n)`` and
+  ``|h| > 1e-9 * sqrt((l1 + l2) / n)``, ``n`` the number of NORMAL cells in the window.
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ from __future__ import annotations
 import itertools
 import math
 import numbers
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -178,9 +185,15 @@ class RefResult:
     plane : RefPlane or None
         Eigenvalue fit of every finite non-ABNORMAL cell (the MIEM plane); None if impossible.
     iterations : int
-        Number of passes run.
+        Number of passes run: angle passes plus height passes.
     defects : list of RefDefect
         Connected groups of ABNORMAL cells, in SPEC.md order.
+    params : dict
+        Values used, after applying the preset: ``preset`` (str or None), ``theta0`` (float,
+        degrees; the computed value when ``"auto"`` was asked), ``theta0_auto`` (bool),
+        ``scales`` (tuple of int), ``max_gap``, ``min_step``, ``min_directions``,
+        ``max_iterations``, ``window``, ``max_reach`` and ``height_tolerance`` (None, a float
+        or the ``"<k>rms"`` string as given).
     """
 
     labels: NDArray[np.uint8]
@@ -190,6 +203,7 @@ class RefResult:
     plane: RefPlane | None
     iterations: int
     defects: list[RefDefect]
+    params: dict[str, Any]
 
 
 # --------------------------------------------------------------------------------------------
@@ -567,7 +581,24 @@ def _window_fits(
     Returns the height ``(H, W)`` and the oriented window normal ``(H, W, 3)`` (NaN where the fit
     is impossible or the cell is non-finite). Each window is fitted on its own centred data.
     """
-    h, w = finite.shape
+    height, normals, _, _ = _window_planes(grid, normal_mask, finite, window)
+    return height, normals
+
+
+def _window_planes(
+    grid: NDArray[np.float64],
+    normal_mask: NDArray[np.bool_],
+    cells: NDArray[np.bool_],
+    window: int,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
+    """Window plane of the NORMAL cells around every cell of ``cells`` (finite cells only).
+
+    Returns the height ``(H, W)``, the oriented window normal ``(H, W, 3)``, the eigenvalues
+    ``l0 <= l1 <= l2`` of the window's centred scatter ``(H, W, 3)`` (all three NaN where the fit
+    is impossible or the cell is not in ``cells``) and the number of NORMAL cells in the window
+    ``(H, W)`` (0 outside ``cells``).
+    """
+    h, w = cells.shape
     half = window // 2
     ww = window * window
     xp = np.zeros((h + 2 * half, w + 2 * half, 3))
@@ -580,15 +611,18 @@ def _window_fits(
 
     height = np.full((h, w), np.nan)
     normals = np.full((h, w, 3), np.nan)
+    eigvals = np.full((h, w, 3), np.nan)
+    count = np.zeros((h, w), dtype=np.int64)
     rows_per_chunk = max(1, _WINDOW_CHUNK_ENTRIES // max(1, w * ww))
     for r0 in range(0, h, rows_per_chunk):
         r1 = min(h, r0 + rows_per_chunk)
-        rr, cc = np.nonzero(finite[r0:r1])
+        rr, cc = np.nonzero(cells[r0:r1])
         if rr.size == 0:
             continue
         x = xw[r0:r1][rr, cc].reshape(rr.size, 3, ww)
         m = mw[r0:r1][rr, cc].reshape(rr.size, ww)
         cnt = m.sum(axis=1)
+        count[rr + r0, cc] = cnt
         fit = cnt >= 3
         if not fit.any():
             continue
@@ -608,7 +642,8 @@ def _window_fits(
         p = grid[rr[good], cc[good]]
         height[rr[good], cc[good]] = _dot3(p, nrm) + d
         normals[rr[good], cc[good]] = nrm
-    return height, normals
+        eigvals[rr[good], cc[good]] = evals[good]
+    return height, normals, eigvals, count
 
 
 def _components(mask: NDArray[np.bool_]) -> list[NDArray[np.int64]]:
@@ -718,6 +753,148 @@ def _defects(
     return out
 
 
+class _Unset:
+    """Type of :data:`_UNSET`: "not given by the caller" (the preset or default applies)."""
+
+    def __repr__(self) -> str:
+        return "<unset>"
+
+
+#: Default of the :func:`detect` parameters that a preset may set.
+_UNSET: Any = _Unset()
+
+#: Values used when neither the caller nor the preset gives a parameter.
+_DEFAULTS: dict[str, Any] = {
+    "theta0": 75.0,
+    "scales": (1,),
+    "max_gap": 1,
+    "min_step": None,
+    "min_directions": None,
+    "max_iterations": 10,
+    "window": 21,
+    "max_reach": 32,
+    "height_tolerance": None,
+}
+
+#: Presets of :func:`detect` (SPEC "Presets"): name -> parameter values. Explicit keyword
+#: arguments override them; parameters a preset does not list take their default.
+_PRESETS: dict[str, dict[str, Any]] = {
+    "paper": {
+        "theta0": 75.0,
+        "scales": (1,),
+        "max_gap": 1,
+        "min_step": None,
+        "min_directions": None,
+        "max_iterations": 10,
+        "window": 21,
+        "height_tolerance": None,
+    },
+}
+
+# theta0="auto" (SPEC "Beyond the paper"): theta0 = clip(180 - K * median(dev) / MAD, MIN, MAX).
+_AUTO_K = 6.0
+_AUTO_MIN = 75.0
+_AUTO_MAX = 170.0
+_AUTO_MAD = 0.6745
+# Height test, rms form: |h| must also exceed this times sqrt((l1 + l2) / n) (round-off floor).
+_HEIGHT_RMS_FLOOR = 1e-9
+# "<k>rms": k a plain decimal (digits, optional fraction, optional exponent), no sign or space.
+_RMS_RE = re.compile(r"((?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?)rms")
+
+
+def _resolve_preset(preset: Any, given: dict[str, Any]) -> dict[str, Any]:
+    """Parameter values: the caller's where given, else the preset's, else the default."""
+    if preset is None:
+        table: dict[str, Any] = {}
+    elif isinstance(preset, str) and preset in _PRESETS:
+        table = _PRESETS[preset]
+    else:
+        names = ", ".join(repr(k) for k in _PRESETS)
+        raise ValueError(f"preset: expected None or one of {names}, got {preset!r}")
+    out = {}
+    for name, value in given.items():
+        if value is not _UNSET:
+            out[name] = value
+        elif name in table:
+            out[name] = table[name]
+        else:
+            out[name] = _DEFAULTS[name]
+    return out
+
+
+def _parse_height_tolerance(value: Any) -> tuple[str, float] | None:
+    """``None`` -> None; ``t > 0`` -> ("abs", t); ``"<k>rms"`` with ``k > 0`` -> ("rms", k)."""
+    if value is None:
+        return None
+    if isinstance(value, str):
+        match = _RMS_RE.fullmatch(value)
+        if match is not None:
+            k = float(match.group(1))
+            if math.isfinite(k) and k > 0.0:
+                return ("rms", k)
+    elif _is_real(value) and math.isfinite(float(value)) and float(value) > 0.0:
+        return ("abs", float(value))
+    raise ValueError(
+        "height_tolerance: expected None, a finite length > 0 or a string '<k>rms' with a "
+        f"finite k > 0 (e.g. '4rms'), got {value!r}"
+    )
+
+
+def _auto_theta0(
+    grid: NDArray[np.float64],
+    finite: NDArray[np.bool_],
+    scales: Sequence[int],
+    max_gap: int,
+    min_step: float | None,
+    max_reach: int,
+) -> float:
+    """SPEC ``theta0="auto"``: from the pass-1 angles with every finite cell usable."""
+    # The angle does not depend on the threshold; any cosine will do.
+    _, _, _, angle = _judge_pass(grid, finite, 1.0, scales, max_gap, min_step, max_reach)
+    angle = np.where(_isolated(finite, max_gap), np.nan, angle)  # as pass 1 records it
+    a = angle[finite & np.isfinite(angle)]
+    if a.size == 0:
+        return _AUTO_MIN
+    dev = 180.0 - a
+    sigma = float(np.median(dev)) / _AUTO_MAD
+    return min(max(180.0 - _AUTO_K * sigma, _AUTO_MIN), _AUTO_MAX)
+
+
+def _box_count(mask: NDArray[np.bool_], window: int) -> NDArray[np.int64]:
+    """Number of True cells in the ``window x window`` square around each cell (clipped)."""
+    h, w = mask.shape
+    half = window // 2
+    s = np.zeros((h + 1, w + 1), dtype=np.int64)
+    s[1:, 1:] = np.cumsum(np.cumsum(mask.astype(np.int64), axis=0), axis=1)
+    r0 = np.clip(np.arange(h) - half, 0, h)
+    r1 = np.clip(np.arange(h) + half + 1, 0, h)
+    c0 = np.clip(np.arange(w) - half, 0, w)
+    c1 = np.clip(np.arange(w) + half + 1, 0, w)
+    return (s[r1][:, c1] - s[r0][:, c1] - s[r1][:, c0] + s[r0][:, c0]).astype(np.int64)
+
+
+def _height_pass(
+    grid: NDArray[np.float64],
+    normal_mask: NDArray[np.bool_],
+    edge_mask: NDArray[np.bool_],
+    window: int,
+    tolerance: tuple[str, float],
+) -> NDArray[np.bool_]:
+    """One height pass (SPEC "height_tolerance"): the NORMAL cells that become ABNORMAL.
+
+    A cell with an EDGE cell in its window is not tested (designed feature nearby)."""
+    height, _, evals, count = _window_planes(grid, normal_mask, normal_mask, window)
+    exists = normal_mask & np.isfinite(height) & (_box_count(edge_mask, window) == 0)
+    mode, value = tolerance
+    absh = np.abs(height)
+    if mode == "abs":
+        return exists & (absh > value)
+    n = np.maximum(count, 1).astype(np.float64)
+    rms = np.sqrt(np.maximum(evals[..., 0], 0.0) / n)
+    floor = _HEIGHT_RMS_FLOOR * np.sqrt((evals[..., 1] + evals[..., 2]) / n)
+    return exists & (absh > value * rms) & (absh > floor)
+
+
 def _validate_detect_params(
     theta0: Any,
     scales: Any,
@@ -756,49 +933,68 @@ def _validate_detect_params(
 
 def detect(
     grid: ArrayLike,
-    theta0: float = 75.0,
-    scales: Sequence[int] = (1,),
-    max_gap: int = 1,
-    min_step: float | None = None,
-    min_directions: int | None = None,
-    max_iterations: int = 10,
-    window: int = 21,
-    max_reach: int = 32,
+    theta0: float | str = _UNSET,
+    scales: Sequence[int] = _UNSET,
+    max_gap: int = _UNSET,
+    min_step: float | None = _UNSET,
+    min_directions: int | None = _UNSET,
+    max_iterations: int = _UNSET,
+    window: int = _UNSET,
+    max_reach: int = _UNSET,
+    height_tolerance: float | str | None = _UNSET,
+    preset: str | None = None,
 ) -> RefResult:
     """Detect abnormal points in an organized scan (MIEM, reference implementation).
+
+    Every parameter but ``grid`` and ``preset`` may be left out: it then takes the preset's
+    value, or, without a preset or when the preset does not set it, the default shown. A value
+    given explicitly always wins, even when equal to the default.
 
     Parameters
     ----------
     grid : array_like, shape (H, W, 3), integer or floating
         Organized scan: row ``r`` is one profile, column ``c`` runs along it (caller's length
         unit). A point with any non-finite coordinate is a dropout. Never modified.
-    theta0 : float, optional
+    theta0 : float or "auto", optional
         Threshold angle in degrees, in the open interval (0, 180): a direction is flagged when
-        its interior angle is ``<= theta0``.
+        its interior angle is ``<= theta0``. Default 75. ``"auto"``: computed from the pass-1
+        angles, ``clip(180 - 6 * median(180 - angle) / 0.6745, 75, 170)`` (75 when no angle is
+        available); the value used is in ``params["theta0"]``.
     scales : sequence of int, optional
         Neighbour scales (each ``>= 1``); a direction is available / flagged when it is at any
-        scale. ``(1,)`` is the paper's behaviour.
+        scale. Default ``(1,)``, the paper's behaviour.
     max_gap : int, optional
         Number of unusable cells (dropouts, removed points) a neighbour search may skip, ``>= 0``.
+        Default 1.
     min_step : float or None, optional
         If set (finite, ``>= 0``, caller's length unit), the neighbour at scale ``s`` is the
-        first usable cell at least ``s * min_step`` away from the point.
+        first usable cell at least ``s * min_step`` away from the point. Default None.
     min_directions : int or None, optional
         If set (1..4), the number of flagged directions that suffices for ABNORMAL (capped at
-        the available count); ``None`` means all available directions.
+        the available count); ``None`` (default) means all available directions.
     max_iterations : int, optional
-        Maximum number of passes, ``>= 1``.
+        Maximum number of angle passes, ``>= 1``, and, separately, of height passes. Default 10.
     window : int, optional
-        Side, in cells, of the square window of the local plane used for ``height``; odd ``>= 3``.
+        Side, in cells, of the square window of the local plane used for ``height`` and the
+        height test; odd ``>= 3``. Default 21.
     max_reach : int, optional
         With ``min_step``, how many extra cells beyond ``scale + max_gap`` the search may go,
-        ``>= 1``.
+        ``>= 1``. Default 32.
+    height_tolerance : float, str or None, optional
+        Height test (beyond the paper), run after the angle passes: a NORMAL cell whose signed
+        distance ``h`` from the window plane of the NORMAL cells around it (itself included)
+        exceeds the tolerance becomes ABNORMAL; repeated until a pass adds none (at most
+        ``max_iterations`` passes). A float ``t > 0``: ``|h| > t`` (caller's length unit). A
+        string ``"<k>rms"`` with ``k > 0`` (e.g. ``"4rms"``): ``|h| > k * rms`` of that window
+        plane (and above a round-off floor). EDGE cells are never changed. None (default): off.
+    preset : {None, "paper"}, optional
+        Named parameter set; ``"paper"`` is the paper's setting (the defaults).
 
     Returns
     -------
     RefResult
-        Labels, flags, angles (degrees), heights, the MIEM plane, the number of passes and the
-        defects.
+        Labels, flags, angles (degrees), heights, the MIEM plane, the number of passes, the
+        defects and the parameter values used.
 
     Raises
     ------
@@ -806,9 +1002,32 @@ def detect(
         Bad grid (dtype, shape, fewer than 3 finite points) or bad parameter; the message names
         the argument.
     """
-    (theta0_deg, scale_tuple, gap, step, min_dir, iters, win, reach) = _validate_detect_params(
-        theta0, scales, max_gap, min_step, min_directions, max_iterations, window, max_reach
+    opts = _resolve_preset(
+        preset,
+        {
+            "theta0": theta0,
+            "scales": scales,
+            "max_gap": max_gap,
+            "min_step": min_step,
+            "min_directions": min_directions,
+            "max_iterations": max_iterations,
+            "window": window,
+            "max_reach": max_reach,
+            "height_tolerance": height_tolerance,
+        },
     )
+    auto = isinstance(opts["theta0"], str) and opts["theta0"] == "auto"
+    (theta0_deg, scale_tuple, gap, step, min_dir, iters, win, reach) = _validate_detect_params(
+        _DEFAULTS["theta0"] if auto else opts["theta0"],
+        opts["scales"],
+        opts["max_gap"],
+        opts["min_step"],
+        opts["min_directions"],
+        opts["max_iterations"],
+        opts["window"],
+        opts["max_reach"],
+    )
+    tolerance = _parse_height_tolerance(opts["height_tolerance"])
     arr = _as_points_array("grid", grid)
     if arr.ndim != 3 or arr.shape[2] != 3:
         raise ValueError(f"grid: expected shape (H, W, 3), got {arr.shape}")
@@ -821,7 +1040,6 @@ def detect(
     g[~finite] = np.nan
 
     h, w = finite.shape
-    cos0 = math.cos(theta0_deg * math.pi / 180.0)
     labels = np.full((h, w), INVALID, dtype=np.uint8)
     labels[finite] = NORMAL
     flags = np.zeros((h, w), dtype=np.uint8)
@@ -830,6 +1048,9 @@ def detect(
 
     passes = 0
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        if auto:
+            theta0_deg = _auto_theta0(g, finite, scale_tuple, gap, step, reach)
+        cos0 = math.cos(theta0_deg * math.pi / 180.0)
         while True:
             passes += 1
             usable = finite & ~abnormal
@@ -850,10 +1071,38 @@ def detect(
             if not new_abn.any() or passes >= iters:
                 break
 
+        if tolerance is not None:
+            # Height passes (Jacobi: the NORMAL set is fixed within a pass); at most `iters`
+            # of them, on top of the angle passes. Flags and angles are left as they are.
+            for _ in range(iters):
+                passes += 1
+                new_abn = _height_pass(g, labels == NORMAL, labels == EDGE, win, tolerance)
+                labels[new_abn] = ABNORMAL
+                abnormal |= new_abn
+                if not new_abn.any():
+                    break
+
         plane = _eigen_plane(g[finite & ~abnormal])
         height, normals = _window_fits(g, labels == NORMAL, finite, win)
         defects = _defects(g, labels, height, normals, finite)
 
+    params: dict[str, Any] = {
+        "preset": preset,
+        "theta0": float(theta0_deg),
+        "theta0_auto": auto,
+        "scales": scale_tuple,
+        "max_gap": gap,
+        "min_step": step,
+        "min_directions": min_dir,
+        "max_iterations": iters,
+        "window": win,
+        "max_reach": reach,
+        "height_tolerance": (
+            None
+            if tolerance is None
+            else (tolerance[1] if tolerance[0] == "abs" else str(opts["height_tolerance"]))
+        ),
+    }
     return RefResult(
         labels=labels,
         flags=flags,
@@ -862,6 +1111,7 @@ def detect(
         plane=plane,
         iterations=passes,
         defects=defects,
+        params=params,
     )
 
 
