@@ -21,13 +21,28 @@ inline constexpr double kDegToRad = 0.017453292519943295;
 inline constexpr int kDirRow[4] = {0, 1, 1, 1};
 inline constexpr int kDirCol[4] = {1, 0, 1, -1};
 
-/// Judges single cells against a fixed usable mask (bit 0 of each byte = usable).
-template <typename T>
+/// The batch detector's reading of a usable-mask byte: bit 0 set.
+struct UsableBit {
+  bool operator()(std::uint8_t b) const { return (b & 1) != 0; }
+};
+
+/// (x x' + y y') + z z': one fixed evaluation order shared by every code path.
+inline double dot3(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  return (a.x() * b.x() + a.y() * b.y()) + a.z() * b.z();
+}
+
+/// Judges single cells against a fixed usable mask. `Usable` maps a mask byte to "usable"
+/// (the batch detector: bit 0; the streaming detector: "removed at this pass or later").
+/// `kLabelsOnly` (streaming): labels and flags exact, angle NaN, and no square root for a
+/// direction that cannot be flagged (u.v <= 0 with theta0 < 90).
+template <typename T, typename Usable = UsableBit, bool kLabelsOnly = false>
 class CellJudge {
  public:
-  CellJudge(const GridView<T>& grid, const std::uint8_t* usable, const DetectParams& p)
+  CellJudge(const GridView<T>& grid, const std::uint8_t* usable, const DetectParams& p,
+            Usable is_usable = Usable{})
       : g_(grid),
         usable_(usable),
+        is_usable_(is_usable),
         rows_(grid.rows),
         cols_(grid.cols),
         p_(p),
@@ -53,10 +68,12 @@ class CellJudge {
         Eigen::Vector3d a, b;
         if (!neighbour(r, c, P, -1, k, s, &a) || !neighbour(r, c, P, +1, k, s, &b)) continue;
         const Eigen::Vector3d u = a - P, v = b - P;
-        const double uu = u.squaredNorm(), vv = v.squaredNorm();
+        const double uu = dot3(u, u), vv = dot3(v, v);
         if (uu == 0.0 || vv == 0.0) continue;
-        const double cs = std::clamp(u.dot(v) / std::sqrt(uu * vv), -1.0, 1.0);
+        const double uv = dot3(u, v);
         dir_avail = true;
+        if (kLabelsOnly && uv <= 0.0 && cos0_ > 0.0) continue;  // cos <= 0 < cos0
+        const double cs = std::clamp(uv / std::sqrt(uu * vv), -1.0, 1.0);
         if (cs >= cos0_) dir_flag = true;
         if (cs > best_cos) best_cos = cs;
       }
@@ -67,14 +84,14 @@ class CellJudge {
       }
     }
     *flags = mask;
-    *angle_deg = best_cos > -2.0 ? std::acos(best_cos) * kRadToDeg : kNaN;
+    *angle_deg = (!kLabelsOnly && best_cos > -2.0) ? std::acos(best_cos) * kRadToDeg : kNaN;
     const int need = p_.min_directions > 0 ? std::min(avail, p_.min_directions) : avail;
     if (avail >= 2 && flagged >= need) return kAbnormal;
     return flagged > 0 ? kEdge : kNormal;
   }
 
  private:
-  bool usable(std::ptrdiff_t r, std::ptrdiff_t c) const { return (usable_[r * cols_ + c] & 1) != 0; }
+  bool usable(std::ptrdiff_t r, std::ptrdiff_t c) const { return is_usable_(usable_[r * cols_ + c]); }
 
   bool isolated(std::ptrdiff_t r, std::ptrdiff_t c) const {
     const std::ptrdiff_t reach = 1 + static_cast<std::ptrdiff_t>(p_.max_gap);
@@ -114,6 +131,7 @@ class CellJudge {
 
   const GridView<T>& g_;
   const std::uint8_t* usable_;
+  Usable is_usable_;
   std::ptrdiff_t rows_, cols_;
   const DetectParams& p_;
   double cos0_;

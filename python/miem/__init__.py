@@ -26,6 +26,15 @@ from ._api import (
     scan_line_heights,
 )
 from ._core import __version__
+from .stream import ProfileStream, StreamRow
+from ._unorganized import (
+    NeighborGrid,
+    Normals,
+    PointsDetectResult,
+    detect_points,
+    estimate_normals,
+    point_spacing,
+)
 
 __all__ = [
     "ABNORMAL",
@@ -37,10 +46,18 @@ __all__ = [
     "Defect",
     "DetectResult",
     "Label",
+    "NeighborGrid",
+    "Normals",
+    "PointsDetectResult",
     "Plane",
+    "ProfileStream",
+    "StreamRow",
     "__version__",
     "detect",
+    "detect_points",
+    "estimate_normals",
     "fit_plane",
+    "point_spacing",
     "scan_line_angles",
     "scan_line_heights",
 ]

@@ -373,6 +373,10 @@ def _height_tolerance(value: object) -> tuple:
     return v, 0.0
 
 
+def _is_open3d(obj: object) -> bool:
+    return type(obj).__module__.startswith("open3d") and hasattr(obj, "points")
+
+
 def _resolve(preset: Optional[str], given: dict) -> dict:
     name = DEFAULT_PRESET if preset is None else preset
     if name not in PRESETS:
@@ -397,8 +401,11 @@ def detect(
     max_reach: int = 32,
     heights: Literal["all", "abnormal"] = "all",
     num_threads: Optional[int] = None,
+    radius: Optional[float] = None,
+    K: int = 4,
+    link: Optional[float] = None,
 ) -> DetectResult:
-    """Find abnormal points in an organized scan with MIEM.
+    """Find abnormal points in a scan with MIEM: an organized grid or an unorganized cloud.
 
     Each finite point is tested in four directions (along the profile, across profiles, both
     diagonals): a direction is flagged when the interior angle between its neighbours is at most
@@ -407,6 +414,14 @@ def detect(
     ``max_iterations`` passes. See ``docs/SPEC.md`` for the exact rules.
 
     Parameters not given come from ``preset`` (default ``"paper"``: the values in brackets).
+
+    An unorganized cloud (``(N, 3)`` points, or an ``open3d.geometry.PointCloud``) goes to
+    :func:`miem.detect_points` (tangent-plane directions in a ``radius`` neighbourhood, SPEC.md
+    "Unorganized clouds"): ``theta0`` (a number), ``scales``, ``min_step``, ``min_directions``,
+    ``max_iterations``, ``radius``, ``K``, ``link``, ``heights`` and ``num_threads`` apply; the
+    grid-only ``max_gap``, ``window``, ``max_reach`` and ``height_tolerance`` raise ValueError when
+    given, and a preset's ``theta0="auto"`` falls back to 75 (the automatic threshold and the
+    height test are defined for grids only). Per-point arrays then have shape ``(N,)``.
 
     Parameters
     ----------
@@ -445,10 +460,15 @@ def detect(
         are NaN).
     num_threads : int, optional
         Threads (default: all cores). Labels do not depend on it.
+    radius, K, link : optional
+        Unorganized clouds only: neighbourhood radius (default 5 x the median point spacing),
+        number of tangent-plane directions (2-8) and defect linking distance (default
+        ``radius``); see :func:`miem.detect_points`.
 
     Returns
     -------
     DetectResult
+        For an unorganized cloud, a :class:`miem.PointsDetectResult` (adds ``degenerate``).
 
     Raises
     ------
@@ -465,14 +485,45 @@ def detect(
     >>> np.argwhere(res.labels == miem.ABNORMAL).tolist(), round(res.defects[0].peak_height, 6)
     ([[10, 12]], 3.0)
     """
+    if _is_open3d(grid):
+        from .io import from_open3d
+
+        grid = from_open3d(grid)
+    arr = _as_float_array(grid, "grid")
+    if arr.ndim == 2 and arr.shape[1] == 3:
+        given = {"max_gap": max_gap, "window": window, "height_tolerance": height_tolerance}
+        bad = sorted(k for k, v in given.items() if v is not DEFAULT)
+        if max_reach != 32:
+            bad.append("max_reach")
+        if isinstance(theta0, str):
+            bad.append("theta0='auto'")
+        if bad:
+            raise ValueError(f"{', '.join(bad)}: apply to organized grids (H, W, 3) only, "
+                             f"not to an unorganized cloud {arr.shape}")
+        cfg = _resolve(preset, {
+            "theta0": theta0, "scales": scales, "min_step": min_step,
+            "min_directions": min_directions, "max_iterations": max_iterations,
+        })
+        from ._unorganized import detect_points
+
+        th = cfg["theta0"]
+        res = detect_points(
+            arr, theta0=75.0 if isinstance(th, str) else th, scales=cfg["scales"],
+            min_step=cfg["min_step"], min_directions=cfg["min_directions"],
+            max_iterations=cfg["max_iterations"], radius=radius, K=K, link=link,
+            heights=heights, num_threads=num_threads,
+        )
+        res.params["preset"] = DEFAULT_PRESET if preset is None else preset
+        return res
+    if radius is not None or K != 4 or link is not None:
+        raise ValueError("radius, K, link: apply to unorganized clouds (N, 3) only")
     cfg = _resolve(preset, {
         "theta0": theta0, "scales": scales, "max_gap": max_gap, "min_step": min_step,
         "min_directions": min_directions, "max_iterations": max_iterations, "window": window,
         "height_tolerance": height_tolerance,
     })
-    arr = _as_float_array(grid, "grid")
     if arr.ndim != 3 or arr.shape[2] != 3:
-        raise ValueError(f"grid: expected shape (H, W, 3), got {arr.shape}")
+        raise ValueError(f"grid: expected shape (H, W, 3) or (N, 3), got {arr.shape}")
     if arr.shape[0] * arr.shape[1] < 3:
         raise ValueError(f"grid: need at least 3 points, got {arr.shape[0] * arr.shape[1]}")
     theta0 = cfg["theta0"]

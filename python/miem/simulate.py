@@ -35,6 +35,7 @@ __all__ = [
     "ABNORMAL",
     "DEFECT_KINDS",
     "EDGE",
+    "EXTRA_SURFACES",
     "INVALID",
     "NORMAL",
     "PAPER_X_RANGE",
@@ -45,6 +46,7 @@ __all__ = [
     "PaperReport",
     "PlaneRow",
     "Scan",
+    "inject_defects",
     "main",
     "make_scan",
     "paper_experiment",
@@ -58,17 +60,30 @@ __all__ = [
 #: Truth label codes (the same values as ``miem.Label``).
 NORMAL, ABNORMAL, EDGE, INVALID = 0, 1, 2, 3
 
-#: Surfaces understood by :func:`make_scan`.
+#: Surfaces understood by :func:`make_scan` (the original set).
 SURFACES = ("plane", "tilted", "curved", "crease", "flange")
 
-#: Defect kinds understood by :func:`make_scan`.
-DEFECT_KINDS = ("spike", "pit", "dust", "cluster")
+#: More surfaces understood by :func:`make_scan`: a doubly curved shell, a saddle, a fillet
+#: between a web and a face, and an edge strip (a bead along the columns, as in the paper).
+EXTRA_SURFACES = ("shell", "saddle", "fillet", "strip")
+
+#: Defect kinds understood by :func:`make_scan` and :func:`inject_defects`.
+DEFECT_KINDS = (
+    "spike",
+    "pit",
+    "dust",
+    "cluster",
+    "cluster3",
+    "ridge_along",
+    "ridge_across",
+    "spatter",
+)
 
 #: The paper's simulated area (mm).
 PAPER_X_RANGE = (-50.0, 30.0)
 PAPER_Y_RANGE = (-50.0, 50.0)
 
-_KIND_DTYPE = "<U7"  # fits every kind name ("cluster")
+_KIND_DTYPE = "<U12"  # fits every kind name ("ridge_across")
 _DEFAULT_DEFECTS = {"spike": 2, "pit": 2, "dust": 1}
 
 
@@ -358,14 +373,49 @@ _FOOTPRINTS = {
     "pit": ((0, 0),),
     "dust": ((0, 0),),
     "cluster": ((0, 0), (0, 1), (1, 0), (1, 1)),
+    "cluster3": tuple((r, c) for r in range(3) for c in range(3)),
 }
+
+
+def _footprint(
+    rng: np.random.Generator,
+    kind: str,
+    ridge_length: tuple[int, int],
+    spatter_width: tuple[int, int],
+) -> tuple[tuple[tuple[int, int], ...], tuple[float, ...]]:
+    """Cells of one defect (offsets from its top-left cell) and each cell's share of the height.
+
+    Fixed shapes draw nothing from `rng`; a ridge draws its length and a spatter dome its width.
+    """
+    if kind in _FOOTPRINTS:
+        cells = _FOOTPRINTS[kind]
+        return cells, (1.0,) * len(cells)
+    if kind in ("ridge_along", "ridge_across"):
+        n = int(rng.integers(ridge_length[0], ridge_length[1] + 1))
+        cells = tuple((0, k) if kind == "ridge_along" else (k, 0) for k in range(n))
+        return cells, (1.0,) * n
+    # spatter: a w x w block (corners dropped from w = 4 on), a spherical cap of radius
+    # w / 2 + 0.5 cells over the block centre scaled to the height, so every cell of the dome
+    # rises at least 0.7 of the height and the top is smooth.
+    wd = int(rng.integers(spatter_width[0], spatter_width[1] + 1))
+    mid = (wd - 1) / 2.0
+    big = wd / 2.0 + 0.5
+    cells_l, share = [], []
+    for r in range(wd):
+        for c in range(wd):
+            if wd >= 4 and r in (0, wd - 1) and c in (0, wd - 1):
+                continue
+            rho2 = (r - mid) ** 2 + (c - mid) ** 2
+            cells_l.append((r, c))
+            share.append(math.sqrt(1.0 - rho2 / (big * big)))
+    return tuple(cells_l), tuple(share)
 
 
 def _place(
     rng: np.random.Generator,
     allowed: np.ndarray,
     blocked: np.ndarray,
-    kind: str,
+    footprint: tuple[tuple[int, int], ...],
     spacing: int,
     what: str,
 ) -> tuple[tuple[int, int], ...]:
@@ -373,9 +423,10 @@ def _place(
     h, w = allowed.shape
     free = allowed & ~blocked
     ok = free.copy()
-    for dr, dc in _FOOTPRINTS[kind]:
+    for dr, dc in footprint:
         shifted = np.zeros_like(free)
-        shifted[: h - dr, : w - dc] = free[dr:, dc:]
+        if dr < h and dc < w:
+            shifted[: h - dr, : w - dc] = free[dr:, dc:]
         ok &= shifted
     candidates = np.flatnonzero(ok)
     if candidates.size == 0:
@@ -385,7 +436,7 @@ def _place(
             "smaller margin"
         )
     r0, c0 = divmod(int(candidates[rng.integers(candidates.size)]), w)
-    cells = tuple((r0 + dr, c0 + dc) for dr, dc in _FOOTPRINTS[kind])
+    cells = tuple((r0 + dr, c0 + dc) for dr, dc in footprint)
     mark = np.zeros_like(free)
     for r, c in cells:
         mark[r, c] = True
@@ -401,10 +452,11 @@ def _inject(
     cells: tuple[tuple[int, int], ...],
     offset: float,
     on_edge: bool,
+    share: Sequence[float] | None = None,
 ) -> InjectedDefect:
     w = truth.shape[1]
-    for r, c in cells:
-        points[r, c, 2] += offset
+    for i, (r, c) in enumerate(cells):
+        points[r, c, 2] += offset if share is None else offset * share[i]
         truth[r, c] = ABNORMAL
         kinds[r, c] = kind
     order = sorted(range(len(cells)), key=lambda i: cells[i][0] * w + cells[i][1])
@@ -614,7 +666,7 @@ def paper_scan(
             allowed = off_strip
             j = i - n_on_edge
             kind, sign = ("spike", 1.0) if j % 2 == 0 else ("pit", -1.0)
-        cells = _place(rng, allowed, blocked, kind, margin, f"abnormal point {i + 1}")
+        cells = _place(rng, allowed, blocked, _FOOTPRINTS[kind], margin, f"abnormal point {i + 1}")
         size = float(rng.uniform(h_lo, h_hi)) if h_hi > h_lo else h_lo
         defects.append(_inject(points, truth, kinds, kind, cells, sign * size * step, on_edge))
 
@@ -788,6 +840,63 @@ def _defect_list(defects: Any) -> list[str]:
     return kinds
 
 
+def _int_range(name: str, value: Any, low: int) -> tuple[int, int]:
+    """A cell count: an integer or an inclusive ``(low, high)`` range, both ``>= low``."""
+    if isinstance(value, (Integral, np.integer)) and not isinstance(value, bool):
+        v = _check_int(name, value, low=low)
+        return (v, v)
+    try:
+        lo, hi = value
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"{name} must be an integer or a (low, high) pair of integers, got {value!r}"
+        ) from None
+    lo = _check_int(f"{name}[0]", lo, low=low)
+    hi = _check_int(f"{name}[1]", hi, low=low)
+    if hi < lo:
+        raise ValueError(f"{name} must satisfy low <= high, got {value!r}")
+    return (lo, hi)
+
+
+def _draw(rng: np.random.Generator, rng_range: tuple[float, float]) -> float:
+    """A value from a range; a single value draws nothing (keeps old seeds' results)."""
+    lo, hi = rng_range
+    return float(rng.uniform(lo, hi)) if hi > lo else lo
+
+
+def _inject_all(
+    rng: np.random.Generator,
+    points: np.ndarray,
+    truth: np.ndarray,
+    kinds: np.ndarray,
+    kinds_list: Sequence[str],
+    allowed: np.ndarray,
+    margin: int,
+    step: float,
+    height: tuple[float, float],
+    dust_height: tuple[float, float],
+    ridge_length: tuple[int, int],
+    spatter_width: tuple[int, int],
+) -> list[InjectedDefect]:
+    """Place and inject the defects of `kinds_list` one after the other (shared by the makers).
+
+    Per defect, in this order: its shape (ridges and spatter only), its cells, its height (only
+    when a range is given). Single spikes, pits, dust and 2 x 2 clusters with fixed heights
+    therefore draw exactly what they always drew.
+    """
+    blocked = np.zeros(truth.shape, dtype=bool)
+    sign = {"pit": -1.0}
+    injected = []
+    for i, kind in enumerate(kinds_list):
+        foot, share = _footprint(rng, kind, ridge_length, spatter_width)
+        cells = _place(rng, allowed, blocked, foot, margin, f"defect {i + 1} ({kind})")
+        size = _draw(rng, dust_height if kind == "dust" else height)
+        offset = sign.get(kind, 1.0) * size * step
+        shares = None if kind != "spatter" else share
+        injected.append(_inject(points, truth, kinds, kind, cells, offset, False, shares))
+    return injected
+
+
 def make_scan(
     shape: tuple[int, int] = (128, 128),
     step: float = 0.3,
@@ -797,8 +906,8 @@ def make_scan(
     dropout: float = 0.0,
     seed: int | None = 0,
     *,
-    height: float = 6.0,
-    dust_height: float = 40.0,
+    height: float | tuple[float, float] = 6.0,
+    dust_height: float | tuple[float, float] = 40.0,
     tilt_deg: float = 20.0,
     azimuth_deg: float = 30.0,
     radius: float | None = None,
@@ -810,6 +919,10 @@ def make_scan(
     margin: int = 5,
     max_slope_deg: float = 50.0,
     origin: Sequence[float] = (0.0, 0.0, 0.0),
+    fillet_radius: float = 8.0,
+    strip_height: float = 3.0,
+    ridge_length: int | tuple[int, int] = (4, 10),
+    spatter_width: int | tuple[int, int] = (2, 4),
 ) -> Scan:
     """An organized scan of a synthetic workpiece with injected defects and ground truth.
 
@@ -818,29 +931,47 @@ def make_scan(
     across profiles, and ``z = f(x, y)`` for the chosen surface (below, with ``x, y`` measured
     before the shift). Then z noise, defects and dropouts are added.
 
-    Surfaces:
+    Surfaces (:data:`SURFACES` and :data:`EXTRA_SURFACES`):
 
     - ``"plane"``: ``z = 0``.
     - ``"tilted"``: a plane with slope angle `tilt_deg` rising towards the azimuth
       `azimuth_deg` (degrees from +x towards +y).
     - ``"curved"``: a gently curved sheet ``z = x**2 / (2 R) + y**2 / (4 R)``, ``R = radius``
       (default: twice the larger half extent of the grid, so the slope stays below 0.5).
+    - ``"shell"``: a doubly curved shell, the sphere cap ``z = sqrt(R**2 - x**2 - y**2) - R``,
+      ``R = radius`` (default: 1.5 times the half diagonal of the grid, slope below 42 deg).
+    - ``"saddle"``: ``z = (x**2 - y**2) / (2 R)``, ``R = radius`` (default as for ``"curved"``).
     - ``"crease"``: two planes meeting along a ridge line at dihedral deviation `fold_deg`
       (each side falls away at ``fold_deg / 2``).
     - ``"flange"``: a flat web bent up at the line into a steep face at `flange_deg`.
+    - ``"fillet"``: the same web and face joined by a circular arc of radius
+      ``fillet_radius * step`` (tangent to both).
+    - ``"strip"``: a plane with an edge strip (the paper's simulated character line): the column
+      nearest ``x = line_offset`` raised by ``strip_height * step``, a sharp bead one cell wide
+      running across every profile (`line_angle_deg` does not apply).
 
-    The crease/flange line runs across the profiles, at `line_angle_deg` from the +y axis and
-    `line_offset` (length units, along the line's normal) from the centre. Cells within
-    ``edge_band * step`` of it are truth EDGE: a designed feature that must not be ground (MIEM
-    sees a bend gentler than 105 deg as NORMAL, so NORMAL or EDGE are both right there).
+    The crease/flange/fillet line runs across the profiles, at `line_angle_deg` from the +y axis
+    and `line_offset` (length units, along the line's normal) from the centre. Cells within
+    ``edge_band * step`` of it (for a fillet: of the arc) are truth EDGE: a designed feature that
+    must not be ground (MIEM sees a bend gentler than 105 deg as NORMAL, so NORMAL or EDGE are
+    both right there). For ``"strip"`` the bead's cells are truth EDGE.
 
-    Defects (offsets along z, the scanner's viewing axis, in units of `step`):
+    Defects (offsets along z, the scanner's viewing axis, in units of `step`; `height` and
+    `dust_height` may be ``(low, high)`` ranges, drawn uniformly per defect):
 
     - ``"spike"``: one cell raised by `height`;
     - ``"pit"``: one cell lowered by `height`;
     - ``"dust"``: one cell floating `dust_height` above the surface;
     - ``"cluster"``: a 2 x 2 block raised by `height` (found with ``scales=(1, 2)``; the paper's
-      ``scales=(1,)`` cannot see defects two points wide).
+      ``scales=(1,)`` cannot see defects two points wide);
+    - ``"cluster3"``: a 3 x 3 block raised by `height`;
+    - ``"ridge_along"`` / ``"ridge_across"``: a burr ridge one cell wide and `ridge_length`
+      cells long (drawn per ridge), raised by `height`, along a profile (one row) or across
+      the profiles (one column);
+    - ``"spatter"``: a smooth weld-spatter dome `spatter_width` cells wide (drawn per dome; the
+      corners of the block are left out from 4 cells on): a spherical cap of radius
+      ``width / 2 + 0.5`` cells scaled to a peak of `height` (every dome cell rises at least
+      0.7 of it; the recorded ``offset`` is the peak).
 
     Defects keep `margin` cells away from the border, from the EDGE band and from each other,
     and sit only where the surface slope is at most `max_slope_deg` (a profiler samples a steep
@@ -855,33 +986,35 @@ def make_scan(
     step : float, default 0.3
         Grid spacing (length units, mm), ``> 0``.
     surface : str, default "plane"
-        One of :data:`SURFACES`.
+        One of :data:`SURFACES` or :data:`EXTRA_SURFACES`.
     noise : float, default 0.0
         Standard deviation of Gaussian z noise as a fraction of `step`.
     defects : mapping or sequence, optional
-        ``{kind: count}`` or a sequence of kinds (each one defect); default
-        ``{"spike": 2, "pit": 2, "dust": 1}``. Pass ``{}`` for none.
+        ``{kind: count}`` or a sequence of kinds (each one defect), kinds from
+        :data:`DEFECT_KINDS`; default ``{"spike": 2, "pit": 2, "dust": 1}``. Pass ``{}`` for
+        none.
     dropout : float, default 0.0
         Fraction of cells made NaN (truth 3), in ``[0, 0.5]``.
     seed : int or None, default 0
         Seed of ``np.random.default_rng``.
-    height : float, default 6.0
-        Spike, pit and cluster height in steps.
-    dust_height : float, default 40.0
-        Dust height in steps.
+    height : float or (float, float), default 6.0
+        Height of spikes, pits, clusters, ridges and spatter domes in steps, or the range each
+        one's height is drawn from.
+    dust_height : float or (float, float), default 40.0
+        Dust height in steps, or its range.
     tilt_deg, azimuth_deg : float
         ``"tilted"``: slope angle in ``[0, 80]`` and its azimuth (degrees).
     radius : float, optional
-        ``"curved"``: radius of curvature along x (length units).
+        ``"curved"``, ``"shell"``, ``"saddle"``: radius of curvature (length units).
     fold_deg : float, default 20.0
         ``"crease"``: angle between the two planes' normals, in ``(0, 90)`` (degrees).
     flange_deg : float, default 60.0
-        ``"flange"``: slope of the face, in ``(0, 85]`` (degrees).
+        ``"flange"``, ``"fillet"``: slope of the face, in ``(0, 85]`` (degrees).
     line_angle_deg : float, default 15.0
-        Crease/flange line direction from +y, in ``[-60, 60]`` (degrees), so the line crosses
-        every profile.
+        Crease/flange/fillet line direction from +y, in ``[-60, 60]`` (degrees), so the line
+        crosses every profile.
     line_offset : float, default 0.0
-        Crease/flange line offset from the centre (length units).
+        Crease/flange/fillet line (strip: bead) offset from the centre (length units).
     edge_band : float, default 1.5
         Half width of the truth EDGE band around the line, in steps, ``>= 0.5``.
     margin : int, default 5
@@ -890,6 +1023,14 @@ def make_scan(
         Defects go only where the noise-free surface slope is at most this (degrees).
     origin : (float, float, float), default (0, 0, 0)
         Shift added to every point (e.g. a robot-base frame far from zero).
+    fillet_radius : float, default 8.0
+        ``"fillet"``: arc radius in steps, ``> 0``.
+    strip_height : float, default 3.0
+        ``"strip"``: bead height in steps, ``> 0``.
+    ridge_length : int or (int, int), default (4, 10)
+        Ridge length in cells (``>= 2``), or the inclusive range it is drawn from.
+    spatter_width : int or (int, int), default (2, 4)
+        Spatter dome width in cells (``>= 2``), or the inclusive range it is drawn from.
 
     Returns
     -------
@@ -914,14 +1055,14 @@ def make_scan(
     h = _check_int("shape[0]", h, low=8, high=20_000)
     w = _check_int("shape[1]", w, low=8, high=20_000)
     step = _check_real("step", step, low=0.0, low_open=True)
-    if surface not in SURFACES:
-        raise ValueError(f"surface must be one of {SURFACES}, got {surface!r}")
+    if surface not in SURFACES + EXTRA_SURFACES:
+        raise ValueError(f"surface must be one of {SURFACES + EXTRA_SURFACES}, got {surface!r}")
     noise = _check_real("noise", noise, low=0.0)
     kinds_list = _defect_list(_DEFAULT_DEFECTS if defects is None else defects)
     dropout = _check_real("dropout", dropout, low=0.0, high=0.5)
     seed = _check_seed(seed)
-    height = _check_real("height", height, low=0.0, low_open=True)
-    dust_height = _check_real("dust_height", dust_height, low=0.0, low_open=True)
+    height_r = _height_range("height", height)
+    dust_r = _height_range("dust_height", dust_height)
     tilt = math.radians(_check_real("tilt_deg", tilt_deg, low=0.0, high=80.0))
     azimuth = math.radians(_check_real("azimuth_deg", azimuth_deg, low=-360.0, high=360.0))
     fold = math.radians(
@@ -933,6 +1074,10 @@ def make_scan(
     edge_band = _check_real("edge_band", edge_band, low=0.5)
     margin = _check_int("margin", margin, low=1)
     max_slope = _check_real("max_slope_deg", max_slope_deg, low=0.0, high=90.0)
+    fillet_r = _check_real("fillet_radius", fillet_radius, low=0.0, low_open=True) * step
+    strip_h = _check_real("strip_height", strip_height, low=0.0, low_open=True) * step
+    ridge_r = _int_range("ridge_length", ridge_length, 2)
+    spatter_r = _int_range("spatter_width", spatter_width, 2)
     try:
         shift = np.array([float(v) for v in origin], dtype=np.float64)
     except (TypeError, ValueError):
@@ -947,22 +1092,43 @@ def make_scan(
     truth = np.zeros((h, w), dtype=np.uint8)
     # Signed distance to the crease/flange line (direction at line_angle from +y).
     s = xx * math.cos(line_angle) - yy * math.sin(line_angle) - line_offset
+    r_default = 2.0 * max(x[-1], y[-1])
+    r_set = None if radius is None else _check_real("radius", radius, low=0.0, low_open=True)
     if surface == "plane":
         zz = np.zeros_like(xx)
     elif surface == "tilted":
         zz = math.tan(tilt) * (xx * math.cos(azimuth) + yy * math.sin(azimuth))
     elif surface == "curved":
-        if radius is None:
-            r_x = 2.0 * max(x[-1], y[-1])
-        else:
-            r_x = _check_real("radius", radius, low=0.0, low_open=True)
+        r_x = r_default if r_set is None else r_set
         zz = xx * xx / (2.0 * r_x) + yy * yy / (4.0 * r_x)
+    elif surface == "shell":
+        r_s = 1.5 * math.hypot(x[-1], y[-1]) if r_set is None else r_set
+        rho2 = xx * xx + yy * yy
+        if rho2.max() >= r_s * r_s:
+            raise ValueError(f"radius={r_s:g} is smaller than the grid's half diagonal")
+        zz = np.sqrt(r_s * r_s - rho2) - r_s
+    elif surface == "saddle":
+        r_x = r_default if r_set is None else r_set
+        zz = (xx * xx - yy * yy) / (2.0 * r_x)
     elif surface == "crease":
         zz = -math.tan(fold / 2.0) * np.abs(s)
-    else:  # flange
+    elif surface == "flange":
         zz = math.tan(flange) * np.maximum(s, 0.0)
-    if surface in ("crease", "flange"):
-        band = np.abs(s) <= edge_band * step
+    elif surface == "fillet":
+        s1 = fillet_r * math.sin(flange)
+        arc = np.clip(s, 0.0, s1)
+        zz = fillet_r - np.sqrt(fillet_r * fillet_r - arc * arc)
+        zz = zz + math.tan(flange) * np.maximum(s - s1, 0.0)
+    else:  # strip
+        col = round(line_offset / step + (w - 1) / 2.0)
+        if not 0 <= col < w:
+            raise ValueError(f"line_offset={line_offset:g} puts the strip off the grid")
+        zz = np.zeros_like(xx)
+        zz[:, col] += strip_h
+        truth[:, col] = EDGE
+    if surface in ("crease", "flange", "fillet"):
+        hi = edge_band * step + (fillet_r * math.sin(flange) if surface == "fillet" else 0.0)
+        band = (s >= -edge_band * step) & (s <= hi)
         if not band.any():
             raise ValueError(f"line_offset={line_offset:g} puts the {surface} line off the grid")
         truth[band] = EDGE
@@ -982,12 +1148,10 @@ def make_scan(
             "max_slope_deg"
         )
     allowed &= gentle
-    blocked = np.zeros((h, w), dtype=bool)
-    offsets = {"spike": height, "pit": -height, "dust": dust_height, "cluster": height}
-    injected = []
-    for i, kind in enumerate(kinds_list):
-        cells = _place(rng, allowed, blocked, kind, margin, f"defect {i + 1} ({kind})")
-        injected.append(_inject(points, truth, kinds, kind, cells, offsets[kind] * step, False))
+    injected = _inject_all(
+        rng, points, truth, kinds, kinds_list, allowed, margin, step, height_r, dust_r,
+        ridge_r, spatter_r,
+    )
 
     _dropouts(rng, points, clean, truth, ~_dilate(truth == ABNORMAL, 2), dropout)
     return Scan(
@@ -999,6 +1163,105 @@ def make_scan(
         defects=tuple(injected),
         surface=surface,
         noise=noise,
+        seed=seed,
+    )
+
+
+def inject_defects(
+    points: np.ndarray,
+    step: float,
+    defects: Mapping[str, int] | Sequence[str],
+    seed: int | None = 0,
+    *,
+    truth: np.ndarray | None = None,
+    allowed: np.ndarray | None = None,
+    height: float | tuple[float, float] = 6.0,
+    dust_height: float | tuple[float, float] = 40.0,
+    ridge_length: int | tuple[int, int] = (4, 10),
+    spatter_width: int | tuple[int, int] = (2, 4),
+    margin: int = 5,
+    surface: str = "given",
+) -> Scan:
+    """Inject defects into a given organized scan (for example a real, measured one).
+
+    The defects are those of :func:`make_scan` (same kinds, shapes and heights, offsets along
+    z in units of `step`), placed at random among the `allowed` cells (a defect's every cell
+    must be allowed), at least `margin` cells from each other.
+
+    Parameters
+    ----------
+    points : array_like, shape (H, W, 3)
+        The scan; it is copied, never modified. NaN marks a dropout.
+    step : float
+        The sampling step (length units), ``> 0``: the unit of the defect heights.
+    defects : mapping or sequence
+        ``{kind: count}`` or a sequence of kinds, from :data:`DEFECT_KINDS`.
+    seed : int or None, default 0
+        Seed of ``np.random.default_rng``.
+    truth : array_like, shape (H, W), uint8, optional
+        Truth of the scan before injection; default: 0 where finite, 3 (dropout) elsewhere.
+        Other codes (e.g. 2 for a known designed edge) are kept where no defect lands.
+    allowed : array_like, shape (H, W), bool, optional
+        Where defects may go; default: finite cells of truth 0 at least `margin` cells from the
+        border. It is always restricted to finite cells.
+    height, dust_height, ridge_length, spatter_width
+        As for :func:`make_scan`.
+    margin : int, default 5
+        Minimum distance in cells between two defects (and, by default, from the border).
+    surface : str, default "given"
+        Name recorded in the returned :class:`Scan`.
+
+    Returns
+    -------
+    Scan
+        ``clean`` is the input, ``points`` the input with the defects, ``noise`` 0 (unknown).
+
+    Raises
+    ------
+    ValueError
+        On a bad argument, or when the defects do not fit.
+    """
+    pts = np.array(points, dtype=np.float64)
+    if pts.ndim != 3 or pts.shape[2] != 3:
+        raise ValueError(f"points must have shape (H, W, 3), got {pts.shape}")
+    step = _check_real("step", step, low=0.0, low_open=True)
+    kinds_list = _defect_list(defects)
+    seed = _check_seed(seed)
+    margin = _check_int("margin", margin, low=1)
+    height_r = _height_range("height", height)
+    dust_r = _height_range("dust_height", dust_height)
+    ridge_r = _int_range("ridge_length", ridge_length, 2)
+    spatter_r = _int_range("spatter_width", spatter_width, 2)
+    finite = np.isfinite(pts).all(axis=-1)
+    shape2 = pts.shape[:2]
+    if truth is None:
+        t = np.where(finite, NORMAL, INVALID).astype(np.uint8)
+    else:
+        t = np.array(truth, dtype=np.uint8)
+        if t.shape != shape2:
+            raise ValueError(f"truth must have shape {shape2}, got {t.shape}")
+    if allowed is None:
+        ok = _interior(shape2, margin) & (t == NORMAL)
+    else:
+        ok = np.asarray(allowed, dtype=bool)
+        if ok.shape != shape2:
+            raise ValueError(f"allowed must have shape {shape2}, got {ok.shape}")
+    ok = ok & finite
+    rng = np.random.default_rng(seed)
+    clean = pts.copy()
+    kinds = np.zeros(shape2, dtype=_KIND_DTYPE)
+    injected = _inject_all(
+        rng, pts, t, kinds, kinds_list, ok, margin, step, height_r, dust_r, ridge_r, spatter_r
+    )
+    return Scan(
+        points=pts,
+        truth=t,
+        clean=clean,
+        step=step,
+        kinds=kinds,
+        defects=tuple(injected),
+        surface=surface,
+        noise=0.0,
         seed=seed,
     )
 

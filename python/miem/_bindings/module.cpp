@@ -170,4 +170,8 @@ PYBIND11_MODULE(_core, m) {
         py::arg("min_directions"), py::arg("max_iterations"), py::arg("window"),
         py::arg("height_mode"), py::arg("num_threads"), py::arg("theta0_auto") = false,
         py::arg("height_abs") = 0.0, py::arg("height_k") = 0.0);
+  void bind_unorganized(py::module_ & m);  // python/miem/_bindings/unorganized.cpp
+  bind_unorganized(m);
+  void bind_stream(py::module_ & m);  // python/miem/_bindings/stream.cpp
+  bind_stream(m);
 }

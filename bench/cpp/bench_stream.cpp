@@ -1,0 +1,184 @@
+// Streaming benchmark: profiles/s and per-push latency (p50 / p99 / p99.9 / max) of
+// miem::ProfileStream on laser profiles of 3200 points, one core. Prints one JSON object per
+// scenario (bench/run_cpp.py turns them into bench/results_cpp.md).
+//
+//   miem_bench_stream [--width 3200] [--profiles 100000] [--quick]
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <random>
+#include <string>
+#include <vector>
+
+#include <time.h>
+
+#include "miem/organized.hpp"
+#include "miem/stream.hpp"
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+// CPU time of this thread: on a shared, busy machine this is what one core sustains, whatever
+// the scheduler does to the wall clock.
+double thread_cpu_s() {
+  timespec ts;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
+}
+
+struct Scenario {
+  const char* name;
+  miem::DetectParams params;
+  double dropout_rate;
+  bool use_float;
+};
+
+// A pool of profiles (rows) of a curved sheet, periodic in rows, with scanner noise (z quantised
+// to a micrometre), burr tips, pits, spatter and dropouts.
+std::vector<double> make_pool(std::ptrdiff_t rows, std::ptrdiff_t W, double dropout_rate,
+                              unsigned seed) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> noise(0.0, 0.002);
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  std::vector<double> g(static_cast<std::size_t>(rows * W * 3));
+  const double dx = 0.05, dy = 0.1, xc = 0.5 * W * dx;
+  for (std::ptrdiff_t r = 0; r < rows; ++r) {
+    for (std::ptrdiff_t c = 0; c < W; ++c) {
+      double* p = &g[static_cast<std::size_t>((r * W + c) * 3)];
+      const double x = c * dx;
+      p[0] = x;
+      p[1] = r * dy;
+      p[2] = std::round((2.0 * std::exp(-(x - xc) * (x - xc) / 2000.0) +
+                         0.05 * std::sin(6.283185307179586 * static_cast<double>(r) /
+                                         static_cast<double>(rows)) +
+                         noise(rng)) * 1000.0) / 1000.0;
+      if (uni(rng) < 0.0002) p[2] += 0.3 + uni(rng);           // burr tips and spatter
+      if (uni(rng) < 0.0001) p[2] -= 0.3 + uni(rng);           // pits
+      if (uni(rng) < dropout_rate) p[0] = p[1] = p[2] = NAN;   // dropouts
+    }
+  }
+  return g;
+}
+
+template <typename T>
+void run(const Scenario& sc, std::ptrdiff_t W, std::ptrdiff_t n_profiles, std::ptrdiff_t pool_rows,
+         bool first) {
+  const std::vector<double> pool_d = make_pool(pool_rows, W, sc.dropout_rate, 7);
+  const std::vector<T> pool(pool_d.begin(), pool_d.end());
+  miem::ProfileStream<T> stream(W, sc.params);
+  std::vector<T> profile(static_cast<std::size_t>(W * 3));
+  // The sensor hands over a freshly written buffer: copy a pool row into it with the running
+  // y (the pool's z pattern is periodic in rows, so the scan has no seam), then push.
+  auto stage = [&](std::ptrdiff_t r) {
+    std::memcpy(profile.data(), pool.data() + (r % pool_rows) * W * 3, profile.size() * sizeof(T));
+    const T y = static_cast<T>(0.1 * static_cast<double>(r));
+    for (std::ptrdiff_t c = 0; c < W; ++c) profile[static_cast<std::size_t>(c * 3 + 1)] = y;
+  };
+  miem::StreamRow row;
+  for (std::ptrdiff_t r = 0; r < 2 * stream.lag() + 8; ++r) {  // warm-up
+    stage(r);
+    stream.push(profile.data(), W, &row);
+  }
+  stream.reset();
+
+  std::vector<double> lat_us(static_cast<std::size_t>(n_profiles));
+  long long abnormal = 0, edge = 0, statuses = 0;
+  const double cpu0 = thread_cpu_s();
+  double staging_cpu = 0.0;
+  for (std::ptrdiff_t r = 0; r < n_profiles; ++r) {
+    stage(r);
+    const auto a = Clock::now();
+    statuses += !stream.push(profile.data(), W, &row).ok();
+    const auto b = Clock::now();
+    lat_us[static_cast<std::size_t>(r)] = std::chrono::duration<double, std::micro>(b - a).count();
+    if (row.ready()) {
+      for (std::ptrdiff_t c = 0; c < W; ++c) {
+        abnormal += row.labels[c] == miem::kAbnormal;
+        edge += row.labels[c] == miem::kEdge;
+      }
+    }
+  }
+  const double cpu_s = thread_cpu_s() - cpu0;
+  // CPU time of the staging and counting alone, to take it out of the CPU-time throughput.
+  {
+    const double c0 = thread_cpu_s();
+    long long sink = 0;
+    for (std::ptrdiff_t r = 0; r < n_profiles; ++r) {
+      stage(r);
+      for (std::ptrdiff_t c = 0; c < W; ++c) sink += row.labels[c] == miem::kAbnormal;
+      const auto a = Clock::now();
+      const auto b = Clock::now();
+      sink += (b - a).count() > 0;
+    }
+    staging_cpu = thread_cpu_s() - c0;
+    if (sink == -1) std::printf("%lld", sink);
+  }
+  while (stream.flush(&row)) {
+  }
+
+  std::vector<double> s = lat_us;
+  std::sort(s.begin(), s.end());
+  auto q = [&](double f) {
+    return s[std::min(s.size() - 1, static_cast<std::size_t>(f * static_cast<double>(s.size())))];
+  };
+  double total_us = 0;
+  for (double v : s) total_us += v;
+  const double mean = total_us / static_cast<double>(s.size());
+  std::printf("%s{\"scenario\": \"%s\", \"dtype\": \"%s\", \"width\": %td, \"profiles\": %td, "
+              "\"lag\": %d, \"profiles_per_s\": %.1f, \"profiles_per_cpu_s\": %.1f, "
+              "\"mean_us\": %.3f, \"p50_us\": %.3f, \"p99_us\": %.3f, \"p999_us\": %.3f, "
+              "\"max_us\": %.3f, \"abnormal\": %lld, \"edge\": %lld, \"bad_status\": %lld}",
+              first ? "" : ",\n", sc.name, sizeof(T) == 4 ? "float32" : "float64", W, n_profiles,
+              stream.lag(), 1e6 / mean,
+              static_cast<double>(n_profiles) / std::max(1e-9, cpu_s - staging_cpu), mean, q(0.5),
+              q(0.99), q(0.999), s.back(), abnormal, edge, statuses);
+  std::fflush(stdout);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::ptrdiff_t W = 3200, n = 100000;
+  bool quick = false;
+  int only = -1;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    if (a == "--width" && i + 1 < argc) W = std::atol(argv[++i]);
+    else if (a == "--profiles" && i + 1 < argc) n = std::atol(argv[++i]);
+    else if (a == "--quick") quick = true;
+    else if (a == "--only" && i + 1 < argc) only = std::atoi(argv[++i]);
+    else {
+      std::fprintf(stderr, "usage: %s [--width N] [--profiles N] [--quick] [--only INDEX]\n", argv[0]);
+      return 2;
+    }
+  }
+  if (quick) n = std::min<std::ptrdiff_t>(n, 5000);
+  std::vector<Scenario> scenarios;
+  miem::DetectParams p;
+  scenarios.push_back({"defaults, clean", p, 0.0, false});
+  scenarios.push_back({"defaults, 1% dropouts", p, 0.01, false});
+  scenarios.push_back({"defaults, float32 storage", p, 0.001, true});
+  miem::DetectParams p2;
+  p2.scales = {1, 2};
+  p2.max_gap = 2;
+  scenarios.push_back({"scales (1, 2), max_gap 2", p2, 0.001, false});
+  miem::DetectParams p3;
+  p3.max_iterations = 3;
+  scenarios.push_back({"max_iterations 3 (lag 6)", p3, 0.001, false});
+  const std::ptrdiff_t pool_rows = 1024;
+  std::printf("[\n");
+  bool first = true;
+  for (std::size_t k = 0; k < scenarios.size(); ++k) {
+    const Scenario& sc = scenarios[k];
+    if (only >= 0 && static_cast<int>(k) != only) continue;
+    if (sc.use_float) run<float>(sc, W, n, pool_rows, first);
+    else run<double>(sc, W, n, pool_rows, first);
+    first = false;
+  }
+  std::printf("\n]\n");
+  return 0;
+}

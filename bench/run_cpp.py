@@ -1,0 +1,228 @@
+"""Build and run the C++ benchmarks and write bench/results_cpp.md (a fragment of RESULTS.md).
+
+Usage: ``python bench/run_cpp.py [--quick] [--build-dir DIR] [--profiles N]``.
+
+* Streaming (``miem_bench_stream``): ``miem::ProfileStream`` on profiles of 3200 points, pinned
+  to one core: profiles/s and per-push latency percentiles; then the same through the Python
+  wrapper ``miem.ProfileStream``.
+* Organized detection against PCL 1.13 (``miem_bench_pcl``, built only where ``libpcl-dev`` is
+  installed; not part of CI): the same organized cloud, one thread each.
+
+The machine is shared and noisy: read ratios, and the CPU-time throughput, before seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+OUT = HERE / "results_cpp.md"
+RAW = HERE / "results_cpp.json"
+WIDTH = 3200
+TARGET_RATE = 16_000  # profiles/s the issue asks one core to sustain
+TARGET_P99_US = 62.0
+
+
+def sh(cmd: list[str], **kw) -> str:
+    proc = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, **kw)
+    if proc.returncode != 0:
+        sys.exit(f"{' '.join(cmd)} failed:\n{proc.stdout[-4000:]}")
+    return proc.stdout
+
+
+def build(build_dir: Path) -> Path:
+    cmd = ["cmake", "-S", str(ROOT), "-B", str(build_dir), "-DCMAKE_BUILD_TYPE=Release",
+           "-DMIEM_BUILD_BENCH=ON", f"-DPython_EXECUTABLE={sys.executable}"]
+    if shutil.which("ninja") and not (build_dir / "CMakeCache.txt").exists():
+        cmd += ["-G", "Ninja"]
+    sh(cmd)
+    sh(["cmake", "--build", str(build_dir), "-j", "2", "--target", "miem_bench_stream"])
+    subprocess.run(["cmake", "--build", str(build_dir), "-j", "2", "--target", "miem_bench_pcl"],
+                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return build_dir / "bench"
+
+
+def one_core(cmd: list[str]) -> list[str]:
+    return (["taskset", "-c", "1"] + cmd) if shutil.which("taskset") and os.cpu_count() > 1 else cmd
+
+
+def python_stream(n: int) -> dict:
+    """The Python wrapper: push profiles of 3200 points (float64), time each push."""
+    import miem
+    from miem.stream import ProfileStream
+
+    rng = np.random.default_rng(5)
+    pool_rows = 256
+    x = np.arange(WIDTH) * 0.05
+    z = (2.0 * np.exp(-((x - x.mean()) ** 2) / 2000.0) +
+         rng.normal(0.0, 0.002, (pool_rows, WIDTH))).round(3)
+    z[rng.random(z.shape) < 2e-4] += 0.8
+    pool = np.empty((pool_rows, WIDTH, 3))
+    pool[..., 0] = x
+    pool[..., 2] = z
+    stream = ProfileStream(WIDTH)
+    lat = np.empty(n)
+    abnormal = 0
+    prof = np.empty((WIDTH, 3))
+    for r in range(n):
+        prof[:] = pool[r % pool_rows]
+        prof[:, 1] = 0.1 * r
+        t0 = time.perf_counter_ns()
+        done = stream.push(prof)
+        lat[r] = (time.perf_counter_ns() - t0) / 1e3
+        if done is not None:
+            abnormal += int(np.count_nonzero(done.labels == miem.ABNORMAL))
+    stream.flush()
+    return {
+        "scenario": "Python miem.ProfileStream.push, float64", "width": WIDTH, "profiles": n,
+        "lag": stream.lag, "profiles_per_s": 1e6 / lat.mean(), "mean_us": float(lat.mean()),
+        "p50_us": float(np.percentile(lat, 50)), "p99_us": float(np.percentile(lat, 99)),
+        "p999_us": float(np.percentile(lat, 99.9)), "max_us": float(lat.max()),
+        "abnormal": abnormal,
+    }
+
+
+def cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def fmt_stream(rows: list[dict]) -> list[str]:
+    out = [
+        "| scenario | storage | lag (profiles) | profiles/s (1 / mean push) | "
+        "profiles/s (CPU time) | p50 us | p99 us | p99.9 us | max us |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        cpu = r.get("profiles_per_cpu_s")
+        out.append(
+            f"| {r['scenario']} | {r.get('dtype', 'float64')} | {r['lag']} | "
+            f"{r['profiles_per_s']:,.0f} | {'' if cpu is None else f'{cpu:,.0f}'} | "
+            f"{r['p50_us']:.1f} | {r['p99_us']:.1f} | {r['p999_us']:.1f} | {r['max_us']:.0f} |"
+        )
+    return out
+
+
+def fmt_pcl(rows: list[dict]) -> list[str]:
+    out = [
+        "| cloud | method | median ms | time / miem | injected defects found | flagged points "
+        "| flagged away from a defect |",
+        "|---|---|---:|---:|---:|---:|---:|",
+    ]
+    by_size: dict[tuple, list[dict]] = {}
+    for r in rows:
+        by_size.setdefault((r["width"], r["height"]), []).append(r)
+    for (w, h), group in by_size.items():
+        base = next(r["median_ms"] for r in group
+                    if r["method"].startswith("miem detect (heights abnormal)"))
+        for r in group:
+            ratio = r["median_ms"] / base
+            out.append(
+                f"| {w} x {h} | {r['method']} | {r['median_ms']:.1f} | {ratio:.1f}x | "
+                f"{r['defects_found']} / {r['defects']} | {r['flagged']:,} | "
+                f"{r['flagged_elsewhere']:,} |"
+            )
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="few profiles, small clouds")
+    ap.add_argument("--build-dir", type=Path, default=ROOT / "build" / "bench-cpp")
+    ap.add_argument("--profiles", type=int, default=100_000)
+    args = ap.parse_args()
+    n = 5000 if args.quick else args.profiles
+
+    load0 = os.getloadavg()
+    bench = build(args.build_dir)
+    stream_rows = json.loads(sh(one_core([str(bench / "miem_bench_stream"), "--width",
+                                          str(WIDTH), "--profiles", str(n)])))
+    try:
+        py_row = python_stream(min(n, 20_000))
+    except ImportError as exc:  # the Python package is not installed
+        py_row = None
+        print(f"Python side skipped: {exc}")
+    pcl_rows = None
+    if (bench / "miem_bench_pcl").exists():
+        cmd = [str(bench / "miem_bench_pcl")] + (["--quick"] if args.quick else [])
+        pcl_rows = json.loads(sh(one_core(cmd)))
+    load1 = os.getloadavg()
+    RAW.write_text(json.dumps({"stream": stream_rows, "python": py_row, "pcl": pcl_rows},
+                              indent=1))
+
+    main_row = stream_rows[0]
+    ok = main_row["profiles_per_s"] >= TARGET_RATE and main_row["p99_us"] < TARGET_P99_US
+    lines = [
+        "## Streaming and PCL comparison (C++)",
+        "",
+        f"Written by `python bench/run_cpp.py` on {time.strftime('%Y-%m-%d')}: {cpu_model()}, "
+        f"{os.cpu_count()} cores, shared with other jobs (load average {load0[0]:.1f} at the "
+        f"start, {load1[0]:.1f} at the end), so wall-clock figures carry the other jobs' "
+        "noise; the CPU-time column is what one core sustains. Release build, GCC "
+        f"{platform.python_compiler().split()[-1] if 'GCC' in platform.python_compiler() else ''}"
+        ", the streaming benchmark pinned to one core (`taskset -c 1`).",
+        "",
+        f"### `miem::ProfileStream`: {WIDTH} points per profile, {n:,} profiles",
+        "",
+        "Each push is timed alone (wall clock) on a freshly written profile buffer, as a "
+        "scanner SDK hands it over; profiles carry noise, burr tips, pits and, where said, "
+        "dropouts. Latency is the time of one `push` (copy in, the passes due, the finished "
+        "row out); the labels of a profile come out `lag` profiles later. The CPU-time rate "
+        "counts only this thread's CPU time (staging excluded), so it is immune to the other "
+        "jobs on the machine; the 1 / mean rate is not. The Python row goes through "
+        "`miem.ProfileStream.push` (argument checks, a labels array per row).",
+        "",
+        *fmt_stream(stream_rows + ([py_row] if py_row else [])),
+        "",
+        f"Target: one core sustains >= {TARGET_RATE:,} profiles/s of {WIDTH} points with p99 "
+        f"under {TARGET_P99_US:.0f} us (aim: 64,000 profiles/s). Defaults, clean: "
+        f"{main_row['profiles_per_s']:,.0f} profiles/s "
+        f"({main_row['profiles_per_s'] / TARGET_RATE:.1f}x the target, "
+        f"{main_row['profiles_per_s'] / 64000:.2f}x the aim), p99 {main_row['p99_us']:.1f} us: "
+        f"{'met' if ok else 'NOT met on this run'}.",
+        "",
+    ]
+    if pcl_rows:
+        lines += [
+            "### Organized detection against PCL 1.13 (Debian `libpcl-dev`)",
+            "",
+            "A depth-camera-like organized cloud (pinhole, f = 525 px at 640 wide, surface "
+            "500 mm away, 0.05 mm noise, 0.2% dropouts) with one injected one-pixel defect per "
+            "4000 points: burr tips and pits of 2-5 mm and floating dust 20-60 mm up. Same "
+            "`pcl::PointCloud<pcl::PointXYZ>` for everyone; miem reads its memory in place "
+            "(a strided `GridView<float>`, no copy). One thread each (`num_threads = 1`). "
+            "'time / miem' is relative to miem with heights of the ABNORMAL points only. A "
+            "defect counts as found when a flagged point lies within one cell of it. PCL "
+            "settings: normals COVARIANCE_MATRIX, max depth change 0.02, smoothing 10; edges "
+            "occluding + occluded + high curvature, depth discontinuity 0.004 (2 mm at "
+            "500 mm), 50 neighbours; SOR k = 8, 3 sigma. PCL's edges and SOR answer related "
+            "but different questions (depth edges, sparse points): the columns show what each "
+            "would hand a grinding cell.",
+            "",
+            *fmt_pcl(pcl_rows),
+            "",
+        ]
+    else:
+        lines += ["PCL comparison: not run (PCL not found at build time).", ""]
+    OUT.write_text("\n".join(lines))
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,94 @@
+// MIEM on unorganized clouds ((N, 3) points, no order): point spacing, local planes and normals,
+// the K-direction tangent-plane angle test with iteration, local heights and defects.
+// The exact rules are in docs/SPEC.md, section "Unorganized clouds".
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <vector>
+
+#include "miem/organized.hpp"
+#include "miem/plane.hpp"
+#include "miem/views.hpp"
+
+namespace miem {
+
+/// Median over the finite points of the distance to the nearest other finite point (the mean of
+/// the two middle values for an even count). Throws std::invalid_argument when there are fewer
+/// than 3 finite points or the spacing is 0 (more than half the points are duplicates).
+template <typename T>
+double point_spacing(const PointsView<T>& points, int num_threads = 0);
+
+/// Caller-owned outputs of estimate_normals, each for every row of the input.
+struct NormalsOutput {
+  double* normals = nullptr;        ///< N x 3 row-major oriented unit normals (NaN when invalid)
+  double* rms = nullptr;            ///< RMS distance of the fitted points (NaN when invalid)
+  std::int64_t* count = nullptr;    ///< points used (the point itself included; 0 for non-finite)
+  std::uint8_t* valid = nullptr;    ///< 1 where a plane was fitted
+};
+
+/// Local plane at every finite point: eigen fit of the finite points within `radius`, the point
+/// itself included. Fewer than 3 points or degenerate (collinear / equal): NaN normal and rms,
+/// valid 0. Any of the output pointers may be null. Throws std::invalid_argument when radius is
+/// not finite and > 0. Deterministic for any thread count.
+template <typename T>
+void estimate_normals(const PointsView<T>& points, double radius, const NormalsOutput& out,
+                      int num_threads = 0);
+
+/// Parameters of unorganized detection. Defaults are the paper's settings.
+struct PointsDetectParams {
+  double theta0_deg = 75.0;          ///< flag a direction when its angle <= theta0 (0..180 open)
+  std::vector<int> scales{1};        ///< neighbour scales (each >= 1): s * min_step per scale
+  std::optional<double> radius;      ///< neighbourhood radius (> 0); default 5 * spacing
+  int num_directions = 4;            ///< K tangent-plane directions, 2..8 (flags are 8 bits)
+  std::optional<double> min_step;    ///< shortest tangent offset (>= 0); default 0.5 * spacing
+  int min_directions = 0;            ///< 0: all available directions; else 1..K
+  int max_iterations = 10;           ///< passes at most (>= 1)
+  std::optional<double> link;        ///< defect linking distance (> 0); default radius
+  HeightMode height_mode = HeightMode::kAll;  ///< which points get a height
+  int num_threads = 0;               ///< 0: all available; the results never depend on it
+};
+
+/// Throws std::invalid_argument naming the offending parameter.
+void validate(const PointsDetectParams& params);
+
+/// Caller-owned per-point outputs of detect_points, N values each. `labels` is required; the
+/// others may be null.
+struct PointsOutput {
+  std::uint8_t* labels = nullptr;      ///< Label values
+  std::uint8_t* flags = nullptr;       ///< bit k: tangent direction k flagged
+  double* angle_deg = nullptr;         ///< smallest angle seen, NaN where none
+  double* height = nullptr;            ///< height over the local NORMAL plane, NaN where none
+  std::uint8_t* degenerate = nullptr;  ///< 1 where the last judgment met a degenerate neighbourhood
+};
+
+/// What a detection run returns besides the per-point buffers.
+struct PointsDetectSummary {
+  int iterations = 0;
+  std::optional<Plane> plane;   ///< the MIEM plane (eigen fit of the non-ABNORMAL points)
+  std::vector<Defect> defects;  ///< indices are row indices; ordered by |peak_height| descending
+  double spacing = 0.0;         ///< median nearest-neighbour distance
+  double radius = 0.0;          ///< the values used
+  double min_step = 0.0;
+  double link = 0.0;
+};
+
+/// Everything, owned.
+struct PointsDetectResult {
+  std::vector<std::uint8_t> labels, flags, degenerate;
+  std::vector<double> angle_deg, height;
+  PointsDetectSummary summary;
+};
+
+/// MIEM on an unorganized cloud, writing into `out`. Non-finite rows are INVALID. Throws
+/// std::invalid_argument on bad parameters, fewer than 3 finite points, spacing 0, or a null
+/// `out.labels`. Deterministic for any thread count.
+template <typename T>
+PointsDetectSummary detect_points(const PointsView<T>& points, const PointsDetectParams& params,
+                                  const PointsOutput& out);
+
+/// One-call unorganized detection with owned outputs.
+template <typename T>
+PointsDetectResult detect_points(const PointsView<T>& points, const PointsDetectParams& params);
+
+}  // namespace miem

@@ -1,0 +1,163 @@
+// The no-throw API: arguments are checked up front (static messages, no allocation), and the
+// throwing core is called inside a catch-all so that nothing escapes into -fno-exceptions code.
+#include "miem/nothrow.hpp"
+
+#include <cmath>
+#include <new>
+#include <stdexcept>
+
+namespace miem {
+
+namespace {
+
+Status from_plane_status(PlaneStatus st, bool lstsq) {
+  switch (st) {
+    case PlaneStatus::kOk:
+      return {};
+    case PlaneStatus::kTooFewPoints:
+      return {StatusCode::kTooFewPoints, "points: fewer than 3 finite points"};
+    case PlaneStatus::kDegenerate:
+      return {StatusCode::kDegenerate,
+              lstsq ? "points: the x, y coordinates are collinear or equal: no z = ax + by + c"
+                    : "points: all equal or collinear: no plane"};
+  }
+  return {StatusCode::kInternal, "points: unknown plane status"};
+}
+
+Status from_current_exception() noexcept {
+  try {
+    throw;
+  } catch (const std::bad_alloc&) {
+    return {StatusCode::kOutOfMemory, "out of memory"};
+  } catch (const std::invalid_argument&) {
+    // Every argument was checked before the call: reaching this is a bug.
+    return {StatusCode::kInternal, "unexpected invalid_argument after the checks"};
+  } catch (...) {
+    return {StatusCode::kInternal, "unexpected exception"};
+  }
+}
+
+template <typename T>
+Status fit_plane_impl(const PointsView<T>& points, Plane* out, int num_threads,
+                      bool lstsq) noexcept {
+  if (out == nullptr) return {StatusCode::kInvalidInput, "out: must not be null"};
+  if (points.size < 0 || (points.size > 0 && points.data == nullptr)) {
+    return {StatusCode::kInvalidInput, "points: null data"};
+  }
+  if (num_threads < 0) return {StatusCode::kInvalidParameter, "num_threads: must be >= 0"};
+  try {
+    const Moments m = compute_moments(points, num_threads);
+    return from_plane_status(
+        lstsq ? lstsq_plane_from_moments(m, out) : eigen_plane_from_moments(m, out), lstsq);
+  } catch (...) {
+    return from_current_exception();
+  }
+}
+
+}  // namespace
+
+const char* to_string(StatusCode code) noexcept {
+  switch (code) {
+    case StatusCode::kOk:
+      return "ok";
+    case StatusCode::kInvalidParameter:
+      return "invalid parameter";
+    case StatusCode::kInvalidInput:
+      return "invalid input";
+    case StatusCode::kTooFewPoints:
+      return "too few points";
+    case StatusCode::kDegenerate:
+      return "degenerate";
+    case StatusCode::kWrongWidth:
+      return "wrong width";
+    case StatusCode::kEmptyProfile:
+      return "empty profile";
+    case StatusCode::kFinished:
+      return "finished";
+    case StatusCode::kOutOfMemory:
+      return "out of memory";
+    case StatusCode::kInternal:
+      return "internal error";
+  }
+  return "unknown";
+}
+
+Status check_params(const DetectParams& p) noexcept {
+  const auto bad = [](const char* msg) { return Status{StatusCode::kInvalidParameter, msg}; };
+  if (!std::isfinite(p.theta0_deg) || p.theta0_deg <= 0.0 || p.theta0_deg >= 180.0) {
+    return bad("theta0: must be a finite angle in degrees with 0 < theta0 < 180");
+  }
+  if (p.scales.empty()) return bad("scales: must not be empty");
+  for (int s : p.scales) {
+    if (s < 1) return bad("scales: every scale must be an integer >= 1");
+  }
+  if (p.max_gap < 0) return bad("max_gap: must be an integer >= 0");
+  if (std::isnan(p.min_step) || std::isinf(p.min_step)) {
+    return bad("min_step: must be finite (negative = off)");
+  }
+  if (p.max_reach < 1) return bad("max_reach: must be an integer >= 1");
+  if (p.min_directions < 0 || p.min_directions > 4) {
+    return bad("min_directions: must be 0 (all) or 1..4");
+  }
+  if (p.max_iterations < 1) return bad("max_iterations: must be >= 1");
+  if (p.window < 3 || p.window % 2 == 0) return bad("window: must be an odd integer >= 3");
+  if (p.num_threads < 0) return bad("num_threads: must be >= 0");
+  return {};
+}
+
+namespace nothrow {
+
+template <typename T>
+Status fit_plane_eigen(const PointsView<T>& points, Plane* out, int num_threads) noexcept {
+  return fit_plane_impl(points, out, num_threads, false);
+}
+
+template <typename T>
+Status fit_plane_lstsq(const PointsView<T>& points, Plane* out, int num_threads) noexcept {
+  return fit_plane_impl(points, out, num_threads, true);
+}
+
+Status make_detector(const DetectParams& params, std::optional<OrganizedDetector>* out) noexcept {
+  if (out == nullptr) return {StatusCode::kInvalidInput, "out: must not be null"};
+  const Status st = check_params(params);
+  if (!st.ok()) return st;
+  try {
+    out->emplace(params);
+  } catch (...) {
+    return from_current_exception();
+  }
+  return {};
+}
+
+template <typename T>
+Status detect(OrganizedDetector& detector, const GridView<T>& grid, const OrganizedOutput& out,
+              DetectSummary* summary) noexcept {
+  if (summary == nullptr) return {StatusCode::kInvalidInput, "summary: must not be null"};
+  if (out.labels == nullptr) return {StatusCode::kInvalidInput, "out.labels: must not be null"};
+  if (grid.data == nullptr || grid.rows < 1 || grid.cols < 1) {
+    return {StatusCode::kInvalidInput, "grid: must have at least one row and one column"};
+  }
+  // The core throws on fewer than 3 finite points: check first (stops at the third one).
+  int n_finite = 0;
+  for (std::ptrdiff_t r = 0; r < grid.rows && n_finite < 3; ++r)
+    for (std::ptrdiff_t c = 0; c < grid.cols && n_finite < 3; ++c) n_finite += grid.finite(r, c);
+  if (n_finite < 3) return {StatusCode::kTooFewPoints, "grid: fewer than 3 finite points"};
+  try {
+    *summary = detector.run(grid, out);
+  } catch (...) {
+    return from_current_exception();
+  }
+  return {};
+}
+
+template Status fit_plane_eigen<float>(const PointsView<float>&, Plane*, int) noexcept;
+template Status fit_plane_eigen<double>(const PointsView<double>&, Plane*, int) noexcept;
+template Status fit_plane_lstsq<float>(const PointsView<float>&, Plane*, int) noexcept;
+template Status fit_plane_lstsq<double>(const PointsView<double>&, Plane*, int) noexcept;
+template Status detect<float>(OrganizedDetector&, const GridView<float>&, const OrganizedOutput&,
+                              DetectSummary*) noexcept;
+template Status detect<double>(OrganizedDetector&, const GridView<double>&,
+                               const OrganizedOutput&, DetectSummary*) noexcept;
+
+}  // namespace nothrow
+}  // namespace miem

@@ -1,0 +1,573 @@
+// Streaming MIEM: the batch passes (Jacobi, docs/SPEC.md) run as a wavefront over a ring of rows.
+// Each cell keeps the pass that removed it, so a judgment at pass p sees exactly the usable set of
+// pass p - 1 even when rows above have already run pass p. Pass 1, the bulk of the work, runs a
+// vectorised filter over the whole row and judges only the cells it cannot rule out.
+#include "miem/stream.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <new>
+#include <stdexcept>
+#include <string>
+#include <type_traits>
+
+#if defined(__x86_64__)
+#include <immintrin.h>
+#endif
+
+#include "judge.hpp"
+
+namespace miem {
+
+namespace {
+
+using detail::kDirCol;
+using detail::kDirRow;
+
+constexpr std::uint8_t kAlive = 255;  // finite and never removed
+
+// Usable at pass p: finite and not removed before pass p (removed at pass q: state == q).
+struct UsableAtPass {
+  std::uint8_t pass;
+  bool operator()(std::uint8_t state) const { return state >= pass; }
+};
+
+// The pass-1 kernel's filter. A cell whose directions are all unflagged is NORMAL whatever is
+// available, and with theta0 < 90 a flag needs u.v > 0, which almost no surface cell has. So the
+// kernel only marks, per (direction, scale), the cells where u.v > -1e-14 (|ux vx| + |uy vy| +
+// |uz vz|): that margin is far above the rounding error of the dot product in any summation
+// order, so every cell that could be flagged is marked and then judged exactly.
+// Cells [c0, c1) of one row; P, A[i], B[i]: x at [c], y at [c + plane], z at [c + 2 plane];
+// A[i][c], B[i][c] are the two neighbours of cell c for (direction, scale) i.
+template <typename T>
+struct KernelArgs {
+  const T* P;
+  const T* A[32];
+  const T* B[32];
+  int n;  // (direction, scale) pairs
+  std::ptrdiff_t plane, c0, c1;
+  std::uint32_t* bits;  // bit i: (direction, scale) i may be flagged
+};
+
+constexpr double kMargin = 1e-14;
+constexpr std::uint32_t kBadBit = 1u << 31;  // in bits_: a neighbour is missing
+
+template <typename T>
+void kernel_scalar(const KernelArgs<T>& a, std::ptrdiff_t c) {
+  const std::ptrdiff_t pl = a.plane;
+  for (; c < a.c1; ++c) {
+    const double px = a.P[c], py = a.P[pl + c], pz = a.P[2 * pl + c];
+    for (int i = 0; i < a.n; ++i) {
+      const T* A = a.A[i];
+      const T* B = a.B[i];
+      const double ux = A[c] - px, uy = A[pl + c] - py, uz = A[2 * pl + c] - pz;
+      const double vx = B[c] - px, vy = B[pl + c] - py, vz = B[2 * pl + c] - pz;
+      const double x = ux * vx, y = uy * vy, z = uz * vz;
+      if ((x + y) + z > -kMargin * ((std::fabs(x) + std::fabs(y)) + std::fabs(z))) {
+        a.bits[c] |= 1u << i;
+      }
+    }
+  }
+}
+
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#define MIEM_X86_KERNELS 1
+
+// Two cells per step (SSE2 is part of x86-64).
+template <typename T>
+void kernel_sse2(const KernelArgs<T>& a) {
+  auto load2 = [](const T* p) {
+    if constexpr (std::is_same_v<T, double>) {
+      return _mm_loadu_pd(p);
+    } else {
+      return _mm_cvtps_pd(_mm_castsi128_ps(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p))));
+    }
+  };
+  const std::ptrdiff_t pl = a.plane;
+  const __m128d margin = _mm_set1_pd(-kMargin);
+  const __m128d abs_mask = _mm_castsi128_pd(_mm_set1_epi64x(0x7fffffffffffffffLL));
+  std::ptrdiff_t c = a.c0;
+  for (; c + 2 <= a.c1; c += 2) {
+    const __m128d px = load2(a.P + c), py = load2(a.P + pl + c), pz = load2(a.P + 2 * pl + c);
+    for (int i = 0; i < a.n; ++i) {
+      const T* A = a.A[i];
+      const T* B = a.B[i];
+      const __m128d x = _mm_mul_pd(_mm_sub_pd(load2(A + c), px), _mm_sub_pd(load2(B + c), px));
+      const __m128d y =
+          _mm_mul_pd(_mm_sub_pd(load2(A + pl + c), py), _mm_sub_pd(load2(B + pl + c), py));
+      const __m128d z = _mm_mul_pd(_mm_sub_pd(load2(A + 2 * pl + c), pz),
+                                   _mm_sub_pd(load2(B + 2 * pl + c), pz));
+      const __m128d d = _mm_add_pd(_mm_add_pd(x, y), z);
+      const __m128d mag = _mm_add_pd(
+          _mm_add_pd(_mm_and_pd(x, abs_mask), _mm_and_pd(y, abs_mask)), _mm_and_pd(z, abs_mask));
+      const int m = _mm_movemask_pd(_mm_cmpgt_pd(d, _mm_mul_pd(margin, mag)));
+      if (m != 0) {
+        if (m & 1) a.bits[c] |= 1u << i;
+        if (m & 2) a.bits[c + 1] |= 1u << i;
+      }
+    }
+  }
+  kernel_scalar(a, c);
+}
+
+// Four cells per step, where the CPU has AVX2 (checked at run time).
+__attribute__((target("avx2"))) inline __m256d load4(const double* p) {
+  return _mm256_loadu_pd(p);
+}
+__attribute__((target("avx2"))) inline __m256d load4(const float* p) {
+  return _mm256_cvtps_pd(_mm_loadu_ps(p));
+}
+
+template <typename T>
+__attribute__((target("avx2"))) void kernel_avx2(const KernelArgs<T>& a) {
+  const std::ptrdiff_t pl = a.plane;
+  const __m256d margin = _mm256_set1_pd(-kMargin);
+  const __m256d abs_mask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffffLL));
+  std::ptrdiff_t c = a.c0;
+  for (; c + 4 <= a.c1; c += 4) {
+    const __m256d px = load4(a.P + c), py = load4(a.P + pl + c), pz = load4(a.P + 2 * pl + c);
+    for (int i = 0; i < a.n; ++i) {
+      const T* A = a.A[i];
+      const T* B = a.B[i];
+      const __m256d x =
+          _mm256_mul_pd(_mm256_sub_pd(load4(A + c), px), _mm256_sub_pd(load4(B + c), px));
+      const __m256d y = _mm256_mul_pd(_mm256_sub_pd(load4(A + pl + c), py),
+                                      _mm256_sub_pd(load4(B + pl + c), py));
+      const __m256d z = _mm256_mul_pd(_mm256_sub_pd(load4(A + 2 * pl + c), pz),
+                                      _mm256_sub_pd(load4(B + 2 * pl + c), pz));
+      const __m256d d = _mm256_add_pd(_mm256_add_pd(x, y), z);
+      const __m256d mag =
+          _mm256_add_pd(_mm256_add_pd(_mm256_and_pd(x, abs_mask), _mm256_and_pd(y, abs_mask)),
+                        _mm256_and_pd(z, abs_mask));
+      const int m =
+          _mm256_movemask_pd(_mm256_cmp_pd(d, _mm256_mul_pd(margin, mag), _CMP_GT_OQ));
+      if (m != 0) {
+        for (int k = 0; k < 4; ++k)
+          if (m & (1 << k)) a.bits[c + k] |= 1u << i;
+      }
+    }
+  }
+  kernel_scalar(a, c);
+}
+
+#endif
+
+template <typename T>
+void run_kernel(const KernelArgs<T>& a) {
+#ifdef MIEM_X86_KERNELS
+  // AVX-512 measured no faster here (the loads and the rest of a push dominate).
+  static const bool has_avx2 = __builtin_cpu_supports("avx2");
+  if (has_avx2) {
+    kernel_avx2(a);
+  } else {
+    kernel_sse2(a);
+  }
+#else
+  kernel_scalar(a, a.c0);
+#endif
+}
+
+template <typename T>
+bool finite3(T x, T y, T z) {
+  return (x - x) + (y - y) + (z - z) == T(0);  // as GridView::finite
+}
+
+// state 255 / label NORMAL for finite points, state 0 / label INVALID for the others; returns
+// the number of finite points. Four points per step on x86 (the scalar loop's compare-to-byte
+// does not vectorise).
+template <typename T>
+std::ptrdiff_t mark_finite(const T* x, const T* y, const T* z, std::ptrdiff_t W,
+                           std::uint8_t* st, std::uint8_t* lab) {
+  std::ptrdiff_t c = 0, n = 0;
+#ifdef MIEM_X86_KERNELS
+  static constexpr std::uint32_t kBytes[16] = {
+      0x00000000, 0x000000ff, 0x0000ff00, 0x0000ffff, 0x00ff0000, 0x00ff00ff, 0x00ffff00,
+      0x00ffffff, 0xff000000, 0xff0000ff, 0xff00ff00, 0xff00ffff, 0xffff0000, 0xffff00ff,
+      0xffffff00, 0xffffffff};
+  for (; c + 4 <= W; c += 4) {
+    int m;
+    if constexpr (std::is_same_v<T, double>) {
+      const __m128d z2 = _mm_setzero_pd();
+      auto fin2 = [&](std::ptrdiff_t i) {
+        const __m128d a = _mm_loadu_pd(x + i), b = _mm_loadu_pd(y + i), d = _mm_loadu_pd(z + i);
+        const __m128d s = _mm_add_pd(_mm_add_pd(_mm_sub_pd(a, a), _mm_sub_pd(b, b)), _mm_sub_pd(d, d));
+        return _mm_movemask_pd(_mm_cmpeq_pd(s, z2));
+      };
+      m = fin2(c) | (fin2(c + 2) << 2);
+    } else {
+      const __m128 a = _mm_loadu_ps(x + c), b = _mm_loadu_ps(y + c), d = _mm_loadu_ps(z + c);
+      const __m128 s = _mm_add_ps(_mm_add_ps(_mm_sub_ps(a, a), _mm_sub_ps(b, b)), _mm_sub_ps(d, d));
+      m = _mm_movemask_ps(_mm_cmpeq_ps(s, _mm_setzero_ps()));
+    }
+    const std::uint32_t bytes = kBytes[m];
+    const std::uint32_t labels = ~bytes & 0x03030303u;  // kNormal 0 / kInvalid 3 per byte
+    std::memcpy(st + c, &bytes, 4);
+    std::memcpy(lab + c, &labels, 4);
+    n += (m & 1) + ((m >> 1) & 1) + ((m >> 2) & 1) + ((m >> 3) & 1);
+  }
+#endif
+  for (; c < W; ++c) {
+    const bool fin = finite3(x[c], y[c], z[c]);
+    st[c] = fin ? kAlive : 0;
+    lab[c] = fin ? kNormal : kInvalid;
+    n += fin;
+  }
+  return n;
+}
+
+}  // namespace
+
+template <typename T>
+ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
+    : width_(width), params_(std::move(params)) {
+  validate(params_);
+  if (width_ < 1) throw std::invalid_argument("width: must be at least 1 point per profile");
+  if (params_.max_iterations > 254) {
+    throw std::invalid_argument("max_iterations: a stream supports at most 254 passes");
+  }
+  max_scale_ = *std::max_element(params_.scales.begin(), params_.scales.end());
+  const int min_scale = *std::min_element(params_.scales.begin(), params_.scales.end());
+  const bool min_step = params_.min_step >= 0.0;
+  const long long reach = static_cast<long long>(max_scale_) + params_.max_gap +
+                          (min_step ? params_.max_reach : 0);
+  if (reach > (1 << 20)) throw std::invalid_argument("scales/max_gap/max_reach: reach too long");
+  reach_ = static_cast<int>(reach);
+  passes_ = params_.max_iterations;
+  lag_ = passes_ * reach_;
+  ring_ = static_cast<std::ptrdiff_t>(lag_) + reach_ + 1;
+  phys_ = ring_ + 2 * reach_;
+  const double cells = static_cast<double>(phys_) * static_cast<double>(width_);
+  if (cells * 3.0 * sizeof(T) > static_cast<double>(std::numeric_limits<std::ptrdiff_t>::max() / 4)) {
+    throw std::invalid_argument("width: profile buffer too large");
+  }
+  cos0_ = std::cos(params_.theta0_deg * detail::kDegToRad);
+  // The kernel needs the scale-s cells to stand for the neighbours (no min_step), some of them
+  // inside the isolation reach (so "not isolated" is implied), and one bit per (direction, scale).
+  fast_ = !min_step && min_scale <= 1 + params_.max_gap && params_.scales.size() <= 7;
+
+  const std::size_t n2 = static_cast<std::size_t>(phys_ * width_);
+  const std::size_t n1 = static_cast<std::size_t>(ring_ * width_);
+  xyz_.assign(3 * n2, std::numeric_limits<T>::quiet_NaN());
+  state_.assign(n2, 0);
+  cand_.assign(n1, 0);
+  labels_.assign(n1, kInvalid);
+  row_cand_.assign(static_cast<std::size_t>(ring_), 0);
+  level_.assign(static_cast<std::size_t>(ring_), 0);
+  bits_.assign(static_cast<std::size_t>(width_), 0);
+}
+
+template <typename T>
+void ProfileStream<T>::reset() noexcept {
+  pushed_ = 0;
+  emitted_ = 0;
+  finished_ = false;
+}
+
+template <typename T>
+Status ProfileStream<T>::push(const PointsView<T>& profile, StreamRow* out) noexcept {
+  if (out != nullptr) *out = StreamRow{};
+  if (out == nullptr) return {StatusCode::kInvalidInput, "out: must not be null (profile rejected)"};
+  if (finished_) {
+    return {StatusCode::kFinished, "push: the stream was flushed; call reset() to start anew"};
+  }
+  if (profile.size != width_) {
+    return {StatusCode::kWrongWidth,
+            "profile: number of points differs from the stream width (profile rejected)"};
+  }
+  if (profile.data == nullptr) {
+    return {StatusCode::kInvalidInput, "profile: null data (profile rejected)"};
+  }
+  const std::int64_t row = pushed_;
+  const std::ptrdiff_t W = width_, s = slot(row), plane = phys_ * W;
+  T* x = xyz_.data() + s * W;
+  T* y = x + plane;
+  T* z = y + plane;
+  std::uint8_t* st = state_.data() + s * W;
+  std::uint8_t* lab = labels_.data() + s * W;
+  if (profile.point_stride == 3 && profile.coord_stride == 1) {
+    const T* p = profile.data;  // the common dense layout: a loop the compiler vectorises
+    for (std::ptrdiff_t c = 0; c < W; ++c) {
+      x[c] = p[3 * c];
+      y[c] = p[3 * c + 1];
+      z[c] = p[3 * c + 2];
+    }
+  } else {
+    const std::ptrdiff_t ps = profile.point_stride, cs = profile.coord_stride;
+    for (std::ptrdiff_t c = 0; c < W; ++c) {
+      const T* p = profile.data + c * ps;
+      x[c] = p[0];
+      y[c] = p[cs];
+      z[c] = p[2 * cs];
+    }
+  }
+  const std::ptrdiff_t n_finite = mark_finite(x, y, z, W, st, lab);
+  if (s < 2 * reach_) {  // the copy after the ring's end (see phys_)
+    const std::size_t bytes = static_cast<std::size_t>(W) * sizeof(T);
+    std::memcpy(x + ring_ * W, x, bytes);
+    std::memcpy(y + ring_ * W, y, bytes);
+    std::memcpy(z + ring_ * W, z, bytes);
+    std::memcpy(st + ring_ * W, st, static_cast<std::size_t>(W));
+  }
+  std::memset(cand_.data() + s * W, 0, static_cast<std::size_t>(W));
+  row_cand_[s] = 0;
+  level_[s] = 0;
+  pushed_ = row + 1;
+
+  // The wavefront: pass p on row - p R (its rows within R have all run pass p - 1).
+  for (int p = 1; p <= passes_; ++p) {
+    const std::int64_t j = row - static_cast<std::int64_t>(p) * reach_;
+    if (j < 0) break;
+    run_pass(j, p);
+  }
+  const std::int64_t done = row - lag_;
+  if (done >= 0) {
+    out->index = done;
+    out->labels = labels_.data() + slot(done) * W;
+    emitted_ = done + 1;
+  }
+  if (n_finite == 0) {
+    return {StatusCode::kEmptyProfile,
+            "profile: no finite point (pushed as a row of dropouts, labels INVALID)"};
+  }
+  return {};
+}
+
+template <typename T>
+bool ProfileStream<T>::flush(StreamRow* out) noexcept {
+  if (out == nullptr) return false;
+  *out = StreamRow{};
+  if (!finished_) {
+    finished_ = true;
+    // The end of the stream is now the grid border: finish every pass on the last rows, pass by
+    // pass over all of them (each row's neighbours then have run the pass before).
+    const std::int64_t first = std::max<std::int64_t>(0, pushed_ - lag_);
+    for (int p = 1; p <= passes_; ++p) {
+      for (std::int64_t j = first; j < pushed_; ++j) {
+        if (level_[slot(j)] == p - 1) run_pass(j, p);
+      }
+    }
+  }
+  if (emitted_ >= pushed_) return false;
+  out->index = emitted_;
+  out->labels = labels_.data() + slot(emitted_) * width_;
+  ++emitted_;
+  return true;
+}
+
+// Removes an ABNORMAL cell at `pass` and marks the cells on its rays for the next pass.
+template <typename T>
+void ProfileStream<T>::remove(std::int64_t row, std::ptrdiff_t col, int pass) noexcept {
+  const std::ptrdiff_t W = width_, s = slot(row);
+  labels_[s * W + col] = kAbnormal;
+  state_[s * W + col] = static_cast<std::uint8_t>(pass);
+  if (s < 2 * reach_) state_[(s + ring_) * W + col] = static_cast<std::uint8_t>(pass);
+  if (pass >= passes_) return;
+  const std::uint8_t bit = static_cast<std::uint8_t>(1u << ((pass + 1) & 1));
+  for (int k = 0; k < 4; ++k) {
+    for (int sgn = -1; sgn <= 1; sgn += 2) {
+      for (std::ptrdiff_t step = 1; step <= reach_; ++step) {
+        const std::int64_t rr = row + sgn * step * kDirRow[k];
+        const std::ptrdiff_t cc = col + sgn * step * kDirCol[k];
+        if (rr < 0 || rr >= pushed_ || cc < 0 || cc >= W) break;
+        const std::ptrdiff_t sr = slot(rr);
+        cand_[sr * W + cc] |= bit;
+        row_cand_[sr] |= bit;
+      }
+    }
+  }
+}
+
+template <typename T>
+void ProfileStream<T>::run_pass(std::int64_t row, int pass) noexcept {
+  const std::ptrdiff_t W = width_;
+  // The judge's grid: the rows within R of `row` (all a judgment reads), contiguous in the
+  // ring thanks to its extension; clamped to the stream's first and (pushed) last rows, which
+  // are then the grid's border, as in batch detection.
+  const std::int64_t first = std::max<std::int64_t>(0, row - reach_);
+  const std::int64_t last = std::min<std::int64_t>(pushed_ - 1, row + reach_);
+  const std::ptrdiff_t s0 = slot(first);
+  const GridView<T> grid{xyz_.data() + s0 * W, static_cast<std::ptrdiff_t>(last - first + 1), W,
+                         W, 1, phys_ * W};
+  const detail::CellJudge<T, UsableAtPass, true> judge(
+      grid, state_.data() + s0 * W, params_, UsableAtPass{static_cast<std::uint8_t>(pass)});
+  const std::ptrdiff_t s = slot(row), r = static_cast<std::ptrdiff_t>(row - first);
+  const std::uint8_t* st = state_.data() + s * W;
+  std::uint8_t* lab = labels_.data() + s * W;
+  auto judge_cell = [&](std::ptrdiff_t c) {
+    std::uint8_t flags = 0;
+    double angle = 0.0;
+    const std::uint8_t l = judge.judge(r, c, &flags, &angle);
+    if (l == kAbnormal) {
+      remove(row, c, pass);
+    } else {
+      lab[c] = l;
+    }
+  };
+
+  if (pass == 1) {
+    const bool fast = fast_ && row >= max_scale_ && row + max_scale_ < pushed_ &&
+                      W > 2 * static_cast<std::ptrdiff_t>(max_scale_);
+    if (!fast) {
+      for (std::ptrdiff_t c = 0; c < W; ++c)
+        if (st[c] != 0) judge_cell(c);
+    } else {
+      // The kernel marks the few cells that need more than "NORMAL" (set at push).
+      pass1_fast(row);
+      const std::ptrdiff_t S = max_scale_;
+      for (std::ptrdiff_t c = 0; c < S; ++c)
+        if (st[c] != 0) judge_cell(c);
+      for (std::ptrdiff_t c = W - S; c < W; ++c)
+        if (st[c] != 0) judge_cell(c);
+      const std::uint32_t* bits = bits_.data();
+      for (std::ptrdiff_t c = S; c < W - S; ++c) {
+        if ((c - S) % 16 == 0 && c + 16 <= W - S) {  // skip empty stretches 16 cells at a time
+          std::uint32_t any = 0;
+          for (int k = 0; k < 16; ++k) any |= bits[c + k];
+          if (any == 0) {
+            c += 15;
+            continue;
+          }
+        }
+        const std::uint32_t b = bits[c];
+        if (b == 0 || st[c] == 0) continue;
+        if (b & kBadBit) {
+          judge_cell(c);  // next to a dropout
+          continue;
+        }
+        const std::uint8_t l = exact_label(row, c, b);
+        if (l == kAbnormal) {
+          remove(row, c, 1);
+        } else {
+          lab[c] = l;
+        }
+      }
+    }
+  } else {
+    const std::uint8_t bit = static_cast<std::uint8_t>(1u << (pass & 1));
+    if (row_cand_[s] & bit) {
+      std::uint8_t* cand = cand_.data() + s * W;
+      for (std::ptrdiff_t c = 0; c < W; ++c) {
+        if (!(cand[c] & bit)) continue;
+        cand[c] &= static_cast<std::uint8_t>(~bit);
+        if (st[c] == kAlive) judge_cell(c);
+      }
+      row_cand_[s] &= static_cast<std::uint8_t>(~bit);
+    }
+  }
+  level_[s] = static_cast<std::uint8_t>(pass);
+}
+
+// Pass 1 filter of one row where every neighbour cell exists: marks in bits_ the cells that
+// might be flagged in some direction (the kernel) and, with kBadBit, the cells with a missing
+// neighbour (next to a dropout), which CellJudge itself judges. Every other cell is NORMAL.
+template <typename T>
+void ProfileStream<T>::pass1_fast(std::int64_t row) noexcept {
+  const std::ptrdiff_t W = width_, S = max_scale_, plane = phys_ * W;
+  std::uint32_t* bits = bits_.data();
+  const std::size_t n_scales = params_.scales.size();
+  KernelArgs<T> args{};
+  args.P = xyz_.data() + slot(row) * W;
+  args.n = 4 * static_cast<int>(n_scales);
+  args.plane = plane;
+  args.c0 = S;
+  args.c1 = W - S;
+  args.bits = bits;
+  std::fill(bits + S, bits + W - S, cos0_ > 0.0 ? 0u : ~kBadBit);  // theta0 >= 90: all exact
+  for (int k = 0; k < 4; ++k) {
+    for (std::size_t si = 0; si < n_scales; ++si) {
+      const std::ptrdiff_t sc = params_.scales[si];
+      const std::ptrdiff_t dr = kDirRow[k] * sc, dc = kDirCol[k] * sc;
+      // A[c] = cell (row - dr, c - dc), B[c] = cell (row + dr, c + dc).
+      const int i = k * static_cast<int>(n_scales) + static_cast<int>(si);
+      args.A[i] = xyz_.data() + slot(row - dr) * W - dc;
+      args.B[i] = xyz_.data() + slot(row + dr) * W + dc;
+      const std::uint8_t* sA = state_.data() + slot(row - dr) * W - dc;
+      const std::uint8_t* sB = state_.data() + slot(row + dr) * W + dc;
+      for (std::ptrdiff_t c = S; c < W - S; ++c) {
+        bits[c] |= static_cast<std::uint32_t>((sA[c] == 0) | (sB[c] == 0)) << 31;
+      }
+    }
+  }
+  if (cos0_ > 0.0) run_kernel(args);
+}
+
+// The exact judgment of a cell of a row where every neighbour at step s exists, computed as
+// CellJudge computes it (dot3, the same evaluation order); `b` holds the (direction, scale)
+// pairs that the filter could not rule out.
+template <typename T>
+std::uint8_t ProfileStream<T>::exact_label(std::int64_t row, std::ptrdiff_t c,
+                                           std::uint32_t b) const noexcept {
+  const std::ptrdiff_t W = width_, plane = phys_ * W;
+  const T* X0 = xyz_.data() + slot(row) * W + c;
+  const Eigen::Vector3d P(static_cast<double>(X0[0]), static_cast<double>(X0[plane]),
+                          static_cast<double>(X0[2 * plane]));
+  const std::size_t n_scales = params_.scales.size();
+  int avail = 0, flagged = 0;
+  for (int k = 0; k < 4; ++k) {
+    bool dir_avail = false, dir_flag = false;
+    for (std::size_t si = 0; si < n_scales; ++si) {
+      const int i = k * static_cast<int>(n_scales) + static_cast<int>(si);
+      const std::ptrdiff_t sc = params_.scales[si];
+      const std::ptrdiff_t dr = kDirRow[k] * sc, dc = kDirCol[k] * sc;
+      const T* a = xyz_.data() + slot(row - dr) * W + (c - dc);
+      const T* bb = xyz_.data() + slot(row + dr) * W + (c + dc);
+      const Eigen::Vector3d u = Eigen::Vector3d(static_cast<double>(a[0]),
+                                                static_cast<double>(a[plane]),
+                                                static_cast<double>(a[2 * plane])) - P;
+      const Eigen::Vector3d v = Eigen::Vector3d(static_cast<double>(bb[0]),
+                                                static_cast<double>(bb[plane]),
+                                                static_cast<double>(bb[2 * plane])) - P;
+      const double uu = detail::dot3(u, u), vv = detail::dot3(v, v);
+      if (uu == 0.0 || vv == 0.0) continue;
+      dir_avail = true;
+      if (!(b & (1u << i))) continue;  // the filter showed cos < cos0
+      const double cs = std::clamp(detail::dot3(u, v) / std::sqrt(uu * vv), -1.0, 1.0);
+      if (cs >= cos0_) dir_flag = true;
+    }
+    avail += dir_avail;
+    flagged += dir_flag;
+  }
+  const int need = params_.min_directions > 0 ? std::min(avail, params_.min_directions) : avail;
+  if (avail >= 2 && flagged >= need) return kAbnormal;
+  return flagged > 0 ? kEdge : kNormal;
+}
+
+namespace nothrow {
+
+template <typename T>
+Status make_stream(std::ptrdiff_t width, const DetectParams& params,
+                   std::optional<ProfileStream<T>>* out) noexcept {
+  if (out == nullptr) return {StatusCode::kInvalidInput, "out: must not be null"};
+  const Status st = check_params(params);
+  if (!st.ok()) return st;
+  if (width < 1) {
+    return {StatusCode::kInvalidParameter, "width: must be at least 1 point per profile"};
+  }
+  if (params.max_iterations > 254) {
+    return {StatusCode::kInvalidParameter, "max_iterations: a stream supports at most 254 passes"};
+  }
+  try {
+    out->emplace(width, params);
+  } catch (const std::bad_alloc&) {
+    return {StatusCode::kOutOfMemory, "make_stream: out of memory for the profile ring"};
+  } catch (const std::invalid_argument&) {
+    return {StatusCode::kInvalidParameter, "make_stream: parameters out of range"};
+  } catch (...) {
+    return {StatusCode::kInternal, "make_stream: unexpected exception"};
+  }
+  return {};
+}
+
+template Status make_stream<float>(std::ptrdiff_t, const DetectParams&,
+                                   std::optional<ProfileStream<float>>*) noexcept;
+template Status make_stream<double>(std::ptrdiff_t, const DetectParams&,
+                                    std::optional<ProfileStream<double>>*) noexcept;
+
+}  // namespace nothrow
+
+template class ProfileStream<float>;
+template class ProfileStream<double>;
+
+}  // namespace miem

@@ -1,0 +1,144 @@
+// Organized detection against expectations computed by the NumPy reference (data/*.txt, written
+// by data/make_expectations.py): labels and flags exactly, floats within tight tolerances.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <string>
+#include <vector>
+
+#include "miem/organized.hpp"
+#include "test_util.hpp"
+
+namespace {
+
+using miem::test::Expectation;
+
+constexpr double kAngleTol = 1e-9;   // degrees (files keep 12 significant digits)
+constexpr double kHeightTol = 1e-9;  // grid units
+
+std::string data_path(const std::string& name) {
+  return std::string(MIEM_TEST_DATA_DIR) + "/" + name + ".txt";
+}
+
+void expect_close_or_nan(double got, double want, double tol, const char* what, std::size_t i) {
+  if (std::isnan(want)) {
+    EXPECT_TRUE(std::isnan(got)) << what << "[" << i << "]: want NaN, got " << got;
+  } else {
+    EXPECT_NEAR(got, want, tol) << what << "[" << i << "]";
+  }
+}
+
+template <typename T>
+miem::DetectResult run_case(const Expectation& e, std::vector<T>* storage) {
+  storage->assign(e.grid.begin(), e.grid.end());
+  return miem::detect_organized(miem::GridView<T>::dense(storage->data(), e.rows, e.cols),
+                                e.params);
+}
+
+void check_case(const Expectation& e, const miem::DetectResult& res) {
+  const std::size_t n = static_cast<std::size_t>(e.rows * e.cols);
+  ASSERT_EQ(res.labels.size(), n);
+  std::size_t label_mismatch = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (res.labels[i] != e.labels[i]) {
+      ++label_mismatch;
+      ADD_FAILURE() << e.name << ": label at (" << i / e.cols << ", " << i % e.cols << ") is "
+                    << int(res.labels[i]) << ", reference " << e.labels[i];
+    }
+    EXPECT_EQ(res.flags[i], e.flags[i]) << e.name << ": flags at " << i;
+    expect_close_or_nan(res.angle_deg[i], e.angle[i], kAngleTol, "angle", i);
+    expect_close_or_nan(res.height[i], e.height[i], kHeightTol, "height", i);
+  }
+  EXPECT_EQ(label_mismatch, 0u);
+  EXPECT_EQ(res.summary.iterations, e.iterations) << e.name;
+  ASSERT_EQ(res.summary.plane.has_value(), e.has_plane) << e.name;
+  if (e.has_plane) {
+    const miem::Plane& p = *res.summary.plane;
+    for (int k = 0; k < 3; ++k) EXPECT_NEAR(p.normal(k), e.normal[k], 1e-12) << e.name;
+    EXPECT_NEAR(p.d, e.d, 1e-10) << e.name;
+    EXPECT_NEAR(p.rms, e.rms, 1e-10) << e.name;
+    EXPECT_EQ(p.n_points, e.n_points) << e.name;
+  }
+  ASSERT_EQ(res.summary.defects.size(), e.defects.size()) << e.name;
+  for (std::size_t k = 0; k < e.defects.size(); ++k) {
+    const miem::Defect& d = res.summary.defects[k];
+    EXPECT_EQ(std::string(miem::to_string(d.kind)), e.defects[k].kind) << e.name << " defect " << k;
+    expect_close_or_nan(d.peak_height, e.defects[k].peak_height, kHeightTol, "peak", k);
+    EXPECT_EQ(d.indices, e.defects[k].indices) << e.name << " defect " << k;
+    EXPECT_EQ(d.id, static_cast<int>(k));
+  }
+}
+
+class ReferenceCase : public ::testing::TestWithParam<std::string> {};
+
+TEST_P(ReferenceCase, MatchesNumpyReference) {
+  const Expectation e = miem::test::read_expectation(data_path(GetParam()));
+  ASSERT_EQ(e.name, GetParam());
+  if (e.dtype == "float32") {
+    std::vector<float> g;
+    check_case(e, run_case(e, &g));
+  } else {
+    std::vector<double> g;
+    check_case(e, run_case(e, &g));
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(Expectations, ReferenceCase,
+                         ::testing::Values("spikes", "dropouts", "edges", "min_step", "cascade",
+                                           "float32"));
+
+// The same scan through a strided view (columns-major copy, coordinates in separate planes):
+// the view reads caller memory as it lies, with identical results.
+TEST(Organized, StridedViewEqualsDense) {
+  const Expectation e = miem::test::read_expectation(data_path("dropouts"));
+  const std::ptrdiff_t H = e.rows, W = e.cols;
+  std::vector<double> soa(static_cast<std::size_t>(3 * H * W));  // [k][c][r]
+  for (std::ptrdiff_t r = 0; r < H; ++r)
+    for (std::ptrdiff_t c = 0; c < W; ++c)
+      for (int k = 0; k < 3; ++k)
+        soa[static_cast<std::size_t>(k * H * W + c * H + r)] =
+            e.grid[static_cast<std::size_t>((r * W + c) * 3 + k)];
+  const miem::GridView<double> view{soa.data(), H, W, /*row*/ 1, /*col*/ H, /*coord*/ H * W};
+  const miem::DetectResult res = miem::detect_organized(view, e.params);
+  check_case(e, res);
+}
+
+TEST(Organized, FloatAndDoubleAgreeOnFloatData) {
+  const Expectation e = miem::test::read_expectation(data_path("float32"));
+  std::vector<float> gf;
+  std::vector<double> gd;
+  const miem::DetectResult rf = run_case(e, &gf);
+  const miem::DetectResult rd = run_case(e, &gd);
+  EXPECT_EQ(rf.labels, rd.labels);
+  EXPECT_EQ(rf.flags, rd.flags);
+}
+
+TEST(Organized, ReusedDetectorGivesTheSameResult) {
+  const Expectation e = miem::test::read_expectation(data_path("cascade"));
+  miem::OrganizedDetector det(e.params);
+  const auto view = miem::GridView<double>::dense(e.grid.data(), e.rows, e.cols);
+  std::vector<std::uint8_t> a(e.grid.size() / 3), b(a.size());
+  det.run(view, miem::OrganizedOutput{a.data()});
+  det.run(view, miem::OrganizedOutput{b.data()});
+  EXPECT_EQ(a, b);
+  for (std::size_t i = 0; i < a.size(); ++i) EXPECT_EQ(a[i], e.labels[i]);
+}
+
+TEST(Organized, ThrowsOnBadInput) {
+  miem::DetectParams p;
+  std::vector<double> g(4 * 4 * 3, std::nan(""));
+  const auto view = miem::GridView<double>::dense(g.data(), 4, 4);
+  EXPECT_THROW(miem::detect_organized(view, p), std::invalid_argument);  // no finite point
+  const auto empty = miem::GridView<double>::dense(g.data(), 0, 4);
+  EXPECT_THROW(miem::detect_organized(empty, p), std::invalid_argument);
+  p.theta0_deg = 180.0;
+  EXPECT_THROW(miem::OrganizedDetector{p}, std::invalid_argument);
+  p = {};
+  p.scales = {};
+  EXPECT_THROW(miem::validate(p), std::invalid_argument);
+  p = {};
+  p.window = 4;
+  EXPECT_THROW(miem::validate(p), std::invalid_argument);
+}
+
+}  // namespace

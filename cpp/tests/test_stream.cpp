@@ -1,0 +1,323 @@
+// ProfileStream: labels equal batch detection on the same rows (generated scans with cascading
+// wedge burrs, dropouts, lost profiles, threshold-grazing angles), for many parameter sets and
+// both storage types; and bad profiles handled with a status without corrupting the stream.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "miem/organized.hpp"
+#include "miem/stream.hpp"
+#include "test_util.hpp"
+
+namespace {
+
+using miem::StatusCode;
+
+// Streams the rows of a dense grid and returns every emitted row's labels, checking the lag and
+// the order on the way.
+template <typename T>
+std::vector<std::uint8_t> stream_labels(const std::vector<T>& grid, std::ptrdiff_t H,
+                                        std::ptrdiff_t W, const miem::DetectParams& p) {
+  miem::ProfileStream<T> s(W, p);
+  std::vector<std::uint8_t> out(static_cast<std::size_t>(H * W), 99);
+  std::int64_t next = 0;
+  auto take = [&](const miem::StreamRow& row) {
+    EXPECT_EQ(row.index, next);
+    if (row.index < 0 || row.index >= H) return;
+    std::copy(row.labels, row.labels + W, out.begin() + row.index * W);
+    ++next;
+  };
+  for (std::ptrdiff_t r = 0; r < H; ++r) {
+    miem::StreamRow row;
+    const miem::Status st = s.push(grid.data() + r * W * 3, W, &row);
+    EXPECT_TRUE(st.code == StatusCode::kOk || st.code == StatusCode::kEmptyProfile) << st.message;
+    EXPECT_EQ(row.ready(), r >= s.lag()) << "row " << r;
+    if (row.ready()) {
+      EXPECT_EQ(row.index, r - s.lag());
+      take(row);
+    }
+  }
+  miem::StreamRow row;
+  while (s.flush(&row)) take(row);
+  EXPECT_EQ(next, H);
+  EXPECT_FALSE(row.ready());
+  return out;
+}
+
+template <typename T>
+void expect_stream_equals_batch(const std::vector<double>& grid_d, std::ptrdiff_t H,
+                                std::ptrdiff_t W, const miem::DetectParams& p) {
+  const std::vector<T> grid(grid_d.begin(), grid_d.end());
+  const miem::DetectResult batch =
+      miem::detect_organized(miem::GridView<T>::dense(grid.data(), H, W), p);
+  const std::vector<std::uint8_t> streamed = stream_labels(grid, H, W, p);
+  std::size_t bad = 0;
+  for (std::size_t i = 0; i < streamed.size(); ++i) {
+    if (streamed[i] != batch.labels[i] && ++bad <= 10) {
+      ADD_FAILURE() << "cell (" << i / W << ", " << i % W << "): stream " << int(streamed[i])
+                    << ", batch " << int(batch.labels[i]);
+    }
+  }
+  EXPECT_EQ(bad, 0u) << "of " << streamed.size() << " cells";
+  // The scans must exercise the method: some ABNORMAL cells, and cascades when iterating.
+  std::size_t abnormal = 0;
+  for (auto l : batch.labels) abnormal += l == miem::kAbnormal;
+  EXPECT_GT(abnormal, 0u);
+}
+
+struct Named {
+  const char* name;
+  miem::DetectParams params;
+  std::ptrdiff_t rows = 90, cols = 70;
+};
+
+std::vector<Named> param_sets() {
+  std::vector<Named> v;
+  miem::DetectParams p;
+  v.push_back({"defaults", p});
+  p = {};
+  p.scales = {1, 2};
+  p.max_gap = 2;
+  v.push_back({"scales12_gap2", p});
+  p = {};
+  p.max_gap = 0;
+  v.push_back({"gap0", p});
+  p = {};
+  p.scales = {2};
+  p.max_gap = 0;  // smallest scale beyond the isolation reach: every cell through the judge
+  v.push_back({"scale2_gap0", p});
+  p = {};
+  p.scales = {1, 3};
+  p.min_directions = 2;
+  v.push_back({"scales13_mindir2", p});
+  p = {};
+  p.theta0_deg = 100.0;  // cos0 < 0: every available direction takes the exact test
+  v.push_back({"theta100", p});
+  p = {};
+  p.theta0_deg = 30.0;
+  p.min_directions = 1;
+  v.push_back({"theta30_mindir1", p});
+  p = {};
+  p.max_iterations = 1;
+  v.push_back({"one_pass", p});
+  p = {};
+  p.max_iterations = 2;
+  v.push_back({"two_passes", p});
+  p = {};
+  p.max_iterations = 3;
+  v.push_back({"three_passes", p});
+  p = {};
+  p.min_step = 0.2;
+  p.max_reach = 4;
+  v.push_back({"min_step", p, 150, 60});
+  return v;
+}
+
+class StreamEqualsBatch : public ::testing::TestWithParam<Named> {};
+
+TEST_P(StreamEqualsBatch, DoubleProfiles) {
+  const Named& n = GetParam();
+  for (std::uint64_t seed : {1u, 2u, 3u}) {
+    SCOPED_TRACE("seed " + std::to_string(seed));
+    expect_stream_equals_batch<double>(miem::test::make_scan(n.rows, n.cols, seed), n.rows,
+                                       n.cols, n.params);
+  }
+}
+
+TEST_P(StreamEqualsBatch, FloatProfiles) {
+  const Named& n = GetParam();
+  expect_stream_equals_batch<float>(miem::test::make_scan(n.rows, n.cols, 11), n.rows, n.cols,
+                                    n.params);
+}
+
+INSTANTIATE_TEST_SUITE_P(Params, StreamEqualsBatch, ::testing::ValuesIn(param_sets()),
+                         [](const auto& info) { return std::string(info.param.name); });
+
+TEST(Stream, LagIsPassesTimesReach) {
+  miem::DetectParams p;
+  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 20);  // 10 * (1 + 1)
+  p.scales = {1, 2};
+  p.max_gap = 2;
+  p.max_iterations = 3;
+  miem::ProfileStream<float> s(16, p);
+  EXPECT_EQ(s.reach(), 4);
+  EXPECT_EQ(s.lag(), 12);
+  p = {};
+  p.min_step = 0.1;
+  p.max_reach = 5;
+  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 10 * (1 + 1 + 5));
+}
+
+TEST(Stream, ThresholdGrazingAnglesMatchBatch) {
+  // A sawtooth along the profiles whose apex angle equals theta0 up to 1e-13 noise: every
+  // cell's flag is decided by the last bits of the cosine, so the kernel must round as the
+  // judge does.
+  const std::ptrdiff_t H = 60, W = 80;
+  miem::DetectParams p;
+  const double cos0 = std::cos(p.theta0_deg * 3.14159265358979323846 / 180.0);
+  const double dx = 0.25, a = 0.5 * dx * std::sqrt((1.0 + cos0) / (1.0 - cos0));
+  std::vector<double> g(static_cast<std::size_t>(H * W * 3));
+  std::uint64_t state = 12345;
+  for (std::ptrdiff_t r = 0; r < H; ++r)
+    for (std::ptrdiff_t c = 0; c < W; ++c) {
+      state = state * 6364136223846793005ull + 1442695040888963407ull;
+      const double e = (static_cast<double>(state >> 11) / 9007199254740992.0 - 0.5) * 1e-13;
+      double* q = &g[static_cast<std::size_t>((r * W + c) * 3)];
+      q[0] = c * dx;
+      q[1] = r * 0.3 + 1000.0;  // far from the origin as well
+      q[2] = ((c % 2) ? a : -a) * (1.0 + e) + ((r % 7 == 3 && c % 11 == 5) ? 1.0 : 0.0);
+    }
+  expect_stream_equals_batch<double>(g, H, W, p);
+  p.scales = {1, 2};
+  expect_stream_equals_batch<double>(g, H, W, p);
+}
+
+TEST(Stream, ShortStreamsAndNarrowProfiles) {
+  miem::DetectParams p;
+  for (std::ptrdiff_t W : {1, 2, 3, 5}) {
+    for (std::ptrdiff_t H : {3, 7, 25}) {
+      SCOPED_TRACE("W " + std::to_string(W) + " H " + std::to_string(H));
+      miem::test::ScanOptions o;
+      o.dropout_rate = 0.0;
+      o.nan_rows = false;
+      std::vector<double> g = miem::test::make_scan(H, W, 5, o);
+      // A spike in the middle so that something happens.
+      g[static_cast<std::size_t>(((H / 2) * W + W / 2) * 3 + 2)] += 3.0;
+      const std::vector<std::uint8_t> s = stream_labels(g, H, W, p);
+      const auto b = miem::detect_organized(miem::GridView<double>::dense(g.data(), H, W), p);
+      EXPECT_EQ(s, b.labels);
+    }
+  }
+}
+
+TEST(Stream, WrongWidthAndNullAreRejectedWithoutHarm) {
+  const std::ptrdiff_t H = 50, W = 40;
+  const std::vector<double> g = miem::test::make_scan(H, W, 21);
+  miem::DetectParams p;
+  const std::vector<std::uint8_t> clean = stream_labels(g, H, W, p);
+
+  miem::ProfileStream<> s(W, p);
+  std::vector<std::uint8_t> out(clean.size(), 99);
+  const std::vector<double> longer(static_cast<std::size_t>((W + 3) * 3), 0.0);
+  miem::StreamRow row;
+  for (std::ptrdiff_t r = 0; r < H; ++r) {
+    if (r % 9 == 4) {
+      miem::Status st = s.push(longer.data(), W + 3, &row);
+      EXPECT_EQ(st.code, StatusCode::kWrongWidth);
+      EXPECT_FALSE(st.ok());
+      EXPECT_NE(std::string(st.message).find("width"), std::string::npos);
+      EXPECT_FALSE(row.ready());
+      st = s.push(static_cast<const double*>(nullptr), W, &row);
+      EXPECT_EQ(st.code, StatusCode::kInvalidInput);
+      EXPECT_EQ(s.push(g.data(), 0, &row).code, StatusCode::kWrongWidth);
+      EXPECT_EQ(s.push(g.data(), W, nullptr).code, StatusCode::kInvalidInput);
+      EXPECT_EQ(s.rows_pushed(), r);
+    }
+    const StatusCode code = s.push(g.data() + r * W * 3, W, &row).code;
+    ASSERT_TRUE(code == StatusCode::kOk || code == StatusCode::kEmptyProfile);
+    if (row.ready()) std::copy(row.labels, row.labels + W, out.begin() + row.index * W);
+  }
+  while (s.flush(&row)) std::copy(row.labels, row.labels + W, out.begin() + row.index * W);
+  EXPECT_EQ(out, clean);
+}
+
+TEST(Stream, AllNanProfileIsARowOfDropouts) {
+  const std::ptrdiff_t H = 60, W = 50;
+  miem::test::ScanOptions o;
+  o.nan_rows = false;
+  std::vector<double> g = miem::test::make_scan(H, W, 8, o);
+  for (std::ptrdiff_t c = 0; c < W; ++c)
+    for (int k = 0; k < 3; ++k) g[static_cast<std::size_t>((30 * W + c) * 3 + k)] = std::nan("");
+  // Infinities are dropouts too.
+  g[static_cast<std::size_t>((12 * W + 7) * 3)] = std::numeric_limits<double>::infinity();
+  miem::DetectParams p;
+  miem::ProfileStream<> s(W, p);
+  miem::StreamRow row;
+  std::vector<std::uint8_t> out(static_cast<std::size_t>(H * W), 99);
+  for (std::ptrdiff_t r = 0; r < H; ++r) {
+    const miem::Status st = s.push(g.data() + r * W * 3, W, &row);
+    EXPECT_EQ(st.code, r == 30 ? StatusCode::kEmptyProfile : StatusCode::kOk) << r;
+    if (row.ready()) std::copy(row.labels, row.labels + W, out.begin() + row.index * W);
+  }
+  while (s.flush(&row)) std::copy(row.labels, row.labels + W, out.begin() + row.index * W);
+  const auto b = miem::detect_organized(miem::GridView<double>::dense(g.data(), H, W), p);
+  EXPECT_EQ(out, b.labels);
+  for (std::ptrdiff_t c = 0; c < W; ++c) EXPECT_EQ(out[static_cast<std::size_t>(30 * W + c)], miem::kInvalid);
+  EXPECT_EQ(out[static_cast<std::size_t>(12 * W + 7)], miem::kInvalid);
+}
+
+TEST(Stream, PushAfterFlushAndReset) {
+  const std::ptrdiff_t H = 40, W = 30;
+  miem::test::ScanOptions o;
+  o.nan_rows = false;
+  const std::vector<double> g = miem::test::make_scan(H, W, 4, o);
+  miem::DetectParams p;
+  miem::ProfileStream<> s(W, p);
+  miem::StreamRow row;
+  std::vector<std::uint8_t> first, second;
+  for (auto* out : {&first, &second}) {
+    for (std::ptrdiff_t r = 0; r < H; ++r) {
+      ASSERT_TRUE(s.push(g.data() + r * W * 3, W, &row).ok());
+      if (row.ready()) out->insert(out->end(), row.labels, row.labels + W);
+    }
+    while (s.flush(&row)) out->insert(out->end(), row.labels, row.labels + W);
+    EXPECT_TRUE(s.finished());
+    EXPECT_FALSE(s.flush(&row));
+    EXPECT_EQ(s.push(g.data(), W, &row).code, StatusCode::kFinished);
+    EXPECT_EQ(s.rows_pushed(), H);
+    EXPECT_EQ(s.rows_emitted(), H);
+    s.reset();
+    EXPECT_EQ(s.rows_pushed(), 0);
+  }
+  EXPECT_EQ(first, second);
+  EXPECT_EQ(first.size(), static_cast<std::size_t>(H * W));
+}
+
+TEST(Stream, StridedProfilesAreRead) {
+  // x y z w records (point stride 4), as some sensor SDKs deliver them.
+  const std::ptrdiff_t H = 45, W = 33;
+  miem::test::ScanOptions o;
+  o.nan_rows = false;
+  const std::vector<double> g = miem::test::make_scan(H, W, 9, o);
+  std::vector<float> xyzw(static_cast<std::size_t>(H * W * 4), 7.0f);
+  std::vector<float> dense(g.begin(), g.end());
+  for (std::ptrdiff_t i = 0; i < H * W; ++i)
+    for (int k = 0; k < 3; ++k) xyzw[static_cast<std::size_t>(i * 4 + k)] = dense[static_cast<std::size_t>(i * 3 + k)];
+  miem::DetectParams p;
+  miem::ProfileStream<float> s(W, p);
+  miem::StreamRow row;
+  std::vector<std::uint8_t> out;
+  for (std::ptrdiff_t r = 0; r < H; ++r) {
+    ASSERT_TRUE(s.push(miem::PointsView<float>{xyzw.data() + r * W * 4, W, 4, 1}, &row).ok());
+    if (row.ready()) out.insert(out.end(), row.labels, row.labels + W);
+  }
+  while (s.flush(&row)) out.insert(out.end(), row.labels, row.labels + W);
+  EXPECT_EQ(out, stream_labels(dense, H, W, p));
+}
+
+TEST(Stream, BadParametersThrowOrReportStatus) {
+  miem::DetectParams p;
+  EXPECT_THROW(miem::ProfileStream<>(0, p), std::invalid_argument);
+  p.max_iterations = 255;
+  EXPECT_THROW(miem::ProfileStream<>(10, p), std::invalid_argument);
+  std::optional<miem::ProfileStream<double>> s;
+  EXPECT_EQ(miem::nothrow::make_stream(10, p, &s).code, StatusCode::kInvalidParameter);
+  EXPECT_FALSE(s.has_value());
+  p = {};
+  p.theta0_deg = -1.0;
+  EXPECT_THROW(miem::ProfileStream<float>(10, p), std::invalid_argument);
+  const miem::Status st = miem::nothrow::make_stream(10, p, &s);
+  EXPECT_EQ(st.code, StatusCode::kInvalidParameter);
+  EXPECT_NE(std::string(st.message).find("theta0"), std::string::npos);
+  EXPECT_EQ(miem::nothrow::make_stream(0, miem::DetectParams{}, &s).code,
+            StatusCode::kInvalidParameter);
+  EXPECT_TRUE(miem::nothrow::make_stream(10, miem::DetectParams{}, &s).ok());
+  ASSERT_TRUE(s.has_value());
+  EXPECT_EQ(s->width(), 10);
+}
+
+}  // namespace

@@ -1,0 +1,114 @@
+// pybind11 bindings of miem::ProfileStream (streaming detection): conversion and validation only.
+// Exposed as miem._core.ProfileStream32 / ProfileStream64 (float / double storage); the typed
+// wrapper is python/miem/stream.py.
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "miem/stream.hpp"
+
+namespace py = pybind11;
+
+namespace {
+
+template <typename T>
+class PyProfileStream {
+ public:
+  PyProfileStream(std::ptrdiff_t width, double theta0, std::vector<int> scales, int max_gap,
+                  double min_step, int max_reach, int min_directions, int max_iterations)
+      : stream_(width, params(theta0, std::move(scales), max_gap, min_step, max_reach,
+                              min_directions, max_iterations)) {}
+
+  // Returns (status code, message, row index or -1, labels or None).
+  py::tuple push(const py::array& profile) {
+    if (!profile.dtype().is(py::dtype::of<T>())) {
+      throw std::invalid_argument("profile: dtype must match the stream's dtype");
+    }
+    if (profile.ndim() != 2 || profile.shape(1) != 3) {
+      throw std::invalid_argument("profile: expected shape (width, 3)");
+    }
+    const auto item = static_cast<std::ptrdiff_t>(sizeof(T));
+    if (profile.strides(0) % item != 0 || profile.strides(1) % item != 0) {
+      throw std::invalid_argument("profile: strides must be multiples of the item size");
+    }
+    const miem::PointsView<T> view{static_cast<const T*>(profile.data()), profile.shape(0),
+                                   profile.strides(0) / item, profile.strides(1) / item};
+    miem::StreamRow row;
+    miem::Status st;
+    {
+      py::gil_scoped_release nogil;
+      st = stream_.push(view, &row);
+    }
+    return py::make_tuple(static_cast<int>(st.code), st.message, row.index, labels(row));
+  }
+
+  // Every pending row as (row index, labels), oldest first.
+  py::list flush() {
+    py::list out;
+    miem::StreamRow row;
+    while (stream_.flush(&row)) out.append(py::make_tuple(row.index, labels(row)));
+    return out;
+  }
+
+  void reset() { stream_.reset(); }
+  std::ptrdiff_t width() const { return stream_.width(); }
+  int lag() const { return stream_.lag(); }
+  int reach() const { return stream_.reach(); }
+  std::int64_t rows_pushed() const { return stream_.rows_pushed(); }
+  std::int64_t rows_emitted() const { return stream_.rows_emitted(); }
+  bool finished() const { return stream_.finished(); }
+
+ private:
+  static miem::DetectParams params(double theta0, std::vector<int> scales, int max_gap,
+                                   double min_step, int max_reach, int min_directions,
+                                   int max_iterations) {
+    miem::DetectParams p;
+    p.theta0_deg = theta0;
+    p.scales = std::move(scales);
+    p.max_gap = max_gap;
+    p.min_step = min_step;
+    p.max_reach = max_reach;
+    p.min_directions = min_directions;
+    p.max_iterations = max_iterations;
+    return p;
+  }
+
+  py::object labels(const miem::StreamRow& row) const {
+    if (!row.ready()) return py::none();
+    py::array_t<std::uint8_t> a(stream_.width());
+    std::copy(row.labels, row.labels + stream_.width(), a.mutable_data());
+    return std::move(a);
+  }
+
+  miem::ProfileStream<T> stream_;
+};
+
+template <typename T>
+void bind_one(py::module_& m, const char* name) {
+  py::class_<PyProfileStream<T>>(m, name)
+      .def(py::init<std::ptrdiff_t, double, std::vector<int>, int, double, int, int, int>(),
+           py::arg("width"), py::arg("theta0"), py::arg("scales"), py::arg("max_gap"),
+           py::arg("min_step"), py::arg("max_reach"), py::arg("min_directions"),
+           py::arg("max_iterations"))
+      .def("push", &PyProfileStream<T>::push, py::arg("profile"))
+      .def("flush", &PyProfileStream<T>::flush)
+      .def("reset", &PyProfileStream<T>::reset)
+      .def_property_readonly("width", &PyProfileStream<T>::width)
+      .def_property_readonly("lag", &PyProfileStream<T>::lag)
+      .def_property_readonly("reach", &PyProfileStream<T>::reach)
+      .def_property_readonly("rows_pushed", &PyProfileStream<T>::rows_pushed)
+      .def_property_readonly("rows_emitted", &PyProfileStream<T>::rows_emitted)
+      .def_property_readonly("finished", &PyProfileStream<T>::finished);
+}
+
+}  // namespace
+
+void bind_stream(py::module_& m) {
+  bind_one<float>(m, "ProfileStream32");
+  bind_one<double>(m, "ProfileStream64");
+}

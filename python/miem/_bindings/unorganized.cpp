@@ -1,0 +1,242 @@
+// pybind11 bindings for unorganized clouds: NeighborGrid, estimate_normals, point_spacing and
+// detect_points. Conversion and validation only; arrays are viewed in place (float32 / float64,
+// element-aligned strides) and the GIL is released around every computation.
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <algorithm>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "miem/neighbor_grid.hpp"
+#include "miem/unorganized.hpp"
+
+namespace py = pybind11;
+
+namespace {
+
+bool is_f32(const py::array& a) { return a.dtype().is(py::dtype::of<float>()); }
+bool is_f64(const py::array& a) { return a.dtype().is(py::dtype::of<double>()); }
+
+void require_points(const py::array& a, const char* name) {
+  if (!is_f32(a) && !is_f64(a)) {
+    throw std::invalid_argument(std::string(name) + ": dtype must be native float32 or float64");
+  }
+  if (a.ndim() != 2 || a.shape(1) != 3) {
+    throw std::invalid_argument(std::string(name) + ": expected shape (N, 3)");
+  }
+}
+
+template <typename T>
+miem::PointsView<T> view_of(const py::array& a, const char* name) {
+  std::ptrdiff_t st[2];
+  for (int ax = 0; ax < 2; ++ax) {
+    const std::ptrdiff_t s = a.strides(ax);
+    if (s % static_cast<std::ptrdiff_t>(sizeof(T)) != 0) {
+      throw std::invalid_argument(std::string(name) +
+                                  ": strides must be multiples of the item size");
+    }
+    st[ax] = s / static_cast<std::ptrdiff_t>(sizeof(T));
+  }
+  return miem::PointsView<T>{static_cast<const T*>(a.data()), a.shape(0), st[0], st[1]};
+}
+
+py::array_t<double> vec3(const Eigen::Vector3d& v) {
+  py::array_t<double> out(3);
+  auto m = out.mutable_unchecked<1>();
+  for (int i = 0; i < 3; ++i) m(i) = v(i);
+  return out;
+}
+
+py::tuple plane_tuple(const miem::Plane& p) {
+  return py::make_tuple(vec3(p.normal), p.d, vec3(p.centroid), p.rms, p.n_points,
+                        vec3(p.eigenvalues));
+}
+
+py::array_t<std::int64_t> to_array(const std::vector<std::int64_t>& v) {
+  py::array_t<std::int64_t> out(static_cast<py::ssize_t>(v.size()));
+  std::copy(v.begin(), v.end(), out.mutable_data());
+  return out;
+}
+
+// A grid over a float32 or float64 array that it keeps alive.
+class PyNeighborGrid {
+ public:
+  PyNeighborGrid(py::array points, double cell_size, int num_threads) : points_(points) {
+    require_points(points_, "points");
+    if (is_f32(points_)) {
+      const auto v = view_of<float>(points_, "points");
+      py::gil_scoped_release nogil;
+      f32_ = std::make_unique<miem::NeighborGrid<float>>(v, cell_size, num_threads);
+    } else {
+      const auto v = view_of<double>(points_, "points");
+      py::gil_scoped_release nogil;
+      f64_ = std::make_unique<miem::NeighborGrid<double>>(v, cell_size, num_threads);
+    }
+  }
+
+  template <typename Fn>
+  auto with(Fn&& fn) const {
+    return f32_ ? fn(*f32_) : fn(*f64_);
+  }
+
+  py::array_t<std::int64_t> query_index(std::int64_t index, double r) const {
+    std::vector<std::int64_t> out;
+    {
+      py::gil_scoped_release nogil;
+      with([&](const auto& g) {
+        g.radius_query(static_cast<std::ptrdiff_t>(index), r, out);
+        return 0;
+      });
+    }
+    return to_array(out);
+  }
+
+  py::array_t<std::int64_t> query_point(double x, double y, double z, double r) const {
+    std::vector<std::int64_t> out;
+    {
+      py::gil_scoped_release nogil;
+      with([&](const auto& g) {
+        g.radius_query(Eigen::Vector3d(x, y, z), r, out);
+        return 0;
+      });
+    }
+    return to_array(out);
+  }
+
+  py::array_t<double> nearest_distances(int num_threads) const {
+    py::array_t<double> out(points_.shape(0));
+    double* o = out.mutable_data();
+    {
+      py::gil_scoped_release nogil;
+      with([&](const auto& g) {
+        g.nearest_distances(o, num_threads);
+        return 0;
+      });
+    }
+    return out;
+  }
+
+  double cell_size() const {
+    return with([](const auto& g) { return g.cell_size(); });
+  }
+  std::ptrdiff_t num_cells() const {
+    return with([](const auto& g) { return g.num_cells(); });
+  }
+  std::ptrdiff_t num_indexed() const {
+    return with([](const auto& g) { return g.num_indexed(); });
+  }
+  py::array points() const { return points_; }
+
+ private:
+  py::array points_;  // keeps the viewed memory alive
+  std::unique_ptr<miem::NeighborGrid<float>> f32_;
+  std::unique_ptr<miem::NeighborGrid<double>> f64_;
+};
+
+double point_spacing(const py::array& points, int num_threads) {
+  require_points(points, "points");
+  if (is_f32(points)) {
+    const auto v = view_of<float>(points, "points");
+    py::gil_scoped_release nogil;
+    return miem::point_spacing(v, num_threads);
+  }
+  const auto v = view_of<double>(points, "points");
+  py::gil_scoped_release nogil;
+  return miem::point_spacing(v, num_threads);
+}
+
+py::tuple estimate_normals(const py::array& points, double radius, int num_threads) {
+  require_points(points, "points");
+  const py::ssize_t n = points.shape(0);
+  py::array_t<double> normals({n, static_cast<py::ssize_t>(3)}), rms(n);
+  py::array_t<std::int64_t> count(n);
+  py::array_t<bool> valid(n);
+  const miem::NormalsOutput out{normals.mutable_data(), rms.mutable_data(), count.mutable_data(),
+                                reinterpret_cast<std::uint8_t*>(valid.mutable_data())};
+  if (is_f32(points)) {
+    const auto v = view_of<float>(points, "points");
+    py::gil_scoped_release nogil;
+    miem::estimate_normals(v, radius, out, num_threads);
+  } else {
+    const auto v = view_of<double>(points, "points");
+    py::gil_scoped_release nogil;
+    miem::estimate_normals(v, radius, out, num_threads);
+  }
+  return py::make_tuple(normals, rms, count, valid);
+}
+
+py::tuple detect_points(const py::array& points, double theta0, std::vector<int> scales,
+                        std::optional<double> radius, int K, std::optional<double> min_step,
+                        int min_directions, int max_iterations, std::optional<double> link,
+                        int height_mode, int num_threads) {
+  require_points(points, "points");
+  miem::PointsDetectParams p;
+  p.theta0_deg = theta0;
+  p.scales = std::move(scales);
+  p.radius = radius;
+  p.num_directions = K;
+  p.min_step = min_step;
+  p.min_directions = min_directions;
+  p.max_iterations = max_iterations;
+  p.link = link;
+  if (height_mode != 0 && height_mode != 1) throw std::invalid_argument("heights: bad mode");
+  p.height_mode = static_cast<miem::HeightMode>(height_mode);
+  p.num_threads = num_threads;
+  miem::validate(p);
+
+  const py::ssize_t n = points.shape(0);
+  py::array_t<std::uint8_t> labels(n), flags(n);
+  py::array_t<double> angle(n), height(n);
+  py::array_t<bool> degenerate(n);
+  const miem::PointsOutput out{labels.mutable_data(), flags.mutable_data(), angle.mutable_data(),
+                               height.mutable_data(),
+                               reinterpret_cast<std::uint8_t*>(degenerate.mutable_data())};
+  miem::PointsDetectSummary s;
+  if (is_f32(points)) {
+    const auto v = view_of<float>(points, "points");
+    py::gil_scoped_release nogil;
+    s = miem::detect_points(v, p, out);
+  } else {
+    const auto v = view_of<double>(points, "points");
+    py::gil_scoped_release nogil;
+    s = miem::detect_points(v, p, out);
+  }
+  py::list defects;
+  for (const miem::Defect& d : s.defects) {
+    defects.append(py::make_tuple(d.id, to_array(d.indices), vec3(d.centroid), vec3(d.normal),
+                                  d.peak_height, d.mean_height, d.extent,
+                                  miem::to_string(d.kind)));
+  }
+  py::object plane = s.plane ? py::object(plane_tuple(*s.plane)) : py::object(py::none());
+  return py::make_tuple(labels, flags, angle, height, degenerate, plane, s.iterations, defects,
+                        s.spacing, s.radius, s.min_step, s.link);
+}
+
+}  // namespace
+
+void bind_unorganized(py::module_& m) {
+  py::class_<PyNeighborGrid>(m, "NeighborGrid")
+      .def(py::init<py::array, double, int>(), py::arg("points"), py::arg("cell_size"),
+           py::arg("num_threads") = 0)
+      .def("query_index", &PyNeighborGrid::query_index, py::arg("index"), py::arg("r"))
+      .def("query_point", &PyNeighborGrid::query_point, py::arg("x"), py::arg("y"), py::arg("z"),
+           py::arg("r"))
+      .def("nearest_distances", &PyNeighborGrid::nearest_distances, py::arg("num_threads") = 0)
+      .def_property_readonly("cell_size", &PyNeighborGrid::cell_size)
+      .def_property_readonly("num_cells", &PyNeighborGrid::num_cells)
+      .def_property_readonly("num_indexed", &PyNeighborGrid::num_indexed)
+      .def_property_readonly("points", &PyNeighborGrid::points);
+  m.def("point_spacing", &point_spacing, py::arg("points"), py::arg("num_threads"));
+  m.def("estimate_normals", &estimate_normals, py::arg("points"), py::arg("radius"),
+        py::arg("num_threads"));
+  m.def("detect_points", &detect_points, py::arg("points"), py::arg("theta0"), py::arg("scales"),
+        py::arg("radius"), py::arg("K"), py::arg("min_step"), py::arg("min_directions"),
+        py::arg("max_iterations"), py::arg("link"), py::arg("height_mode"),
+        py::arg("num_threads"));
+}

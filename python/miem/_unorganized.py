@@ -1,0 +1,435 @@
+"""Unorganized clouds (``(N, 3)`` points, no order): neighbour grid, normals and MIEM detection.
+
+Typed wrappers over the C++ core (``miem._core``); the exact rules are in ``docs/SPEC.md``,
+section "Unorganized clouds".
+"""
+
+from __future__ import annotations
+
+import numbers
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal, Optional, Union
+
+import numpy as np
+
+from . import _core
+from ._api import Defect, DetectResult, Plane, _as_float_array, _int, _real
+
+__all__ = [
+    "NeighborGrid",
+    "Normals",
+    "PointsDetectResult",
+    "detect_points",
+    "estimate_normals",
+    "point_spacing",
+]
+
+_MAX_K = 8  # flags are 8-bit: one bit per direction
+
+
+def _points(points: object, name: str = "points") -> np.ndarray:
+    arr = _as_float_array(points, name)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{name}: expected shape (N, 3), got {arr.shape}")
+    return arr
+
+
+def _threads(num_threads: Optional[int]) -> int:
+    return 0 if num_threads is None else _int("num_threads", num_threads, 1)
+
+
+def _positive(name: str, value: object) -> float:
+    v = _real(name, value)
+    if not v > 0.0:
+        raise ValueError(f"{name}: expected a length > 0, got {v}")
+    return v
+
+
+def _plane(t: tuple) -> Plane:
+    normal, d, centroid, rms, n, ev = t
+    return Plane(normal, float(d), centroid, float(rms), int(n), ev, "eigen")
+
+
+class NeighborGrid:
+    """Exact radius and nearest-neighbour queries on a point cloud, with a uniform grid.
+
+    Points are sorted by cell (memory linear in N, nothing allocated over the bounding box);
+    cell keys are computed relative to the cloud's minimum corner, so clouds far from the origin
+    lose nothing. A point ``q`` is within ``r`` of ``p`` when ``dx*dx + dy*dy + dz*dz <= r*r``
+    with ``d = q - p`` in float64 (float32 input is widened first): exactly what a brute-force
+    search in float64 returns.
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 3)
+        Coordinates. float32 and float64 arrays are used in place (the grid keeps a reference;
+        do not modify them while the grid is in use); other real dtypes are converted to
+        float64. Rows with a non-finite coordinate are not indexed.
+    cell_size : float
+        Cell edge length in the points' units, ``> 0``. Queries with ``r <= cell_size`` visit at
+        most 27 cells; any ``r`` gives exact results. The size is enlarged (see
+        :attr:`cell_size`) only when the extent would overflow the 64-bit cell key.
+    num_threads : int, optional
+        Threads for building (default: all cores). The grid does not depend on it.
+
+    Raises
+    ------
+    ValueError
+        Wrong shape or dtype, or ``cell_size`` not finite and > 0.
+
+    Examples
+    --------
+    >>> import numpy as np, miem
+    >>> pts = np.array([[0.0, 0, 0], [1, 0, 0], [0, 2, 0], [5, 5, 5]])
+    >>> grid = miem.NeighborGrid(pts, cell_size=1.0)
+    >>> grid.radius_query(0, 1.5).tolist()
+    [0, 1]
+    >>> grid.radius_query([0.0, 1.0, 0.0], 1.0).tolist()
+    [0, 2]
+    """
+
+    def __init__(
+        self, points: np.ndarray, cell_size: float, *, num_threads: Optional[int] = None
+    ) -> None:
+        arr = _points(points)
+        cs = _positive("cell_size", cell_size)
+        self._grid = _core.NeighborGrid(arr, cs, _threads(num_threads))
+        self._points = arr  # the core keeps it alive too; this is for the property
+
+    @property
+    def points(self) -> np.ndarray:
+        """The indexed array, shape (N, 3) (a view of the input when no conversion was needed)."""
+        return self._points
+
+    @property
+    def cell_size(self) -> float:
+        """Cell edge length used (the requested one unless it had to be enlarged)."""
+        return float(self._grid.cell_size)
+
+    @property
+    def num_cells(self) -> int:
+        """Number of occupied cells."""
+        return int(self._grid.num_cells)
+
+    @property
+    def num_indexed(self) -> int:
+        """Number of finite points indexed."""
+        return int(self._grid.num_indexed)
+
+    def __len__(self) -> int:
+        return int(self._points.shape[0])
+
+    def radius_query(
+        self, i_or_xyz: Union[int, Sequence[float], np.ndarray], r: float
+    ) -> np.ndarray:
+        """Indices of the finite points within distance ``r``.
+
+        Parameters
+        ----------
+        i_or_xyz : int or array_like, shape (3,)
+            A row index into :attr:`points` (the point itself is part of the result; a
+            non-finite row has no neighbours), or query coordinates.
+        r : float
+            Radius in the points' units, finite and ``>= 0``.
+
+        Returns
+        -------
+        ndarray, shape (k,), int64
+            Row indices, ascending.
+
+        Raises
+        ------
+        ValueError
+            Index out of range, coordinates not 3 finite numbers, or ``r`` not finite and >= 0.
+        """
+        rv = _real("r", r)
+        if rv < 0:
+            raise ValueError(f"r: expected a radius >= 0, got {rv}")
+        if isinstance(i_or_xyz, (numbers.Integral, np.integer)) and not isinstance(
+            i_or_xyz, (bool, np.bool_)
+        ):
+            i = int(i_or_xyz)
+            n = len(self)
+            if not 0 <= i < n:
+                raise ValueError(f"i_or_xyz: index {i} is out of range for {n} points")
+            return self._grid.query_index(i, rv)
+        try:
+            q = np.asarray(i_or_xyz, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"i_or_xyz: expected a row index or 3 coordinates, got {i_or_xyz!r}"
+            ) from None
+        if q.shape != (3,):
+            raise ValueError(f"i_or_xyz: expected a row index or shape (3,), got shape {q.shape}")
+        if not np.all(np.isfinite(q)):
+            raise ValueError(f"i_or_xyz: coordinates must be finite, got {q.tolist()}")
+        return self._grid.query_point(float(q[0]), float(q[1]), float(q[2]), rv)
+
+    def nearest_distances(self, *, num_threads: Optional[int] = None) -> np.ndarray:
+        """Distance from every point to its nearest other finite point.
+
+        Returns
+        -------
+        ndarray, shape (N,), float64
+            0 for a duplicated point, ``inf`` when there is no other finite point, NaN for
+            non-finite rows. Does not depend on ``num_threads``.
+        """
+        return self._grid.nearest_distances(_threads(num_threads))
+
+    def __repr__(self) -> str:
+        return (
+            f"NeighborGrid(n={len(self)}, indexed={self.num_indexed}, "
+            f"cells={self.num_cells}, cell_size={self.cell_size:g})"
+        )
+
+
+@dataclass(frozen=True)
+class Normals:
+    """Local planes of a cloud (what :func:`estimate_normals` returns).
+
+    Attributes
+    ----------
+    normals : ndarray, shape (N, 3), float64
+        Oriented unit normals (``n_z > 0``; if ``n_z == 0`` the first non-zero component is
+        positive); NaN rows where ``valid`` is False.
+    rms : ndarray, shape (N,), float64
+        RMS orthogonal distance of the fitted points from their plane, in the points' units;
+        NaN where ``valid`` is False.
+    count : ndarray, shape (N,), int64
+        Points used for each fit (the point itself included); 0 for non-finite rows.
+    valid : ndarray, shape (N,), bool
+        False for non-finite rows, fewer than 3 points within the radius, or degenerate
+        (collinear or identical) neighbourhoods.
+    radius : float
+        The radius used.
+    """
+
+    normals: np.ndarray
+    rms: np.ndarray
+    count: np.ndarray
+    valid: np.ndarray
+    radius: float
+
+
+def estimate_normals(
+    points: np.ndarray, radius: float, *, num_threads: Optional[int] = None
+) -> Normals:
+    """Normal and local flatness at every point from the points within ``radius``.
+
+    For each finite point: the eigenvalue plane fit (``docs/SPEC.md``, "Plane fit") of the
+    finite points within ``radius``, the point itself included.
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 3)
+        Coordinates (float32 / float64 read in place, other real dtypes converted). Rows with a
+        non-finite coordinate are dropouts.
+    radius : float
+        Neighbourhood radius in the points' units, finite and > 0.
+    num_threads : int, optional
+        Threads (default: all cores). The result does not depend on it.
+
+    Returns
+    -------
+    Normals
+
+    Raises
+    ------
+    ValueError
+        Wrong shape or dtype, or ``radius`` not finite and > 0.
+    """
+    arr = _points(points)
+    r = _positive("radius", radius)
+    normals, rms, count, valid = _core.estimate_normals(arr, r, _threads(num_threads))
+    return Normals(normals=normals, rms=rms, count=count, valid=valid, radius=r)
+
+
+def point_spacing(points: np.ndarray, *, num_threads: Optional[int] = None) -> float:
+    """Median distance from each finite point to its nearest other finite point.
+
+    The mean of the two middle values for an even count (as :func:`numpy.median`).
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 3)
+        Coordinates; non-finite rows are ignored.
+    num_threads : int, optional
+        Threads (default: all cores).
+
+    Returns
+    -------
+    float
+        The spacing, in the points' units.
+
+    Raises
+    ------
+    ValueError
+        Fewer than 3 finite points, or spacing 0 (more than half the points are duplicates).
+    """
+    arr = _points(points)
+    return float(_core.point_spacing(arr, _threads(num_threads)))
+
+
+@dataclass(frozen=True)
+class PointsDetectResult(DetectResult):
+    """What :func:`detect_points` returns: a :class:`miem.DetectResult` whose per-point arrays
+    have shape ``(N,)``, plus the ``degenerate`` mask.
+
+    ``flags`` bit ``k`` is tangent direction ``k``; ``height`` is the signed distance from the
+    plane of the NORMAL points within ``radius``; each :class:`miem.Defect` has row
+    ``indices`` into the input and ``cells = indices[:, None]``. ``params`` records the values
+    used, including ``spacing``, ``radius``, ``min_step`` and ``link``.
+
+    Attributes
+    ----------
+    degenerate : ndarray, shape (N,), bool
+        True where the point's last judgment met a degenerate neighbourhood (collinear or
+        identical neighbours: no direction available, judged NORMAL).
+    """
+
+    degenerate: Optional[np.ndarray] = None
+
+
+def detect_points(
+    points: np.ndarray,
+    theta0: float = 75.0,
+    scales: Union[int, Sequence[int]] = (1,),
+    min_step: Optional[float] = None,
+    min_directions: Optional[int] = None,
+    max_iterations: int = 10,
+    *,
+    radius: Optional[float] = None,
+    K: int = 4,
+    link: Optional[float] = None,
+    heights: Literal["all", "abnormal"] = "all",
+    num_threads: Optional[int] = None,
+) -> PointsDetectResult:
+    """Find abnormal points in an unorganized cloud with MIEM.
+
+    Each finite point's usable neighbours within ``radius`` define a local plane; ``K``
+    directions in that plane are tested by the interior angle between the nearest neighbours on
+    either side (at least ``s * min_step`` away in the tangent plane, within ``90/K`` degrees
+    of the direction). Flagged in every available direction: ABNORMAL; in some: EDGE; in none:
+    NORMAL. Fewer than 3 neighbours: ABNORMAL (a lone return). ABNORMAL points are removed and
+    the points around them judged again, up to ``max_iterations`` passes. See ``docs/SPEC.md``,
+    "Unorganized clouds", for the exact rules.
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 3)
+        The cloud, any order. float32 / float64 are read in place (any strides); other real
+        dtypes are converted. Rows with a non-finite coordinate are INVALID and take no part.
+    theta0 : float
+        Threshold angle in degrees, ``0 < theta0 < 180`` (the paper's value is 75).
+    scales : int or sequence of int
+        Neighbour scales: at scale ``s`` the neighbours are at least ``s * min_step`` away.
+    min_step : float, optional
+        Shortest tangent-plane offset of a neighbour, in the points' units, ``>= 0``.
+        Default ``0.5 * spacing``.
+    min_directions : int, optional
+        Flagged directions needed for ABNORMAL (``1..K``); default: all available ones.
+    max_iterations : int
+        Maximum number of passes (>= 1).
+    radius : float, optional
+        Neighbourhood radius in the points' units, ``> 0``. Default ``5 * spacing``, with
+        ``spacing`` the median nearest-neighbour distance (:func:`point_spacing`).
+    K : int
+        Number of tangent-plane directions, ``2..8`` (flags are 8-bit). Default 4.
+    link : float, optional
+        ABNORMAL points closer than this (``<=``) belong to the same defect; default ``radius``.
+    heights : {"all", "abnormal"}
+        Which points get a height: every finite point, or only ABNORMAL ones (faster).
+    num_threads : int, optional
+        Threads (default: all cores). The results do not depend on it.
+
+    Returns
+    -------
+    PointsDetectResult
+        ``labels`` (N,) uint8, ``flags`` (N,) uint8, ``angle`` (N,) float64 degrees,
+        ``height`` (N,) float64 in the points' units, ``degenerate`` (N,) bool, the MIEM
+        ``plane``, ``iterations``, ``defects`` and ``params`` (with ``spacing``, ``radius``,
+        ``min_step``, ``link`` as used).
+
+    Raises
+    ------
+    ValueError
+        Wrong shape or dtype, fewer than 3 finite points, spacing 0 (more than half the points
+        are duplicates), or a parameter out of range.
+
+    Examples
+    --------
+    >>> import numpy as np, miem
+    >>> rng = np.random.default_rng(0)
+    >>> y, x = np.mgrid[0:40, 0:40] * 0.4                # a 16 mm patch, 0.4 mm apart ...
+    >>> pts = np.column_stack([x.ravel(), y.ravel(), np.zeros(1600)])
+    >>> pts[:, :2] += rng.uniform(-0.1, 0.1, (1600, 2))  # ... sampled unevenly
+    >>> pts[820, 2] = 1.0                                 # a 1 mm spike
+    >>> res = miem.detect(pts, radius=2.0)
+    >>> np.flatnonzero(res.labels == miem.ABNORMAL).tolist(), res.defects[0].kind
+    ([820], 'protrusion')
+
+    Notes
+    -----
+    The neighbourhood is a ball: a protrusion taller than about ``0.8 * radius`` keeps fewer
+    than 3 neighbours (ABNORMAL, but its height is NaN and its defect ``isolated``). The default
+    ``radius = 5 * spacing`` holds ~20 points on a uniformly random cloud (with 3 spacings,
+    ~5 % of such points had fewer than 3 neighbours and their removal cascaded).
+    """
+    arr = _points(points)
+    if arr.shape[0] < 3:
+        raise ValueError(f"points: need at least 3 points, got {arr.shape[0]}")
+    theta0_v = _real("theta0", theta0)
+    if not 0.0 < theta0_v < 180.0:
+        raise ValueError(f"theta0: expected 0 < theta0 < 180 degrees, got {theta0_v}")
+    if isinstance(scales, (numbers.Integral, np.integer)) and not isinstance(
+        scales, (bool, np.bool_)
+    ):
+        scales = (scales,)
+    try:
+        scale_list = [_int("scales", s, 1) for s in scales]  # type: ignore[union-attr]
+    except TypeError:
+        raise ValueError(f"scales: expected integers >= 1, got {scales!r}") from None
+    if not scale_list:
+        raise ValueError("scales: must contain at least one scale")
+    step_v: Optional[float] = None
+    if min_step is not None:
+        step_v = _real("min_step", min_step)
+        if step_v < 0:
+            raise ValueError(f"min_step: expected a length >= 0 or None, got {step_v}")
+    k = _int("K", K, 2)
+    if k > _MAX_K:
+        raise ValueError(f"K: expected 2..{_MAX_K} directions (flags are 8-bit), got {k}")
+    md = 0 if min_directions is None else _int("min_directions", min_directions, 1)
+    if md > k:
+        raise ValueError(f"min_directions: expected 1..K={k} or None, got {md}")
+    iters = _int("max_iterations", max_iterations, 1)
+    radius_v = None if radius is None else _positive("radius", radius)
+    link_v = None if link is None else _positive("link", link)
+    if heights not in ("all", "abnormal"):
+        raise ValueError(f"heights: expected 'all' or 'abnormal', got {heights!r}")
+    nt = _threads(num_threads)
+
+    (labels, flags, angle, height, degenerate, plane_t, iterations, raw, spacing, radius_u,
+     min_step_u, link_u) = _core.detect_points(
+        arr, theta0_v, scale_list, radius_v, k, step_v, md, iters, link_v,
+        0 if heights == "all" else 1, nt,
+    )
+    defects = [
+        Defect(
+            id=int(i), indices=idx, cells=idx[:, None], count=int(idx.size), centroid=c,
+            normal=n, peak_height=float(pk), mean_height=float(mh), extent=float(ex),
+            kind=str(kind),
+        )
+        for (i, idx, c, n, pk, mh, ex, kind) in raw
+    ]
+    params = dict(
+        theta0=theta0_v, scales=tuple(scale_list), min_step=float(min_step_u),
+        min_directions=min_directions, max_iterations=iters, radius=float(radius_u), K=k,
+        link=float(link_u), spacing=float(spacing), heights=heights,
+    )
+    return PointsDetectResult(
+        labels=labels, flags=flags, angle=angle, height=height,
+        plane=None if plane_t is None else _plane(plane_t),
+        iterations=int(iterations), defects=defects, params=params, degenerate=degenerate,
+    )

@@ -1,0 +1,232 @@
+"""Streaming detection for line scanners: push profiles as they arrive, get final labels back.
+
+The labels equal those of :func:`miem.detect` on all rows pushed so far (see
+:class:`ProfileStream`); the work runs in the C++ core (``miem::ProfileStream``), which allocates
+nothing per profile.
+"""
+
+from __future__ import annotations
+
+import numbers
+from typing import List, NamedTuple, Optional, Sequence, Union
+
+import numpy as np
+from numpy.typing import ArrayLike, DTypeLike
+
+from . import _core
+
+__all__ = ["ProfileStream", "StreamRow"]
+
+# StatusCode values of the C++ core (miem/nothrow.hpp) that push() can return.
+_OK = 0
+_EMPTY_PROFILE = 6
+
+
+class StreamRow(NamedTuple):
+    """One finished profile.
+
+    Attributes
+    ----------
+    row : int
+        Row number: 0 is the first profile pushed (since construction or :meth:`reset`).
+    labels : ndarray, shape (width,), uint8
+        :class:`miem.Label` values of that profile's points.
+    """
+
+    row: int
+    labels: np.ndarray
+
+
+def _int(name: str, value: object, minimum: int, maximum: int = 2**30) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        raise ValueError(f"{name}: expected an integer >= {minimum}, got {value!r}")
+    v = int(value)
+    if not minimum <= v <= maximum:
+        raise ValueError(f"{name}: expected an integer in {minimum}..{maximum}, got {v}")
+    return v
+
+
+def _real(name: str, value: object) -> float:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise ValueError(f"{name}: expected a real number, got {value!r}")
+    v = float(value)
+    if not np.isfinite(v):
+        raise ValueError(f"{name}: must be finite, got {v}")
+    return v
+
+
+class ProfileStream:
+    """Streaming MIEM over laser profiles (rows of an organized scan), one at a time.
+
+    Each :meth:`push` takes one profile and, once ``lag`` profiles have followed a row, hands
+    that row's final labels back. The labels are exactly those :func:`miem.detect` gives for the
+    same rows with the same parameters, for every input: a judgment reads the rows within
+    ``R = max(scales) + max_gap`` (``+ max_reach`` with ``min_step``) of its own, each of the
+    ``max_iterations`` passes widens that by ``R``, so the lag is ``max_iterations * R``
+    (defaults: 20 profiles). A lower ``max_iterations`` shortens it. Heights, flags, angles and
+    defects are not computed while streaming (a height would need ``window // 2`` more rows).
+
+    Parameters
+    ----------
+    width : int
+        Points per profile.
+    theta0, scales, max_gap, min_step, min_directions, max_iterations, max_reach
+        As for :func:`miem.detect`. ``max_iterations`` is at most 254 here.
+    dtype : {numpy.float64, numpy.float32}
+        Storage type of the coordinates kept for the lag (computation is always float64).
+        Profiles of another dtype are converted.
+
+    Raises
+    ------
+    ValueError
+        A parameter out of range.
+
+    Examples
+    --------
+    >>> import numpy as np, miem
+    >>> stream = miem.ProfileStream(64)
+    >>> for r in range(40):
+    ...     profile = np.zeros((64, 3)); profile[:, 0] = np.arange(64) * 0.5; profile[:, 1] = r
+    ...     if r == 10:
+    ...         profile[30, 2] = 3.0                  # a burr tip
+    ...     done = stream.push(profile)
+    ...     if done is not None and (done.labels == miem.ABNORMAL).any():
+    ...         print(done.row, np.flatnonzero(done.labels == miem.ABNORMAL))
+    10 [30]
+    >>> len(stream.flush())                          # the last `lag` rows
+    20
+    """
+
+    def __init__(
+        self,
+        width: int,
+        *,
+        theta0: float = 75.0,
+        scales: Union[int, Sequence[int]] = (1,),
+        max_gap: int = 1,
+        min_step: Optional[float] = None,
+        min_directions: Optional[int] = None,
+        max_iterations: int = 10,
+        max_reach: int = 32,
+        dtype: DTypeLike = np.float64,
+    ) -> None:
+        w = _int("width", width, 1)
+        theta0_v = _real("theta0", theta0)
+        if not 0.0 < theta0_v < 180.0:
+            raise ValueError(f"theta0: expected 0 < theta0 < 180 degrees, got {theta0_v}")
+        if isinstance(scales, numbers.Integral) and not isinstance(scales, (bool, np.bool_)):
+            scales = (scales,)
+        try:
+            scale_list = [_int("scales", s, 1) for s in scales]  # type: ignore[union-attr]
+        except TypeError:
+            raise ValueError(f"scales: expected integers >= 1, got {scales!r}") from None
+        if not scale_list:
+            raise ValueError("scales: must contain at least one scale")
+        gap = _int("max_gap", max_gap, 0)
+        if min_step is None:
+            step_v = -1.0
+        else:
+            step_v = _real("min_step", min_step)
+            if step_v < 0:
+                raise ValueError(f"min_step: expected a length >= 0 or None, got {step_v}")
+        md = 0 if min_directions is None else _int("min_directions", min_directions, 1, 4)
+        iters = _int("max_iterations", max_iterations, 1, 254)
+        reach = _int("max_reach", max_reach, 1)
+        try:
+            dt = np.dtype(dtype)
+        except TypeError:
+            raise ValueError(f"dtype: expected float32 or float64, got {dtype!r}") from None
+        if dt == np.float64:
+            cls = _core.ProfileStream64
+        elif dt == np.float32:
+            cls = _core.ProfileStream32
+        else:
+            raise ValueError(f"dtype: expected float32 or float64, got {dt}")
+        self._dtype = dt
+        self._core = cls(w, theta0_v, scale_list, gap, step_v, reach, md, iters)
+        self.params = dict(
+            theta0=theta0_v, scales=tuple(scale_list), max_gap=gap, min_step=min_step,
+            min_directions=min_directions, max_iterations=iters, max_reach=reach,
+        )
+
+    @property
+    def width(self) -> int:
+        """Points per profile."""
+        return int(self._core.width)
+
+    @property
+    def lag(self) -> int:
+        """Profiles between pushing a row and getting its labels: ``max_iterations * R``."""
+        return int(self._core.lag)
+
+    @property
+    def dtype(self) -> np.dtype:
+        """Storage dtype of the coordinates."""
+        return self._dtype
+
+    @property
+    def rows_pushed(self) -> int:
+        """Profiles pushed since construction or :meth:`reset`."""
+        return int(self._core.rows_pushed)
+
+    @property
+    def finished(self) -> bool:
+        """True after :meth:`flush` until :meth:`reset`."""
+        return bool(self._core.finished)
+
+    def push(self, profile: ArrayLike) -> Optional[StreamRow]:
+        """Add one profile; return the row that became final, if any.
+
+        Parameters
+        ----------
+        profile : array_like, shape (width, 3)
+            The profile's points in scan order (any strides). Non-finite points are dropouts; a
+            profile with no finite point is taken as a row of dropouts (all INVALID).
+
+        Returns
+        -------
+        StreamRow or None
+            ``(row, labels)`` of the row pushed ``lag`` profiles ago; None while fewer than
+            ``lag + 1`` profiles have been pushed.
+
+        Raises
+        ------
+        ValueError
+            Wrong shape or dtype kind, or the stream was flushed (call :meth:`reset`). A rejected
+            profile leaves the stream unchanged.
+        """
+        arr = np.asarray(profile)
+        if arr.dtype.kind not in "fiu":
+            raise ValueError(f"profile: expected a real numeric array, got dtype {arr.dtype}")
+        if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] != self.width:
+            raise ValueError(f"profile: expected shape ({self.width}, 3), got {arr.shape}")
+        if arr.dtype != self._dtype:
+            arr = arr.astype(self._dtype)
+        item = arr.itemsize
+        if not arr.flags.aligned or any(s % item for s in arr.strides):
+            arr = np.ascontiguousarray(arr)
+        code, message, row, labels = self._core.push(arr)
+        if code not in (_OK, _EMPTY_PROFILE):
+            raise ValueError(message)
+        return None if labels is None else StreamRow(int(row), labels)
+
+    def flush(self) -> List[StreamRow]:
+        """End the stream and return every row still pending, oldest first.
+
+        The last rows are judged with the end of the stream as the border of the scan, as
+        :func:`miem.detect` does. Call :meth:`reset` to start a new stream.
+
+        Returns
+        -------
+        list of StreamRow
+            At most ``lag`` rows (empty on a second call).
+        """
+        return [StreamRow(int(r), labels) for r, labels in self._core.flush()]
+
+    def reset(self) -> None:
+        """Start a new stream (a new part) with the same width and parameters."""
+        self._core.reset()
+
+    def __repr__(self) -> str:
+        return (f"ProfileStream(width={self.width}, lag={self.lag}, dtype={self._dtype.name}, "
+                f"rows_pushed={self.rows_pushed})")

@@ -1,0 +1,84 @@
+"""Build and run the C++ tests (ctest): once plain, once with AddressSanitizer and UBSan, and
+the consumer test (the installed package used by ``cpp/examples`` through ``find_package``).
+
+Each build goes to a temporary directory with ``-DMIEM_BUILD_TESTS=ON``; any failure fails here
+with the end of the build or test log. Skipped only when GoogleTest is not installed.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+JOBS = "2"
+SANITIZE = "-fsanitize=address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer"
+# -O0 for the sanitizer build: it compiles several times faster than -O1 (Eigen, GoogleTest), and
+# the tests' data are small.
+
+pytestmark = pytest.mark.skipif(shutil.which("cmake") is None, reason="cmake not installed")
+
+
+def _run(cmd: list[str], env: dict | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE,
+                          stderr=subprocess.STDOUT, text=True)
+
+
+def _check(proc: subprocess.CompletedProcess, what: str) -> str:
+    if proc.returncode != 0:
+        tail = "\n".join(proc.stdout.splitlines()[-150:])
+        pytest.fail(f"{what} failed (exit {proc.returncode}):\n{tail}", pytrace=False)
+    return proc.stdout
+
+
+def _configure_and_build(build: Path, extra: list[str]) -> None:
+    cmd = ["cmake", "-S", str(ROOT), "-B", str(build), "-DMIEM_BUILD_TESTS=ON",
+           f"-DPython_EXECUTABLE={sys.executable}", *extra]
+    if shutil.which("ninja"):
+        cmd += ["-G", "Ninja"]
+    proc = _run(cmd)
+    if proc.returncode != 0 and "GTest" in proc.stdout:
+        pytest.skip("GoogleTest (libgtest-dev) not installed")
+    _check(proc, "cmake configure")
+    _check(_run(["cmake", "--build", str(build), "-j", JOBS]), "cmake --build")
+
+
+def _ctest(build: Path, args: list[str], env: dict | None = None) -> str:
+    out = _check(_run(["ctest", "--test-dir", str(build), "--output-on-failure", "-j", JOBS,
+                       "--timeout", "600", *args], env=env), "ctest")
+    assert "tests passed" in out, out[-2000:]
+    return out
+
+
+@pytest.fixture(scope="module")
+def plain_build(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    build = tmp_path_factory.mktemp("cpp-plain")
+    _configure_and_build(build, ["-DCMAKE_BUILD_TYPE=Release"])
+    return build
+
+
+def test_ctest(plain_build: Path) -> None:
+    out = _ctest(plain_build, ["-LE", "consumer"])
+    print(out.splitlines()[-3])
+
+
+def test_ctest_with_sanitizers(tmp_path: Path) -> None:
+    build = tmp_path / "cpp-asan"
+    _configure_and_build(build, ["-DCMAKE_BUILD_TYPE=", f"-DCMAKE_CXX_FLAGS=-O0 {SANITIZE}",
+                                 f"-DCMAKE_EXE_LINKER_FLAGS={SANITIZE}",
+                                 "-DMIEM_USE_OPENMP=OFF"])
+    env = dict(os.environ)
+    env["ASAN_OPTIONS"] = "abort_on_error=1:detect_leaks=1:strict_string_checks=1"
+    env["UBSAN_OPTIONS"] = "print_stacktrace=1:halt_on_error=1"
+    out = _ctest(build, [], env=env)
+    print(out.splitlines()[-3])
+
+
+def test_consumer_of_installed_package(plain_build: Path) -> None:
+    out = _ctest(plain_build, ["-L", "consumer", "-V"])
+    assert "consumer test passed" in out, out[-3000:]
