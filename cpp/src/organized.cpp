@@ -13,6 +13,7 @@
 #include <Eigen/Eigenvalues>
 
 #include "angle_math.hpp"
+#include "defects.hpp"
 #include "judge.hpp"
 #include "plane_math.hpp"
 #include "parallel.hpp"
@@ -615,58 +616,18 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
     Defect d;
     d.indices.assign(queue_.begin(), queue_.end());
     std::sort(d.indices.begin(), d.indices.end());
-    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-    double hsum = 0.0;
-    int hcount = 0;
-    std::int64_t peak_idx = -1;
-    d.peak_height = kNaN;
-    for (std::int64_t i : d.indices) {
-      sum += g(i / W, i % W);
-      const double h = height[i];
-      if (std::isfinite(h)) {
-        hsum += h;
-        ++hcount;
-        if (peak_idx < 0 || std::abs(h) > std::abs(d.peak_height)) {
-          d.peak_height = h;
-          peak_idx = i;
-        }
-      }
-    }
-    d.centroid = sum / static_cast<double>(d.indices.size());
-    d.mean_height = hcount > 0 ? hsum / hcount : kNaN;
+    auto point_at = [&](std::int64_t i) -> Eigen::Vector3d { return g(i / W, i % W); };
+    const std::int64_t peak_idx = detail::summarize_defect(d, height, point_at);
     if (peak_idx >= 0) {
       Plane pl;
       if (window_plane(g, labels, peak_idx / W, peak_idx % W, half, &pl) == PlaneStatus::kOk) {
         d.normal = pl.normal;
       }
     }
-    const bool has_normal = d.normal.allFinite();
-    double max_r = 0.0;
-    for (std::int64_t i : d.indices) {
-      Eigen::Vector3d w = g(i / W, i % W) - d.centroid;
-      if (has_normal) w -= w.dot(d.normal) * d.normal;
-      max_r = std::max(max_r, w.norm());
-    }
-    d.extent = 2.0 * max_r;
-    if (!touches_surface || std::isnan(d.peak_height)) {
-      d.kind = DefectKind::kIsolated;
-    } else {
-      d.kind = d.peak_height < 0 ? DefectKind::kPit : DefectKind::kProtrusion;
-    }
+    detail::finish_defect(d, point_at, touches_surface);
     summary.defects.push_back(std::move(d));
   }
-  std::stable_sort(summary.defects.begin(), summary.defects.end(),
-                   [](const Defect& a, const Defect& b) {
-                     const bool na = std::isnan(a.peak_height), nb = std::isnan(b.peak_height);
-                     if (na != nb) return nb;  // NaN last
-                     if (!na && std::abs(a.peak_height) != std::abs(b.peak_height)) {
-                       return std::abs(a.peak_height) > std::abs(b.peak_height);
-                     }
-                     return a.indices.front() < b.indices.front();
-                   });
-  for (std::size_t k = 0; k < summary.defects.size(); ++k) {
-    summary.defects[k].id = static_cast<int>(k);
-  }
+  detail::order_defects(summary.defects);
   return summary;
 }
 

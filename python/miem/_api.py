@@ -205,14 +205,14 @@ def _as_float_array(a: object, name: str) -> np.ndarray:
     return arr
 
 
-def _int(name: str, value: object, minimum: int) -> int:
+def _int(name: str, value: object, minimum: int, maximum: int = 2**30) -> int:
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
         raise ValueError(f"{name}: expected an integer >= {minimum}, got {value!r}")
     v = int(value)
     if v < minimum:
         raise ValueError(f"{name}: expected an integer >= {minimum}, got {v}")
-    if v > 2**30:
-        raise ValueError(f"{name}: {v} is too large")
+    if v > maximum:
+        raise ValueError(f"{name}: expected an integer in {minimum}..{maximum}, got {v}")
     return v
 
 

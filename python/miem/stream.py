@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike, DTypeLike
 
 from . import _core
+from ._api import _int, _real
 
 __all__ = ["ProfileStream", "StreamRow"]
 
@@ -35,24 +36,6 @@ class StreamRow(NamedTuple):
 
     row: int
     labels: np.ndarray
-
-
-def _int(name: str, value: object, minimum: int, maximum: int = 2**30) -> int:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
-        raise ValueError(f"{name}: expected an integer >= {minimum}, got {value!r}")
-    v = int(value)
-    if not minimum <= v <= maximum:
-        raise ValueError(f"{name}: expected an integer in {minimum}..{maximum}, got {v}")
-    return v
-
-
-def _real(name: str, value: object) -> float:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-        raise ValueError(f"{name}: expected a real number, got {value!r}")
-    v = float(value)
-    if not np.isfinite(v):
-        raise ValueError(f"{name}: must be finite, got {v}")
-    return v
 
 
 class ProfileStream:

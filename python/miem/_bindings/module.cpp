@@ -9,60 +9,20 @@
 #include <string>
 #include <vector>
 
+#include "common.hpp"
 #include "miem/miem.hpp"
 
 namespace py = pybind11;
 
 namespace {
 
-template <typename T>
-std::ptrdiff_t elem_stride(const py::array& a, int axis, const char* name) {
-  const std::ptrdiff_t s = a.strides(axis);
-  if (s % static_cast<std::ptrdiff_t>(sizeof(T)) != 0) {
-    throw std::invalid_argument(std::string(name) + ": strides must be multiples of the item size");
-  }
-  return s / static_cast<std::ptrdiff_t>(sizeof(T));
-}
-
-template <typename T>
-miem::PointsView<T> points_view(const py::array& a, const char* name) {
-  if (a.ndim() != 2 || a.shape(1) != 3) {
-    throw std::invalid_argument(std::string(name) + ": expected shape (N, 3)");
-  }
-  return miem::PointsView<T>{static_cast<const T*>(a.data()), a.shape(0),
-                             elem_stride<T>(a, 0, name), elem_stride<T>(a, 1, name)};
-}
-
-template <typename T>
-miem::GridView<T> grid_view(const py::array& a) {
-  if (a.ndim() != 3 || a.shape(2) != 3) {
-    throw std::invalid_argument("grid: expected shape (H, W, 3)");
-  }
-  return miem::GridView<T>{static_cast<const T*>(a.data()), a.shape(0), a.shape(1),
-                           elem_stride<T>(a, 0, "grid"), elem_stride<T>(a, 1, "grid"),
-                           elem_stride<T>(a, 2, "grid")};
-}
-
-bool is_f32(const py::array& a) { return a.dtype().is(py::dtype::of<float>()); }
-bool is_f64(const py::array& a) { return a.dtype().is(py::dtype::of<double>()); }
-
-void require_float(const py::array& a, const char* name) {
-  if (!is_f32(a) && !is_f64(a)) {
-    throw std::invalid_argument(std::string(name) + ": dtype must be native float32 or float64");
-  }
-}
-
-py::array_t<double> vec3(const Eigen::Vector3d& v) {
-  py::array_t<double> out(3);
-  auto m = out.mutable_unchecked<1>();
-  for (int i = 0; i < 3; ++i) m(i) = v(i);
-  return out;
-}
-
-py::tuple plane_tuple(const miem::Plane& p) {
-  return py::make_tuple(vec3(p.normal), p.d, vec3(p.centroid), p.rms, p.n_points,
-                        vec3(p.eigenvalues));
-}
+using miem::bindings::defect_list;
+using miem::bindings::grid_view;
+using miem::bindings::is_f32;
+using miem::bindings::plane_or_none;
+using miem::bindings::plane_tuple;
+using miem::bindings::points_view;
+using miem::bindings::require_float;
 
 py::tuple fit_plane(const py::array& points, const std::string& method, int num_threads) {
   require_float(points, "points");
@@ -140,14 +100,8 @@ py::tuple detect_organized(const py::array& grid, double theta0, std::vector<int
     py::gil_scoped_release nogil;
     s = det.run(v, out);
   }
-  py::list defects;
-  for (const miem::Defect& d : s.defects) {
-    py::array_t<std::int64_t> idx(static_cast<py::ssize_t>(d.indices.size()));
-    std::copy(d.indices.begin(), d.indices.end(), idx.mutable_data());
-    defects.append(py::make_tuple(d.id, idx, vec3(d.centroid), vec3(d.normal), d.peak_height,
-                                  d.mean_height, d.extent, miem::to_string(d.kind)));
-  }
-  py::object plane = s.plane ? py::object(plane_tuple(*s.plane)) : py::object(py::none());
+  py::list defects = defect_list(s.defects);
+  py::object plane = plane_or_none(s.plane);
   return py::make_tuple(labels, flags, angle, height, plane, s.iterations, defects,
                         s.theta0_deg);
 }

@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "common.hpp"
 #include "miem/stream.hpp"
 
 namespace py = pybind11;
@@ -32,12 +33,7 @@ class PyProfileStream {
     if (profile.ndim() != 2 || profile.shape(1) != 3) {
       throw std::invalid_argument("profile: expected shape (width, 3)");
     }
-    const auto item = static_cast<std::ptrdiff_t>(sizeof(T));
-    if (profile.strides(0) % item != 0 || profile.strides(1) % item != 0) {
-      throw std::invalid_argument("profile: strides must be multiples of the item size");
-    }
-    const miem::PointsView<T> view{static_cast<const T*>(profile.data()), profile.shape(0),
-                                   profile.strides(0) / item, profile.strides(1) / item};
+    const miem::PointsView<T> view = miem::bindings::points_view<T>(profile, "profile");
     miem::StreamRow row;
     miem::Status st;
     {

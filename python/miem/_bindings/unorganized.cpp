@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "common.hpp"
 #include "miem/neighbor_grid.hpp"
 #include "miem/unorganized.hpp"
 
@@ -20,13 +21,15 @@ namespace py = pybind11;
 
 namespace {
 
-bool is_f32(const py::array& a) { return a.dtype().is(py::dtype::of<float>()); }
-bool is_f64(const py::array& a) { return a.dtype().is(py::dtype::of<double>()); }
+using miem::bindings::defect_list;
+using miem::bindings::is_f32;
+using miem::bindings::plane_or_none;
+using miem::bindings::points_view;
+using miem::bindings::require_float;
+using miem::bindings::to_array;
 
 void require_points(const py::array& a, const char* name) {
-  if (!is_f32(a) && !is_f64(a)) {
-    throw std::invalid_argument(std::string(name) + ": dtype must be native float32 or float64");
-  }
+  require_float(a, name);
   if (a.ndim() != 2 || a.shape(1) != 3) {
     throw std::invalid_argument(std::string(name) + ": expected shape (N, 3)");
   }
@@ -34,34 +37,7 @@ void require_points(const py::array& a, const char* name) {
 
 template <typename T>
 miem::PointsView<T> view_of(const py::array& a, const char* name) {
-  std::ptrdiff_t st[2];
-  for (int ax = 0; ax < 2; ++ax) {
-    const std::ptrdiff_t s = a.strides(ax);
-    if (s % static_cast<std::ptrdiff_t>(sizeof(T)) != 0) {
-      throw std::invalid_argument(std::string(name) +
-                                  ": strides must be multiples of the item size");
-    }
-    st[ax] = s / static_cast<std::ptrdiff_t>(sizeof(T));
-  }
-  return miem::PointsView<T>{static_cast<const T*>(a.data()), a.shape(0), st[0], st[1]};
-}
-
-py::array_t<double> vec3(const Eigen::Vector3d& v) {
-  py::array_t<double> out(3);
-  auto m = out.mutable_unchecked<1>();
-  for (int i = 0; i < 3; ++i) m(i) = v(i);
-  return out;
-}
-
-py::tuple plane_tuple(const miem::Plane& p) {
-  return py::make_tuple(vec3(p.normal), p.d, vec3(p.centroid), p.rms, p.n_points,
-                        vec3(p.eigenvalues));
-}
-
-py::array_t<std::int64_t> to_array(const std::vector<std::int64_t>& v) {
-  py::array_t<std::int64_t> out(static_cast<py::ssize_t>(v.size()));
-  std::copy(v.begin(), v.end(), out.mutable_data());
-  return out;
+  return points_view<T>(a, name);
 }
 
 // A grid over a float32 or float64 array that it keeps alive.
@@ -207,13 +183,8 @@ py::tuple detect_points(const py::array& points, double theta0, std::vector<int>
     py::gil_scoped_release nogil;
     s = miem::detect_points(v, p, out);
   }
-  py::list defects;
-  for (const miem::Defect& d : s.defects) {
-    defects.append(py::make_tuple(d.id, to_array(d.indices), vec3(d.centroid), vec3(d.normal),
-                                  d.peak_height, d.mean_height, d.extent,
-                                  miem::to_string(d.kind)));
-  }
-  py::object plane = s.plane ? py::object(plane_tuple(*s.plane)) : py::object(py::none());
+  py::list defects = defect_list(s.defects);
+  py::object plane = plane_or_none(s.plane);
   return py::make_tuple(labels, flags, angle, height, degenerate, plane, s.iterations, defects,
                         s.spacing, s.radius, s.min_step, s.link);
 }
