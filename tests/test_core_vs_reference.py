@@ -56,6 +56,9 @@ PARAMS = [
     {"height_tolerance": 0.05, "max_iterations": 2},
     {"theta0": "auto", "scales": (1, 2), "height_tolerance": "3rms"},
     {"preset": "paper", "theta0": 90.0},
+    {"theta0": 90.0, "scales": (1, 2), "height_tolerance": "4rms", "edge_extent": 12,
+     "window": 15},
+    {"theta0": 120.0, "height_tolerance": 0.05, "edge_extent": 3},
 ]
 
 

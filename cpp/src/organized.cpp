@@ -32,16 +32,16 @@ using detail::window_plane;
 struct WindowFit {
   bool ok = false;  // a plane exists (>= 3 cells, not degenerate)
   double height = 0.0, n = 0.0, l0 = 0.0, l1 = 0.0, l2 = 0.0;
-  double edges = 0.0;  // EDGE cells in the window
+  double edges = 0.0;  // feature-line EDGE cells in the window
 };
 
 // Calls visit(r, c, fit) for every cell with want(r, c), with the window plane of the NORMAL
 // cells around it from box sums of their moments. Tiles keep the sums in tile-local coordinates
 // (far-from-origin scans lose no precision); each thread owns its buffer. Cells are independent,
 // so the result does not depend on the thread count.
-template <typename T, typename Want, typename Visit>
+template <typename T, typename Want, typename Visit, typename Line>
 void window_fits(const GridView<T>& g, const std::uint8_t* labels, int window, int num_threads,
-                 std::vector<double>& scratch, Want want, Visit visit) {
+                 std::vector<double>& scratch, Want want, Visit visit, Line is_line) {
   constexpr std::ptrdiff_t kTile = 64;
   constexpr int kM = 11;  // n, x, y, z, xx, xy, xz, yy, yz, zz (NORMAL cells), EDGE count
   const std::ptrdiff_t H = g.rows, W = g.cols, half = window / 2;
@@ -110,7 +110,7 @@ void window_fits(const GridView<T>& g, const std::uint8_t* labels, int window, i
           acc[7] += q.y() * q.y();
           acc[8] += q.y() * q.z();
           acc[9] += q.z() * q.z();
-        } else if (labels[r * W + c] == kEdge) {
+        } else if (is_line(r * W + c)) {
           acc[10] += 1.0;
         }
         double* dst = row + (j + 1) * kM;
@@ -328,6 +328,7 @@ void validate(const DetectParams& p) {
   if (!std::isfinite(p.height_abs) || !std::isfinite(p.height_k)) {
     throw std::invalid_argument("height_tolerance: must be finite (<= 0 = off)");
   }
+  if (p.edge_extent < 0) throw std::invalid_argument("edge_extent: must be an integer >= 0");
 }
 
 const char* to_string(DefectKind kind) noexcept {
@@ -491,13 +492,43 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
     ++iterations;
   }
 
-  // Height passes (SPEC "Beyond the paper"): NORMAL cells too far from their window plane.
+  // Height passes (SPEC "Beyond the paper"): NORMAL cells, and EDGE cells of compact EDGE
+  // groups, too far from their window plane; abstain near feature lines (long EDGE groups).
   if (p.height_abs > 0.0 || p.height_k > 0.0) {
-    constexpr std::uint8_t kMark = 8;
+    constexpr std::uint8_t kMark = 8, kCompact = 16, kSeenEdge = 32;
     for (int hp = 0; hp < p.max_iterations; ++hp) {
+      // 8-connected EDGE groups; compact when the bounding box's longer side <= edge_extent.
+      for (std::ptrdiff_t start = 0; start < N; ++start) {
+        if (labels[start] != kEdge || (usable[start] & kSeenEdge)) continue;
+        queue_.clear();
+        queue_.push_back(start);
+        usable[start] |= kSeenEdge;
+        std::ptrdiff_t r0 = start / W, r1 = r0, c0 = start % W, c1 = c0;
+        for (std::size_t head = 0; head < queue_.size(); ++head) {
+          const std::ptrdiff_t i = queue_[head], r = i / W, c = i % W;
+          r0 = std::min(r0, r), r1 = std::max(r1, r), c0 = std::min(c0, c), c1 = std::max(c1, c);
+          for (std::ptrdiff_t dr = -1; dr <= 1; ++dr) {
+            for (std::ptrdiff_t dc = -1; dc <= 1; ++dc) {
+              const std::ptrdiff_t rr = r + dr, cc = c + dc;
+              if (rr < 0 || rr >= H || cc < 0 || cc >= W) continue;
+              const std::ptrdiff_t q = rr * W + cc;
+              if (labels[q] == kEdge && !(usable[q] & kSeenEdge)) {
+                usable[q] |= kSeenEdge;
+                queue_.push_back(q);
+              }
+            }
+          }
+        }
+        if (std::max(r1 - r0, c1 - c0) + 1 <= p.edge_extent) {
+          for (std::int64_t i : queue_) usable[i] |= kCompact;
+        }
+      }
       window_fits(
           g, labels, p.window, p.num_threads, tile_scratch_,
-          [&](std::ptrdiff_t r, std::ptrdiff_t c) { return labels[r * W + c] == kNormal; },
+          [&](std::ptrdiff_t r, std::ptrdiff_t c) {
+            const std::ptrdiff_t i = r * W + c;
+            return labels[i] == kNormal || (usable[i] & kCompact);
+          },
           [&](std::ptrdiff_t r, std::ptrdiff_t c, const WindowFit& f) {
             if (!f.ok || f.edges > 0.0) return;  // designed features nearby: no plane model
             const double ah = std::abs(f.height);
@@ -506,7 +537,8 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
                              (p.height_k > 0.0 && ah > p.height_k * rms &&
                               ah > 1e-9 * std::sqrt((f.l1 + f.l2) / f.n));
             if (far) usable[r * W + c] |= kMark;
-          });
+          },
+          [&](std::ptrdiff_t i) { return labels[i] == kEdge && !(usable[i] & kCompact); });
       ++iterations;
       std::ptrdiff_t added = 0;
       for (std::ptrdiff_t i = 0; i < N; ++i) {
@@ -514,6 +546,8 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
           usable[i] = 0;
           labels[i] = kAbnormal;
           ++added;
+        } else {
+          usable[i] &= static_cast<std::uint8_t>(~(kCompact | kSeenEdge));
         }
       }
       if (added == 0) break;
@@ -569,7 +603,8 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
         [&](std::ptrdiff_t, std::ptrdiff_t) { return true; },
         [&](std::ptrdiff_t r, std::ptrdiff_t c, const WindowFit& f) {
           height[r * W + c] = (f.ok && labels[r * W + c] != kInvalid) ? f.height : kNaN;
-        });
+        },
+        [](std::ptrdiff_t) { return false; });
   } else {
 #pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
     for (std::ptrdiff_t r = 0; r < H; ++r) {

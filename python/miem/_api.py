@@ -347,6 +347,7 @@ PRESETS: dict = {
         "max_iterations": 10,
         "window": 21,
         "height_tolerance": None,
+        "edge_extent": 0,
     },
 }
 
@@ -398,6 +399,7 @@ def detect(
     *,
     preset: Optional[str] = None,
     height_tolerance: Union[None, float, str] = DEFAULT,
+    edge_extent: int = DEFAULT,
     max_reach: int = 32,
     heights: Literal["all", "abnormal"] = "all",
     num_threads: Optional[int] = None,
@@ -451,8 +453,14 @@ def detect(
     height_tolerance : float, str or None
         [None] Height test, beyond the paper: after the angle passes, a NORMAL point farther than
         this from its local plane becomes ABNORMAL (catches smooth spatter domes and wide burrs
-        the angle test cannot see; EDGE points are never changed). A length in the grid's units,
-        or ``"<k>rms"`` for ``k`` times the local plane's rms. None: off.
+        the angle test cannot see). A length in the grid's units, or ``"<k>rms"`` for ``k`` times
+        the local plane's rms. None: off. The test abstains where a feature line (a group of
+        EDGE points longer than ``edge_extent``) lies in the window.
+    edge_extent : int
+        [0] With the height test: groups of EDGE points (8-connected) whose bounding box is at
+        most this many cells on its longer side are compact (a defect's halo, a short burr
+        ridge, a spatter dome) and are height-tested like NORMAL points; longer groups are
+        designed feature lines (creases, flanges, strips) and are never changed.
     max_reach : int
         With ``min_step``: how many cells beyond ``scale + max_gap`` the search may go.
     heights : {"all", "abnormal"}
@@ -491,7 +499,8 @@ def detect(
         grid = from_open3d(grid)
     arr = _as_float_array(grid, "grid")
     if arr.ndim == 2 and arr.shape[1] == 3:
-        given = {"max_gap": max_gap, "window": window, "height_tolerance": height_tolerance}
+        given = {"max_gap": max_gap, "window": window, "height_tolerance": height_tolerance,
+                 "edge_extent": edge_extent}
         bad = sorted(k for k, v in given.items() if v is not DEFAULT)
         if max_reach != 32:
             bad.append("max_reach")
@@ -520,7 +529,7 @@ def detect(
     cfg = _resolve(preset, {
         "theta0": theta0, "scales": scales, "max_gap": max_gap, "min_step": min_step,
         "min_directions": min_directions, "max_iterations": max_iterations, "window": window,
-        "height_tolerance": height_tolerance,
+        "height_tolerance": height_tolerance, "edge_extent": edge_extent,
     })
     if arr.ndim != 3 or arr.shape[2] != 3:
         raise ValueError(f"grid: expected shape (H, W, 3) or (N, 3), got {arr.shape}")
@@ -562,6 +571,7 @@ def detect(
     if win % 2 == 0:
         raise ValueError(f"window: expected an odd number of cells, got {win}")
     h_abs, h_k = _height_tolerance(cfg["height_tolerance"])
+    extent = _int("edge_extent", cfg["edge_extent"], 0)
     reach = _int("max_reach", max_reach, 1)
     if heights not in ("all", "abnormal"):
         raise ValueError(f"heights: expected 'all' or 'abnormal', got {heights!r}")
@@ -569,7 +579,7 @@ def detect(
 
     labels, flags, angle, height, plane_t, iterations, raw, theta0_used = _core.detect_organized(
         arr, theta0_v, scale_list, gap, step_v, reach, md, iters, win,
-        0 if heights == "all" else 1, nt, auto, h_abs, h_k,
+        0 if heights == "all" else 1, nt, auto, h_abs, h_k, extent,
     )
     width = arr.shape[1]
     defects = [
@@ -584,7 +594,8 @@ def detect(
         preset=DEFAULT_PRESET if preset is None else preset, theta0=float(theta0_used),
         theta0_auto=auto, scales=tuple(scale_list), max_gap=gap, min_step=min_step,
         min_directions=min_directions, max_iterations=iters, window=win,
-        height_tolerance=cfg["height_tolerance"], max_reach=reach, heights=heights,
+        height_tolerance=cfg["height_tolerance"], edge_extent=extent, max_reach=reach,
+        heights=heights,
     )
     return DetectResult(
         labels=labels, flags=flags, angle=angle, height=height,

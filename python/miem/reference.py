@@ -774,6 +774,7 @@ _DEFAULTS: dict[str, Any] = {
     "window": 21,
     "max_reach": 32,
     "height_tolerance": None,
+    "edge_extent": 0,
 }
 
 #: Presets of :func:`detect` (SPEC "Presets"): name -> parameter values. Explicit keyword
@@ -788,6 +789,7 @@ _PRESETS: dict[str, dict[str, Any]] = {
         "max_iterations": 10,
         "window": 21,
         "height_tolerance": None,
+        "edge_extent": 0,
     },
 }
 
@@ -873,18 +875,47 @@ def _box_count(mask: NDArray[np.bool_], window: int) -> NDArray[np.int64]:
     return (s[r1][:, c1] - s[r0][:, c1] - s[r1][:, c0] + s[r0][:, c0]).astype(np.int64)
 
 
+def _compact_edges(edge: NDArray[np.bool_], extent: int) -> NDArray[np.bool_]:
+    """EDGE cells of 8-connected EDGE groups whose bounding box's longer side is <= extent."""
+    h, w = edge.shape
+    out = np.zeros_like(edge)
+    seen = np.zeros_like(edge)
+    for r0, c0 in zip(*np.nonzero(edge)):
+        if seen[r0, c0]:
+            continue
+        stack, members = [(r0, c0)], []
+        seen[r0, c0] = True
+        while stack:
+            r, c = stack.pop()
+            members.append((r, c))
+            for dr in (-1, 0, 1):
+                for dc in (-1, 0, 1):
+                    rr, cc = r + dr, c + dc
+                    if 0 <= rr < h and 0 <= cc < w and edge[rr, cc] and not seen[rr, cc]:
+                        seen[rr, cc] = True
+                        stack.append((rr, cc))
+        rows = [m[0] for m in members]
+        cols = [m[1] for m in members]
+        if max(max(rows) - min(rows), max(cols) - min(cols)) + 1 <= extent:
+            for m in members:
+                out[m] = True
+    return out
+
+
 def _height_pass(
     grid: NDArray[np.float64],
     normal_mask: NDArray[np.bool_],
-    edge_mask: NDArray[np.bool_],
+    compact_mask: NDArray[np.bool_],
+    line_mask: NDArray[np.bool_],
     window: int,
     tolerance: tuple[str, float],
 ) -> NDArray[np.bool_]:
-    """One height pass (SPEC "height_tolerance"): the NORMAL cells that become ABNORMAL.
-
-    A cell with an EDGE cell in its window is not tested (designed feature nearby)."""
-    height, _, evals, count = _window_planes(grid, normal_mask, normal_mask, window)
-    exists = normal_mask & np.isfinite(height) & (_box_count(edge_mask, window) == 0)
+    """One height pass (SPEC "height_tolerance"): the NORMAL and compact-EDGE cells that become
+    ABNORMAL. A cell with a feature-line EDGE cell in its window is not tested."""
+    height, _, evals, count = _window_planes(grid, normal_mask, normal_mask | compact_mask,
+                                             window)
+    exists = (normal_mask | compact_mask) & np.isfinite(height)
+    exists &= _box_count(line_mask, window) == 0
     mode, value = tolerance
     absh = np.abs(height)
     if mode == "abs":
@@ -942,6 +973,7 @@ def detect(
     window: int = _UNSET,
     max_reach: int = _UNSET,
     height_tolerance: float | str | None = _UNSET,
+    edge_extent: int = _UNSET,
     preset: str | None = None,
 ) -> RefResult:
     """Detect abnormal points in an organized scan (MIEM, reference implementation).
@@ -1014,6 +1046,7 @@ def detect(
             "window": window,
             "max_reach": max_reach,
             "height_tolerance": height_tolerance,
+            "edge_extent": edge_extent,
         },
     )
     auto = isinstance(opts["theta0"], str) and opts["theta0"] == "auto"
@@ -1028,6 +1061,7 @@ def detect(
         opts["max_reach"],
     )
     tolerance = _parse_height_tolerance(opts["height_tolerance"])
+    extent = _check_int("edge_extent", opts["edge_extent"], 0)
     arr = _as_points_array("grid", grid)
     if arr.ndim != 3 or arr.shape[2] != 3:
         raise ValueError(f"grid: expected shape (H, W, 3), got {arr.shape}")
@@ -1076,7 +1110,10 @@ def detect(
             # of them, on top of the angle passes. Flags and angles are left as they are.
             for _ in range(iters):
                 passes += 1
-                new_abn = _height_pass(g, labels == NORMAL, labels == EDGE, win, tolerance)
+                compact = _compact_edges(labels == EDGE, extent)
+                new_abn = _height_pass(
+                    g, labels == NORMAL, compact, (labels == EDGE) & ~compact, win, tolerance
+                )
                 labels[new_abn] = ABNORMAL
                 abnormal |= new_abn
                 if not new_abn.any():

@@ -63,6 +63,7 @@ struct DetectParams {
   bool theta0_auto = false;       ///< derive theta0 from the scan's own angles (SPEC.md)
   double height_abs = 0.0;        ///< > 0: height test, |height| above this is ABNORMAL
   double height_k = 0.0;          ///< > 0: height test, |height| above k * local rms is ABNORMAL
+  int edge_extent = 0;            ///< height test: EDGE groups this compact (cells) are tested too
   int num_threads = 0;            ///< 0: all available; the labels never depend on it
 };
 

@@ -63,7 +63,8 @@ py::array_t<double> scan_line(const py::array& line, int step) {
 py::tuple detect_organized(const py::array& grid, double theta0, std::vector<int> scales,
                            int max_gap, double min_step, int max_reach, int min_directions,
                            int max_iterations, int window, int height_mode, int num_threads,
-                           bool theta0_auto, double height_abs, double height_k) {
+                           bool theta0_auto, double height_abs, double height_k,
+                           int edge_extent) {
   require_float(grid, "grid");
   if (grid.ndim() != 3 || grid.shape(2) != 3) {
     throw std::invalid_argument("grid: expected shape (H, W, 3)");
@@ -83,6 +84,7 @@ py::tuple detect_organized(const py::array& grid, double theta0, std::vector<int
   p.theta0_auto = theta0_auto;
   p.height_abs = height_abs;
   p.height_k = height_k;
+  p.edge_extent = edge_extent;
   miem::OrganizedDetector det(p);  // validates
 
   const py::ssize_t H = grid.shape(0), W = grid.shape(1);
@@ -123,7 +125,7 @@ PYBIND11_MODULE(_core, m) {
         py::arg("scales"), py::arg("max_gap"), py::arg("min_step"), py::arg("max_reach"),
         py::arg("min_directions"), py::arg("max_iterations"), py::arg("window"),
         py::arg("height_mode"), py::arg("num_threads"), py::arg("theta0_auto") = false,
-        py::arg("height_abs") = 0.0, py::arg("height_k") = 0.0);
+        py::arg("height_abs") = 0.0, py::arg("height_k") = 0.0, py::arg("edge_extent") = 0);
   void bind_unorganized(py::module_ & m);  // python/miem/_bindings/unorganized.cpp
   bind_unorganized(m);
   void bind_stream(py::module_ & m);  // python/miem/_bindings/stream.cpp
