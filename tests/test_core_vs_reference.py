@@ -189,3 +189,14 @@ def test_scan_line_functions_match_reference() -> None:
                                    ref.scan_line_angles(line, step), atol=1e-9, equal_nan=True)
         np.testing.assert_allclose(miem.scan_line_heights(line, step),
                                    ref.scan_line_heights(line, step), atol=1e-12, equal_nan=True)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_recommended_preset_matches_reference(seed: int) -> None:
+    grid = make_grid(seed)
+    core, oracle = miem.detect(grid, preset="recommended"), ref.detect(grid, preset="recommended")
+    assert core.params["height_tolerance"] == "4.5rms" and core.params["edge_extent"] == 12
+    assert_same(core, oracle)
+    # explicit arguments override the preset
+    over = miem.detect(grid, preset="recommended", height_tolerance=None)
+    assert over.params["height_tolerance"] is None and over.params["theta0"] == 90.0

@@ -791,6 +791,17 @@ _PRESETS: dict[str, dict[str, Any]] = {
         "height_tolerance": None,
         "edge_extent": 0,
     },
+    "recommended": {
+        "theta0": 90.0,
+        "scales": (1, 2),
+        "max_gap": 1,
+        "min_step": None,
+        "min_directions": None,
+        "max_iterations": 10,
+        "window": 21,
+        "height_tolerance": "4.5rms",
+        "edge_extent": 12,
+    },
 }
 
 # theta0="auto" (SPEC "Beyond the paper"): theta0 = clip(180 - K * median(dev) / MAD, MIN, MAX).
@@ -1061,7 +1072,7 @@ def detect(
         opts["max_reach"],
     )
     tolerance = _parse_height_tolerance(opts["height_tolerance"])
-    extent = _check_int("edge_extent", opts["edge_extent"], 0)
+    extent = 0 if opts["edge_extent"] is None else _check_int("edge_extent", opts["edge_extent"], 0)
     arr = _as_points_array("grid", grid)
     if arr.ndim != 3 or arr.shape[2] != 3:
         raise ValueError(f"grid: expected shape (H, W, 3), got {arr.shape}")
