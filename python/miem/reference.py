@@ -677,6 +677,74 @@ def _components(mask: NDArray[np.bool_]) -> list[NDArray[np.int64]]:
     return comps
 
 
+def _summarize(
+    idx: NDArray[np.int64],
+    members: NDArray[np.float64],
+    hs: NDArray[np.float64],
+    where: NDArray[np.int64],
+    height: NDArray[np.float64],
+    normals: NDArray[np.float64],
+    touches: bool,
+) -> tuple[Any, ...]:
+    """One defect's fields (SPEC "Defects"): ``idx`` output indices, ``members`` the points,
+    ``hs`` their heights, ``where`` their positions in ``height`` / ``normals``, ``touches``
+    whether a finite non-ABNORMAL point is adjacent."""
+    centroid = members.mean(axis=0)
+    fin = np.isfinite(hs)
+    if fin.any():
+        pos = int(np.argmax(np.abs(hs[fin])))  # first in index order on ties
+        peak_at = int(where[fin][pos])
+        peak = float(height[peak_at])
+        mean_h = float(np.mean(hs[fin]))
+        normal = normals[peak_at].copy()
+    else:
+        peak = math.nan
+        mean_h = math.nan
+        normal = np.full(3, np.nan)
+    off = members - centroid
+    if np.all(np.isfinite(normal)):
+        off = off - _dot3(off, normal)[:, None] * normal
+    extent = 2.0 * float(np.max(np.sqrt(_dot3(off, off))))
+    if not touches or math.isnan(peak):
+        kind = "isolated"
+    elif peak < 0:
+        kind = "pit"
+    else:
+        kind = "protrusion"
+    return (idx, centroid, normal, peak, mean_h, extent, kind)
+
+
+def _ordered_defects(raw: list[tuple[Any, ...]]) -> list[RefDefect]:
+    """Defects by |peak| descending (NaN last, ties by first index), numbered in that order."""
+
+    def order(item: tuple[Any, ...]) -> tuple[bool, float, int]:
+        peak_ = item[3]
+        nan = math.isnan(peak_)
+        return (nan, 0.0 if nan else -abs(peak_), int(item[0][0]))
+
+    out = []
+    for i, (idx, centroid, normal, peak, mean_h, extent, kind) in enumerate(
+        sorted(raw, key=order)
+    ):
+        idx.setflags(write=False)
+        centroid.setflags(write=False)
+        normal.setflags(write=False)
+        out.append(
+            RefDefect(
+                id=i,
+                indices=idx,
+                count=int(idx.size),
+                centroid=centroid,
+                normal=normal,
+                peak_height=peak,
+                mean_height=mean_h,
+                extent=extent,
+                kind=kind,
+            )
+        )
+    return out
+
+
 def _defects(
     grid: NDArray[np.float64],
     labels: NDArray[np.uint8],
@@ -697,60 +765,11 @@ def _defects(
     h_flat = height.ravel()
     n_flat = normals.reshape(-1, 3)
     t_flat = touches.ravel()
-    raw = []
-    for idx in _components(abnormal):
-        members = pts[idx]
-        centroid = members.mean(axis=0)
-        hs = h_flat[idx]
-        fin = np.isfinite(hs)
-        if fin.any():
-            fin_idx = idx[fin]
-            pos = int(np.argmax(np.abs(hs[fin])))  # first in index order on ties
-            peak_cell = int(fin_idx[pos])
-            peak = float(h_flat[peak_cell])
-            mean_h = float(np.mean(hs[fin]))
-            normal = n_flat[peak_cell].copy()
-        else:
-            peak = math.nan
-            mean_h = math.nan
-            normal = np.full(3, np.nan)
-        off = members - centroid
-        if np.all(np.isfinite(normal)):
-            off = off - _dot3(off, normal)[:, None] * normal
-        extent = 2.0 * float(np.max(np.sqrt(_dot3(off, off))))
-        if not t_flat[idx].any() or math.isnan(peak):
-            kind = "isolated"
-        elif peak < 0:
-            kind = "pit"
-        else:
-            kind = "protrusion"
-        raw.append((idx, centroid, normal, peak, mean_h, extent, kind))
-
-    def order(item: tuple[Any, ...]) -> tuple[bool, float, int]:
-        peak_ = item[3]
-        nan = math.isnan(peak_)
-        return (nan, 0.0 if nan else -abs(peak_), int(item[0][0]))
-
-    raw.sort(key=order)
-    out = []
-    for i, (idx, centroid, normal, peak, mean_h, extent, kind) in enumerate(raw):
-        idx.setflags(write=False)
-        centroid.setflags(write=False)
-        normal.setflags(write=False)
-        out.append(
-            RefDefect(
-                id=i,
-                indices=idx,
-                count=int(idx.size),
-                centroid=centroid,
-                normal=normal,
-                peak_height=peak,
-                mean_height=mean_h,
-                extent=extent,
-                kind=kind,
-            )
-        )
-    return out
+    raw = [
+        _summarize(idx, pts[idx], h_flat[idx], idx, h_flat, n_flat, bool(t_flat[idx].any()))
+        for idx in _components(abnormal)
+    ]
+    return _ordered_defects(raw)
 
 
 class _Unset:
@@ -1544,58 +1563,10 @@ def _points_defects(
     raw = []
     for c in range(n_comp):
         loc = np.flatnonzero(comp == c)  # ascending, hence ascending input rows
-        members = a_pts[loc]
         idx = rows[abn[loc]].astype(np.int64)
-        centroid = members.mean(axis=0)
-        hs = height[abn[loc]]
-        fin = np.isfinite(hs)
-        if fin.any():
-            pos = int(np.argmax(np.abs(hs[fin])))  # first in index order on ties
-            peak_pt = int(abn[loc][fin][pos])
-            peak = float(height[peak_pt])
-            mean_h = float(np.mean(hs[fin]))
-            normal = normals[peak_pt].copy()
-        else:
-            peak = math.nan
-            mean_h = math.nan
-            normal = np.full(3, np.nan)
-        off = members - centroid
-        if np.all(np.isfinite(normal)):
-            off = off - _dot3(off, normal)[:, None] * normal
-        extent = 2.0 * float(np.max(np.sqrt(_dot3(off, off))))
-        if not touches[loc].any() or math.isnan(peak):
-            kind = "isolated"
-        elif peak < 0:
-            kind = "pit"
-        else:
-            kind = "protrusion"
-        raw.append((idx, centroid, normal, peak, mean_h, extent, kind))
-
-    def order(item: tuple[Any, ...]) -> tuple[bool, float, int]:
-        peak_ = item[3]
-        nan = math.isnan(peak_)
-        return (nan, 0.0 if nan else -abs(peak_), int(item[0][0]))
-
-    raw.sort(key=order)
-    out = []
-    for i, (idx, centroid, normal, peak, mean_h, extent, kind) in enumerate(raw):
-        idx.setflags(write=False)
-        centroid.setflags(write=False)
-        normal.setflags(write=False)
-        out.append(
-            RefDefect(
-                id=i,
-                indices=idx,
-                count=int(idx.size),
-                centroid=centroid,
-                normal=normal,
-                peak_height=peak,
-                mean_height=mean_h,
-                extent=extent,
-                kind=kind,
-            )
-        )
-    return out
+        raw.append(_summarize(idx, a_pts[loc], height[abn[loc]], abn[loc], height, normals,
+                              bool(touches[loc].any())))
+    return _ordered_defects(raw)
 
 
 def detect_points(
