@@ -225,6 +225,34 @@ def _real(name: str, value: object) -> float:
     return v
 
 
+def _theta0(value: object) -> float:
+    v = _real("theta0", value)
+    if not 0.0 < v < 180.0:
+        raise ValueError(f"theta0: expected 0 < theta0 < 180 degrees, got {v}")
+    return v
+
+
+def _scales(value: object) -> list:
+    if isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_)):
+        value = (value,)
+    try:
+        out = [_int("scales", s, 1) for s in value]  # type: ignore[union-attr]
+    except TypeError:
+        raise ValueError(f"scales: expected integers >= 1, got {value!r}") from None
+    if not out:
+        raise ValueError("scales: must contain at least one scale")
+    return out
+
+
+def _min_step(value: object) -> Optional[float]:
+    if value is None:
+        return None
+    v = _real("min_step", value)
+    if v < 0:
+        raise ValueError(f"min_step: expected a length >= 0 or None, got {v}")
+    return v
+
+
 def _threads(num_threads: Optional[int]) -> int:
     return 0 if num_threads is None else _int("num_threads", num_threads, 1)
 
@@ -559,26 +587,12 @@ def detect(
             raise ValueError(f"theta0: expected degrees or 'auto', got {theta0!r}")
         theta0_v = 75.0
     else:
-        theta0_v = _real("theta0", theta0)
-        if not 0.0 < theta0_v < 180.0:
-            raise ValueError(f"theta0: expected 0 < theta0 < 180 degrees, got {theta0_v}")
-    scales = cfg["scales"]
-    if isinstance(scales, numbers.Integral) and not isinstance(scales, (bool, np.bool_)):
-        scales = (scales,)
-    try:
-        scale_list = [_int("scales", s, 1) for s in scales]
-    except TypeError:
-        raise ValueError(f"scales: expected integers >= 1, got {scales!r}") from None
-    if not scale_list:
-        raise ValueError("scales: must contain at least one scale")
+        theta0_v = _theta0(theta0)
+    scale_list = _scales(cfg["scales"])
     gap = _int("max_gap", cfg["max_gap"], 0)
     min_step = cfg["min_step"]
-    if min_step is None:
-        step_v = -1.0
-    else:
-        step_v = _real("min_step", min_step)
-        if step_v < 0:
-            raise ValueError(f"min_step: expected a length >= 0 or None, got {step_v}")
+    step = _min_step(min_step)
+    step_v = -1.0 if step is None else step
     min_directions = cfg["min_directions"]
     md = 0 if min_directions is None else _int("min_directions", min_directions, 1)
     if md > 4:

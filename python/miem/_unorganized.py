@@ -14,7 +14,17 @@ from typing import Literal, Optional, Union
 import numpy as np
 
 from . import _core
-from ._api import Defect, DetectResult, Plane, _as_float_array, _int, _real
+from ._api import (
+    Defect,
+    DetectResult,
+    Plane,
+    _as_float_array,
+    _int,
+    _min_step,
+    _real,
+    _scales,
+    _theta0,
+)
 
 __all__ = [
     "NeighborGrid",
@@ -379,24 +389,9 @@ def detect_points(
     arr = _points(points)
     if arr.shape[0] < 3:
         raise ValueError(f"points: need at least 3 points, got {arr.shape[0]}")
-    theta0_v = _real("theta0", theta0)
-    if not 0.0 < theta0_v < 180.0:
-        raise ValueError(f"theta0: expected 0 < theta0 < 180 degrees, got {theta0_v}")
-    if isinstance(scales, (numbers.Integral, np.integer)) and not isinstance(
-        scales, (bool, np.bool_)
-    ):
-        scales = (scales,)
-    try:
-        scale_list = [_int("scales", s, 1) for s in scales]  # type: ignore[union-attr]
-    except TypeError:
-        raise ValueError(f"scales: expected integers >= 1, got {scales!r}") from None
-    if not scale_list:
-        raise ValueError("scales: must contain at least one scale")
-    step_v: Optional[float] = None
-    if min_step is not None:
-        step_v = _real("min_step", min_step)
-        if step_v < 0:
-            raise ValueError(f"min_step: expected a length >= 0 or None, got {step_v}")
+    theta0_v = _theta0(theta0)
+    scale_list = _scales(scales)
+    step_v = _min_step(min_step)
     k = _int("K", K, 2)
     if k > _MAX_K:
         raise ValueError(f"K: expected 2..{_MAX_K} directions (flags are 8-bit), got {k}")

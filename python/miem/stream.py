@@ -7,14 +7,13 @@ nothing per profile.
 
 from __future__ import annotations
 
-import numbers
 from typing import List, NamedTuple, Optional, Sequence, Union
 
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike
 
 from . import _core
-from ._api import _int, _real
+from ._api import _int, _min_step, _scales, _theta0
 
 __all__ = ["ProfileStream", "StreamRow"]
 
@@ -94,24 +93,11 @@ class ProfileStream:
         dtype: DTypeLike = np.float64,
     ) -> None:
         w = _int("width", width, 1)
-        theta0_v = _real("theta0", theta0)
-        if not 0.0 < theta0_v < 180.0:
-            raise ValueError(f"theta0: expected 0 < theta0 < 180 degrees, got {theta0_v}")
-        if isinstance(scales, numbers.Integral) and not isinstance(scales, (bool, np.bool_)):
-            scales = (scales,)
-        try:
-            scale_list = [_int("scales", s, 1) for s in scales]  # type: ignore[union-attr]
-        except TypeError:
-            raise ValueError(f"scales: expected integers >= 1, got {scales!r}") from None
-        if not scale_list:
-            raise ValueError("scales: must contain at least one scale")
+        theta0_v = _theta0(theta0)
+        scale_list = _scales(scales)
         gap = _int("max_gap", max_gap, 0)
-        if min_step is None:
-            step_v = -1.0
-        else:
-            step_v = _real("min_step", min_step)
-            if step_v < 0:
-                raise ValueError(f"min_step: expected a length >= 0 or None, got {step_v}")
+        step = _min_step(min_step)
+        step_v = -1.0 if step is None else step
         md = 0 if min_directions is None else _int("min_directions", min_directions, 1, 4)
         iters = _int("max_iterations", max_iterations, 1, 254)
         reach = _int("max_reach", max_reach, 1)
