@@ -166,15 +166,7 @@ def _miem_grid() -> list[dict]:
     return out
 
 
-PAPER = {
-    "theta0": 75.0,
-    "scales": (1,),
-    "max_gap": 1,
-    "min_step": None,
-    "min_directions": None,
-    "max_iterations": 10,
-    "window": 21,
-}
+PAPER = dict(miem.PRESETS["paper"])  # the paper's method, as the core defines it
 
 
 # --------------------------------------------------------------------------------------------
