@@ -24,10 +24,12 @@ import os
 import platform
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import best_of  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 OUT = HERE / "results_unorganized.md"
@@ -50,15 +52,6 @@ def scan_cloud(n: int = DEFAULT_N, seed: int = 1) -> np.ndarray:
     pts[:, :2] += rng.uniform(-0.075, 0.075, (len(pts), 2))
     pts = pts[rng.permutation(len(pts))]
     return np.ascontiguousarray(pts[np.isfinite(pts).all(axis=1)])
-
-
-def best_of(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
 
 
 def _o3d():

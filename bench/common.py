@@ -2,7 +2,32 @@
 
 from __future__ import annotations
 
+import platform
+import time
+from pathlib import Path
+
 import numpy as np
+
+
+def best_of(fn, repeats: int) -> float:
+    """Smallest wall time of `repeats` calls of fn(), seconds."""
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return min(times)
+
+
+def cpu_name() -> str:
+    """The CPU model from /proc/cpuinfo (or platform's guess)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
 
 
 def scan_grid(h: int, w: int, seed: int = 0, n_defects: int = 200) -> np.ndarray:

@@ -16,7 +16,6 @@ import platform
 import re
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -28,26 +27,7 @@ sys.path.insert(0, str(HERE))
 import miem  # noqa: E402
 from miem import reference as ref  # noqa: E402
 
-from common import plane_points, scan_grid  # noqa: E402
-
-
-def best_of(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
-
-
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
+from common import best_of, cpu_name, plane_points, scan_grid  # noqa: E402
 
 
 def bench_fit(n: int, repeats: int) -> list[dict]:
