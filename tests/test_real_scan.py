@@ -21,7 +21,7 @@ DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "secon
 @pytest.fixture(scope="module")
 def scan() -> tuple[np.ndarray, np.ndarray]:
     if not DATA.exists():
-        pytest.fail(f"missing shared data file {DATA}")
+        pytest.skip(f"shared data not beside the repository: {DATA} (a user's clone has none)")
     pts = pypcd4.PointCloud.from_path(DATA).numpy(("x", "y", "z")).astype(np.float64)
     # profiles: runs of equal y in file order
     line = np.concatenate([[0], np.cumsum(np.diff(pts[:, 1]) != 0)])

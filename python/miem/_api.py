@@ -186,12 +186,35 @@ class DetectResult:
 # argument checks
 
 
+def _xyz_fields(arr: np.ndarray, name: str) -> np.ndarray:
+    """A structured array with x, y, z fields (``miem simulate``, plyfile's ``vertex.data``,
+    NumPy record arrays) as a ``(..., 3)`` array of the widest of the three field types."""
+    names = {n.lower(): n for n in arr.dtype.names or ()}
+    if not {"x", "y", "z"} <= names.keys():
+        raise ValueError(
+            f"{name}: a structured array needs fields x, y and z, got fields "
+            f"{list(arr.dtype.names)}"
+        )
+    cols = [arr[names[c]] for c in "xyz"]
+    for col in cols:
+        if col.dtype.kind not in "iuf" or col.dtype.shape:
+            raise ValueError(
+                f"{name}: field {col.dtype!s} of x, y, z must be a real number, got {col.dtype}"
+            )
+    return np.stack(cols, axis=-1).astype(np.result_type(*cols, np.float32), copy=False)
+
+
 def _as_float_array(a: object, name: str) -> np.ndarray:
-    """A float32/float64 native-order array view of `a` (copied only when it must be)."""
+    """A float32/float64 native-order array view of `a` (copied only when it must be).
+
+    A structured array with fields x, y, z is accepted wherever an ``(..., 3)`` array is.
+    """
     try:
         arr = np.asarray(a)
     except Exception as exc:  # pragma: no cover - numpy raises many kinds here
         raise ValueError(f"{name}: cannot be converted to an array ({exc})") from None
+    if arr.dtype.names is not None:
+        arr = _xyz_fields(arr, name)
     kind = arr.dtype.kind
     if kind in "iu" or (kind == "f" and arr.dtype.itemsize not in (4, 8)):
         arr = arr.astype(np.float64)

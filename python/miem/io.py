@@ -149,7 +149,8 @@ def _require(module: str, what: str, extra: str | None = "io", pip_name: str = "
     try:
         return importlib.import_module(module)
     except ImportError as exc:
-        hint = f'pip install "miem[{extra}]"' if extra else f"pip install {pip_name or module}"
+        hint = (f'pip install "miem[{extra}]" (from a source checkout: pip install ".[{extra}]")'
+                if extra else f"pip install {pip_name or module}")
         raise MissingDependencyError(
             f"{what} needs the optional package {pip_name or module!r}, which is not installed: "
             f"{hint}"
@@ -195,6 +196,10 @@ def _check_format(fmt: str) -> str:
 
 def _as_points(points: Any, name: str = "points") -> np.ndarray:
     arr = np.asarray(points)
+    if arr.dtype.names is not None:
+        from ._api import _xyz_fields
+
+        arr = _xyz_fields(arr, name)
     if arr.dtype.kind in "iub":
         arr = arr.astype(np.float64)
     elif arr.dtype.kind != "f":
@@ -327,11 +332,11 @@ def read(path: PathLike, format: str | None = None) -> ScanData:
         The format's library is not installed (an ``ImportError`` naming the pip extra).
     """
     p = Path(path)
-    fmt = format_from_path(p) if format is None else _check_format(format)
     if not p.exists():
         raise FileNotFoundError(f"{p}: no such file")
     if p.is_dir():
-        raise ScanFileError(p, "is a directory, not a scan file")
+        raise ScanFileError(p, "is a directory, not a scan file (name the files in it)")
+    fmt = format_from_path(p) if format is None else _check_format(format)
     if p.stat().st_size == 0:
         raise ScanFileError(p, "the file is empty")
     if fmt == "csv" and _is_gocator(p):
@@ -825,8 +830,10 @@ def write(
             raise ValueError(f"encoding: PLY accepts 'binary' or 'ascii', got {enc!r}")
     writer = _WRITERS[fmt]
     # Import the format's library before creating any file.
-    if fmt in ("pcd", "ply", "las", "laz"):
-        _require({"pcd": "pypcd4", "ply": "plyfile", "las": "laspy", "laz": "laspy"}[fmt],
+    if fmt == "pcd" and enc == "binary_compressed":
+        _require("pypcd4", "writing binary_compressed PCD files")
+    elif fmt in ("ply", "las", "laz"):
+        _require({"ply": "plyfile", "las": "laspy", "laz": "laspy"}[fmt],
                  f"writing {fmt.upper()} files")
         if fmt == "laz":
             _require("lazrs", "writing LAZ files")
@@ -839,23 +846,51 @@ def _flat(pts: np.ndarray, flds: dict) -> tuple[np.ndarray, dict]:
     return pts.reshape(-1, 3), {k: v.reshape(-1) for k, v in flds.items()}
 
 
-def _write_pcd(tmp: Path, pts: np.ndarray, flds: dict, enc: str) -> None:
-    from pypcd4 import Encoding, PointCloud
-
+def _pcd_columns(pts: np.ndarray, flds: dict) -> tuple[list[str], list[np.ndarray]]:
     flat, fflat = _flat(pts, flds)
     names = ["x", "y", "z"] + list(fflat)
     arrays = [flat[:, 0], flat[:, 1], flat[:, 2]] + list(fflat.values())
     types = [a.dtype for a in arrays]
     if any(t.kind not in "iuf" or t.itemsize not in (1, 2, 4, 8) for t in types):
         raise ValueError("fields: PCD stores 1, 2, 4 or 8 byte numbers only")
-    types = [np.dtype(np.float32) if t == np.float16 else t for t in types]
-    arrays = [np.ascontiguousarray(a, dtype=t) for a, t in zip(arrays, types)]
-    pc = PointCloud.from_points(arrays, names, types)
-    if pts.ndim == 3:
-        h, w = pts.shape[:2]
+    types = [np.dtype(np.float32) if t == np.float16 else t.newbyteorder("<") for t in types]
+    return names, [np.ascontiguousarray(a, dtype=t) for a, t in zip(arrays, types)]
+
+
+def _write_pcd(tmp: Path, pts: np.ndarray, flds: dict, enc: str) -> None:
+    """PCD v0.7. ascii and binary are written here (no extra needed); binary_compressed (LZF)
+    through pypcd4."""
+    names, arrays = _pcd_columns(pts, flds)
+    h, w = (pts.shape[0], pts.shape[1]) if pts.ndim == 3 else (1, arrays[0].shape[0])
+    if enc == "binary_compressed":
+        from pypcd4 import Encoding, PointCloud
+
+        pc = PointCloud.from_points(arrays, names, [a.dtype for a in arrays])
         pc.metadata.width, pc.metadata.height = w, h
+        with open(tmp, "wb") as fh:
+            pc.save(fh, encoding=Encoding(enc))
+        return
+    header = (
+        "# .PCD v0.7 - Point Cloud Data file format (written by miem)\n"
+        "VERSION 0.7\n"
+        f"FIELDS {' '.join(names)}\n"
+        f"SIZE {' '.join(str(a.dtype.itemsize) for a in arrays)}\n"
+        f"TYPE {' '.join({'f': 'F', 'i': 'I', 'u': 'U'}[a.dtype.kind] for a in arrays)}\n"
+        f"COUNT {' '.join('1' for _ in arrays)}\n"
+        f"WIDTH {w}\nHEIGHT {h}\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {w * h}\nDATA {enc}\n"
+    )
     with open(tmp, "wb") as fh:
-        pc.save(fh, encoding=Encoding(enc))
+        fh.write(header.encode("ascii"))
+        if enc == "binary":
+            rec = np.empty(w * h, dtype=[(f"f{i}", a.dtype) for i, a in enumerate(arrays)])
+            for i, a in enumerate(arrays):
+                rec[f"f{i}"] = a
+            fh.write(rec.tobytes())
+        else:
+            cols = [np.char.mod(_text_fmt(a), a) for a in arrays]
+            for start in range(0, w * h, 65536):
+                block = [c[start:start + 65536] for c in cols]
+                fh.write(("\n".join(" ".join(r) for r in zip(*block)) + "\n").encode("ascii"))
 
 
 def _write_ply(tmp: Path, pts: np.ndarray, flds: dict, enc: str) -> None:

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, DTypeLike
 
 from . import _core
-from ._api import _int, _min_step, _scales, _theta0
+from ._api import _int, _min_step, _scales, _theta0, _xyz_fields
 
 __all__ = ["ProfileStream", "StreamRow"]
 
@@ -165,6 +165,8 @@ class ProfileStream:
             profile leaves the stream unchanged.
         """
         arr = np.asarray(profile)
+        if arr.dtype.names is not None:
+            arr = _xyz_fields(arr, "profile")
         if arr.dtype.kind not in "fiu":
             raise ValueError(f"profile: expected a real numeric array, got dtype {arr.dtype}")
         if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] != self.width:
