@@ -54,6 +54,37 @@ class _Failure(Exception):
     """One input could not be processed; the message is printed, the batch goes on."""
 
 
+# miem.io's keyword arguments -> the options that set them: the library's messages name its
+# keywords ("pass step="), the command line's must name its flags ("use --line-step").
+_IO_FLAGS = {
+    "format": "--input-format", "step": "--line-step", "line_tol": "--line-tol",
+    "line_axis": "--line-axis", "along_axis": "--along-axis", "duplicates": "--duplicates",
+}
+_NAMES = "|".join(_IO_FLAGS)
+_KEYWORD = re.compile(r"(?<![-\w])(%s)=(?:'([^']*)'((?: or '[^']*')*)|([^\s,;()]+))?" % _NAMES)
+_ADVICE = re.compile(r"\b(check|pass) ((?:%s)(?:(?:,| and| or) (?:%s))*)\b" % (_NAMES, _NAMES))
+
+
+def _cli_words(message: str) -> str:
+    """`message` with miem.io keywords (``step=``, ``duplicates='first' or 'last'``, "check
+    step and along_axis") replaced by the options that set them (``--line-step``,
+    ``--duplicates first or last``, "check --line-step and --along-axis")."""
+
+    def keyword(m: re.Match) -> str:
+        flag = _IO_FLAGS[m.group(1)]
+        if m.group(2) is not None:  # a quoted choice, maybe followed by "or 'other'"
+            return f"{flag} {m.group(2)}{m.group(3).replace(chr(39), '')}"
+        return flag + (f" {m.group(4)}" if m.group(4) else "")
+
+    def advice(m: re.Match) -> str:
+        names = re.sub(r"\b(%s)\b" % _NAMES, lambda k: _IO_FLAGS[k.group(1)], m.group(2))
+        return f"{'use' if m.group(1) == 'pass' else 'check'} {names}"
+
+    out = _KEYWORD.sub(keyword, message)
+    out = _ADVICE.sub(advice, out)
+    return re.sub(r"\bpass (--[\w-]+)", r"use \1", out)
+
+
 def _presets() -> tuple[dict[str, dict[str, Any]], str]:
     from . import DEFAULT_PRESET, PRESETS
 
@@ -379,7 +410,7 @@ def _load(path: Path, args: argparse.Namespace) -> _Loaded:
     try:
         data = mio.read(path, format=args.input_format)
     except (OSError, ValueError, ImportError) as exc:
-        raise _Failure(str(exc)) from exc
+        raise _Failure(_cli_words(str(exc))) from exc
     if data.organized:
         return _Loaded(data, data.points, None)
     try:
@@ -391,7 +422,8 @@ def _load(path: Path, args: argparse.Namespace) -> _Loaded:
     except ValueError as exc:
         raise _Failure(
             f"{path}: the file is unorganized ({data.points.shape[0]:,} points) and no grid "
-            f"could be rebuilt from its scan lines: {exc}. miem needs an organized scan "
+            f"could be rebuilt from its scan lines: {_cli_words(str(exc))}. miem needs an "
+            "organized scan "
             "(rows = profiles); see --line-step, --line-axis, --along-axis, --line-tol"
         ) from exc
     return _Loaded(data, grid, index)
@@ -787,18 +819,25 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     kwargs = _kwargs_or_exit(args)
     if kwargs is None:
         return 2
+    progress = _Progress(3, enabled=True)
     try:
+        progress.show(0, f"reading {path.name}")
         loaded = _load(path, args)
+        progress.show(1, f"detecting on {loaded.grid.shape[0]}x{loaded.grid.shape[1]}")
         result = _detect(loaded, kwargs, path)
+        progress.show(2, f"drawing {out.name}")
         plot_scan(loaded.grid, result, out, title=args.title or path.name, units=args.units,
                   view=args.view, max_labels=args.max_labels, size=tuple(args.size),
                   dpi=args.dpi)
     except _Failure as exc:
+        progress.close()
         print(f"miem: error: {exc}", file=sys.stderr)
         return 1
     except (OSError, ValueError, ImportError) as exc:
+        progress.close()
         print(f"miem: error: {path}: {exc}", file=sys.stderr)
         return 1
+    progress.close()
     print(f"wrote {out} ({args.size[0] * args.dpi:.0f} x {args.size[1] * args.dpi:.0f} px): "
           f"{len(result.defects):,} defects, {result.counts()['ABNORMAL']:,} ABNORMAL points")
     return 0
