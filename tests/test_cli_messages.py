@@ -57,3 +57,48 @@ def test_keyword_translation(text, want):
     from miem.cli import _cli_words
 
     assert _cli_words(text) == want
+
+
+def _grid_file(tmp_path, scale: float, name: str):
+    import miem.io as mio
+    from miem import simulate as sim
+
+    scan = sim.make_scan(shape=(40, 60), step=0.5, defects={"spike": 2}, seed=4)
+    f = tmp_path / name
+    mio.write(f, scan.points * scale)
+    return f
+
+
+def test_units_are_guessed_per_scan_and_reported(tmp_path, capsys):
+    import json
+
+    mm = _grid_file(tmp_path, 1.0, "part_mm.npy")      # 0.5 mm steps, 30 mm wide
+    m = _grid_file(tmp_path, 1e-3, "part_m.npy")       # the same part in metres
+    code = main(["detect", str(mm), str(m), "-o", str(tmp_path / "out")])
+    out = capsys.readouterr().out
+    assert code == 0
+    rows = {line.split()[0]: line for line in out.splitlines() if line.startswith("part_")}
+    assert rows["part_mm.npy"].split()[7] == "mm" and rows["part_m.npy"].split()[7] == "m"
+    doc = json.loads((tmp_path / "out" / "part_m.defects.json").read_text())
+    assert doc["units"] == "m"
+
+
+def test_unit_mismatch_and_absurd_lengths_are_warned_about(tmp_path, capsys):
+    m = _grid_file(tmp_path, 1e-3, "part_m.npy")
+    code = main(["detect", str(m), "--units", "mm", "--min-step", "0.5", "-o",
+                 str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 0
+    assert "looks like m, not the --units mm given" in err
+    assert "--min-step=0.5 is larger than the scan itself" in err
+
+
+def test_guess_units_on_clouds():
+    from miem.units import guess_units
+
+    rng = np.random.default_rng(1)
+    room = np.c_[rng.uniform(0, 4, 30000), rng.uniform(0, 3, 30000), np.zeros(30000)]  # metres
+    g = guess_units(room)
+    assert g.unit == "m" and 3.8 < g.extent < 4.0
+    assert guess_units(room * 1000).unit == "mm"
+    assert guess_units(np.full((5, 3), np.nan)).unit == "mm"  # nothing to go by: the default

@@ -224,8 +224,10 @@ def _add_detect_options(parser: argparse.ArgumentParser) -> None:
 
 
 def _add_common(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--units", default="mm", metavar="NAME",
-                        help="name of the scan's length unit, for printing only (default: mm)")
+    parser.add_argument("--units", default=None, metavar="NAME",
+                        help="the scan's length unit, for reports and plots (default: m or mm, "
+                             "guessed per scan from its extent and point spacing; a mismatch "
+                             "with a given unit is warned about)")
 
 
 def _build_parser() -> argparse.ArgumentParser:
@@ -400,10 +402,37 @@ def _kwargs_or_exit(args: argparse.Namespace) -> dict[str, Any] | None:
 class _Loaded:
     """A scan ready for detection: the grid, and how to map cells back to the file's points."""
 
-    def __init__(self, data: mio.ScanData, grid: np.ndarray, index: np.ndarray | None) -> None:
+    def __init__(self, data: mio.ScanData, grid: np.ndarray, index: np.ndarray | None,
+                 units: str = "mm") -> None:
         self.data = data
         self.grid = grid
         self.index = index  # input point -> flat cell (-1: not in the grid); None if organized
+        self.units = units  # the scan's length unit, for reports and plots
+
+
+# Options that are lengths in the scan's unit (checked against the scan's size).
+_LENGTH_OPTIONS = ("min_step", "height_tolerance", "line_step", "line_tol", "radius", "link")
+
+
+def _units(path: Path, grid: np.ndarray, args: argparse.Namespace) -> str:
+    """The scan's unit (given, or guessed), warning when the scan and the options disagree."""
+    from .units import guess_units, length_warning
+
+    try:
+        guess = guess_units(grid)
+    except ValueError:
+        return args.units or "mm"
+    if args.units is not None and args.units.lower() in ("m", "mm") and \
+            args.units.lower() != guess.unit:
+        print(f"miem: warning: {path.name} {guess.reason}: that looks like {guess.unit}, "
+              f"not the --units {args.units} given", file=sys.stderr)
+    for name in _LENGTH_OPTIONS:
+        value = getattr(args, name, None)
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            text = length_warning(f"--{name.replace('_', '-')}", float(value), guess)
+            if text:
+                print(f"miem: warning: {path.name}: {text}", file=sys.stderr)
+    return args.units or guess.unit
 
 
 def _load(path: Path, args: argparse.Namespace) -> _Loaded:
@@ -412,7 +441,7 @@ def _load(path: Path, args: argparse.Namespace) -> _Loaded:
     except (OSError, ValueError, ImportError) as exc:
         raise _Failure(_cli_words(str(exc))) from exc
     if data.organized:
-        return _Loaded(data, data.points, None)
+        return _Loaded(data, data.points, None, _units(path, data.points, args))
     try:
         grid, index = mio.grid_from_scanlines(
             data.points, step=args.line_step, line_axis=_AXES[args.line_axis],
@@ -426,7 +455,7 @@ def _load(path: Path, args: argparse.Namespace) -> _Loaded:
             "organized scan "
             "(rows = profiles); see --line-step, --line-axis, --along-axis, --line-tol"
         ) from exc
-    return _Loaded(data, grid, index)
+    return _Loaded(data, grid, index, _units(path, grid, args))
 
 
 def _detect(loaded: _Loaded, kwargs: dict[str, Any], path: Path) -> Any:
@@ -538,6 +567,7 @@ def _write_reports(stem: Path, path: Path, loaded: _Loaded, result: Any, cloud: 
     doc = {
         "miem_version": __version__,
         "scan": str(path),
+        "units": loaded.units,
         "format": loaded.data.format,
         "points": int(np.prod(loaded.data.points.shape[:-1])),
         "organized": bool(loaded.data.organized),
@@ -666,19 +696,19 @@ def _cmd_detect(args: argparse.Namespace) -> int:
         summary.append((name, int(np.prod(loaded.data.points.shape[:-1])),
                         "x".join(str(n) for n in loaded.grid.shape[:2]), counts["ABNORMAL"],
                         counts["EDGE"], len(result.defects), max(peaks) if peaks else math.nan,
-                        t_detect, seconds))
+                        t_detect, seconds, loaded.units))
     progress.close()
     if not args.quiet and summary:
-        _print_summary(summary, args.units, out_dir, scans, failed)
+        _print_summary(summary, out_dir, scans, failed)
     return 1 if failed else 0
 
 
-def _print_summary(rows: list[tuple], units: str, out_dir: Path, scans: list[Path],
-                   failed: int) -> None:
-    head = ("scan", "points", "grid", "abnormal", "edge", "defects", f"max |peak| ({units})",
+def _print_summary(rows: list[tuple], out_dir: Path, scans: list[Path], failed: int) -> None:
+    head = ("scan", "points", "grid", "abnormal", "edge", "defects", "max |peak|",
             "detect s", "total s")
     body = [(r[0], f"{r[1]:,}", r[2], f"{r[3]:,}", f"{r[4]:,}", f"{r[5]:,}",
-             "-" if not math.isfinite(r[6]) else f"{r[6]:.3f}", f"{r[7]:.2f}", f"{r[8]:.2f}")
+             "-" if not math.isfinite(r[6]) else f"{r[6]:.3f} {r[9]}", f"{r[7]:.2f}",
+             f"{r[8]:.2f}")
             for r in rows]
     widths = [max(len(h), *(len(b[j]) for b in body)) for j, h in enumerate(head)]
     left = {0}
@@ -732,7 +762,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         print("plane n . p + d = 0, |n| = 1, n_z > 0; rms = RMS orthogonal distance; tilt = "
               "angle to the MIEM normal")
         ref = result.plane
-        d_col, rms_col = f"d ({args.units})", f"rms ({args.units})"
+        d_col, rms_col = f"d ({loaded.units})", f"rms ({loaded.units})"
         hdr = (f"{'method':14s} {'n_x':>11s} {'n_y':>11s} {'n_z':>11s} {d_col:>13s} "
                f"{rms_col:>13s} {'points':>10s} {'tilt (deg)':>11s}")
         print(hdr)
@@ -826,7 +856,7 @@ def _cmd_plot(args: argparse.Namespace) -> int:
         progress.show(1, f"detecting on {loaded.grid.shape[0]}x{loaded.grid.shape[1]}")
         result = _detect(loaded, kwargs, path)
         progress.show(2, f"drawing {out.name}")
-        plot_scan(loaded.grid, result, out, title=args.title or path.name, units=args.units,
+        plot_scan(loaded.grid, result, out, title=args.title or path.name, units=loaded.units,
                   view=args.view, max_labels=args.max_labels, size=tuple(args.size),
                   dpi=args.dpi)
     except _Failure as exc:
