@@ -27,6 +27,7 @@ from ._api import (
 )
 from ._core import __version__
 from .stream import ProfileStream, StreamRow
+from .targets import Target, TargetPlan, Tool, plan_targets, read_transform
 from ._unorganized import (
     NeighborGrid,
     Normals,
@@ -52,12 +53,17 @@ __all__ = [
     "Plane",
     "ProfileStream",
     "StreamRow",
+    "Target",
+    "TargetPlan",
+    "Tool",
     "__version__",
     "detect",
     "detect_points",
     "estimate_normals",
     "fit_plane",
+    "plan_targets",
     "point_spacing",
+    "read_transform",
     "scan_line_angles",
     "scan_line_heights",
 ]

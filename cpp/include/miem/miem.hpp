@@ -7,6 +7,7 @@
 #include "miem/plane.hpp"
 #include "miem/scan_line.hpp"
 #include "miem/stream.hpp"
+#include "miem/targets.hpp"
 #include "miem/unorganized.hpp"
 #include "miem/views.hpp"
 

@@ -130,4 +130,6 @@ PYBIND11_MODULE(_core, m) {
   bind_unorganized(m);
   void bind_stream(py::module_ & m);  // python/miem/_bindings/stream.cpp
   bind_stream(m);
+  void bind_targets(py::module_ & m);  // python/miem/_bindings/targets.cpp
+  bind_targets(m);
 }
