@@ -152,7 +152,7 @@ def parse_csv(text: str) -> Tuple[Dict[str, str], List[Dict[str, Any]]]:
 # ROS
 
 
-def to_pose_array(plan: TargetPlan, frame_id: Optional[str] = None, path: bool = False,
+def to_pose_array(plan: TargetPlan, frame_id: Optional[str] = None, with_approach: bool = False,
                   stamp: Tuple[int, int] = (0, 0)) -> Dict[str, Any]:
     """A ``geometry_msgs/PoseArray`` message dict, positions in metres (REP 103).
 
@@ -160,7 +160,7 @@ def to_pose_array(plan: TargetPlan, frame_id: Optional[str] = None, path: bool =
     ----------
     frame_id : str, optional
         ``header.frame_id`` (default: the plan's frame name).
-    path : bool
+    with_approach : bool
         False: one pose per target. True: approach, target, retract poses per target (the
         tool path, all with the target's orientation).
     stamp : (int, int)
@@ -175,7 +175,7 @@ def to_pose_array(plan: TargetPlan, frame_id: Optional[str] = None, path: bool =
 
     poses = []
     for t in plan.targets:
-        pts = [t.approach_point, t.position, t.retract_point] if path else [t.position]
+        pts = [t.approach_point, t.position, t.retract_point] if with_approach else [t.position]
         poses.extend(pose(p, t.quaternion) for p in pts)
     return {"header": {"stamp": {"sec": int(stamp[0]), "nanosec": int(stamp[1])},
                        "frame_id": frame_id or plan.frame},
