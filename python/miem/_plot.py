@@ -85,6 +85,7 @@ def plot_scan(
     size: tuple[float, float] = (16.0, 6.0),
     dpi: int = 100,
     seed: int = 0,
+    plan: Any = None,
 ) -> Path:
     """Draw a labelled scan and save it as a PNG.
 
@@ -115,6 +116,9 @@ def plot_scan(
         Pixels per inch: the PNG is ``size * dpi`` pixels.
     seed : int
         Seed of the random subset of NORMAL points drawn in the 3-D view of a large scan.
+    plan : miem.TargetPlan, optional
+        Grinding targets of this scan (:func:`miem.plan_targets`): drawn on the height map,
+        numbered in path order, with the path between them.
 
     Returns
     -------
@@ -259,6 +263,8 @@ def plot_scan(
     circle_defects(ax2, "red")
     top_axes(ax2)
     ax2.set_title("height map", fontsize=10)
+    if plan is not None:
+        _draw_plan(ax2, plan, ring)
     cb = fig.colorbar(sc, ax=ax2, shrink=0.85, pad=0.02)
     cb.set_label(f"z ({units})", fontsize=8)
     cb.ax.tick_params(labelsize=7)
@@ -301,3 +307,19 @@ def plot_scan(
     with _atomic(out) as tmp:
         fig.savefig(tmp, format="png", dpi=dpi)
     return out
+
+
+def _draw_plan(axis: Any, plan: Any, ring: float) -> None:
+    """Targets (numbered in path order) and the path between them, in scan x-y."""
+    xy = np.array([t.point_scan[:2] for t in plan.targets], dtype=np.float64).reshape(-1, 2)
+    if xy.shape[0] == 0:
+        return
+    axis.plot(xy[:, 0], xy[:, 1], "-", color="white", lw=2.4, zorder=6)
+    axis.plot(xy[:, 0], xy[:, 1], "-", color="#d62728", lw=1.2, zorder=7)
+    axis.scatter(xy[:, 0], xy[:, 1], s=36, marker="v", c="#ff7f0e", edgecolors="black",
+                 linewidths=0.6, zorder=8)
+    for k, (x, y) in enumerate(xy[:50]):
+        axis.text(x, y - 0.9 * ring, f"T{k + 1}", color="black", fontsize=7, ha="center",
+                  va="top", zorder=9, bbox=_LABEL_BOX)
+    axis.set_title(f"height map, {xy.shape[0]} targets, path {plan.path_length:.1f} "
+                   f"{plan.units}", fontsize=10)

@@ -1,4 +1,4 @@
-"""The ``miem`` command line: detect, fit, simulate, plot.
+"""The ``miem`` command line: detect, fit, simulate, plot, plan.
 
 ``miem detect SCAN...`` labels scans and writes, per scan, the labelled cloud and a defect report
 (JSON and CSV) for the grinding robot, and prints a summary table. ``miem fit`` compares the
@@ -363,6 +363,11 @@ def _build_parser() -> argparse.ArgumentParser:
     _add_common(p)
     _add_detect_options(p)
     p.set_defaults(func=_cmd_plot)
+
+    # plan (python/miem/_cli_plan.py)
+    from ._cli_plan import add_parser as add_plan_parser
+
+    add_plan_parser(sub)
     return parser
 
 
