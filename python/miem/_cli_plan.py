@@ -111,12 +111,12 @@ def _cmd_plan(args: argparse.Namespace) -> int:
                             min_height=args.min_height, min_area=args.min_area,
                             min_count=args.min_count, roi=roi,
                             edge_clearance=args.edge_clearance, start=args.start,
-                            units=args.units, frame=args.frame)
+                            units=loaded.units, frame=args.frame)
         written = rf.write(plan, out, format=args.format)
         if args.plot:
             from ._plot import plot_scan
 
-            plot_scan(loaded.grid, result, args.plot, title=path.name, units=args.units,
+            plot_scan(loaded.grid, result, args.plot, title=path.name, units=loaded.units,
                       view="top", plan=plan)
             written.append(Path(args.plot))
     except cli._Failure as exc:
