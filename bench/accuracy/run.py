@@ -30,7 +30,7 @@ sys.path.insert(0, str(HERE))
 import miem
 from contenders import CONTENDERS, PAPER, miem_supports
 from score import Counts, confusion, kind_counts
-from suite import KINDS, TALL_KINDS, Scene, scenes
+from suite import EDGE_KINDS, KINDS, TALL_KINDS, Scene, scenes
 from tune import EDGE_FA_MAX, NORMAL_FA_MAX, best, evaluate, tune_miem
 
 ROOT = HERE.parents[1]
@@ -177,7 +177,7 @@ def headline(result: dict, test_scenes: Sequence[Scene]) -> list[str]:
 
 
 def _groups() -> list[str]:
-    return [*KINDS, "paper", "real"]
+    return [*KINDS, *EDGE_KINDS, "paper", "real"]
 
 
 def group_f1_table(result: dict, test_scenes: Sequence[Scene]) -> list[str]:

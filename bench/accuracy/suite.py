@@ -38,12 +38,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from edge_scenes import EDGE_KINDS, make_edge_scene
 from miem import simulate as sim
 
 __all__ = [
     "DEFECT",
     "DROPOUT",
     "EDGE",
+    "EDGE_KINDS",
     "KINDS",
     "NORMAL",
     "REAL_DIR",
@@ -179,6 +181,8 @@ class Scene:
     kinds: np.ndarray
     step: float
     n_defects: int
+    region: np.ndarray | None = None
+    region_height: np.ndarray | None = None
 
     @property
     def name(self) -> str:
@@ -251,6 +255,13 @@ def specs(split: str, *, real: bool | None = None) -> list[SceneSpec]:
             for key, value in extra.items():
                 params[key] = round(_pick(rng, value), 3)
             out.append(SceneSpec(f"{split}-{kind}-{j}-{surface}", split, kind, "synthetic", params))
+    for i, kind in enumerate(EDGE_KINDS):
+        for j in range(per_kind):
+            seed = base + 300 + 10 * i + j
+            params = {"kind": kind, "seed": seed, "curved": bool((j + shift) % 2),
+                      "step": (0.05, 0.1, 0.2, 0.5)[(i + j + shift) % 4],
+                      "noise": (0.005, 0.01, 0.02)[(i + 2 * j + shift) % 3]}
+            out.append(SceneSpec(f"{split}-{kind}-{j}", split, kind, "edge", params))
     paper = {"step": 0.5, "noise": 0.03 if split == "test" else 0.05, "dropout": 0.01,
              "n_abnormal": 9, "n_on_edge": 3, "seed": base + 500}
     out.append(SceneSpec(f"{split}-paper", split, "paper", "paper", paper))
@@ -354,6 +365,11 @@ def build(spec: SceneSpec) -> Scene:
     """
     if spec.source == "real":
         return _real_scene(spec)
+    if spec.source == "edge":
+        e = make_edge_scene(**spec.params)
+        kinds = np.where(e.truth == DEFECT, spec.group, "")
+        return Scene(spec, e.points, e.truth, kinds, e.step, len(e.region_height), e.region,
+                     e.region_height)
     if spec.source == "paper":
         scan = sim.paper_scan(**spec.params)
         return Scene(spec, scan.points, scan.truth, scan.kinds, scan.step, len(scan.defects))

@@ -956,6 +956,127 @@ def _height_pass(
     return exists & (absh > value * rms) & (absh > floor)
 
 
+# --------------------------------------------------------------------------------------------
+# Edge-aware test (SPEC "Edge test"): one-sided sub-windows at feature lines and outlines
+# --------------------------------------------------------------------------------------------
+
+def _edge_sides(r: int) -> tuple[tuple[int, int, int, int], ...]:
+    """The 8 one-sided sub-windows of half-size ``r``: inclusive offsets
+    ``(row_lo, row_hi, col_lo, col_hi)`` from the cell; the cell's own row or column is never in
+    them. Halves left, right, up, down; quadrants up-left, up-right, down-left, down-right."""
+    return (
+        (-r, r, -r, -1), (-r, r, 1, r), (-r, -1, -r, r), (1, r, -r, r),
+        (-r, -1, -r, -1), (-r, -1, 1, r), (1, r, -r, -1), (1, r, 1, r),
+    )
+
+
+#: A sub-window is *clean* when its rms is at most this times the smallest rms of the cell's
+#: sub-windows (a sub-window straddling a feature line has a far larger rms).
+_EDGE_CLEAN_RATIO = 2.0
+
+
+def _edge_candidates(labels: NDArray[np.uint8], line: NDArray[np.bool_], window: int) -> NDArray[np.bool_]:
+    """NORMAL and EDGE cells with a feature-line EDGE cell or a dropout in their window."""
+    near = _box_count(line | (labels == INVALID), window) > 0
+    return near & ((labels == NORMAL) | (labels == EDGE))
+
+
+def _side_fits(
+    grid: NDArray[np.float64], support: NDArray[np.bool_], cells: NDArray[np.bool_], r: int
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """Height and rms of every cell of ``cells`` against the plane of the ``support`` cells of
+    each of its 8 sub-windows (SPEC "Edge test"), from integral images of the moments.
+
+    Returns ``h`` and ``rms`` of shape ``(8, N)`` and ``valid`` ``(8, N)`` for the ``N`` cells of
+    ``cells`` in row-major order.
+    """
+    hh, ww = support.shape
+    origin = grid[support].mean(axis=0) if support.any() else np.zeros(3)
+    p = np.where(support[..., None], grid - origin, 0.0)
+    terms = [support.astype(np.float64)] + [p[..., a] for a in range(3)]
+    terms += [p[..., a] * p[..., b] for a in range(3) for b in range(a, 3)]
+    s = np.zeros((hh + 1, ww + 1, 10))
+    s[1:, 1:] = np.cumsum(np.cumsum(np.stack(terms, axis=-1), axis=0), axis=1)
+    rr, cc = np.nonzero(cells)
+    pt = grid[rr, cc] - origin
+    n_min = max(3, (r * r) // 2)
+    hs = np.full((8, rr.size), np.nan)
+    rms = np.full((8, rr.size), np.nan)
+    valid = np.zeros((8, rr.size), dtype=bool)
+    for k, (a0, a1, b0, b1) in enumerate(_edge_sides(r)):
+        r0 = np.clip(rr + a0, 0, hh)
+        r1 = np.clip(rr + a1 + 1, 0, hh)
+        c0 = np.clip(cc + b0, 0, ww)
+        c1 = np.clip(cc + b1 + 1, 0, ww)
+        m = s[r1, c1] - s[r0, c1] - s[r1, c0] + s[r0, c0]
+        n = m[:, 0]
+        ok = n >= n_min
+        nn = np.maximum(n, 1.0)
+        cen = m[:, 1:4] / nn[:, None]
+        cov = np.empty((rr.size, 3, 3))
+        idx = 4
+        for a in range(3):
+            for b in range(a, 3):
+                cov[:, a, b] = cov[:, b, a] = m[:, idx] - nn * cen[:, a] * cen[:, b]
+                idx += 1
+        cov[~ok] = np.eye(3)
+        evals, evecs = np.linalg.eigh(cov)
+        ok &= (evals[:, 2] > 0.0) & ~(evals[:, 1] <= _EIGEN_RANK_TOL * evals[:, 2])
+        nrm = _orient(evecs[:, :, 0])
+        hs[k] = np.where(ok, _dot3(pt - cen, nrm), np.nan)
+        rms[k] = np.where(ok, np.sqrt(np.maximum(evals[:, 0], 0.0) / nn), np.nan)
+        valid[k] = ok
+    return hs, rms, valid
+
+
+def _edge_pass(
+    grid: NDArray[np.float64],
+    labels: NDArray[np.uint8],
+    candidates: NDArray[np.bool_],
+    window: int,
+    k: float,
+) -> NDArray[np.bool_]:
+    """One edge pass (SPEC "Edge test"): the candidate cells that become ABNORMAL."""
+    cells = candidates & ((labels == NORMAL) | (labels == EDGE))
+    out = np.zeros_like(cells)
+    if not cells.any():
+        return out
+    h, rms, valid = _side_fits(grid, labels == NORMAL, cells, window // 2)
+    best = np.min(np.where(valid, rms, np.inf), axis=0)
+    clean = valid & (rms <= _EDGE_CLEAN_RATIO * best)
+    fits = clean & ~(np.abs(h) > k * rms)
+    out[cells] = valid.any(axis=0) & ~fits.any(axis=0)
+    return out
+
+
+def edge_test(
+    grid: NDArray[np.float64],
+    labels: NDArray[np.uint8],
+    *,
+    window: int,
+    tolerance: float,
+    extent: int,
+    max_iterations: int,
+) -> tuple[NDArray[np.uint8], int]:
+    """Edge passes on top of the angle and height passes (SPEC "Edge test").
+
+    ``labels`` (H, W) are those after the height passes; returns the new labels and the number
+    of edge passes run.
+    """
+    labels = labels.copy()
+    line = (labels == EDGE) & ~_compact_edges(labels == EDGE, extent)
+    cand = _edge_candidates(labels, line, window)
+    passes = 0
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        for _ in range(max_iterations):
+            passes += 1
+            new = _edge_pass(grid, labels, cand, window, tolerance)
+            labels[new] = ABNORMAL
+            if not new.any():
+                break
+    return labels, passes
+
+
 def _validate_detect_params(
     theta0: Any,
     scales: Any,

@@ -1,0 +1,198 @@
+"""Burrs on edges: score miem on the edge scenes of the suite and on the real scan's burr truth.
+
+    python bench/accuracy/edges.py          # writes bench/accuracy/results_edges.md (+ plot)
+
+Contenders: ``preset="paper"``, ``preset="recommended"``, and ``+edge``: the recommended
+settings followed by the edge test of the NumPy reference (``miem.reference.edge_test``,
+SPEC "Edge test") with the settings in ``EDGE_SETTINGS`` (chosen on the tuning split's edge
+scenes). Synthetic scores are per cell (scene truth) and per burr region (a region is found
+when one of its cells is flagged); the real scan is scored against ``real_truth`` (test split
+only: nothing is tuned on it).
+"""
+
+from __future__ import annotations
+
+import platform
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+import miem  # noqa: E402
+import real_truth as rt  # noqa: E402
+from miem import reference as ref  # noqa: E402
+from score import Counts, confusion  # noqa: E402
+from suite import EDGE_KINDS, scenes  # noqa: E402
+
+RESULTS = HERE / "results_edges.md"
+PLOT = HERE / "plots" / "real_burrs.png"
+EDGE_SETTINGS = {"window": 15, "tolerance": 10.0, "extent": 12, "max_iterations": 10}
+
+
+def _recommended(points: np.ndarray) -> np.ndarray:
+    return miem.detect(points, preset="recommended").labels
+
+
+def _paper(points: np.ndarray) -> np.ndarray:
+    return miem.detect(points, preset="paper").labels
+
+
+def _edge(points: np.ndarray) -> np.ndarray:
+    labels = miem.detect(points, preset="recommended").labels
+    return ref.edge_test(np.asarray(points, dtype=np.float64), labels, **EDGE_SETTINGS)[0]
+
+
+CONTENDERS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
+    "paper": _paper, "recommended": _recommended, "recommended+edge": _edge,
+}
+
+
+def region_counts(flagged: np.ndarray, region: np.ndarray, heights: np.ndarray,
+                  tall: float = 0.1) -> tuple[int, int]:
+    """(regions taller than ``tall`` found, their number)."""
+    fl, rg = flagged.reshape(-1), region.reshape(-1)
+    n = found = 0
+    for i, hgt in enumerate(heights):
+        if hgt > tall:
+            n += 1
+            found += bool(fl[rg == i].any())
+    return found, n
+
+
+def synthetic(split: str = "test") -> dict:
+    """Per contender and edge kind: summed Counts, regions found, regions, EDGE share."""
+    out: dict = {name: {} for name in CONTENDERS}
+    for sc in scenes(split, real=False):
+        if sc.spec.group not in EDGE_KINDS:
+            continue
+        for name, run in CONTENDERS.items():
+            t0 = time.perf_counter()
+            labels = run(sc.points)
+            dt = time.perf_counter() - t0
+            c = confusion(labels == miem.ABNORMAL, sc.truth, seconds=dt)
+            f, n = region_counts(labels == miem.ABNORMAL, sc.region, sc.region_height)
+            prev = out[name].get(sc.spec.group, (Counts(), 0, 0))
+            out[name][sc.spec.group] = (prev[0] + c, prev[1] + f, prev[2] + n)
+    return out
+
+
+def real() -> dict:
+    """Per contender: RealScore, EDGE share on CLEAN cells, seconds."""
+    tr = rt.truth()
+    out = {}
+    for name, run in CONTENDERS.items():
+        t0 = time.perf_counter()
+        labels = run(tr.grid)
+        dt = time.perf_counter() - t0
+        clean = tr.classes == rt.CLEAN
+        edge_share = float(((labels == miem.EDGE) & clean).sum() / clean.sum())
+        out[name] = (rt.score_mask(labels == miem.ABNORMAL, tr), edge_share, dt, labels)
+    return out
+
+
+def plot(res: dict) -> None:
+    """Before (recommended) / after (+edge) picture of the real scan's burr truth."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tr = rt.truth()
+    burr, clean = tr.classes == rt.BURR, tr.classes == rt.CLEAN
+    fig, axes = plt.subplots(1, 2, figsize=(14, 8), sharey=True)
+    for ax, name in zip(axes, ("recommended", "recommended+edge")):
+        score, _, _, labels = res[name]
+        fl = labels == miem.ABNORMAL
+        img = np.full(burr.shape + (3,), 0.92)
+        img[tr.classes == rt.DROPOUT] = 1.0
+        img[burr & fl] = (0.0, 0.65, 0.0)
+        img[burr & ~fl] = (0.1, 0.2, 0.95)
+        img[clean & fl] = (0.95, 0.1, 0.1)
+        ax.imshow(img, aspect="auto", interpolation="nearest")
+        ax.set_title(f"{name}: recall {score.recall:.2f}, precision {score.precision:.2f}")
+        ax.set_xlabel("column (0.05 mm)")
+    axes[0].set_ylabel("profile")
+    fig.suptitle("second_source.pcd burr cells (> 0.2 mm from the golden sample): green found, "
+                 "blue missed, red false alarm")
+    fig.tight_layout()
+    PLOT.parent.mkdir(exist_ok=True)
+    fig.savefig(PLOT, dpi=70)
+    plt.close(fig)
+
+
+def _f(v: float) -> str:
+    return "nan" if not np.isfinite(v) else f"{v:.3f}"
+
+
+def write(syn: dict, rl: dict | None, seconds: float) -> None:
+    lines = [
+        "# Burrs on edges: accuracy",
+        "",
+        f"Generated by `python bench/accuracy/edges.py` in {seconds:.0f} s on "
+        f"{platform.machine()} (miem {miem.__version__}). `+edge`: recommended, then the edge "
+        f"test of the reference with `{EDGE_SETTINGS}`.",
+        "",
+        "## Synthetic edge scenes (test split)",
+        "",
+        "Per cell (F1, precision, recall of ABNORMAL against burr cells; edge FA: designed-edge "
+        "cells flagged) and per burr region taller than 0.1 mm (found: one cell flagged).",
+        "",
+        "| kind | contender | F1 | precision | recall | edge FA | normal FA | regions found |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for kind in (*EDGE_KINDS, "all"):
+        for name in CONTENDERS:
+            if kind == "all":
+                items = list(syn[name].values())
+                c = Counts.total(i[0] for i in items)
+                f, n = sum(i[1] for i in items), sum(i[2] for i in items)
+            else:
+                c, f, n = syn[name][kind]
+            lines.append(f"| {kind} | {name} | {_f(c.f1)} | {_f(c.precision)} | {_f(c.recall)} "
+                         f"| {100 * c.edge_fa:.3f} % | {100 * c.normal_fa:.4f} % | {f}/{n} |")
+    if rl is not None:
+        tr = rt.truth()
+        counts = {k: int((tr.classes == v).sum()) for k, v in
+                  (("clean", rt.CLEAN), ("burr", rt.BURR), ("don't care", rt.DONTCARE),
+                   ("not covered", rt.UNCOVERED))}
+        lines += [
+            "",
+            "## Real scan `second_source.pcd` against its golden sample (test only)",
+            "",
+            f"Truth (`bench/accuracy/real_truth.py`): golden sample registered onto the "
+            f"426 x 724 grid, median scan-to-golden distance {tr.nn_median:.3f} mm; cells "
+            f"{counts}; {sum(1 for r in tr.regions)} regions with deviation > 0.2 mm. "
+            "Region columns count regions holding a BURR cell (tall: > 0.3 mm).",
+            "",
+            "| contender | recall | precision | F1 | regions found | tall regions found | "
+            "EDGE on clean surface | time (s) |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        for name, (s, edge_share, dt, _) in rl.items():
+            lines.append(
+                f"| {name} | {_f(s.recall)} | {_f(s.precision)} | {_f(s.f1)} | "
+                f"{s.regions_found}/{s.regions} | {s.regions_tall_found}/{s.regions_tall} | "
+                f"{100 * edge_share:.2f} % | {dt:.2f} |")
+        lines += ["", f"![real scan burrs](plots/{PLOT.name})"]
+    RESULTS.write_text("\n".join(lines) + "\n")
+
+
+def main() -> int:
+    t0 = time.perf_counter()
+    syn = synthetic("test")
+    rl = None
+    if rt.available():
+        rl = real()
+        plot(rl)
+    write(syn, rl, time.perf_counter() - t0)
+    print(RESULTS.read_text())
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
