@@ -31,7 +31,7 @@ from suite import EDGE_KINDS, scenes  # noqa: E402
 
 RESULTS = HERE / "results_edges.md"
 PLOT = HERE / "plots" / "real_burrs.png"
-EDGE_SETTINGS = {"window": 15, "tolerance": 10.0, "extent": 12, "max_iterations": 10}
+EDGE_SETTINGS = {"window": 11, "tolerance": 8.0, "max_iterations": 10}
 
 
 def _recommended(points: np.ndarray) -> np.ndarray:

@@ -973,17 +973,17 @@ def _edge_sides(r: int) -> tuple[tuple[int, int, int, int], ...]:
 #: A sub-window is *clean* when its rms is at most this times the smallest rms of the cell's
 #: sub-windows (a sub-window straddling a feature line has a far larger rms).
 _EDGE_CLEAN_RATIO = 2.0
-
-
-def _edge_candidates(labels: NDArray[np.uint8], line: NDArray[np.bool_], window: int) -> NDArray[np.bool_]:
-    """NORMAL and EDGE cells with a feature-line EDGE cell or a dropout in their window."""
-    near = _box_count(line | (labels == INVALID), window) > 0
-    return near & ((labels == NORMAL) | (labels == EDGE))
+#: Opposite sub-windows (indices into :func:`_edge_sides`).
+_EDGE_OPPOSITE = ((0, 1), (2, 3), (4, 7), (5, 6))
 
 
 def _side_fits(
-    grid: NDArray[np.float64], support: NDArray[np.bool_], cells: NDArray[np.bool_], r: int
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    grid: NDArray[np.float64],
+    support: NDArray[np.bool_],
+    invalid: NDArray[np.bool_],
+    cells: NDArray[np.bool_],
+    r: int,
+) -> tuple[NDArray[np.float64], ...]:
     """Height and rms of every cell of ``cells`` against the plane of the ``support`` cells of
     each of its 8 sub-windows (SPEC "Edge test"), from integral images of the moments.
 
@@ -995,7 +995,8 @@ def _side_fits(
     p = np.where(support[..., None], grid - origin, 0.0)
     terms = [support.astype(np.float64)] + [p[..., a] for a in range(3)]
     terms += [p[..., a] * p[..., b] for a in range(3) for b in range(a, 3)]
-    s = np.zeros((hh + 1, ww + 1, 10))
+    terms.append(invalid.astype(np.float64))
+    s = np.zeros((hh + 1, ww + 1, 11))
     s[1:, 1:] = np.cumsum(np.cumsum(np.stack(terms, axis=-1), axis=0), axis=1)
     rr, cc = np.nonzero(cells)
     pt = grid[rr, cc] - origin
@@ -1003,6 +1004,9 @@ def _side_fits(
     hs = np.full((8, rr.size), np.nan)
     rms = np.full((8, rr.size), np.nan)
     valid = np.zeros((8, rr.size), dtype=bool)
+    normals = np.full((8, rr.size, 3), np.nan)
+    centroids = np.full((8, rr.size, 3), np.nan)
+    empty = np.zeros((8, rr.size), dtype=bool)
     for k, (a0, a1, b0, b1) in enumerate(_edge_sides(r)):
         r0 = np.clip(rr + a0, 0, hh)
         r1 = np.clip(rr + a1 + 1, 0, hh)
@@ -1019,6 +1023,7 @@ def _side_fits(
             for b in range(a, 3):
                 cov[:, a, b] = cov[:, b, a] = m[:, idx] - nn * cen[:, a] * cen[:, b]
                 idx += 1
+        # (idx == 10: the INVALID count)
         cov[~ok] = np.eye(3)
         evals, evecs = np.linalg.eigh(cov)
         ok &= (evals[:, 2] > 0.0) & ~(evals[:, 1] <= _EIGEN_RANK_TOL * evals[:, 2])
@@ -1026,7 +1031,10 @@ def _side_fits(
         hs[k] = np.where(ok, _dot3(pt - cen, nrm), np.nan)
         rms[k] = np.where(ok, np.sqrt(np.maximum(evals[:, 0], 0.0) / nn), np.nan)
         valid[k] = ok
-    return hs, rms, valid
+        normals[k] = nrm
+        centroids[k] = cen
+        empty[k] = m[:, 10] >= n_min
+    return hs, rms, valid, normals, centroids, empty
 
 
 def _edge_pass(
@@ -1041,11 +1049,19 @@ def _edge_pass(
     out = np.zeros_like(cells)
     if not cells.any():
         return out
-    h, rms, valid = _side_fits(grid, labels == NORMAL, cells, window // 2)
+    h, rms, valid, nrm, cen, empty = _side_fits(grid, labels == NORMAL, labels == INVALID,
+                                                cells, window // 2)
     best = np.min(np.where(valid, rms, np.inf), axis=0)
     clean = valid & (rms <= _EDGE_CLEAN_RATIO * best)
     fits = clean & ~(np.abs(h) > k * rms)
-    out[cells] = valid.any(axis=0) & ~fits.any(axis=0)
+    # P stands proud (outward, above the plane) of a clean side whose opposite side has no
+    # support (an outline) or falls away below that plane (a convex edge, a wall top).
+    proud = np.zeros(h.shape[1], dtype=bool)
+    for a, b in _EDGE_OPPOSITE:
+        for x, y in ((a, b), (b, a)):
+            falls = empty[y] | (_dot3(nrm[x], cen[y] - cen[x]) < -k * rms[x])
+            proud |= clean[x] & (h[x] > k * rms[x]) & falls
+    out[cells] = ~fits.any(axis=0) & proud
     return out
 
 
@@ -1055,7 +1071,6 @@ def edge_test(
     *,
     window: int,
     tolerance: float,
-    extent: int,
     max_iterations: int,
 ) -> tuple[NDArray[np.uint8], int]:
     """Edge passes on top of the angle and height passes (SPEC "Edge test").
@@ -1064,8 +1079,7 @@ def edge_test(
     of edge passes run.
     """
     labels = labels.copy()
-    line = (labels == EDGE) & ~_compact_edges(labels == EDGE, extent)
-    cand = _edge_candidates(labels, line, window)
+    cand = (labels == NORMAL) | (labels == EDGE)
     passes = 0
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         for _ in range(max_iterations):
