@@ -189,4 +189,6 @@ template Plane fit_plane_lstsq<double>(const PointsView<double>&, int);
 
 const char* version() noexcept { return MIEM_VERSION_STRING; }
 
+int max_threads() noexcept { return detail::max_threads(); }
+
 }  // namespace miem

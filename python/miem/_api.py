@@ -220,11 +220,11 @@ def _as_float_array(a: object, name: str) -> np.ndarray:
         arr = arr.astype(np.float64)
     elif kind != "f":
         raise ValueError(f"{name}: expected a real numeric array, got dtype {arr.dtype}")
-    if not arr.dtype.isnative:
-        arr = arr.astype(arr.dtype.newbyteorder("="))
+    if not arr.dtype.isnative:  # big-endian data: one copy into native float32 / float64
+        arr = arr.astype(np.float32 if arr.itemsize == 4 else np.float64)
     item = arr.itemsize
     if not arr.flags.aligned or any(s % item for s in arr.strides):
-        arr = np.ascontiguousarray(arr)
+        arr = arr.copy()  # aligned and C-ordered: the core never reads a misaligned value
     return arr
 
 
@@ -277,7 +277,11 @@ def _min_step(value: object) -> Optional[float]:
 
 
 def _threads(num_threads: Optional[int]) -> int:
-    return 0 if num_threads is None else _int("num_threads", num_threads, 1)
+    """0 (all cores) or the request clamped to ``miem._core.max_threads()`` (README
+    "Guarantees": results never depend on the thread count, so clamping only bounds the cost)."""
+    if num_threads is None:
+        return 0
+    return min(_int("num_threads", num_threads, 1, maximum=2**63), _core.max_threads())
 
 
 def _plane(t: tuple, method: str) -> Plane:

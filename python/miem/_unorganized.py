@@ -24,6 +24,7 @@ from ._api import (
     _real,
     _scales,
     _theta0,
+    _threads,
 )
 
 __all__ = [
@@ -43,10 +44,6 @@ def _points(points: object, name: str = "points") -> np.ndarray:
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise ValueError(f"{name}: expected shape (N, 3), got {arr.shape}")
     return arr
-
-
-def _threads(num_threads: Optional[int]) -> int:
-    return 0 if num_threads is None else _int("num_threads", num_threads, 1)
 
 
 def _positive(name: str, value: object) -> float:

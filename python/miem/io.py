@@ -254,10 +254,25 @@ def result_fields(result: Any) -> dict[str, np.ndarray]:
     }
 
 
+def _native(arr: np.ndarray) -> np.ndarray:
+    """`arr` in native byte order (a big-endian file's values are swapped once, here)."""
+    return arr if arr.dtype.isnative else arr.astype(arr.dtype.newbyteorder("="))
+
+
+def _filechecks() -> Any:
+    from . import _filechecks as checks  # imports ScanFileError from here
+
+    return checks
+
+
 def _scan(points: np.ndarray, fields: dict, path: Path, fmt: str) -> ScanData:
     """Validate what a reader produced and wrap it."""
     if points.ndim not in (2, 3) or points.shape[-1] != 3:
         raise ScanFileError(path, f"expected x, y, z coordinates, got an array {points.shape}")
+    if points.dtype.kind == "f" and points.dtype.itemsize not in (4, 8):
+        points = points.astype(np.float64)  # float16 / longdouble: the core reads 32 or 64 bits
+    points = _native(points)
+    fields = {k: _native(v) for k, v in fields.items()}
     n = int(np.prod(points.shape[:-1]))
     if n == 0:
         raise ScanFileError(path, "the file holds no points")
@@ -355,43 +370,11 @@ def _is_gocator(path: Path) -> bool:
     return bool(head) and head[0].strip() == b"Info"
 
 
-def _check_pcd_size(path: Path) -> None:
-    """Compare a binary PCD's payload with its header, for a clear 'truncated' message."""
-    from pypcd4.pypcd4 import MetaData
-
-    lines = []
-    with open(path, "rb") as fh:
-        while len(lines) < 64:
-            raw = fh.readline(4096)
-            if not raw:
-                break
-            line = raw.decode("utf-8", errors="replace").strip()
-            if line and not line.startswith("#"):
-                lines.append(line)
-                if line.startswith("DATA"):
-                    break
-        if not lines or not lines[-1].startswith("DATA"):
-            raise ScanFileError(path, "no PCD header (no DATA line)")
-        start = fh.tell()
-    try:
-        meta = MetaData.parse_header(lines)
-    except Exception as exc:
-        raise ScanFileError(path, f"bad PCD header: {type(exc).__name__}: {exc}") from exc
-    if meta.data.value == "binary":
-        need = int(meta.points) * meta.build_dtype().itemsize
-        have = path.stat().st_size - start
-        if have < need:
-            raise ScanFileError(
-                path, f"truncated: header says {meta.points} points ({need:,} bytes), the file "
-                      f"holds {have:,} bytes of point data"
-            )
-
-
 def _read_pcd(path: Path) -> ScanData:
     _require("pypcd4", "reading PCD files")
     from pypcd4 import PointCloud
 
-    _check_pcd_size(path)
+    _filechecks().pcd_header(path)
     try:
         pc = PointCloud.from_path(path)
     except Exception as exc:
@@ -448,6 +431,7 @@ def _reshape_grid(path: Path, pts: np.ndarray, fields: dict, grid: tuple[int, in
 
 def _read_ply(path: Path) -> ScanData:
     plyfile = _require("plyfile", "reading PLY files")
+    _filechecks().check_ply(path)
     try:
         ply = plyfile.PlyData.read(str(path), mmap=False)
     except Exception as exc:
@@ -474,6 +458,7 @@ def _read_las(path: Path, fmt: str = "las") -> ScanData:
     laspy = _require("laspy", f"reading {fmt.upper()} files")
     if fmt == "laz":
         _require("lazrs", "reading LAZ files")
+    _filechecks().check_las(path, compressed=fmt == "laz")
     try:
         las = laspy.read(str(path))
     except Exception as exc:
@@ -506,10 +491,8 @@ def _read_las(path: Path, fmt: str = "las") -> ScanData:
     if shape is not None and "index" in fields:
         # The file holds only finite points; put them back in their cells.
         h, w = shape
-        total = h * w if h > 0 else w
         index = fields.pop("index").astype(np.int64)
-        if index.size and (index.min() < 0 or index.max() >= total):
-            raise ScanFileError(path, "corrupt miem point index: outside the grid")
+        total = _filechecks().check_las_grid(path, shape, index)
         full = np.full((total, 3), np.nan)
         full[index] = pts
         pts = full
@@ -609,6 +592,7 @@ def _read_text(path: Path, fmt: str) -> ScanData:
 
 
 def _read_npy(path: Path) -> ScanData:
+    _filechecks().check_npy(path)
     try:
         with open(path, "rb") as fh:
             arr = np.load(fh, allow_pickle=False)
@@ -631,6 +615,7 @@ def _read_npy(path: Path) -> ScanData:
 
 
 def _read_npz(path: Path) -> ScanData:
+    _filechecks().check_npz(path)
     try:
         # Open the file here: np.load leaks its own handle when a truncated zip fails to open.
         with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as npz:

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, DTypeLike
 
 from . import _core
-from ._api import _int, _min_step, _scales, _theta0, _xyz_fields
+from ._api import _as_float_array, _int, _min_step, _scales, _theta0
 
 __all__ = ["ProfileStream", "StreamRow"]
 
@@ -164,18 +164,11 @@ class ProfileStream:
             Wrong shape or dtype kind, or the stream was flushed (call :meth:`reset`). A rejected
             profile leaves the stream unchanged.
         """
-        arr = np.asarray(profile)
-        if arr.dtype.names is not None:
-            arr = _xyz_fields(arr, "profile")
-        if arr.dtype.kind not in "fiu":
-            raise ValueError(f"profile: expected a real numeric array, got dtype {arr.dtype}")
+        arr = _as_float_array(profile, "profile")  # native byte order, aligned
         if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] != self.width:
             raise ValueError(f"profile: expected shape ({self.width}, 3), got {arr.shape}")
         if arr.dtype != self._dtype:
             arr = arr.astype(self._dtype)
-        item = arr.itemsize
-        if not arr.flags.aligned or any(s % item for s in arr.strides):
-            arr = np.ascontiguousarray(arr)
         code, message, row, labels = self._core.push(arr)
         if code not in (_OK, _EMPTY_PROFILE):
             raise ValueError(message)

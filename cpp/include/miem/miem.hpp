@@ -14,4 +14,8 @@
 namespace miem {
 /// The library version, "MAJOR.MINOR.PATCH".
 const char* version() noexcept;
+
+/// The most threads any call uses (4 x the processors, at most 256): every `num_threads`
+/// request, and 0 = "all available", is clamped to it. Results never depend on the count.
+int max_threads() noexcept;
 }  // namespace miem

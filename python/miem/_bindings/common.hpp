@@ -19,12 +19,30 @@ namespace miem::bindings {
 
 namespace py = pybind11;
 
-inline bool is_f32(const py::array& a) { return a.dtype().is(py::dtype::of<float>()); }
-inline bool is_f64(const py::array& a) { return a.dtype().is(py::dtype::of<double>()); }
+/// True when the array holds native-order T (any dtype object NumPy deems equivalent, e.g. '=f8').
+template <typename T>
+bool is_dtype(const py::array& a) {
+  return py::isinstance<py::array_t<T>>(a);
+}
+inline bool is_f32(const py::array& a) { return is_dtype<float>(a); }
+inline bool is_f64(const py::array& a) { return is_dtype<double>(a); }
 
-/// Throws unless the array is native float32 or float64.
+/// Throws unless the data pointer is aligned for T (the Python layer copies arrays that are not,
+/// so the core never performs a misaligned load).
+template <typename T>
+void require_aligned(const py::array& a, const char* name) {
+  if (reinterpret_cast<std::uintptr_t>(a.data()) % alignof(T) != 0) {
+    throw std::invalid_argument(std::string(name) + ": data is not aligned to its item size");
+  }
+}
+
+/// Throws unless the array is native float32 or float64 with aligned data.
 inline void require_float(const py::array& a, const char* name) {
-  if (!is_f32(a) && !is_f64(a)) {
+  if (is_f32(a)) {
+    require_aligned<float>(a, name);
+  } else if (is_f64(a)) {
+    require_aligned<double>(a, name);
+  } else {
     throw std::invalid_argument(std::string(name) + ": dtype must be native float32 or float64");
   }
 }

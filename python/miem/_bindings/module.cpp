@@ -118,6 +118,8 @@ PYBIND11_MODULE(_core, m) {
 #else
   m.attr("openmp") = false;
 #endif
+  m.def("max_threads", &miem::max_threads,
+        "The most threads any call uses; larger num_threads requests are clamped to it.");
   m.def("fit_plane", &fit_plane, py::arg("points"), py::arg("method"), py::arg("num_threads"));
   m.def("scan_line_angles", &scan_line<false>, py::arg("line"), py::arg("step"));
   m.def("scan_line_heights", &scan_line<true>, py::arg("line"), py::arg("step"));

@@ -5,6 +5,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <atomic>
 #include <cstdint>
 #include <stdexcept>
 #include <string>
@@ -27,9 +28,11 @@ class PyProfileStream {
 
   // Returns (status code, message, row index or -1, labels or None).
   py::tuple push(const py::array& profile) {
-    if (!profile.dtype().is(py::dtype::of<T>())) {
+    const Exclusive guard(busy_);
+    if (!miem::bindings::is_dtype<T>(profile)) {
       throw std::invalid_argument("profile: dtype must match the stream's dtype");
     }
+    miem::bindings::require_aligned<T>(profile, "profile");
     if (profile.ndim() != 2 || profile.shape(1) != 3) {
       throw std::invalid_argument("profile: expected shape (width, 3)");
     }
@@ -45,13 +48,17 @@ class PyProfileStream {
 
   // Every pending row as (row index, labels), oldest first.
   py::list flush() {
+    const Exclusive guard(busy_);
     py::list out;
     miem::StreamRow row;
     while (stream_.flush(&row)) out.append(py::make_tuple(row.index, labels(row)));
     return out;
   }
 
-  void reset() { stream_.reset(); }
+  void reset() {
+    const Exclusive guard(busy_);
+    stream_.reset();
+  }
   std::ptrdiff_t width() const { return stream_.width(); }
   int lag() const { return stream_.lag(); }
   int reach() const { return stream_.reach(); }
@@ -60,6 +67,26 @@ class PyProfileStream {
   bool finished() const { return stream_.finished(); }
 
  private:
+  // A stream is one sequence of profiles: push/flush/reset from two threads at once would
+  // interleave rows and corrupt the ring, so an overlapping call is refused (RuntimeError)
+  // instead of serialised in an order nobody chose. The flag is held while the GIL is released.
+  class Exclusive {
+   public:
+    explicit Exclusive(std::atomic<bool>& busy) : busy_(busy) {
+      if (busy_.exchange(true, std::memory_order_acquire)) {
+        throw std::runtime_error(
+            "ProfileStream: called from two threads at once; a stream takes its profiles in "
+            "order from one thread at a time (use one stream per scanner, or a lock)");
+      }
+    }
+    ~Exclusive() { busy_.store(false, std::memory_order_release); }
+    Exclusive(const Exclusive&) = delete;
+    Exclusive& operator=(const Exclusive&) = delete;
+
+   private:
+    std::atomic<bool>& busy_;
+  };
+
   static miem::DetectParams params(double theta0, std::vector<int> scales, int max_gap,
                                    double min_step, int max_reach, int min_directions,
                                    int max_iterations) {
@@ -82,6 +109,7 @@ class PyProfileStream {
   }
 
   miem::ProfileStream<T> stream_;
+  std::atomic<bool> busy_{false};
 };
 
 template <typename T>
