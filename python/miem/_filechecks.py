@@ -21,9 +21,9 @@ from .io import ScanFileError
 PCD_MAX_VALUES = 4096
 #: LZF cannot expand data more than about 100 times (a 2-3 byte token copies at most 264 bytes).
 LZF_MAX_RATIO = 132
-#: LAZ point data decompresses to at most this many times its size (measured on constant points:
-#: about 60; real scans: 5 to 10).
-LAZ_MAX_RATIO = 1024
+#: LAZ point data decompresses to at most this many times its size (measured: 3,000 for millions
+#: of identical points in laspy's default chunks; real scans 5 to 10).
+LAZ_MAX_RATIO = 4096
 #: A miem grid record in a LAS file may announce at most this many cells per stored point (plus
 #: a floor for small grids): an honest grid stores its finite points, and a scan with fewer than
 #: 1 return in 64 cells is not a scan.
