@@ -1,0 +1,205 @@
+"""Public functions survive what the bad-input sweep threw at them (issue 16): absurd thread
+counts (item 1), big-endian and misaligned arrays (items 5, 8) and a stream pushed from two
+threads (item 9). Expected values come from the same call on a clean input (native, aligned,
+one thread), which other tests check against the NumPy reference."""
+
+from __future__ import annotations
+
+import os
+import threading
+
+import numpy as np
+import pytest
+
+import miem
+from miem import _core
+
+PEAK_MB = 200
+
+
+def _grid(h=32, w=32, seed=0):
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:h, 0:w] * 0.5
+    g = np.dstack([x, y, 0.01 * rng.standard_normal((h, w))])
+    g[h // 3, w // 3, 2] = 3.0
+    g[h // 2, w // 4] = np.nan
+    return g
+
+
+def _misaligned(a):
+    """A C-contiguous copy of `a` whose data pointer is one byte off its item alignment."""
+    buf = np.zeros(a.nbytes + a.itemsize, np.uint8)
+    out = np.frombuffer(buf[1:1 + a.nbytes].data, dtype=a.dtype).reshape(a.shape)
+    out[...] = a
+    assert not out.flags.aligned and out.flags.c_contiguous
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# item 1: thread counts
+
+
+def test_max_threads_is_a_small_multiple_of_the_processors():
+    procs = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    m = _core.max_threads()
+    if _core.openmp:
+        assert m == min(256, 4 * procs)
+    else:
+        assert m == 1
+
+
+def test_huge_thread_counts_are_clamped_not_fatal(isolated, tmp_path):
+    """Each call of the sweep that killed the interpreter (libgomp out of memory on 2**30
+    threads) or started 10,000 OS threads, on >= 65,536 points, in one capped child."""
+    np.save(tmp_path / "grid.npy", _grid(256, 256))
+    code = isolated.CASES + f"""
+import numpy as np, miem
+g = np.load({str(tmp_path / "grid.npy")!r})
+pts = g.reshape(-1, 3)
+cloud = pts[np.isfinite(pts).all(axis=1)]
+ref = {{
+    "detect": miem.detect(g, num_threads=1).labels,
+    "cloud": miem.detect(cloud, num_threads=1).labels,
+    "plane": miem.fit_plane(pts, num_threads=1).normal,
+    "normals": miem.estimate_normals(cloud, 1.0, num_threads=1).normals,
+}}
+def same(key, value):
+    np.testing.assert_array_equal(value, ref[key])
+cases = {{}}
+for n in (2**30, 10000, 2**31 - 1, 2**40):
+    cases[f"detect-{{n}}"] = lambda n=n: same("detect", miem.detect(g, num_threads=n).labels)
+    cases[f"cloud-{{n}}"] = lambda n=n: same("cloud", miem.detect(cloud, num_threads=n).labels)
+    cases[f"plane-{{n}}"] = lambda n=n: same("plane", miem.fit_plane(pts, num_threads=n).normal)
+    cases[f"grid-{{n}}"] = lambda n=n: miem.NeighborGrid(cloud, 0.5, num_threads=n)
+    cases[f"normals-{{n}}"] = lambda n=n: same(
+        "normals", miem.estimate_normals(cloud, 1.0, num_threads=n).normals)
+    cases[f"spacing-{{n}}"] = lambda n=n: miem.point_spacing(cloud, num_threads=n)
+result = run_cases(cases)
+"""
+    rep = isolated(code, timeout=120)
+    assert rep["ok"], rep
+    for name, rec in rep["result"].items():
+        assert rec["ok"], (name, rec)
+        assert rec["seconds"] < 10, (name, rec)
+    assert rep["peak_mb"] < PEAK_MB
+
+
+def test_cli_huge_thread_count(isolated, tmp_path):
+    np.save(tmp_path / "grid.npy", _grid(256, 256))
+    code = f"""
+import miem.cli
+rc = miem.cli.main(["detect", {str(tmp_path / "grid.npy")!r}, "--threads", "1073741824",
+                    "-q", "--out-dir", {str(tmp_path / "out")!r}])
+result = rc
+"""
+    rep = isolated(code, timeout=120)
+    assert rep["ok"] and rep["result"] == 0, rep
+    assert (tmp_path / "out" / "grid.labels.npy").exists()
+    assert rep["peak_mb"] < PEAK_MB
+
+
+def test_bad_thread_counts_still_raise():
+    g = _grid()
+    for bad in (0, -1, 1.5, True, "2"):
+        with pytest.raises(ValueError, match="num_threads"):
+            miem.detect(g, num_threads=bad)
+
+
+# ---------------------------------------------------------------------------------------------
+# items 5 and 8: byte order and alignment, one conversion in the Python layer
+
+
+def _entry_points():
+    g = _grid()
+    pts = g.reshape(-1, 3)
+    cloud = pts[np.isfinite(pts).all(axis=1)]
+    return {
+        "detect": (g, lambda a: miem.detect(a).labels),
+        "detect-cloud": (cloud, lambda a: miem.detect(a).labels),
+        "fit_plane": (pts, lambda a: miem.fit_plane(a).normal),
+        "fit_plane-lstsq": (pts, lambda a: miem.fit_plane(a, "lstsq").normal),
+        "scan_line_angles": (g[5], lambda a: miem.scan_line_angles(a)),
+        "scan_line_heights": (g[5], lambda a: miem.scan_line_heights(a)),
+        "NeighborGrid": (cloud, lambda a: miem.NeighborGrid(a, 0.5).radius_query(7, 1.0)),
+        "estimate_normals": (cloud, lambda a: miem.estimate_normals(a, 1.0).normals),
+        "point_spacing": (cloud, lambda a: miem.point_spacing(a)),
+        "distance": (pts, lambda a: miem.fit_plane(pts).distance(a)),
+    }
+
+
+@pytest.mark.parametrize("name", sorted(_entry_points()))
+@pytest.mark.parametrize("dtype", ["f8", "f4"])
+def test_big_endian_input_gives_the_native_result(name, dtype):
+    arr, fn = _entry_points()[name]
+    native = arr.astype("=" + dtype)
+    swapped = arr.astype(">" + dtype)
+    before = swapped.copy()
+    np.testing.assert_array_equal(fn(swapped), fn(native))
+    np.testing.assert_array_equal(swapped, before)  # input never modified
+
+
+@pytest.mark.parametrize("name", sorted(_entry_points()))
+def test_misaligned_input_gives_the_aligned_result(name):
+    arr, fn = _entry_points()[name]
+    mis = _misaligned(arr)
+    np.testing.assert_array_equal(fn(mis), fn(np.ascontiguousarray(arr)))
+
+
+def test_the_core_refuses_misaligned_data():
+    """Defence in depth: a misaligned buffer that reaches the binding is rejected, never read."""
+    mis = _misaligned(_grid())
+    with pytest.raises(ValueError, match="aligned"):
+        _core.fit_plane(mis.reshape(-1, 3), "eigen", 1)
+
+
+def test_stream_takes_big_endian_and_misaligned_profiles():
+    g = _grid(40, 24)
+    ref = miem.ProfileStream(24)
+    be = miem.ProfileStream(24)
+    mis = miem.ProfileStream(24)
+    for row in g:
+        a, b, c = ref.push(row), be.push(row.astype(">f8")), mis.push(_misaligned(row))
+        assert (a is None) == (b is None) == (c is None)
+        if a is not None:
+            np.testing.assert_array_equal(a.labels, b.labels)
+            np.testing.assert_array_equal(a.labels, c.labels)
+
+
+# ---------------------------------------------------------------------------------------------
+# item 9: one stream, two threads
+
+
+def test_stream_from_two_threads_is_refused_never_corrupted():
+    width = 200_000  # long enough pushes (GIL released) that two threads overlap
+    stream = miem.ProfileStream(width, max_iterations=1)
+    row = np.zeros((width, 3))
+    row[:, 0] = np.arange(width)
+    ok = [0, 0]
+    refused = [0, 0]
+    stop = threading.Event()
+
+    def worker(k):
+        while not stop.is_set():
+            try:
+                stream.push(row)
+                ok[k] += 1
+            except RuntimeError as exc:
+                assert "two threads" in str(exc)
+                refused[k] += 1
+
+    threads = [threading.Thread(target=worker, args=(k,)) for k in range(2)]
+    for t in threads:
+        t.start()
+    deadline = threading.Event()
+    for _ in range(100):  # up to 5 s, until both threads have been refused at least once
+        if deadline.wait(0.05) or (sum(refused) and sum(ok) > 10):
+            break
+    stop.set()
+    for t in threads:
+        t.join()
+    assert sum(refused) > 0, "no overlap in 5 s"
+    # a refused push leaves the stream unchanged: every accepted row was counted once, and the
+    # rows come out numbered 0, 1, 2, ... with none lost or repeated
+    assert stream.rows_pushed == sum(ok)
+    rows = [r.row for r in stream.flush()]
+    assert rows == list(range(sum(ok) - len(rows), sum(ok)))
