@@ -12,13 +12,16 @@ processed), 2 on a usage error.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import inspect
 import json
 import math
 import os
 import re
+import signal
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -897,12 +900,40 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = _build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.func(args))
+        with _sigterm_as_interrupt():
+            return int(args.func(args))
+    except _Terminated:
+        print("miem: terminated", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print("miem: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:
         return 1
+
+
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C so that every ``finally`` and the writers' temporary-file
+    cleanup run (a half-written output is removed, a good one is never replaced)."""
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """Turn SIGTERM into :class:`_Terminated` while the command runs (main thread only, and only
+    when nobody else installed a handler), then restore the previous handler."""
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL):
+        yield
+        return
+
+    def handler(signum, frame):
+        raise _Terminated()
+
+    signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 if __name__ == "__main__":  # pragma: no cover
