@@ -23,6 +23,7 @@ from ._api import (
     _min_step,
     _real,
     _scales,
+    _height_tolerance,
     _theta0,
     _threads,
 )
@@ -311,6 +312,10 @@ def detect_points(
     link: Optional[float] = None,
     heights: Literal["all", "abnormal"] = "all",
     num_threads: Optional[int] = None,
+    height_tolerance: Union[None, float, str] = None,
+    edge_extent: float = 0.0,
+    min_group: int = 0,
+    height_radius: Optional[float] = None,
 ) -> PointsDetectResult:
     """Find abnormal points in an unorganized cloud with MIEM.
 
@@ -349,6 +354,22 @@ def detect_points(
         Which points get a height: every finite point, or only ABNORMAL ones (faster).
     num_threads : int, optional
         Threads (default: all cores). The results do not depend on it.
+    height_tolerance : float, str or None
+        Height test, beyond the paper: after the angle passes, a NORMAL point farther than this
+        from the plane of the NORMAL points within ``height_radius`` becomes ABNORMAL (a length,
+        or ``"<k>rms"`` for ``k`` times that plane's rms). None: off. The test abstains where a
+        feature-line EDGE point is within ``height_radius``.
+    edge_extent : float
+        With the height test: EDGE groups (points linked by ``link``) at most this many
+        spacings across are compact (a defect's halo, a short ridge) and are height-tested;
+        larger ones are feature lines. ``>= 0``.
+    min_group : int
+        ``0`` (off) or ``>= 3``: after the angle passes, groups of usable points (linked by
+        ``distance <= radius``) with fewer than ``min_group`` points are ABNORMAL (a cluster
+        or ridge so tall that its points only see each other).
+    height_radius : float, optional
+        Radius of the height planes (the test and ``height``), ``> 0``; default
+        ``2 * radius``.
 
     Returns
     -------
@@ -401,11 +422,19 @@ def detect_points(
     if heights not in ("all", "abnormal"):
         raise ValueError(f"heights: expected 'all' or 'abnormal', got {heights!r}")
     nt = _threads(num_threads)
+    h_abs, h_k = _height_tolerance(height_tolerance)
+    extent = _real("edge_extent", 0.0 if edge_extent is None else edge_extent)
+    if extent < 0:
+        raise ValueError(f"edge_extent: expected a number of spacings >= 0, got {extent}")
+    group = _int("min_group", min_group, 0)
+    if 0 < group < 3:
+        raise ValueError(f"min_group: expected 0 (off) or an integer >= 3, got {group}")
+    hr_v = None if height_radius is None else _positive("height_radius", height_radius)
 
     (labels, flags, angle, height, degenerate, plane_t, iterations, raw, spacing, radius_u,
-     min_step_u, link_u) = _core.detect_points(
+     min_step_u, link_u, height_radius_u) = _core.detect_points(
         arr, theta0_v, scale_list, radius_v, k, step_v, md, iters, link_v,
-        0 if heights == "all" else 1, nt,
+        0 if heights == "all" else 1, nt, group, h_abs, h_k, extent, hr_v,
     )
     defects = [
         Defect(
@@ -419,6 +448,8 @@ def detect_points(
         theta0=theta0_v, scales=tuple(scale_list), min_step=float(min_step_u),
         min_directions=min_directions, max_iterations=iters, radius=float(radius_u), K=k,
         link=float(link_u), spacing=float(spacing), heights=heights,
+        height_tolerance=height_tolerance, edge_extent=extent, min_group=group,
+        height_radius=float(height_radius_u),
     )
     return PointsDetectResult(
         labels=labels, flags=flags, angle=angle, height=height,

@@ -1631,7 +1631,9 @@ def _points_pass(
     cos_half = math.cos((90.0 / k_dirs) * math.pi / 180.0)
     bound = tlen * cos_half
     positive = tlen > 0.0
-    step_ok = [tlen >= s * min_step for s in scales]
+    # Scale s: the neighbour beyond (2s - 1) * min_step (with the default min_step, half a
+    # spacing: the s-th point along the direction).
+    step_ok = [tlen >= (2 * s - 1) * min_step for s in scales]
 
     for k in range(k_dirs):
         ck = math.cos(k * math.pi / k_dirs)
@@ -1704,6 +1706,85 @@ def _points_defects(
     return _ordered_defects(raw)
 
 
+def _cloud_groups(
+    pts: NDArray[np.float64], members: NDArray[np.int64], link: float
+) -> list[NDArray[np.int64]]:
+    """Groups of ``pts[members]`` under ``distance <= link`` (each ascending, as positions
+    into ``pts``), in order of their smallest member."""
+    if members.size == 0:
+        return []
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    sub = pts[members]
+    pi, pj, _, _ = _ball_pairs(_kdtree(sub), sub, sub, link)
+    graph = coo_matrix((np.ones(pi.size), (pi, pj)), shape=(members.size, members.size))
+    n_comp, comp = connected_components(graph, directed=False)
+    groups = [members[np.flatnonzero(comp == c)] for c in range(n_comp)]
+    groups.sort(key=lambda g: int(g[0]))
+    return groups
+
+
+def _floating(
+    pts: NDArray[np.float64], usable: NDArray[np.bool_], radius: float, min_group: int
+) -> NDArray[np.bool_]:
+    """SPEC "Floating groups": usable points whose group (usable points linked by
+    ``distance <= radius``) has fewer than ``min_group`` points."""
+    out = np.zeros(usable.shape[0], dtype=bool)
+    for g in _cloud_groups(pts, np.flatnonzero(usable), radius):
+        if g.size < min_group:
+            out[g] = True
+    return out
+
+
+def _cloud_compact_edges(
+    pts: NDArray[np.float64], edge: NDArray[np.bool_], link: float, extent: float
+) -> NDArray[np.bool_]:
+    """EDGE points of groups (``distance <= link``) at most ``extent`` across: twice the largest
+    distance of a member from the group's centroid."""
+    out = np.zeros(edge.shape[0], dtype=bool)
+    for g in _cloud_groups(pts, np.flatnonzero(edge), link):
+        q = pts[g]
+        d = q - q.mean(axis=0)
+        if 2.0 * float(np.sqrt(np.max(_dot3(d, d)))) <= extent:
+            out[g] = True
+    return out
+
+
+def _cloud_height_pass(
+    hi: NDArray[np.int64],
+    hj: NDArray[np.int64],
+    hw: NDArray[np.float64],
+    normal: NDArray[np.bool_],
+    compact: NDArray[np.bool_],
+    line: NDArray[np.bool_],
+    tolerance: tuple[str, float],
+) -> NDArray[np.bool_]:
+    """One cloud height pass: the NORMAL and compact-EDGE points that become ABNORMAL.
+
+    ``(hi, hj, hw)`` are the pairs within the height radius, each point paired with itself too.
+    """
+    n_pts = normal.shape[0]
+    tested = normal | compact
+    sel = normal[hj]
+    cnt, cen, evals, evecs, ok = _group_fits(hi[sel], hw[sel], n_pts, tested)
+    near_line = np.zeros(n_pts, dtype=bool)
+    near_line[hi[line[hj]]] = True
+    exists = tested & ok & ~near_line
+    nrm = np.full((n_pts, 3), np.nan)
+    nrm[exists] = _orient(evecs[exists][:, :, 0])
+    h = np.full(n_pts, np.nan)
+    h[exists] = -_dot3(nrm[exists], cen[exists])
+    absh = np.abs(h)
+    mode, value = tolerance
+    if mode == "abs":
+        return exists & (absh > value)
+    n = np.maximum(cnt, 1).astype(np.float64)
+    rms = np.sqrt(np.maximum(evals[:, 0], 0.0) / n)
+    floor = _HEIGHT_RMS_FLOOR * np.sqrt((evals[:, 1] + evals[:, 2]) / n)
+    return exists & (absh > value * rms) & (absh > floor)
+
+
 def detect_points(
     points: ArrayLike,
     theta0: float = 75.0,
@@ -1714,6 +1795,10 @@ def detect_points(
     radius: float | None = None,
     K: int = 4,
     link: float | None = None,
+    height_tolerance: float | str | None = None,
+    edge_extent: float = 0,
+    min_group: int = 0,
+    height_radius: float | None = None,
 ) -> RefPointsResult:
     """Detect abnormal points in an unorganized cloud (MIEM, reference implementation).
 
@@ -1745,6 +1830,17 @@ def detect_points(
     link : float or None, optional
         ABNORMAL points closer than this (``<=``) belong to the same defect (finite, ``> 0``);
         None means ``radius``.
+    height_tolerance : float, str or None, optional
+        Height test (SPEC "Unorganized clouds: floating groups and height test"): None (off),
+        a length ``> 0`` or ``"<k>rms"``.
+    edge_extent : float, optional
+        With the height test: EDGE groups (``distance <= link``) at most ``edge_extent``
+        spacings across are compact and height-tested; larger ones are feature lines. ``>= 0``.
+    min_group : int, optional
+        ``0`` (off) or ``>= 3``: after the angle passes, usable points whose group (linked by
+        ``distance <= radius``) has fewer than ``min_group`` points are ABNORMAL.
+    height_radius : float or None, optional
+        Radius of the height planes (test and output heights); None means ``2 * radius``.
 
     Returns
     -------
@@ -1767,6 +1863,15 @@ def detect_points(
     )
     r_in = None if radius is None else _check_length("radius", radius, allow_zero=False)
     link_in = None if link is None else _check_length("link", link, allow_zero=False)
+    hr_in = (
+        None if height_radius is None
+        else _check_length("height_radius", height_radius, allow_zero=False)
+    )
+    tolerance = _parse_height_tolerance(height_tolerance)
+    extent = _check_length("edge_extent", edge_extent, allow_zero=True)
+    group = _check_int("min_group", min_group, 0)
+    if 0 < group < 3:
+        raise ValueError(f"min_group: expected 0 (off) or an integer >= 3, got {group}")
 
     p, finite = _cloud_array(points)
     n_all = p.shape[0]
@@ -1785,6 +1890,7 @@ def detect_points(
     r = 5.0 * spacing if r_in is None else r_in
     step = 0.5 * spacing if min_step is None else float(min_step)
     lnk = r if link_in is None else link_in
+    hr = 2.0 * r if hr_in is None else hr_in
     cos0 = math.cos(theta0_deg * math.pi / 180.0)
 
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
@@ -1819,14 +1925,31 @@ def detect_points(
             if not new_abn.any() or passes >= iters:
                 break
 
+        if group:
+            floating = _floating(pts, ~abnormal, r, group)
+            labels[floating] = ABNORMAL
+            abnormal |= floating
+
+        # Pairs within the height radius, each point paired with itself (offset 0) too.
+        hi, hj, hw, _ = _ball_pairs(tree, pts, pts, hr)
+        if tolerance is not None:
+            for _ in range(iters):
+                passes += 1
+                edge = labels == EDGE
+                compact = _cloud_compact_edges(pts, edge, lnk, extent * spacing)
+                new_abn = _cloud_height_pass(
+                    hi, hj, hw, labels == NORMAL, compact, edge & ~compact, tolerance
+                )
+                labels[new_abn] = ABNORMAL
+                abnormal |= new_abn
+                if not new_abn.any():
+                    break
+
         plane = _eigen_plane(pts[~abnormal])
 
-        # Height: plane of the NORMAL points within radius, the point itself included.
+        # Height: plane of the NORMAL points within the height radius, the point itself
+        # included.
         is_normal = labels == NORMAL
-        own = np.arange(n_pts, dtype=np.int64)
-        hi = np.concatenate([pi, own])
-        hj = np.concatenate([pj, own])
-        hw = np.concatenate([w, np.zeros((n_pts, 3))])
         sel = is_normal[hj]
         hi, hw = hi[sel], hw[sel]
         _, cen, _, evecs, ok = _group_fits(hi, hw, n_pts, np.ones(n_pts, dtype=bool))
@@ -1852,7 +1975,12 @@ def detect_points(
         plane=plane,
         iterations=passes,
         defects=defects,
-        params={"spacing": spacing, "radius": r, "min_step": step, "link": lnk, "K": k_dirs},
+        params={"spacing": spacing, "radius": r, "min_step": step, "link": lnk, "K": k_dirs,
+                "height_radius": hr, "min_group": group, "edge_extent": extent,
+                "height_tolerance": (
+                    None if tolerance is None
+                    else (tolerance[1] if tolerance[0] == "abs" else str(height_tolerance))
+                )},
     )
 
 

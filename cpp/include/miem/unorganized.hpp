@@ -35,7 +35,8 @@ template <typename T>
 void estimate_normals(const PointsView<T>& points, double radius, const NormalsOutput& out,
                       int num_threads = 0);
 
-/// Parameters of unorganized detection. Defaults are the paper's settings.
+/// Parameters of unorganized detection. Defaults are the paper's settings (height test off,
+/// floating groups off).
 struct PointsDetectParams {
   double theta0_deg = 75.0;          ///< flag a direction when its angle <= theta0 (0..180 open)
   std::vector<int> scales{1};        ///< neighbour scales (each >= 1): s * min_step per scale
@@ -45,6 +46,11 @@ struct PointsDetectParams {
   int min_directions = 0;            ///< 0: all available directions; else 1..K
   int max_iterations = 10;           ///< passes at most (>= 1)
   std::optional<double> link;        ///< defect linking distance (> 0); default radius
+  int min_group = 0;                 ///< 0: off; else >= 3: smaller floating groups are ABNORMAL
+  double height_abs = 0.0;           ///< > 0: height test, |height| above this is ABNORMAL
+  double height_k = 0.0;             ///< > 0: height test, |height| above k * local rms
+  double edge_extent = 0.0;          ///< height test: EDGE groups this compact (spacings) tested
+  std::optional<double> height_radius;  ///< height-plane radius (> 0); default 2 * radius
   HeightMode height_mode = HeightMode::kAll;  ///< which points get a height
   int num_threads = 0;               ///< 0: all available; the results never depend on it
 };
@@ -71,6 +77,7 @@ struct PointsDetectSummary {
   double radius = 0.0;          ///< the values used
   double min_step = 0.0;
   double link = 0.0;
+  double height_radius = 0.0;
 };
 
 /// Everything, owned.

@@ -150,7 +150,9 @@ py::tuple estimate_normals(const py::array& points, double radius, int num_threa
 py::tuple detect_points(const py::array& points, double theta0, std::vector<int> scales,
                         std::optional<double> radius, int K, std::optional<double> min_step,
                         int min_directions, int max_iterations, std::optional<double> link,
-                        int height_mode, int num_threads) {
+                        int height_mode, int num_threads, int min_group, double height_abs,
+                        double height_k, double edge_extent,
+                        std::optional<double> height_radius) {
   require_points(points, "points");
   miem::PointsDetectParams p;
   p.theta0_deg = theta0;
@@ -161,6 +163,11 @@ py::tuple detect_points(const py::array& points, double theta0, std::vector<int>
   p.min_directions = min_directions;
   p.max_iterations = max_iterations;
   p.link = link;
+  p.min_group = min_group;
+  p.height_abs = height_abs;
+  p.height_k = height_k;
+  p.edge_extent = edge_extent;
+  p.height_radius = height_radius;
   if (height_mode != 0 && height_mode != 1) throw std::invalid_argument("heights: bad mode");
   p.height_mode = static_cast<miem::HeightMode>(height_mode);
   p.num_threads = num_threads;
@@ -186,7 +193,7 @@ py::tuple detect_points(const py::array& points, double theta0, std::vector<int>
   py::list defects = defect_list(s.defects);
   py::object plane = plane_or_none(s.plane);
   return py::make_tuple(labels, flags, angle, height, degenerate, plane, s.iterations, defects,
-                        s.spacing, s.radius, s.min_step, s.link);
+                        s.spacing, s.radius, s.min_step, s.link, s.height_radius);
 }
 
 }  // namespace
@@ -209,5 +216,7 @@ void bind_unorganized(py::module_& m) {
   m.def("detect_points", &detect_points, py::arg("points"), py::arg("theta0"), py::arg("scales"),
         py::arg("radius"), py::arg("K"), py::arg("min_step"), py::arg("min_directions"),
         py::arg("max_iterations"), py::arg("link"), py::arg("height_mode"),
-        py::arg("num_threads"));
+        py::arg("num_threads"), py::arg("min_group") = 0, py::arg("height_abs") = 0.0,
+        py::arg("height_k") = 0.0, py::arg("edge_extent") = 0.0,
+        py::arg("height_radius") = py::none());
 }

@@ -1,0 +1,160 @@
+// Height passes on unorganized clouds (docs/SPEC.md, "Unorganized clouds: floating groups and
+// height test"). Jacobi passes: within a pass the NORMAL set and the EDGE groups are fixed; the
+// first pass tests every NORMAL and compact-EDGE point (one gather per grid cell), later passes
+// only the points within the height radius of a point whose role changed.
+#include <algorithm>
+#include <cmath>
+
+#include "cloud_stages.hpp"
+
+namespace miem::cloud {
+
+namespace {
+
+// Role of a point in a height pass.
+enum Role : std::uint8_t { kRoleNormal = 0, kRoleCompact = 1, kRoleLine = 2, kRoleNone = 3 };
+
+// Roles from the labels: EDGE points grouped by distance <= link, a group is compact when twice
+// the largest distance of a member from its centroid is <= compact_len.
+template <typename T>
+void assign_roles(const NeighborGrid<T>& grid, const PointsView<T>& points,
+                  const std::uint8_t* labels, double link, double compact_len,
+                  std::vector<std::uint8_t>& role, std::vector<std::int64_t>& queue) {
+  const std::ptrdiff_t N = points.size;
+  for (std::ptrdiff_t i = 0; i < N; ++i) {
+    role[i] = labels[i] == kNormal ? kRoleNormal : labels[i] == kEdge ? 4 : kRoleNone;
+  }
+  for (std::ptrdiff_t start = 0; start < N; ++start) {
+    if (role[start] != 4) continue;
+    queue.assign(1, start);
+    role[start] = 5;  // grouped, undecided
+    for (std::size_t head = 0; head < queue.size(); ++head) {
+      grid.for_each_in_radius(points[queue[head]], link, [&](std::ptrdiff_t j, double) {
+        if (role[j] == 4) {
+          role[j] = 5;
+          queue.push_back(j);
+        }
+      });
+    }
+    std::sort(queue.begin(), queue.end());
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    for (std::int64_t j : queue) sum += points[j];
+    const Eigen::Vector3d c = sum / static_cast<double>(queue.size());
+    double far2 = 0.0;
+    for (std::int64_t j : queue) far2 = std::max(far2, (points[j] - c).squaredNorm());
+    const std::uint8_t r = 2.0 * std::sqrt(far2) <= compact_len ? kRoleCompact : kRoleLine;
+    for (std::int64_t j : queue) role[j] = r;
+  }
+}
+
+// The height verdict of point p from the NORMAL / line candidates gathered around it.
+inline bool too_far(const Gather& g, const Eigen::Vector3d& p, const std::uint8_t* role,
+                    const HeightTest& t, Selection& s) {
+  select(g, p, t.radius * t.radius, -1, s);
+  std::size_t m = 0;
+  for (std::size_t k = 0; k < s.n; ++k) {
+    const std::uint8_t r = role[s.id[k]];
+    if (r == kRoleLine) return false;  // designed feature nearby: the test abstains
+    if (r != kRoleNormal) continue;
+    s.wx[m] = s.wx[k];
+    s.wy[m] = s.wy[k];
+    s.wz[m] = s.wz[k];
+    s.d2[m] = s.d2[k];
+    s.id[m] = s.id[k];
+    ++m;
+  }
+  s.n = m;
+  LocalPlane lp;
+  if (fit_selection(s, false, &lp) != PlaneStatus::kOk) return false;
+  const double h = std::abs(lp.normal.dot(lp.mean));
+  const double n = static_cast<double>(lp.n);
+  const Eigen::Vector3d& ev = lp.eigenvalues;
+  if (t.abs > 0.0 && h > t.abs) return true;
+  const double rms = std::sqrt(std::max(ev(0), 0.0) / n);
+  return t.k > 0.0 && h > t.k * rms && h > 1e-9 * std::sqrt((ev(1) + ev(2)) / n);
+}
+
+}  // namespace
+
+template <typename T>
+int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std::uint8_t* labels,
+                  const HeightTest& t, std::vector<JudgeScratch>& scratch, int num_threads) {
+  const std::ptrdiff_t N = points.size;
+  const int nt = static_cast<int>(scratch.size());
+  std::vector<std::uint8_t> role(static_cast<std::size_t>(N)), prev;
+  std::vector<std::uint8_t> mark(static_cast<std::size_t>(N), 0);  // 1: new ABNORMAL
+  std::vector<std::int64_t> queue, candidates;
+  const std::uint32_t* order = grid.order();
+  const std::uint8_t* rl = nullptr;
+  auto keep = [&rl](std::uint32_t, std::uint32_t j) {
+    return rl[j] == kRoleNormal || rl[j] == kRoleLine;
+  };
+  auto tested = [](std::uint8_t r) { return r == kRoleNormal || r == kRoleCompact; };
+  int passes = 0;
+  while (passes < t.max_iterations) {
+    assign_roles(grid, points, labels, t.link, t.compact_len, role, queue);
+    rl = role.data();
+    ++passes;
+    if (passes == 1) {
+      parallel_cells(grid, nt, [&](std::ptrdiff_t cell, int tid) {
+        const std::uint32_t b = grid.cell_begin(cell), e = grid.cell_begin(cell + 1);
+        bool any = false;
+        for (std::uint32_t k = b; k < e && !any; ++k) any = tested(rl[order[k]]);
+        if (!any) return;
+        JudgeScratch& js = scratch[tid];
+        gather_box(grid, cell_box(grid, cell, t.radius), keep, js.gather);
+        for (std::uint32_t k = b; k < e; ++k) {
+          const std::uint32_t i = order[k];
+          if (tested(rl[i]) && too_far(js.gather, grid.sorted_point(k), rl, t, js.sel)) mark[i] = 1;
+        }
+      });
+    } else {
+      // Points within the height radius of a point whose role changed.
+      candidates.clear();
+      std::vector<std::uint8_t>& seen = mark;  // all 0 here
+      for (std::ptrdiff_t i = 0; i < N; ++i) {
+        if (role[i] == prev[i]) continue;
+        grid.for_each_in_radius(points[i], t.radius, [&](std::ptrdiff_t j, double) {
+          if (!seen[j] && tested(rl[j])) {
+            seen[j] = 2;
+            candidates.push_back(j);
+          }
+        });
+      }
+      for (std::int64_t j : candidates) seen[j] = 0;
+      std::sort(candidates.begin(), candidates.end());
+      const std::ptrdiff_t nc = static_cast<std::ptrdiff_t>(candidates.size());
+      const int ntc = detail::thread_count(num_threads, nc, 1024);
+#pragma omp parallel for schedule(dynamic, 64) num_threads(ntc) if (ntc > 1)
+      for (std::ptrdiff_t c = 0; c < nc; ++c) {
+        const std::int64_t i = candidates[c];
+        JudgeScratch& js = scratch[thread_id()];
+        const Eigen::Vector3d pi = points[i];
+        gather_box(grid, grid.box_around(pi, pi, t.radius), keep, js.gather);
+        if (too_far(js.gather, pi, rl, t, js.sel)) mark[i] = 1;
+      }
+    }
+    std::ptrdiff_t added = 0;
+    for (std::ptrdiff_t i = 0; i < N; ++i) {
+      if (mark[i]) {
+        labels[i] = kAbnormal;
+        mark[i] = 0;
+        ++added;
+      }
+    }
+    if (added == 0) break;
+    prev = role;
+    // Roles are recomputed at the top of the next pass; points whose role changes there (new
+    // ABNORMAL points, EDGE groups split or joined) trigger the re-tests.
+  }
+  return passes;
+}
+
+template int height_passes<float>(const NeighborGrid<float>&, const PointsView<float>&,
+                                  std::uint8_t*, const HeightTest&, std::vector<JudgeScratch>&,
+                                  int);
+template int height_passes<double>(const NeighborGrid<double>&, const PointsView<double>&,
+                                   std::uint8_t*, const HeightTest&, std::vector<JudgeScratch>&,
+                                   int);
+
+}  // namespace miem::cloud

@@ -1,0 +1,371 @@
+// Kernels of the unorganized-cloud stages (unorganized.cpp, floating_groups.cpp,
+// cloud_height_test.cpp): candidate gathers, selections, local plane fits, the point judge
+// and the cell-parallel loop. Internal to the core.
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+#include <Eigen/Eigenvalues>
+#include <Eigen/Geometry>
+
+#include "miem/neighbor_grid.hpp"
+#include "miem/unorganized.hpp"
+#include "parallel.hpp"
+
+namespace miem::cloud {
+
+inline constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+inline constexpr double kInf = std::numeric_limits<double>::infinity();
+inline constexpr double kPi = 3.14159265358979323846;
+inline constexpr double kRadToDeg = 57.29577951308232;
+inline constexpr double kDegToRad = 0.017453292519943295;
+inline constexpr int kMaxDirections = 8;
+
+template <typename T>
+void check_view(const PointsView<T>& points) {
+  if (points.size < 0 || (points.size > 0 && points.data == nullptr)) {
+    throw std::invalid_argument("points: null data");
+  }
+}
+
+template <typename T>
+std::ptrdiff_t count_finite(const PointsView<T>& points, int num_threads) {
+  std::ptrdiff_t n = 0;
+  const int nt = detail::thread_count(num_threads, points.size);
+#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1) reduction(+ : n)
+  for (std::ptrdiff_t i = 0; i < points.size; ++i) n += points[i].allFinite();
+  return n;
+}
+
+// Candidate points gathered from a box of cells, structure of arrays (absolute coordinates, so
+// q - p is computed exactly as a brute-force search would).
+struct Gather {
+  std::vector<double> x, y, z;
+  std::vector<std::uint32_t> id;
+  std::size_t n = 0;
+
+  void clear() { n = 0; }
+  void push(const Eigen::Vector3d& q, std::uint32_t j) {
+    if (n == x.size()) {
+      const std::size_t cap = std::max<std::size_t>(64, 2 * n);
+      x.resize(cap);
+      y.resize(cap);
+      z.resize(cap);
+      id.resize(cap);
+    }
+    x[n] = q.x();
+    y[n] = q.y();
+    z[n] = q.z();
+    id[n] = j;
+    ++n;
+  }
+};
+
+// The selected neighbourhood of one point: offsets w = q - p and their squared lengths.
+struct Selection {
+  std::vector<double> wx, wy, wz, d2;
+  std::vector<std::uint32_t> id;
+  std::size_t n = 0;
+
+  void reserve(std::size_t cap) {
+    if (wx.size() < cap) {
+      wx.resize(cap);
+      wy.resize(cap);
+      wz.resize(cap);
+      d2.resize(cap);
+      id.resize(cap);
+    }
+  }
+};
+
+// Gather the points of `box` that pass `keep(position in order(), index)`, in cell-key order.
+template <typename T, typename Keep>
+void gather_box(const NeighborGrid<T>& grid, const CellBox& box, Keep&& keep, Gather& g) {
+  g.clear();
+  const std::uint32_t* order = grid.order();
+  grid.for_each_cell(box, [&](std::ptrdiff_t cell) {
+    const std::uint32_t e = grid.cell_begin(cell + 1);
+    for (std::uint32_t k = grid.cell_begin(cell); k < e; ++k) {
+      const std::uint32_t j = order[k];
+      if (keep(k, j)) g.push(grid.sorted_point(k), j);
+    }
+  });
+}
+
+// Select the gathered points within r of p (excluding index `self`, pass -1 to keep it).
+// Branchless compaction: every candidate is written, the count advances only for the kept ones.
+inline void select(const Gather& g, const Eigen::Vector3d& p, double r2, std::int64_t self,
+                   Selection& s) {
+  s.reserve(g.n + 1);
+  const double* __restrict gx = g.x.data();
+  const double* __restrict gy = g.y.data();
+  const double* __restrict gz = g.z.data();
+  const std::uint32_t* __restrict gid = g.id.data();
+  double* __restrict wx = s.wx.data();
+  double* __restrict wy = s.wy.data();
+  double* __restrict wz = s.wz.data();
+  double* __restrict sd2 = s.d2.data();
+  std::uint32_t* __restrict sid = s.id.data();
+  std::size_t m = 0;
+  const double px = p.x(), py = p.y(), pz = p.z();
+  const std::size_t n = g.n;
+  for (std::size_t k = 0; k < n; ++k) {
+    const double dx = gx[k] - px, dy = gy[k] - py, dz = gz[k] - pz;
+    const double d2 = dx * dx + dy * dy + dz * dz;
+    wx[m] = dx;
+    wy[m] = dy;
+    wz[m] = dz;
+    sd2[m] = d2;
+    sid[m] = gid[k];
+    m += static_cast<std::size_t>((d2 <= r2) & (static_cast<std::int64_t>(gid[k]) != self));
+  }
+  s.n = m;
+}
+
+// Eigen-decomposition of a symmetric 3 x 3 scatter matrix: eigenvalues ascending, orthonormal
+// eigenvectors in the columns of V. The QR iteration, as in fit_plane: the closed form
+// (computeDirect) is 2.5x faster but loses up to ~1e-8 of the norm on nearly collinear or
+// 3-point neighbourhoods, which would move normals and the degeneracy test.
+inline void eigen_sym3(const Eigen::Matrix3d& M, Eigen::Vector3d& w, Eigen::Matrix3d& V) {
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(M, Eigen::ComputeEigenvectors);
+  w = es.info() == Eigen::Success ? es.eigenvalues() : Eigen::Vector3d::Constant(kNaN);
+  V = es.eigenvectors();
+}
+
+// Eigen plane of a selection (section "Plane fit" of SPEC.md), centred two-pass moments of the
+// offsets. On success: oriented normal, largest-eigenvalue eigenvector, the centroid offset from p.
+struct LocalPlane {
+  Eigen::Vector3d normal, major, mean;
+  Eigen::Vector3d eigenvalues;
+  std::size_t n = 0;
+};
+
+inline PlaneStatus fit_selection(const Selection& s, bool want_major, LocalPlane* out) {
+  const std::size_t n = s.n;
+  if (n < 3) return PlaneStatus::kTooFewPoints;
+  double sx = 0, sy = 0, sz = 0;
+  for (std::size_t k = 0; k < n; ++k) {
+    sx += s.wx[k];
+    sy += s.wy[k];
+    sz += s.wz[k];
+  }
+  const double inv = 1.0 / static_cast<double>(n);
+  const double mx = sx * inv, my = sy * inv, mz = sz * inv;
+  double xx = 0, xy = 0, xz = 0, yy = 0, yz = 0, zz = 0;
+  for (std::size_t k = 0; k < n; ++k) {
+    const double a = s.wx[k] - mx, b = s.wy[k] - my, c = s.wz[k] - mz;
+    xx += a * a;
+    xy += a * b;
+    xz += a * c;
+    yy += b * b;
+    yz += b * c;
+    zz += c * c;
+  }
+  Eigen::Matrix3d M;
+  M << xx, xy, xz, xy, yy, yz, xz, yz, zz;
+  Eigen::Vector3d ev;
+  Eigen::Matrix3d V;
+  eigen_sym3(M, ev, V);
+  if (!(ev(2) > 0.0) || ev(1) <= 1e-12 * ev(2)) return PlaneStatus::kDegenerate;
+  out->normal = orient_normal(V.col(0).normalized());
+  if (want_major) {
+    Eigen::Vector3d e1 = V.col(2).normalized();
+    if (!(ev(2) - ev(1) > 1e-6 * ev(2))) {
+      // In-plane isotropic neighbourhood (a regular lattice): the eigenvector is arbitrary, so
+      // project the coordinate axis least aligned with n onto the tangent plane (SPEC.md).
+      const Eigen::Vector3d& nn = out->normal;
+      int ax = 0;
+      for (int a = 1; a < 3; ++a) {
+        if (std::abs(nn(a)) < std::abs(nn(ax))) ax = a;
+      }
+      Eigen::Vector3d unit = Eigen::Vector3d::Zero();
+      unit(ax) = 1.0;
+      const Eigen::Vector3d proj = unit - unit.dot(nn) * nn;
+      e1 = proj / std::sqrt(proj.dot(proj));
+    }
+    int big = 0;
+    for (int a = 1; a < 3; ++a) {
+      if (std::abs(e1(a)) > std::abs(e1(big))) big = a;
+    }
+    if (e1(big) < 0.0) e1 = -e1;
+    out->major = e1;
+  }
+  out->mean = Eigen::Vector3d(mx, my, mz);
+  out->eigenvalues = ev;
+  out->n = n;
+  return PlaneStatus::kOk;
+}
+
+// Per-thread scratch of the judge.
+struct JudgeScratch {
+  Gather gather;
+  Selection sel;
+  std::vector<double> best_d2;  // per (direction, side, scale) slot
+  std::vector<int> best_m;      // position in `sel` of the slot's neighbour, -1: none
+};
+
+// The judgment of SPEC.md "Unorganized clouds" for one point against a fixed usable set.
+class PointJudge {
+ public:
+  PointJudge(const PointsDetectParams& p, double radius, double min_step)
+      : r2_(radius * radius),
+        min_step_(min_step),
+        K_(p.num_directions),
+        min_dirs_(p.min_directions),
+        scales_(p.scales),
+        cos0_(std::cos(p.theta0_deg * kDegToRad)),
+        cos_half_(std::cos(kPi / (2.0 * p.num_directions))) {
+    for (int k = 0; k < K_; ++k) {
+      const double a = static_cast<double>(k) * kPi / static_cast<double>(K_);
+      ck_[k] = std::cos(a);
+      sk_[k] = std::sin(a);
+    }
+  }
+
+  // Judges point `i` at `p` using the candidates already gathered in `js.gather` (a superset of
+  // its usable neighbourhood, in grid order).
+  std::uint8_t judge(std::uint32_t i, const Eigen::Vector3d& p, JudgeScratch& js,
+                     std::uint8_t* flags, double* angle, bool* degenerate) const {
+    Selection& s = js.sel;
+    select(js.gather, p, r2_, static_cast<std::int64_t>(i), s);
+    *flags = 0;
+    *angle = kNaN;
+    *degenerate = false;
+    if (s.n < 3) return kAbnormal;
+    LocalPlane lp;
+    if (fit_selection(s, true, &lp) != PlaneStatus::kOk) {
+      *degenerate = true;
+      return kNormal;
+    }
+    const Eigen::Vector3d n = lp.normal, e1 = lp.major, e2 = n.cross(e1);
+    Eigen::Vector3d d[kMaxDirections];
+    for (int k = 0; k < K_; ++k) d[k] = ck_[k] * e1 + sk_[k] * e2;
+    const int S = static_cast<int>(scales_.size());
+    const std::size_t slots = static_cast<std::size_t>(K_) * 2 * S;
+    js.best_d2.assign(slots, kInf);
+    js.best_m.assign(slots, -1);
+    double* __restrict bd2 = js.best_d2.data();
+    int* __restrict bm = js.best_m.data();
+    const double* wx = s.wx.data();
+    const double* wy = s.wy.data();
+    const double* wz = s.wz.data();
+    const double* sd2 = s.d2.data();
+    const std::uint32_t* sid = s.id.data();
+    double step_len[16];
+    const int S_fast = std::min(S, 16);
+    // Scale s: the neighbour beyond (2s - 1) * min_step (SPEC "Unorganized clouds").
+    for (int si = 0; si < S_fast; ++si) step_len[si] = (2 * scales_[si] - 1) * min_step_;
+    const int n_sel = static_cast<int>(s.n);
+    for (int m = 0; m < n_sel; ++m) {
+      const Eigen::Vector3d w(wx[m], wy[m], wz[m]);
+      const Eigen::Vector3d t = w - w.dot(n) * n;
+      const double tlen = std::sqrt(t.dot(t));
+      if (!(tlen > 0.0)) continue;
+      const double lim = tlen * cos_half_;
+      const double d2 = sd2[m];
+      for (int k = 0; k < K_; ++k) {
+        const double td = t.dot(d[k]);
+        int side;
+        if (td >= lim) {
+          side = 0;  // g = +1
+        } else if (-td >= lim) {
+          side = 1;  // g = -1
+        } else {
+          continue;
+        }
+        int* slot_m = bm + (k * 2 + side) * S;
+        double* slot_d2 = bd2 + (k * 2 + side) * S;
+        for (int si = 0; si < S; ++si) {
+          const double need = si < S_fast ? step_len[si] : (2 * scales_[si] - 1) * min_step_;
+          if (!(tlen >= need)) continue;
+          if (d2 < slot_d2[si] || (d2 == slot_d2[si] && sid[m] < sid[slot_m[si]])) {
+            slot_d2[si] = d2;
+            slot_m[si] = m;
+          }
+        }
+      }
+    }
+    int avail = 0, flagged = 0;
+    std::uint8_t mask = 0;
+    double best_cos = -2.0;
+    for (int k = 0; k < K_; ++k) {
+      bool dir_avail = false, dir_flag = false;
+      for (int si = 0; si < S; ++si) {
+        const int mp = bm[(k * 2 + 0) * S + si], mm = bm[(k * 2 + 1) * S + si];
+        if (mp < 0 || mm < 0) continue;
+        const Eigen::Vector3d u(wx[mm], wy[mm], wz[mm]);  // A - P, A on side -1
+        const Eigen::Vector3d v(wx[mp], wy[mp], wz[mp]);  // B - P
+        const double uu = sd2[mm], vv = sd2[mp];
+        if (uu == 0.0 || vv == 0.0) continue;
+        const double cs = std::clamp(u.dot(v) / std::sqrt(uu * vv), -1.0, 1.0);
+        dir_avail = true;
+        if (cs >= cos0_) dir_flag = true;
+        if (cs > best_cos) best_cos = cs;
+      }
+      avail += dir_avail;
+      if (dir_flag) {
+        ++flagged;
+        mask |= static_cast<std::uint8_t>(1u << k);
+      }
+    }
+    *flags = mask;
+    *angle = best_cos > -2.0 ? std::acos(best_cos) * kRadToDeg : kNaN;
+    const int need = min_dirs_ > 0 ? std::min(avail, min_dirs_) : avail;
+    if (avail >= 2 && flagged >= need) return kAbnormal;
+    return flagged > 0 ? kEdge : kNormal;
+  }
+
+ private:
+  double r2_, min_step_;
+  int K_, min_dirs_;
+  const std::vector<int>& scales_;
+  double cos0_, cos_half_;
+  double ck_[kMaxDirections] = {}, sk_[kMaxDirections] = {};
+};
+
+inline int thread_id() {
+#ifdef MIEM_HAVE_OPENMP
+  return omp_get_thread_num();
+#else
+  return 0;
+#endif
+}
+
+// Runs `fn(cell, thread)` over the cells of `grid` in parallel (dynamic schedule).
+template <typename T, typename Fn>
+void parallel_cells(const NeighborGrid<T>& grid, int nt, Fn&& fn) {
+  const std::ptrdiff_t ncells = grid.num_cells();
+#pragma omp parallel for schedule(dynamic, 16) num_threads(nt) if (nt > 1)
+  for (std::ptrdiff_t c = 0; c < ncells; ++c) fn(c, thread_id());
+}
+
+// The box of cells within r of the points of `cell`.
+template <typename T>
+CellBox cell_box(const NeighborGrid<T>& grid, std::ptrdiff_t cell, double r) {
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(kInf), hi = Eigen::Vector3d::Constant(-kInf);
+  const std::uint32_t e = grid.cell_begin(cell + 1);
+  for (std::uint32_t k = grid.cell_begin(cell); k < e; ++k) {
+    const Eigen::Vector3d p = grid.sorted_point(k);
+    lo = lo.cwiseMin(p);
+    hi = hi.cwiseMax(p);
+  }
+  return grid.box_around(lo, hi, r);
+}
+
+// Cell size for a grid used with query radius r.
+inline double grid_cell(double r) { return r; }
+
+// Height plane of a point (NORMAL points within sqrt(r2), itself included when NORMAL) from the
+// gathered NORMAL candidates.
+inline PlaneStatus height_plane(const Gather& g, const Eigen::Vector3d& p, double r2, Selection& s,
+                                LocalPlane* lp) {
+  select(g, p, r2, -1, s);
+  return fit_selection(s, false, lp);
+}
+
+
+}  // namespace miem::cloud
