@@ -131,7 +131,7 @@ def literal_detect_points(
                             w = points[q] - points[p]
                             t = w - float(w @ nrm) * nrm
                             tl = math.sqrt(float(t @ t))
-                            if tl > 0 and tl >= s * min_step and g * float(t @ d) >= tl * cos_half:
+                            if tl > 0 and tl >= (2 * s - 1) * min_step and g * float(t @ d) >= tl * cos_half:
                                 key = (dist(p, q), q)
                                 if best is None or key < best:
                                     best = key
@@ -223,7 +223,7 @@ def test_detect_points_matches_literal_transcription(kwargs: dict, seed: int) ->
     np.testing.assert_allclose(res.angle, angle, rtol=0, atol=1e-9)
     np.testing.assert_array_equal(res.degenerate, degenerate)
     assert res.iterations == passes
-    heights = literal_heights(pts, res.labels, res.params["radius"])
+    heights = literal_heights(pts, res.labels, res.params["height_radius"])
     np.testing.assert_allclose(res.height, heights, rtol=0, atol=1e-9)
 
 
@@ -337,10 +337,11 @@ def test_two_wide_burr_needs_scale_two() -> None:
     assert not (res1.labels == A).any()
     assert np.all(res1.labels[burr] == E)
     assert res1.defects == []
-    # Scale 2 with min_step = 0.6: the neighbours must be >= 1.2 away in the tangent plane, so
+    # Scale 2 with min_step = 0.4: the neighbours must be >= 3 * 0.4 = 1.2 away in the tangent
+    # plane (scale s: (2s - 1) * min_step), so
     # the search passes over the other burr point onto the flat lattice, 2 cells away on both
     # sides: u = (-2, 0, -4), v = (2, 0, -4), cos = 12/20, 53.1 deg, flagged.
-    res2 = ref.detect_points(pts, radius=6.0, scales=(1, 2), min_step=0.6)
+    res2 = ref.detect_points(pts, radius=6.0, scales=(1, 2), min_step=0.4)
     assert np.flatnonzero(res2.labels == A).tolist() == burr
     assert np.all(res2.flags[burr] == 0b1111)
     (d,) = res2.defects
@@ -420,10 +421,13 @@ def test_defaults_recorded_on_known_lattice() -> None:
     h = 0.25
     pts = lattice(12, h, m=9)
     res = ref.detect_points(pts)
-    assert res.params == {"spacing": h, "radius": 5 * h, "min_step": 0.5 * h, "link": 5 * h, "K": 4}
+    off = {"min_group": 0, "edge_extent": 0.0, "height_tolerance": None}
+    assert res.params == {"spacing": h, "radius": 5 * h, "min_step": 0.5 * h, "link": 5 * h,
+                          "K": 4, "height_radius": 10 * h, **off}
     assert isinstance(res.params["K"], int)
     res = ref.detect_points(pts, radius=1.0, min_step=0.1, K=6)
-    assert res.params == {"spacing": h, "radius": 1.0, "min_step": 0.1, "link": 1.0, "K": 6}
+    assert res.params == {"spacing": h, "radius": 1.0, "min_step": 0.1, "link": 1.0, "K": 6,
+                          "height_radius": 2.0, **off}
     res = ref.detect_points(pts, link=0.3)
     assert res.params["link"] == 0.3 and res.params["radius"] == 5 * h
     assert np.all(res.labels == N)

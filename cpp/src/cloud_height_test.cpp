@@ -55,7 +55,7 @@ inline bool too_far(const Gather& g, const Eigen::Vector3d& p, const std::uint8_
   for (std::size_t k = 0; k < s.n; ++k) {
     const std::uint8_t r = role[s.id[k]];
     if (r == kRoleLine) return false;  // designed feature nearby: the test abstains
-    if (r != kRoleNormal) continue;
+    if (r != kRoleNormal || s.d2[k] <= t.inner * t.inner) continue;  // the surroundings only
     s.wx[m] = s.wx[k];
     s.wy[m] = s.wy[k];
     s.wz[m] = s.wz[k];
@@ -124,7 +124,7 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
       for (std::int64_t j : candidates) seen[j] = 0;
       std::sort(candidates.begin(), candidates.end());
       const std::ptrdiff_t nc = static_cast<std::ptrdiff_t>(candidates.size());
-      const int ntc = detail::thread_count(num_threads, nc, 1024);
+      const int ntc = std::min(nt, detail::thread_count(num_threads, nc, 1024));  // <= scratch
 #pragma omp parallel for schedule(dynamic, 64) num_threads(ntc) if (ntc > 1)
       for (std::ptrdiff_t c = 0; c < nc; ++c) {
         const std::int64_t i = candidates[c];

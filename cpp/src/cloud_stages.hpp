@@ -23,14 +23,16 @@ struct HeightTest {
   double abs = 0.0;            ///< > 0: |h| above this
   double k = 0.0;              ///< > 0: |h| above k * rms
   double radius = 0.0;         ///< height-plane radius
+  double inner = 0.0;          ///< the plane is fitted to the NORMAL points beyond this
   double link = 0.0;           ///< EDGE grouping distance
   double compact_len = 0.0;    ///< EDGE groups at most this across are compact
   int max_iterations = 1;
 };
 
 /// Height passes: NORMAL and compact-EDGE points farther than the tolerance from the plane of
-/// the NORMAL points within `t.radius` become ABNORMAL, unless a feature-line EDGE point is
-/// within `t.radius`. Returns the number of passes run.
+/// the NORMAL points at distances in (`t.inner`, `t.radius`] (the surroundings, not the point's
+/// own bump) become ABNORMAL, unless a feature-line EDGE point is within `t.radius`. Returns the
+/// number of passes run.
 template <typename T>
 int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std::uint8_t* labels,
                   const HeightTest& t, std::vector<JudgeScratch>& scratch, int num_threads);

@@ -264,7 +264,7 @@ PointsDetectSummary detect_points(const PointsView<T>& points, const PointsDetec
     }
     std::sort(candidates.begin(), candidates.end());
     const std::ptrdiff_t nc = static_cast<std::ptrdiff_t>(candidates.size());
-    const int ntc = detail::thread_count(p.num_threads, nc, 1024);
+    const int ntc = std::min(nt, detail::thread_count(p.num_threads, nc, 1024));  // <= scratch
 #pragma omp parallel for schedule(dynamic, 64) num_threads(ntc) if (ntc > 1)
     for (std::ptrdiff_t c = 0; c < nc; ++c) {
       const std::uint32_t i = static_cast<std::uint32_t>(candidates[c]);
@@ -292,6 +292,7 @@ PointsDetectSummary detect_points(const PointsView<T>& points, const PointsDetec
     t.abs = p.height_abs;
     t.k = p.height_k;
     t.radius = hr;
+    t.inner = radius;
     t.link = link;
     t.compact_len = p.edge_extent * summary.spacing;
     t.max_iterations = p.max_iterations;
@@ -375,7 +376,7 @@ PointsDetectSummary detect_points(const PointsView<T>& points, const PointsDetec
       if (labels[i] == kAbnormal) abn.push_back(static_cast<std::uint32_t>(i));
     }
     const std::ptrdiff_t na = static_cast<std::ptrdiff_t>(abn.size());
-    const int nta = detail::thread_count(p.num_threads, na, 1024);
+    const int nta = std::min(nt, detail::thread_count(p.num_threads, na, 1024));  // <= scratch
 #pragma omp parallel for schedule(dynamic, 64) num_threads(nta) if (nta > 1)
     for (std::ptrdiff_t a = 0; a < na; ++a) {
       const std::uint32_t i = abn[a];

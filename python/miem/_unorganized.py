@@ -356,9 +356,10 @@ def detect_points(
         Threads (default: all cores). The results do not depend on it.
     height_tolerance : float, str or None
         Height test, beyond the paper: after the angle passes, a NORMAL point farther than this
-        from the plane of the NORMAL points within ``height_radius`` becomes ABNORMAL (a length,
-        or ``"<k>rms"`` for ``k`` times that plane's rms). None: off. The test abstains where a
-        feature-line EDGE point is within ``height_radius``.
+        from the plane of its surroundings (the NORMAL points farther than ``radius`` and within
+        ``height_radius``) becomes ABNORMAL (a length, or ``"<k>rms"`` for ``k`` times that
+        plane's rms). None: off. The test abstains where a feature-line EDGE point is within
+        ``height_radius``.
     edge_extent : float
         With the height test: EDGE groups (points linked by ``link``) at most this many
         spacings across are compact (a defect's halo, a short ridge) and are height-tested;

@@ -1755,6 +1755,7 @@ def _cloud_height_pass(
     hi: NDArray[np.int64],
     hj: NDArray[np.int64],
     hw: NDArray[np.float64],
+    outer: NDArray[np.bool_],
     normal: NDArray[np.bool_],
     compact: NDArray[np.bool_],
     line: NDArray[np.bool_],
@@ -1762,11 +1763,13 @@ def _cloud_height_pass(
 ) -> NDArray[np.bool_]:
     """One cloud height pass: the NORMAL and compact-EDGE points that become ABNORMAL.
 
-    ``(hi, hj, hw)`` are the pairs within the height radius, each point paired with itself too.
+    ``(hi, hj, hw)`` are the pairs within the height radius, each point paired with itself too;
+    ``outer`` marks the pairs farther apart than ``radius`` (the plane is fitted to those: the
+    surroundings, not the point's own bump).
     """
     n_pts = normal.shape[0]
     tested = normal | compact
-    sel = normal[hj]
+    sel = normal[hj] & outer
     cnt, cen, evals, evecs, ok = _group_fits(hi[sel], hw[sel], n_pts, tested)
     near_line = np.zeros(n_pts, dtype=bool)
     near_line[hi[line[hj]]] = True
@@ -1931,14 +1934,15 @@ def detect_points(
             abnormal |= floating
 
         # Pairs within the height radius, each point paired with itself (offset 0) too.
-        hi, hj, hw, _ = _ball_pairs(tree, pts, pts, hr)
+        hi, hj, hw, hd = _ball_pairs(tree, pts, pts, hr)
         if tolerance is not None:
+            outer = hd > r
             for _ in range(iters):
                 passes += 1
                 edge = labels == EDGE
                 compact = _cloud_compact_edges(pts, edge, lnk, extent * spacing)
                 new_abn = _cloud_height_pass(
-                    hi, hj, hw, labels == NORMAL, compact, edge & ~compact, tolerance
+                    hi, hj, hw, outer, labels == NORMAL, compact, edge & ~compact, tolerance
                 )
                 labels[new_abn] = ABNORMAL
                 abnormal |= new_abn
