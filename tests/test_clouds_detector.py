@@ -167,3 +167,19 @@ def test_bad_parameters(kwargs: dict, name: str) -> None:
     for fn in (miem.detect_points, ref.detect_points):
         with pytest.raises(ValueError, match=name):
             fn(pts, **kwargs)
+
+
+def test_recommended_preset_gives_clouds_the_whole_detector() -> None:
+    pts, groups = scene(1)
+    res = miem.detect(pts, preset="recommended")
+    cloud = miem.CLOUD_PRESETS["recommended"]
+    assert res.params["height_tolerance"] == cloud["height_tolerance"]
+    assert res.params["min_group"] == cloud["min_group"]
+    direct = miem.detect_points(pts, theta0=90.0, scales=(1, 2), **cloud)
+    np.testing.assert_array_equal(res.labels, direct.labels)
+    for name, rows in groups.items():
+        assert np.all(res.labels[rows] == A), name
+    with pytest.raises(ValueError, match="min_group"):
+        miem.detect(np.zeros((4, 4, 3)), min_group=10)
+    with pytest.raises(ValueError, match="max_gap"):
+        miem.detect(pts, max_gap=2)

@@ -26,6 +26,7 @@ __all__ = [
     "scan_line_heights",
     "detect",
     "PRESETS",
+    "CLOUD_PRESETS",
     "DEFAULT_PRESET",
 ]
 
@@ -419,6 +420,16 @@ PRESETS: dict = {
     },
 }
 
+#: Cloud-only values of each preset (unorganized ``(N, 3)`` input), on top of :data:`PRESETS`.
+#: "recommended" was chosen on the tuning split of the held-out-style cloud scenes
+#: (``bench/accuracy/clouds.py``; ``bench/bench_unorganized.py`` reports the test split). Its
+#: ``height_tolerance`` differs from the grids' because the cloud test fits the point's
+#: surroundings only (SPEC "Unorganized clouds: floating groups and height test").
+CLOUD_PRESETS: dict = {
+    "paper": {"height_tolerance": None, "edge_extent": 0, "min_group": 0},
+    "recommended": {"height_tolerance": "7rms", "edge_extent": 12, "min_group": 40},
+}
+
 #: The preset used when ``preset`` is not given: the paper's method, so that a plain call, the
 #: streaming detector (which has no height test) and the C++ defaults agree. For production use
 #: ``preset="recommended"``, which wins the accuracy benchmark (README, bench/accuracy/).
@@ -476,6 +487,8 @@ def detect(
     radius: Optional[float] = None,
     K: int = 4,
     link: Optional[float] = None,
+    min_group: int = DEFAULT,
+    height_radius: Optional[float] = None,
 ) -> DetectResult:
     """Find abnormal points in a scan with MIEM: an organized grid or an unorganized cloud.
 
@@ -490,10 +503,11 @@ def detect(
     An unorganized cloud (``(N, 3)`` points, or an ``open3d.geometry.PointCloud``) goes to
     :func:`miem.detect_points` (tangent-plane directions in a ``radius`` neighbourhood, SPEC.md
     "Unorganized clouds"): ``theta0`` (a number), ``scales``, ``min_step``, ``min_directions``,
-    ``max_iterations``, ``radius``, ``K``, ``link``, ``heights`` and ``num_threads`` apply; the
-    grid-only ``max_gap``, ``window``, ``max_reach`` and ``height_tolerance`` raise ValueError when
-    given, and a preset's ``theta0="auto"`` falls back to 75 (the automatic threshold and the
-    height test are defined for grids only). Per-point arrays then have shape ``(N,)``.
+    ``max_iterations``, ``height_tolerance``, ``edge_extent`` (in spacings), ``radius``, ``K``,
+    ``link``, ``min_group``, ``height_radius``, ``heights`` and ``num_threads`` apply, with the
+    preset's cloud values (:data:`miem.CLOUD_PRESETS`); the grid-only ``max_gap``, ``window``,
+    ``max_reach`` and ``theta0="auto"`` raise ValueError. Per-point arrays then have shape
+    ``(N,)``.
 
     Parameters
     ----------
@@ -571,8 +585,7 @@ def detect(
         grid = from_open3d(grid)
     arr = _as_float_array(grid, "grid")
     if arr.ndim == 2 and arr.shape[1] == 3:
-        given = {"max_gap": max_gap, "window": window, "height_tolerance": height_tolerance,
-                 "edge_extent": edge_extent}
+        given = {"max_gap": max_gap, "window": window}
         bad = sorted(k for k, v in given.items() if v is not DEFAULT)
         if max_reach != 32:
             bad.append("max_reach")
@@ -587,17 +600,23 @@ def detect(
         })
         from ._unorganized import detect_points
 
-        th = cfg["theta0"]
+        name = DEFAULT_PRESET if preset is None else preset
+        cloud = dict(CLOUD_PRESETS[name])
+        cloud.update({k: v for k, v in {"height_tolerance": height_tolerance,
+                                        "edge_extent": edge_extent,
+                                        "min_group": min_group}.items() if v is not DEFAULT})
         res = detect_points(
-            arr, theta0=75.0 if isinstance(th, str) else th, scales=cfg["scales"],
+            arr, theta0=cfg["theta0"], scales=cfg["scales"],
             min_step=cfg["min_step"], min_directions=cfg["min_directions"],
             max_iterations=cfg["max_iterations"], radius=radius, K=K, link=link,
-            heights=heights, num_threads=num_threads,
+            heights=heights, num_threads=num_threads, height_radius=height_radius, **cloud,
         )
         res.params["preset"] = DEFAULT_PRESET if preset is None else preset
         return res
-    if radius is not None or K != 4 or link is not None:
-        raise ValueError("radius, K, link: apply to unorganized clouds (N, 3) only")
+    if (radius is not None or K != 4 or link is not None or min_group is not DEFAULT
+            or height_radius is not None):
+        raise ValueError("radius, K, link, min_group, height_radius: apply to unorganized clouds "
+                         "(N, 3) only")
     cfg = _resolve(preset, {
         "theta0": theta0, "scales": scales, "max_gap": max_gap, "min_step": min_step,
         "min_directions": min_directions, "max_iterations": max_iterations, "window": window,
