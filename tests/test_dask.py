@@ -1,0 +1,214 @@
+"""miem.dask on a LocalCluster with 2 worker processes: labels, flags, angles, heights and
+defects equal miem.detect on the whole grid, for every preset, with defects straddling block
+borders; a killed worker is retried without wrong output."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+
+import numpy as np
+import pytest
+
+import miem
+
+da = pytest.importorskip("dask.array", reason="miem[dask] not installed")
+distributed = pytest.importorskip("distributed", reason="miem[dask] not installed")
+import dask  # noqa: E402
+
+import miem.dask as mdask  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def client():
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        with distributed.Client(cluster) as c:
+            yield c
+
+
+def scene(h: int, w: int, borders_r=(), borders_c=(), seed: int = 0) -> np.ndarray:
+    """A curved noisy sheet (0.25 mm steps) with spikes, pits, a bead line (a designed EDGE
+    feature the whole height long), dropouts, a lost profile, and, on every given block border,
+    defects cut by it: 3x3 spike clusters, a wedge burr whose removal cascades over passes, a
+    smooth spatter dome (caught by the height test only) and a pit."""
+    rng = np.random.default_rng(seed)
+    r, c = np.mgrid[0:h, 0:w].astype(np.float64)
+    x, y = c * 0.25, r * 0.25
+    z = 0.3 * np.exp(-((x - 0.3 * w * 0.25) ** 2) / 60.0) + 0.002 * y
+    z = z + rng.normal(0.0, 0.003, (h, w))
+    bead = w // 5
+    z[:, bead] += 0.75
+    for _ in range(h * w // 800):
+        z[rng.integers(1, h - 1), rng.integers(1, w - 1)] += rng.choice([-1, 1]) * rng.uniform(
+            0.3, 1.5)
+
+    def dome(r0: int, c0: int, rad: float = 3.5, hgt: float = 0.06) -> None:
+        d2 = (r - r0) ** 2 + (c - c0) ** 2
+        z[...] += hgt * np.clip(1 - d2 / rad**2, 0, None) ** 2
+
+    def wedge(r0: int, c0: int, along_rows: bool) -> None:
+        for k, hh in enumerate([2.4, 1.8, 1.3, 0.9, 0.6, 0.35]):
+            rr, cc = (r0 + k - 3, c0) if along_rows else (r0, c0 + k - 3)
+            z[rr, cc] += hh
+            z[rr + (0 if along_rows else 1), cc + (1 if along_rows else 0)] += 0.9 * hh
+
+    def pair(r0: int, c0: int, dr: int, dc: int) -> None:  # removed over two passes
+        z[r0, c0] += 2.0
+        z[r0 + dr, c0 + dc] += 1.0
+
+    for b in borders_r:
+        for cc in (w // 7, 3 * w // 7, 5 * w // 7):
+            z[b - 1:b + 2, cc - 1:cc + 2] += rng.uniform(0.3, 2.0, (3, 3))
+            pair(b - 1, cc + 3, 1, 1)
+            pair(b, cc - 4, -1, 0)
+        wedge(b, 2 * w // 7, along_rows=True)
+        dome(b, 4 * w // 7)
+        z[b, 6 * w // 7] -= 0.8
+    for b in borders_c:
+        for rr in (h // 7, 3 * h // 7, 5 * h // 7):
+            z[rr - 1:rr + 2, b - 1:b + 2] += rng.uniform(0.3, 2.0, (3, 3))
+            pair(rr + 3, b - 1, 1, 1)
+            pair(rr - 4, b, 0, -1)
+        wedge(2 * h // 7, b, along_rows=False)
+        dome(4 * h // 7, b)
+        z[6 * h // 7, b] -= 0.8
+    for br in borders_r:  # corners
+        for bc in borders_c:
+            z[br - 1:br + 1, bc - 1:bc + 1] += 1.2
+    g = np.dstack([x, y, z])
+    g[rng.random((h, w)) < 0.01] = np.nan
+    g[h // 3] = np.nan
+    return g
+
+
+def _defects_equal(got: list, want: list) -> None:
+    assert len(got) == len(want)
+    for a, b in zip(got, want):
+        assert (a.id, a.count, a.kind) == (b.id, b.count, b.kind)
+        np.testing.assert_array_equal(a.indices, b.indices)
+        np.testing.assert_array_equal(a.cells, b.cells)
+        for f in ("centroid", "normal", "peak_height", "mean_height", "extent"):
+            np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f)
+
+
+def check_equal(grid: np.ndarray, chunks, **kw) -> list:
+    """miem.dask on `grid` in `chunks` against miem.detect on the whole grid; returns the
+    defects (for the caller's own checks)."""
+    want = miem.detect(grid, **kw)
+    res = mdask.detect(da.from_array(grid, chunks=chunks + (3,)), **kw)
+    defects, labels, flags, angle, height = res.defects(res.labels, res.flags, res.angle,
+                                                        res.height)
+    np.testing.assert_array_equal(labels, want.labels)
+    np.testing.assert_array_equal(flags, want.flags)
+    np.testing.assert_array_equal(angle, want.angle)
+    np.testing.assert_array_equal(height, want.height)
+    _defects_equal(defects, want.defects)
+    return want.defects
+
+
+def _straddling(defects: list, borders_r=(), borders_c=()) -> int:
+    """Number of defects with cells on both sides of some block border."""
+    n = 0
+    for d in defects:
+        rows, cols = d.cells[:, 0], d.cells[:, 1]
+        n += any((rows < b).any() and (rows >= b).any() for b in borders_r) or any(
+            (cols < b).any() and (cols >= b).any() for b in borders_c)
+    return n
+
+
+@pytest.mark.parametrize("preset", list(miem.PRESETS))
+def test_row_blocks_equal_whole_grid_for_every_preset(client, preset: str) -> None:
+    halo = mdask.grid_halo(miem.detect(scene(8, 8), preset=preset).params)
+    rows = max(64, halo // 2)  # blocks much smaller than the scan: edge blocks see part of it
+    h = 6 * rows
+    borders = tuple(rows * k for k in range(1, 6))
+    g = scene(h, 120, borders_r=borders, seed=1)
+    defects = check_equal(g, (rows, 120), preset=preset)
+    assert _straddling(defects, borders_r=borders) >= 10
+    assert h > rows + 2 * halo or preset == "paper"
+
+
+@pytest.mark.parametrize("preset", list(miem.PRESETS))
+def test_tiles_equal_whole_grid_for_every_preset(client, preset: str) -> None:
+    br, bc = (80, 160), (70, 140)
+    g = scene(240, 200, borders_r=br, borders_c=bc, seed=2).astype(np.float32)
+    defects = check_equal(g, (80, 70), preset=preset)
+    assert _straddling(defects, br, bc) >= 10
+
+
+@pytest.mark.parametrize("kw", [
+    {"scales": (1, 2, 3), "max_gap": 2, "max_iterations": 4},
+    {"min_step": 0.2, "max_reach": 3, "max_iterations": 3},
+    {"preset": "recommended", "max_iterations": 2, "window": 9, "edge_extent": 5},
+    {"preset": "recommended", "height_tolerance": 0.05, "heights": "abnormal"},
+    {"min_directions": 3, "theta0": 100.0},
+])
+def test_overrides_equal_whole_grid(client, kw: dict) -> None:
+    br, bc = (40, 80), (45, 90)
+    g = scene(120, 135, borders_r=br, borders_c=bc, seed=3)
+    defects = check_equal(g, (40, 45), **kw)
+    assert _straddling(defects, br, bc) >= 4
+
+
+def test_halo_is_needed(client) -> None:
+    # The same scene with a halo far below grid_halo: some labels differ, so the equality above
+    # rests on the halo, not on luck.
+    g = scene(256, 120, borders_r=(64, 128, 192), seed=4)
+    want = miem.detect(g, preset="recommended")
+    params = dict(want.params)
+    res = mdask._build(da.from_array(g, chunks=(64, 120, 3)), {"preset": "recommended",
+                                                                "num_threads": 1}, params, 0, 0)
+    assert not np.array_equal(res.labels.compute(), want.labels)
+
+
+def test_blocks_without_points_and_numpy_input(client) -> None:
+    g = scene(200, 60, seed=5)
+    g[:120] = np.nan  # the first blocks and their halos hold no finite point
+    defects = check_equal(g, (20, 30), preset="paper")
+    assert len(defects) > 0
+    res = mdask.detect(g, preset="paper")  # a NumPy array: one block
+    np.testing.assert_array_equal(res.labels.compute(), miem.detect(g, preset="paper").labels)
+
+
+def test_bad_input_is_rejected() -> None:
+    g = da.from_array(scene(30, 30), chunks=(10, 10, 3))
+    with pytest.raises(ValueError, match="theta0"):
+        mdask.detect(g, theta0="auto")
+    with pytest.raises(ValueError, match="window"):
+        mdask.detect(g, window=4)
+    with pytest.raises(ValueError, match="grid"):
+        mdask.detect(da.zeros((10, 3), chunks=5))
+    empty = mdask.detect(da.full((20, 20, 3), np.nan, chunks=(10, 10, 3)))
+    with pytest.raises(ValueError, match="fewer than 3 finite points"):
+        empty.defects()
+
+
+def _slow_read(block: np.ndarray) -> np.ndarray:
+    time.sleep(0.05)  # a slow disk: the run lasts long enough to kill a worker in it
+    return block
+
+
+@pytest.mark.slow
+def test_killed_worker_is_retried(client) -> None:
+    g = scene(1200, 100, borders_r=tuple(range(40, 1200, 40)), seed=6)
+    want = miem.detect(g, preset="paper")
+    grid = da.from_array(g, chunks=(40, 100, 3)).map_blocks(_slow_read)
+    res = mdask.detect(grid, preset="paper")
+    future = client.compute(res.labels)
+    # mid-run: kill a worker process that holds finished blocks and is computing another one
+    deadline = time.time() + 60
+    victim = None
+    while victim is None and time.time() < deadline and not future.done():
+        held, busy = client.has_what(), client.processing()
+        for addr in busy:
+            if busy[addr] and held.get(addr):
+                victim = addr
+                break
+        time.sleep(0.005)
+    assert victim is not None, "the run ended before a worker could be killed"
+    pid = client.run(os.getpid, workers=[victim])[victim]
+    os.kill(pid, signal.SIGKILL)
+    assert not future.done()
+    np.testing.assert_array_equal(future.result(timeout=120), want.labels)
