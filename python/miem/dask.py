@@ -17,7 +17,9 @@ the usable mask of the previous one within ``R``); a height pass reads the label
 and the compactness of EDGE groups, which an ``edge_extent`` ball decides; the heights and the
 defects' normals read the final labels within ``window // 2``. Passes that find nothing new leave
 the labels as they are, so a block that stops earlier or later than the whole grid still agrees
-on its home cells.
+on its home cells. Blocks start on the core's 64-cell window-fit tiles, so that window sums are
+added in the same order as on the whole grid and heights agree to the last bit (``strict=True``
+also makes the halo cover that rounding in the height passes, see :func:`grid_halo`).
 
 Defects are 8-connected components of ABNORMAL cells: a component inside one block's home cells
 (not touching an inner block border) is taken from that block's detection as is; components
@@ -62,13 +64,24 @@ def _probe_params(args: tuple, kwargs: dict) -> dict:
     return dict(miem.detect(probe, *args, **kwargs).params)
 
 
-def grid_halo(params: dict) -> int:
+#: The core's window-fit tile (cpp/src/organized.cpp, window_fits: box sums per 64 x 64 tile in
+#: tile-local coordinates). Blocks start on multiples of it, so that every home cell's window sums
+#: are added in the same order as on the whole grid and heights agree to the last bit.
+_TILE = 64
+
+
+def grid_halo(params: dict, strict: bool = False) -> int:
     """Cells of context a block needs on every side for exact labels and heights.
 
     Parameters
     ----------
     params : dict
         Resolved parameters, as in ``miem.detect(...).params``.
+    strict : bool
+        Also cover the rounding of the core's window sums: they are box sums over 64-cell tiles,
+        so the last bit of a window fit depends on labels up to ``63 + window // 2`` cells away;
+        ``strict`` lets each height pass reach that far (a height-test decision can differ only
+        where ``|h|`` equals the tolerance to the last bit; the tests see none without it).
 
     Returns
     -------
@@ -83,7 +96,10 @@ def grid_halo(params: dict) -> int:
     half = params["window"] // 2
     lag = params["max_iterations"] * reach
     if params["height_tolerance"] is not None:
-        lag += params["max_iterations"] * (half + params["edge_extent"])
+        per_pass = half + params["edge_extent"]
+        if strict:
+            per_pass = max(per_pass, _TILE - 1 + half)
+        lag += params["max_iterations"] * per_pass
     return lag + half
 
 
@@ -99,12 +115,6 @@ def _as_grid(grid: Any) -> "da.Array":
     if len(grid.chunks[2]) != 1:
         grid = grid.rechunk({2: 3})
     return grid
-
-
-#: The core's window-fit tile (cpp/src/organized.cpp, window_fits: box sums per 64 x 64 tile in
-#: tile-local coordinates). Blocks start on multiples of it, so that every home cell's window sums
-#: are added in the same order as on the whole grid and heights agree to the last bit.
-_TILE = 64
 
 
 def _span(a: int, b: int, n: int, halo: int) -> tuple:
@@ -365,8 +375,8 @@ def _assemble(grid: "da.Array", blocks: list, params: dict, kwargs: dict) -> Das
     return DaskDetectResult(params=params, grid=grid, blocks=blocks, kwargs=kwargs, **arrays)
 
 
-def detect(grid: Any, *args: Any, num_threads: Optional[int] = 1, **kwargs: Any
-           ) -> DaskDetectResult:
+def detect(grid: Any, *args: Any, num_threads: Optional[int] = 1, strict: bool = False,
+           **kwargs: Any) -> DaskDetectResult:
     """MIEM on an organized scan held as a Dask array, block by block, exactly as
     :func:`miem.detect` on the whole grid.
 
@@ -381,6 +391,8 @@ def detect(grid: Any, *args: Any, num_threads: Optional[int] = 1, **kwargs: Any
         and checked by it. ``theta0="auto"`` is rejected: it is a median over the whole scan.
     num_threads : int, optional
         Threads per block detection (default 1: one per Dask worker thread; None: all cores).
+    strict : bool
+        A halo that also covers the rounding of the core's window sums (:func:`grid_halo`).
 
     Returns
     -------
@@ -402,7 +414,7 @@ def detect(grid: Any, *args: Any, num_threads: Optional[int] = 1, **kwargs: Any
                          "not run; pass the angle in degrees")
     if args:  # positional parameters: pass the resolved values as keywords
         kwargs = dict(kwargs, **{k: params[k] for k in _PARAM_KEYS if k in params})
-    return _build(grid, kwargs, params, grid_halo(params))
+    return _build(grid, kwargs, params, grid_halo(params, strict))
 
 
 def _build(grid: "da.Array", kwargs: dict, params: dict, halo: int,

@@ -1,0 +1,238 @@
+"""Scan files as Dask arrays, read block by block, and a writer that streams results back.
+
+Nothing is loaded whole: each block of the returned array reads its own slice of the file when
+it is computed (on whichever worker runs it), so memory follows the chunk size, not the scan.
+The file must be reachable by the same path from every worker (a shared or local disk).
+
+- :func:`open_npy`: ``.npy`` of shape ``(H, W, 3)`` (a grid) or ``(N, 3)`` (a cloud).
+- :func:`open_pcd`: binary PCD; organized (``HEIGHT > 1``) as ``(H, W, 3)``, else ``(N, 3)``.
+- :func:`open_las`: LAS/LAZ as ``(N, 3)`` float64 (laspy's chunked reader, one seek per block).
+- :class:`NpyWriter`: a ``.npy`` target for ``dask.array.store`` (labels, heights).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Union
+
+import numpy as np
+
+import dask.array as da
+
+__all__ = ["NpyWriter", "open_las", "open_npy", "open_pcd"]
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+
+def _path(path: PathLike) -> Path:
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"path: no such file: {p}")
+    return p
+
+
+def _positive(name: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name}: expected an integer >= 1, got {value!r}")
+    return int(value)
+
+
+class _Memmap:
+    """A picklable view of a fixed-layout binary array in a file: each __getitem__ maps the file
+    and copies the requested slice (only that slice is read)."""
+
+    def __init__(self, path: Path, offset: int, dtype: np.dtype, shape: tuple) -> None:
+        self.path, self.offset, self.dtype, self.shape = str(path), int(offset), dtype, shape
+        self.ndim = len(shape)
+
+    def __getitem__(self, key: Any) -> np.ndarray:
+        mm = np.memmap(self.path, dtype=self.dtype, mode="r", offset=self.offset,
+                       shape=self.shape)
+        return np.array(mm[key])
+
+
+def _check_payload(path: Path, offset: int, itemsize: int, count: int) -> None:
+    need = offset + itemsize * count
+    have = path.stat().st_size
+    if have < need:
+        raise ValueError(f"path: {path} is truncated: the header says {count:,} points "
+                         f"({need:,} bytes), the file holds {have:,} bytes")
+
+
+def _xyz_chunks(shape: tuple, chunks: Any) -> tuple:
+    if len(shape) == 3:  # a grid: tiles or whole rows, the coordinates in one chunk
+        rows, cols = (chunks, shape[1]) if np.isscalar(chunks) else tuple(chunks)[:2]
+        return (_positive("chunks", rows), _positive("chunks", cols), 3)
+    return (_positive("chunks", chunks if np.isscalar(chunks) else tuple(chunks)[0]), 3)
+
+
+def open_npy(path: PathLike, chunks: Any = 4096) -> "da.Array":
+    """A ``.npy`` scan as a Dask array read block by block (memory-mapped per block).
+
+    Parameters
+    ----------
+    path : str or path
+        ``(H, W, 3)`` grid or ``(N, 3)`` cloud, float32 or float64, C order.
+    chunks : int or (int, int)
+        Grid: rows per block, or ``(rows, cols)`` tiles. Cloud: points per block.
+
+    Returns
+    -------
+    dask.array.Array
+    """
+    p = _path(path)
+    with open(p, "rb") as fh:
+        try:
+            version = np.lib.format.read_magic(fh)
+            read = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                    else np.lib.format.read_array_header_2_0)
+            shape, fortran, dtype = read(fh)
+        except Exception as exc:
+            raise ValueError(f"path: {p} is not a .npy file ({exc})") from None
+        offset = fh.tell()
+    if fortran or dtype.kind != "f" or dtype.itemsize not in (4, 8):
+        raise ValueError(f"path: expected a C-order float32/float64 array, got {dtype}"
+                         f"{' (Fortran order)' if fortran else ''}")
+    if len(shape) not in (2, 3) or shape[-1] != 3:
+        raise ValueError(f"path: expected shape (H, W, 3) or (N, 3), got {shape}")
+    _check_payload(p, offset, dtype.itemsize, int(np.prod(shape)))
+    return da.from_array(_Memmap(p, offset, dtype, shape), chunks=_xyz_chunks(shape, chunks),
+                         asarray=False, name=f"npy-{p.name}-{p.stat().st_mtime_ns}")
+
+
+def _pcd_header(p: Path) -> tuple:
+    """(pypcd4 metadata, byte offset of the point data) of a PCD file."""
+    from pypcd4.pypcd4 import MetaData
+
+    lines = []
+    with open(p, "rb") as fh:
+        while len(lines) < 64:
+            raw = fh.readline(4096)
+            if not raw:
+                break
+            line = raw.decode("utf-8", errors="replace").strip()
+            if line and not line.startswith("#"):
+                lines.append(line)
+                if line.startswith("DATA"):
+                    break
+        start = fh.tell()
+    if not lines or not lines[-1].startswith("DATA"):
+        raise ValueError(f"path: {p} has no PCD header (no DATA line)")
+    try:
+        return MetaData.parse_header(lines), start
+    except Exception as exc:
+        raise ValueError(f"path: {p} has a bad PCD header ({type(exc).__name__}: {exc})") from None
+
+
+class _PcdXYZ:
+    """x, y, z of a binary PCD's records as float (the record layout from its header); each
+    __getitem__ maps the file and reads only the records asked for."""
+
+    def __init__(self, path: Path, offset: int, record: np.dtype, shape: tuple) -> None:
+        self.path, self.offset, self.record, self.shape = str(path), int(offset), record, shape
+        self.ndim = len(shape)
+        single = all(record[k].kind == "f" and record[k].itemsize == 4 for k in "xyz")
+        self.dtype = np.dtype(np.float32 if single else np.float64)
+
+    def __getitem__(self, key: tuple) -> np.ndarray:
+        mm = np.memmap(self.path, dtype=self.record, mode="r", offset=self.offset,
+                       shape=self.shape[:-1])
+        rec = mm[key[:-1]]
+        return np.stack([rec[k].astype(self.dtype) for k in "xyz"], axis=-1)[..., key[-1]]
+
+
+def open_pcd(path: PathLike, chunks: Any = 4096) -> "da.Array":
+    """A binary PCD scan as a Dask array read block by block.
+
+    Parameters
+    ----------
+    path : str or path
+        ``DATA binary`` PCD with x, y, z fields. ``HEIGHT > 1``: an organized ``(H, W, 3)``
+        grid; else ``(N, 3)``. (ascii and binary_compressed files cannot be read by blocks:
+        convert them, e.g. with ``miem.io``.)
+    chunks : int or (int, int)
+        As for :func:`open_npy`.
+
+    Returns
+    -------
+    dask.array.Array
+    """
+    p = _path(path)
+    meta, start = _pcd_header(p)
+    if meta.data.value != "binary":
+        raise ValueError(f"path: {p} is DATA {meta.data.value}; only binary PCD is read by "
+                         "blocks (convert it with miem.io.read / miem.io.write)")
+    record = meta.build_dtype()
+    if not {"x", "y", "z"} <= set(record.names or ()):
+        raise ValueError(f"path: {p} has no x, y, z fields")
+    n = int(meta.points)
+    if int(meta.width) * int(meta.height) != n:
+        raise ValueError(f"path: {p}: WIDTH {meta.width} x HEIGHT {meta.height} != POINTS {n}")
+    _check_payload(p, start, record.itemsize, n)
+    shape = (int(meta.height), int(meta.width), 3) if meta.height > 1 else (n, 3)
+    return da.from_array(_PcdXYZ(p, start, record, shape), chunks=_xyz_chunks(shape, chunks), asarray=False,
+                         name=f"pcd-{p.name}-{p.stat().st_mtime_ns}")
+
+
+def _las_block(path: str, start: int, count: int) -> np.ndarray:
+    import laspy
+
+    with laspy.open(path) as reader:
+        reader.seek(start)
+        pts = reader.read_points(count)
+    return np.stack([np.asarray(pts.x), np.asarray(pts.y), np.asarray(pts.z)], axis=-1)
+
+
+def open_las(path: PathLike, chunks: int = 1 << 22) -> "da.Array":
+    """A LAS/LAZ file as an ``(N, 3)`` float64 Dask array (scaled coordinates), each block
+    read with laspy (a seek and ``read_points``; LAZ needs ``lazrs``).
+
+    Parameters
+    ----------
+    path : str or path
+    chunks : int
+        Points per block.
+
+    Returns
+    -------
+    dask.array.Array
+    """
+    import laspy
+    from dask import delayed
+
+    p = _path(path)
+    step = _positive("chunks", chunks)
+    try:
+        with laspy.open(str(p)) as reader:
+            n = int(reader.header.point_count)
+    except Exception as exc:
+        raise ValueError(f"path: {p} is not a LAS/LAZ file ({type(exc).__name__}: {exc})"
+                         ) from None
+    parts = [da.from_delayed(delayed(_las_block, pure=True)(str(p), s, min(step, n - s)),
+                             (min(step, n - s), 3), np.float64) for s in range(0, n, step)]
+    return da.concatenate(parts) if parts else da.zeros((0, 3), chunks=(1, 3))
+
+
+class NpyWriter:
+    """A ``.npy`` file as a target for ``dask.array.store``: each block is written into the file
+    where it belongs, by whichever worker computed it (nothing is gathered).
+
+    >>> w = NpyWriter("labels.npy", res.labels.shape, res.labels.dtype)
+    >>> defects, _ = res.defects(da.store(res.labels, w, lock=False, compute=False))
+    """
+
+    def __init__(self, path: PathLike, shape: tuple, dtype: Any) -> None:
+        self.path = str(path)
+        self.shape = tuple(int(s) for s in shape)
+        self.dtype = np.dtype(dtype)
+        mm = np.lib.format.open_memmap(self.path, mode="w+", dtype=self.dtype, shape=self.shape)
+        self.offset = int(mm.offset)
+        del mm
+
+    def __setitem__(self, key: Any, value: np.ndarray) -> None:
+        mm = np.memmap(self.path, dtype=self.dtype, mode="r+", offset=self.offset,
+                       shape=self.shape)
+        mm[key] = value
+        mm.flush()
+        del mm
