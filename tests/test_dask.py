@@ -226,3 +226,86 @@ def test_killed_worker_is_retried(client) -> None:
     os.kill(pid, signal.SIGKILL)
     assert not future.done()
     np.testing.assert_array_equal(future.result(timeout=120), want.labels)
+
+
+# --- unorganized clouds -----------------------------------------------------------------------
+
+
+def cloud(n_side: int, seed: int = 0, tile: float = 0.0) -> np.ndarray:
+    """A jittered lattice (1 mm) on a gentle bump, with spikes, 3-point burrs, a floating
+    cluster, dropouts (NaN rows) and, with `tile`, burr pairs cut by the tile borders (x or y
+    = min + k tile); in a shuffled order (chunks are not spatial)."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:n_side, 0:n_side].astype(np.float64)
+    x = x.ravel() + rng.uniform(-0.3, 0.3, x.size)
+    y = y.ravel() + rng.uniform(-0.3, 0.3, y.size)
+    z = 2.0 * np.exp(-((x - n_side / 2) ** 2 + (y - n_side / 3) ** 2) / (n_side**2 / 4))
+    pts = np.column_stack([x, y, z + rng.normal(0, 0.01, x.size)])
+    for k in rng.choice(x.size, x.size // 150, replace=False):
+        pts[k, 2] += rng.uniform(1.0, 3.0)
+    for c in rng.choice(x.size, 8, replace=False):  # burrs of 3 neighbouring points
+        near = np.argsort(np.hypot(x - x[c], y - y[c]))[:3]
+        pts[near, 2] += 2.5
+    pts[rng.random(len(pts)) < 0.01] = np.nan
+    if tile:
+        fin = np.isfinite(pts).all(axis=1)
+        for axis in (0, 1):
+            lo = pts[fin, axis].min()
+            for b in np.arange(lo + tile, pts[fin, axis].max(), tile):
+                for other in np.linspace(5, n_side - 5, 6):
+                    d = np.where(fin, np.abs(pts[:, 1 - axis] - other), np.inf)
+                    left = np.where(pts[:, axis] < b, d + np.abs(pts[:, axis] - b), np.inf)
+                    right = np.where(pts[:, axis] >= b, d + np.abs(pts[:, axis] - b), np.inf)
+                    pts[np.argmin(left), 2] += 3.0  # a burr of two points, cut by it
+                    pts[np.argmin(right), 2] += 3.2
+    pts = np.concatenate([pts, [[n_side / 2, n_side / 2, 30.0], [n_side / 2 + 0.5,
+                                                                   n_side / 2, 30.2]]])
+    return pts[rng.permutation(len(pts))]
+
+
+def check_points_equal(pts: np.ndarray, chunk: int, **kw) -> tuple:
+    spacing = miem.point_spacing(pts)
+    kw = dict(radius=4 * spacing, min_step=0.5 * spacing, **kw)
+    want = miem.detect(pts, **{k: v for k, v in kw.items() if k != "tile"})
+    res = mdask.detect_points(da.from_array(pts, chunks=(chunk, 3)), **kw)
+    defects, *arrays = res.defects(res.labels, res.flags, res.angle, res.height, res.degenerate)
+    for k, a in zip(("labels", "flags", "angle", "height", "degenerate"), arrays):
+        np.testing.assert_array_equal(a, getattr(want, k), err_msg=k)
+    _defects_equal(defects, want.defects)
+    return want, res
+
+
+@pytest.mark.parametrize("preset", list(miem.PRESETS))
+def test_cloud_tiles_equal_whole_cloud(client, preset: str) -> None:
+    pts = cloud(120, seed=1, tile=40.0)
+    want, res = check_points_equal(pts, 2000, preset=preset, max_iterations=2, tile=40.0)
+    assert res.params["tiles"] == (3, 3)
+    assert 40.0 + 2 * res.params["halo"] < 120  # each tile sees part of the cloud only
+    lo = np.nanmin(pts[np.isfinite(pts).all(axis=1)], axis=0)
+    cut = [d for d in want.defects if any(
+        len(np.unique(np.floor((pts[d.indices, a] - lo[a]) / 40.0))) > 1 for a in (0, 1))]
+    assert len(cut) >= 10
+
+
+def test_cloud_small_tiles_full_iterations(client) -> None:
+    pts = cloud(60, seed=2)
+    spacing = miem.point_spacing(pts)
+    check_points_equal(pts, 900)
+    res = mdask.detect_points(pts, radius=4 * spacing, min_step=0.5 * spacing, tile=7.0)
+    assert res.params["tiles"][0] >= 8
+    want = miem.detect(pts, radius=4 * spacing, min_step=0.5 * spacing)
+    defects, labels = res.defects(res.labels)
+    np.testing.assert_array_equal(labels, want.labels)
+    _defects_equal(defects, want.defects)
+
+
+def test_cloud_needs_explicit_lengths() -> None:
+    pts = da.from_array(cloud(20), chunks=(100, 3))
+    with pytest.raises(ValueError, match="radius, min_step, link"):
+        mdask.detect_points(pts)
+    with pytest.raises(ValueError, match="min_step"):
+        mdask.detect_points(pts, radius=3.0)
+    with pytest.raises(ValueError, match="window"):
+        mdask.detect_points(pts, radius=3.0, min_step=0.5, window=5)
+    with pytest.raises(ValueError, match="tile"):
+        mdask.detect_points(pts, radius=3.0, min_step=0.5, tile=-1.0)

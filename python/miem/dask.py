@@ -436,3 +436,327 @@ def _build(grid: "da.Array", kwargs: dict, params: dict, halo: int,
                 margin))
     params = dict(params, halo=halo, chunks=(grid.chunks[0], grid.chunks[1]))
     return _assemble(grid, blocks, params, kwargs)
+
+
+# ---------------------------------------------------------------------------------------------
+# unorganized clouds: spatial tiles with a halo
+
+_POINT_KEYS = ("labels", "flags", "angle", "height", "degenerate")
+_POINT_DTYPES = {"labels": np.uint8, "flags": np.uint8, "angle": np.float64,
+                 "height": np.float64, "degenerate": bool}
+_POINT_FILL = {"labels": int(miem.INVALID), "flags": 0, "angle": np.nan, "height": np.nan,
+               "degenerate": False}
+
+
+def _probe_points(kwargs: dict) -> dict:
+    """The cloud parameters ``miem.detect(points, **kwargs)`` resolves; radius, min_step and
+    link must not depend on the cloud's spacing (a median over the whole cloud)."""
+    rng = np.random.default_rng(0)
+    probe = np.column_stack([rng.uniform(0, 8, (64, 2)), np.zeros(64)])
+    a = dict(miem.detect(probe, **kwargs).params)
+    b = dict(miem.detect(probe * 2.0, **kwargs).params)
+    derived = [k for k in ("radius", "min_step", "link") if a[k] != b[k]]
+    if derived:
+        raise ValueError(
+            f"{', '.join(derived)}: miem.dask needs explicit values (the defaults are multiples "
+            "of the median point spacing, a quantity of the whole cloud); pass e.g. "
+            "radius=5 * spacing, min_step=0.5 * spacing with spacing from "
+            "miem.point_spacing(sample)")
+    return a
+
+
+def points_halo(params: dict) -> float:
+    """Distance (points' units) around a tile from which it needs points for exact results:
+    ``(max_iterations + 1) * radius`` for the labels and heights, plus ``2 * link`` for defects
+    that reach out of the tile by up to ``link``."""
+    return (params["max_iterations"] + 1) * params["radius"] + 2 * params["link"]
+
+
+def _tile_of(xy: np.ndarray, origin: np.ndarray, size: float, n: tuple) -> tuple:
+    ix = np.clip(np.floor((xy[:, 0] - origin[0]) / size), 0, n[0] - 1).astype(np.int64)
+    iy = np.clip(np.floor((xy[:, 1] - origin[1]) / size), 0, n[1] - 1).astype(np.int64)
+    return ix, iy
+
+
+def _split(chunk: np.ndarray, start: int, origin: np.ndarray, size: float, n: tuple,
+           pad: float) -> dict:
+    """{tile: (global indices, points)} of the chunk's finite points within `pad` (in x and y)
+    of each tile (a superset of what the tile needs)."""
+    chunk = np.asarray(chunk)
+    fin = np.flatnonzero(np.isfinite(chunk).all(axis=1))
+    xy = chunk[fin, :2].astype(np.float64)
+    lo = _tile_of(xy - pad, origin, size, n)
+    hi = _tile_of(xy + pad, origin, size, n)
+    out: dict = {}
+    for i in range(int(lo[0].min(initial=0)), int(hi[0].max(initial=-1)) + 1):
+        in_x = (lo[0] <= i) & (i <= hi[0])
+        for j in range(int(lo[1][in_x].min(initial=0)), int(hi[1][in_x].max(initial=-1)) + 1):
+            sel = in_x & (lo[1] <= j) & (j <= hi[1])
+            if sel.any():
+                out[(i, j)] = (fin[sel] + start, chunk[fin[sel]])
+    return out
+
+
+def _sentinels(lo: np.ndarray, hi: np.ndarray, far: float, dtype: np.dtype) -> np.ndarray:
+    """Three points that give any subset of the cloud the whole cloud's minimum corner, each
+    `far` beyond the cloud in two coordinates (alone: they change no other point's result).
+
+    The core's neighbour grid puts its cells relative to the minimum corner and sums each
+    neighbourhood in cell order; with the same corner a tile's sums run in the same order as
+    the whole cloud's, and its heights and normals agree to the last bit."""
+    top = hi.astype(np.float64) + far
+    s = np.array([[lo[0], top[1], top[2]], [top[0], lo[1], top[2]], [top[0], top[1], lo[2]]],
+                 dtype=np.float64)
+    s[[0, 1, 2], [0, 1, 2]] = lo  # the minima exactly, in the cloud's own type
+    return s.astype(dtype if np.dtype(dtype).kind == "f" else np.float64)
+
+
+def _run_points(pts: np.ndarray, kwargs: dict, sentinels: np.ndarray) -> Any:
+    """miem.detect on part of a cloud, the sentinels appended (after every real point, so that
+    index order and ties are kept)."""
+    return miem.detect(np.concatenate([pts, sentinels.astype(pts.dtype, copy=False)
+                                       if pts.dtype.kind == "f" else sentinels]), **kwargs)
+
+
+def _detect_tile(pieces: list, box: tuple, kwargs: dict, params: dict,
+                 sentinels: np.ndarray) -> dict:
+    """Detect one tile's points plus its halo; keep its home points' values, its whole defects
+    (first point at home, inside the home box grown by `link`) and the open parts (home
+    components within `link` of the box's sides)."""
+    from scipy.spatial import cKDTree
+
+    pieces = [p for p in pieces if p is not None]
+    idx = np.concatenate([p[0] for p in pieces]) if pieces else np.zeros(0, np.int64)
+    pts = np.concatenate([p[1] for p in pieces]) if pieces else np.zeros((0, 3),
+                                                                        sentinels.dtype)
+    x0, x1, y0, y1 = box
+    res = _run_points(pts, kwargs, sentinels)
+    n = idx.size
+    home_mask = np.zeros(n, bool)
+    xy = pts[:, :2].astype(np.float64)
+    home_mask[:] = _in_home(xy, box)
+    out = {"index": idx[home_mask]}
+    for k in _POINT_KEYS:
+        out[k] = np.asarray(getattr(res, k))[:n][home_mask]
+    link = params["link"]
+    whole = []
+    for d in res.defects:
+        if d.indices[-1] >= n or not home_mask[d.indices[0]]:
+            continue
+        m = xy[d.indices]
+        if (m[:, 0] >= x0 - link).all() and (m[:, 0] < x1 + link).all() and (
+                m[:, 1] >= y0 - link).all() and (m[:, 1] < y1 + link).all():
+            g = idx[d.indices]
+            whole.append(dataclasses.replace(d, indices=g, cells=g[:, None]))
+    abn = np.flatnonzero(home_mask & (np.asarray(res.labels)[:n] == ABNORMAL))
+    open_parts = []
+    if abn.size:
+        tree = cKDTree(pts[abn].astype(np.float64))
+        comp = _link_components(tree, link, abn.size)
+        near = ((xy[abn, 0] - x0 <= link) | (x1 - xy[abn, 0] <= link)
+                | (xy[abn, 1] - y0 <= link) | (y1 - xy[abn, 1] <= link))
+        for c in np.unique(comp[near]):
+            members = abn[comp == c]
+            open_parts.append((idx[members], pts[members].astype(np.float64)))
+    out["whole"], out["open"] = whole, open_parts
+    return out
+
+
+def _in_home(xy: np.ndarray, box: tuple) -> np.ndarray:
+    x0, x1, y0, y1 = box  # half-open, the last tile closed (its bounds are +inf)
+    return (xy[:, 0] >= x0) & (xy[:, 0] < x1) & (xy[:, 1] >= y0) & (xy[:, 1] < y1)
+
+
+def _link_components(tree: Any, link: float, n: int) -> np.ndarray:
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    pairs = tree.query_pairs(link, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
+
+
+def _gather(results: list, start: int, stop: int) -> dict:
+    """One input chunk's values from the tiles' home points."""
+    out = {k: np.full(stop - start, _POINT_FILL[k], dtype=_POINT_DTYPES[k]) for k in _POINT_KEYS}
+    for r in results:
+        sel = (r["index"] >= start) & (r["index"] < stop)
+        if sel.any():
+            pos = r["index"][sel] - start
+            for k in _POINT_KEYS:
+                out[k][pos] = r[k][sel]
+    return out
+
+
+def _region_points(chunk: np.ndarray, start: int, boxes: list) -> list:
+    chunk = np.asarray(chunk)
+    fin = np.flatnonzero(np.isfinite(chunk).all(axis=1))
+    xy = chunk[fin, :2].astype(np.float64)
+    out = []
+    for x0, x1, y0, y1 in boxes:
+        sel = fin[(xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1)]
+        out.append((sel + start, chunk[sel]))
+    return out
+
+
+def _redetect_points(parts: list, groups: list, kwargs: dict, sentinels: np.ndarray) -> list:
+    idx = np.concatenate([p[0] for p in parts])
+    pts = np.concatenate([p[1] for p in parts])
+    res = _run_points(pts, kwargs, sentinels)
+    by_first = {int(idx[d.indices[0]]): d for d in res.defects if d.indices[-1] < idx.size}
+    out = []
+    for members in groups:
+        d = by_first.get(int(members[0]))
+        if d is None or not np.array_equal(idx[d.indices], members):  # pragma: no cover
+            raise RuntimeError("miem.dask: a joined defect differs from its re-detection")
+        out.append(dataclasses.replace(d, indices=members, cells=members[:, None]))
+    return out
+
+
+@dataclass
+class DaskPointsResult:
+    """What :func:`detect_points` returns: lazy per-point arrays (aligned with the input's
+    chunks) and the defects on request.
+
+    Attributes
+    ----------
+    labels, flags, angle, height, degenerate : dask.array.Array, (N,)
+        As :class:`miem.PointsDetectResult` (equal to ``miem.detect`` on the whole cloud).
+    params : dict
+        The parameters used, plus ``halo`` (length), ``tile`` (length) and ``tiles`` (nx, ny).
+    """
+
+    labels: "da.Array"
+    flags: "da.Array"
+    angle: "da.Array"
+    height: "da.Array"
+    degenerate: "da.Array"
+    params: dict
+    points: "da.Array" = dataclasses.field(repr=False)
+    tiles: list = dataclasses.field(repr=False)
+    kwargs: dict = dataclasses.field(repr=False)
+    sentinels: np.ndarray = dataclasses.field(repr=False)
+
+    def defects(self, *arrays: "da.Array", **compute_kwargs: Any):
+        """The defect list, equal to ``miem.detect(points).defects``; as
+        :meth:`DaskDetectResult.defects` (arrays computed in the same pass)."""
+        from scipy.spatial import cKDTree
+
+        compute_kwargs.setdefault("optimize_graph", False)
+        summaries = [delayed(_tile_summary)(t) for t in self.tiles]
+        computed = dask.compute(summaries, *arrays, **compute_kwargs)
+        tiles, rest = computed[0], computed[1:]
+        if sum(t["n"] for t in tiles) < 3:
+            raise ValueError("points: fewer than 3 finite points")
+        out = [d for t in tiles for d in t["whole"]]
+        have = {int(d.indices[0]) for d in out}
+        parts = [p for t in tiles for p in t["open"]]
+        groups = []
+        if parts:
+            idx = np.concatenate([p[0] for p in parts])
+            pts = np.concatenate([p[1] for p in parts])
+            comp = _link_components(cKDTree(pts), self.params["link"], idx.size)
+            for c in np.unique(comp):
+                members = np.unique(idx[comp == c])
+                if int(members[0]) not in have:
+                    groups.append((members, pts[comp == c]))
+        pad = self.params["halo"]
+        boxes = [(p[:, 0].min() - pad, p[:, 0].max() + pad, p[:, 1].min() - pad,
+                  p[:, 1].max() + pad) for _, p in groups]
+        if boxes:
+            starts = np.cumsum((0,) + self.points.chunks[0])
+            per_chunk = [delayed(_region_points)(c, int(s), boxes)
+                         for c, s in zip(self.points.to_delayed().ravel(), starts)]
+            tasks = [delayed(_redetect_points)([delayed(operator.getitem)(pc, k)
+                                                for pc in per_chunk], [groups[k][0]],
+                                               self.kwargs, self.sentinels)
+                     for k in range(len(groups))]
+            out += [d for part in dask.compute(*tasks, **compute_kwargs) for d in part]
+        out.sort(key=_order_key)
+        out = [dataclasses.replace(d, id=k) for k, d in enumerate(out)]
+        return (out, *rest) if arrays else out
+
+
+def _tile_summary(t: dict) -> dict:
+    return {"whole": t["whole"], "open": t["open"], "n": int(t["index"].size)}
+
+
+def detect_points(points: Any, *, tile: Optional[float] = None, num_threads: Optional[int] = 1,
+                  **kwargs: Any) -> DaskPointsResult:
+    """MIEM on an unorganized cloud held as a Dask array ``(N, 3)``, tile by tile, exactly as
+    :func:`miem.detect` on the whole cloud.
+
+    The cloud is cut into square tiles in x and y; each tile is detected with the points within
+    :func:`points_halo` of it and keeps the values of its own points. Finding the tiles needs
+    the cloud's x, y bounds, computed here (one pass over the points).
+
+    Parameters
+    ----------
+    points : dask.array.Array, shape (N, 3)
+        The cloud, in any order, chunked by rows (a NumPy array is wrapped in one chunk).
+    tile : float, optional
+        Tile side in the points' units; default: about one input chunk's points per tile, and at
+        least twice the halo.
+    num_threads : int, optional
+        Threads per tile detection (default 1).
+    **kwargs
+        As for :func:`miem.detect` on a cloud; ``radius`` and ``min_step`` must be given
+        (their defaults are multiples of the whole cloud's median spacing).
+
+    Returns
+    -------
+    DaskPointsResult
+    """
+    if not isinstance(points, da.Array):
+        points = da.from_array(np.asarray(points))
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points: expected a Dask array of shape (N, 3), got {points.shape}")
+    if points.dtype.kind not in "fiu":
+        raise ValueError(f"points: expected a real numeric array, got dtype {points.dtype}")
+    if len(points.chunks[1]) != 1:
+        points = points.rechunk({1: 3})
+    kwargs = dict(kwargs, num_threads=num_threads)
+    params = _probe_points(kwargs)
+    pad = points_halo(params)
+    fin = da.isfinite(points).all(axis=1)[:, None]
+    lo3, hi3 = dask.compute(da.where(fin, points, np.inf).min(axis=0).astype(points.dtype),
+                            da.where(fin, points, -np.inf).max(axis=0).astype(points.dtype))
+    if not np.isfinite(lo3.astype(np.float64)).all():
+        lo3 = hi3 = np.zeros(3, dtype=points.dtype)
+    sentinels = _sentinels(lo3, hi3, 2 * (pad + params["radius"] + params["link"]) + 1.0,
+                           points.dtype)
+    lo, hi = lo3[:2].astype(np.float64), hi3[:2].astype(np.float64)
+    if tile is None:
+        area = max(float(np.prod(hi - lo)), 1e-300)
+        per = max(points.chunks[0])
+        tile = max(2 * pad, float(np.sqrt(area * per / max(points.shape[0], 1))))
+    else:
+        tile = float(tile)
+        if not (np.isfinite(tile) and tile > 0):
+            raise ValueError(f"tile: expected a length > 0, got {tile}")
+    n = (int(np.floor((hi[0] - lo[0]) / tile)) + 1, int(np.floor((hi[1] - lo[1]) / tile)) + 1)
+    if n[0] * n[1] > 1_000_000:
+        raise ValueError(f"tile: {tile} makes {n[0]} x {n[1]} tiles; pass a larger tile")
+    starts = np.cumsum((0,) + points.chunks[0])
+    splits = [delayed(_split, pure=True)(c, int(s), lo, tile, n, pad)
+              for c, s in zip(points.to_delayed().ravel(), starts)]
+    tiles = []
+    for i in range(n[0]):
+        for j in range(n[1]):
+            box = (lo[0] + i * tile if i else -np.inf, lo[0] + (i + 1) * tile if i < n[0] - 1
+                   else np.inf, lo[1] + j * tile if j else -np.inf,
+                   lo[1] + (j + 1) * tile if j < n[1] - 1 else np.inf)
+            pieces = [delayed(dict.get)(sp, (i, j)) for sp in splits]
+            tiles.append(delayed(_detect_tile, pure=True)(pieces, box, kwargs, params,
+                                                          sentinels))
+    arrays = {}
+    for key in _POINT_KEYS:
+        parts = []
+        for k, size in enumerate(points.chunks[0]):
+            g = delayed(_gather, pure=True)(tiles, int(starts[k]), int(starts[k + 1]))
+            parts.append(da.from_delayed(delayed(operator.getitem)(g, key), (size,),
+                                         np.dtype(_POINT_DTYPES[key])))
+        arrays[key] = da.concatenate(parts)
+    params = dict(params, halo=pad, tile=tile, tiles=n)
+    return DaskPointsResult(params=params, points=points, tiles=tiles, kwargs=kwargs,
+                            sentinels=sentinels, **arrays)
