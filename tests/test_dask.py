@@ -172,6 +172,23 @@ def test_blocks_without_points_and_numpy_input(client) -> None:
     np.testing.assert_array_equal(res.labels.compute(), miem.detect(g, preset="paper").labels)
 
 
+@pytest.mark.parametrize("kw", [{"theta0": "auto"},
+                                {"theta0": "auto", "preset": "recommended", "scales": (1, 3)}])
+def test_auto_theta0_equals_whole_grid(client, kw: dict) -> None:
+    br, bc = (50, 100), (45, 90)
+    g = scene(150, 135, borders_r=br, borders_c=bc, seed=8)
+    g[:, :, 2] *= 3.0  # steeper noise: theta0 inside (75, 170), not at a bound
+    want = miem.detect(g, **kw)
+    assert 75.0 < want.params["theta0"] < 170.0
+    got = mdask.auto_theta0(da.from_array(g, chunks=(50, 45, 3)), kw)
+    assert got == want.params["theta0"]
+    check_equal(g, (50, 45), **kw)
+    g[...] = np.nan  # no finite angle: 75
+    g[0, [0, 5, 10]] = [[0, 0, 0], [5, 0, 0], [10, 0, 0]]  # too far apart for an angle
+    assert mdask.auto_theta0(da.from_array(g, chunks=(50, 45, 3)), kw) == 75.0 == miem.detect(
+        g, **kw).params["theta0"]
+
+
 def test_strict_halo_and_pickled_blocks(client) -> None:
     params = miem.detect(scene(8, 8), preset="recommended").params
     assert mdask.grid_halo(params, strict=True) == 10 * 3 + 10 * (63 + 10) + 10
@@ -189,7 +206,7 @@ def test_strict_halo_and_pickled_blocks(client) -> None:
 def test_bad_input_is_rejected() -> None:
     g = da.from_array(scene(30, 30), chunks=(10, 10, 3))
     with pytest.raises(ValueError, match="theta0"):
-        mdask.detect(g, theta0="auto")
+        mdask.detect(g, theta0="sometimes")
     with pytest.raises(ValueError, match="window"):
         mdask.detect(g, window=4)
     with pytest.raises(ValueError, match="grid"):

@@ -28,8 +28,9 @@ joined defect is detected once more on its bounding box plus the halo, which giv
 fields (centroid, heights, normal, extent, kind) ``miem.detect`` reports. The list is then
 ordered and numbered as ``miem.detect`` orders it.
 
-Global quantities are not computed by the blocks: ``theta0="auto"`` (a median over the whole
-scan) is rejected, the MIEM plane and the iteration count are not reported.
+Global quantities: ``theta0="auto"`` (a median over the whole scan) is found first by an exact
+distributed selection (:func:`auto_theta0`); the MIEM plane and the iteration count are not
+reported.
 """
 
 from __future__ import annotations
@@ -48,7 +49,8 @@ from dask import delayed
 import miem
 from miem._api import ABNORMAL, Defect
 
-__all__ = ["DaskDetectResult", "detect", "grid_halo"]
+__all__ = ["DaskDetectResult", "DaskPointsResult", "auto_theta0", "detect", "detect_points",
+           "grid_halo", "points_halo"]
 
 _LABEL_KEYS = ("labels", "flags", "angle", "height")
 _PARAM_KEYS = ("theta0", "scales", "max_gap", "min_step", "min_directions", "max_iterations",
@@ -388,7 +390,7 @@ def detect(grid: Any, *args: Any, num_threads: Optional[int] = 1, strict: bool =
         least work on overlaps.
     *args, **kwargs
         Parameters as for :func:`miem.detect` (``preset``, ``theta0``, ``scales``, ...), resolved
-        and checked by it. ``theta0="auto"`` is rejected: it is a median over the whole scan.
+        and checked by it.
     num_threads : int, optional
         Threads per block detection (default 1: one per Dask worker thread; None: all cores).
     strict : bool
@@ -403,18 +405,107 @@ def detect(grid: Any, *args: Any, num_threads: Optional[int] = 1, strict: bool =
     Raises
     ------
     ValueError
-        Bad shape or parameters (the messages of ``miem.detect``), ``theta0="auto"``, or a
-        cloud ``(N, 3)`` (use :func:`detect_points`).
+        Bad shape or parameters (the messages of ``miem.detect``), or a cloud ``(N, 3)``
+        (use :func:`detect_points`).
+
+    Notes
+    -----
+    ``theta0="auto"`` is a median over the whole scan: :func:`auto_theta0` surveys every block
+    first (when ``detect`` is called; the pass-1 angles are held in the cluster's memory, 8
+    bytes per point, until the median is found), then the blocks are detected with that value.
     """
     grid = _as_grid(grid)
     kwargs = dict(kwargs, num_threads=num_threads)
     params = _probe_params(args, kwargs)
-    if params.get("theta0_auto"):
-        raise ValueError("theta0: 'auto' needs a survey of the whole scan, which miem.dask does "
-                         "not run; pass the angle in degrees")
     if args:  # positional parameters: pass the resolved values as keywords
         kwargs = dict(kwargs, **{k: params[k] for k in _PARAM_KEYS if k in params})
+    if params.get("theta0_auto"):
+        theta0 = auto_theta0(grid, kwargs, params)
+        kwargs = dict(kwargs, theta0=theta0)
+        params = dict(params, theta0=theta0)
     return _build(grid, kwargs, params, grid_halo(params, strict))
+
+
+def _survey_block(ext: np.ndarray, home_slice: tuple, kwargs: dict, sep: int) -> np.ndarray:
+    """The bit patterns of ``180 - angle`` (>= 0, so they order like the values) of the home
+    cells' pass-1 angles, as theta0="auto" surveys them (docs/SPEC.md)."""
+    ext = np.asarray(ext)
+    res, _ = _run_padded(ext, kwargs, sep)
+    ang = res.angle[home_slice]
+    keep = np.isfinite(ext[home_slice]).all(axis=-1) & np.isfinite(ang)
+    return np.ascontiguousarray(180.0 - ang[keep]).view(np.uint64)
+
+
+def _hist(bits: np.ndarray, prefix: int, shift: int) -> np.ndarray:
+    """Counts of the next 16 bits below `shift` among the patterns whose bits above it are
+    `prefix`."""
+    top = 64 - shift
+    sel = bits if top == 0 else bits[(bits >> np.uint64(shift)) == np.uint64(prefix)]
+    return np.bincount(((sel >> np.uint64(shift - 16)) & np.uint64(0xFFFF)).astype(np.int64),
+                       minlength=1 << 16)
+
+
+def _kth(blocks: list, k: int, **compute_kwargs: Any) -> float:
+    """The k-th smallest (0-based) of the survey values, exactly: 4 rounds of 16-bit
+    histograms over the bit patterns, narrowing the prefix (radix selection)."""
+    prefix, shift = 0, 64
+    while shift > 0:
+        hists = dask.compute(*[delayed(_hist)(b, prefix, shift) for b in blocks],
+                             **compute_kwargs)
+        cum = np.cumsum(np.sum(hists, axis=0))
+        digit = int(np.searchsorted(cum, k, side="right"))
+        k -= int(cum[digit - 1]) if digit else 0
+        prefix, shift = (prefix << 16) | digit, shift - 16
+    return float(np.array([prefix], dtype=np.uint64).view(np.float64)[0])
+
+
+def auto_theta0(grid: Any, kwargs: Optional[dict] = None, params: Optional[dict] = None,
+                **compute_kwargs: Any) -> float:
+    """theta0="auto" of ``miem.detect`` over a whole Dask-held grid, exactly as miem.detect
+    derives it (SPEC.md "theta0='auto'"): the pass-1 angles of every block (with a halo of one
+    pass), then the median of ``180 - angle`` by radix selection (no value is gathered).
+
+    Parameters
+    ----------
+    grid : dask.array.Array, (H, W, 3)
+    kwargs, params : dict, optional
+        The detection's keywords and resolved parameters (default: the paper's).
+
+    Returns
+    -------
+    float
+        ``clip(180 - 6 median / 0.6745, 75, 170)``; 75 when no angle is finite.
+    """
+    grid = _as_grid(grid)
+    kwargs = dict(kwargs or {})
+    if params is None:
+        params = _probe_params((), kwargs)
+    survey = dict(kwargs, theta0=75.0, max_iterations=1, height_tolerance=None,
+                  heights="abnormal")
+    halo = grid_halo(dict(params, max_iterations=1, height_tolerance=None)) - \
+        params["window"] // 2
+    H, W = grid.shape[:2]
+    r_edges = np.cumsum((0,) + grid.chunks[0])
+    c_edges = np.cumsum((0,) + grid.chunks[1])
+    blocks = []
+    for i in range(len(grid.chunks[0])):
+        for j in range(len(grid.chunks[1])):
+            r0, r1 = int(r_edges[i]), int(r_edges[i + 1])
+            c0, c1 = int(c_edges[j]), int(c_edges[j + 1])
+            er0, er1 = _span(r0, r1, H, halo)
+            ec0, ec1 = _span(c0, c1, W, halo)
+            sl = (slice(r0 - er0, r1 - er0), slice(c0 - ec0, c1 - ec0))
+            blocks.append(delayed(_survey_block, pure=True)(grid[er0:er1, ec0:ec1], sl, survey,
+                                                            halo + 1))
+    blocks = list(dask.persist(*blocks, **compute_kwargs))
+    m = sum(dask.compute(*[delayed(len)(b) for b in blocks], **compute_kwargs))
+    if m == 0:
+        return 75.0
+    mid = m // 2
+    med = _kth(blocks, mid, **compute_kwargs)
+    if m % 2 == 0:
+        med = 0.5 * (med + _kth(blocks, mid - 1, **compute_kwargs))
+    return float(np.clip(180.0 - 6.0 * (med / 0.6745), 75.0, 170.0))
 
 
 def _build(grid: "da.Array", kwargs: dict, params: dict, halo: int,
