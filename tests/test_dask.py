@@ -173,7 +173,7 @@ def test_blocks_without_points_and_numpy_input(client) -> None:
 
 
 @pytest.mark.parametrize("kw", [{"theta0": "auto"},
-                                {"theta0": "auto", "preset": "recommended", "scales": (1, 3)}])
+                                {"theta0": "auto", "preset": "recommended", "max_iterations": 3}])
 def test_auto_theta0_equals_whole_grid(client, kw: dict) -> None:
     br, bc = (50, 100), (45, 90)
     g = scene(150, 135, borders_r=br, borders_c=bc, seed=8)

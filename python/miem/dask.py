@@ -127,6 +127,29 @@ def _span(a: int, b: int, n: int, halo: int) -> tuple:
     return (lo // _TILE) * _TILE, hi
 
 
+def _homes(grid: "da.Array") -> list:
+    """(r0, r1, c0, c1) of every block of the grid, row-major (the order of its chunks)."""
+    r = np.cumsum((0,) + grid.chunks[0]).tolist()
+    c = np.cumsum((0,) + grid.chunks[1]).tolist()
+    return [(r[i], r[i + 1], c[j], c[j + 1]) for i in range(len(r) - 1)
+            for j in range(len(c) - 1)]
+
+
+def _with_arrays(summaries: list, arrays: tuple, compute_kwargs: dict) -> tuple:
+    """Computes the per-block summaries and the caller's arrays in one pass, unfused so that
+    they share each block's detection."""
+    compute_kwargs.setdefault("optimize_graph", False)
+    computed = dask.compute(summaries, *arrays, **compute_kwargs)
+    return computed[0], computed[1:]
+
+
+def _numbered(defects: list, rest: tuple, arrays: tuple):
+    """Defects in miem.detect's order with their ids; with the computed arrays when asked."""
+    defects = sorted(defects, key=_order_key)
+    defects = [dataclasses.replace(d, id=k) for k, d in enumerate(defects)]
+    return (defects, *rest) if arrays else defects
+
+
 def _run_padded(ext: np.ndarray, kwargs: dict, sep: int) -> Any:
     """miem.detect on a block; a block with fewer than 3 finite points gets 3 points `sep` rows
     below it (beyond every reach and window), which change nothing on the block itself."""
@@ -335,11 +358,8 @@ class DaskDetectResult:
         ValueError
             When the whole grid has fewer than 3 finite points (as ``miem.detect``).
         """
-        summaries = [delayed(_summary)(b) for b in self.blocks]
-        # unfused, so that the arrays and the summaries share each block's detection
-        compute_kwargs.setdefault("optimize_graph", False)
-        computed = dask.compute(summaries, *arrays, **compute_kwargs)
-        blocks, rest = computed[0], computed[1:]
+        blocks, rest = _with_arrays([delayed(_summary)(b) for b in self.blocks], arrays,
+                                    compute_kwargs)
         n_finite = sum(b["n_finite"] for b in blocks)
         if n_finite < 3:
             raise ValueError(f"grid: fewer than 3 finite points (found {n_finite})")
@@ -354,9 +374,7 @@ class DaskDetectResult:
                                     self.halo + 1)
                  for r0, r1, c0, c1, members in _regions(groups, (H, W), self.halo, biggest)]
         out += [d for part in dask.compute(*tasks, **compute_kwargs) for d in part]
-        out.sort(key=_order_key)
-        out = [dataclasses.replace(d, id=k) for k, d in enumerate(out)]
-        return (out, *rest) if arrays else out
+        return _numbered(out, rest, arrays)
 
 
 def _summary(block: dict) -> dict:
@@ -485,18 +503,13 @@ def auto_theta0(grid: Any, kwargs: Optional[dict] = None, params: Optional[dict]
     halo = grid_halo(dict(params, max_iterations=1, height_tolerance=None)) - \
         params["window"] // 2
     H, W = grid.shape[:2]
-    r_edges = np.cumsum((0,) + grid.chunks[0])
-    c_edges = np.cumsum((0,) + grid.chunks[1])
     blocks = []
-    for i in range(len(grid.chunks[0])):
-        for j in range(len(grid.chunks[1])):
-            r0, r1 = int(r_edges[i]), int(r_edges[i + 1])
-            c0, c1 = int(c_edges[j]), int(c_edges[j + 1])
-            er0, er1 = _span(r0, r1, H, halo)
-            ec0, ec1 = _span(c0, c1, W, halo)
-            sl = (slice(r0 - er0, r1 - er0), slice(c0 - ec0, c1 - ec0))
-            blocks.append(delayed(_survey_block, pure=True)(grid[er0:er1, ec0:ec1], sl, survey,
-                                                            halo + 1))
+    for r0, r1, c0, c1 in _homes(grid):
+        er0, er1 = _span(r0, r1, H, halo)
+        ec0, ec1 = _span(c0, c1, W, halo)
+        sl = (slice(r0 - er0, r1 - er0), slice(c0 - ec0, c1 - ec0))
+        blocks.append(delayed(_survey_block, pure=True)(grid[er0:er1, ec0:ec1], sl, survey,
+                                                        halo + 1))
     blocks = list(dask.persist(*blocks, **compute_kwargs))
     m = sum(dask.compute(*[delayed(len)(b) for b in blocks], **compute_kwargs))
     if m == 0:
@@ -514,17 +527,12 @@ def _build(grid: "da.Array", kwargs: dict, params: dict, halo: int,
     H, W = grid.shape[:2]
     sep = halo + 1
     blocks = []
-    r_edges = np.cumsum((0,) + grid.chunks[0])
-    c_edges = np.cumsum((0,) + grid.chunks[1])
-    for i in range(len(grid.chunks[0])):
-        for j in range(len(grid.chunks[1])):
-            r0, r1 = int(r_edges[i]), int(r_edges[i + 1])
-            c0, c1 = int(c_edges[j]), int(c_edges[j + 1])
-            er0, er1 = _span(r0 - margin, r1 + margin, H, halo)
-            ec0, ec1 = _span(c0 - margin, c1 + margin, W, halo)
-            blocks.append(delayed(_detect_block, pure=True)(
-                grid[er0:er1, ec0:ec1], (er0, ec0), (r0, r1, c0, c1), (H, W), kwargs, sep,
-                margin))
+    for home in _homes(grid):
+        r0, r1, c0, c1 = home
+        er0, er1 = _span(r0 - margin, r1 + margin, H, halo)
+        ec0, ec1 = _span(c0 - margin, c1 + margin, W, halo)
+        blocks.append(delayed(_detect_block, pure=True)(
+            grid[er0:er1, ec0:ec1], (er0, ec0), home, (H, W), kwargs, sep, margin))
     params = dict(params, halo=halo, chunks=(grid.chunks[0], grid.chunks[1]))
     return _assemble(grid, blocks, params, kwargs)
 
@@ -733,10 +741,8 @@ class DaskPointsResult:
         :meth:`DaskDetectResult.defects` (arrays computed in the same pass)."""
         from scipy.spatial import cKDTree
 
-        compute_kwargs.setdefault("optimize_graph", False)
-        summaries = [delayed(_tile_summary)(t) for t in self.tiles]
-        computed = dask.compute(summaries, *arrays, **compute_kwargs)
-        tiles, rest = computed[0], computed[1:]
+        tiles, rest = _with_arrays([delayed(_tile_summary)(t) for t in self.tiles], arrays,
+                                   compute_kwargs)
         if sum(t["n"] for t in tiles) < 3:
             raise ValueError("points: fewer than 3 finite points")
         out = [d for t in tiles for d in t["whole"]]
@@ -763,9 +769,7 @@ class DaskPointsResult:
                                                self.kwargs, self.sentinels)
                      for k in range(len(groups))]
             out += [d for part in dask.compute(*tasks, **compute_kwargs) for d in part]
-        out.sort(key=_order_key)
-        out = [dataclasses.replace(d, id=k) for k, d in enumerate(out)]
-        return (out, *rest) if arrays else out
+        return _numbered(out, rest, arrays)
 
 
 def _tile_summary(t: dict) -> dict:
