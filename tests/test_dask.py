@@ -210,6 +210,8 @@ def test_bad_input_is_rejected() -> None:
     with pytest.raises(ValueError, match="window"):
         mdask.detect(g, window=4)
     with pytest.raises(ValueError, match="grid"):
+        mdask.detect(da.zeros((10, 4), chunks=5))
+    with pytest.raises(ValueError, match="radius"):  # a cloud: detect_points' checks
         mdask.detect(da.zeros((10, 3), chunks=5))
     empty = mdask.detect(da.full((20, 20, 3), np.nan, chunks=(10, 10, 3)))
     with pytest.raises(ValueError, match="fewer than 3 finite points"):

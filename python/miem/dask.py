@@ -423,8 +423,8 @@ def detect(grid: Any, *args: Any, num_threads: Optional[int] = 1, strict: bool =
     Raises
     ------
     ValueError
-        Bad shape or parameters (the messages of ``miem.detect``), or a cloud ``(N, 3)``
-        (use :func:`detect_points`).
+        Bad shape or parameters (the messages of ``miem.detect``). A cloud ``(N, 3)`` goes to
+        :func:`detect_points` (as ``miem.detect`` routes it).
 
     Notes
     -----
@@ -432,6 +432,8 @@ def detect(grid: Any, *args: Any, num_threads: Optional[int] = 1, strict: bool =
     first (when ``detect`` is called; the pass-1 angles are held in the cluster's memory, 8
     bytes per point, until the median is found), then the blocks are detected with that value.
     """
+    if getattr(grid, "ndim", None) == 2 and not args:  # a cloud, as miem.detect routes it
+        return detect_points(grid, num_threads=num_threads, **kwargs)  # type: ignore[return-value]
     grid = _as_grid(grid)
     kwargs = dict(kwargs, num_threads=num_threads)
     params = _probe_params(args, kwargs)
