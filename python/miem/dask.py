@@ -432,7 +432,7 @@ def detect(grid: Any, *args: Any, num_threads: Optional[int] = 1, strict: bool =
     first (when ``detect`` is called; the pass-1 angles are held in the cluster's memory, 8
     bytes per point, until the median is found), then the blocks are detected with that value.
     """
-    if getattr(grid, "ndim", None) == 2 and not args:  # a cloud, as miem.detect routes it
+    if getattr(grid, "ndim", None) == 2 and grid.shape[-1] == 3 and not args:  # a cloud
         return detect_points(grid, num_threads=num_threads, **kwargs)  # type: ignore[return-value]
     grid = _as_grid(grid)
     kwargs = dict(kwargs, num_threads=num_threads)
