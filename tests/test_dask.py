@@ -297,9 +297,19 @@ def check_points_equal(pts: np.ndarray, chunk: int, **kw) -> tuple:
 @pytest.mark.parametrize("preset", list(miem.PRESETS))
 def test_cloud_tiles_equal_whole_cloud(client, preset: str) -> None:
     pts = cloud(120, seed=1, tile=40.0)
-    want, res = check_points_equal(pts, 2000, preset=preset, max_iterations=2, tile=40.0)
+    kw = {"preset": preset, "max_iterations": 2, "tile": 40.0}
+    cloud_cfg = miem.CLOUD_PRESETS.get(preset, {})
+    if cloud_cfg.get("height_tolerance") is not None and cloud_cfg.get("edge_extent"):
+        # compact EDGE groups are measured in spacings of the whole cloud: refused, not guessed
+        with pytest.raises(ValueError, match="edge_extent"):
+            mdask.detect_points(pts, radius=3.0, min_step=0.4, **kw)
+        kw["edge_extent"] = 0
+    if cloud_cfg.get("min_group"):
+        kw["min_group"] = 3  # groups of 40 would make the halo cover the whole test cloud
+    want, res = check_points_equal(pts, 2000, **kw)
     assert res.params["tiles"] == (3, 3)
-    assert 40.0 + 2 * res.params["halo"] < 120  # each tile sees part of the cloud only
+    if cloud_cfg.get("height_tolerance") is None:
+        assert 40.0 + 2 * res.params["halo"] < 120  # each tile sees part of the cloud only
     lo = np.nanmin(pts[np.isfinite(pts).all(axis=1)], axis=0)
     cut = [d for d in want.defects if any(
         len(np.unique(np.floor((pts[d.indices, a] - lo[a]) / 40.0))) > 1 for a in (0, 1))]
@@ -328,3 +338,7 @@ def test_cloud_needs_explicit_lengths() -> None:
         mdask.detect_points(pts, radius=3.0, min_step=0.5, window=5)
     with pytest.raises(ValueError, match="tile"):
         mdask.detect_points(pts, radius=3.0, min_step=0.5, tile=-1.0)
+    with pytest.raises(ValueError, match="edge_extent"):
+        mdask.detect_points(pts, radius=3.0, min_step=0.5, height_tolerance=0.5, edge_extent=2)
+    with pytest.raises(ValueError, match="new_rule: miem.dask does not know"):
+        mdask._refuse_unknown({"new_rule": 2, "off_rule": 0, "radius": 1.0}, {"radius"})

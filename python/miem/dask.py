@@ -72,6 +72,12 @@ def _probe_params(args: tuple, kwargs: dict) -> dict:
 _TILE = 64
 
 
+#: Grid parameters whose reach grid_halo knows; any other parameter that is on is refused.
+_GRID_KNOWN = {"preset", "theta0", "theta0_auto", "scales", "max_gap", "min_step",
+               "min_directions", "max_iterations", "window", "height_tolerance", "edge_extent",
+               "max_reach", "heights"}
+
+
 def grid_halo(params: dict, strict: bool = False) -> int:
     """Cells of context a block needs on every side for exact labels and heights.
 
@@ -91,6 +97,7 @@ def grid_halo(params: dict, strict: bool = False) -> int:
         ``max_iterations * R (+ max_iterations * (window // 2 + edge_extent) with the height
         test) + window // 2``, with ``R = max(scales) + max_gap (+ max_reach with min_step)``.
     """
+    _refuse_unknown(params, _GRID_KNOWN | {"halo", "chunks"})
     reach = max(params["scales"]) + params["max_gap"]
     if params["min_step"] is not None:
         reach += params["max_reach"]
@@ -549,28 +556,59 @@ _POINT_FILL = {"labels": int(miem.INVALID), "flags": 0, "angle": np.nan, "height
                "degenerate": False}
 
 
+#: Cloud parameters whose reach points_halo knows; any other parameter that is on is refused.
+_POINT_KNOWN = {"preset", "theta0", "scales", "min_step", "min_directions", "max_iterations",
+                "radius", "K", "link", "spacing", "heights", "height_tolerance", "edge_extent",
+                "min_group", "height_radius"}
+
+
 def _probe_points(kwargs: dict) -> dict:
-    """The cloud parameters ``miem.detect(points, **kwargs)`` resolves; radius, min_step and
-    link must not depend on the cloud's spacing (a median over the whole cloud)."""
+    """The cloud parameters ``miem.detect(points, **kwargs)`` resolves; none may depend on the
+    cloud's spacing (a median over the whole cloud, which a tile does not see)."""
     rng = np.random.default_rng(0)
     probe = np.column_stack([rng.uniform(0, 8, (64, 2)), np.zeros(64)])
     a = dict(miem.detect(probe, **kwargs).params)
     b = dict(miem.detect(probe * 2.0, **kwargs).params)
-    derived = [k for k in ("radius", "min_step", "link") if a[k] != b[k]]
+    lengths = ("radius", "min_step", "link", "height_radius")
+    derived = [k for k in lengths if k in a and a[k] != b[k]]
     if derived:
         raise ValueError(
             f"{', '.join(derived)}: miem.dask needs explicit values (the defaults are multiples "
             "of the median point spacing, a quantity of the whole cloud); pass e.g. "
             "radius=5 * spacing, min_step=0.5 * spacing with spacing from "
             "miem.point_spacing(sample)")
+    if a.get("height_tolerance") is not None and a.get("edge_extent", 0):
+        raise ValueError(
+            f"edge_extent: {a['edge_extent']} spacings of the whole cloud (the height test's "
+            "compact EDGE groups) cannot be judged tile by tile; pass edge_extent=0")
+    _refuse_unknown(a, _POINT_KNOWN)
     return a
 
 
+def _refuse_unknown(params: dict, known: set) -> None:
+    """A parameter this module does not know may reach beyond the halo: refuse it when on."""
+    on = sorted(k for k, v in params.items() if k not in known and v not in (None, 0, False))
+    if on:
+        raise ValueError(f"{', '.join(on)}: miem.dask does not know how far this reaches, so "
+                         "blocks could differ from the whole scan; it is not supported here")
+
+
 def points_halo(params: dict) -> float:
-    """Distance (points' units) around a tile from which it needs points for exact results:
-    ``(max_iterations + 1) * radius`` for the labels and heights, plus ``2 * link`` for defects
-    that reach out of the tile by up to ``link``."""
-    return (params["max_iterations"] + 1) * params["radius"] + 2 * params["link"]
+    """Distance (points' units) around a tile from which it needs points for exact results.
+
+    ``max_iterations * radius`` (angle passes, each reads the neighbours within radius),
+    ``+ min_group * radius`` (floating groups: a group of fewer than min_group points lies within
+    that chain distance), ``+ max_iterations * (height_radius + link)`` with the height test
+    (a pass reads NORMAL points and feature-line EDGE points within height_radius, an EDGE
+    point's group is seen within link), ``+ link + max(height_radius, link)`` so that the
+    heights and the defects that leave the tile by up to ``link`` are exact.
+    """
+    r, link = params["radius"], params["link"]
+    hr = params.get("height_radius") or r
+    lag = params["max_iterations"] * r + params.get("min_group", 0) * r
+    if params.get("height_tolerance") is not None:
+        lag += params["max_iterations"] * (hr + link)
+    return lag + link + max(hr, link)
 
 
 def _tile_of(xy: np.ndarray, origin: np.ndarray, size: float, n: tuple) -> tuple:
