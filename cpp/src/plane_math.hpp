@@ -7,6 +7,7 @@
 #include <cmath>
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>  // cross
 
 namespace miem::detail {
 

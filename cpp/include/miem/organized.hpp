@@ -33,6 +33,24 @@ struct RowScratch {
     near.resize(n);
   }
 };
+
+/// Per-thread buffers of the window-plane sweep.
+struct FitScratch {
+  std::vector<double> buf;
+  std::vector<std::uint8_t> flags;
+};
+
+/// The work buffers of one detector, kept between runs (same-size runs do not allocate).
+struct Workspace {
+  std::vector<std::uint8_t> usable;  ///< angle passes: bit 0 usable, bit 1 candidate; bit 2 seen
+  std::vector<std::uint8_t> cls;     ///< window sums: kInPlane (NORMAL) / kLine (feature line)
+  std::vector<std::uint8_t> hmask;   ///< height stages: compact, want, fresh, mark bits
+  std::vector<std::int64_t> fresh, candidates, queue;
+  std::vector<double> height_scratch, survey;
+  std::vector<RowScratch> rows;      ///< per thread
+  std::vector<FitScratch> fits;      ///< per thread
+  std::vector<Moments> plane_rows;
+};
 }  // namespace detail
 
 /// Point labels (uint8 in every output).
@@ -129,14 +147,8 @@ class OrganizedDetector {
 
  private:
   DetectParams params_;
-  std::vector<std::uint8_t> usable_;  // bit 0 usable, bit 1 candidate, bit 2 visited
-  std::vector<std::int64_t> fresh_, candidates_;
-  std::vector<double> height_scratch_;
-  std::vector<double> tile_scratch_;
-  std::vector<detail::RowScratch> row_scratch_;
-  std::vector<double> survey_;
-  DetectParams eff_;
-  std::vector<std::int64_t> queue_;
+  DetectParams eff_;  // params_ with theta0 resolved (theta0_auto)
+  detail::Workspace ws_;
 };
 
 /// One-call organized detection with owned outputs.

@@ -1,0 +1,123 @@
+// The height test (docs/SPEC.md "height_tolerance", beyond the paper): after the angle passes,
+// NORMAL cells, and EDGE cells of compact EDGE groups, too far from the plane of the NORMAL cells
+// in their window become ABNORMAL; the test abstains where a feature line (a longer EDGE group)
+// lies in the window. Passes repeat until none adds a cell (at most max_iterations).
+//
+// Two facts keep the later passes cheap and leave the result as the spec defines it:
+// - The EDGE groups are fixed: a pass only turns NORMAL and compact-EDGE cells ABNORMAL, so a
+//   compact group only shrinks (its parts stay compact) and a long group never changes. They are
+//   grouped once.
+// - A cell's verdict depends only on the labels in its window, so a pass re-fits only the cells
+//   within window / 2 of a cell the pass before removed; the others would repeat their verdict.
+#include <algorithm>
+#include <cmath>
+
+#include "stages.hpp"
+
+namespace miem::detail {
+
+namespace {
+
+// Marks with kHCompact the EDGE cells of 8-connected EDGE groups whose bounding box's longer
+// side is at most `extent` cells.
+void mark_compact_edges(const std::uint8_t* labels, std::ptrdiff_t H, std::ptrdiff_t W,
+                        int extent, std::uint8_t* hm, std::vector<std::int64_t>& queue) {
+  const std::ptrdiff_t N = H * W;
+  for (std::ptrdiff_t start = 0; start < N; ++start) {
+    if (labels[start] != kEdge || (hm[start] & kHSeen)) continue;
+    queue.clear();
+    queue.push_back(start);
+    hm[start] |= kHSeen;
+    std::ptrdiff_t r0 = start / W, r1 = r0, c0 = start % W, c1 = c0;
+    for (std::size_t head = 0; head < queue.size(); ++head) {
+      const std::ptrdiff_t i = queue[head], r = i / W, c = i % W;
+      r0 = std::min(r0, r), r1 = std::max(r1, r), c0 = std::min(c0, c), c1 = std::max(c1, c);
+      for (std::ptrdiff_t dr = -1; dr <= 1; ++dr) {
+        for (std::ptrdiff_t dc = -1; dc <= 1; ++dc) {
+          const std::ptrdiff_t rr = r + dr, cc = c + dc;
+          if (rr < 0 || rr >= H || cc < 0 || cc >= W) continue;
+          const std::ptrdiff_t q = rr * W + cc;
+          if (labels[q] == kEdge && !(hm[q] & kHSeen)) {
+            hm[q] |= kHSeen;
+            queue.push_back(q);
+          }
+        }
+      }
+    }
+    if (std::max(r1 - r0, c1 - c0) + 1 <= extent) {
+      for (std::int64_t i : queue) hm[i] |= kHCompact;
+    }
+  }
+}
+
+}  // namespace
+
+template <typename T>
+int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* labels,
+                double* height, Workspace& ws) {
+  const std::ptrdiff_t H = g.rows, W = g.cols, N = H * W;
+  const std::ptrdiff_t half = p.window / 2;
+  ws.hmask.assign(static_cast<std::size_t>(N), 0);
+  ws.cls.resize(static_cast<std::size_t>(N));
+  std::uint8_t* hm = ws.hmask.data();
+  std::uint8_t* cls = ws.cls.data();
+  mark_compact_edges(labels, H, W, p.edge_extent, hm, ws.queue);
+  for (std::ptrdiff_t i = 0; i < N; ++i) {
+    const std::uint8_t l = labels[i];
+    const bool compact = (hm[i] & kHCompact) != 0;
+    cls[i] = l == kNormal ? kInPlane : (l == kEdge && !compact ? kLine : 0);
+    if (l == kNormal || compact) hm[i] |= kHWant;  // pass 1 fits every candidate
+  }
+  int passes = 0;
+  for (int hp = 0; hp < p.max_iterations; ++hp) {
+    window_fits(
+        g, cls, p.window, p.num_threads, ws.fits,
+        [hm](std::ptrdiff_t i) { return (hm[i] & kHWant) != 0; },
+        [&](std::ptrdiff_t i, const WindowFit& f) {
+          if (height) height[i] = f.ok ? f.height : kNaN;
+          std::uint8_t b = static_cast<std::uint8_t>(hm[i] | kHFresh);
+          if (height_far(f, p)) b |= kHMark;
+          hm[i] = b;
+        });
+    ++passes;
+    ws.fresh.clear();
+    for (std::ptrdiff_t i = 0; i < N; ++i) {
+      std::uint8_t b = hm[i];
+      if (!(b & (kHWant | kHMark))) continue;
+      b &= static_cast<std::uint8_t>(~kHWant);
+      if (b & kHMark) {
+        labels[i] = kAbnormal;
+        cls[i] = 0;
+        b = 0;
+        ws.fresh.push_back(i);
+      }
+      hm[i] = b;
+    }
+    if (ws.fresh.empty()) break;
+    // The windows that changed: re-fit their candidates at the next pass; heights there are stale.
+    for (std::int64_t i : ws.fresh) {
+      const std::ptrdiff_t r = i / W, c = i % W;
+      const std::ptrdiff_t ra = std::max<std::ptrdiff_t>(0, r - half);
+      const std::ptrdiff_t rb = std::min(H - 1, r + half);
+      const std::ptrdiff_t ca = std::max<std::ptrdiff_t>(0, c - half);
+      const std::ptrdiff_t cb = std::min(W - 1, c + half);
+      for (std::ptrdiff_t rr = ra; rr <= rb; ++rr) {
+        for (std::ptrdiff_t cc = ca; cc <= cb; ++cc) {
+          const std::ptrdiff_t q = rr * W + cc;
+          std::uint8_t b = static_cast<std::uint8_t>(hm[q] & ~kHFresh);
+          if (labels[q] == kNormal || (b & kHCompact)) b |= kHWant;
+          hm[q] = b;
+        }
+      }
+    }
+  }
+  // Cells still marked kHWant (max_iterations reached) have stale heights: kHFresh is clear.
+  return passes;
+}
+
+template int height_test<float>(const GridView<float>&, const DetectParams&, std::uint8_t*,
+                                double*, Workspace&);
+template int height_test<double>(const GridView<double>&, const DetectParams&, std::uint8_t*,
+                                 double*, Workspace&);
+
+}  // namespace miem::detail

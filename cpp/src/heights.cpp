@@ -1,0 +1,53 @@
+// Heights (docs/SPEC.md "Height"): the signed distance of each point from the eigen plane of the
+// NORMAL points in the window x window square around it (clipped at the grid's border), NaN
+// where that plane does not exist. HeightMode::kAll: every finite point, by the window sweep
+// (window_fits.hpp), reusing what the height test already fitted; kAbnormal: ABNORMAL points
+// only, each fitted directly.
+#include "judge.hpp"
+#include "parallel.hpp"
+#include "stages.hpp"
+
+namespace miem::detail {
+
+template <typename T>
+void heights(const GridView<T>& g, const DetectParams& p, const std::uint8_t* labels,
+             double* height, bool reuse, Workspace& ws) {
+  const std::ptrdiff_t H = g.rows, W = g.cols, N = H * W;
+  const int half = p.window / 2;
+  const int nt = thread_count(p.num_threads, N);
+  if (p.height_mode == HeightMode::kAbnormal) {
+#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
+    for (std::ptrdiff_t r = 0; r < H; ++r) {
+      for (std::ptrdiff_t c = 0; c < W; ++c) {
+        const std::ptrdiff_t i = r * W + c;
+        height[i] = kNaN;
+        if (labels[i] != kAbnormal) continue;
+        Plane pl;
+        if (window_plane(g, labels, r, c, half, &pl) == PlaneStatus::kOk) {
+          height[i] = pl.signed_distance(g(r, c));
+        }
+      }
+    }
+    return;
+  }
+  ws.cls.resize(static_cast<std::size_t>(N));
+  std::uint8_t* cls = ws.cls.data();
+  const std::uint8_t* hm = reuse ? ws.hmask.data() : nullptr;
+  for (std::ptrdiff_t i = 0; i < N; ++i) {
+    cls[i] = labels[i] == kNormal ? kInPlane : 0;  // feature lines do not matter here
+    if (labels[i] == kInvalid) height[i] = kNaN;
+  }
+  window_fits(
+      g, cls, p.window, p.num_threads, ws.fits,
+      [labels, hm](std::ptrdiff_t i) {
+        return labels[i] != kInvalid && !(hm != nullptr && (hm[i] & kHFresh));
+      },
+      [height](std::ptrdiff_t i, const WindowFit& f) { height[i] = f.ok ? f.height : kNaN; });
+}
+
+template void heights<float>(const GridView<float>&, const DetectParams&, const std::uint8_t*,
+                             double*, bool, Workspace&);
+template void heights<double>(const GridView<double>&, const DetectParams&, const std::uint8_t*,
+                              double*, bool, Workspace&);
+
+}  // namespace miem::detail

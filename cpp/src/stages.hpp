@@ -1,0 +1,76 @@
+// The stages of organized detection (docs/SPEC.md), in the order OrganizedDetector::run calls
+// them. Each lives in the file named for it:
+//   angle_passes.cpp  finiteness, pass 1 (row kernel), theta0 "auto", later passes
+//   height_test.cpp   compact EDGE groups and the height passes (beyond the paper)
+//   miem_plane.cpp    the MIEM plane of the non-ABNORMAL points
+//   heights.cpp       the local height of each point over its window plane
+//   defects.cpp       8-connected ABNORMAL groups and their summaries
+// window_fits.hpp holds the window planes shared by the height test and the heights.
+#pragma once
+
+#include <cmath>
+#include <cstdint>
+#include <optional>
+#include <vector>
+
+#include "miem/organized.hpp"
+#include "miem/plane.hpp"
+#include "miem/views.hpp"
+#include "window_fits.hpp"
+
+namespace miem::detail {
+
+/// Finiteness and the angle passes. Writes labels (and flags / angles where wanted); leaves
+/// ws.usable with bit 0 set on the finite, non-ABNORMAL cells. Resolves eff.theta0_deg when
+/// eff.theta0_auto. Returns the number of passes. Throws std::invalid_argument when the grid has
+/// fewer than 3 finite points.
+template <typename T>
+int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput& out,
+                 Workspace& ws);
+
+/// The height test's verdict on one cell from its window plane: too far from the plane (and no
+/// feature-line cell in the window). Shared by the batch and streaming detectors.
+inline bool height_far(const WindowFit& f, const DetectParams& p) {
+  if (!f.ok || f.edges > 0.0) return false;  // designed features nearby: no plane model
+  const double ah = std::abs(f.height);
+  const double rms = std::sqrt(std::max(f.l0, 0.0) / f.n);
+  return (p.height_abs > 0.0 && ah > p.height_abs) ||
+         (p.height_k > 0.0 && ah > p.height_k * rms && ah > 1e-9 * std::sqrt((f.l1 + f.l2) / f.n));
+}
+
+/// Bits of ws.hmask after height_test.
+inline constexpr std::uint8_t kHCompact = 1;  ///< EDGE cell of a compact group
+inline constexpr std::uint8_t kHWant = 2;     ///< (internal) evaluate at the next pass
+inline constexpr std::uint8_t kHFresh = 4;    ///< height[i] holds the final window height
+inline constexpr std::uint8_t kHMark = 8;     ///< (internal) too far at this pass
+inline constexpr std::uint8_t kHSeen = 16;    ///< (internal) visited by the EDGE grouping
+
+/// Height passes (when p.height_abs > 0 or p.height_k > 0): NORMAL cells and EDGE cells of
+/// compact groups too far from their window plane become ABNORMAL, at most p.max_iterations
+/// passes; a pass re-fits only the cells whose window changed. When `height` is not null it
+/// receives the window height of every fitted cell, and ws.hmask marks with kHFresh the cells
+/// whose height is final. Leaves ws.cls with the window classes of the final labels. Returns
+/// the number of height passes.
+template <typename T>
+int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* labels,
+                double* height, Workspace& ws);
+
+/// The MIEM plane: eigen fit of the finite, non-ABNORMAL cells (row moments merged in a fixed
+/// tree order, so the same for any thread count).
+template <typename T>
+std::optional<Plane> miem_plane(const GridView<T>& g, const std::uint8_t* labels,
+                                int num_threads, Workspace& ws);
+
+/// Heights (SPEC "Height"): every finite cell (HeightMode::kAll) or the ABNORMAL ones. With
+/// `reuse`, cells marked kHFresh by height_test keep the height it wrote.
+template <typename T>
+void heights(const GridView<T>& g, const DetectParams& p, const std::uint8_t* labels,
+             double* height, bool reuse, Workspace& ws);
+
+/// Defects: 8-connected ABNORMAL components in row-major order of their first cell, summarised
+/// and ordered (defects.hpp). Uses bit 2 of ws.usable as the visited mark.
+template <typename T>
+std::vector<Defect> organized_defects(const GridView<T>& g, const std::uint8_t* labels,
+                                      const double* height, int window, Workspace& ws);
+
+}  // namespace miem::detail

@@ -1,0 +1,357 @@
+// Window planes (SPEC "Height"): the eigen plane of the NORMAL cells in the window x window square
+// around a cell, for many cells at once. Shared by the height test and the heights.
+//
+// The grid is cut into tiles (kBand rows x kStrip columns); each tile keeps its moments relative
+// to one of its own points (far-from-origin scans lose no precision) as running column sums over
+// the window's rows, updated by one row in and one row out per row (O(1) per cell), and box sums
+// along the row from their prefix sums. The smallest eigenpair of each wanted cell's scatter is
+// solved for a whole row at once in straight-line code (vectorised; AVX2 where the CPU has it).
+// Tiles are independent and each cell is computed by exactly one tile, so the result does not
+// depend on the thread count.
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "judge.hpp"
+#include "miem/views.hpp"
+#include "parallel.hpp"
+#include "plane_math.hpp"
+
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+#define MIEM_FIT_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define MIEM_FIT_CLONES
+#endif
+
+namespace miem::detail {
+
+/// What a window plane gives one cell.
+struct WindowFit {
+  bool ok = false;  ///< a plane exists (>= 3 NORMAL cells, not degenerate)
+  double height = 0.0, n = 0.0, l0 = 0.0, l1 = 0.0, l2 = 0.0;
+  double edges = 0.0;  ///< feature-line cells in the window (cells of class kLine)
+};
+
+/// Cell classes read by the sums: NORMAL cells make the plane, kLine cells are counted.
+inline constexpr std::uint8_t kInPlane = 1, kLine = 2;
+
+inline constexpr int kMoments = 11;  // n, x, y, z, xx, xy, xz, yy, yz, zz, line count
+
+// One Newton step of smallest_eigenpair on the characteristic cubic, masked by `live`.
+inline __attribute__((always_inline)) void newton_step(double& x, double& live, double tr,
+                                                        double c1, double det) {
+  const double q = ((x - tr) * x + c1) * x - det;
+  const double dq = (3.0 * x - 2.0 * tr) * x + c1;
+  const double step = q / (dq > 0.0 ? dq : 1.0);
+  const double go = (dq > 0.0 && step < 0.0) ? live : 0.0;  // (doubles: bools do not vectorise)
+  x = go != 0.0 ? x - step : x;
+  live = (-step <= 1e-17 * tr) ? 0.0 : go;
+}
+
+/// Smallest eigenpair and height for m cells from their window sums (SoA, `cap` apart:
+/// S + k * cap is moment k; Q + k * cap is coordinate k of the cell, relative to the same
+/// origin). Writes fits to F (height, l0, l1, l2 at F + k * cap) and ok / redo flags; redo marks
+/// the rare cells whose Newton iteration needs more steps (solved again by the scalar routine).
+MIEM_FIT_CLONES inline void solve_fits(std::ptrdiff_t m, std::ptrdiff_t cap,
+                                       const double* __restrict S, const double* __restrict Q,
+                                       double* __restrict F, std::uint8_t* __restrict ok,
+                                       std::uint8_t* __restrict redo) {
+  const double* __restrict s0 = S;
+  const double* __restrict s1 = S + cap;
+  const double* __restrict s2 = S + 2 * cap;
+  const double* __restrict s3 = S + 3 * cap;
+  const double* __restrict s4 = S + 4 * cap;
+  const double* __restrict s5 = S + 5 * cap;
+  const double* __restrict s6 = S + 6 * cap;
+  const double* __restrict s7 = S + 7 * cap;
+  const double* __restrict s8 = S + 8 * cap;
+  const double* __restrict s9 = S + 9 * cap;
+  const double* __restrict qx = Q;
+  const double* __restrict qy = Q + cap;
+  const double* __restrict qz = Q + 2 * cap;
+  double* __restrict fh = F;
+  double* __restrict f0 = F + cap;
+  double* __restrict f1 = F + 2 * cap;
+  double* __restrict f2 = F + 3 * cap;
+  for (std::ptrdiff_t i = 0; i < m; ++i) {
+    const double n = s0[i];
+    const double nn = n > 0.0 ? n : 1.0;
+    const double mx = s1[i] / nn, my = s2[i] / nn, mz = s3[i] / nn;
+    const double a = s4[i] - n * mx * mx, d = s5[i] - n * mx * my, f = s6[i] - n * mx * mz;
+    const double b = s7[i] - n * my * my, e = s8[i] - n * my * mz, c = s9[i] - n * mz * mz;
+    const double tr = a + b + c;
+    const double c1 = (a * b + b * c + a * c) - (d * d + e * e + f * f);
+    const double det = a * b * c + 2.0 * d * e * f - a * e * e - b * f * f - c * d * d;
+    // Newton from 0 on q(x) = x^3 - tr x^2 + c1 x - det (as smallest_eigenpair, fixed steps,
+    // written out so that the loop over cells vectorises).
+    double x = 0.0;
+    double live = tr > 0.0 ? 1.0 : 0.0;
+    newton_step(x, live, tr, c1, det);
+    newton_step(x, live, tr, c1, det);
+    newton_step(x, live, tr, c1, det);
+    newton_step(x, live, tr, c1, det);
+    newton_step(x, live, tr, c1, det);
+    newton_step(x, live, tr, c1, det);
+    const double s = tr - x, p = c1 - x * s;
+    const double disc = s * s - 4.0 * p;
+    const double hi = 0.5 * (s + std::sqrt(disc > 0.0 ? disc : 0.0));
+    const double l1 = hi > 0.0 ? p / hi : 0.0;
+    const double ax = a - x, bx = b - x, cx = c - x;
+    // Rows r0 = (ax, d, f), r1 = (d, bx, e), r2 = (f, e, cx); their cross products.
+    const double u0 = d * e - f * bx, u1 = f * d - ax * e, u2 = ax * bx - d * d;    // r0 x r1
+    const double v0 = d * cx - f * e, v1 = f * f - ax * cx, v2 = ax * e - d * f;    // r0 x r2
+    const double w0 = bx * cx - e * e, w1 = e * f - d * cx, w2 = d * e - bx * f;    // r1 x r2
+    const double n01 = u0 * u0 + u1 * u1 + u2 * u2;
+    const double n02 = v0 * v0 + v1 * v1 + v2 * v2;
+    const double n12 = w0 * w0 + w1 * w1 + w2 * w2;
+    const bool pick01 = (n01 >= n02) & (n01 >= n12);
+    const bool pick02 = !(n01 >= n02) & (n02 >= n12);
+    double nx = pick01 ? u0 : (pick02 ? v0 : w0);
+    double ny = pick01 ? u1 : (pick02 ? v1 : w1);
+    double nz = pick01 ? u2 : (pick02 ? v2 : w2);
+    const double nb = pick01 ? n01 : (pick02 ? n02 : n12);
+    const double len = std::sqrt(nb > 0.0 ? nb : 1.0);
+    nx /= len, ny /= len, nz /= len;
+    const double sg = nz != 0.0 ? (nz > 0.0 ? 1.0 : -1.0)
+                                : (nx != 0.0 ? (nx > 0.0 ? 1.0 : -1.0) : (ny < 0.0 ? -1.0 : 1.0));
+    const double h = sg * ((nx * (qx[i] - mx) + ny * (qy[i] - my)) + nz * (qz[i] - mz));
+    fh[i] = h;
+    f0[i] = x;
+    f1[i] = l1;
+    f2[i] = hi;
+    ok[i] = static_cast<std::uint8_t>((n >= 3.0) & (tr > 0.0) & (nb > 0.0) & (hi > 0.0) &
+                                      (l1 > 1e-12 * hi));
+    redo[i] = static_cast<std::uint8_t>((live != 0.0) & (n >= 3.0));
+  }
+}
+
+/// The same fit for one cell with the scalar routine (smallest_eigenpair, Newton until done).
+inline WindowFit fit_from_sums(const double* s, const Eigen::Vector3d& q) {
+  WindowFit fit;
+  const double n = s[0];
+  fit.edges = s[10];
+  if (!(n >= 3.0)) return fit;
+  const Eigen::Vector3d mean(s[1] / n, s[2] / n, s[3] / n);
+  Eigen::Matrix3d M;
+  M(0, 0) = s[4] - n * mean.x() * mean.x();
+  M(0, 1) = M(1, 0) = s[5] - n * mean.x() * mean.y();
+  M(0, 2) = M(2, 0) = s[6] - n * mean.x() * mean.z();
+  M(1, 1) = s[7] - n * mean.y() * mean.y();
+  M(1, 2) = M(2, 1) = s[8] - n * mean.y() * mean.z();
+  M(2, 2) = s[9] - n * mean.z() * mean.z();
+  Eigen::Vector3d nv;
+  if (smallest_eigenpair(M, &fit.l0, &fit.l1, &fit.l2, &nv) && fit.l2 > 0.0 &&
+      fit.l1 > 1e-12 * fit.l2) {
+    fit.ok = true;
+    fit.n = n;
+    const Eigen::Vector3d o = orient_normal(nv);
+    const Eigen::Vector3d w = q - mean;
+    fit.height = (o.x() * w.x() + o.y() * w.y()) + o.z() * w.z();
+  }
+  return fit;
+}
+
+// Adds sign * (1, x, y, z, xx, xy, xz, yy, yz, zz) of the kInPlane cells and sign * 1 of the
+// kLine cells of one row, n cells given as SoA coordinates relative to the tile's origin (px,
+// py, pz), to the SoA column sums cs (moment k at cs + k * stride). Branch-free: it vectorises.
+MIEM_FIT_CLONES inline void add_row_moments(const std::uint8_t* __restrict cl, std::ptrdiff_t n,
+                                            const double* __restrict px,
+                                            const double* __restrict py,
+                                            const double* __restrict pz, double sign,
+                                            double* __restrict cs, std::ptrdiff_t stride) {
+  for (std::ptrdiff_t j = 0; j < n; ++j) {
+    const bool in = (cl[j] & kInPlane) != 0;
+    const double w = in ? sign : 0.0;
+    const double x = in ? px[j] : 0.0, y = in ? py[j] : 0.0, z = in ? pz[j] : 0.0;
+    cs[j] += w;
+    cs[stride + j] += w * x;
+    cs[2 * stride + j] += w * y;
+    cs[3 * stride + j] += w * z;
+    cs[4 * stride + j] += w * (x * x);
+    cs[5 * stride + j] += w * (x * y);
+    cs[6 * stride + j] += w * (x * z);
+    cs[7 * stride + j] += w * (y * y);
+    cs[8 * stride + j] += w * (y * z);
+    cs[9 * stride + j] += w * (z * z);
+    cs[10 * stride + j] += (cl[j] & kLine) ? sign : 0.0;
+  }
+}
+
+// Row r, columns [c0, c0 + n), as SoA coordinates relative to (ox, oy, oz).
+template <typename T>
+void load_rel(const GridView<T>& g, std::ptrdiff_t r, std::ptrdiff_t c0, std::ptrdiff_t n,
+              double ox, double oy, double oz, double* __restrict x, double* __restrict y,
+              double* __restrict z) {
+  const T* base = g.data + r * g.row_stride + c0 * g.col_stride;
+  const std::ptrdiff_t ps = g.col_stride, yo = g.coord_stride, zo = 2 * g.coord_stride;
+  for (std::ptrdiff_t j = 0; j < n; ++j) {
+    const T* q = base + j * ps;
+    x[j] = static_cast<double>(q[0]) - ox;
+    y[j] = static_cast<double>(q[yo]) - oy;
+    z[j] = static_cast<double>(q[zo]) - oz;
+  }
+}
+
+/// Calls visit(i, fit) (i = r * cols + c) for every cell with want(i), where cls[i] gives the
+/// class of each cell (kInPlane, kLine or 0). A tile without wanted cells costs one scan of its
+/// want bytes. `fit.edges` is exact only where fit.ok (a tile without a NORMAL cell reports 0). `scratch` is grown to one buffer per thread (sized by the grid, not the tile).
+template <typename T, typename Want, typename Visit>
+void window_fits(const GridView<T>& g, const std::uint8_t* cls, int window, int num_threads,
+                 std::vector<FitScratch>& scratch, Want want, Visit visit) {
+  constexpr std::ptrdiff_t kBand = 64, kStrip = 128;
+  const std::ptrdiff_t H = g.rows, W = g.cols, half = window / 2;
+  const std::ptrdiff_t tiles_r = (H + kBand - 1) / kBand, tiles_c = (W + kStrip - 1) / kStrip;
+  const std::ptrdiff_t ntiles = tiles_r * tiles_c;
+  const std::ptrdiff_t span = std::min(W, kStrip + 2 * half);  // columns with sums
+  const std::ptrdiff_t cap = std::min(W, kStrip);               // cells solved per row
+  // Padded column sums (kMoments x (span + window + 1)), fit inputs (kMoments + 3 coordinates)
+  // and outputs (4) per tile column, the rows of the window (window + 1 rows x 3 x span).
+  const std::size_t need = static_cast<std::size_t>(kMoments * (span + 2 * half + 2) +
+                                                    (kMoments + 3 + 4) * cap +
+                                                    (2 * half + 2) * 3 * span);
+  const int nt = thread_count(num_threads, H * W);
+  if (scratch.size() < static_cast<std::size_t>(nt)) scratch.resize(static_cast<std::size_t>(nt));
+
+#pragma omp parallel for schedule(dynamic, 1) num_threads(nt) if (nt > 1)
+  for (std::ptrdiff_t t = 0; t < ntiles; ++t) {
+    int tid = 0;
+#ifdef MIEM_HAVE_OPENMP
+    tid = omp_get_thread_num();
+#endif
+    FitScratch& sc = scratch[static_cast<std::size_t>(tid)];
+    if (sc.buf.size() < need) sc.buf.resize(need);
+    if (sc.flags.size() < static_cast<std::size_t>(3 * cap)) sc.flags.resize(3 * cap);
+    const std::ptrdiff_t tr0 = (t / tiles_c) * kBand, tc0 = (t % tiles_c) * kStrip;
+    const std::ptrdiff_t tr1 = std::min(H, tr0 + kBand), tc1 = std::min(W, tc0 + kStrip);
+    bool wanted = false;
+    for (std::ptrdiff_t r = tr0; r < tr1 && !wanted; ++r)
+      for (std::ptrdiff_t c = tc0; c < tc1; ++c)
+        if (want(r * W + c)) {
+          wanted = true;
+          break;
+        }
+    if (!wanted) continue;
+    const std::ptrdiff_t R0 = std::max<std::ptrdiff_t>(0, tr0 - half);
+    const std::ptrdiff_t R1 = std::min(H, tr1 + half);
+    const std::ptrdiff_t C0 = std::max<std::ptrdiff_t>(0, tc0 - half);
+    const std::ptrdiff_t C1 = std::min(W, tc1 + half);
+    const std::ptrdiff_t nc = C1 - C0;
+    // Local origin: a NORMAL cell of the region, searched from the tile's middle row.
+    Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+    bool any = false;
+    const std::ptrdiff_t mid = (tr0 + tr1) / 2, nr = R1 - R0;
+    for (std::ptrdiff_t k = 0; k < nr && !any; ++k) {
+      const std::ptrdiff_t r = R0 + (mid - R0 + k) % nr;
+      for (std::ptrdiff_t c = C0; c < C1; ++c)
+        if (cls[r * W + c] & kInPlane) {
+          origin = g(r, c);
+          any = true;
+          break;
+        }
+    }
+    if (!any) {  // no NORMAL cell within reach: no plane for any cell of the tile
+      for (std::ptrdiff_t r = tr0; r < tr1; ++r)
+        for (std::ptrdiff_t c = tc0; c < tc1; ++c)
+          if (want(r * W + c)) visit(r * W + c, WindowFit{});
+      continue;
+    }
+    // Column sums, zero-padded by half + 1 columns on both sides (the window's clipping).
+    const std::ptrdiff_t pad = half + 1, stride = span + 2 * pad;
+    double* cs = sc.buf.data();                 // kMoments x stride
+    double* S = cs + kMoments * stride;         // kMoments x cap: window sums per tile column
+    double* Q = S + kMoments * cap;             // 3 x cap: the cell, relative to the origin
+    double* F = Q + 3 * cap;                    // 4 x cap: fits
+    double* ring = F + 4 * cap;  // (window + 1) rows x 3 x span: rows in the window, SoA
+    std::uint8_t* okf = sc.flags.data();
+    std::uint8_t* redo = okf + cap;
+    const double ox = origin.x(), oy = origin.y(), oz = origin.z();
+    const std::ptrdiff_t ncols = tc1 - tc0, nring = 2 * half + 2;
+    auto ring_row = [&](std::ptrdiff_t rr) { return ring + (rr % nring) * 3 * span; };
+    // A row enters the window (loaded once, kept in the ring) or leaves it (read from the ring).
+    auto add_row = [&](std::ptrdiff_t rr, double sign) {
+      double* x = ring_row(rr);
+      if (sign > 0.0) load_rel(g, rr, C0, nc, ox, oy, oz, x, x + span, x + 2 * span);
+      add_row_moments(cls + rr * W + C0, nc, x, x + span, x + 2 * span, sign, cs + pad, stride);
+    };
+    std::fill(cs, cs + kMoments * stride, 0.0);
+    for (std::ptrdiff_t rr = std::max<std::ptrdiff_t>(0, tr0 - half);
+         rr <= std::min(H - 1, tr0 + half); ++rr)
+      add_row(rr, 1.0);
+    for (std::ptrdiff_t r = tr0; r < tr1; ++r) {
+      if (r > tr0) {
+        if (r + half < H) add_row(r + half, 1.0);
+        if (r - half - 1 >= 0) add_row(r - half - 1, -1.0);
+      }
+      std::ptrdiff_t m = 0;
+      for (std::ptrdiff_t c = tc0; c < tc1; ++c) m += want(r * W + c) ? 1 : 0;
+      if (m == 0) continue;
+      // Box sums along the row: 11 running sums, one column in and one out per cell.
+      {
+        const double* col = cs + pad + (tc0 - C0);  // column of cell tc0
+        double acc[kMoments];
+        for (int k = 0; k < kMoments; ++k) {
+          double a = 0.0;
+          for (std::ptrdiff_t d = -half; d <= half; ++d) a += col[k * stride + d];
+          acc[k] = a;
+        }
+        for (std::ptrdiff_t j = 0; j < ncols; ++j) {
+          if (j > 0) {
+            for (int k = 0; k < kMoments; ++k)
+              acc[k] += col[k * stride + j + half] - col[k * stride + j - half - 1];
+          }
+          for (int k = 0; k < kMoments; ++k) S[k * cap + j] = acc[k];
+        }
+      }
+      {
+        const double* x = ring_row(r) + (tc0 - C0);
+        std::copy(x, x + ncols, Q);
+        std::copy(x + span, x + span + ncols, Q + cap);
+        std::copy(x + 2 * span, x + 2 * span + ncols, Q + 2 * cap);
+      }
+      const bool compact = 4 * m < ncols;  // few wanted cells: solve only those
+      if (compact) {
+        std::ptrdiff_t k2 = 0;
+        for (std::ptrdiff_t j = 0; j < ncols; ++j) {
+          if (!want(r * W + tc0 + j)) continue;
+          for (int k = 0; k < kMoments; ++k) S[k * cap + k2] = S[k * cap + j];
+          for (int k = 0; k < 3; ++k) Q[k * cap + k2] = Q[k * cap + j];
+          ++k2;
+        }
+      }
+      const std::ptrdiff_t ns = compact ? m : ncols;
+      for (std::ptrdiff_t j = 0; j < ns; ++j) {
+        S[j] = std::round(S[j]);
+        S[10 * cap + j] = std::round(S[10 * cap + j]);
+      }
+      solve_fits(ns, cap, S, Q, F, okf, redo);
+      std::ptrdiff_t k2 = 0;
+      for (std::ptrdiff_t j = 0; j < ncols; ++j) {
+        const std::ptrdiff_t i = r * W + tc0 + j;
+        if (!want(i)) continue;
+        const std::ptrdiff_t e = compact ? k2++ : j;
+        WindowFit f;
+        if (redo[e]) {
+          double sums[kMoments];
+          for (int k = 0; k < kMoments; ++k) sums[k] = S[k * cap + e];
+          f = fit_from_sums(sums, Eigen::Vector3d(Q[e], Q[cap + e], Q[2 * cap + e]));
+        } else {
+          f.ok = okf[e] != 0;
+          f.n = S[e];
+          f.height = F[e];
+          f.l0 = F[cap + e];
+          f.l1 = F[2 * cap + e];
+          f.l2 = F[3 * cap + e];
+        }
+        f.edges = S[10 * cap + e];
+        visit(i, f);
+      }
+    }
+  }
+}
+
+}  // namespace miem::detail
