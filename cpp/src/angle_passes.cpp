@@ -29,37 +29,40 @@ constexpr int kPop4[16] = {0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4};
 #define MIEM_CLONES
 #endif
 
+// Bits of RowScratch::bits per cell: directions available (0-3) and flagged (4-7), a neighbour
+// at step s unusable (slow: the scalar judge decides), a neighbour within the isolation reach.
+constexpr std::int64_t kFlagShift = 4, kSlowBit = 1 << 8, kNearBit = 1 << 9;
+
 // One (direction, scale) over columns [c0, c1). The running best cos is kept as the pair
 // (uv, prod) = (u.v, |u|^2 |v|^2) and compared through uv |uv| / prod, which orders like
-// uv / sqrt(prod): no square root or division per candidate.
+// uv / sqrt(prod): no square root or division per candidate. Masks and bits are 64-bit lanes
+// like the doubles, so nothing is packed or unpacked.
 MIEM_CLONES void kernel_line(std::ptrdiff_t c0, std::ptrdiff_t c1, const double* __restrict ax,
                              const double* __restrict ay, const double* __restrict az,
                              const double* __restrict bx, const double* __restrict by,
                              const double* __restrict bz, const double* __restrict px,
                              const double* __restrict py, const double* __restrict pz,
-                             const std::uint8_t* __restrict oa, const std::uint8_t* __restrict ob,
-                             double cos0, double c2, std::uint8_t bit, std::uint8_t is_near,
+                             const std::int64_t* __restrict oa, const std::int64_t* __restrict ob,
+                             double cos0, double c2, std::int64_t bit, std::int64_t near_bit,
                              double* __restrict buv, double* __restrict bprod,
-                             std::uint8_t* __restrict avail, std::uint8_t* __restrict flag,
-                             std::uint8_t* __restrict slow, std::uint8_t* __restrict near) {
+                             std::int64_t* __restrict bits) {
   for (std::ptrdiff_t c = c0; c < c1; ++c) {
-    const int both = oa[c] & ob[c];
+    const std::int64_t both = oa[c] & ob[c];
     const double ux = ax[c] - px[c], uy = ay[c] - py[c], uz = az[c] - pz[c];
     const double vx = bx[c] - px[c], vy = by[c] - py[c], vz = bz[c] - pz[c];
     const double uu = (ux * ux + uy * uy) + uz * uz;
     const double vv = (vx * vx + vy * vy) + vz * vz;
     const double uv = (ux * vx + uy * vy) + uz * vz;
     const double prod = uu * vv;
-    const int good = both & (uu != 0.0) & (vv != 0.0);
-    const int flagged = good & detail::cos_at_least(uv, prod, cos0, c2);
+    const std::int64_t good = both & (uu != 0.0) & (vv != 0.0);
+    const std::int64_t flagged = good & detail::cos_at_least(uv, prod, cos0, c2);
     const double b_uv = buv[c], b_prod = bprod[c];
-    const int better = good & (uv * std::fabs(uv) * b_prod > b_uv * std::fabs(b_uv) * prod);
+    const std::int64_t better =
+        good & (uv * std::fabs(uv) * b_prod > b_uv * std::fabs(b_uv) * prod);
     buv[c] = better ? uv : b_uv;
     bprod[c] = better ? prod : b_prod;
-    slow[c] |= static_cast<std::uint8_t>(both ^ 1);
-    near[c] |= static_cast<std::uint8_t>(both & is_near);
-    avail[c] |= static_cast<std::uint8_t>(good * bit);
-    flag[c] |= static_cast<std::uint8_t>(flagged * bit);
+    bits[c] |= (good * bit) | ((flagged * bit) << kFlagShift) | ((both ^ 1) * kSlowBit) |
+               (both * near_bit);
   }
 }
 
@@ -78,7 +81,7 @@ MIEM_CLONES void angles_line(std::ptrdiff_t n, const double* __restrict buv,
 // Copy row rr of the grid into structure-of-arrays slot buffers.
 template <typename T>
 void load_row(const GridView<T>& g, const std::uint8_t* usable, std::ptrdiff_t rr, double* x,
-              std::uint8_t* ok) {
+              std::int64_t* ok) {
   const std::ptrdiff_t W = g.cols;
   double* y = x + W;
   double* z = y + W;
@@ -109,42 +112,44 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
     load_row(g, usable, rr, slot_x(rr), slot_ok(rr));
   }
   double *buv = sc.best.data(), *bprod = sc.best.data() + W;
-  std::uint8_t *avail = sc.avail.data(), *flag = sc.flag.data(), *slow = sc.slow.data(),
-               *near = sc.near.data();
+  std::int64_t* bits = sc.bits.data();
   for (std::ptrdiff_t r = r_begin; r < r_end; ++r) {
     if (r + smax < H) load_row(g, usable, r + smax, slot_x(r + smax), slot_ok(r + smax));
     std::fill(buv, buv + W, -2.0);
     std::fill(bprod, bprod + W, 0.0);
-    std::fill(avail, avail + W, 0);
-    std::fill(flag, flag + W, 0);
-    std::fill(slow, slow + W, 0);
-    std::fill(near, near + W, 0);
+    std::fill(bits, bits + W, 0);
     const double* px = slot_x(r);
-    for (int k = 0; k < 4; ++k) {
-      const int dr = detail::kDirRow[k], dc = detail::kDirCol[k];
-      const std::uint8_t bit = static_cast<std::uint8_t>(1u << k);
-      for (int s : p.scales) {
-        if (r - s * dr < 0 || r + s * dr >= H) continue;  // a side outside the grid: unavailable
-        const std::ptrdiff_t sh = static_cast<std::ptrdiff_t>(s) * dc;  // column shift, side +1
-        const std::ptrdiff_t c0 = std::abs(sh), c1 = W - std::abs(sh);
-        if (c0 >= c1) continue;
-        const double* ax = slot_x(r - s * dr) - sh;
-        const double* bx = slot_x(r + s * dr) + sh;
-        const std::uint8_t* oa = slot_ok(r - s * dr) - sh;
-        const std::uint8_t* ob = slot_ok(r + s * dr) + sh;
-        kernel_line(c0, c1, ax, ax + W, ax + 2 * W, bx, bx + W, bx + 2 * W, px, px + W,
-                    px + 2 * W, oa, ob, cos0, c2, bit,
-                    static_cast<std::uint8_t>(s <= 1 + p.max_gap), buv, bprod, avail, flag,
-                    slow, near);
+    // Blocks of columns, every (direction, scale) per block: the block's rows stay in L1.
+    constexpr std::ptrdiff_t kBlock = 256;
+    for (std::ptrdiff_t b0 = 0; b0 < W; b0 += kBlock) {
+      const std::ptrdiff_t b1 = std::min(W, b0 + kBlock);
+      for (int k = 0; k < 4; ++k) {
+        const int dr = detail::kDirRow[k], dc = detail::kDirCol[k];
+        const std::int64_t bit = std::int64_t{1} << k;
+        for (int s : p.scales) {
+          if (r - s * dr < 0 || r + s * dr >= H) continue;  // a side outside the grid
+          const std::ptrdiff_t sh = static_cast<std::ptrdiff_t>(s) * dc;  // column shift
+          const std::ptrdiff_t c0 = std::max(b0, std::abs(sh));
+          const std::ptrdiff_t c1 = std::min(b1, W - std::abs(sh));
+          if (c0 >= c1) continue;
+          const double* ax = slot_x(r - s * dr) - sh;
+          const double* bx = slot_x(r + s * dr) + sh;
+          const std::int64_t* oa = slot_ok(r - s * dr) - sh;
+          const std::int64_t* ob = slot_ok(r + s * dr) + sh;
+          kernel_line(c0, c1, ax, ax + W, ax + 2 * W, bx, bx + W, bx + 2 * W, px, px + W,
+                      px + 2 * W, oa, ob, cos0, c2, bit, s <= 1 + p.max_gap ? kNearBit : 0,
+                      buv, bprod, bits);
+        }
       }
     }
     double* angle_row = angle_out ? angle_out + r * W : nullptr;
     if (angle_row) angles_line(W, buv, bprod, angle_row);
-    const std::uint8_t* centre_ok = slot_ok(r);
+    const std::int64_t* centre_ok = slot_ok(r);
     for (std::ptrdiff_t c = 0; c < W; ++c) {
       if (!centre_ok[c]) continue;
       const std::ptrdiff_t i = r * W + c;
-      if (slow[c] | (near[c] ^ 1)) {
+      const std::int64_t b = bits[c];
+      if ((b & kSlowBit) || !(b & kNearBit)) {
         std::uint8_t fl;
         double an;
         labels[i] = judge.judge(r, c, &fl, &an);
@@ -152,10 +157,11 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
         if (angle_row) angle_row[c] = an;
         continue;
       }
-      const int a = kPop4[avail[c]], f = kPop4[flag[c]];
+      const std::uint8_t avail = b & 15, flag = (b >> kFlagShift) & 15;
+      const int a = kPop4[avail], f = kPop4[flag];
       const int need = p.min_directions > 0 ? std::min(a, p.min_directions) : a;
       labels[i] = (a >= 2 && f >= need) ? kAbnormal : (f > 0 ? kEdge : kNormal);
-      if (flags_out) flags_out[i] = flag[c];
+      if (flags_out) flags_out[i] = flag;
     }
   }
 }

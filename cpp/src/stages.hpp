@@ -33,9 +33,11 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
 inline bool height_far(const WindowFit& f, const DetectParams& p) {
   if (!f.ok || f.edges > 0.0) return false;  // designed features nearby: no plane model
   const double ah = std::abs(f.height);
-  const double rms = std::sqrt(std::max(f.l0, 0.0) / f.n);
-  return (p.height_abs > 0.0 && ah > p.height_abs) ||
-         (p.height_k > 0.0 && ah > p.height_k * rms && ah > 1e-9 * std::sqrt((f.l1 + f.l2) / f.n));
+  if (p.height_abs > 0.0 && ah > p.height_abs) return true;
+  // |h| > k rms and |h| > 1e-9 sqrt((l1 + l2) / n), rms = sqrt(max(l0, 0) / n), squared.
+  const double h2n = ah * ah * f.n;
+  return p.height_k > 0.0 && h2n > p.height_k * p.height_k * std::max(f.l0, 0.0) &&
+         h2n > 1e-18 * (f.l1 + f.l2);
 }
 
 /// Bits of ws.hmask after height_test.

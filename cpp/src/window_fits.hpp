@@ -80,8 +80,8 @@ MIEM_FIT_CLONES inline void solve_fits(std::ptrdiff_t m, std::ptrdiff_t cap,
   double* __restrict f2 = F + 3 * cap;
   for (std::ptrdiff_t i = 0; i < m; ++i) {
     const double n = s0[i];
-    const double nn = n > 0.0 ? n : 1.0;
-    const double mx = s1[i] / nn, my = s2[i] / nn, mz = s3[i] / nn;
+    const double inv_n = 1.0 / (n > 0.0 ? n : 1.0);
+    const double mx = s1[i] * inv_n, my = s2[i] * inv_n, mz = s3[i] * inv_n;
     const double a = s4[i] - n * mx * mx, d = s5[i] - n * mx * my, f = s6[i] - n * mx * mz;
     const double b = s7[i] - n * my * my, e = s8[i] - n * my * mz, c = s9[i] - n * mz * mz;
     const double tr = a + b + c;
@@ -91,8 +91,6 @@ MIEM_FIT_CLONES inline void solve_fits(std::ptrdiff_t m, std::ptrdiff_t cap,
     // written out so that the loop over cells vectorises).
     double x = 0.0;
     double live = tr > 0.0 ? 1.0 : 0.0;
-    newton_step(x, live, tr, c1, det);
-    newton_step(x, live, tr, c1, det);
     newton_step(x, live, tr, c1, det);
     newton_step(x, live, tr, c1, det);
     newton_step(x, live, tr, c1, det);
@@ -115,8 +113,8 @@ MIEM_FIT_CLONES inline void solve_fits(std::ptrdiff_t m, std::ptrdiff_t cap,
     double ny = pick01 ? u1 : (pick02 ? v1 : w1);
     double nz = pick01 ? u2 : (pick02 ? v2 : w2);
     const double nb = pick01 ? n01 : (pick02 ? n02 : n12);
-    const double len = std::sqrt(nb > 0.0 ? nb : 1.0);
-    nx /= len, ny /= len, nz /= len;
+    const double inv_len = 1.0 / std::sqrt(nb > 0.0 ? nb : 1.0);
+    nx *= inv_len, ny *= inv_len, nz *= inv_len;
     const double sg = nz != 0.0 ? (nz > 0.0 ? 1.0 : -1.0)
                                 : (nx != 0.0 ? (nx > 0.0 ? 1.0 : -1.0) : (ny < 0.0 ? -1.0 : 1.0));
     const double h = sg * ((nx * (qx[i] - mx) + ny * (qy[i] - my)) + nz * (qz[i] - mz));
@@ -197,13 +195,47 @@ void load_rel(const GridView<T>& g, std::ptrdiff_t r, std::ptrdiff_t c0, std::pt
   }
 }
 
+/// The window fit of one cell from its window's cells directly (sums relative to the cell).
+template <typename T>
+WindowFit direct_fit(const GridView<T>& g, const std::uint8_t* cls, std::ptrdiff_t r,
+                     std::ptrdiff_t c, std::ptrdiff_t half) {
+  const std::ptrdiff_t W = g.cols;
+  const Eigen::Vector3d o = g(r, c);
+  double s[kMoments] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
+  for (std::ptrdiff_t rr = std::max<std::ptrdiff_t>(0, r - half);
+       rr <= std::min(g.rows - 1, r + half); ++rr) {
+    for (std::ptrdiff_t cc = std::max<std::ptrdiff_t>(0, c - half); cc <= std::min(W - 1, c + half);
+         ++cc) {
+      const std::uint8_t k = cls[rr * W + cc];
+      if (k & kInPlane) {
+        const Eigen::Vector3d q = g(rr, cc) - o;
+        s[0] += 1.0;
+        s[1] += q.x();
+        s[2] += q.y();
+        s[3] += q.z();
+        s[4] += q.x() * q.x();
+        s[5] += q.x() * q.y();
+        s[6] += q.x() * q.z();
+        s[7] += q.y() * q.y();
+        s[8] += q.y() * q.z();
+        s[9] += q.z() * q.z();
+      } else if (k & kLine) {
+        s[10] += 1.0;
+      }
+    }
+  }
+  WindowFit f = fit_from_sums(s, Eigen::Vector3d::Zero());
+  f.edges = s[10];
+  return f;
+}
+
 /// Calls visit(i, fit) (i = r * cols + c) for every cell with want(i), where cls[i] gives the
 /// class of each cell (kInPlane, kLine or 0). A tile without wanted cells costs one scan of its
 /// want bytes. `fit.edges` is exact only where fit.ok (a tile without a NORMAL cell reports 0). `scratch` is grown to one buffer per thread (sized by the grid, not the tile).
 template <typename T, typename Want, typename Visit>
 void window_fits(const GridView<T>& g, const std::uint8_t* cls, int window, int num_threads,
                  std::vector<FitScratch>& scratch, Want want, Visit visit) {
-  constexpr std::ptrdiff_t kBand = 64, kStrip = 128;
+  constexpr std::ptrdiff_t kBand = 64, kStrip = 128, kDirect = 24;
   const std::ptrdiff_t H = g.rows, W = g.cols, half = window / 2;
   const std::ptrdiff_t tiles_r = (H + kBand - 1) / kBand, tiles_c = (W + kStrip - 1) / kStrip;
   const std::ptrdiff_t ntiles = tiles_r * tiles_c;
@@ -228,14 +260,16 @@ void window_fits(const GridView<T>& g, const std::uint8_t* cls, int window, int 
     if (sc.flags.size() < static_cast<std::size_t>(3 * cap)) sc.flags.resize(3 * cap);
     const std::ptrdiff_t tr0 = (t / tiles_c) * kBand, tc0 = (t % tiles_c) * kStrip;
     const std::ptrdiff_t tr1 = std::min(H, tr0 + kBand), tc1 = std::min(W, tc0 + kStrip);
-    bool wanted = false;
-    for (std::ptrdiff_t r = tr0; r < tr1 && !wanted; ++r)
-      for (std::ptrdiff_t c = tc0; c < tc1; ++c)
-        if (want(r * W + c)) {
-          wanted = true;
-          break;
-        }
-    if (!wanted) continue;
+    std::ptrdiff_t n_wanted = 0;
+    for (std::ptrdiff_t r = tr0; r < tr1; ++r)
+      for (std::ptrdiff_t c = tc0; c < tc1; ++c) n_wanted += want(r * W + c) ? 1 : 0;
+    if (n_wanted == 0) continue;
+    if (n_wanted <= kDirect) {  // a few cells: their windows directly, cheaper than the sums
+      for (std::ptrdiff_t r = tr0; r < tr1; ++r)
+        for (std::ptrdiff_t c = tc0; c < tc1; ++c)
+          if (want(r * W + c)) visit(r * W + c, direct_fit(g, cls, r, c, half));
+      continue;
+    }
     const std::ptrdiff_t R0 = std::max<std::ptrdiff_t>(0, tr0 - half);
     const std::ptrdiff_t R1 = std::min(H, tr1 + half);
     const std::ptrdiff_t C0 = std::max<std::ptrdiff_t>(0, tc0 - half);

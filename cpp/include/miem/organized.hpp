@@ -19,18 +19,15 @@ namespace detail {
 /// Per-thread buffers of the row kernel (structure-of-arrays copies of a few rows).
 struct RowScratch {
   std::vector<double> xyz;
-  std::vector<std::uint8_t> ok;
+  std::vector<std::int64_t> ok;    ///< 64-bit lanes beside the doubles: no packing in the kernel
   std::vector<double> best;
-  std::vector<std::uint8_t> avail, flag, slow, near;
+  std::vector<std::int64_t> bits;  ///< per cell: available / flagged directions, slow, near
   void resize(std::ptrdiff_t rows, std::ptrdiff_t cols) {
     const auto n = static_cast<std::size_t>(cols);
     xyz.resize(static_cast<std::size_t>(rows) * 3 * n);
     ok.resize(static_cast<std::size_t>(rows) * n);
     best.resize(2 * n);
-    avail.resize(n);
-    flag.resize(n);
-    slow.resize(n);
-    near.resize(n);
+    bits.resize(n);
   }
 };
 
