@@ -82,3 +82,26 @@ def test_ctest_with_sanitizers(tmp_path: Path) -> None:
 def test_consumer_of_installed_package(plain_build: Path) -> None:
     out = _ctest(plain_build, ["-L", "consumer", "-V"])
     assert "consumer test passed" in out, out[-3000:]
+
+
+def _cached_build_type(build: Path, extra: list[str]) -> str:
+    cmd = ["cmake", "-S", str(ROOT), "-B", str(build), f"-DPython_EXECUTABLE={sys.executable}",
+           *extra]
+    _check(_run(cmd), "cmake configure")
+    for line in (build / "CMakeCache.txt").read_text().splitlines():
+        if line.startswith("CMAKE_BUILD_TYPE:"):
+            return line.split("=", 1)[1]
+    return "<unset>"
+
+
+def test_plain_build_is_release_and_explicit_choice_kept(tmp_path: Path) -> None:
+    # A plain `cmake -S . -B build` (the README's command) must not give an unoptimised library;
+    # an explicit build type, even an empty one, is the user's choice.
+    env_type = os.environ.pop("CMAKE_BUILD_TYPE", None)
+    try:
+        assert _cached_build_type(tmp_path / "plain", []) == "Release"
+        assert _cached_build_type(tmp_path / "debug", ["-DCMAKE_BUILD_TYPE=Debug"]) == "Debug"
+        assert _cached_build_type(tmp_path / "empty", ["-DCMAKE_BUILD_TYPE="]) == ""
+    finally:
+        if env_type is not None:
+            os.environ["CMAKE_BUILD_TYPE"] = env_type
