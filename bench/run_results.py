@@ -1,10 +1,13 @@
 """Measure the core against the NumPy reference and write bench/RESULTS.md.
 
-Usage: ``python bench/run_results.py [--quick]``. Every ratio is measured in this one run on this
-machine (best of several repeats; the machine is shared, so read ratios, not seconds). The
-README's results table (between the ``results:start`` / ``results:end`` markers) is rewritten
+Usage: ``python bench/run_results.py [--quick] [--all]``. Every ratio is measured in this one run
+on this machine (best of several repeats; the machine is shared, so read ratios, not seconds).
+The README's results table (between the ``results:start`` / ``results:end`` markers) is rewritten
 from the same numbers. Fragments written by other benchmark scripts (``results_*.md`` beside this
-file) are appended as they are.
+file) are included as they are: ``results_speed.md`` (bench_speed.py: the default detector against
+Open3D and PCL, size sweep, memory, threads, where the time goes) first, the others after.
+``--all`` first reruns those scripts (bench_speed.py, run_cpp.py, bench_unorganized.py), so one
+command regenerates every table.
 """
 
 from __future__ import annotations
@@ -77,7 +80,14 @@ def paper_demo() -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="smaller sizes, fewer repeats")
+    ap.add_argument("--all", action="store_true", help="rerun the fragment scripts first")
     args = ap.parse_args(argv)
+    if args.all:
+        quick = {"bench_speed.py": ["--quick"], "run_cpp.py": ["--quick"],
+                 "bench_unorganized.py": ["--n", "100000"]}
+        for script, small in quick.items():
+            cmd = [sys.executable, str(HERE / script)] + (small if args.quick else [])
+            subprocess.run(cmd, check=True)
     repeats = 2 if args.quick else 3
     fit_n = 1_000_000 if args.quick else 10_000_000
     sides_ref = [128, 256] if args.quick else [256, 512]
@@ -96,6 +106,8 @@ def main(argv=None) -> int:
         f"{repeats} runs. The reference is `miem.reference` (vectorised NumPy, written from "
         "METHOD.md); parity (equal labels / normals) is checked before timing.",
         "",
+        *([(HERE / "results_speed.md").read_text().rstrip(), ""]
+          if (HERE / "results_speed.md").exists() else []),
         "## Plane fit (eigenvalue method)",
         "",
         "| case | core | reference | speed-up | core GB/s | NumPy `sum` GB/s |",
@@ -131,7 +143,8 @@ def main(argv=None) -> int:
         "```",
     ]
     for frag in sorted(HERE.glob("results_*.md")):
-        lines += ["", frag.read_text().rstrip()]
+        if frag.name != "results_speed.md":
+            lines += ["", frag.read_text().rstrip()]
     (HERE / "RESULTS.md").write_text("\n".join(lines) + "\n")
 
     # README table

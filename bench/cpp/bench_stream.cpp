@@ -166,6 +166,10 @@ int main(int argc, char** argv) {
   p2.scales = {1, 2};
   p2.max_gap = 2;
   scenarios.push_back({"scales (1, 2), max_gap 2", p2, 0.001, false});
+  miem::DetectParams pr;  // the default preset's angle test (the stream runs no height test yet)
+  pr.theta0_deg = 90.0;
+  pr.scales = {1, 2};
+  scenarios.push_back({"default preset's angle test (theta0 90, scales (1, 2))", pr, 0.001, false});
   miem::DetectParams p3;
   p3.max_iterations = 3;
   scenarios.push_back({"max_iterations 3 (lag 6)", p3, 0.001, false});

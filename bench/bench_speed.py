@@ -1,0 +1,311 @@
+"""Speed of the default detector (issue 17): what a user compares first.
+
+Usage: ``python bench/bench_speed.py [--quick] [--build-dir DIR]`` writes
+``bench/results_speed.md`` (``run_results.py`` puts it at the top of RESULTS.md) and
+``bench/results_speed.json``. ``--record-baseline FILE`` only measures the stage breakdown by
+configuration (below) with whatever ``miem`` the interpreter imports and writes it to FILE: run it
+with the interpreter of an older build to keep a "before" next to the "now".
+
+Sections, all measured in this one run:
+
+* miem's default preset (``"recommended"``) against Open3D on the same cloud (the scan grid's
+  finite points); PCL where ``bench/run_cpp.py`` found it (``results_cpp.md``).
+* Size sweep: organized grids 256^2 .. 4096^2 (1 and 2 threads) and ``fit_plane`` on 1e5 .. 1e7
+  points against a NumPy read of the same array: how the cost grows.
+* Peak memory of ``detect`` in a fresh process against the input grid.
+* Where the time goes: each C++ stage timed alone (``miem_bench_stages``, CPU time, one thread),
+  and the stage costs by configuration differences through the Python API (comparable across
+  versions: angle test only; + heights at every point; + the height test).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(HERE))
+from common import best_of, cpu_name, plane_points, scan_grid  # noqa: E402
+
+OUT = HERE / "results_speed.md"
+RAW = HERE / "results_speed.json"
+BASELINE = HERE / "results_speed_baseline.json"
+PRESET = "recommended"  # the default preset (issue 9)
+
+
+def cpu_time(fn, repeats: int) -> float:
+    """Smallest process CPU time of `repeats` single-threaded calls (a shared machine steals wall
+    time, not CPU time)."""
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.process_time()
+        fn()
+        best = min(best, time.process_time() - t0)
+    return best
+
+
+def breakdown(side: int, repeats: int) -> dict:
+    """Stage costs at side x side, 1 thread, by configuration differences (CPU time)."""
+    import miem
+
+    grid = scan_grid(side, side)
+    cfg = {
+        "angle": dict(preset=PRESET, height_tolerance=None, heights="abnormal"),
+        "angle+heights": dict(preset=PRESET, height_tolerance=None),
+        "full": dict(preset=PRESET),
+    }
+    t = {k: cpu_time(lambda kw=kw: miem.detect(grid, num_threads=1, **kw), repeats)
+         for k, kw in cfg.items()}
+    return {"side": side, "miem": miem.__version__, "angle": t["angle"],
+            "heights": t["angle+heights"] - t["angle"], "height_test": t["full"] - t["angle+heights"],
+            "full": t["full"]}
+
+
+def lead(side: int, repeats: int) -> list[dict]:
+    """miem default against Open3D on the same points."""
+    import miem
+
+    grid = scan_grid(side, side)
+    pts = grid.reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    n = grid.shape[0] * grid.shape[1]
+    rows = []
+    for nt in (1, 2):
+        t = best_of(lambda: miem.detect(grid, preset=PRESET, num_threads=nt), repeats)
+        res = miem.detect(grid, preset=PRESET, num_threads=nt)
+        rows.append({"who": f"miem `detect` (default preset), {nt} thread(s)", "t": t,
+                     "flagged": int(res.abnormal.sum()), "mpts": n / t / 1e6})
+    try:
+        import open3d as o3d
+    except ImportError:
+        return rows
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+    r = 3 * 0.2  # three grid steps
+    jobs = [
+        ("Open3D `remove_statistical_outlier(20, 2.0)` (all cores)",
+         lambda: pcd.remove_statistical_outlier(20, 2.0)),
+        (f"Open3D `remove_radius_outlier(8, {r:.1f})` (all cores)",
+         lambda: pcd.remove_radius_outlier(8, r)),
+        ("Open3D `estimate_normals(KNN 20)` (all cores)",
+         lambda: pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(20))),
+    ]
+    for who, fn in jobs:
+        t = best_of(fn, max(1, repeats - 1))
+        out = fn()
+        flagged = len(pts) - len(out[1]) if isinstance(out, tuple) else None
+        rows.append({"who": who, "t": t, "flagged": flagged, "mpts": n / t / 1e6})
+    return rows
+
+
+def sweep(sides: list[int], repeats: int) -> list[dict]:
+    import miem
+
+    rows = []
+    for side in sides:
+        grid = scan_grid(side, side)
+        n = side * side
+        reps = repeats if side < 4096 else max(1, repeats - 1)
+        t1 = cpu_time(lambda: miem.detect(grid, preset=PRESET, num_threads=1), reps)
+        w1 = best_of(lambda: miem.detect(grid, preset=PRESET, num_threads=1), reps)
+        w2 = best_of(lambda: miem.detect(grid, preset=PRESET, num_threads=2), reps)
+        rows.append({"side": side, "n": n, "cpu1": t1, "wall1": w1, "wall2": w2})
+        del grid
+    return rows
+
+
+def fit_sweep(sizes: list[int], repeats: int) -> list[dict]:
+    import miem
+
+    rows = []
+    for n in sizes:
+        pts = plane_points(n)
+        t = best_of(lambda: miem.fit_plane(pts, num_threads=1), repeats)
+        t_sum = best_of(lambda: pts.sum(axis=0), repeats)
+        rows.append({"n": n, "t": t, "gbs": pts.nbytes / t / 1e9, "sum_gbs": pts.nbytes / t_sum / 1e9})
+    return rows
+
+
+_MEM_CHILD = textwrap.dedent("""
+    import sys, json
+    sys.path.insert(0, {here!r})
+    import numpy as np, miem
+    from common import scan_grid
+    def hwm():
+        for line in open('/proc/self/status'):
+            if line.startswith('VmHWM'):
+                return int(line.split()[1]) * 1024
+    def rss():
+        for line in open('/proc/self/status'):
+            if line.startswith('VmRSS'):
+                return int(line.split()[1]) * 1024
+    grid = scan_grid({side}, {side})
+    miem.detect(scan_grid(64, 64), preset={preset!r})  # load everything first
+    # Reset the high-water mark to the current RSS (Linux >= 4.0), then measure the call.
+    open('/proc/self/clear_refs', 'w').write('5')
+    before = rss()
+    res = miem.detect(grid, preset={preset!r}, num_threads=1)
+    out = sum(a.nbytes for a in (res.labels, res.flags, res.angle, res.height))
+    print(json.dumps({{"grid": grid.nbytes, "growth": hwm() - before, "outputs": out}}))
+""")
+
+
+def memory(side: int) -> dict | None:
+    code = _MEM_CHILD.format(here=str(HERE), side=side, preset=PRESET)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    if proc.returncode != 0:
+        return None
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def stage_times(build_dir: Path, side: int, repeats: int) -> list[dict]:
+    """The C++ stages, timed alone (miem_bench_stages), 1 and 2 threads."""
+    cmd = ["cmake", "-S", str(ROOT), "-B", str(build_dir), "-DCMAKE_BUILD_TYPE=Release",
+           "-DMIEM_BUILD_BENCH=ON"]
+    if shutil.which("ninja") and not (build_dir / "CMakeCache.txt").exists():
+        cmd += ["-G", "Ninja"]
+    for c in (cmd, ["cmake", "--build", str(build_dir), "-j", "2", "--target", "miem_bench_stages"]):
+        proc = subprocess.run(c, capture_output=True, text=True)
+        if proc.returncode != 0:
+            print(proc.stdout[-2000:], proc.stderr[-2000:], file=sys.stderr)
+            return []
+    grid_file = build_dir / f"grid_{side}.f64"
+    scan_grid(side, side).astype(np.float64).tofile(grid_file)
+    rows = []
+    for preset in ("recommended", "paper"):
+        for nt in (1, 2):
+            out = subprocess.run([str(build_dir / "bench" / "miem_bench_stages"), str(grid_file),
+                                  str(side), str(side), str(nt), str(repeats), preset],
+                                 capture_output=True, text=True, check=True).stdout
+            rows.append(json.loads(out))
+    grid_file.unlink()
+    return rows
+
+
+def fmt(rows_lead, rows_sweep, rows_fit, mem, stages, now_bd, base_bd, meta) -> str:
+    L = ["## Speed of the default detector (`python bench/bench_speed.py`)", ""]
+    L.append(f"Written on {meta['date']}: miem {meta['miem']}, {meta['cpu']}, {os.cpu_count()} "
+             f"cores, shared with other jobs (load average {meta['load0']:.1f} at the start, "
+             f"{meta['load1']:.1f} at the end): read ratios and CPU-time figures before wall "
+             "seconds. Default preset = `\"recommended\"` (theta0 90, scales (1, 2), window 21, "
+             "height test 4.5 rms, edge_extent 12), heights at every point, defects.")
+    L += ["", f"### miem's default against Open3D, the same {meta['lead_side']}x{meta['lead_side']} "
+          "scan", "",
+          "| method | time | Mpoints/s | points flagged / removed |", "|---|---:|---:|---:|"]
+    for r in rows_lead:
+        fl = "-" if r["flagged"] is None else f"{r['flagged']:,}"
+        L.append(f"| {r['who']} | {r['t'] * 1e3:.0f} ms | {r['mpts']:.1f} | {fl} |")
+    L += ["", "The scan has 200 injected spikes and pits (plus their 2x2 clusters) and 0.5% "
+          "dropouts; Open3D's filters get its finite points as an unorganized cloud (they are "
+          "other methods: what a user would run instead). PCL on an organized cloud: see "
+          "\"Organized detection against PCL\" below (run by `bench/run_cpp.py` where "
+          "`libpcl-dev` is installed).", ""]
+    L += ["### Size sweep (default preset)", "",
+          "| grid | points | CPU ms, 1 thread | Mpoints/s, 1 thread (CPU) | ns / point | "
+          "wall ms, 1 thread | wall ms, 2 threads | 2 threads / 1 thread |",
+          "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows_sweep:
+        L.append(f"| {r['side']}x{r['side']} | {r['n']:,} | {r['cpu1'] * 1e3:.0f} | "
+                 f"{r['n'] / r['cpu1'] / 1e6:.1f} | {r['cpu1'] / r['n'] * 1e9:.0f} | "
+                 f"{r['wall1'] * 1e3:.0f} | {r['wall2'] * 1e3:.0f} | {r['wall1'] / r['wall2']:.2f}x |")
+    if rows_sweep:
+        ns = [r["cpu1"] / r["n"] * 1e9 for r in rows_sweep if r["side"] >= 512]
+        if ns:
+            L += ["", f"Cost per point from 512^2 up: {min(ns):.0f} to {max(ns):.0f} ns "
+                  f"(max / min {max(ns) / min(ns):.2f}: linear when close to 1)."]
+    L += ["", "| `fit_plane`, 1 thread | time | GB/s | NumPy `sum` GB/s | share of the yardstick |",
+          "|---|---:|---:|---:|---:|"]
+    for r in rows_fit:
+        L.append(f"| {r['n']:,} points | {r['t'] * 1e3:.1f} ms | {r['gbs']:.1f} | "
+                 f"{r['sum_gbs']:.1f} | {r['gbs'] / r['sum_gbs'] * 100:.0f} % |")
+    if mem:
+        L += ["", "### Memory", "",
+              f"`detect` on a {meta['mem_side']}x{meta['mem_side']} float64 grid "
+              f"({mem['grid'] / 1e6:.0f} MB) in a fresh process: peak resident growth during the "
+              f"call {mem['growth'] / 1e6:.0f} MB = {mem['growth'] / mem['grid']:.2f}x the input "
+              f"grid (the four per-point outputs are {mem['outputs'] / 1e6:.0f} MB of it; "
+              "target <= 2x)."]
+    if stages:
+        L += ["", "### Where the time goes", "",
+              f"Each stage of `OrganizedDetector::run` (cpp/src/stages.hpp) timed alone by "
+              f"`miem_bench_stages` on the {meta['stage_side']}x{meta['stage_side']} scan "
+              "(C++, no Python; 1 thread: CPU time, 2 threads: wall time).", "",
+              "| preset | threads | angle passes | height test | MIEM plane | heights | defects | "
+              "run() | Mpoints/s |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+        for s in stages:
+            n = s["rows"] * s["cols"]
+            L.append(f"| {s['preset']} | {s['threads']} | " + " | ".join(
+                f"{s[k] * 1e3:.0f} ms" for k in ("angle_passes", "height_test", "miem_plane",
+                                                 "heights", "defects", "run"))
+                + f" | {n / s['run'] / 1e6:.1f} |")
+    L += ["", "By configuration differences through the Python API (CPU time, 1 thread, "
+          f"{meta['bd_side']}x{meta['bd_side']}; the same measurement on the build before the "
+          "speed work, where recorded):", "",
+          "| build | angle test | + heights at every point | + height test | full default | "
+          "Mpoints/s |", "|---|---:|---:|---:|---:|---:|"]
+    builds = ([("before: " + base_bd.get("label", "?"), base_bd)] if base_bd else [])
+    for label, bd in builds + [("now", now_bd)]:
+        n = bd["side"] ** 2
+        L.append(f"| {label} | {bd['angle'] * 1e3:.0f} ms | {bd['heights'] * 1e3:.0f} ms | "
+                 f"{bd['height_test'] * 1e3:.0f} ms | {bd['full'] * 1e3:.0f} ms | "
+                 f"{n / bd['full'] / 1e6:.1f} |")
+    if base_bd:
+        L.append("")
+        L.append(f"Speed-up of the full default: {base_bd['full'] / now_bd['full']:.1f}x "
+                 f"(baseline recorded {base_bd.get('date', '?')}).")
+    return "\n".join(L) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--build-dir", type=Path, default=ROOT / "build" / "bench")
+    ap.add_argument("--record-baseline", type=Path, default=None)
+    ap.add_argument("--label", default="")
+    args = ap.parse_args(argv)
+    import datetime as dt
+
+    import miem
+
+    q = args.quick
+    bd_side = 512 if q else 2048
+    if args.record_baseline is not None:
+        bd = breakdown(bd_side, 2 if q else 3)
+        bd.update(label=args.label, date=dt.date.today().isoformat())
+        args.record_baseline.write_text(json.dumps(bd, indent=1) + "\n")
+        print(json.dumps(bd))
+        return 0
+    load0 = os.getloadavg()[0]
+    meta = {"date": dt.date.today().isoformat(), "miem": miem.__version__, "cpu": cpu_name(),
+            "load0": load0, "lead_side": 512 if q else 1024, "mem_side": 512 if q else 2048,
+            "stage_side": 512 if q else 2048, "bd_side": bd_side}
+    reps = 2 if q else 3
+    rows_lead = lead(meta["lead_side"], reps)
+    rows_sweep = sweep([256, 512] if q else [256, 512, 1024, 2048, 4096], reps)
+    rows_fit = fit_sweep([100_000, 1_000_000] if q else [100_000, 1_000_000, 10_000_000], reps)
+    mem = memory(meta["mem_side"])
+    stages = stage_times(args.build_dir, meta["stage_side"], reps)
+    now_bd = breakdown(bd_side, reps)
+    base_bd = json.loads(BASELINE.read_text()) if BASELINE.exists() else None
+    if base_bd and base_bd.get("side") != bd_side:
+        base_bd = None
+    meta["load1"] = os.getloadavg()[0]
+    RAW.write_text(json.dumps({"lead": rows_lead, "sweep": rows_sweep, "fit": rows_fit,
+                               "memory": mem, "stages": stages, "breakdown": now_bd,
+                               "meta": meta}, indent=1) + "\n")
+    OUT.write_text(fmt(rows_lead, rows_sweep, rows_fit, mem, stages, now_bd, base_bd, meta))
+    print(OUT.read_text())
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
