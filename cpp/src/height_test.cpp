@@ -12,6 +12,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "parallel.hpp"
 #include "stages.hpp"
 
 namespace miem::detail {
@@ -62,6 +63,8 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
   std::uint8_t* hm = ws.hmask.data();
   std::uint8_t* cls = ws.cls.data();
   mark_compact_edges(labels, H, W, p.edge_extent, hm, ws.queue);
+  const int nt = thread_count(p.num_threads, N);
+#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
   for (std::ptrdiff_t i = 0; i < N; ++i) {
     const std::uint8_t l = labels[i];
     const bool compact = (hm[i] & kHCompact) != 0;

@@ -33,6 +33,7 @@ void heights(const GridView<T>& g, const DetectParams& p, const std::uint8_t* la
   ws.cls.resize(static_cast<std::size_t>(N));
   std::uint8_t* cls = ws.cls.data();
   const std::uint8_t* hm = reuse ? ws.hmask.data() : nullptr;
+#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
   for (std::ptrdiff_t i = 0; i < N; ++i) {
     cls[i] = labels[i] == kNormal ? kInPlane : 0;  // feature lines do not matter here
     if (labels[i] == kInvalid) height[i] = kNaN;

@@ -60,7 +60,7 @@ enum Label : std::uint8_t {
 
 /// Which cells get a local height (METHOD section 6).
 enum class HeightMode : std::uint8_t {
-  kAll = 0,       ///< every finite cell (box-summed window fits, O(1) per cell)
+  kAll = 0,       ///< every finite cell (running window sums, O(1) per cell)
   kAbnormal = 1,  ///< ABNORMAL cells only (direct window fits); others NaN. Much faster.
 };
 
