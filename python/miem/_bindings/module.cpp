@@ -134,4 +134,6 @@ PYBIND11_MODULE(_core, m) {
   bind_stream(m);
   void bind_targets(py::module_ & m);  // python/miem/_bindings/targets.cpp
   bind_targets(m);
+  void bind_deviation(py::module_ & m);  // python/miem/_bindings/deviation.cpp
+  bind_deviation(m);
 }
