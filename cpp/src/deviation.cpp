@@ -52,14 +52,20 @@ ReferenceSurface::ReferenceSurface(const PointsView<double>& points, const doubl
 
 template <typename T>
 void ReferenceSurface::deviation(const PointsView<T>& scan, double max_distance,
-                                 const DeviationOutput& out, int num_threads) const {
+                                 double max_lateral, const DeviationOutput& out,
+                                 int num_threads) const {
   if (!std::isfinite(max_distance) || !(max_distance > 0.0)) {
     throw std::invalid_argument("max_distance: must be finite and > 0, got " +
                                 std::to_string(max_distance));
   }
+  if (!(max_lateral >= 0.0)) {
+    throw std::invalid_argument("max_lateral: must be >= 0 (or +inf), got " +
+                                std::to_string(max_lateral));
+  }
   if (scan.size < 0 || (scan.size > 0 && scan.data == nullptr)) {
     throw std::invalid_argument("scan: null data");
   }
+  const double lat2_max = max_lateral * max_lateral;
   const NeighborGrid<double>& grid = *grid_;
   const double cell = grid.cell_size();
   const double max2 = max_distance * max_distance;
@@ -130,10 +136,13 @@ void ReferenceSurface::deviation(const PointsView<T>& scan, double max_distance,
       const double* p = points_.data() + 3 * best;
       const double* nn = normals_.data() + 3 * best;
       const double dx = q.x() - p[0], dy = q.y() - p[1], dz = q.z() - p[2];
-      if (out.deviation) out.deviation[i] = (dx * nn[0] + dy * nn[1]) + dz * nn[2];
+      const double dev = (dx * nn[0] + dy * nn[1]) + dz * nn[2];
+      const double tx = dx - dev * nn[0], ty = dy - dev * nn[1], tz = dz - dev * nn[2];
+      const bool over = (tx * tx + ty * ty) + tz * tz <= lat2_max;
+      if (out.deviation) out.deviation[i] = over ? dev : kNaN;
       if (out.distance) out.distance[i] = std::sqrt(best2);
       if (out.nearest) out.nearest[i] = rows_[best];
-      if (out.covered) out.covered[i] = 1;
+      if (out.covered) out.covered[i] = over ? 1 : 0;
     } else {
       if (out.deviation) out.deviation[i] = kNaN;
       if (out.distance) out.distance[i] = kNaN;
@@ -224,9 +233,9 @@ std::vector<Defect> label_deviation(const PointsView<T>& points, const double* d
   return defects;
 }
 
-template void ReferenceSurface::deviation<float>(const PointsView<float>&, double,
+template void ReferenceSurface::deviation<float>(const PointsView<float>&, double, double,
                                                  const DeviationOutput&, int) const;
-template void ReferenceSurface::deviation<double>(const PointsView<double>&, double,
+template void ReferenceSurface::deviation<double>(const PointsView<double>&, double, double,
                                                   const DeviationOutput&, int) const;
 template std::vector<Defect> label_deviation<float>(const PointsView<float>&, const double*,
                                                     const std::uint8_t*, const double*,

@@ -29,6 +29,15 @@ from ._api import (
 from ._core import __version__
 from .stream import ProfileStream, StreamRow
 from .targets import Target, TargetPlan, Tool, plan_targets, read_transform
+from .comparison import (
+    Agreement,
+    CompareResult,
+    DeviationLabel,
+    Reference,
+    compare,
+    load_reference,
+)
+from .registration import Registration, register
 from ._unorganized import (
     NeighborGrid,
     Normals,
@@ -39,6 +48,14 @@ from ._unorganized import (
 )
 
 __all__ = [
+    "Agreement",
+    "CompareResult",
+    "DeviationLabel",
+    "Reference",
+    "Registration",
+    "compare",
+    "load_reference",
+    "register",
     "ABNORMAL",
     "DEFAULT_PRESET",
     "EDGE",

@@ -18,9 +18,9 @@ namespace miem {
 /// pointer may be null.
 struct DeviationOutput {
   double* deviation = nullptr;      ///< n_q . (p - q), NaN where not covered
-  double* distance = nullptr;       ///< |p - q|, NaN where not covered
-  std::int64_t* nearest = nullptr;  ///< row of q in the reference, -1 where not covered
-  std::uint8_t* covered = nullptr;  ///< 1 where a reference point lies within max_distance
+  double* distance = nullptr;       ///< |p - q|, NaN where there is no q
+  std::int64_t* nearest = nullptr;  ///< row of q in the reference, -1 where there is no q
+  std::uint8_t* covered = nullptr;  ///< 1 where q exists and p lies over it (lateral offset)
 };
 
 /// A reference surface: the rows of `points` whose point and normal are both finite, indexed by
@@ -41,12 +41,14 @@ class ReferenceSurface {
   double cell_size() const { return grid_->cell_size(); }
 
   /// For every scan point p: q = the usable reference point nearest to p (Euclidean, ties to the
-  /// lowest reference row) among those within `max_distance`; covered when there is one.
-  /// Non-finite scan points are not covered. Throws std::invalid_argument when max_distance is
-  /// not finite and > 0. Deterministic for any thread count.
+  /// lowest reference row) among those within `max_distance`. Covered when q exists and the
+  /// lateral offset |(p - q) - dev n_q| is at most `max_lateral` (+inf: no limit): a point
+  /// beyond the edge of the reference is not covered. Non-finite scan points are not covered.
+  /// Throws std::invalid_argument when max_distance is not finite and > 0 or max_lateral is
+  /// NaN or < 0. Deterministic for any thread count.
   template <typename T>
-  void deviation(const PointsView<T>& scan, double max_distance, const DeviationOutput& out,
-                 int num_threads = 0) const;
+  void deviation(const PointsView<T>& scan, double max_distance, double max_lateral,
+                 const DeviationOutput& out, int num_threads = 0) const;
 
  private:
   std::vector<double> points_;        // usable rows, 3 values each

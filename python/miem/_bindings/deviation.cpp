@@ -45,7 +45,8 @@ class PyReferenceSurface {
   }
 
   // (deviation, distance, nearest, covered)
-  py::tuple deviation(const py::array& scan, double max_distance, int num_threads) const {
+  py::tuple deviation(const py::array& scan, double max_distance, double max_lateral,
+                      int num_threads) const {
     require_float(scan, "scan");
     const py::ssize_t n = scan.ndim() == 2 ? scan.shape(0) : 0;
     py::array_t<double> dev(n), dist(n);
@@ -57,11 +58,11 @@ class PyReferenceSurface {
     if (is_f32(scan)) {
       const auto v = points_view<float>(scan, "scan");
       py::gil_scoped_release nogil;
-      surface_->deviation(v, max_distance, out, num_threads);
+      surface_->deviation(v, max_distance, max_lateral, out, num_threads);
     } else {
       const auto v = points_view<double>(scan, "scan");
       py::gil_scoped_release nogil;
-      surface_->deviation(v, max_distance, out, num_threads);
+      surface_->deviation(v, max_distance, max_lateral, out, num_threads);
     }
     return py::make_tuple(dev, dist, nearest, covered);
   }
@@ -122,7 +123,7 @@ void bind_deviation(py::module_& m) {
       .def(py::init<const py::array&, const F64&, double, int>(), py::arg("points"),
            py::arg("normals"), py::arg("cell_size"), py::arg("num_threads") = 0)
       .def("deviation", &PyReferenceSurface::deviation, py::arg("scan"), py::arg("max_distance"),
-           py::arg("num_threads") = 0)
+           py::arg("max_lateral"), py::arg("num_threads") = 0)
       .def_property_readonly("size", &PyReferenceSurface::size)
       .def_property_readonly("cell_size", &PyReferenceSurface::cell_size);
   m.def("label_deviation", &label_deviation, py::arg("points"), py::arg("deviation"),
