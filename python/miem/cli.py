@@ -371,6 +371,10 @@ def _build_parser() -> argparse.ArgumentParser:
     from ._cli_plan import add_parser as add_plan_parser
 
     add_plan_parser(sub)
+
+    from ._cli_compare import add_parser as add_compare  # compare: deviation from a reference
+
+    add_compare(sub)
     return parser
 
 
