@@ -52,14 +52,6 @@ class _Memmap:
         return np.array(mm[key])
 
 
-def _check_payload(path: Path, offset: int, itemsize: int, count: int) -> None:
-    need = offset + itemsize * count
-    have = path.stat().st_size
-    if have < need:
-        raise ValueError(f"path: {path} is truncated: the header says {count:,} points "
-                         f"({need:,} bytes), the file holds {have:,} bytes")
-
-
 def _xyz_chunks(shape: tuple, chunks: Any) -> tuple:
     if len(shape) == 3:  # a grid: tiles or whole rows, the coordinates in one chunk
         rows, cols = (chunks, shape[1]) if np.isscalar(chunks) else tuple(chunks)[:2]
@@ -82,47 +74,37 @@ def open_npy(path: PathLike, chunks: Any = 4096) -> "da.Array":
     dask.array.Array
     """
     p = _path(path)
-    with open(p, "rb") as fh:
-        try:
-            version = np.lib.format.read_magic(fh)
-            read = (np.lib.format.read_array_header_1_0 if version == (1, 0)
-                    else np.lib.format.read_array_header_2_0)
-            shape, fortran, dtype = read(fh)
-        except Exception as exc:
-            raise ValueError(f"path: {p} is not a .npy file ({exc})") from None
-        offset = fh.tell()
+    from . import _filechecks
+
+    _filechecks.check_npy(p)  # the header against the file's length
+    try:
+        mm = np.load(p, mmap_mode="r")  # the header only: no data is read
+    except Exception as exc:
+        raise ValueError(f"path: {p} is not a .npy file ({exc})") from None
+    shape, dtype, offset = mm.shape, mm.dtype, int(mm.offset)
+    fortran = mm.ndim > 1 and mm.flags.f_contiguous and not mm.flags.c_contiguous
+    del mm
     if fortran or dtype.kind != "f" or dtype.itemsize not in (4, 8):
         raise ValueError(f"path: expected a C-order float32/float64 array, got {dtype}"
                          f"{' (Fortran order)' if fortran else ''}")
     if len(shape) not in (2, 3) or shape[-1] != 3:
         raise ValueError(f"path: expected shape (H, W, 3) or (N, 3), got {shape}")
-    _check_payload(p, offset, dtype.itemsize, int(np.prod(shape)))
     return da.from_array(_Memmap(p, offset, dtype, shape), chunks=_xyz_chunks(shape, chunks),
                          asarray=False, name=f"npy-{p.name}-{p.stat().st_mtime_ns}")
 
 
-def _pcd_header(p: Path) -> tuple:
-    """(pypcd4 metadata, byte offset of the point data) of a PCD file."""
-    from pypcd4.pypcd4 import MetaData
-
-    lines = []
-    with open(p, "rb") as fh:
-        while len(lines) < 64:
-            raw = fh.readline(4096)
-            if not raw:
-                break
-            line = raw.decode("utf-8", errors="replace").strip()
-            if line and not line.startswith("#"):
-                lines.append(line)
-                if line.startswith("DATA"):
-                    break
-        start = fh.tell()
-    if not lines or not lines[-1].startswith("DATA"):
-        raise ValueError(f"path: {p} has no PCD header (no DATA line)")
-    try:
-        return MetaData.parse_header(lines), start
-    except Exception as exc:
-        raise ValueError(f"path: {p} has a bad PCD header ({type(exc).__name__}: {exc})") from None
+def _pcd_record(header: dict) -> np.dtype:
+    """The little-endian record of a binary PCD point, from its FIELDS/SIZE/TYPE/COUNT."""
+    fields, sizes, types = header["FIELDS"], header["SIZE"], header["TYPE"]
+    counts = header.get("COUNT", ["1"] * len(fields))
+    spec, seen = [], set()
+    for k, (name, size, kind, count) in enumerate(zip(fields, sizes, types, counts)):
+        name = name if name not in seen else f"{name}#{k}"  # e.g. repeated "_" padding
+        seen.add(name)
+        code = {"F": "f", "I": "i", "U": "u"}.get(kind.upper(), "V")
+        base = f"<{code}{size}" if code != "V" else f"V{size}"
+        spec.append((name, base) if int(count) == 1 else (name, base, (int(count),)))
+    return np.dtype(spec)
 
 
 class _PcdXYZ:
@@ -159,18 +141,19 @@ def open_pcd(path: PathLike, chunks: Any = 4096) -> "da.Array":
     dask.array.Array
     """
     p = _path(path)
-    meta, start = _pcd_header(p)
-    if meta.data.value != "binary":
-        raise ValueError(f"path: {p} is DATA {meta.data.value}; only binary PCD is read by "
-                         "blocks (convert it with miem.io.read / miem.io.write)")
-    record = meta.build_dtype()
+    from . import _filechecks
+
+    header, start = _filechecks.pcd_header(p)  # checked against the file's length
+    data = (header.get("DATA") or [""])[0].lower()
+    if data != "binary":
+        raise ValueError(f"path: {p} is DATA {data}; only binary PCD is read by blocks "
+                         "(convert it with miem.io.read / miem.io.write)")
+    record = _pcd_record(header)
     if not {"x", "y", "z"} <= set(record.names or ()):
         raise ValueError(f"path: {p} has no x, y, z fields")
-    n = int(meta.points)
-    if int(meta.width) * int(meta.height) != n:
-        raise ValueError(f"path: {p}: WIDTH {meta.width} x HEIGHT {meta.height} != POINTS {n}")
-    _check_payload(p, start, record.itemsize, n)
-    shape = (int(meta.height), int(meta.width), 3) if meta.height > 1 else (n, 3)
+    width = int(header["WIDTH"][0])
+    height = int(header.get("HEIGHT", ["1"])[0])
+    shape = (height, width, 3) if height > 1 else (width * height, 3)
     return da.from_array(_PcdXYZ(p, start, record, shape), chunks=_xyz_chunks(shape, chunks), asarray=False,
                          name=f"pcd-{p.name}-{p.stat().st_mtime_ns}")
 
