@@ -191,7 +191,7 @@ def test_auto_theta0_equals_whole_grid(client, kw: dict) -> None:
 
 def test_strict_halo_and_pickled_blocks(client) -> None:
     params = miem.detect(scene(8, 8), preset="recommended").params
-    assert mdask.grid_halo(params, strict=True) == 10 * 3 + 10 * (63 + 10) + 10
+    assert mdask.grid_halo(params, strict=True) == 10 * 3 + 10 * (127 + 10) + 10
     assert mdask.grid_halo(params) == 10 * 3 + 10 * (10 + 12) + 10
     assert mdask.grid_halo(miem.detect(scene(8, 8), preset="paper").params, strict=True) == 30
     g = scene(150, 90, borders_r=(50, 100), seed=7)

@@ -66,10 +66,11 @@ def _probe_params(args: tuple, kwargs: dict) -> dict:
     return dict(miem.detect(probe, *args, **kwargs).params)
 
 
-#: The core's window-fit tile (cpp/src/organized.cpp, window_fits: box sums per 64 x 64 tile in
-#: tile-local coordinates). Blocks start on multiples of it, so that every home cell's window sums
-#: are added in the same order as on the whole grid and heights agree to the last bit.
-_TILE = 64
+#: The core's window-fit tiles (cpp/src/window_fits.hpp: kBand x kStrip cells, moments relative
+#: to a point of the tile, running sums from the tile's first rows and columns). Blocks start on
+#: tile boundaries, so that every home cell's window sums are added in the same order as on the
+#: whole grid and heights agree to the last bit.
+_TILE = (64, 128)
 
 
 #: Grid parameters whose reach grid_halo knows; any other parameter that is on is refused.
@@ -86,8 +87,9 @@ def grid_halo(params: dict, strict: bool = False) -> int:
     params : dict
         Resolved parameters, as in ``miem.detect(...).params``.
     strict : bool
-        Also cover the rounding of the core's window sums: they are box sums over 64-cell tiles,
-        so the last bit of a window fit depends on labels up to ``63 + window // 2`` cells away;
+        Also cover the rounding of the core's window sums: they are sums over 64 x 128-cell
+        tiles, so the last bit of a window fit depends on labels up to ``127 + window // 2``
+        cells away;
         ``strict`` lets each height pass reach that far (a height-test decision can differ only
         where ``|h|`` equals the tolerance to the last bit; the tests see none without it).
 
@@ -107,7 +109,7 @@ def grid_halo(params: dict, strict: bool = False) -> int:
     if params["height_tolerance"] is not None:
         per_pass = half + params["edge_extent"]
         if strict:
-            per_pass = max(per_pass, _TILE - 1 + half)
+            per_pass = max(per_pass, max(_TILE) - 1 + half)
         lag += params["max_iterations"] * per_pass
     return lag + half
 
@@ -126,12 +128,12 @@ def _as_grid(grid: Any) -> "da.Array":
     return grid
 
 
-def _span(a: int, b: int, n: int, halo: int) -> tuple:
+def _span(a: int, b: int, n: int, halo: int, tile: int) -> tuple:
     """Rows (or columns) to detect for home rows [a, b) of n: the halo beyond the tiles that
     hold the home rows, starting on a tile boundary."""
-    lo = max(0, (a // _TILE) * _TILE - halo)
-    hi = min(n, -(-b // _TILE) * _TILE + halo)
-    return (lo // _TILE) * _TILE, hi
+    lo = max(0, (a // tile) * tile - halo)
+    hi = min(n, -(-b // tile) * tile + halo)
+    return (lo // tile) * tile, hi
 
 
 def _homes(grid: "da.Array") -> list:
@@ -275,7 +277,7 @@ def _regions(groups: list, shape: tuple, halo: int, cap: int) -> list:
         for reg in regions:
             u = (min(reg[0][0], box[0]), max(reg[0][1], box[1]), min(reg[0][2], box[2]),
                  max(reg[0][3], box[3]))
-            rr, cc = _span(u[0], u[1], H, halo), _span(u[2], u[3], W, halo)
+            rr, cc = _span(u[0], u[1], H, halo, _TILE[0]), _span(u[2], u[3], W, halo, _TILE[1])
             if (rr[1] - rr[0]) * (cc[1] - cc[0]) <= cap:
                 reg[0] = u
                 reg[1].append(members)
@@ -284,7 +286,8 @@ def _regions(groups: list, shape: tuple, halo: int, cap: int) -> list:
             regions.append([box, [members]])
     out = []
     for box, members in regions:
-        rr, cc = _span(box[0], box[1], H, halo), _span(box[2], box[3], W, halo)
+        rr, cc = _span(box[0], box[1], H, halo, _TILE[0]), _span(box[2], box[3], W, halo,
+                                                                     _TILE[1])
         out.append((rr[0], rr[1], cc[0], cc[1], members))
     return out
 
@@ -375,7 +378,7 @@ class DaskDetectResult:
         have = {int(d.indices[0]) for d in out}
         groups = [g for g in _join([p for b in blocks for p in b["open"]], W)
                   if int(g[0]) not in have]
-        pad = 2 * (self.halo + _MARGIN + _TILE)  # regions up to the size of a block's
+        pad = 2 * (self.halo + _MARGIN + max(_TILE))  # regions up to the size of a block's
         biggest = (max(self.grid.chunks[0]) + pad) * (max(self.grid.chunks[1]) + pad)
         tasks = [delayed(_redetect)(self.grid[r0:r1, c0:c1], (r0, c0), members, W, self.kwargs,
                                     self.halo + 1)
@@ -514,8 +517,8 @@ def auto_theta0(grid: Any, kwargs: Optional[dict] = None, params: Optional[dict]
     H, W = grid.shape[:2]
     blocks = []
     for r0, r1, c0, c1 in _homes(grid):
-        er0, er1 = _span(r0, r1, H, halo)
-        ec0, ec1 = _span(c0, c1, W, halo)
+        er0, er1 = _span(r0, r1, H, halo, _TILE[0])
+        ec0, ec1 = _span(c0, c1, W, halo, _TILE[1])
         sl = (slice(r0 - er0, r1 - er0), slice(c0 - ec0, c1 - ec0))
         blocks.append(delayed(_survey_block, pure=True)(grid[er0:er1, ec0:ec1], sl, survey,
                                                         halo + 1))
@@ -538,8 +541,8 @@ def _build(grid: "da.Array", kwargs: dict, params: dict, halo: int,
     blocks = []
     for home in _homes(grid):
         r0, r1, c0, c1 = home
-        er0, er1 = _span(r0 - margin, r1 + margin, H, halo)
-        ec0, ec1 = _span(c0 - margin, c1 + margin, W, halo)
+        er0, er1 = _span(r0 - margin, r1 + margin, H, halo, _TILE[0])
+        ec0, ec1 = _span(c0 - margin, c1 + margin, W, halo, _TILE[1])
         blocks.append(delayed(_detect_block, pure=True)(
             grid[er0:er1, ec0:ec1], (er0, ec0), home, (H, W), kwargs, sep, margin))
     params = dict(params, halo=halo, chunks=(grid.chunks[0], grid.chunks[1]))
