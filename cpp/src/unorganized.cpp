@@ -16,6 +16,7 @@
 
 #include "cloud_kernels.hpp"
 #include "cloud_stages.hpp"
+#include "duplicates.hpp"
 #include "defects.hpp"
 #include "miem/neighbor_grid.hpp"
 #include "parallel.hpp"
@@ -27,8 +28,12 @@ using namespace cloud;  // NOLINT(google-build-using-namespace): the stage kerne
 // ---------------------------------------------------------------------------------------------
 // spacing
 
+namespace {
+
+// Distance from every finite point to its nearest other finite point (NaN for non-finite rows,
+// 0 for a duplicate). Throws when there are fewer than 3 finite points or all are one point.
 template <typename T>
-double point_spacing(const PointsView<T>& points, int num_threads) {
+std::vector<double> nearest_other(const PointsView<T>& points, int num_threads) {
   check_view(points);
   const std::ptrdiff_t n_finite = count_finite(points, num_threads);
   if (n_finite < 3) {
@@ -47,7 +52,8 @@ double point_spacing(const PointsView<T>& points, int num_threads) {
   Eigen::Vector3d ext = hi - lo;
   std::sort(ext.data(), ext.data() + 3);  // ascending
   if (!(ext(2) > 0.0)) {
-    throw std::invalid_argument("points: spacing is 0 (all finite points are identical)");
+    throw std::invalid_argument(
+        "points: all finite points are one point (no spacing, no surface to test)");
   }
   const double nf = static_cast<double>(n_finite);
   double cell = ext(1) > 0.0 ? 2.5 * std::sqrt(ext(2) * ext(1) / nf) : 2.5 * ext(2) / nf;
@@ -63,6 +69,11 @@ double point_spacing(const PointsView<T>& points, int num_threads) {
     grid.nearest_distances(nn.data(), num_threads);
     break;
   }
+  return nn;
+}
+
+// Median of the finite values of nn (the mean of the two middle values for an even count).
+double median_spacing(std::vector<double> nn) {
   std::size_t m = 0;
   for (double v : nn) {
     if (!std::isnan(v)) nn[m++] = v;
@@ -77,9 +88,17 @@ double point_spacing(const PointsView<T>& points, int num_threads) {
   }
   if (!(spacing > 0.0)) {
     throw std::invalid_argument(
-        "points: spacing is 0 (more than half of the finite points are duplicates)");
+        "points: spacing is 0 (more than half of the finite points are duplicates; "
+        "detect_points merges them)");
   }
   return spacing;
+}
+
+}  // namespace
+
+template <typename T>
+double point_spacing(const PointsView<T>& points, int num_threads) {
+  return median_spacing(nearest_other(points, num_threads));
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -167,22 +186,25 @@ void validate(const PointsDetectParams& p) {
   if (p.height_radius && (!std::isfinite(*p.height_radius) || !(*p.height_radius > 0.0))) {
     throw std::invalid_argument("height_radius: must be finite and > 0");
   }
+  if (!std::isfinite(p.merge_distance) || p.merge_distance < 0.0) {
+    throw std::invalid_argument("merge_distance: must be finite and >= 0");
+  }
   if (p.height_mode != HeightMode::kAll && p.height_mode != HeightMode::kAbnormal) {
     throw std::invalid_argument("heights: unknown mode");
   }
   if (p.num_threads < 0) throw std::invalid_argument("num_threads: must be >= 0");
 }
 
+namespace {
+
+// Detection on a cloud without duplicates (within merge_distance), its spacing known.
 template <typename T>
-PointsDetectSummary detect_points(const PointsView<T>& points, const PointsDetectParams& p,
-                                  const PointsOutput& out) {
-  validate(p);
-  check_view(points);
-  if (out.labels == nullptr) throw std::invalid_argument("out.labels: must not be null");
+PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDetectParams& p,
+                                    const PointsOutput& out, double spacing) {
   const std::ptrdiff_t N = points.size;
 
   PointsDetectSummary summary;
-  summary.spacing = point_spacing(points, p.num_threads);  // also checks >= 3 finite points
+  summary.spacing = spacing;
   const double radius = p.radius ? *p.radius : 5.0 * summary.spacing;
   const double min_step = p.min_step ? *p.min_step : 0.5 * summary.spacing;
   const double link = p.link ? *p.link : radius;
@@ -427,6 +449,67 @@ PointsDetectSummary detect_points(const PointsView<T>& points, const PointsDetec
     summary.defects.push_back(std::move(d));
   }
   detail::order_defects(summary.defects);
+  return summary;
+}
+
+}  // namespace
+
+template <typename T>
+PointsDetectSummary detect_points(const PointsView<T>& points, const PointsDetectParams& p,
+                                  const PointsOutput& out) {
+  validate(p);
+  check_view(points);
+  if (out.labels == nullptr) throw std::invalid_argument("out.labels: must not be null");
+  const std::vector<double> nn = nearest_other(points, p.num_threads);  // >= 3 finite, not one
+  Duplicates dup = find_duplicates(points, nn, p.merge_distance, p.num_threads);
+  if (dup.merged == 0) return detect_distinct(points, p, out, median_spacing(nn));
+  // Detect on the distinct points (the representatives), then label every duplicate like the
+  // point it duplicates (SPEC "Duplicate points").
+  const std::size_t m = dup.distinct.size();
+  if (m < 3) {
+    throw std::invalid_argument(
+        "points: fewer than 3 distinct points after merging duplicates within merge_distance");
+  }
+  std::vector<T> buf(3 * m);
+  for (std::size_t k = 0; k < m; ++k) {
+    const T* q = points.data + dup.distinct[k] * points.point_stride;
+    for (int a = 0; a < 3; ++a) buf[3 * k + a] = q[a * points.coord_stride];
+  }
+  const PointsView<T> view{buf.data(), static_cast<std::ptrdiff_t>(m), 3, 1};
+  std::vector<std::uint8_t> labels(m), flags(m), degenerate(m);
+  std::vector<double> angle(m), height(m);
+  const PointsOutput sub{labels.data(), out.flags ? flags.data() : nullptr,
+                         out.angle_deg ? angle.data() : nullptr, height.data(),
+                         out.degenerate ? degenerate.data() : nullptr};
+  PointsDetectSummary summary =
+      detect_distinct(view, p, sub, median_spacing(nearest_other(view, p.num_threads)));
+  std::vector<std::int64_t> slot(static_cast<std::size_t>(points.size), -1);
+  for (std::size_t k = 0; k < m; ++k) slot[dup.distinct[k]] = static_cast<std::int64_t>(k);
+  for (std::ptrdiff_t i = 0; i < points.size; ++i) {
+    const std::int64_t r = dup.rep[i];
+    const std::int64_t k = r < 0 ? -1 : slot[r];
+    out.labels[i] = k < 0 ? kInvalid : labels[k];
+    if (out.flags) out.flags[i] = k < 0 ? 0 : flags[k];
+    if (out.angle_deg) out.angle_deg[i] = k < 0 ? kNaN : angle[k];
+    if (out.height) out.height[i] = k < 0 ? kNaN : height[k];
+    if (out.degenerate) out.degenerate[i] = k < 0 ? 0 : degenerate[k];
+  }
+  // Defect members: every input row, duplicates included (fields from the distinct points).
+  std::vector<std::vector<std::int64_t>> copies(m);
+  for (std::ptrdiff_t i = 0; i < points.size; ++i) {
+    const std::int64_t r = dup.rep[i];
+    if (r >= 0 && r != i) copies[slot[r]].push_back(i);
+  }
+  for (Defect& d : summary.defects) {
+    std::vector<std::int64_t> rows;
+    for (std::int64_t j : d.indices) {
+      rows.push_back(dup.distinct[j]);
+      rows.insert(rows.end(), copies[j].begin(), copies[j].end());
+    }
+    std::sort(rows.begin(), rows.end());
+    d.indices = std::move(rows);
+  }
+  summary.merged = dup.merged;
   return summary;
 }
 

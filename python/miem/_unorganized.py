@@ -316,6 +316,7 @@ def detect_points(
     edge_extent: float = 0.0,
     min_group: int = 0,
     height_radius: Optional[float] = None,
+    merge_distance: float = 0.0,
 ) -> PointsDetectResult:
     """Find abnormal points in an unorganized cloud with MIEM.
 
@@ -371,6 +372,11 @@ def detect_points(
     height_radius : float, optional
         Radius of the height planes (the test and ``height``), ``> 0``; default
         ``2 * radius``.
+    merge_distance : float
+        Duplicate points: rows this close (``<=``, transitively; ``0``: equal coordinates) are
+        one point, detected once; every duplicate gets the labels, flags, angle and height of
+        the row it duplicates (the smallest row index of its group) and is listed in its
+        defect's ``indices``. ``params["merged"]`` counts the merged rows. ``>= 0``.
 
     Returns
     -------
@@ -383,8 +389,8 @@ def detect_points(
     Raises
     ------
     ValueError
-        Wrong shape or dtype, fewer than 3 finite points, spacing 0 (more than half the points
-        are duplicates), or a parameter out of range.
+        Wrong shape or dtype, fewer than 3 distinct finite points (all points one point), or a
+        parameter out of range.
 
     Examples
     --------
@@ -431,11 +437,14 @@ def detect_points(
     if 0 < group < 3:
         raise ValueError(f"min_group: expected 0 (off) or an integer >= 3, got {group}")
     hr_v = None if height_radius is None else _positive("height_radius", height_radius)
+    merge_v = _real("merge_distance", merge_distance)
+    if not merge_v >= 0:
+        raise ValueError(f"merge_distance: expected a length >= 0, got {merge_v}")
 
     (labels, flags, angle, height, degenerate, plane_t, iterations, raw, spacing, radius_u,
-     min_step_u, link_u, height_radius_u) = _core.detect_points(
+     min_step_u, link_u, height_radius_u, merged) = _core.detect_points(
         arr, theta0_v, scale_list, radius_v, k, step_v, md, iters, link_v,
-        0 if heights == "all" else 1, nt, group, h_abs, h_k, extent, hr_v,
+        0 if heights == "all" else 1, nt, group, h_abs, h_k, extent, hr_v, merge_v,
     )
     defects = [
         Defect(
@@ -450,7 +459,7 @@ def detect_points(
         min_directions=min_directions, max_iterations=iters, radius=float(radius_u), K=k,
         link=float(link_u), spacing=float(spacing), heights=heights,
         height_tolerance=height_tolerance, edge_extent=extent, min_group=group,
-        height_radius=float(height_radius_u),
+        height_radius=float(height_radius_u), merge_distance=merge_v, merged=int(merged),
     )
     return PointsDetectResult(
         labels=labels, flags=flags, angle=angle, height=height,

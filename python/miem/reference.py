@@ -35,7 +35,7 @@ import math
 import numbers
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -1725,6 +1725,16 @@ def _cloud_groups(
     return groups
 
 
+def _duplicate_representatives(pts: NDArray[np.float64], merge: float) -> NDArray[np.int64]:
+    """SPEC "Duplicate points": for each point, the smallest position among the points linked
+    to it by ``distance <= merge`` (transitively)."""
+    groups = _cloud_groups(pts, np.arange(pts.shape[0], dtype=np.int64), merge)
+    rep = np.empty(pts.shape[0], dtype=np.int64)
+    for g in groups:
+        rep[g] = g[0]
+    return rep
+
+
 def _floating(
     pts: NDArray[np.float64], usable: NDArray[np.bool_], radius: float, min_group: int
 ) -> NDArray[np.bool_]:
@@ -1802,6 +1812,7 @@ def detect_points(
     edge_extent: float = 0,
     min_group: int = 0,
     height_radius: float | None = None,
+    merge_distance: float = 0.0,
 ) -> RefPointsResult:
     """Detect abnormal points in an unorganized cloud (MIEM, reference implementation).
 
@@ -1844,6 +1855,9 @@ def detect_points(
         ``distance <= radius``) has fewer than ``min_group`` points are ABNORMAL.
     height_radius : float or None, optional
         Radius of the height planes (test and output heights); None means ``2 * radius``.
+    merge_distance : float, optional
+        SPEC "Duplicate points": finite rows within this distance (``<=``, transitively) are
+        one point, the group's smallest row; the others take its results. ``>= 0``.
 
     Returns
     -------
@@ -1876,20 +1890,27 @@ def detect_points(
     if 0 < group < 3:
         raise ValueError(f"min_group: expected 0 (off) or an integer >= 3, got {group}")
 
+    merge = _check_length("merge_distance", merge_distance, allow_zero=True)
+
     p, finite = _cloud_array(points)
     n_all = p.shape[0]
-    rows = np.flatnonzero(finite).astype(np.int64)
-    pts = p[finite]
+    all_rows = np.flatnonzero(finite).astype(np.int64)
+    if all_rows.size < 3:
+        raise ValueError(f"points: need at least 3 finite points, got {all_rows.size}")
+    rep = _duplicate_representatives(p[all_rows], merge)  # positions into all_rows
+    if np.all(rep == rep[0]):
+        raise ValueError("points: all finite points are one point (no spacing, no surface)")
+    distinct = rep == np.arange(all_rows.size)
+    rows = all_rows[distinct]
+    pts = p[rows]
     n_pts = pts.shape[0]
     if n_pts < 3:
-        raise ValueError(f"points: need at least 3 finite points, got {n_pts}")
+        raise ValueError(
+            "points: fewer than 3 distinct points after merging duplicates within merge_distance"
+        )
 
     tree = _kdtree(pts)
     spacing = _spacing(tree, pts)
-    if spacing == 0.0:
-        raise ValueError(
-            "points: spacing is 0 (more than half of the finite points are duplicates)"
-        )
     r = 5.0 * spacing if r_in is None else r_in
     step = 0.5 * spacing if min_step is None else float(min_step)
     lnk = r if link_in is None else link_in
@@ -1965,10 +1986,22 @@ def detect_points(
 
         defects = _points_defects(pts, rows, abnormal, height, h_normals, lnk)
 
+    dup_rows = all_rows[~distinct]
+    of_rows = all_rows[rep[~distinct]]  # the row each duplicate duplicates
+
     def scatter(values: NDArray[Any], fill: Any) -> NDArray[Any]:
         out = np.full((n_all,) + values.shape[1:], fill, dtype=values.dtype)
         out[rows] = values
+        out[dup_rows] = out[of_rows]
         return out
+
+    if dup_rows.size:
+        defects = [
+            replace(d, indices=np.sort(np.concatenate(
+                [d.indices, dup_rows[np.isin(of_rows, d.indices)]])).astype(np.int64))
+            for d in defects
+        ]
+        defects = [replace(d, count=int(d.indices.size)) for d in defects]
 
     return RefPointsResult(
         labels=scatter(labels, INVALID),
@@ -1981,6 +2014,7 @@ def detect_points(
         defects=defects,
         params={"spacing": spacing, "radius": r, "min_step": step, "link": lnk, "K": k_dirs,
                 "height_radius": hr, "min_group": group, "edge_extent": extent,
+                "merge_distance": merge, "merged": int(dup_rows.size),
                 "height_tolerance": (
                     None if tolerance is None
                     else (tolerance[1] if tolerance[0] == "abs" else str(height_tolerance))

@@ -51,6 +51,7 @@ struct PointsDetectParams {
   double height_k = 0.0;             ///< > 0: height test, |height| above k * local rms
   double edge_extent = 0.0;          ///< height test: EDGE groups this compact (spacings) tested
   std::optional<double> height_radius;  ///< height-plane radius (> 0); default 2 * radius
+  double merge_distance = 0.0;       ///< points this close (>= 0; 0: equal) are one point
   HeightMode height_mode = HeightMode::kAll;  ///< which points get a height
   int num_threads = 0;               ///< 0: all available; the results never depend on it
 };
@@ -78,6 +79,7 @@ struct PointsDetectSummary {
   double min_step = 0.0;
   double link = 0.0;
   double height_radius = 0.0;
+  std::ptrdiff_t merged = 0;    ///< rows merged into another (duplicates), labelled like it
 };
 
 /// Everything, owned.

@@ -152,7 +152,7 @@ py::tuple detect_points(const py::array& points, double theta0, std::vector<int>
                         int min_directions, int max_iterations, std::optional<double> link,
                         int height_mode, int num_threads, int min_group, double height_abs,
                         double height_k, double edge_extent,
-                        std::optional<double> height_radius) {
+                        std::optional<double> height_radius, double merge_distance) {
   require_points(points, "points");
   miem::PointsDetectParams p;
   p.theta0_deg = theta0;
@@ -168,6 +168,7 @@ py::tuple detect_points(const py::array& points, double theta0, std::vector<int>
   p.height_k = height_k;
   p.edge_extent = edge_extent;
   p.height_radius = height_radius;
+  p.merge_distance = merge_distance;
   if (height_mode != 0 && height_mode != 1) throw std::invalid_argument("heights: bad mode");
   p.height_mode = static_cast<miem::HeightMode>(height_mode);
   p.num_threads = num_threads;
@@ -193,7 +194,7 @@ py::tuple detect_points(const py::array& points, double theta0, std::vector<int>
   py::list defects = defect_list(s.defects);
   py::object plane = plane_or_none(s.plane);
   return py::make_tuple(labels, flags, angle, height, degenerate, plane, s.iterations, defects,
-                        s.spacing, s.radius, s.min_step, s.link, s.height_radius);
+                        s.spacing, s.radius, s.min_step, s.link, s.height_radius, s.merged);
 }
 
 }  // namespace
@@ -218,5 +219,5 @@ void bind_unorganized(py::module_& m) {
         py::arg("max_iterations"), py::arg("link"), py::arg("height_mode"),
         py::arg("num_threads"), py::arg("min_group") = 0, py::arg("height_abs") = 0.0,
         py::arg("height_k") = 0.0, py::arg("edge_extent") = 0.0,
-        py::arg("height_radius") = py::none());
+        py::arg("height_radius") = py::none(), py::arg("merge_distance") = 0.0);
 }
