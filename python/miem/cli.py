@@ -205,8 +205,9 @@ def _add_detect_options(parser: argparse.ArgumentParser) -> None:
     s = parser.add_argument_group(
         "reading",
         "Unorganized files (N x 3, e.g. a PCD with HEIGHT 1) are rebuilt into a grid from "
-        "their scan-line order (miem.io.grid_from_scanlines): a new profile starts where the "
-        "line coordinate changes.",
+        "their scan-line order (miem.io.grid_from_scanlines: a new profile starts where the "
+        "line coordinate changes) when they have one, else the cloud detector runs on the "
+        "points (see --layout).",
     )
     s.add_argument("--input-format", choices=_READ_FORMATS, metavar="FORMAT",
                    help="read every input as FORMAT instead of guessing from its suffix "
@@ -221,6 +222,19 @@ def _add_detect_options(parser: argparse.ArgumentParser) -> None:
     s.add_argument("--line-tol", type=_finite_float, metavar="LENGTH",
                    help="change of the line coordinate that starts a new profile "
                         "(default: half the point spacing)")
+    s.add_argument("--layout", choices=["auto", "scanlines", "cloud"], default="auto",
+                   help="how to treat an unorganized file: 'scanlines' rebuilds a grid from "
+                        "its scan-line order, 'cloud' runs the cloud detector on the points as "
+                        "they are; 'auto' (default) rebuilds when the points are in scan-line "
+                        "order and runs the cloud detector otherwise, and says which it took")
+    s.add_argument("--radius", type=_finite_float, metavar="LENGTH",
+                   help="cloud detector: neighbourhood radius in the scan's units "
+                        "(default: 5 x the median point spacing)")
+    s.add_argument("--k", type=_positive_int, metavar="N", dest="K",
+                   help="cloud detector: number of tangent-plane directions, 2-8 (default: 4)")
+    s.add_argument("--merge-distance", type=_finite_float, metavar="LENGTH",
+                   help="cloud detector: points this close are one point, labelled alike "
+                        "(default: 0, exact duplicates)")
     s.add_argument("--duplicates", choices=["error", "first", "last"], default="error",
                    help="two points in one grid cell: fail, or keep the first/last "
                         "(default: error)")
@@ -415,11 +429,16 @@ class _Loaded:
     """A scan ready for detection: the grid, and how to map cells back to the file's points."""
 
     def __init__(self, data: mio.ScanData, grid: np.ndarray, index: np.ndarray | None,
-                 units: str = "mm") -> None:
+                 units: str = "mm", layout: str = "grid") -> None:
         self.data = data
-        self.grid = grid
-        self.index = index  # input point -> flat cell (-1: not in the grid); None if organized
+        self.grid = grid  # (H, W, 3), or the (N, 3) points for the cloud detector
+        self.index = index  # input point -> flat cell (-1: not in the grid); None otherwise
         self.units = units  # the scan's length unit, for reports and plots
+        self.layout = layout  # "grid" (organized file), "scanlines" (rebuilt) or "cloud"
+
+    @property
+    def shape_text(self) -> str:
+        return "cloud" if self.layout == "cloud" else "x".join(map(str, self.grid.shape[:2]))
 
 
 # Options that are lengths in the scan's unit (checked against the scan's size).
@@ -453,30 +472,74 @@ def _load(path: Path, args: argparse.Namespace) -> _Loaded:
     except (OSError, ValueError, ImportError) as exc:
         raise _Failure(_cli_words(str(exc))) from exc
     if data.organized:
+        if args.layout != "auto":
+            _say(args, f"{path.name}: organized ({data.points.shape[0]} x "
+                       f"{data.points.shape[1]} grid in the file); --layout does not apply")
         return _Loaded(data, data.points, None, _units(path, data.points, args))
-    try:
-        grid, index = mio.grid_from_scanlines(
-            data.points, step=args.line_step, line_axis=_AXES[args.line_axis],
-            along_axis=_AXES[args.along_axis], line_tol=args.line_tol,
-            duplicates=args.duplicates, return_index=True,
-        )
-    except ValueError as exc:
-        raise _Failure(
-            f"{path}: the file is unorganized ({data.points.shape[0]:,} points) and no grid "
-            f"could be rebuilt from its scan lines: {_cli_words(str(exc))}. miem needs an "
-            "organized scan "
-            "(rows = profiles); see --line-step, --line-axis, --along-axis, --line-tol"
-        ) from exc
-    return _Loaded(data, grid, index, _units(path, grid, args))
+    n = data.points.shape[0]
+    why = "--layout cloud"
+    if args.layout != "cloud":
+        try:
+            grid, index = mio.grid_from_scanlines(
+                data.points, step=args.line_step, line_axis=_AXES[args.line_axis],
+                along_axis=_AXES[args.along_axis], line_tol=args.line_tol,
+                duplicates=args.duplicates, return_index=True,
+            )
+            fill = float(np.isfinite(grid).all(axis=-1).mean())
+            if args.layout == "scanlines" or fill >= _MIN_FILL:
+                _say(args, f"{path.name}: unorganized ({n:,} points) in scan-line order: "
+                           f"rebuilt a {grid.shape[0]} x {grid.shape[1]} grid "
+                           f"({fill:.0%} of its cells filled), grid detector")
+                return _Loaded(data, grid, index, _units(path, grid, args), "scanlines")
+            why = (f"a scan-line grid would be only {fill:.0%} filled "
+                   f"({grid.shape[0]} x {grid.shape[1]})")
+        except ValueError as exc:
+            if args.layout == "scanlines":
+                raise _Failure(
+                    f"{path}: the file is unorganized ({n:,} points) and no grid could be "
+                    f"rebuilt from its scan lines: {_cli_words(str(exc))}; see --line-step, "
+                    "--line-axis, --along-axis, --line-tol, or --layout cloud"
+                ) from exc
+            why = "its points are not in scan-line order"
+    _say(args, f"{path.name}: unorganized ({n:,} points), {why}: cloud detector")
+    return _Loaded(data, data.points, None, _units(path, data.points, args), "cloud")
 
 
-def _detect(loaded: _Loaded, kwargs: dict[str, Any], path: Path) -> Any:
+# A scan-line rebuild is used (with --layout auto) when at least this share of its cells is filled.
+_MIN_FILL = 0.5
+
+
+def _say(args: argparse.Namespace, text: str) -> None:
+    """A note on stderr (which path a scan took), unless --quiet."""
+    if not getattr(args, "quiet", False):
+        print(f"miem: {text}", file=sys.stderr)
+
+
+def _cloud_kwargs(loaded: _Loaded, kwargs: dict[str, Any], args: argparse.Namespace,
+                  path: Path) -> dict[str, Any]:
+    """The detect arguments for the path the scan took: cloud-only options join for clouds and
+    are rejected for grids."""
+    extra = {k: getattr(args, k, None) for k in ("radius", "K", "merge_distance")}
+    extra = {k: v for k, v in extra.items() if v is not None}
+    if loaded.layout == "cloud":
+        return {**kwargs, **extra}
+    if extra:
+        opts = ", ".join("--" + k.lower().replace("_", "-") for k in extra)
+        raise _Failure(f"{path}: {opts} apply to the cloud detector only, and this scan is "
+                       f"a {loaded.shape_text} grid; drop them or pass --layout cloud")
+    return kwargs
+
+
+def _detect(loaded: _Loaded, kwargs: dict[str, Any], path: Path,
+            args: argparse.Namespace | None = None) -> Any:
     from . import detect
 
+    if args is not None:
+        kwargs = _cloud_kwargs(loaded, kwargs, args, path)
     try:
         return detect(loaded.grid, **kwargs)
     except ValueError as exc:
-        raise _Failure(f"{path}: {exc}") from exc
+        raise _Failure(f"{path}: {_cli_words(str(exc))}") from exc
 
 
 def _is_same_file(a: Path, b: Path) -> bool:
@@ -583,7 +646,8 @@ def _write_reports(stem: Path, path: Path, loaded: _Loaded, result: Any, cloud: 
         "format": loaded.data.format,
         "points": int(np.prod(loaded.data.points.shape[:-1])),
         "organized": bool(loaded.data.organized),
-        "grid": grid_shape,
+        "layout": loaded.layout,
+        "grid": None if loaded.layout == "cloud" else grid_shape,
         "labelled_cloud": cloud.name,
         "parameters": {k: (list(v) if isinstance(v, tuple) else v)
                        for k, v in result.params.items()},
@@ -673,7 +737,7 @@ def _cmd_detect(args: argparse.Namespace) -> int:
             loaded = _load(path, args)
             progress.show(i + 0.3, f"{name}: detecting")
             td = time.perf_counter()
-            result = _detect(loaded, kwargs, path)
+            result = _detect(loaded, kwargs, path, args)
             t_detect = time.perf_counter() - td
             fmt = args.format
             if fmt == "same":
@@ -706,7 +770,7 @@ def _cmd_detect(args: argparse.Namespace) -> int:
         counts = result.counts()
         peaks = [abs(d.peak_height) for d in result.defects if math.isfinite(d.peak_height)]
         summary.append((name, int(np.prod(loaded.data.points.shape[:-1])),
-                        "x".join(str(n) for n in loaded.grid.shape[:2]), counts["ABNORMAL"],
+                        loaded.shape_text, counts["ABNORMAL"],
                         counts["EDGE"], len(result.defects), max(peaks) if peaks else math.nan,
                         t_detect, seconds, loaded.units))
     progress.close()
@@ -754,7 +818,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         path = Path(raw)
         try:
             loaded = _load(path, args)
-            result = _detect(loaded, kwargs, path)
+            result = _detect(loaded, kwargs, path, args)
             pts = loaded.grid
             try:
                 planes = [("least squares", fit_plane(pts, "lstsq")),
@@ -865,8 +929,8 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     try:
         progress.show(0, f"reading {path.name}")
         loaded = _load(path, args)
-        progress.show(1, f"detecting on {loaded.grid.shape[0]}x{loaded.grid.shape[1]}")
-        result = _detect(loaded, kwargs, path)
+        progress.show(1, f"detecting on {loaded.shape_text}")
+        result = _detect(loaded, kwargs, path, args)
         progress.show(2, f"drawing {out.name}")
         plot_scan(loaded.grid, result, out, title=args.title or path.name, units=loaded.units,
                   view=args.view, max_labels=args.max_labels, size=tuple(args.size),
