@@ -296,9 +296,11 @@ def test_detect_real_profiler_scan(tmp_path: Path) -> None:
 
 @pytest.mark.skipif(not (REAL / "target.pcd").exists(), reason="no shared/data/real")
 def test_detect_explains_a_cloud_without_scan_lines(tmp_path: Path) -> None:
-    res = run("detect", REAL / "target.pcd", "-o", tmp_path)
+    # forced onto the scan-line path, the refusal explains itself and writes nothing
+    res = run("detect", REAL / "target.pcd", "-o", tmp_path, "--layout", "scanlines")
     assert res.returncode == 1
     assert "target.pcd" in res.stderr and "unorganized" in res.stderr
+    assert "--layout cloud" in res.stderr
     assert list(tmp_path.iterdir()) == []
 
 

@@ -1,0 +1,94 @@
+"""The command line on unorganized files (issue 11): a grid is rebuilt when the points are in
+scan-line order, the cloud detector runs otherwise, the path taken is said and reported, and the
+reports index the input's points. Expected values come from the Python API on the same points."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import miem
+import miem.io as mio
+import numpy as np
+import pytest
+from miem import cli, simulate
+
+REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+
+
+def run(*args: str | Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "miem", *map(str, args)], capture_output=True,
+                          text=True, timeout=300, check=False)
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    d = tmp_path_factory.mktemp("clouds")
+    scan = simulate.make_scan(shape=(50, 60), surface="tilted", noise=0.01,
+                              defects={"spike": 3, "cluster": 1}, seed=3)
+    flat = scan.points.reshape(-1, 3)
+    flat = flat[np.isfinite(flat).all(axis=1)]
+    rng = np.random.default_rng(0)
+    shuffled = flat[rng.permutation(len(flat))]
+    shuffled = np.vstack([shuffled, shuffled[:100]])  # and exact duplicates
+    mio.write(d / "shuffled.pcd", shuffled.astype(np.float32))
+    mio.write(d / "lines.xyz", flat)
+    return {"shuffled": d / "shuffled.pcd", "lines": d / "lines.xyz"}
+
+
+def test_shuffled_cloud_runs_the_cloud_detector(files: dict, tmp_path: Path) -> None:
+    res = run("detect", files["shuffled"], "--out-dir", tmp_path, "--radius", "2.0", "--k", "6",
+              "--no-progress")
+    assert res.returncode == 0, res.stderr
+    assert "not in scan-line order: cloud detector" in res.stderr
+    doc = json.loads((tmp_path / "shuffled.defects.json").read_text())
+    assert doc["layout"] == "cloud" and doc["grid"] is None
+    pts = mio.read(files["shuffled"]).points
+    api = miem.detect(pts, radius=2.0, K=6)
+    assert doc["parameters"]["radius"] == 2.0 and doc["parameters"]["K"] == 6
+    assert doc["parameters"]["merged"] == 100
+    assert [d["indices"] for d in doc["defects"]] == [d.indices.tolist() for d in api.defects]
+    labelled = mio.read(tmp_path / "shuffled.labels.pcd")
+    np.testing.assert_array_equal(labelled.fields["label"].reshape(-1), api.labels)
+    assert (api.labels == miem.ABNORMAL).sum() >= 3
+
+
+def test_scan_line_order_is_rebuilt_and_cloud_options_rejected(files: dict,
+                                                              tmp_path: Path) -> None:
+    res = run("detect", files["lines"], "--out-dir", tmp_path, "--no-progress")
+    assert res.returncode == 0, res.stderr
+    assert "in scan-line order: rebuilt a 50 x 60 grid" in res.stderr
+    assert json.loads((tmp_path / "lines.defects.json").read_text())["layout"] == "scanlines"
+    bad = run("detect", files["lines"], "--out-dir", tmp_path, "--radius", "1", "--no-progress")
+    assert bad.returncode == 1 and "--radius apply to the cloud detector only" in bad.stderr
+    forced = run("detect", files["lines"], "--out-dir", tmp_path, "--layout", "cloud",
+                 "--no-progress")
+    assert forced.returncode == 0 and "--layout cloud: cloud detector" in forced.stderr
+    fit = run("fit", files["shuffled"])
+    assert fit.returncode == 0 and "MIEM" in fit.stdout
+
+
+def test_plot_of_a_cloud(files: dict, tmp_path: Path) -> None:
+    out = tmp_path / "c.png"
+    res = run("plot", files["shuffled"], "-o", out)
+    assert res.returncode == 0, res.stderr
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.skipif(not REAL.exists(), reason="needs ../shared/data/real")
+def test_every_real_file_has_a_path(tmp_path: Path) -> None:
+    args = argparse.Namespace(input_format=None, line_step=None, line_axis="y", along_axis="x",
+                              line_tol=None, duplicates="error", layout="auto", units=None,
+                              quiet=True)
+    names = sorted(p for p in REAL.iterdir() if p.suffix in (".pcd", ".csv", ".ply"))
+    assert len(names) >= 15
+    layouts = {p.name: cli._load(p, args).layout for p in names}
+    assert layouts["second_source.pcd"] == "scanlines"
+    assert layouts["office1.pcd"] == "grid" and layouts["target.pcd"] == "cloud"
+    res = run("detect", REAL / "table_scene_lms400_outliers.pcd", REAL / "lamppost.pcd",
+              "--out-dir", tmp_path,
+              "--no-progress")
+    assert res.returncode == 0, res.stderr
