@@ -92,3 +92,29 @@ def test_room_scan_with_half_duplicates_is_detected() -> None:
     uniq = np.unique(pts, axis=0)
     assert res.params["merged"] == len(pts) - len(uniq)
     assert res.params["spacing"] > 0
+
+
+def test_flattened_grid_keeps_its_grid_with_shape_and_warns_without() -> None:
+    from miem import simulate
+
+    scan = simulate.make_scan(shape=(40, 50), surface="tilted", noise=0.01, dropout=0.01,
+                              defects={"spike": 3}, seed=2)
+    flat = scan.points.reshape(-1, 3)
+    grid = miem.detect(scan.points)
+    kept = miem.detect(flat, shape=(40, 50))
+    np.testing.assert_array_equal(kept.labels, grid.labels)
+    assert kept.labels.shape == (40, 50)
+    with pytest.warns(UserWarning, match="scan-line order.*shape="):
+        miem.detect(flat)
+    finite = flat[np.isfinite(flat).all(axis=1)]
+    with pytest.warns(UserWarning, match="scan-line order"):
+        miem.detect(finite)
+    rng = np.random.default_rng(0)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        miem.detect(finite[rng.permutation(len(finite))])  # a true cloud: no warning
+    for bad in ((40, 51), (40,), (0, 2000), (40.0, 50)):
+        with pytest.raises(ValueError, match="shape"):
+            miem.detect(flat, shape=bad)

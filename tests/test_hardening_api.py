@@ -115,7 +115,7 @@ def _entry_points():
     cloud = pts[np.isfinite(pts).all(axis=1)]
     return {
         "detect": (g, lambda a: miem.detect(a).labels),
-        "detect-cloud": (cloud, lambda a: miem.detect(a).labels),
+        "detect-cloud": (cloud, lambda a: miem.detect_points(a).labels),  # raster order: no warning
         "fit_plane": (pts, lambda a: miem.fit_plane(a).normal),
         "fit_plane-lstsq": (pts, lambda a: miem.fit_plane(a, "lstsq").normal),
         "scan_line_angles": (g[5], lambda a: miem.scan_line_angles(a)),

@@ -97,7 +97,7 @@ def test_regular_lattice_uses_the_same_tangent_basis() -> None:
     pts[12 * 25 + 12, 2] += 2.0
     pts[5 * 25 + 17, 2] -= 0.8
     for kw in ({}, {"K": 8, "radius": 1.6}, {"scales": (1, 2), "radius": 1.6}):
-        core, oracle = miem.detect(pts, **kw), ref.detect_points(pts, **kw)
+        core, oracle = miem.detect_points(pts, **kw), ref.detect_points(pts, **kw)
         np.testing.assert_array_equal(core.labels, oracle.labels)
         np.testing.assert_array_equal(core.flags, oracle.flags)
         assert core.labels[12 * 25 + 12] == miem.ABNORMAL

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import enum
+import math
+import warnings
 import numbers
 import re
 from dataclasses import dataclass, field
@@ -459,6 +461,50 @@ def _is_open3d(obj: object) -> bool:
     return type(obj).__module__.startswith("open3d") and hasattr(obj, "points")
 
 
+def _with_shape(arr: np.ndarray, shape: object) -> np.ndarray:
+    """A flattened organized scan ``(H*W, 3)`` back as its ``(H, W, 3)`` grid (a view)."""
+    try:
+        h, w = (int(v) for v in shape)  # type: ignore[union-attr]
+        ok = all(isinstance(v, (numbers.Integral, np.integer)) for v in shape)  # type: ignore
+    except (TypeError, ValueError):
+        ok = False
+    if not ok or h < 1 or w < 1:
+        raise ValueError(f"shape: expected (H, W), two integers >= 1, got {shape!r}")
+    if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] != h * w:
+        raise ValueError(f"shape: ({h}, {w}) needs an (H*W, 3) = ({h * w}, 3) array, got "
+                         f"{arr.shape}")
+    return arr.reshape(h, w, 3)
+
+
+def _looks_like_grid(arr: np.ndarray) -> str:
+    """Why an ``(N, 3)`` array looks like a flattened organized scan ("" when it does not):
+    rows (NaN rows left out) in scan-line order (at least 90 % of the steps
+    between consecutive rows within 0.5-1.5x of their median, which is within 2x of
+    ``sqrt(area / N)``)."""
+    n = arr.shape[0]
+    if n < 64:
+        return ""
+    finite = np.isfinite(arr).all(axis=1)
+    nan_rows = int(n - finite.sum())
+    if nan_rows:
+        if nan_rows == n:
+            return ""
+        arr = arr[finite]
+        n = arr.shape[0]
+    lo, hi = arr.min(axis=0), arr.max(axis=0)
+    ext = np.sort(hi - lo)
+    if not ext[1] > 0:
+        return ""
+    sample = arr[: min(n, 100_000)].astype(np.float64)
+    steps = np.sqrt(np.sum(np.diff(sample, axis=0) ** 2, axis=1))
+    typical = math.sqrt(ext[2] * ext[1] / n)
+    med = float(np.median(steps))
+    regular = np.mean((steps >= 0.5 * med) & (steps <= 1.5 * med)) >= 0.9
+    if 0 < med <= 2.0 * typical and regular:
+        return "consecutive rows are evenly spaced neighbours, in scan-line order"
+    return ""
+
+
 def _resolve(preset: Optional[str], given: dict) -> dict:
     name = DEFAULT_PRESET if preset is None else preset
     if name not in PRESETS:
@@ -489,6 +535,7 @@ def detect(
     link: Optional[float] = None,
     min_group: int = DEFAULT,
     height_radius: Optional[float] = None,
+    shape: Optional[Sequence[int]] = None,
 ) -> DetectResult:
     """Find abnormal points in a scan with MIEM: an organized grid or an unorganized cloud.
 
@@ -558,6 +605,14 @@ def detect(
         Unorganized clouds only: neighbourhood radius (default 5 x the median point spacing),
         number of tangent-plane directions (2-8) and defect linking distance (default
         ``radius``); see :func:`miem.detect_points`.
+    min_group, height_radius : optional
+        Unorganized clouds only: floating groups smaller than ``min_group`` points are
+        ABNORMAL; radius of the height planes (default ``2 * radius``).
+    shape : (int, int), optional
+        An organized scan that arrives flattened (an ``(H*W, 3)`` array, e.g. an Open3D cloud
+        read from an organized PCD): its ``(H, W)``, so that it keeps its grid and gets the
+        organized detector. Without it, an ``(N, 3)`` array is an unorganized cloud; a warning
+        says when one looks like a flattened grid (rows in scan-line order).
 
     Returns
     -------
@@ -584,6 +639,16 @@ def detect(
 
         grid = from_open3d(grid)
     arr = _as_float_array(grid, "grid")
+    if shape is not None:
+        arr = _with_shape(arr, shape)
+    elif arr.ndim == 2 and arr.shape[1] == 3:
+        why = _looks_like_grid(arr)
+        if why:
+            warnings.warn(
+                f"detect: this ({arr.shape[0]}, 3) cloud looks like a flattened organized scan "
+                f"({why}); it is detected as an unorganized cloud. Pass shape=(H, W) to keep "
+                "its grid, or rebuild one with miem.io.grid_from_scanlines",
+                UserWarning, stacklevel=2)
     if arr.ndim == 2 and arr.shape[1] == 3:
         given = {"max_gap": max_gap, "window": window}
         bad = sorted(k for k, v in given.items() if v is not DEFAULT)
