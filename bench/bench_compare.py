@@ -161,9 +161,12 @@ def main(argv: list[str] | None = None) -> int:
         top = min(r["rmse"] for r in rows)
         ok = [r for r in rows if r["rmse"] <= 1.02 * top and r["threads"] == _threads()]
         best = min(ok, key=lambda r: r["seconds"])
+        same = (best["library"], best["method"]) == (reg.LIBRARIES[0], reg.DEFAULT_METHOD)
         lines += [f"Fastest within 2 % of the best RMSE ({top:.4f} mm), all threads: "
                   f"**{best['library']} {best['method']}** ({best['seconds']:.2f} s, RMSE "
-                  f"{best['rmse']:.4f} mm).", ""]
+                  f"{best['rmse']:.4f} mm); miem's default: {reg.LIBRARIES[0]} "
+                  f"{reg.DEFAULT_METHOD} ({'the same' if same else 'DIFFERS: update'} "
+                  "miem.registration.LIBRARIES / DEFAULT_METHOD).", ""]
         dev = deviation_rows(scan, ref, best["transform"], args.repeats)
         base = dev[0][1]
         lines += ["## Deviation (signed point-to-surface distance and coverage)", "",

@@ -33,7 +33,7 @@ def files(tmp_path):
 
 
 def test_cli_compare_writes_reports(files, capsys) -> None:
-    pytest.importorskip("small_gicp")
+    pytest.importorskip("open3d")
     tmp, scan_path, ref_path, tf, scan, height = files
     out = tmp / "out"
     rc = main(["compare", str(scan_path), str(ref_path), "-o", str(out), "--init-transform",

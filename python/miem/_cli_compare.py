@@ -64,10 +64,13 @@ def add_parser(sub: Any) -> None:
                         "automatically (FPFH + RANSAC)")
     p.add_argument("--no-register", action="store_true",
                    help="use --init-transform (or the identity) as is, without ICP")
-    p.add_argument("--library", choices=["auto", "small_gicp", "open3d"], default="auto",
-                   help="fine-registration library (default: auto)")
-    p.add_argument("--method", choices=["gicp", "point_to_plane"], default="gicp",
-                   help="fine ICP variant (default: gicp)")
+    from .registration import DEFAULT_METHOD, LIBRARIES, METHODS  # noqa: PLC0415
+
+    p.add_argument("--library", choices=["auto", *LIBRARIES], default="auto",
+                   help=f"fine-registration library (default: auto, the first installed of "
+                        f"{', '.join(LIBRARIES)})")
+    p.add_argument("--method", choices=list(METHODS), default=DEFAULT_METHOD,
+                   help=f"fine ICP variant (default: {DEFAULT_METHOD})")
     p.add_argument("--coverage", type=_float, metavar="LENGTH",
                    help="points farther than this from the reference are not covered "
                         "(default: max(10 x tolerance, 10 x reference spacing))")

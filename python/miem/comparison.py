@@ -21,6 +21,7 @@ import numpy as np
 from . import _core
 from ._api import Defect, DetectResult, _as_float_array, _int, _real
 from .registration import (
+    DEFAULT_METHOD,
     MissingDependencyError,
     Registration,
     _check_transform,
@@ -154,7 +155,8 @@ def load_reference(
     normal_radius : float, optional
         Radius of the normal estimation for points; default 3 x the point spacing.
     spacing : float, optional
-        Sampling distance for a mesh; default ``sqrt(area / max_points)``.
+        Sampling distance for a mesh (ignored for points); default ``sqrt(area / max_points)``
+        (:func:`compare` passes half the scan's point spacing).
     max_points : int
         Most sample points drawn from a mesh.
     seed : int
@@ -349,7 +351,7 @@ def compare(
     init_transform: Optional[Any] = None,
     register_scan: bool = True,
     library: str = "auto",
-    method: str = "gicp",
+    method: str = DEFAULT_METHOD,
     coverage: Optional[float] = None,
     max_lateral: Optional[float] = None,
     link: Optional[float] = None,
@@ -365,7 +367,8 @@ def compare(
     scan : array_like (N, 3) or (H, W, 3)
         The scan (NaN rows are dropouts: not covered).
     reference : array_like, trimesh.Trimesh, str, Path or Reference
-        Golden sample points, a mesh, or a file (see :func:`load_reference`).
+        Golden sample points, a mesh (sampled at half the scan's point spacing), or a file (see
+        :func:`load_reference`).
     tolerance : float
         ``|deviation| > tolerance`` is out of tolerance (scan units; 0.2 mm in deburring).
     dont_care : float
@@ -419,8 +422,9 @@ def compare(
     finite = np.isfinite(pts).all(axis=1)
     if int(finite.sum()) < 10:
         raise ValueError(f"scan: at least 10 finite points are needed, got {int(finite.sum())}")
-    ref = load_reference(reference, num_threads=num_threads, seed=seed)
     s_spacing = _spacing(np.ascontiguousarray(pts[finite], dtype=np.float64))
+    # A mesh is sampled at half the scan's spacing (at most max_points samples).
+    ref = load_reference(reference, spacing=0.5 * s_spacing, num_threads=num_threads, seed=seed)
     cov = max(10 * tol, 10 * ref.spacing) if coverage is None else _positive("coverage", coverage)
     lat = 3.0 * ref.spacing if max_lateral is None else _positive("max_lateral", max_lateral)
     lnk = 3.0 * s_spacing if link is None else _positive("link", link)
