@@ -344,3 +344,20 @@ def test_wrong_shapes() -> None:
         miem.compare(np.full((50, 3), np.nan), good, register_scan=False)
     with pytest.raises(ValueError, match="reference: no such file"):
         miem.load_reference("/nonexistent/part.stl")
+
+
+def test_float32_scan_huge_coverage_and_inputs_untouched() -> None:
+    scan, _ = make_scan(step=0.4, noise=0.0)
+    scan32 = scan.astype(np.float32)
+    scan32[0, 0] = np.nan  # a dropout
+    ref = grid_points(0.2).reshape(-1, 3)
+    before_s, before_r = scan32.copy(), ref.copy()
+    a = miem.compare(scan32, ref, register_scan=False, detection=None, coverage=1e6,
+                     max_lateral=1e6)
+    np.testing.assert_array_equal(scan32, before_s)
+    np.testing.assert_array_equal(ref, before_r)
+    assert a.labels[0, 0] == cmp.NOT_COVERED and a.covered[1:].all()
+    # Every finite point is covered; the deviation is the oracle's on the same normals.
+    refobj = miem.load_reference(ref)
+    want = refdev.deviation(scan32.reshape(-1, 3), refobj.points, refobj.normals, 1e6, 1e6)
+    np.testing.assert_allclose(a.deviation.reshape(-1), want.deviation, atol=1e-9)

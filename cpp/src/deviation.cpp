@@ -73,6 +73,7 @@ void ReferenceSurface::deviation(const PointsView<T>& scan, double max_distance,
   const std::ptrdiff_t n = scan.size;
   const int nt = detail::thread_count(num_threads, n, 2048);
   const double slack = 1e-9 * cell;
+  const CellBox full = grid.box_around(Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), kInf);
 #pragma omp parallel for schedule(dynamic, 256) num_threads(nt) if (nt > 1)
   for (std::ptrdiff_t i = 0; i < n; ++i) {
     const Eigen::Vector3d q = scan[i];
@@ -114,6 +115,10 @@ void ReferenceSurface::deviation(const PointsView<T>& scan, double max_distance,
           }
         });
         seen = b;
+        if (b.lo[0] <= full.lo[0] && b.lo[1] <= full.lo[1] && b.lo[2] <= full.lo[2] &&
+            b.hi[0] >= full.hi[0] && b.hi[1] >= full.hi[1] && b.hi[2] >= full.hi[2]) {
+          break;  // every cell has been visited
+        }
         double next;
         if (best >= 0) {
           next = std::sqrt(best2);

@@ -19,7 +19,7 @@ from typing import Any, Optional, Union
 import numpy as np
 
 from . import _core
-from ._api import Defect, DetectResult, _as_float_array, _int, _real
+from ._api import Defect, DetectResult, _as_float_array, _int, _real, _threads
 from .registration import (
     DEFAULT_METHOD,
     MissingDependencyError,
@@ -162,7 +162,7 @@ def load_reference(
     seed : int
         Seed of the mesh sampling.
     """
-    threads = 0 if num_threads is None else _int("num_threads", num_threads, 1)
+    threads = _threads(num_threads)
     max_points = _int("max_points", max_points, 100)
     seed = _int("seed", seed, 0)
     if isinstance(source, Reference):
@@ -410,7 +410,7 @@ def compare(
     band = _real("dont_care", dont_care)
     if band < 0:
         raise ValueError(f"dont_care: expected a length >= 0, got {band}")
-    threads = 0 if num_threads is None else _int("num_threads", num_threads, 1)
+    threads = _threads(num_threads)
     up = np.array(scan_up, dtype=np.float64).ravel() if scan_up is not None else None
     if up is None or up.shape != (3,) or not np.isfinite(up).all() or not np.linalg.norm(up) > 0:
         raise ValueError(f"scan_up: expected a non-zero direction (3,), got {scan_up!r}")
@@ -442,8 +442,10 @@ def compare(
     if not ref.oriented:
         flip = normals @ (transform[:3, :3] @ up) < 0
         normals = np.where(flip[:, None], -normals, normals)
-    surface = _core.ReferenceSurface(ref.points, np.ascontiguousarray(normals),
-                                     max(2.0 * ref.spacing, cov / 8.0), threads)
+    # Cells of cov / 8 (at least 2 spacings, at most 16: a huge coverage must not make one cell
+    # hold the whole reference).
+    cell = min(max(2.0 * ref.spacing, cov / 8.0), 16.0 * ref.spacing)
+    surface = _core.ReferenceSurface(ref.points, np.ascontiguousarray(normals), cell, threads)
     aligned = apply_transform(transform, pts)
     dev, dist, nearest, covered = surface.deviation(aligned, cov, lat, threads)
     # Reference normals at each point's nearest reference point, in the scan's frame.

@@ -15,7 +15,7 @@ from typing import Any, Optional
 import numpy as np
 
 from . import _core
-from ._api import _as_float_array, _int, _real
+from ._api import _as_float_array, _int, _real, _threads
 
 __all__ = ["Registration", "register", "LIBRARIES", "apply_transform"]
 
@@ -316,7 +316,7 @@ def register(
     src = _finite_rows(scan, "scan")
     ref = _finite_rows(reference, "reference")
     init = None if init_transform is None else _check_transform(init_transform, "init_transform")
-    threads = 0 if num_threads is None else _int("num_threads", num_threads, 1)
+    threads = _threads(num_threads)
     nthreads = threads if threads > 0 else max(1, _core_threads())
     seed = _int("seed", seed, 0)
     mif = _real("min_inlier_fraction", min_inlier_fraction)
