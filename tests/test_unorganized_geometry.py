@@ -7,6 +7,7 @@ far-from-origin offset, dtype, thread count) and argument checks.
 
 from __future__ import annotations
 
+import miem
 import numpy as np
 import pytest
 from miem._unorganized import detect_points, point_spacing
@@ -87,7 +88,10 @@ def test_defaults_are_recorded():
     assert res.params["radius"] == 5 * sp
     assert res.params["min_step"] == 0.5 * sp
     assert res.params["link"] == res.params["radius"]
-    assert res.params["K"] == 4 and res.params["scales"] == (1,)
+    # the default for clouds: the recommended angle test
+    assert res.params["K"] == 4 and res.params["scales"] == miem.PRESETS["recommended"].scales
+    assert res.params["theta0"] == miem.PRESETS["recommended"].theta0 == 90.0
+    assert res.params["height_tolerance"] is None and res.params["preset"] == "default"
     res = detect_points(pts, radius=1.5, min_step=0.1, link=0.7, K=6)
     assert (res.params["radius"], res.params["min_step"], res.params["link"]) == (1.5, 0.1, 0.7)
     assert res.params["K"] == 6

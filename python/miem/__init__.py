@@ -27,6 +27,7 @@ from ._api import (
     scan_line_heights,
 )
 from ._core import __version__
+from .params import DetectParams, default_params, load_config
 from .stream import ProfileStream, StreamRow
 from .targets import Target, TargetPlan, Tool, plan_targets, read_transform
 from .comparison import (
@@ -64,6 +65,7 @@ __all__ = [
     "PRESETS",
     "CLOUD_PRESETS",
     "Defect",
+    "DetectParams",
     "DetectResult",
     "Label",
     "NeighborGrid",
@@ -77,10 +79,12 @@ __all__ = [
     "Tool",
     "__version__",
     "detect",
+    "default_params",
     "detect_points",
     "estimate_normals",
     "fit_plane",
     "plan_targets",
+    "load_config",
     "point_spacing",
     "read_transform",
     "scan_line_angles",

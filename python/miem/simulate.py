@@ -1325,7 +1325,7 @@ def _three_rows(
         _row(case, "eigenvalue", mod.fit_plane(grid, method="eigen")),
     ]
     t0 = time.perf_counter()
-    res = mod.detect(grid, theta0=theta0, scales=tuple(scales))
+    res = mod.detect(grid, preset="paper", theta0=theta0, scales=tuple(scales))  # the paper's method
     seconds = time.perf_counter() - t0
     if res.plane is None:
         raise ValueError("the MIEM plane is undefined: every point was judged ABNORMAL")
