@@ -175,9 +175,9 @@ class DetectParams:
         "all", "", "which points get a height: 'all' finite points or only 'abnormal' ones "
         "(faster)", ("grid", "cloud"), "{all,abnormal}")
     height_tolerance: Union[None, float, str] = _f(
-        "4.5rms", "length or k x rms", "height test (beyond the paper): after the angle "
-        "passes, a NORMAL point farther than this from its local plane becomes ABNORMAL; a "
-        "length in the scan's units or '<k>rms' (k times the plane's rms); None: off",
+        "4.5rms", "length or k x rms", "height test (beyond the paper): a NORMAL point "
+        "farther than this from its local plane becomes ABNORMAL; a length or '<k>rms' (k times "
+        "the plane's rms); None: off",
         _GRID, "LENGTH|Krms", neutral=None)
     edge_extent: int = _f(
         12, "cells", "with the height test: EDGE groups whose bounding box is at most this long "
