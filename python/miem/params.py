@@ -127,7 +127,6 @@ def _raise_unless_ok(status: Tuple[int, str]) -> None:
         raise ValueError(message)
 
 
-
 def _f(default: Any, unit: str, help: str, paths: Tuple[str, ...], metavar: str,
        neutral: Any = dataclasses.MISSING) -> Any:
     """A field with its unit, help text, paths, command-line metavar and neutral value (the
@@ -222,7 +221,8 @@ class DetectParams:
     @staticmethod
     def fields() -> Dict[str, Dict[str, Any]]:
         """Field name -> ``{"default", "unit", "help", "paths", "metavar", "neutral"}``."""
-        return {f.name: {"default": f.default, **f.metadata} for f in dataclasses.fields(DetectParams)}
+        return {f.name: {"default": f.default, **f.metadata}
+                for f in dataclasses.fields(DetectParams)}
 
     # -- checks and conversion to the core ------------------------------------------------
 
@@ -231,6 +231,8 @@ class DetectParams:
         values: each honoured field in range, each other field at its neutral value."""
         if path == "cloud":
             self._core_cloud(0)
+        elif path == "stream":
+            _raise_unless_ok(_core.check_stream_params(1, self._core_grid(0, path)))
         else:
             self._core_grid(0, path)
 
@@ -250,7 +252,7 @@ class DetectParams:
                 f"is rejected (set it to its neutral value, e.g. "
                 f"{', '.join(_neutral_hint(b.split('=')[0]) for b in bad)})")
 
-    def _core_angle(self, core: Any, path: str) -> None:
+    def _core_angle(self, core: Any) -> None:
         if isinstance(self.theta0, str):
             if self.theta0 != "auto":
                 raise ValueError(f"theta0: expected degrees or 'auto', got {self.theta0!r}")
@@ -267,7 +269,7 @@ class DetectParams:
         """The C++ ``miem::DetectParams`` for an organized grid (or a stream), checked."""
         self._reject_unhonoured(path)
         p = _core.DetectParams()
-        self._core_angle(p, path)
+        self._core_angle(p)
         p.max_gap = _int("max_gap", self.max_gap, 0)
         if self.min_step is None:
             p.min_step = -1.0
@@ -288,7 +290,7 @@ class DetectParams:
         """The C++ ``miem::PointsDetectParams`` for an unorganized cloud, checked."""
         self._reject_unhonoured("cloud")
         p = _core.PointsDetectParams()
-        self._core_angle(p, "cloud")
+        self._core_angle(p)
         p.num_directions = _int("K", self.K, 2, 8)
         p.radius = None if self.radius is None else _positive("radius", self.radius)
         p.link = None if self.link is None else _positive("link", self.link)

@@ -1478,7 +1478,7 @@ def _format_points_report(rep: dict) -> str:
         "MIEM paper simulation (section 3), exactly as written: random points",
         (f"  cloud     {cloud.points.shape[0]:,} uniform random points on the same surface, "
          f"{rep['n_edge']} on two edge-strip beads"),
-        (f"  detector  miem.detect(points, preset='paper'): radius {res.params['radius']:.3f} mm "
+        (f"  detector  miem.detect(pts, preset='paper'): radius {res.params['radius']:.3f} mm "
          f"(5 x spacing {res.params['spacing']:.3f}), {res.iterations} passes, "
          f"{rep['seconds'] * 1e3:.0f} ms"),
         "",
