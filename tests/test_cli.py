@@ -101,7 +101,7 @@ def test_presets_are_the_detectors(tmp_path: Path, scans: dict[str, Path]) -> No
     api = miem.detect(mio.read(scans["crease"]).points, preset=miem.DEFAULT_PRESET,
                       theta0=100.0, height_tolerance="4rms")
     assert doc["parameters"]["theta0"] == 100.0
-    assert doc["parameters"]["window"] == miem.PRESETS[miem.DEFAULT_PRESET].window
+    assert doc["parameters"]["window"] == miem.PRESETS[miem.DEFAULT_PRESET].grid.window
     assert doc["counts"] == api.counts() and len(doc["defects"]) == len(api.defects)
     res = run("detect", scans["crease"], "-o", tmp_path, "--theta0", "auto")
     assert res.returncode == 0, res.stderr
@@ -114,11 +114,12 @@ def test_presets_are_the_detectors(tmp_path: Path, scans: dict[str, Path]) -> No
 
 def test_every_grid_field_is_an_option_with_unit_and_default() -> None:
     out = run("detect", "--help").stdout
-    for name, meta in miem.DetectParams.fields().items():
+    grid = miem.DetectParams.fields("grid")
+    for name in set(miem.DetectParams.fields("cloud")) - set(grid):
+        # the command line detects on grids only
+        assert "\n  --" + name.replace("_", "-") + " " not in out, name
+    for name, meta in grid.items():
         opt = "\n  --" + name.replace("_", "-")
-        if "grid" not in meta["paths"]:  # the command line detects on grids only
-            assert opt + " " not in out, name
-            continue
         assert opt in out, name
         text = " ".join(out.split(opt, 1)[1].split()[:80])
         assert "(default:" in text, name
@@ -133,8 +134,10 @@ def test_config_file_and_miem_config(tmp_path: Path, scans: dict[str, Path]) -> 
     assert res.returncode == 0, res.stderr
     assert miem.DetectParams.from_dict(json.loads(res.stdout)) == miem.PRESETS["paper"]
     toml = run("config").stdout  # the default preset, TOML, every field with its unit
-    for name in miem.DetectParams.fields():
-        assert f"\n{name} = " in toml, name
+    for path in ("grid", "cloud"):
+        for name in miem.DetectParams.fields(path):
+            assert f"\n{name} = " in toml, name
+    assert "[angle]" in toml and "[grid]" in toml and "[cloud]" in toml
     cfg = tmp_path / "cell.toml"
     cfg.write_text(toml)
     assert load_config(cfg) == miem.PRESETS["recommended"]

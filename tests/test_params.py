@@ -4,6 +4,7 @@ accuracy benchmark and the reference; C++ defaults equal Python's; config files.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import json
 from pathlib import Path
 
@@ -15,7 +16,6 @@ import pytest
 from miem.params import dump_config, load_config
 
 ROOT = Path(__file__).resolve().parents[1]
-FIELDS = miem.DetectParams.fields()
 
 
 def scan(h: int = 40, w: int = 36, seed: int = 0) -> np.ndarray:
@@ -43,39 +43,48 @@ def cloud() -> np.ndarray:
 def test_default_is_the_recommended_preset_on_every_path() -> None:
     assert miem.DEFAULT_PRESET == "recommended"
     assert miem.DetectParams() == miem.PRESETS["recommended"] == miem.default_params("grid")
+    assert miem.default_params("cloud") == miem.PRESETS["recommended"]
     g = scan()
     res = miem.detect(g)
     assert res.params["preset"] == "recommended"
-    want = miem.detect(g, preset="recommended")
-    np.testing.assert_array_equal(res.labels, want.labels)
-    # stream and clouds: the recommended angle test; the height test they do not implement is off
-    for path in ("stream", "cloud"):
-        d = miem.default_params(path)
-        assert (d.theta0, d.scales) == (90.0, (1, 2))
-        assert d.height_tolerance is None and d.edge_extent == 0
-    assert miem.ProfileStream(8).params == miem.default_params("stream")
-    assert miem.detect(cloud()).params["theta0"] == 90.0
+    np.testing.assert_array_equal(res.labels, miem.detect(g, preset="recommended").labels)
+    pts = cloud()
+    np.testing.assert_array_equal(miem.detect(pts).labels,
+                                  miem.detect(pts, preset="recommended").labels)
+    assert miem.detect(pts).params["height_tolerance"] == "7rms"
+    # the stream: the recommended angle test; the height test it does not implement is off
+    d = miem.default_params("stream")
+    assert (d.angle.theta0, d.angle.scales) == (90.0, (1, 2))
+    assert d.grid.height_tolerance is None and d.grid.edge_extent == 0
+    assert miem.ProfileStream(8).params == d
 
 
 def test_presets_are_the_accuracy_benchmark_and_the_reference() -> None:
     tuned = json.loads((ROOT / "bench" / "accuracy" / "recommended.json").read_text())
-    rec = miem.PRESETS["recommended"]
+    rec = miem.PRESETS["recommended"].flat("grid")
     for name, value in tuned.items():
-        got = getattr(rec, name)
+        got = rec[name]
         assert (list(got) if isinstance(got, tuple) else got) == value, name
     for name, table in ref._PRESETS.items():
-        p = miem.PRESETS[name]
+        p = miem.PRESETS[name].flat("grid")
         for k, v in table.items():
-            assert getattr(p, k) == v, (name, k)
+            assert p[k] == v, (name, k)
     assert set(ref._PRESETS) == set(miem.PRESETS)
     assert ref._DEFAULT_PRESET == miem.DEFAULT_PRESET
+    # the reference's cloud defaults are the recommended cloud values
+    sig = inspect.signature(ref.detect_points).parameters
+    for k, v in miem.PRESETS["recommended"].flat("cloud").items():
+        if k in sig:
+            assert sig[k].default == v, k
 
 
 def test_paper_preset_is_the_paper() -> None:
     p = miem.PRESETS["paper"]
-    assert (p.theta0, p.scales, p.max_gap, p.min_step, p.min_directions, p.max_iterations,
-            p.window, p.height_tolerance, p.edge_extent) == (75.0, (1,), 1, None, None, 10, 21,
-                                                             None, 0)
+    a, g, c = p.angle, p.grid, p.cloud
+    assert (a.theta0, a.scales, a.min_directions, a.max_iterations) == (75.0, (1,), None, 10)
+    assert (g.max_gap, g.min_step, g.window, g.height_tolerance, g.edge_extent) == (
+        1, None, 21, None, 0)
+    assert (c.height_tolerance, c.edge_extent, c.min_group) == (None, 0.0, 0)
 
 
 def _core_fields(c) -> dict:
@@ -84,7 +93,7 @@ def _core_fields(c) -> dict:
 
 
 def test_cpp_defaults_equal_python_defaults() -> None:
-    # grid: the bound C++ DetectParams{} is what the Python defaults convert to
+    # the bound C++ DetectParams{} / PointsDetectParams{} are what the Python defaults convert to
     assert _core_fields(core.DetectParams()) == _core_fields(miem.DetectParams()._core_grid(0))
     assert _core_fields(core.recommended_params()) == _core_fields(core.DetectParams())
     assert _core_fields(core.paper_params()) == _core_fields(
@@ -92,50 +101,55 @@ def test_cpp_defaults_equal_python_defaults() -> None:
     assert _core_fields(core.stream_default_params()) == _core_fields(
         miem.default_params("stream")._core_grid(0, "stream"))
     assert _core_fields(core.PointsDetectParams()) == _core_fields(
-        miem.default_params("cloud")._core_cloud(0))
+        miem.DetectParams()._core_cloud(0))
+    assert _core_fields(core.paper_points_params()) == _core_fields(
+        miem.PRESETS["paper"]._core_cloud(0))
 
 
 # --- every field honoured or rejected on every path ------------------------------------------
 
-# A valid non-neutral value per field (different from the default, too).
+# A valid value per field, different from the default (and from the stream's neutral value).
 OTHER = {
-    "theta0": 100.0, "scales": (1, 3), "max_gap": 2, "min_step": 0.5, "min_directions": 2,
-    "max_iterations": 3, "window": 9, "heights": "abnormal", "height_tolerance": 0.05,
-    "edge_extent": 4, "max_reach": 5, "radius": 1.2, "K": 6, "link": 0.9,
+    "theta0": 100.0, "scales": (1, 3), "min_directions": 2, "max_iterations": 3,
+    "max_gap": 2, "min_step": 0.5, "max_reach": 5, "window": 9, "heights": "abnormal",
+    "height_tolerance": 0.05, "edge_extent": 4, "radius": 1.2, "K": 6, "link": 0.9,
+    "min_group": 5, "height_radius": 2.0,
 }
+ALL_FIELDS = {name for path in miem.params.PATHS for name in miem.DetectParams.fields(path)}
 
 
-def _run(path: str, params: miem.DetectParams):
+def _run(path: str, base: miem.DetectParams, overrides: dict):
     if path == "grid":
-        return miem.detect(scan(), params=params).params
+        return miem.detect(scan(), params=base, **overrides).params
     if path == "cloud":
-        return miem.detect(cloud(), params=params).params
-    s = miem.ProfileStream(36, params=params)
+        return miem.detect(cloud(), params=base, **overrides).params
+    s = miem.ProfileStream(36, params=base, **overrides)
     for row in scan():
         s.push(row)
     s.flush()
-    return dataclasses.asdict(s.params)
+    return s.params.flat("stream")
 
 
 def test_other_values_cover_every_field() -> None:
-    assert set(OTHER) == set(FIELDS)
-    for name, value in OTHER.items():
-        assert value != FIELDS[name]["default"] and value != FIELDS[name]["neutral"], name
+    assert set(OTHER) == ALL_FIELDS
+    for path in miem.params.PATHS:
+        for name, meta in miem.DetectParams.fields(path).items():
+            assert OTHER[name] != meta["default"], name
 
 
 @pytest.mark.parametrize("path", miem.params.PATHS)
-@pytest.mark.parametrize("name", list(FIELDS))
+@pytest.mark.parametrize("name", sorted(ALL_FIELDS))
 def test_every_field_is_honoured_or_rejected(path: str, name: str) -> None:
     base = miem.default_params(path)
-    params = base.replace(**{name: OTHER[name]})
-    if name == "edge_extent" and path == "grid":
-        params = params.replace(height_tolerance=0.05)
-    if path in FIELDS[name]["paths"]:
-        used = _run(path, params)
-        assert used[name] == OTHER[name] or (name == "scales" and tuple(used[name]) == OTHER[name])
+    fields = miem.DetectParams.fields(path)
+    value = OTHER[name]
+    honoured = name in fields and "stream" not in (fields[name] if path == "stream" else {})
+    if honoured:
+        used = _run(path, base, {name: value})
+        assert used[name] == value, (name, used[name])
     else:
         with pytest.raises(ValueError, match=name):
-            _run(path, params)
+            _run(path, base, {name: value})
 
 
 def test_grid_fields_change_the_result() -> None:
@@ -143,17 +157,14 @@ def test_grid_fields_change_the_result() -> None:
     main ones visibly change the labels or heights of this scan."""
     g = scan()
     base = miem.detect(g, preset="paper")
-    for name, value in OTHER.items():
-        if "grid" not in FIELDS[name]["paths"] or name in ("heights", "max_reach"):
+    for name in miem.DetectParams.fields("grid"):
+        if name in ("heights", "max_reach"):
             continue
-        kw = {name: 179.0 if name == "theta0" else value}  # 100 deg changes nothing here
+        kw = {name: 179.0 if name == "theta0" else OTHER[name]}  # 100 deg changes nothing here
         if name == "height_tolerance":  # a window clear of the other defects' EDGE cells
             kw["window"] = 7
         if name == "edge_extent":  # only with the height test
-            other = miem.detect(g, preset="paper", height_tolerance=0.05, edge_extent=30)
-            oracle = ref.detect(g, preset="paper", height_tolerance=0.05, edge_extent=30)
-            np.testing.assert_array_equal(other.labels, oracle.labels)
-            continue
+            kw = {"height_tolerance": 0.05, "edge_extent": 30}
         res, oracle = miem.detect(g, preset="paper", **kw), ref.detect(g, preset="paper", **kw)
         np.testing.assert_array_equal(res.labels, oracle.labels)  # used as the reference does
         np.testing.assert_allclose(res.height, oracle.height, atol=1e-8, equal_nan=True)
@@ -172,22 +183,36 @@ def test_grid_fields_change_the_result() -> None:
         b.labels, ref.detect(g, preset="paper", min_step=1.5, max_reach=8).labels)
 
 
+def test_cloud_fields_are_the_reference_s() -> None:
+    pts = cloud()
+    for kw in ({}, {"height_tolerance": None, "min_group": 0}, {"radius": 1.2, "K": 6},
+               {"edge_extent": 3.0, "height_radius": 3.0}):
+        res = miem.detect(pts, **kw)
+        oracle = ref.detect_points(pts, **kw)
+        np.testing.assert_array_equal(res.labels, oracle.labels)
+    paper = miem.detect(pts, preset="paper")
+    oracle = ref.detect_points(pts, theta0=75.0, scales=(1,), height_tolerance=None,
+                               edge_extent=0.0, min_group=0)
+    np.testing.assert_array_equal(paper.labels, oracle.labels)
+
+
 # --- the drift cases of issue 9 -----------------------------------------------------------------
 
 
-def test_cloud_refuses_the_grid_only_height_test_instead_of_dropping_it() -> None:
+def test_clouds_run_the_preset_s_cloud_values_and_refuse_grid_fields() -> None:
     pts = cloud()
-    with pytest.raises(ValueError, match="height_tolerance.*edge_extent.*unorganized"):
-        miem.detect(pts, preset="recommended")
+    rec = miem.detect(pts, preset="recommended")
+    for k in ("height_tolerance", "edge_extent", "min_group"):
+        assert rec.params[k] == miem.CLOUD_PRESETS["recommended"][k]  # not dropped
     with pytest.raises(ValueError, match="theta0='auto'"):
         miem.detect(pts, theta0="auto")
-    with pytest.raises(ValueError, match="height_tolerance"):
-        miem.detect_points(pts, height_tolerance="4rms")
-    # with the height test switched off it runs: the recommended angle test
-    res = miem.detect(pts, preset="recommended", height_tolerance=None, edge_extent=0)
-    np.testing.assert_array_equal(res.labels, miem.detect(pts).labels)
-    oracle = ref.detect_points(pts, theta0=90.0, scales=(1, 2))
-    np.testing.assert_array_equal(res.labels, oracle.labels)
+    for name, value in (("window", 9), ("max_gap", 2), ("max_reach", 5)):
+        with pytest.raises(ValueError, match=name):
+            miem.detect(pts, **{name: value})
+        with pytest.raises(ValueError, match=name):
+            miem.detect_points(pts, **{name: value})
+    with pytest.raises(ValueError, match="radius"):
+        miem.detect(scan(), radius=1.0)
 
 
 def test_stream_refuses_what_it_does_not_implement() -> None:
@@ -257,17 +282,24 @@ def test_params_preset_and_overrides() -> None:
     with pytest.raises(ValueError, match="params"):
         miem.detect(g, params=42)
     with pytest.raises(dataclasses.FrozenInstanceError):
-        p.theta0 = 70.0  # type: ignore[misc]
-    assert miem.PRESETS["paper"].theta0 == 75.0
+        p.angle.theta0 = 70.0  # type: ignore[misc]
+    assert miem.PRESETS["paper"].angle.theta0 == 75.0
+    # replace() sets a name in every part that has it; for_path() only in the detector's parts
+    q = miem.DetectParams().replace(height_tolerance=None)
+    assert q.grid.height_tolerance is None and q.cloud.height_tolerance is None
+    q = miem.DetectParams().for_path("cloud", height_tolerance="5rms")
+    assert q.cloud.height_tolerance == "5rms" and q.grid.height_tolerance == "4.5rms"
 
 
-def test_fields_carry_units_help_and_paths() -> None:
-    for name, meta in FIELDS.items():
-        assert meta["help"] and meta["metavar"], name
-        assert set(meta["paths"]) <= set(miem.params.PATHS) and meta["paths"], name
-    assert FIELDS["theta0"]["unit"] == "deg"
-    assert FIELDS["window"]["unit"] == "cells"
-    assert FIELDS["radius"]["paths"] == ("cloud",)
+def test_fields_carry_units_help_and_parts() -> None:
+    for path in miem.params.PATHS:
+        for name, meta in miem.DetectParams.fields(path).items():
+            assert meta["help"] and meta["metavar"], name
+            assert meta["part"] in ("angle", "grid", "cloud")
+    grid = miem.DetectParams.fields("grid")
+    assert grid["theta0"]["unit"] == "deg" and grid["window"]["unit"] == "cells"
+    assert miem.DetectParams.fields("cloud")["edge_extent"]["unit"] == "spacings"
+    assert "radius" not in grid and "window" not in miem.DetectParams.fields("cloud")
 
 
 def test_bound_types_have_read_write_fields_with_docs() -> None:
@@ -280,12 +312,15 @@ def test_bound_types_have_read_write_fields_with_docs() -> None:
     assert "length" in core.CloudParams.radius.__doc__
     p.window = 4
     assert p.check() == (1, "window: must be an odd integer >= 3")
+    c = core.PointsDetectParams()
+    c.min_group = 2
+    assert c.check()[1].startswith("min_group")
 
 
 @pytest.mark.parametrize("fmt", ["json", "toml"])
 def test_config_round_trip(tmp_path: Path, fmt: str) -> None:
     for p in (miem.PRESETS["paper"], miem.PRESETS["recommended"],
-              miem.DetectParams(theta0="auto", min_step=0.3, radius=2.0)):
+              miem.DetectParams().replace(theta0="auto", min_step=0.3, radius=2.0)):
         path = tmp_path / f"c.{fmt}"
         path.write_text(dump_config(p, fmt))
         assert load_config(path) == p
@@ -293,13 +328,19 @@ def test_config_round_trip(tmp_path: Path, fmt: str) -> None:
 
 def test_config_file_with_a_preset_and_overrides(tmp_path: Path) -> None:
     path = tmp_path / "cell.toml"
-    path.write_text('preset = "paper"\ntheta0 = 80.0\nheight_tolerance = "off"\n')
-    assert load_config(path) == miem.PRESETS["paper"].replace(theta0=80.0)
+    path.write_text('preset = "paper"\ntheta0 = 80.0\n[grid]\nheight_tolerance = "off"\n'
+                    'window = 15\n')
+    assert load_config(path) == miem.PRESETS["paper"].replace(theta0=80.0).for_path(
+        "grid", window=15)
     path = tmp_path / "cell.json"
-    path.write_text('{"scales": [1, 2, 3], "window": 15}')
-    assert load_config(path) == miem.DetectParams(scales=(1, 2, 3), window=15)
+    path.write_text('{"scales": [1, 2, 3], "grid": {"window": 15}}')
+    assert load_config(path) == miem.DetectParams().replace(scales=(1, 2, 3)).for_path(
+        "grid", window=15)
     path.write_text('{"windw": 15}')
     with pytest.raises(ValueError, match="windw"):
+        load_config(path)
+    path.write_text('{"cloud": {"window": 15}}')
+    with pytest.raises(ValueError, match="window"):
         load_config(path)
     path.write_text("[1, 2]")
     with pytest.raises(ValueError, match="table"):

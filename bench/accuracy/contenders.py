@@ -173,7 +173,7 @@ def _miem_grid() -> list[dict]:
 # to recommended.json (heights and the cloud-only fields are not tuned).
 _TUNED_FIELDS = ("theta0", "scales", "max_gap", "min_step", "min_directions", "max_iterations",
                  "window", "height_tolerance", "edge_extent")
-PAPER = {k: getattr(miem.PRESETS["paper"], k) for k in _TUNED_FIELDS}
+PAPER = {k: miem.PRESETS["paper"].flat("grid")[k] for k in _TUNED_FIELDS}
 
 
 # --------------------------------------------------------------------------------------------

@@ -27,7 +27,14 @@ from ._api import (
     scan_line_heights,
 )
 from ._core import __version__
-from .params import DetectParams, default_params, load_config
+from .params import (
+    AngleParams,
+    CloudParams,
+    DetectParams,
+    GridParams,
+    default_params,
+    load_config,
+)
 from .stream import ProfileStream, StreamRow
 from .targets import Target, TargetPlan, Tool, plan_targets, read_transform
 from .comparison import (
@@ -64,8 +71,11 @@ __all__ = [
     "NORMAL",
     "PRESETS",
     "CLOUD_PRESETS",
+    "AngleParams",
+    "CloudParams",
     "Defect",
     "DetectParams",
+    "GridParams",
     "DetectResult",
     "Label",
     "NeighborGrid",

@@ -10,12 +10,12 @@ import numpy as np
 
 from . import _core
 from .params import (
+    CLOUD_PRESETS,
     DEFAULT_PRESET,
     PRESETS,
     DetectParams,
     _int,
     _real,
-    field_names,
     resolve_params,
 )
 
@@ -456,13 +456,14 @@ def detect(
         labels=labels, flags=flags, angle=angle, height=height,
         plane=None if plane_t is None else _plane(plane_t, "eigen"),
         iterations=int(iterations), defects=defects,
-        params=_params_record(p, name, theta0=float(theta0_used),
+        params=_params_record(p, name, "grid", theta0=float(theta0_used),
                               theta0_auto=bool(core_params.theta0_auto)),
     )
 
 
-def _params_record(p: DetectParams, name: str, **extra: Any) -> dict:
-    """``result.params``: the preset's name, every field as used, and what the run derived."""
-    out = {"preset": name, **{k: getattr(p, k) for k in field_names()}}
+def _params_record(p: DetectParams, name: str, path: str, **extra: Any) -> dict:
+    """``result.params``: the preset's name, every field the detector read, and what the run
+    derived."""
+    out = {"preset": name, **p.flat(path)}
     out.update(extra)
     return out

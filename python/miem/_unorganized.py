@@ -382,9 +382,9 @@ def _detect_cloud(arr: np.ndarray, p: DetectParams, name: str, nt: int) -> Point
         for (i, idx, c, n, pk, mh, ex, kind) in raw
     ]
     params = _params_record(
-        p, name, theta0=float(core_params.theta0_deg), theta0_auto=False,
+        p, name, "cloud", theta0=float(core_params.theta0_deg), theta0_auto=False,
         min_step=float(min_step_u), radius=float(radius_u), link=float(link_u),
-        spacing=float(spacing),
+        spacing=float(spacing), height_radius=float(height_radius_u),
     )
     return PointsDetectResult(
         labels=labels, flags=flags, angle=angle, height=height,

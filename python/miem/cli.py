@@ -90,7 +90,7 @@ _UNSET: Any = _Unset()
 def _grid_fields() -> dict[str, dict[str, Any]]:
     from .params import DetectParams
 
-    return {k: v for k, v in DetectParams.fields().items() if "grid" in v["paths"]}
+    return DetectParams.fields("grid")
 
 
 def _fmt_default(value: Any) -> str:
@@ -403,13 +403,13 @@ def _detect_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     if args.config is not None:
         params = load_config(args.config, base=params)
     given = {name: getattr(args, name) for name in _grid_fields()}
-    params = params.replace(**{k: (tuple(v) if isinstance(v, list) else v)
-                               for k, v in given.items() if v is not _UNSET})
+    params = params.for_path("grid", **{k: (tuple(v) if isinstance(v, list) else v)
+                                        for k, v in given.items() if v is not _UNSET})
     params.check("grid")
     # As a preset plus the fields that differ from it, so that reports name the preset.
     name = args.preset or next((n for n, p in PRESETS.items() if p == params), DEFAULT_PRESET)
-    base = PRESETS[name]
-    diff = {k: getattr(params, k) for k in _grid_fields() if getattr(params, k) != getattr(base, k)}
+    mine, base = params.flat("grid"), PRESETS[name].flat("grid")
+    diff = {k: v for k, v in mine.items() if v != base[k]}
     return {"preset": name, **diff, "num_threads": args.threads}
 
 

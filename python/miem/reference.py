@@ -1815,13 +1815,16 @@ def detect_points(
     radius: float | None = None,
     K: int = 4,
     link: float | None = None,
-    height_tolerance: float | str | None = None,
-    edge_extent: float = 0,
-    min_group: int = 0,
+    height_tolerance: float | str | None = "7rms",
+    edge_extent: float = 12.0,
+    min_group: int = 40,
     height_radius: float | None = None,
     merge_distance: float = 0.0,
 ) -> RefPointsResult:
     """Detect abnormal points in an unorganized cloud (MIEM, reference implementation).
+
+    The defaults are the recommended preset's cloud values (SPEC "Parameters"); the paper's
+    method is ``theta0=75, scales=(1,), height_tolerance=None, edge_extent=0, min_group=0``.
 
     Parameters
     ----------

@@ -127,7 +127,7 @@ class ProfileStream:
         self._dtype = dt
         self._core = cls(w, core_params)
         self.params = p
-        self._record = _params_record(p, name)
+        self._record = _params_record(p, name, "stream")
 
     @property
     def width(self) -> int:

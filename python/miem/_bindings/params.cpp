@@ -67,6 +67,16 @@ void bind_params(py::module_& m) {
                      "length: shortest tangent offset (>= 0); None: 0.5 x spacing")
       .def_readwrite("link", &miem::CloudParams::link,
                      "length: defect linking distance (> 0); None: radius")
+      .def_readwrite("min_group", &miem::CloudParams::min_group,
+                     "points: 0 off; else >= 3, smaller floating groups are ABNORMAL")
+      .def_readwrite("height_abs", &miem::CloudParams::height_abs,
+                     "length: height test, |height| above this is ABNORMAL; <= 0: off")
+      .def_readwrite("height_k", &miem::CloudParams::height_k,
+                     "multiple of the local plane's rms: height test; <= 0: off")
+      .def_readwrite("edge_extent", &miem::CloudParams::edge_extent,
+                     "spacings: EDGE groups this compact are height-tested too (>= 0)")
+      .def_readwrite("height_radius", &miem::CloudParams::height_radius,
+                     "length: height-plane radius (> 0); None: 2 x radius")
       .def("check", [](const miem::CloudParams& p) { return status_tuple(p.check()); });
 
   py::class_<miem::DetectParams, miem::AngleParams, miem::GridParams>(
@@ -85,6 +95,7 @@ void bind_params(py::module_& m) {
 
   m.def("paper_params", &miem::paper_params, "The paper's method exactly.");
   m.def("recommended_params", &miem::recommended_params, "The recommended preset.");
+  m.def("paper_points_params", &miem::paper_points_params, "The paper's method on clouds.");
   m.def("stream_default_params", &miem::stream_default_params,
         "The default parameters of a ProfileStream.");
   m.def(
