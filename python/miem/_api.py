@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import enum
+import math
+import numbers
+import warnings
 from dataclasses import dataclass, field
-from typing import Any, Literal, Optional
+from typing import Any, Literal, Optional, Sequence
 
 import numpy as np
 
@@ -347,6 +350,50 @@ def _is_open3d(obj: object) -> bool:
     return type(obj).__module__.startswith("open3d") and hasattr(obj, "points")
 
 
+def _with_shape(arr: np.ndarray, shape: object) -> np.ndarray:
+    """A flattened organized scan ``(H*W, 3)`` back as its ``(H, W, 3)`` grid (a view)."""
+    try:
+        h, w = (int(v) for v in shape)  # type: ignore[union-attr]
+        ok = all(isinstance(v, (numbers.Integral, np.integer)) for v in shape)  # type: ignore
+    except (TypeError, ValueError):
+        ok = False
+    if not ok or h < 1 or w < 1:
+        raise ValueError(f"shape: expected (H, W), two integers >= 1, got {shape!r}")
+    if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] != h * w:
+        raise ValueError(f"shape: ({h}, {w}) needs an (H*W, 3) = ({h * w}, 3) array, got "
+                         f"{arr.shape}")
+    return arr.reshape(h, w, 3)
+
+
+def _looks_like_grid(arr: np.ndarray) -> str:
+    """Why an ``(N, 3)`` array looks like a flattened organized scan ("" when it does not):
+    rows (NaN rows left out) in scan-line order (at least 90 % of the steps
+    between consecutive rows within 0.5-1.5x of their median, which is within 2x of
+    ``sqrt(area / N)``)."""
+    n = arr.shape[0]
+    if n < 64:
+        return ""
+    finite = np.isfinite(arr).all(axis=1)
+    nan_rows = int(n - finite.sum())
+    if nan_rows:
+        if nan_rows == n:
+            return ""
+        arr = arr[finite]
+        n = arr.shape[0]
+    lo, hi = arr.min(axis=0), arr.max(axis=0)
+    ext = np.sort(hi - lo)
+    if not ext[1] > 0:
+        return ""
+    sample = arr[: min(n, 100_000)].astype(np.float64)
+    steps = np.sqrt(np.sum(np.diff(sample, axis=0) ** 2, axis=1))
+    typical = math.sqrt(ext[2] * ext[1] / n)
+    med = float(np.median(steps))
+    regular = np.mean((steps >= 0.5 * med) & (steps <= 1.5 * med)) >= 0.9
+    if 0 < med <= 2.0 * typical and regular:
+        return "consecutive rows are evenly spaced neighbours, in scan-line order"
+    return ""
+
+
 def _grid_or_cloud(data: object) -> np.ndarray:
     if _is_open3d(data):
         from .io import from_open3d
@@ -361,6 +408,7 @@ def detect(
     *,
     preset: Optional[str] = None,
     num_threads: Optional[int] = None,
+    shape: Optional[Sequence[int]] = None,
     **overrides: Any,
 ) -> DetectResult:
     """Find abnormal points in a scan with MIEM: an organized grid or an unorganized cloud.
@@ -399,6 +447,11 @@ def detect(
         A named parameter set.
     num_threads : int, optional
         Threads (default: all cores). Labels do not depend on it.
+    shape : (int, int), optional
+        An organized scan that arrives flattened (an ``(H*W, 3)`` array, e.g. an Open3D cloud
+        read from an organized PCD): its ``(H, W)``, so that it keeps its grid and gets the
+        organized detector. Without it, an ``(N, 3)`` array is an unorganized cloud; a warning
+        says when one looks like a flattened grid (rows in scan-line order).
     **overrides
         Fields of :class:`miem.DetectParams` that replace those of ``params`` / the preset.
 
@@ -429,6 +482,16 @@ def detect(
     """
     arr = _grid_or_cloud(grid)
     nt = _threads(num_threads)
+    if shape is not None:
+        arr = _with_shape(arr, shape)
+    elif arr.ndim == 2 and arr.shape[1] == 3:
+        why = _looks_like_grid(arr)
+        if why:
+            warnings.warn(
+                f"detect: this ({arr.shape[0]}, 3) cloud looks like a flattened organized scan "
+                f"({why}); it is detected as an unorganized cloud. Pass shape=(H, W) to keep "
+                "its grid, or rebuild one with miem.io.grid_from_scanlines",
+                UserWarning, stacklevel=2)
     if arr.ndim == 2 and arr.shape[1] == 3:
         from ._unorganized import _detect_cloud
 

@@ -221,6 +221,9 @@ class CloudParams:
         "than this are ABNORMAL (floating clusters)", "N")
     height_radius: Optional[float] = _f(
         None, "length", "radius of the height planes; None: 2 x radius", "LENGTH")
+    merge_distance: float = _f(
+        0.0, "length", "duplicate points: rows this close (0: equal coordinates) are one point, "
+        "detected once and labelled alike", "LENGTH")
 
 
 _PART_TYPES = {"angle": AngleParams, "grid": GridParams, "cloud": CloudParams}
@@ -395,6 +398,7 @@ class DetectParams:
         p.min_group = group
         p.height_radius = (None if c.height_radius is None
                            else _positive("height_radius", c.height_radius))
+        p.merge_distance = _length0("merge_distance", c.merge_distance)
         p.num_threads = num_threads
         _raise_unless_ok(p.check())
         return p

@@ -77,6 +77,8 @@ void bind_params(py::module_& m) {
                      "spacings: EDGE groups this compact are height-tested too (>= 0)")
       .def_readwrite("height_radius", &miem::CloudParams::height_radius,
                      "length: height-plane radius (> 0); None: 2 x radius")
+      .def_readwrite("merge_distance", &miem::CloudParams::merge_distance,
+                     "length: points this close are one point (>= 0; 0: equal coordinates)")
       .def("check", [](const miem::CloudParams& p) { return status_tuple(p.check()); });
 
   py::class_<miem::DetectParams, miem::AngleParams, miem::GridParams>(
