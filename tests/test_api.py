@@ -81,7 +81,7 @@ def test_low_spike_is_flagged_along_rows_and_columns_only() -> None:
     # 64.0 deg, but on the diagonals (0.707 apart) 84.1 and 80.1 deg: only bits 0 and 1 -> EDGE
     g = flat_grid(z=lambda x, y: 0.2 * x + 0.1 * y + 3.0)
     g[10, 10, 2] += 0.8
-    res = miem.detect(g)
+    res = miem.detect(g, preset="paper")
     assert res.labels[10, 10] == miem.EDGE
     assert res.flags[10, 10] == 0b0011
     def angle(u, v):
@@ -143,9 +143,10 @@ def test_two_cell_burr_needs_scale_two() -> None:
     g = flat_grid()
     g[10, 10:12, 2] += 2.0
     g[11, 10:12, 2] += 2.0
-    paper = miem.detect(g)  # the paper's scale misses the 2x2 burr
+    paper = miem.detect(g, preset="paper")  # the paper's scale misses the 2x2 burr
     assert not paper.abnormal[10:12, 10:12].all()
-    multi = miem.detect(g, scales=(1, 2))
+    assert miem.detect(g).abnormal[10:12, 10:12].all()  # the default has scales (1, 2)
+    multi = miem.detect(g, preset="paper", scales=(1, 2))
     assert multi.abnormal[10:12, 10:12].all()
     assert multi.abnormal.sum() == 4
     assert multi.defects[0].count == 4

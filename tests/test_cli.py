@@ -54,7 +54,10 @@ def test_help_explains_every_option_with_default() -> None:
     for cmd in ("detect", "fit", "simulate", "plot"):
         assert cmd in top.stdout
     out = run("detect", "--help").stdout
-    for opt, default in (("--theta0 DEG", "(default: 75)"), ("--scales N", "(default: 1)"),
+    # the defaults are the recommended preset's (miem.DetectParams)
+    for opt, default in (("--theta0 DEG", "(default: 90)"), ("--scales N", "(default: 1 2)"),
+                         ("--height-tolerance LENGTH|Krms", "(default: 4.5rms)"),
+                         ("--edge-extent CELLS", "(default: 12)"), ("--config FILE", "TOML"),
                          ("--max-gap CELLS", "(default: 1)"), ("--min-step LENGTH", "off"),
                          ("--window CELLS", "21"), ("--max-iterations N", "10"),
                          ("--min-directions N", "all available"), ("--threads N", "all cores"),
@@ -98,7 +101,7 @@ def test_presets_are_the_detectors(tmp_path: Path, scans: dict[str, Path]) -> No
     api = miem.detect(mio.read(scans["crease"]).points, preset=miem.DEFAULT_PRESET,
                       theta0=100.0, height_tolerance="4rms")
     assert doc["parameters"]["theta0"] == 100.0
-    assert doc["parameters"]["window"] == miem.PRESETS[miem.DEFAULT_PRESET]["window"]
+    assert doc["parameters"]["window"] == miem.PRESETS[miem.DEFAULT_PRESET].grid.window
     assert doc["counts"] == api.counts() and len(doc["defects"]) == len(api.defects)
     res = run("detect", scans["crease"], "-o", tmp_path, "--theta0", "auto")
     assert res.returncode == 0, res.stderr
@@ -107,6 +110,58 @@ def test_presets_are_the_detectors(tmp_path: Path, scans: dict[str, Path]) -> No
     assert doc["parameters"]["theta0_auto"] is True
     assert doc["parameters"]["theta0"] == api.params["theta0"]
     assert doc["counts"] == api.counts()
+
+
+def test_every_grid_field_is_an_option_with_unit_and_default() -> None:
+    out = run("detect", "--help").stdout
+    grid = miem.DetectParams.fields("grid")
+    for name, meta in grid.items():
+        opt = "\n  --" + name.replace("_", "-")
+        assert opt in out, name
+        text = " ".join(out.split(opt, 1)[1].split()[:80])
+        assert "(default:" in text, name
+        if meta["unit"]:
+            assert f"[{meta['unit']}]" in text, name
+
+
+def test_config_file_and_miem_config(tmp_path: Path, scans: dict[str, Path]) -> None:
+    from miem.params import load_config
+
+    res = run("config", "--preset", "paper", "--format", "json")
+    assert res.returncode == 0, res.stderr
+    assert miem.DetectParams.from_dict(json.loads(res.stdout)) == miem.PRESETS["paper"]
+    toml = run("config").stdout  # the default preset, TOML, every field with its unit
+    for path in ("grid", "cloud"):
+        for name in miem.DetectParams.fields(path):
+            assert f"\n{name} = " in toml, name
+    assert "[angle]" in toml and "[grid]" in toml and "[cloud]" in toml
+    cfg = tmp_path / "cell.toml"
+    cfg.write_text(toml)
+    assert load_config(cfg) == miem.PRESETS["recommended"]
+    cfg.write_text(toml.replace("edge_extent = 12", "edge_extent = 4"))
+    out = tmp_path / "out"
+    res = run("detect", scans["crease"], "-o", out, "--config", cfg, "--theta0", "100")
+    assert res.returncode == 0, res.stderr
+    doc, _ = read_report(out, "crease")
+    points = mio.read(scans["crease"]).points
+    api = miem.detect(points, theta0=100.0, edge_extent=4)
+    assert (doc["parameters"]["theta0"], doc["parameters"]["edge_extent"]) == (100.0, 4)
+    assert doc["counts"] == api.counts()
+    # --edge-extent, and 'off' for an optional parameter
+    res = run("detect", scans["crease"], "-o", out, "--edge-extent", "3",
+              "--height-tolerance", "off", "--preset", "paper")
+    assert res.returncode == 0, res.stderr
+    doc, _ = read_report(out, "crease")
+    assert doc["parameters"]["edge_extent"] == 3 and doc["parameters"]["height_tolerance"] is None
+    assert doc["parameters"]["preset"] == "paper"
+    assert doc["counts"] == miem.detect(points, preset="paper", edge_extent=3).counts()
+    # a bad file is a usage error naming the field
+    cfg.write_text('windw = 15\n')
+    res = run("detect", scans["crease"], "-o", out, "--config", cfg)
+    assert res.returncode == 2 and "windw" in res.stderr
+    res = run("config", "--preset", "paper", "-o", tmp_path / "p.json", "--format", "json")
+    assert res.returncode == 0
+    assert load_config(tmp_path / "p.json") == miem.PRESETS["paper"]
 
 
 # ---------------------------------------------------------------------------------------------

@@ -89,7 +89,7 @@ def test_every_defect_found_and_the_crease_kept() -> None:
     assert false_alarms.size <= 2, false_alarms  # the crease is not ground
     # the paper's settings miss the tall cluster (its points only see each other), the low
     # cluster and the dome (smooth: no sharp angle)
-    paper = miem.detect_points(pts)
+    paper = miem.detect_points(pts, preset="paper")
     for name in ("tall", "low", "dome"):
         assert not np.all(paper.labels[groups[name]] == A), name
 
@@ -117,13 +117,14 @@ def test_height_test_by_hand() -> None:
     pts = np.column_stack([c.ravel(), r.ravel(), np.zeros(961)]).astype(float)
     i = 15 * 31 + 15
     pts[i, 2] = 0.3
+    plain = {"min_group": 0, "edge_extent": 0.0}  # the height test alone
     for fn in (miem.detect_points, ref.detect_points):
-        off = fn(pts, theta0=90.0, radius=5.0)
+        off = fn(pts, theta0=90.0, radius=5.0, height_tolerance=None, **plain)
         assert not np.any(off.labels == A)
-        on = fn(pts, theta0=90.0, radius=5.0, height_tolerance=0.2)
+        on = fn(pts, theta0=90.0, radius=5.0, height_tolerance=0.2, **plain)
         assert np.flatnonzero(on.labels == A).tolist() == [i]
         assert on.params["height_radius"] == 10.0
-        assert fn(pts, theta0=90.0, radius=5.0, height_tolerance=0.31).labels[i] != A
+        assert fn(pts, theta0=90.0, radius=5.0, height_tolerance=0.31, **plain).labels[i] != A
 
 
 def test_permutation_rigid_motion_offset_float32() -> None:

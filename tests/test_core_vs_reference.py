@@ -93,8 +93,8 @@ def assert_same(core: miem.DetectResult, oracle, atol_h=1e-8) -> None:
                          or "defaults")
 def test_detect_matches_reference(seed: int, params: dict) -> None:
     grid = make_grid(seed)
-    core = miem.detect(grid, **params)
-    oracle = ref.detect(grid, **params)
+    kw = {"preset": "paper", **params}  # the paper's method, then the overrides
+    core, oracle = miem.detect(grid, **kw), ref.detect(grid, **kw)
     assert core.params["theta0"] == pytest.approx(oracle.params["theta0"], abs=1e-9)
     # the scene must exercise the rules: abnormal and invalid cells present (edges with defaults)
     present = set(np.unique(oracle.labels).tolist())
@@ -106,6 +106,17 @@ def test_detect_matches_reference(seed: int, params: dict) -> None:
     assert_same(core, oracle)
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_default_is_the_recommended_preset_and_matches_reference(seed: int) -> None:
+    grid = make_grid(seed)
+    core, oracle = miem.detect(grid), ref.detect(grid)
+    assert core.params["preset"] == "recommended"
+    assert_same(core, oracle)
+    assert_same(miem.detect(grid, preset="recommended"), oracle)
+    assert_same(miem.detect(grid, params=miem.PRESETS["recommended"]), oracle)
+    assert {0, 1, 3} <= set(np.unique(oracle.labels).tolist())
+
+
 def test_height_test_finds_a_smooth_dome_like_the_reference() -> None:
     rng = np.random.default_rng(21)
     yy, xx = np.mgrid[0:60, 0:60] * 0.3
@@ -113,11 +124,11 @@ def test_height_test_finds_a_smooth_dome_like_the_reference() -> None:
     z += np.where(xx > 12, (xx - 12) * np.tan(np.radians(25)), 0.0)  # a designed crease
     grid = np.dstack([xx, yy, z])
     dome = ((xx - 9) ** 2 + (yy - 9) ** 2) < 0.5
-    plain = miem.detect(grid)
+    plain = miem.detect(grid, preset="paper")
     assert not plain.abnormal[dome].any()  # the angle test cannot see it
     for tol in ("4rms", 0.04):
         # theta0='auto' marks the crease EDGE; the height test abstains near designed edges
-        kw = {"theta0": "auto", "height_tolerance": tol}
+        kw = {"preset": "paper", "theta0": "auto", "height_tolerance": tol}
         core, oracle = miem.detect(grid, **kw), ref.detect(grid, **kw)
         assert_same(core, oracle)
         assert (core.labels[:, 40] == miem.EDGE).sum() > 50

@@ -215,8 +215,9 @@ def test_core_equals_reference_on_clouds(points, params):
 @given(grids(), grid_params(stream=True), st.sampled_from([np.float64, np.float32]))
 def test_stream_equals_batch(grid, params, dtype):
     grid = grid.astype(dtype)
-    batch = miem.detect(grid, **params).labels
     stream = miem.ProfileStream(grid.shape[1], dtype=dtype, **params)
+    # batch detection with the stream's parameters (its default has no height test)
+    batch = miem.detect(grid, params=stream.params).labels
     rows = {}
     for profile in grid:
         done = stream.push(profile)

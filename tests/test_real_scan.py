@@ -40,7 +40,7 @@ def test_grid_rebuild_keeps_every_point(scan) -> None:
 
 def test_detect_runs_on_the_real_scan(scan) -> None:
     _, grid = scan
-    res = miem.detect(grid, scales=(1, 2))
+    res = miem.detect(grid, preset="paper", scales=(1, 2))
     finite = np.isfinite(grid).all(axis=2)
     assert ((res.labels == miem.INVALID) == ~finite).all()
     counts = res.counts()
@@ -52,7 +52,7 @@ def test_detect_runs_on_the_real_scan(scan) -> None:
         assert d.kind in ("protrusion", "pit", "isolated")
         assert (res.labels.reshape(-1)[d.indices] == miem.ABNORMAL).all()
     # the same labels whatever the thread count
-    one = miem.detect(grid, scales=(1, 2), num_threads=1)
+    one = miem.detect(grid, preset="paper", scales=(1, 2), num_threads=1)
     np.testing.assert_array_equal(one.labels, res.labels)
 
 

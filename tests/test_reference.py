@@ -7,11 +7,16 @@ earlier run of the reference itself.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
 import pytest
 from miem import reference as ref
+
+# These tests pin the paper's semantics: every call runs preset="paper" (explicit arguments
+# and another preset still win).
+paper_detect = functools.partial(ref.detect, preset="paper")
 
 N, A, E, INV = ref.NORMAL, ref.ABNORMAL, ref.EDGE, ref.INVALID
 
@@ -253,7 +258,7 @@ def test_scan_line_heights_straight_and_step() -> None:
 def test_detect_single_spike(h: float) -> None:
     g = flat_grid(9, 9)
     g[4, 4, 2] = h
-    res = ref.detect(g)
+    res = paper_detect(g)
     expected = np.zeros((9, 9), dtype=np.uint8)
     expected[4, 4] = A
     np.testing.assert_array_equal(res.labels, expected)
@@ -290,7 +295,7 @@ def test_detect_spike_on_tilted_plane() -> None:
     g = flat_grid(9, 9)
     g[..., 2] = 0.1 * g[..., 0] + 0.2 * g[..., 1]
     g[4, 4, 2] += 3.0
-    res = ref.detect(g)
+    res = paper_detect(g)
     assert res.labels[4, 4] == A
     assert np.count_nonzero(res.labels) == 1
     # a vertical offset of 3 over the plane z = 0.1 x + 0.2 y is 3 n_z along its normal
@@ -307,7 +312,7 @@ def test_detect_spike_neighbours_edge_then_normal() -> None:
     # and they become NORMAL again.
     g = flat_grid(9, 9)
     g[4, 4, 2] = 5.0
-    one = ref.detect(g, theta0=120.0, max_iterations=1)
+    one = paper_detect(g, theta0=120.0, max_iterations=1)
     assert one.iterations == 1
     expected_flags = {
         (4, 3): 1, (4, 5): 1, (3, 4): 2, (5, 4): 2,
@@ -321,7 +326,7 @@ def test_detect_spike_neighbours_edge_then_normal() -> None:
     assert one.labels[4, 4] == A
     assert np.count_nonzero(one.labels) == 9
 
-    full = ref.detect(g, theta0=120.0)
+    full = paper_detect(g, theta0=120.0)
     assert full.iterations == 2
     assert np.count_nonzero(full.labels) == 1 and full.labels[4, 4] == A
     assert np.count_nonzero(full.flags) == 1 and full.flags[4, 4] == 15
@@ -335,7 +340,7 @@ def test_detect_burr_two_wide_needs_scale_two() -> None:
     g[4, 4, 2] = g[4, 5, 2] = 4.0
     # scale 1: along the profile each burr cell has a flat and a raised neighbour (104 deg):
     # 3 of 4 directions flagged -> EDGE (the paper misses 2-wide defects)
-    res1 = ref.detect(g)
+    res1 = paper_detect(g)
     assert res1.iterations == 1
     assert res1.labels[4, 4] == E and res1.labels[4, 5] == E
     assert res1.flags[4, 4] == 2 | 4 | 8 and res1.flags[4, 5] == 2 | 4 | 8
@@ -344,7 +349,7 @@ def test_detect_burr_two_wide_needs_scale_two() -> None:
     assert res1.height[4, 4] == pytest.approx(4.0, abs=1e-12)  # EDGE is not in the window plane
 
     # scale 2 along the profile: (-2, 0, -4) . (2, 0, -4) / 20 = 0.6 -> 53 deg, flagged
-    res2 = ref.detect(g, scales=(1, 2))
+    res2 = paper_detect(g, scales=(1, 2))
     assert res2.iterations == 2
     assert res2.labels[4, 4] == A and res2.labels[4, 5] == A
     assert np.count_nonzero(res2.labels) == 2
@@ -365,7 +370,7 @@ def test_detect_ridge_is_edge_and_min_directions() -> None:
     # on both diagonals (acos(7/11) = 50.5 deg) but straight across profiles: EDGE.
     g = flat_grid(7, 9)
     g[..., 2] = -3.0 * np.abs(g[..., 0] - 4.0)
-    res = ref.detect(g)
+    res = paper_detect(g)
     assert res.iterations == 1
     np.testing.assert_array_equal(res.labels[:, 4], E)
     np.testing.assert_array_equal(res.flags[1:-1, 4], 1 | 4 | 8)
@@ -374,7 +379,7 @@ def test_detect_ridge_is_edge_and_min_directions() -> None:
     assert res.angle[3, 4] == pytest.approx(math.degrees(2 * math.atan(1 / 3)))
     assert res.defects == []
 
-    res3 = ref.detect(g, min_directions=3)
+    res3 = paper_detect(g, min_directions=3)
     np.testing.assert_array_equal(res3.labels[1:-1, 4], A)
     np.testing.assert_array_equal(res3.labels[[0, -1], 4], E)  # a == 1 never makes ABNORMAL
     assert np.count_nonzero(res3.labels) == 7
@@ -385,7 +390,7 @@ def test_detect_lone_point_in_nan_is_isolated_dust() -> None:
     g = np.full((12, 12, 3), np.nan)
     g[0:3, 0:3] = flat_grid(3, 3)
     g[9, 9] = [9.0, 9.0, 2.0]
-    res = ref.detect(g)
+    res = paper_detect(g)
     assert res.labels[9, 9] == A
     assert res.flags[9, 9] == 0 and np.isnan(res.angle[9, 9])
     np.testing.assert_array_equal(res.labels[0:3, 0:3], N)
@@ -394,7 +399,7 @@ def test_detect_lone_point_in_nan_is_isolated_dust() -> None:
     (d,) = res.defects
     assert d.kind == "isolated" and d.peak_height == pytest.approx(2.0)
 
-    small = ref.detect(g, window=3)  # no NORMAL cell in the 3 x 3 window of the lone point
+    small = paper_detect(g, window=3)  # no NORMAL cell in the 3 x 3 window of the lone point
     assert np.isnan(small.height[9, 9])
     (d,) = small.defects
     assert d.kind == "isolated"
@@ -407,10 +412,10 @@ def test_detect_isolation_depends_on_max_gap() -> None:
     g = np.full((7, 7, 3), np.nan)
     g[0:3, 0:3] = flat_grid(3, 3)
     g[2, 4] = [4.0, 2.0, 0.0]  # two cells from (2, 2), one NaN in between
-    res = ref.detect(g, max_gap=1)
+    res = paper_detect(g, max_gap=1)
     assert res.labels[2, 4] == N  # not isolated; no direction has both neighbours
     assert res.flags[2, 4] == 0 and np.isnan(res.angle[2, 4])
-    res0 = ref.detect(g, max_gap=0)
+    res0 = paper_detect(g, max_gap=0)
     assert res0.labels[2, 4] == A
 
 
@@ -418,7 +423,7 @@ def test_detect_max_gap_bridges_dropouts() -> None:
     g = flat_grid(5, 9)
     g[2, 4] = np.nan
     g[2, 2, 2] = 0.25  # gentle bump, never flagged
-    res = ref.detect(g)
+    res = paper_detect(g)
     assert res.labels[2, 4] == INV
     assert res.flags[2, 4] == 0 and np.isnan(res.angle[2, 4]) and np.isnan(res.height[2, 4])
     assert np.count_nonzero(res.labels) == 1
@@ -433,14 +438,14 @@ def test_detect_min_step() -> None:
     # are 10 cells (0.5) away: 2 atan(0.5 / 0.1) = 157 deg, not flagged.
     g = flat_grid(5, 40, dx=0.05, dy=1.0)
     g[2, 20, 2] = 0.1
-    res = ref.detect(g)
+    res = paper_detect(g)
     assert res.labels[2, 20] == E and res.flags[2, 20] == 1
     assert res.angle[2, 20] == pytest.approx(math.degrees(2 * math.atan(0.5)), abs=1e-9)
-    res_s = ref.detect(g, min_step=0.5)
+    res_s = paper_detect(g, min_step=0.5)
     assert res_s.labels[2, 20] == N and res_s.flags[2, 20] == 0
     assert res_s.angle[2, 20] == pytest.approx(math.degrees(2 * math.atan(5.0)), abs=1e-9)
     # max_reach too short to reach 0.5 away: along the profile becomes unavailable
-    res_r = ref.detect(g, min_step=0.5, max_reach=3)
+    res_r = paper_detect(g, min_step=0.5, max_reach=3)
     assert res_r.labels[2, 20] == N
     assert res_r.angle[2, 20] > 160.0
 
@@ -450,7 +455,7 @@ def test_detect_defect_order_and_kinds() -> None:
     g[3, 3, 2] = 5.0
     g[10, 10, 2] = -8.0
     g[10, 3, 2] = 5.0
-    res = ref.detect(g)
+    res = paper_detect(g)
     assert [d.id for d in res.defects] == [0, 1, 2]
     assert [int(d.indices[0]) for d in res.defects] == [10 * 15 + 10, 3 * 15 + 3, 10 * 15 + 3]
     assert [d.kind for d in res.defects] == ["pit", "protrusion", "protrusion"]
@@ -464,7 +469,7 @@ def test_detect_invalid_cells() -> None:
     g[1, 2] = np.nan
     g[5, 5, 0] = np.inf
     g[7, 1, 1] = -np.inf
-    res = ref.detect(g)
+    res = paper_detect(g)
     for r, c in [(1, 2), (5, 5), (7, 1)]:
         assert res.labels[r, c] == INV
         assert res.flags[r, c] == 0
@@ -510,13 +515,13 @@ def test_detect_invalid_cells() -> None:
 )
 def test_detect_bad_parameters(kwargs: dict, name: str) -> None:
     with pytest.raises(ValueError, match=name):
-        ref.detect(flat_grid(5, 5), **kwargs)
+        paper_detect(flat_grid(5, 5), **kwargs)
 
 
 def test_detect_accepts_numpy_scalars() -> None:
     g = flat_grid(7, 7)
     g[3, 3, 2] = 5.0
-    res = ref.detect(
+    res = paper_detect(
         g,
         theta0=np.float32(75.0),
         scales=np.array([1, 2]),
@@ -528,7 +533,7 @@ def test_detect_accepts_numpy_scalars() -> None:
         max_reach=np.int64(2),
     )
     assert res.labels[3, 3] == A
-    np.testing.assert_array_equal(res.labels, ref.detect(g, scales=[1, 2], window=5).labels)
+    np.testing.assert_array_equal(res.labels, paper_detect(g, scales=[1, 2], window=5).labels)
 
 
 @pytest.mark.parametrize(
@@ -545,7 +550,7 @@ def test_detect_accepts_numpy_scalars() -> None:
 )
 def test_detect_bad_grid(grid: np.ndarray) -> None:
     with pytest.raises(ValueError, match="grid"):
-        ref.detect(grid)
+        paper_detect(grid)
 
 
 def test_detect_does_not_modify_input() -> None:
@@ -555,11 +560,11 @@ def test_detect_does_not_modify_input() -> None:
     g[rng.random((16, 16)) < 0.1] = np.nan
     g[2, 3, 1] = np.inf
     copy = g.copy()
-    ref.detect(g, scales=(1, 2), min_step=0.5)
+    paper_detect(g, scales=(1, 2), min_step=0.5)
     np.testing.assert_array_equal(g, copy)
     g32 = g.astype(np.float32)
     copy32 = g32.copy()
-    ref.detect(g32)
+    paper_detect(g32)
     np.testing.assert_array_equal(g32, copy32)
 
 
@@ -569,8 +574,8 @@ def test_detect_float32_same_as_float64_of_same_values() -> None:
     g[..., 2] = rng.normal(0, 0.4, (24, 20))
     g[rng.random((24, 20)) < 0.05] = np.nan
     g32 = g.astype(np.float32)
-    r32 = ref.detect(g32, scales=(1, 2))
-    r64 = ref.detect(g32.astype(np.float64), scales=(1, 2))
+    r32 = paper_detect(g32, scales=(1, 2))
+    r64 = paper_detect(g32.astype(np.float64), scales=(1, 2))
     assert np.count_nonzero(r64.labels == A) > 0
     np.testing.assert_array_equal(r32.labels, r64.labels)
     np.testing.assert_array_equal(r32.flags, r64.flags)
@@ -578,7 +583,7 @@ def test_detect_float32_same_as_float64_of_same_values() -> None:
     np.testing.assert_array_equal(r32.height, r64.height)
     # integer input is read as float64
     gi = np.rint(np.nan_to_num(g, nan=0.0) * 8).astype(np.int64)
-    np.testing.assert_array_equal(ref.detect(gi).labels, ref.detect(gi.astype(np.float64)).labels)
+    np.testing.assert_array_equal(paper_detect(gi).labels, paper_detect(gi.astype(np.float64)).labels)
 
 
 def test_detect_large_offset_same_labels() -> None:
@@ -591,8 +596,8 @@ def test_detect_large_offset_same_labels() -> None:
     g[spikes, 2] += rng.choice([-4.0, 4.0], np.count_nonzero(spikes))
     g[rng.random((32, 32)) < 0.03] = np.nan
     offset = np.array([1e5, -2e5, 1e5])
-    r0 = ref.detect(g, scales=(1, 2))
-    r1 = ref.detect(g + offset, scales=(1, 2))
+    r0 = paper_detect(g, scales=(1, 2))
+    r1 = paper_detect(g + offset, scales=(1, 2))
     assert np.count_nonzero(r0.labels == A) > 0
     np.testing.assert_array_equal(r1.labels, r0.labels)
     np.testing.assert_array_equal(r1.flags, r0.flags)
@@ -753,7 +758,7 @@ def test_detect_matches_literal_transcription(kwargs: dict) -> None:
     params.update(kwargs)
     for h, w in [(12, 11), (9, 17)]:
         g = _random_grid(rng, h, w)
-        res = ref.detect(g, **params)
+        res = paper_detect(g, **params)
         labels, flags, angle, passes = _literal_labels(g, **params)
         np.testing.assert_array_equal(res.labels, labels)
         np.testing.assert_array_equal(res.flags, flags)
@@ -766,7 +771,7 @@ def test_window_heights_match_per_cell_fit() -> None:
     g = _random_grid(rng, 13, 10)
     g[..., 2] += 0.3 * g[..., 0]
     for window in (3, 5, 21):
-        res = ref.detect(g, window=window)
+        res = paper_detect(g, window=window)
         half = window // 2
         for r in range(13):
             for c in range(10):
@@ -788,7 +793,7 @@ def test_defects_match_scipy_components() -> None:
     ndimage = pytest.importorskip("scipy.ndimage")
     rng = np.random.default_rng(15)
     g = _random_grid(rng, 30, 30)
-    res = ref.detect(g, scales=(1, 2))
+    res = paper_detect(g, scales=(1, 2))
     lab, n = ndimage.label(res.labels == A, structure=np.ones((3, 3), dtype=int))
     assert n == len(res.defects) and n > 3
     comps = sorted(tuple(np.flatnonzero(lab.ravel() == i + 1)) for i in range(n))

@@ -9,11 +9,16 @@ run of the reference itself.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
 import pytest
 from miem import reference as ref
+
+# The rules beyond the paper, each on top of the paper's method: preset="paper" unless a test
+# gives another preset.
+paper_detect = functools.partial(ref.detect, preset="paper")
 
 N, A, E, INV = ref.NORMAL, ref.ABNORMAL, ref.EDGE, ref.INVALID
 
@@ -72,7 +77,7 @@ def test_auto_noise_free_plane_is_170() -> None:
     # sigma = 0, 180 - 0 clipped to auto_max.
     g = flat_grid(9, 11)
     g[..., 2] = 0.5 * g[..., 0] - 0.25 * g[..., 1] + 3.0
-    res = ref.detect(g, theta0="auto")
+    res = paper_detect(g, theta0="auto")
     assert res.params["theta0"] == 170.0
     assert res.params["theta0_auto"] is True
     assert isinstance(res.params["theta0"], float)
@@ -87,7 +92,7 @@ def test_auto_even_count_median_of_kinked_profile() -> None:
     # Four values, sorted 0 < c3 < c2 < c4: the median is the mean of the two middle ones,
     # (atan(1/16) + atan(1/8) - atan(1/16)) / 2 = atan(1/8) / 2 = 3.5625 deg.
     g = profile([0.0, 0.0, 0.0, 1 / 16, 3 / 16, 3 / 16 - 1.0])
-    res = ref.detect(g, theta0="auto")
+    res = paper_detect(g, theta0="auto")
     at16, at8 = math.degrees(math.atan(1 / 16)), math.degrees(math.atan(1 / 8))
     np.testing.assert_allclose(
         180.0 - res.angle[0, 1:5], [0.0, at16, at8 - at16, at8 + 45.0], atol=1e-9
@@ -106,13 +111,13 @@ def test_auto_odd_count_and_clip_to_75() -> None:
     # atan(1/4) - atan(1/16), 2 atan(1/4), i.e. 0, 0, 3.58, 10.46, 28.07: the median is the
     # middle one, atan(1/16), and theta0 = 180 - 6 * 5.30 = 148.2.
     g = profile([0.0, 0.0, 0.0, 0.0, 1 / 16, 5 / 16, 1 / 16])
-    res = ref.detect(g, theta0="auto")
+    res = paper_detect(g, theta0="auto")
     expected = auto_formula(math.degrees(math.atan(1 / 16)))
     assert 75.0 < expected < 170.0
     assert res.params["theta0"] == pytest.approx(expected, abs=1e-9)
     # Slopes 0, 1/4, 1, -1: devs atan(1/4), 45 - atan(1/4), 90, i.e. 14.04, 30.96, 90: the
     # median 30.96 gives 180 - 6 * 45.9 < 0 -> clipped to 75.
-    res2 = ref.detect(profile([0.0, 0.0, 0.25, 1.25, 0.25]), theta0="auto")
+    res2 = paper_detect(profile([0.0, 0.0, 0.25, 1.25, 0.25]), theta0="auto")
     assert res2.params["theta0"] == 75.0
 
 
@@ -123,7 +128,7 @@ def test_auto_checkerboard_known_angles() -> None:
     # the corners have no direction (NaN, not counted). So every counted dev is the same.
     e = 0.02
     g = checkerboard(10, 13, e)
-    res = ref.detect(g, theta0="auto")
+    res = paper_detect(g, theta0="auto")
     dev = 180.0 - math.degrees(2.0 * math.atan(1.0 / (2.0 * e)))
     assert res.params["theta0"] == pytest.approx(auto_formula(dev), abs=1e-9)  # 139.25 deg
     assert np.isnan(res.angle[0, 0]) and np.isnan(res.angle[-1, -1])
@@ -134,7 +139,7 @@ def test_auto_no_finite_angle_is_75() -> None:
     # 2 x 2: no cell has neighbours on both sides in any direction.
     g = flat_grid(2, 2)
     g[1, 1, 2] = 0.5
-    res = ref.detect(g, theta0="auto")
+    res = paper_detect(g, theta0="auto")
     assert res.params["theta0"] == 75.0
     assert np.all(np.isnan(res.angle))
     np.testing.assert_array_equal(res.labels, N)
@@ -161,14 +166,14 @@ def test_auto_is_formula_of_pass_one_angles(kwargs: dict) -> None:
     g[rng.random((30, 26)) < 0.08] = np.nan
     g[20:26, 0:6] = np.nan
     g[22, 2] = [1.0, 22.0, 0.3]  # lone return
-    one = ref.detect(g, theta0=100.0, max_iterations=1, **kwargs)
+    one = paper_detect(g, theta0=100.0, max_iterations=1, **kwargs)
     angles = one.angle[np.isfinite(one.angle)]
     expected = auto_formula(float(np.median(180.0 - angles)))
     assert 75.0 < expected < 170.0
-    res = ref.detect(g, theta0="auto", **kwargs)
+    res = paper_detect(g, theta0="auto", **kwargs)
     assert res.params["theta0"] == pytest.approx(expected, rel=1e-12)
     # ... and it is the threshold actually used
-    fixed = ref.detect(g, theta0=res.params["theta0"], **kwargs)
+    fixed = paper_detect(g, theta0=res.params["theta0"], **kwargs)
     np.testing.assert_array_equal(res.labels, fixed.labels)
     np.testing.assert_array_equal(res.flags, fixed.flags)
     assert fixed.params["theta0_auto"] is False
@@ -179,9 +184,9 @@ def test_auto_is_computed_once_before_pass_one() -> None:
     # pass-1 angles of every finite cell (spike included).
     g = checkerboard(11, 11, 0.02)
     g[5, 5, 2] = 5.0
-    res = ref.detect(g, theta0="auto")
+    res = paper_detect(g, theta0="auto")
     assert res.iterations == 2 and res.labels[5, 5] == A
-    one = ref.detect(g, theta0=90.0, max_iterations=1)
+    one = paper_detect(g, theta0=90.0, max_iterations=1)
     dev = 180.0 - one.angle[np.isfinite(one.angle)]
     assert res.params["theta0"] == pytest.approx(auto_formula(float(np.median(dev))), rel=1e-12)
 
@@ -208,8 +213,8 @@ def raised_cell() -> np.ndarray:
 
 def test_height_absolute_by_hand() -> None:
     g = raised_cell()
-    assert np.count_nonzero(ref.detect(g, window=3).labels) == 0
-    res = ref.detect(g, window=3, height_tolerance=0.088)  # 8b/9 = 0.0889 > 0.088
+    assert np.count_nonzero(paper_detect(g, window=3).labels) == 0
+    res = paper_detect(g, window=3, height_tolerance=0.088)  # 8b/9 = 0.0889 > 0.088
     expected = np.zeros((9, 9), dtype=np.uint8)
     expected[4, 4] = A
     np.testing.assert_array_equal(res.labels, expected)
@@ -220,7 +225,7 @@ def test_height_absolute_by_hand() -> None:
     (d,) = res.defects
     assert d.kind == "protrusion" and d.peak_height == pytest.approx(B, abs=1e-12)
 
-    res2 = ref.detect(g, window=3, height_tolerance=0.09)  # 0.0889 < 0.09
+    res2 = paper_detect(g, window=3, height_tolerance=0.09)  # 0.0889 < 0.09
     np.testing.assert_array_equal(res2.labels, N)
     assert res2.iterations == 2  # 1 angle pass + 1 height pass
     # the window plane including the raised cell: h = 8b/9
@@ -229,11 +234,11 @@ def test_height_absolute_by_hand() -> None:
 
 def test_height_rms_by_hand() -> None:
     g = raised_cell()
-    res = ref.detect(g, window=3, height_tolerance="2.5rms")  # sqrt(8) = 2.83 > 2.5
+    res = paper_detect(g, window=3, height_tolerance="2.5rms")  # sqrt(8) = 2.83 > 2.5
     assert np.count_nonzero(res.labels) == 1 and res.labels[4, 4] == A
     assert res.iterations == 3
     assert res.params["height_tolerance"] == "2.5rms"
-    res3 = ref.detect(g, window=3, height_tolerance="3rms")  # 2.83 < 3
+    res3 = paper_detect(g, window=3, height_tolerance="3rms")  # 2.83 < 3
     np.testing.assert_array_equal(res3.labels, N)
     assert res3.iterations == 2
     # the ratio does not depend on b (while the window's z scatter 8 b^2 / 9 stays below its x
@@ -241,11 +246,11 @@ def test_height_rms_by_hand() -> None:
     # still not flagged at 75 deg) gives the same verdicts; the absolute form scales with b
     g_big = raised_cell()
     g_big[4, 4, 2] = 10.0 * B
-    assert ref.detect(g_big, window=3).labels[4, 4] == N
-    assert ref.detect(g_big, window=3, height_tolerance="2.5rms").labels[4, 4] == A
-    assert ref.detect(g_big, window=3, height_tolerance="3rms").labels[4, 4] == N
-    assert ref.detect(g_big, window=3, height_tolerance=0.88).labels[4, 4] == A
-    assert ref.detect(g_big, window=3, height_tolerance=0.9).labels[4, 4] == N
+    assert paper_detect(g_big, window=3).labels[4, 4] == N
+    assert paper_detect(g_big, window=3, height_tolerance="2.5rms").labels[4, 4] == A
+    assert paper_detect(g_big, window=3, height_tolerance="3rms").labels[4, 4] == N
+    assert paper_detect(g_big, window=3, height_tolerance=0.88).labels[4, 4] == A
+    assert paper_detect(g_big, window=3, height_tolerance=0.9).labels[4, 4] == N
 
 
 @pytest.mark.parametrize("tol", ["4rms", "1e-6rms", 1e-6])
@@ -256,7 +261,7 @@ def test_height_exact_tilted_plane_far_away_flags_nothing(tol: float | str) -> N
     g[..., 0] += 1234.5
     g[..., 1] -= 2345.25
     g[..., 2] = 0.1 * g[..., 0] - 0.37 * g[..., 1] + 999.123
-    res = ref.detect(g, window=7, height_tolerance=tol)
+    res = paper_detect(g, window=7, height_tolerance=tol)
     np.testing.assert_array_equal(res.labels, N)
     assert res.iterations == 2
 
@@ -269,7 +274,7 @@ def test_height_exact_tilted_plane_far_away_flags_nothing(tol: float | str) -> N
 @pytest.mark.parametrize("theta0", [75.0, "auto"])
 def test_height_catches_dome_not_fold(theta0: float | str) -> None:
     g = fold_dome_scene()
-    base = ref.detect(g, theta0=theta0, window=15)
+    base = paper_detect(g, theta0=theta0, window=15)
     # The angle test misses the dome (its angles are 172 deg and more) whatever the threshold:
     # at 75 deg nothing is flagged; "auto" (checkerboard dev 4.58 deg -> 139.25 deg) flags the
     # fold only, as a designed edge.
@@ -283,7 +288,7 @@ def test_height_catches_dome_not_fold(theta0: float | str) -> None:
     else:
         np.testing.assert_array_equal(base.labels, N)
 
-    res = ref.detect(g, theta0=theta0, window=15, height_tolerance="3rms")
+    res = paper_detect(g, theta0=theta0, window=15, height_tolerance="3rms")
     abn = np.argwhere(res.labels == A)
     # the dome is caught: its top, and nothing farther than 2 cells from it ...
     assert res.labels[12, 34] == A
@@ -308,16 +313,16 @@ def test_height_absolute_is_scale_blind_rms_is_not() -> None:
     # The absolute form with a tolerance just above the noise (2.5 e) also catches the dome. The
     # fold is EDGE with theta0="auto", so cells whose window holds it are not tested at all.
     g = fold_dome_scene()
-    res = ref.detect(g, theta0="auto", window=15, height_tolerance=0.05)
+    res = paper_detect(g, theta0="auto", window=15, height_tolerance=0.05)
     assert res.labels[12, 34] == A
     assert np.count_nonzero(res.labels[:, 3:18] == A) == 0  # within 7 cells of the fold
     assert np.all(res.labels[:, 10] == E)  # the fold itself is EDGE and stays EDGE
     # with the fold NORMAL (theta0 = 75) the absolute test takes it as well
-    res75 = ref.detect(g, theta0=75.0, window=15, height_tolerance=0.05)
+    res75 = paper_detect(g, theta0=75.0, window=15, height_tolerance=0.05)
     assert np.any(res75.labels[:, 10] == A)
     # the rms form leaves the whole fold side alone, at any usual k
     for k in ("2.5rms", "3rms", "4rms"):
-        res_k = ref.detect(g, theta0=75.0, window=15, height_tolerance=k)
+        res_k = paper_detect(g, theta0=75.0, window=15, height_tolerance=k)
         assert np.count_nonzero(res_k.labels[:, :24]) == 0
 
 
@@ -327,10 +332,10 @@ def test_height_fold_without_noise_rms_bound() -> None:
     # columns: sqrt(15) < 4 and "4rms" can never flag it; the absolute test does.
     g = flat_grid(16, 30)
     g[..., 2] = np.where(g[..., 0] > 12, g[..., 0] - 12.0, 0.0)
-    res = ref.detect(g, window=15, height_tolerance="4rms")
+    res = paper_detect(g, window=15, height_tolerance="4rms")
     np.testing.assert_array_equal(res.labels, N)
     assert res.iterations == 2
-    res_abs = ref.detect(g, window=15, height_tolerance=0.25)
+    res_abs = paper_detect(g, window=15, height_tolerance=0.25)
     assert np.count_nonzero(res_abs.labels == A) > 0
 
 
@@ -339,10 +344,10 @@ def test_height_never_changes_edge_cells() -> None:
     # of the NORMAL cells; the height test leaves it EDGE and the rest is exactly flat.
     g = flat_grid(9, 9)
     g[4, 4, 2] = g[4, 5, 2] = 4.0
-    base = ref.detect(g)
+    base = paper_detect(g)
     assert base.labels[4, 4] == E and base.labels[4, 5] == E
     for tol in (0.5, 1e-3, "4rms", "0.5rms"):
-        res = ref.detect(g, height_tolerance=tol)
+        res = paper_detect(g, height_tolerance=tol)
         np.testing.assert_array_equal(res.labels, base.labels)
         np.testing.assert_array_equal(res.flags, base.flags)
         assert res.iterations == 2
@@ -352,10 +357,10 @@ def test_height_never_changes_edge_cells() -> None:
     # (as at theta0 = 75, where the fold is NORMAL) abstains wherever the fold is in the window
     fold = flat_grid(12, 20)
     fold[..., 2] = np.where(fold[..., 0] > 8, fold[..., 0] - 8.0, 0.0)
-    res = ref.detect(fold, theta0=150.0, window=9, height_tolerance=0.01)
+    res = paper_detect(fold, theta0=150.0, window=9, height_tolerance=0.01)
     np.testing.assert_array_equal(res.labels[:, 8], E)
     assert np.count_nonzero(res.labels == A) == 0
-    assert np.count_nonzero(ref.detect(fold, window=9, height_tolerance=0.01).labels == A) > 0
+    assert np.count_nonzero(paper_detect(fold, window=9, height_tolerance=0.01).labels == A) > 0
 
 
 def test_height_ignores_invalid_and_keeps_abnormal() -> None:
@@ -366,9 +371,9 @@ def test_height_ignores_invalid_and_keeps_abnormal() -> None:
     g[10, 10, 2] = B
     g[7, 2] = np.nan
     g[12, 6, 0] = np.inf
-    base = ref.detect(g, window=3)
+    base = paper_detect(g, window=3)
     assert base.iterations == 2 and np.count_nonzero(base.labels == A) == 1
-    res = ref.detect(g, window=3, height_tolerance=0.08)
+    res = paper_detect(g, window=3, height_tolerance=0.08)
     assert res.iterations == 4
     assert res.labels[3, 3] == A and res.labels[10, 10] == A
     assert res.labels[7, 2] == INV and res.labels[12, 6] == INV
@@ -386,13 +391,13 @@ def test_height_ignores_invalid_and_keeps_abnormal() -> None:
 def test_height_passes_cascade_and_max_iterations_caps_them_separately() -> None:
     g = fold_dome_scene()
     kw = {"theta0": 75.0, "window": 15, "height_tolerance": "3rms"}
-    full = ref.detect(g, **kw)
+    full = paper_detect(g, **kw)
     n_height = full.iterations - 1  # one angle pass (nothing ABNORMAL)
     assert n_height >= 3  # removing the top exposes the shoulders, and so on
     full_abn = full.labels == A
     prev = np.zeros_like(full_abn)
     for cap in range(1, n_height):
-        res = ref.detect(g, max_iterations=cap, **kw)
+        res = paper_detect(g, max_iterations=cap, **kw)
         # max_iterations caps the height passes on their own: even max_iterations = 1 runs one
         # angle pass and then one height pass
         assert res.iterations == 1 + cap
@@ -403,7 +408,7 @@ def test_height_passes_cascade_and_max_iterations_caps_them_separately() -> None
         prev = abn
     # the last pass of the full run found nothing new (and was counted)
     np.testing.assert_array_equal(prev, full_abn)
-    res = ref.detect(g, max_iterations=n_height, **kw)
+    res = paper_detect(g, max_iterations=n_height, **kw)
     assert res.iterations == full.iterations
     np.testing.assert_array_equal(res.labels, full.labels)
 
@@ -413,7 +418,7 @@ def test_height_after_capped_angle_passes() -> None:
     # one height pass follows and changes none of them.
     g = flat_grid(9, 9)
     g[4, 4, 2] = 5.0
-    res = ref.detect(g, theta0=120.0, max_iterations=1, height_tolerance=0.5)
+    res = paper_detect(g, theta0=120.0, max_iterations=1, height_tolerance=0.5)
     assert res.iterations == 2
     assert res.labels[4, 4] == A
     assert np.count_nonzero(res.labels == E) == 8
@@ -425,18 +430,13 @@ def test_height_after_capped_angle_passes() -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def test_preset_paper_is_the_default_setting() -> None:
+def test_preset_paper_is_the_paper_and_recommended_is_the_default() -> None:
     rng = np.random.default_rng(30)
     g = flat_grid(16, 16)
     g[..., 2] = rng.normal(0.0, 0.1, (16, 16))
     g[rng.random((16, 16)) < 0.05, 2] += 3.0
-    plain = ref.detect(g)
     paper = ref.detect(g, preset="paper")
-    np.testing.assert_array_equal(paper.labels, plain.labels)
-    np.testing.assert_array_equal(paper.flags, plain.flags)
-    np.testing.assert_array_equal(paper.height, plain.height)
-    assert paper.iterations == plain.iterations
-    assert paper.params["preset"] == "paper" and plain.params["preset"] is None
+    assert paper.params["preset"] == "paper"
     expected = {
         "theta0": 75.0,
         "theta0_auto": False,
@@ -449,17 +449,29 @@ def test_preset_paper_is_the_default_setting() -> None:
         "max_reach": 32,
         "height_tolerance": None,
     }
-    for params in (plain.params, paper.params):
+    assert {k: paper.params[k] for k in expected} == expected
+    # SPEC "Parameters": without a preset, "recommended" applies
+    plain = ref.detect(g)
+    rec = ref.detect(g, preset="recommended")
+    np.testing.assert_array_equal(rec.labels, plain.labels)
+    np.testing.assert_array_equal(rec.flags, plain.flags)
+    np.testing.assert_array_equal(rec.height, plain.height)
+    assert rec.iterations == plain.iterations and plain.params["preset"] is None
+    expected.update(theta0=90.0, scales=(1, 2), height_tolerance="4.5rms")
+    for params in (plain.params, rec.params):
         assert {k: params[k] for k in expected} == expected
+    explicit = ref.detect(g, theta0=90.0, scales=(1, 2), height_tolerance="4.5rms",
+                          edge_extent=12)
+    np.testing.assert_array_equal(explicit.labels, plain.labels)
 
 
 def test_explicit_arguments_override_preset() -> None:
     g = flat_grid(9, 9)
     g[4, 4, 2] = 5.0
-    res = ref.detect(g, preset="paper", theta0=120.0, max_iterations=1)
+    res = paper_detect(g, preset="paper", theta0=120.0, max_iterations=1)
     assert res.params["theta0"] == 120.0 and res.params["max_iterations"] == 1
     assert res.params["window"] == 21
-    np.testing.assert_array_equal(res.labels, ref.detect(g, theta0=120.0, max_iterations=1).labels)
+    np.testing.assert_array_equal(res.labels, paper_detect(g, theta0=120.0, max_iterations=1).labels)
     assert np.count_nonzero(res.labels == E) == 8
 
 
@@ -479,10 +491,10 @@ def test_explicit_default_values_win_over_preset(monkeypatch: pytest.MonkeyPatch
     monkeypatch.setitem(ref._PRESETS, "test", table)
     g = flat_grid(9, 9)
     g[4, 4, 2] = 5.0
-    res = ref.detect(g, preset="test")
+    res = paper_detect(g, preset="test")
     assert {k: res.params[k] for k in table} == table
     assert res.params["max_gap"] == 1 and res.params["max_reach"] == 32
-    over = ref.detect(
+    over = paper_detect(
         g,
         preset="test",
         theta0=75.0,
@@ -494,18 +506,18 @@ def test_explicit_default_values_win_over_preset(monkeypatch: pytest.MonkeyPatch
         height_tolerance=None,
     )
     assert over.params["preset"] == "test"
-    plain = ref.detect(g)
+    plain = paper_detect(g)
     for k in table:
         assert over.params[k] == plain.params[k]
     np.testing.assert_array_equal(over.labels, plain.labels)
     assert over.iterations == plain.iterations == 2
     # half and half
-    mixed = ref.detect(g, preset="test", min_step=None, height_tolerance=None)
+    mixed = paper_detect(g, preset="test", min_step=None, height_tolerance=None)
     assert mixed.params["min_step"] is None and mixed.params["height_tolerance"] is None
     assert mixed.params["theta0"] == 120.0 and mixed.params["window"] == 5
     np.testing.assert_array_equal(
         mixed.labels,
-        ref.detect(
+        paper_detect(
             g, theta0=120.0, scales=(1, 2), min_directions=3, max_iterations=1, window=5
         ).labels,
     )
@@ -514,12 +526,12 @@ def test_explicit_default_values_win_over_preset(monkeypatch: pytest.MonkeyPatch
 def test_preset_theta0_auto_and_positional_arguments(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(ref._PRESETS, "auto", {"theta0": "auto"})
     g = checkerboard(10, 13, 0.02)
-    res = ref.detect(g, preset="auto")
+    res = paper_detect(g, preset="auto")
     assert res.params["theta0_auto"] is True
-    assert res.params["theta0"] == pytest.approx(ref.detect(g, theta0="auto").params["theta0"])
-    assert ref.detect(g, 80.0, preset="auto").params["theta0"] == 80.0
+    assert res.params["theta0"] == pytest.approx(paper_detect(g, theta0="auto").params["theta0"])
+    assert paper_detect(g, 80.0, preset="auto").params["theta0"] == 80.0
     # the historical positional order still works
-    pos = ref.detect(g, 75.0, (1,), 1, None, None, 10, 21, 32)
+    pos = paper_detect(g, 75.0, (1,), 1, None, None, 10, 21, 32)
     assert pos.params["theta0"] == 75.0
 
 
@@ -571,7 +583,7 @@ def test_preset_theta0_auto_and_positional_arguments(monkeypatch: pytest.MonkeyP
 )
 def test_bad_values(kwargs: dict, name: str) -> None:
     with pytest.raises(ValueError, match=name):
-        ref.detect(flat_grid(5, 5), **kwargs)
+        paper_detect(flat_grid(5, 5), **kwargs)
 
 
 @pytest.mark.parametrize(
@@ -590,7 +602,7 @@ def test_bad_values(kwargs: dict, name: str) -> None:
     ],
 )
 def test_good_height_tolerance_values(tol: object, recorded: object) -> None:
-    res = ref.detect(flat_grid(5, 5), height_tolerance=tol)
+    res = paper_detect(flat_grid(5, 5), height_tolerance=tol)
     assert res.params["height_tolerance"] == recorded
     assert type(res.params["height_tolerance"]) is type(recorded)
     np.testing.assert_array_equal(res.labels, N)

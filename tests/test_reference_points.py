@@ -7,12 +7,17 @@ distances, one point and one candidate at a time); never from an earlier run of 
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
 import numpy as np
 import pytest
 from miem import reference as ref
+
+# The paper's angle test on clouds (theta0 75, scales (1,)); explicit arguments win.
+paper_detect_points = functools.partial(ref.detect_points, theta0=75.0, scales=(1,),
+                                        height_tolerance=None, edge_extent=0.0, min_group=0)
 
 N, A, E, INV = ref.NORMAL, ref.ABNORMAL, ref.EDGE, ref.INVALID
 
@@ -203,7 +208,7 @@ def literal_heights(points: np.ndarray, labels: np.ndarray, radius: float) -> np
 @pytest.mark.parametrize("seed", [0, 1])
 def test_detect_points_matches_literal_transcription(kwargs: dict, seed: int) -> None:
     pts = rough_cloud(seed)
-    res = ref.detect_points(pts, **kwargs)
+    res = paper_detect_points(pts, **kwargs)
     used = {
         "theta0": 75.0,
         "scales": (1,),
@@ -233,7 +238,7 @@ def test_spacing_radius_by_brute_force() -> None:
     d = np.linalg.norm(fin[:, None, :] - fin[None, :, :], axis=2)
     np.fill_diagonal(d, np.inf)
     spacing = float(np.median(d.min(axis=1)))
-    res = ref.detect_points(pts)
+    res = paper_detect_points(pts)
     assert res.params["spacing"] == pytest.approx(spacing, rel=1e-15)
     assert res.params["radius"] == 5.0 * res.params["spacing"]
     assert res.params["min_step"] == 0.5 * res.params["spacing"]
@@ -251,7 +256,7 @@ def test_lattice_single_spike(sign: float) -> None:
     pts = lattice(21, h)
     spike = 10 * 21 + 10
     pts[spike, 2] = sign * 2 * h
-    res = ref.detect_points(pts)
+    res = paper_detect_points(pts)
     expected = np.full(pts.shape[0], N, dtype=np.uint8)
     expected[spike] = A
     np.testing.assert_array_equal(res.labels, expected)
@@ -287,7 +292,7 @@ def test_spike_on_tilted_plane_far_from_origin() -> None:
     spike = 10 * 21 + 10
     pts = base @ rot.T + np.array([3.0e4, -2.0e4, 1.5e4])
     pts[spike] += 1.0 * nrm
-    res = ref.detect_points(pts)
+    res = paper_detect_points(pts)
     assert np.flatnonzero(res.labels != N).tolist() == [spike]
     assert res.labels[spike] == A
     assert res.height[spike] == pytest.approx(1.0, abs=1e-9)
@@ -300,7 +305,7 @@ def test_spike_on_tilted_plane_far_from_origin() -> None:
 def test_lone_far_point_is_isolated_dust() -> None:
     pts = lattice(15, 1.0)
     pts = np.vstack([pts, [7.0, 7.0, 50.0]])
-    res = ref.detect_points(pts)
+    res = paper_detect_points(pts)
     lone = pts.shape[0] - 1
     assert np.flatnonzero(res.labels != N).tolist() == [lone]
     assert res.flags[lone] == 0
@@ -318,7 +323,7 @@ def test_floating_group_is_abnormal(size: int) -> None:
     pts = lattice(15, 1.0)
     group = np.array([[3.0, 3.0, 20.0], [3.5, 3.0, 20.0], [3.0, 3.5, 20.0]])[:size]
     pts = np.vstack([pts, group])
-    res = ref.detect_points(pts)
+    res = paper_detect_points(pts)
     rows = list(range(225, 225 + size))
     assert np.flatnonzero(res.labels != N).tolist() == rows
     (d,) = res.defects  # 0.5 apart, link = radius = 3: one defect
@@ -333,7 +338,7 @@ def test_two_wide_burr_needs_scale_two() -> None:
     pts[burr, 2] = 4.0
     # Scale 1: along the burr, the other burr point (level with it) is the nearest neighbour:
     # u = (1, 0, 0), v = (-1, 0, -4), an obtuse angle, so that direction is not flagged.
-    res1 = ref.detect_points(pts, radius=6.0)
+    res1 = paper_detect_points(pts, radius=6.0)
     assert not (res1.labels == A).any()
     assert np.all(res1.labels[burr] == E)
     assert res1.defects == []
@@ -341,7 +346,7 @@ def test_two_wide_burr_needs_scale_two() -> None:
     # plane (scale s: (2s - 1) * min_step), so
     # the search passes over the other burr point onto the flat lattice, 2 cells away on both
     # sides: u = (-2, 0, -4), v = (2, 0, -4), cos = 12/20, 53.1 deg, flagged.
-    res2 = ref.detect_points(pts, radius=6.0, scales=(1, 2), min_step=0.4)
+    res2 = paper_detect_points(pts, radius=6.0, scales=(1, 2), min_step=0.4)
     assert np.flatnonzero(res2.labels == A).tolist() == burr
     assert np.all(res2.flags[burr] == 0b1111)
     (d,) = res2.defects
@@ -356,7 +361,7 @@ def test_crease_bend_of_30_degrees_is_all_normal() -> None:
     j, i = np.mgrid[0:21, -10:11]
     x, y = i.ravel() * h, j.ravel() * h
     z = np.where(x > 0, x * math.tan(math.radians(30.0)), 0.0)
-    res = ref.detect_points(np.c_[x, y, z])
+    res = paper_detect_points(np.c_[x, y, z])
     assert np.all(res.labels == N)
     assert np.nanmin(res.angle) >= 105.0
     assert res.defects == []
@@ -373,7 +378,7 @@ def test_sharp_ridge_of_30_degrees_crest_not_abnormal() -> None:
             rows.append([s * math.sin(half), yy, -s * math.cos(half)])
             rows.append([-s * math.sin(half), yy, -s * math.cos(half)])
     pts = np.array(rows)
-    res = ref.detect_points(pts)
+    res = paper_detect_points(pts)
     crest = pts[:, 0] == 0.0
     assert crest.sum() == 21
     assert not np.any(res.labels[crest] == A)
@@ -384,7 +389,7 @@ def test_jacobi_passes_monotone() -> None:
     pts = noisy_cloud(4, n=500)
     prev = None
     for iters in (1, 2, 3, 10):
-        res = ref.detect_points(pts, max_iterations=iters)
+        res = paper_detect_points(pts, max_iterations=iters)
         assert 1 <= res.iterations <= iters
         abn = res.labels == A
         if prev is not None:
@@ -398,7 +403,7 @@ def test_defects_link_and_order() -> None:
     s1, s2 = 6 * 25 + 6, 6 * 25 + 18  # 12 apart
     pts[s1, 2] = 2.5
     pts[s2, 2] = -3.0
-    res = ref.detect_points(pts, radius=4.0)
+    res = paper_detect_points(pts, radius=4.0)
     assert np.flatnonzero(res.labels == A).tolist() == [s1, s2]
     d0, d1 = res.defects
     assert (d0.id, d1.id) == (0, 1)
@@ -406,7 +411,7 @@ def test_defects_link_and_order() -> None:
     assert d1.indices.tolist() == [s1] and d1.kind == "protrusion"
     assert res.params["link"] == 4.0
     gap = math.sqrt(12.0 * 12.0 + 5.5 * 5.5)  # 3-D distance between the two points
-    res = ref.detect_points(pts, radius=4.0, link=gap)  # distance <= link: one defect
+    res = paper_detect_points(pts, radius=4.0, link=gap)  # distance <= link: one defect
     (d,) = res.defects
     assert d.indices.tolist() == [s1, s2]
     assert d.peak_height == pytest.approx(-3.0, abs=1e-12)
@@ -414,21 +419,21 @@ def test_defects_link_and_order() -> None:
     assert d.extent == pytest.approx(12.0, abs=1e-12)
     assert d.kind == "pit"
     below = float(np.nextafter(gap, 0.0))
-    assert len(ref.detect_points(pts, radius=4.0, link=below).defects) == 2
+    assert len(paper_detect_points(pts, radius=4.0, link=below).defects) == 2
 
 
 def test_defaults_recorded_on_known_lattice() -> None:
     h = 0.25
     pts = lattice(12, h, m=9)
-    res = ref.detect_points(pts)
+    res = paper_detect_points(pts)
     off = {"min_group": 0, "edge_extent": 0.0, "height_tolerance": None}
     assert res.params == {"spacing": h, "radius": 5 * h, "min_step": 0.5 * h, "link": 5 * h,
                           "K": 4, "height_radius": 10 * h, **off}
     assert isinstance(res.params["K"], int)
-    res = ref.detect_points(pts, radius=1.0, min_step=0.1, K=6)
+    res = paper_detect_points(pts, radius=1.0, min_step=0.1, K=6)
     assert res.params == {"spacing": h, "radius": 1.0, "min_step": 0.1, "link": 1.0, "K": 6,
                           "height_radius": 2.0, **off}
-    res = ref.detect_points(pts, link=0.3)
+    res = paper_detect_points(pts, link=0.3)
     assert res.params["link"] == 0.3 and res.params["radius"] == 5 * h
     assert np.all(res.labels == N)
 
@@ -436,7 +441,7 @@ def test_defaults_recorded_on_known_lattice() -> None:
 def test_spacing_median_and_duplicates() -> None:
     # Nearest-other distances 1, 1, 3, 3 (median of an even count: mean of the middle two).
     line = np.array([[0.0, 0, 0], [1.0, 0, 0], [10.0, 0, 0], [13.0, 0, 0]])
-    res = ref.detect_points(line, radius=100.0)
+    res = paper_detect_points(line, radius=100.0)
     assert res.params["spacing"] == 2.0
     # Collinear: every neighbourhood plane is degenerate -> NORMAL, reported as degenerate.
     assert np.all(res.labels == N) and np.all(res.degenerate)
@@ -444,11 +449,11 @@ def test_spacing_median_and_duplicates() -> None:
     # A duplicated point is at distance 0 from its twin.
     pts = lattice(6, 1.0)
     dup = np.vstack([pts, pts[:5]])
-    res = ref.detect_points(dup)
+    res = paper_detect_points(dup)
     assert res.params["spacing"] == 1.0
     # More than half duplicates: spacing 0 is an error.
     with pytest.raises(ValueError, match="points"):
-        ref.detect_points(np.vstack([pts, pts]))
+        paper_detect_points(np.vstack([pts, pts]))
 
 
 def test_nonfinite_rows_are_invalid_and_indices_are_input_rows() -> None:
@@ -458,14 +463,14 @@ def test_nonfinite_rows_are_invalid_and_indices_are_input_rows() -> None:
     pts[spike, 2] = 1.0
     bad = np.array([[np.nan, 0, 0], [0, np.inf, 0], [0, 0, -np.inf]])
     cloud = np.vstack([bad, pts])
-    res = ref.detect_points(cloud)
+    res = paper_detect_points(cloud)
     assert res.labels[:3].tolist() == [INV] * 3
     assert np.all(res.flags[:3] == 0)
     assert np.all(np.isnan(res.angle[:3])) and np.all(np.isnan(res.height[:3]))
     assert not res.degenerate[:3].any()
     (d,) = res.defects
     assert d.indices.tolist() == [spike + 3]
-    ref_res = ref.detect_points(pts)
+    ref_res = paper_detect_points(pts)
     np.testing.assert_array_equal(res.labels[3:], ref_res.labels)
     np.testing.assert_array_equal(res.height[3:], ref_res.height)
     assert res.params == ref_res.params
@@ -473,7 +478,7 @@ def test_nonfinite_rows_are_invalid_and_indices_are_input_rows() -> None:
 
 def test_result_dtypes_and_shapes() -> None:
     pts = noisy_cloud(5, n=200)
-    res = ref.detect_points(pts)
+    res = paper_detect_points(pts)
     n = pts.shape[0]
     assert res.labels.shape == (n,) and res.labels.dtype == np.uint8
     assert res.flags.shape == (n,) and res.flags.dtype == np.uint8
@@ -498,7 +503,7 @@ def test_k_eight_sets_all_bits() -> None:
     pts = lattice(29, h)
     spike = 14 * 29 + 14
     pts[spike, 2] = 2.0
-    res = ref.detect_points(pts, K=8, radius=3.5)
+    res = paper_detect_points(pts, K=8, radius=3.5)
     assert np.flatnonzero(res.labels != N).tolist() == [spike]
     assert res.labels[spike] == A
     assert int(res.flags[spike]) == (1 << 8) - 1
@@ -510,8 +515,8 @@ def test_k_eight_sets_all_bits() -> None:
 def test_permutation_invariance(seed: int) -> None:
     pts = noisy_cloud(seed + 10, n=600)
     perm = np.random.default_rng(seed).permutation(pts.shape[0])
-    a = ref.detect_points(pts, scales=(1, 2))
-    b = ref.detect_points(pts[perm], scales=(1, 2))
+    a = paper_detect_points(pts, scales=(1, 2))
+    b = paper_detect_points(pts[perm], scales=(1, 2))
     np.testing.assert_array_equal(b.labels, a.labels[perm])
     np.testing.assert_array_equal(b.flags, a.flags[perm])
     np.testing.assert_array_equal(b.degenerate, a.degenerate[perm])
@@ -526,13 +531,13 @@ def test_permutation_invariance(seed: int) -> None:
 def test_float32_and_integer_input() -> None:
     pts = noisy_cloud(6, n=300)
     p32 = pts.astype(np.float32)
-    a = ref.detect_points(p32)
-    b = ref.detect_points(p32.astype(np.float64))
+    a = paper_detect_points(p32)
+    b = paper_detect_points(p32.astype(np.float64))
     np.testing.assert_array_equal(a.labels, b.labels)
     np.testing.assert_array_equal(a.height, b.height)
     ints = lattice(10, 2.0).astype(np.int64)
     ints[55, 2] = 4
-    res = ref.detect_points(ints)
+    res = paper_detect_points(ints)
     assert np.flatnonzero(res.labels == A).tolist() == [55]
     assert res.params["spacing"] == 2.0
 
@@ -540,7 +545,7 @@ def test_float32_and_integer_input() -> None:
 def test_does_not_modify_input() -> None:
     pts = noisy_cloud(7, n=200)
     before = pts.copy()
-    ref.detect_points(pts)
+    paper_detect_points(pts)
     ref.estimate_normals(pts, 1.0)
     np.testing.assert_array_equal(pts, before)
 
@@ -646,16 +651,16 @@ def test_estimate_normals_invalid_cases() -> None:
 )
 def test_detect_points_bad_parameters(kwargs: dict, name: str) -> None:
     with pytest.raises(ValueError, match=name):
-        ref.detect_points(lattice(6, 1.0), **kwargs)
+        paper_detect_points(lattice(6, 1.0), **kwargs)
 
 
 def test_detect_points_accepts_numpy_scalars_and_edge_values() -> None:
     pts = lattice(8, 1.0)
-    res = ref.detect_points(
+    res = paper_detect_points(
         pts, radius=np.float32(2.5), K=np.int64(6), min_step=0, link=np.float64(1.0)
     )
     assert res.params["K"] == 6 and res.params["min_step"] == 0.0
-    res = ref.detect_points(pts, min_directions=6, K=6)
+    res = paper_detect_points(pts, min_directions=6, K=6)
     assert np.all(res.labels == N)
 
 
@@ -674,7 +679,7 @@ def test_detect_points_accepts_numpy_scalars_and_edge_values() -> None:
 )
 def test_detect_points_bad_points(points: Any) -> None:
     with pytest.raises(ValueError, match="points"):
-        ref.detect_points(points)
+        paper_detect_points(points)
 
 
 @pytest.mark.parametrize("radius", [0.0, -1.0, math.nan, math.inf, None, "2"])

@@ -386,7 +386,7 @@ def test_bad_arguments(func, kwargs, match) -> None:
 )
 def test_paper_claim(step: float, noise: float, seed: int) -> None:
     scan = sim.paper_scan(step=step, noise=noise, seed=seed)
-    res = miem.detect(scan.points, theta0=75.0, scales=(1,))
+    res = miem.detect(scan.points, preset="paper")
     labels = res.labels
     assert np.all(labels[scan.truth == A] == A)  # all 5 injected points found
     assert np.count_nonzero(labels[scan.truth == N] == A) == 0  # no normal point flagged
@@ -486,7 +486,7 @@ def test_main_bad_argument(capsys) -> None:
 @pytest.mark.parametrize(("noise", "dropout", "seed"), [(0.0, 0.0, 0), (0.05, 0.02, 1)])
 def test_make_scan_detect(surface: str, noise: float, dropout: float, seed: int) -> None:
     singles = sim.make_scan(surface=surface, noise=noise, dropout=dropout, seed=seed)
-    res = miem.detect(singles.points)  # the paper's settings find single-point defects
+    res = miem.detect(singles.points, preset="paper")  # the paper's settings find single-point defects
     assert np.all(res.labels[singles.truth == A] == A)
     assert not np.any(res.labels[singles.truth != A] == A)
     assert np.array_equal(res.labels == INV, singles.truth == INV)
@@ -498,7 +498,7 @@ def test_make_scan_detect(surface: str, noise: float, dropout: float, seed: int)
         seed=seed,
         defects={"cluster": 3, "spike": 1, "pit": 1, "dust": 1},
     )
-    res = miem.detect(clusters.points, scales=(1, 2))  # 2 x 2 clusters need scale 2
+    res = miem.detect(clusters.points, preset="paper", scales=(1, 2))  # 2 x 2 clusters need scale 2
     assert np.all(res.labels[clusters.truth == A] == A)
     assert not np.any(res.labels[clusters.truth != A] == A)
 
@@ -507,7 +507,7 @@ def test_make_scan_detect(surface: str, noise: float, dropout: float, seed: int)
 def test_make_scan_heights_seen_by_detector(surface: str) -> None:
     # On a plane the detector's height (along the local normal) is the z offset times n_z.
     scan = sim.make_scan(surface=surface, defects={"spike": 2, "pit": 2, "dust": 1}, seed=8)
-    res = miem.detect(scan.points)
+    res = miem.detect(scan.points, preset="paper")
     n_z = math.cos(math.radians(20.0)) if surface == "tilted" else 1.0
     by_index = {tuple(int(i) for i in d.indices): d for d in res.defects}
     assert set(by_index) == {d.indices for d in scan.defects}

@@ -58,17 +58,18 @@ def stream_all(stream: ProfileStream, grid: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_stream_equals_detect(params: dict, dtype) -> None:
     grid = make_scan(80, 60, 3).astype(dtype)
-    want = miem.detect(grid, **params).labels
-    got = stream_all(ProfileStream(60, dtype=dtype, **params), grid)
+    want = miem.detect(grid, preset="paper", **params).labels
+    got = stream_all(ProfileStream(60, preset="paper", dtype=dtype, **params), grid)
     np.testing.assert_array_equal(got, want)
     assert (want == miem.ABNORMAL).sum() > 0
 
 
 def test_lag_and_properties() -> None:
-    s = ProfileStream(10)
+    s = ProfileStream(10, preset="paper")
     assert (s.lag, s.width, s.dtype, s.rows_pushed, s.finished) == (20, 10, np.float64, 0, False)
     assert ProfileStream(10, scales=(1, 2), max_gap=2, max_iterations=3).lag == 12
     assert "lag=20" in repr(s)
+    assert ProfileStream(10).lag == 10 * (2 + 1)  # the default: scales (1, 2), max_gap 1
 
 
 def test_any_strides_and_dtypes_are_read() -> None:

@@ -7,6 +7,7 @@ far-from-origin offset, dtype, thread count) and argument checks.
 
 from __future__ import annotations
 
+import miem
 import numpy as np
 import pytest
 from miem._unorganized import detect_points, point_spacing
@@ -39,7 +40,7 @@ def with_spike(height: float, seed: int = 1) -> tuple[np.ndarray, int]:
 
 def test_spike_is_the_only_abnormal_point():
     pts, i = with_spike(1.0)
-    res = detect_points(pts, radius=5 * STEP)
+    res = detect_points(pts, preset="paper", radius=5 * STEP)
     assert np.flatnonzero(res.labels == ABNORMAL).tolist() == [i]
     assert (res.labels[np.arange(len(pts)) != i] == NORMAL).all()
     assert res.flags[i] == 0b1111 and res.angle[i] < 75.0
@@ -87,7 +88,12 @@ def test_defaults_are_recorded():
     assert res.params["radius"] == 5 * sp
     assert res.params["min_step"] == 0.5 * sp
     assert res.params["link"] == res.params["radius"]
-    assert res.params["K"] == 4 and res.params["scales"] == (1,)
+    # the default for clouds: the recommended angle test
+    rec = miem.PRESETS["recommended"]
+    assert res.params["K"] == 4 and res.params["scales"] == rec.angle.scales
+    assert res.params["theta0"] == rec.angle.theta0 == 90.0
+    assert res.params["height_tolerance"] == rec.cloud.height_tolerance == "7rms"
+    assert res.params["preset"] == "recommended"
     res = detect_points(pts, radius=1.5, min_step=0.1, link=0.7, K=6)
     assert (res.params["radius"], res.params["min_step"], res.params["link"]) == (1.5, 0.1, 0.7)
     assert res.params["K"] == 6

@@ -158,21 +158,18 @@ int main(int argc, char** argv) {
   }
   if (quick) n = std::min<std::ptrdiff_t>(n, 5000);
   std::vector<Scenario> scenarios;
-  miem::DetectParams p;
+  // The stream's default (the recommended angle test; the stream has no height test yet).
+  const miem::DetectParams p = miem::stream_default_params();
   scenarios.push_back({"defaults, clean", p, 0.0, false});
   scenarios.push_back({"defaults, 1% dropouts", p, 0.01, false});
   scenarios.push_back({"defaults, float32 storage", p, 0.001, true});
-  miem::DetectParams p2;
-  p2.scales = {1, 2};
-  p2.max_gap = 2;
-  scenarios.push_back({"scales (1, 2), max_gap 2", p2, 0.001, false});
-  miem::DetectParams pr;  // the default preset's angle test (the stream runs no height test yet)
-  pr.theta0_deg = 90.0;
-  pr.scales = {1, 2};
-  scenarios.push_back({"default preset's angle test (theta0 90, scales (1, 2))", pr, 0.001, false});
-  miem::DetectParams p3;
+  miem::DetectParams p2 = miem::paper_params();  // the paper's method (lag 20)
+  scenarios.push_back({"paper (theta0 75, scales (1,))", p2, 0.001, false});
+  // The stream's default is the default preset's angle test (it runs no height test yet).
+  scenarios.push_back({"default preset's angle test (theta0 90, scales (1, 2))", p, 0.001, false});
+  miem::DetectParams p3 = p;
   p3.max_iterations = 3;
-  scenarios.push_back({"max_iterations 3 (lag 6)", p3, 0.001, false});
+  scenarios.push_back({"max_iterations 3 (lag 9)", p3, 0.001, false});
   const std::ptrdiff_t pool_rows = 1024;
   std::printf("[\n");
   bool first = true;

@@ -168,8 +168,8 @@ int main(int argc, char** argv) {
     return 2;
   }
 
-  miem::DetectParams params;  // the paper's theta0 = 75 degrees, max_gap 1
-  params.scales = {1, 2};     // also defects two points wide (spatter)
+  // The stream's default: the recommended angle test (theta0 90, scales {1, 2}).
+  const miem::DetectParams params = miem::stream_default_params();
   std::optional<miem::ProfileStream<float>> stream;
   const miem::Status made = miem::nothrow::make_stream(width, params, &stream);
   if (!made.ok()) {

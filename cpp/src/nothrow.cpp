@@ -82,29 +82,6 @@ const char* to_string(StatusCode code) noexcept {
   return "unknown";
 }
 
-Status check_params(const DetectParams& p) noexcept {
-  const auto bad = [](const char* msg) { return Status{StatusCode::kInvalidParameter, msg}; };
-  if (!std::isfinite(p.theta0_deg) || p.theta0_deg <= 0.0 || p.theta0_deg >= 180.0) {
-    return bad("theta0: must be a finite angle in degrees with 0 < theta0 < 180");
-  }
-  if (p.scales.empty()) return bad("scales: must not be empty");
-  for (int s : p.scales) {
-    if (s < 1) return bad("scales: every scale must be an integer >= 1");
-  }
-  if (p.max_gap < 0) return bad("max_gap: must be an integer >= 0");
-  if (std::isnan(p.min_step) || std::isinf(p.min_step)) {
-    return bad("min_step: must be finite (negative = off)");
-  }
-  if (p.max_reach < 1) return bad("max_reach: must be an integer >= 1");
-  if (p.min_directions < 0 || p.min_directions > 4) {
-    return bad("min_directions: must be 0 (all) or 1..4");
-  }
-  if (p.max_iterations < 1) return bad("max_iterations: must be >= 1");
-  if (p.window < 3 || p.window % 2 == 0) return bad("window: must be an odd integer >= 3");
-  if (p.num_threads < 0) return bad("num_threads: must be >= 0");
-  return {};
-}
-
 namespace nothrow {
 
 template <typename T>

@@ -11,34 +11,6 @@
 
 namespace miem {
 
-void validate(const DetectParams& p) {
-  if (!p.theta0_auto &&
-      (!std::isfinite(p.theta0_deg) || p.theta0_deg <= 0.0 || p.theta0_deg >= 180.0)) {
-    throw std::invalid_argument("theta0: must be a finite angle in degrees with 0 < theta0 < 180");
-  }
-  if (p.scales.empty()) throw std::invalid_argument("scales: must not be empty");
-  for (int s : p.scales) {
-    if (s < 1) throw std::invalid_argument("scales: every scale must be an integer >= 1");
-  }
-  if (p.max_gap < 0) throw std::invalid_argument("max_gap: must be an integer >= 0");
-  if (std::isnan(p.min_step) || std::isinf(p.min_step)) {
-    throw std::invalid_argument("min_step: must be finite (negative = off)");
-  }
-  if (p.max_reach < 1) throw std::invalid_argument("max_reach: must be an integer >= 1");
-  if (p.min_directions < 0 || p.min_directions > 4) {
-    throw std::invalid_argument("min_directions: must be 0 (all) or 1..4");
-  }
-  if (p.max_iterations < 1) throw std::invalid_argument("max_iterations: must be >= 1");
-  if (p.window < 3 || p.window % 2 == 0) {
-    throw std::invalid_argument("window: must be an odd integer >= 3");
-  }
-  if (p.num_threads < 0) throw std::invalid_argument("num_threads: must be >= 0");
-  if (!std::isfinite(p.height_abs) || !std::isfinite(p.height_k)) {
-    throw std::invalid_argument("height_tolerance: must be finite (<= 0 = off)");
-  }
-  if (p.edge_extent < 0) throw std::invalid_argument("edge_extent: must be an integer >= 0");
-}
-
 const char* to_string(DefectKind kind) noexcept {
   switch (kind) {
     case DefectKind::kProtrusion:

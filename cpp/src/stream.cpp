@@ -219,14 +219,41 @@ std::ptrdiff_t mark_finite(const T* x, const T* y, const T* z, std::ptrdiff_t W,
 
 }  // namespace
 
+DetectParams stream_default_params() {
+  DetectParams p;
+  p.height_abs = 0.0;
+  p.height_k = 0.0;
+  p.edge_extent = 0;
+  return p;
+}
+
+Status check_stream_params(std::ptrdiff_t width, const DetectParams& p) noexcept {
+  const auto bad = [](const char* msg) { return Status{StatusCode::kInvalidParameter, msg}; };
+  if (Status st = p.check(); !st.ok()) return st;
+  if (p.theta0_auto) {
+    return bad("theta0_auto: not implemented by ProfileStream yet; give theta0 in degrees");
+  }
+  if (p.height_test()) {
+    return bad("height_abs, height_k: the height test is not implemented by ProfileStream yet; "
+               "set both to 0 (stream_default_params())");
+  }
+  if (p.edge_extent != 0) {
+    return bad("edge_extent: belongs to the height test, not implemented by ProfileStream yet; "
+               "set it to 0");
+  }
+  if (width < 1) return bad("width: must be at least 1 point per profile");
+  if (p.max_iterations > 254) return bad("max_iterations: a stream supports at most 254 passes");
+  const long long reach = static_cast<long long>(
+                              *std::max_element(p.scales.begin(), p.scales.end())) +
+                          p.max_gap + (p.min_step >= 0.0 ? p.max_reach : 0);
+  if (reach > (1 << 20)) return bad("scales, max_gap, max_reach: reach too long");
+  return {};
+}
+
 template <typename T>
 ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
     : width_(width), params_(std::move(params)) {
-  validate(params_);
-  if (width_ < 1) throw std::invalid_argument("width: must be at least 1 point per profile");
-  if (params_.max_iterations > 254) {
-    throw std::invalid_argument("max_iterations: a stream supports at most 254 passes");
-  }
+  throw_if_error(check_stream_params(width_, params_));
   max_scale_ = *std::max_element(params_.scales.begin(), params_.scales.end());
   const int min_scale = *std::min_element(params_.scales.begin(), params_.scales.end());
   const bool min_step = params_.min_step >= 0.0;
@@ -540,14 +567,8 @@ template <typename T>
 Status make_stream(std::ptrdiff_t width, const DetectParams& params,
                    std::optional<ProfileStream<T>>* out) noexcept {
   if (out == nullptr) return {StatusCode::kInvalidInput, "out: must not be null"};
-  const Status st = check_params(params);
+  const Status st = check_stream_params(width, params);
   if (!st.ok()) return st;
-  if (width < 1) {
-    return {StatusCode::kInvalidParameter, "width: must be at least 1 point per profile"};
-  }
-  if (params.max_iterations > 254) {
-    return {StatusCode::kInvalidParameter, "max_iterations: a stream supports at most 254 passes"};
-  }
   try {
     out->emplace(width, params);
   } catch (const std::bad_alloc&) {

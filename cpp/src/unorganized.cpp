@@ -150,51 +150,6 @@ void estimate_normals(const PointsView<T>& points, double radius, const NormalsO
 // ---------------------------------------------------------------------------------------------
 // detection
 
-void validate(const PointsDetectParams& p) {
-  if (!std::isfinite(p.theta0_deg) || p.theta0_deg <= 0.0 || p.theta0_deg >= 180.0) {
-    throw std::invalid_argument("theta0: must be a finite angle in degrees with 0 < theta0 < 180");
-  }
-  if (p.scales.empty()) throw std::invalid_argument("scales: must not be empty");
-  for (int s : p.scales) {
-    if (s < 1) throw std::invalid_argument("scales: every scale must be an integer >= 1");
-  }
-  if (p.radius && (!std::isfinite(*p.radius) || !(*p.radius > 0.0))) {
-    throw std::invalid_argument("radius: must be finite and > 0");
-  }
-  if (p.num_directions < 2 || p.num_directions > kMaxDirections) {
-    throw std::invalid_argument("K: the number of directions must be an integer in 2..8");
-  }
-  if (p.min_step && (!std::isfinite(*p.min_step) || *p.min_step < 0.0)) {
-    throw std::invalid_argument("min_step: must be finite and >= 0");
-  }
-  if (p.min_directions < 0 || p.min_directions > p.num_directions) {
-    throw std::invalid_argument("min_directions: must be 0 (all) or 1..K");
-  }
-  if (p.max_iterations < 1) throw std::invalid_argument("max_iterations: must be >= 1");
-  if (p.link && (!std::isfinite(*p.link) || !(*p.link > 0.0))) {
-    throw std::invalid_argument("link: must be finite and > 0");
-  }
-  if (p.min_group < 0 || (p.min_group > 0 && p.min_group < 3)) {
-    throw std::invalid_argument("min_group: must be 0 (off) or an integer >= 3");
-  }
-  if (!std::isfinite(p.height_abs) || !std::isfinite(p.height_k)) {
-    throw std::invalid_argument("height_tolerance: must be finite (<= 0 = off)");
-  }
-  if (!std::isfinite(p.edge_extent) || p.edge_extent < 0.0) {
-    throw std::invalid_argument("edge_extent: must be finite and >= 0");
-  }
-  if (p.height_radius && (!std::isfinite(*p.height_radius) || !(*p.height_radius > 0.0))) {
-    throw std::invalid_argument("height_radius: must be finite and > 0");
-  }
-  if (!std::isfinite(p.merge_distance) || p.merge_distance < 0.0) {
-    throw std::invalid_argument("merge_distance: must be finite and >= 0");
-  }
-  if (p.height_mode != HeightMode::kAll && p.height_mode != HeightMode::kAbnormal) {
-    throw std::invalid_argument("heights: unknown mode");
-  }
-  if (p.num_threads < 0) throw std::invalid_argument("num_threads: must be >= 0");
-}
-
 namespace {
 
 // Detection on a cloud without duplicates (within merge_distance), its spacing known.

@@ -10,6 +10,7 @@
 
 #include "miem/nothrow.hpp"
 #include "miem/organized.hpp"
+#include "miem/unorganized.hpp"
 #include "test_util.hpp"
 
 namespace {
@@ -36,6 +37,11 @@ TEST(NoThrow, CheckParamsAgreesWithValidate) {
       {"window", [](miem::DetectParams& p) { p.window = 6; }},
       {"window", [](miem::DetectParams& p) { p.window = 1; }},
       {"num_threads", [](miem::DetectParams& p) { p.num_threads = -2; }},
+      // Once kInternal from make_detector (issue 9): the height test and edge_extent.
+      {"height_abs", [](miem::DetectParams& p) { p.height_abs = std::nan(""); }},
+      {"height_k", [](miem::DetectParams& p) { p.height_k = INFINITY; }},
+      {"edge_extent", [](miem::DetectParams& p) { p.edge_extent = -1; }},
+      {"height_mode", [](miem::DetectParams& p) { p.height_mode = miem::HeightMode{7}; }},
   };
   EXPECT_TRUE(miem::check_params(miem::DetectParams{}).ok());
   for (const Bad& b : bad) {
@@ -45,9 +51,83 @@ TEST(NoThrow, CheckParamsAgreesWithValidate) {
     EXPECT_EQ(st.code, StatusCode::kInvalidParameter) << b.name;
     EXPECT_EQ(std::string(st.message).rfind(b.name, 0), 0u) << st.message;
     EXPECT_THROW(miem::validate(p), std::invalid_argument) << b.name;
+    try {
+      miem::OrganizedDetector thrown(p);
+      ADD_FAILURE() << b.name << " accepted";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_STREQ(e.what(), st.message);  // the throwing API throws the check's message
+    }
     std::optional<miem::OrganizedDetector> det;
-    EXPECT_EQ(miem::nothrow::make_detector(p, &det).code, StatusCode::kInvalidParameter);
+    const miem::Status made = miem::nothrow::make_detector(p, &det);
+    EXPECT_EQ(made.code, StatusCode::kInvalidParameter) << b.name << ": " << made.message;
+    EXPECT_STREQ(made.message, st.message);
     EXPECT_FALSE(det.has_value());
+  }
+  // theta0 is not read with theta0_auto: both APIs accept it.
+  miem::DetectParams p;
+  p.theta0_auto = true;
+  p.theta0_deg = std::nan("");
+  EXPECT_TRUE(miem::check_params(p).ok());
+  EXPECT_NO_THROW(miem::validate(p));
+}
+
+TEST(ParamTypes, DefaultsAreTheRecommendedPresetAndPaperIsThePaper) {
+  const miem::DetectParams d;
+  EXPECT_EQ(d.theta0_deg, 90.0);
+  EXPECT_FALSE(d.theta0_auto);
+  EXPECT_EQ(d.scales, (std::vector<int>{1, 2}));
+  EXPECT_EQ(d.max_gap, 1);
+  EXPECT_LT(d.min_step, 0.0);
+  EXPECT_EQ(d.min_directions, 0);
+  EXPECT_EQ(d.max_iterations, 10);
+  EXPECT_EQ(d.window, 21);
+  EXPECT_EQ(d.height_abs, 0.0);
+  EXPECT_EQ(d.height_k, 4.5);
+  EXPECT_EQ(d.edge_extent, 12);
+  EXPECT_TRUE(d.height_test());
+  const miem::DetectParams paper = miem::paper_params();
+  EXPECT_EQ(paper.theta0_deg, 75.0);
+  EXPECT_EQ(paper.scales, (std::vector<int>{1}));
+  EXPECT_FALSE(paper.height_test());
+  EXPECT_EQ(paper.edge_extent, 0);
+  EXPECT_EQ(paper.max_gap, 1);
+  EXPECT_EQ(paper.window, 21);
+  const miem::PointsDetectParams c;
+  EXPECT_EQ(c.theta0_deg, d.theta0_deg);
+  EXPECT_EQ(c.scales, d.scales);
+  EXPECT_EQ(c.num_directions, 4);
+}
+
+TEST(ParamTypes, CloudChecksNameTheField) {
+  struct Bad {
+    const char* name;
+    void (*edit)(miem::PointsDetectParams&);
+  };
+  const Bad bad[] = {
+      {"theta0", [](miem::PointsDetectParams& p) { p.theta0_deg = 180.0; }},
+      {"theta0_auto", [](miem::PointsDetectParams& p) { p.theta0_auto = true; }},
+      {"scales", [](miem::PointsDetectParams& p) { p.scales = {0}; }},
+      {"radius", [](miem::PointsDetectParams& p) { p.radius = -1.0; }},
+      {"K", [](miem::PointsDetectParams& p) { p.num_directions = 9; }},
+      {"min_step", [](miem::PointsDetectParams& p) { p.min_step = -0.5; }},
+      {"min_directions", [](miem::PointsDetectParams& p) { p.min_directions = 5; }},
+      {"max_iterations", [](miem::PointsDetectParams& p) { p.max_iterations = 0; }},
+      {"link", [](miem::PointsDetectParams& p) { p.link = std::nan(""); }},
+      {"num_threads", [](miem::PointsDetectParams& p) { p.num_threads = -1; }},
+  };
+  EXPECT_TRUE(miem::PointsDetectParams{}.check().ok());
+  for (const Bad& b : bad) {
+    miem::PointsDetectParams p;
+    b.edit(p);
+    const miem::Status st = p.check();
+    EXPECT_EQ(st.code, StatusCode::kInvalidParameter) << b.name;
+    EXPECT_EQ(std::string(st.message).rfind(b.name, 0), 0u) << st.message;
+    try {
+      miem::validate(p);
+      ADD_FAILURE() << b.name << " accepted";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_STREQ(e.what(), st.message);
+    }
   }
 }
 

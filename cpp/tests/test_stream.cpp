@@ -77,40 +77,41 @@ struct Named {
 
 std::vector<Named> param_sets() {
   std::vector<Named> v;
-  miem::DetectParams p;
-  v.push_back({"defaults", p});
-  p = {};
+  miem::DetectParams p = miem::paper_params();
+  v.push_back({"paper", p});
+  v.push_back({"stream_default", miem::stream_default_params()});
+  p = miem::paper_params();
   p.scales = {1, 2};
   p.max_gap = 2;
   v.push_back({"scales12_gap2", p});
-  p = {};
+  p = miem::paper_params();
   p.max_gap = 0;
   v.push_back({"gap0", p});
-  p = {};
+  p = miem::paper_params();
   p.scales = {2};
   p.max_gap = 0;  // smallest scale beyond the isolation reach: every cell through the judge
   v.push_back({"scale2_gap0", p});
-  p = {};
+  p = miem::paper_params();
   p.scales = {1, 3};
   p.min_directions = 2;
   v.push_back({"scales13_mindir2", p});
-  p = {};
+  p = miem::paper_params();
   p.theta0_deg = 100.0;  // cos0 < 0: every available direction takes the exact test
   v.push_back({"theta100", p});
-  p = {};
+  p = miem::paper_params();
   p.theta0_deg = 30.0;
   p.min_directions = 1;
   v.push_back({"theta30_mindir1", p});
-  p = {};
+  p = miem::paper_params();
   p.max_iterations = 1;
   v.push_back({"one_pass", p});
-  p = {};
+  p = miem::paper_params();
   p.max_iterations = 2;
   v.push_back({"two_passes", p});
-  p = {};
+  p = miem::paper_params();
   p.max_iterations = 3;
   v.push_back({"three_passes", p});
-  p = {};
+  p = miem::paper_params();
   p.min_step = 0.2;
   p.max_reach = 4;
   v.push_back({"min_step", p, 150, 60});
@@ -138,7 +139,7 @@ INSTANTIATE_TEST_SUITE_P(Params, StreamEqualsBatch, ::testing::ValuesIn(param_se
                          [](const auto& info) { return std::string(info.param.name); });
 
 TEST(Stream, LagIsPassesTimesReach) {
-  miem::DetectParams p;
+  miem::DetectParams p = miem::paper_params();
   EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 20);  // 10 * (1 + 1)
   p.scales = {1, 2};
   p.max_gap = 2;
@@ -146,7 +147,7 @@ TEST(Stream, LagIsPassesTimesReach) {
   miem::ProfileStream<float> s(16, p);
   EXPECT_EQ(s.reach(), 4);
   EXPECT_EQ(s.lag(), 12);
-  p = {};
+  p = miem::paper_params();
   p.min_step = 0.1;
   p.max_reach = 5;
   EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 10 * (1 + 1 + 5));
@@ -157,7 +158,7 @@ TEST(Stream, ThresholdGrazingAnglesMatchBatch) {
   // cell's flag is decided by the last bits of the cosine, so the kernel must round as the
   // judge does.
   const std::ptrdiff_t H = 60, W = 80;
-  miem::DetectParams p;
+  miem::DetectParams p = miem::paper_params();
   const double cos0 = std::cos(p.theta0_deg * 3.14159265358979323846 / 180.0);
   const double dx = 0.25, a = 0.5 * dx * std::sqrt((1.0 + cos0) / (1.0 - cos0));
   std::vector<double> g(static_cast<std::size_t>(H * W * 3));
@@ -177,7 +178,7 @@ TEST(Stream, ThresholdGrazingAnglesMatchBatch) {
 }
 
 TEST(Stream, ShortStreamsAndNarrowProfiles) {
-  miem::DetectParams p;
+  miem::DetectParams p = miem::paper_params();
   for (std::ptrdiff_t W : {1, 2, 3, 5}) {
     for (std::ptrdiff_t H : {3, 7, 25}) {
       SCOPED_TRACE("W " + std::to_string(W) + " H " + std::to_string(H));
@@ -197,7 +198,7 @@ TEST(Stream, ShortStreamsAndNarrowProfiles) {
 TEST(Stream, WrongWidthAndNullAreRejectedWithoutHarm) {
   const std::ptrdiff_t H = 50, W = 40;
   const std::vector<double> g = miem::test::make_scan(H, W, 21);
-  miem::DetectParams p;
+  miem::DetectParams p = miem::paper_params();
   const std::vector<std::uint8_t> clean = stream_labels(g, H, W, p);
 
   miem::ProfileStream<> s(W, p);
@@ -234,7 +235,7 @@ TEST(Stream, AllNanProfileIsARowOfDropouts) {
     for (int k = 0; k < 3; ++k) g[static_cast<std::size_t>((30 * W + c) * 3 + k)] = std::nan("");
   // Infinities are dropouts too.
   g[static_cast<std::size_t>((12 * W + 7) * 3)] = std::numeric_limits<double>::infinity();
-  miem::DetectParams p;
+  miem::DetectParams p = miem::paper_params();
   miem::ProfileStream<> s(W, p);
   miem::StreamRow row;
   std::vector<std::uint8_t> out(static_cast<std::size_t>(H * W), 99);
@@ -255,7 +256,7 @@ TEST(Stream, PushAfterFlushAndReset) {
   miem::test::ScanOptions o;
   o.nan_rows = false;
   const std::vector<double> g = miem::test::make_scan(H, W, 4, o);
-  miem::DetectParams p;
+  miem::DetectParams p = miem::paper_params();
   miem::ProfileStream<> s(W, p);
   miem::StreamRow row;
   std::vector<std::uint8_t> first, second;
@@ -287,7 +288,7 @@ TEST(Stream, StridedProfilesAreRead) {
   std::vector<float> dense(g.begin(), g.end());
   for (std::ptrdiff_t i = 0; i < H * W; ++i)
     for (int k = 0; k < 3; ++k) xyzw[static_cast<std::size_t>(i * 4 + k)] = dense[static_cast<std::size_t>(i * 3 + k)];
-  miem::DetectParams p;
+  miem::DetectParams p = miem::paper_params();
   miem::ProfileStream<float> s(W, p);
   miem::StreamRow row;
   std::vector<std::uint8_t> out;
@@ -300,24 +301,66 @@ TEST(Stream, StridedProfilesAreRead) {
 }
 
 TEST(Stream, BadParametersThrowOrReportStatus) {
-  miem::DetectParams p;
+  miem::DetectParams p = miem::paper_params();
   EXPECT_THROW(miem::ProfileStream<>(0, p), std::invalid_argument);
   p.max_iterations = 255;
   EXPECT_THROW(miem::ProfileStream<>(10, p), std::invalid_argument);
   std::optional<miem::ProfileStream<double>> s;
   EXPECT_EQ(miem::nothrow::make_stream(10, p, &s).code, StatusCode::kInvalidParameter);
   EXPECT_FALSE(s.has_value());
-  p = {};
+  p = miem::paper_params();
   p.theta0_deg = -1.0;
   EXPECT_THROW(miem::ProfileStream<float>(10, p), std::invalid_argument);
   const miem::Status st = miem::nothrow::make_stream(10, p, &s);
   EXPECT_EQ(st.code, StatusCode::kInvalidParameter);
   EXPECT_NE(std::string(st.message).find("theta0"), std::string::npos);
-  EXPECT_EQ(miem::nothrow::make_stream(0, miem::DetectParams{}, &s).code,
+  EXPECT_EQ(miem::nothrow::make_stream(0, miem::stream_default_params(), &s).code,
             StatusCode::kInvalidParameter);
-  EXPECT_TRUE(miem::nothrow::make_stream(10, miem::DetectParams{}, &s).ok());
+  EXPECT_TRUE(miem::nothrow::make_stream(10, miem::stream_default_params(), &s).ok());
   ASSERT_TRUE(s.has_value());
   EXPECT_EQ(s->width(), 10);
+}
+
+// A field the stream does not implement yet is rejected, naming it, never ignored.
+TEST(Stream, RejectsFieldsItDoesNotHonour) {
+  struct Case {
+    const char* name;
+    void (*edit)(miem::DetectParams&);
+  };
+  const Case cases[] = {
+      {"theta0_auto", [](miem::DetectParams& p) { p.theta0_auto = true; }},
+      {"height_abs", [](miem::DetectParams& p) { p.height_abs = 0.1; }},
+      {"height_abs, height_k", [](miem::DetectParams& p) { p.height_k = 4.5; }},
+      {"edge_extent", [](miem::DetectParams& p) { p.edge_extent = 12; }},
+  };
+  for (const Case& c : cases) {
+    miem::DetectParams p = miem::stream_default_params();
+    c.edit(p);
+    EXPECT_TRUE(p.check().ok()) << c.name;  // fine for batch detection
+    std::optional<miem::ProfileStream<double>> s;
+    const miem::Status st = miem::nothrow::make_stream(10, p, &s);
+    EXPECT_EQ(st.code, StatusCode::kInvalidParameter) << c.name;
+    EXPECT_EQ(std::string(st.message).rfind(c.name, 0), 0u) << st.message;
+    EXPECT_FALSE(s.has_value());
+    try {
+      miem::ProfileStream<float> thrown(10, p);
+      ADD_FAILURE() << c.name << " accepted";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_STREQ(e.what(), st.message);
+    }
+  }
+  // The recommended preset itself has the height test: rejected until the stream implements it.
+  std::optional<miem::ProfileStream<double>> s;
+  EXPECT_EQ(miem::nothrow::make_stream(10, miem::DetectParams{}, &s).code,
+            StatusCode::kInvalidParameter);
+  // The stream's default is the recommended angle test.
+  const miem::DetectParams d = miem::stream_default_params();
+  const miem::DetectParams r;
+  EXPECT_EQ(d.theta0_deg, r.theta0_deg);
+  EXPECT_EQ(d.scales, r.scales);
+  EXPECT_EQ(d.max_gap, r.max_gap);
+  EXPECT_EQ(d.max_iterations, r.max_iterations);
+  EXPECT_EQ(miem::ProfileStream<>(10).params().scales, r.scales);
 }
 
 }  // namespace

@@ -73,18 +73,18 @@ void run_without_allocating(const miem::DetectParams& p) {
 
 TEST(StreamAlloc, NoAllocationPerProfileDouble) {
   ASSERT_GT(g_news.load(), -1);
-  run_without_allocating<double>(miem::DetectParams{});
+  run_without_allocating<double>(miem::stream_default_params());
 }
 
 TEST(StreamAlloc, NoAllocationPerProfileFloatScales) {
-  miem::DetectParams p;
+  miem::DetectParams p = miem::paper_params();
   p.scales = {1, 2};
   p.max_gap = 2;
   run_without_allocating<float>(p);
 }
 
 TEST(StreamAlloc, NoAllocationWithMinStep) {
-  miem::DetectParams p;
+  miem::DetectParams p = miem::paper_params();
   p.min_step = 0.2;
   p.max_reach = 4;
   run_without_allocating<double>(p);

@@ -30,7 +30,7 @@ struct RefDefect {
 struct Expectation {
   std::string name, dtype;
   std::ptrdiff_t rows = 0, cols = 0;
-  DetectParams params;
+  DetectParams params = paper_params();  // the files give the angle test only
   std::vector<double> grid;  // rows * cols * 3, row-major
   std::vector<int> labels, flags;
   std::vector<double> angle, height;

@@ -27,6 +27,14 @@ from ._api import (
     scan_line_heights,
 )
 from ._core import __version__
+from .params import (
+    AngleParams,
+    CloudParams,
+    DetectParams,
+    GridParams,
+    default_params,
+    load_config,
+)
 from .stream import ProfileStream, StreamRow
 from .targets import Target, TargetPlan, Tool, plan_targets, read_transform
 from .comparison import (
@@ -63,7 +71,11 @@ __all__ = [
     "NORMAL",
     "PRESETS",
     "CLOUD_PRESETS",
+    "AngleParams",
+    "CloudParams",
     "Defect",
+    "DetectParams",
+    "GridParams",
     "DetectResult",
     "Label",
     "NeighborGrid",
@@ -77,10 +89,12 @@ __all__ = [
     "Tool",
     "__version__",
     "detect",
+    "default_params",
     "detect_points",
     "estimate_normals",
     "fit_plane",
     "plan_targets",
+    "load_config",
     "point_spacing",
     "read_transform",
     "scan_line_angles",

@@ -4,15 +4,23 @@ from __future__ import annotations
 
 import enum
 import math
-import warnings
 import numbers
-import re
+import warnings
 from dataclasses import dataclass, field
-from typing import Any, Literal, Optional, Sequence, Union
+from typing import Any, Literal, Optional, Sequence
 
 import numpy as np
 
 from . import _core
+from .params import (
+    CLOUD_PRESETS,
+    DEFAULT_PRESET,
+    PRESETS,
+    DetectParams,
+    _int,
+    _real,
+    resolve_params,
+)
 
 __all__ = [
     "Label",
@@ -30,6 +38,7 @@ __all__ = [
     "PRESETS",
     "CLOUD_PRESETS",
     "DEFAULT_PRESET",
+    "DetectParams",
 ]
 
 
@@ -231,54 +240,6 @@ def _as_float_array(a: object, name: str) -> np.ndarray:
     return arr
 
 
-def _int(name: str, value: object, minimum: int, maximum: int = 2**30) -> int:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
-        raise ValueError(f"{name}: expected an integer >= {minimum}, got {value!r}")
-    v = int(value)
-    if v < minimum:
-        raise ValueError(f"{name}: expected an integer >= {minimum}, got {v}")
-    if v > maximum:
-        raise ValueError(f"{name}: expected an integer in {minimum}..{maximum}, got {v}")
-    return v
-
-
-def _real(name: str, value: object) -> float:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-        raise ValueError(f"{name}: expected a real number, got {value!r}")
-    v = float(value)
-    if not np.isfinite(v):
-        raise ValueError(f"{name}: must be finite, got {v}")
-    return v
-
-
-def _theta0(value: object) -> float:
-    v = _real("theta0", value)
-    if not 0.0 < v < 180.0:
-        raise ValueError(f"theta0: expected 0 < theta0 < 180 degrees, got {v}")
-    return v
-
-
-def _scales(value: object) -> list:
-    if isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_)):
-        value = (value,)
-    try:
-        out = [_int("scales", s, 1) for s in value]  # type: ignore[union-attr]
-    except TypeError:
-        raise ValueError(f"scales: expected integers >= 1, got {value!r}") from None
-    if not out:
-        raise ValueError("scales: must contain at least one scale")
-    return out
-
-
-def _min_step(value: object) -> Optional[float]:
-    if value is None:
-        return None
-    v = _real("min_step", value)
-    if v < 0:
-        raise ValueError(f"min_step: expected a length >= 0 or None, got {v}")
-    return v
-
-
 def _threads(num_threads: Optional[int]) -> int:
     """0 (all cores) or the request clamped to ``miem._core.max_threads()`` (README
     "Guarantees": results never depend on the thread count, so clamping only bounds the cost)."""
@@ -385,78 +346,6 @@ def scan_line_heights(line: np.ndarray, step: int = 1) -> np.ndarray:
     return _core.scan_line_heights(arr, step)
 
 
-class _Default:
-    """Marks a parameter the caller did not give: its value comes from the preset."""
-
-    def __repr__(self) -> str:
-        return "<from preset>"
-
-
-DEFAULT: Any = _Default()
-
-#: Named parameter sets for :func:`detect`. ``"paper"`` is the paper's method exactly.
-PRESETS: dict = {
-    "paper": {
-        "theta0": 75.0,
-        "scales": (1,),
-        "max_gap": 1,
-        "min_step": None,
-        "min_directions": None,
-        "max_iterations": 10,
-        "window": 21,
-        "height_tolerance": None,
-        "edge_extent": 0,
-    },
-    # Chosen on the tuning split of bench/accuracy (bench/accuracy/recommended.json): overall F1
-    # 0.96 on the test split against 0.20 for "paper" (bench/accuracy/RESULTS.md).
-    "recommended": {
-        "theta0": 90.0,
-        "scales": (1, 2),
-        "max_gap": 1,
-        "min_step": None,
-        "min_directions": None,
-        "max_iterations": 10,
-        "window": 21,
-        "height_tolerance": "4.5rms",
-        "edge_extent": 12,
-    },
-}
-
-#: Cloud-only values of each preset (unorganized ``(N, 3)`` input), on top of :data:`PRESETS`.
-#: "recommended" was chosen on the tuning split of the held-out-style cloud scenes
-#: (``bench/accuracy/clouds.py``; ``bench/bench_unorganized.py`` reports the test split). Its
-#: ``height_tolerance`` differs from the grids' because the cloud test fits the point's
-#: surroundings only (SPEC "Unorganized clouds: floating groups and height test").
-CLOUD_PRESETS: dict = {
-    "paper": {"height_tolerance": None, "edge_extent": 0, "min_group": 0},
-    "recommended": {"height_tolerance": "7rms", "edge_extent": 12, "min_group": 40},
-}
-
-#: The preset used when ``preset`` is not given: the paper's method, so that a plain call, the
-#: streaming detector (which has no height test) and the C++ defaults agree. For production use
-#: ``preset="recommended"``, which wins the accuracy benchmark (README, bench/accuracy/).
-DEFAULT_PRESET = "paper"
-
-_RMS = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*rms\s*$")
-
-
-def _height_tolerance(value: object) -> tuple:
-    """(absolute, k_rms) from None, a length or a '<k>rms' string; 0 means off."""
-    if value is None:
-        return 0.0, 0.0
-    if isinstance(value, str):
-        m = _RMS.match(value)
-        if not m or not float(m.group(1)) > 0 or not np.isfinite(float(m.group(1))):
-            raise ValueError(
-                f"height_tolerance: expected a length > 0, '<k>rms' with k > 0 (e.g. '4rms') "
-                f"or None, got {value!r}")
-        return 0.0, float(m.group(1))
-    v = _real("height_tolerance", value)
-    if not v > 0:
-        raise ValueError(f"height_tolerance: expected a length > 0, got {v}")
-    return v, 0.0
-
-
 def _is_open3d(obj: object) -> bool:
     return type(obj).__module__.startswith("open3d") and hasattr(obj, "points")
 
@@ -505,37 +394,22 @@ def _looks_like_grid(arr: np.ndarray) -> str:
     return ""
 
 
-def _resolve(preset: Optional[str], given: dict) -> dict:
-    name = DEFAULT_PRESET if preset is None else preset
-    if name not in PRESETS:
-        raise ValueError(f"preset: expected one of {sorted(PRESETS)}, got {preset!r}")
-    out = dict(PRESETS[name])
-    out.update({k: v for k, v in given.items() if v is not DEFAULT})
-    return out
+def _grid_or_cloud(data: object) -> np.ndarray:
+    if _is_open3d(data):
+        from .io import from_open3d
+
+        data = from_open3d(data)
+    return _as_float_array(data, "grid")
 
 
 def detect(
     grid: np.ndarray,
-    theta0: Union[float, str] = DEFAULT,
-    scales: Union[int, Sequence[int]] = DEFAULT,
-    max_gap: int = DEFAULT,
-    min_step: Optional[float] = DEFAULT,
-    min_directions: Optional[int] = DEFAULT,
-    max_iterations: int = DEFAULT,
-    window: int = DEFAULT,
+    params: Optional[DetectParams] = None,
     *,
     preset: Optional[str] = None,
-    height_tolerance: Union[None, float, str] = DEFAULT,
-    edge_extent: int = DEFAULT,
-    max_reach: int = 32,
-    heights: Literal["all", "abnormal"] = "all",
     num_threads: Optional[int] = None,
-    radius: Optional[float] = None,
-    K: int = 4,
-    link: Optional[float] = None,
-    min_group: int = DEFAULT,
-    height_radius: Optional[float] = None,
     shape: Optional[Sequence[int]] = None,
+    **overrides: Any,
 ) -> DetectResult:
     """Find abnormal points in a scan with MIEM: an organized grid or an unorganized cloud.
 
@@ -543,86 +417,56 @@ def detect(
     diagonals): a direction is flagged when the interior angle between its neighbours is at most
     ``theta0``. Flagged in every available direction: ABNORMAL; in some only: EDGE (a designed
     feature edge); in none: NORMAL. ABNORMAL points are removed and the rest judged again, up to
-    ``max_iterations`` passes. See ``docs/SPEC.md`` for the exact rules.
+    ``max_iterations`` passes; then (beyond the paper) the height test turns NORMAL points far
+    from their local plane into ABNORMAL. See ``docs/SPEC.md`` for the exact rules.
 
-    Parameters not given come from ``preset`` (default ``"paper"``: the values in brackets).
+    The parameters are a :class:`miem.DetectParams` (each field's unit and meaning is listed
+    there and in ``docs/SPEC.md`` "Parameters"): ``params``, or a named ``preset``
+    (:data:`miem.PRESETS`), or by default the recommended preset, the best measured
+    configuration (theta0 90, scales (1, 2), height_tolerance "4.5rms", edge_extent 12; overall
+    F1 0.96 against 0.20 for the paper's method on the accuracy benchmark). ``preset="paper"``
+    runs the paper's method exactly. Keyword ``overrides`` (any field name, e.g.
+    ``theta0=80``) replace single fields.
 
     An unorganized cloud (``(N, 3)`` points, or an ``open3d.geometry.PointCloud``) goes to
-    :func:`miem.detect_points` (tangent-plane directions in a ``radius`` neighbourhood, SPEC.md
-    "Unorganized clouds"): ``theta0`` (a number), ``scales``, ``min_step``, ``min_directions``,
-    ``max_iterations``, ``height_tolerance``, ``edge_extent`` (in spacings), ``radius``, ``K``,
-    ``link``, ``min_group``, ``height_radius``, ``heights`` and ``num_threads`` apply, with the
-    preset's cloud values (:data:`miem.CLOUD_PRESETS`); the grid-only ``max_gap``, ``window``,
-    ``max_reach`` and ``theta0="auto"`` raise ValueError. Per-point arrays then have shape
-    ``(N,)``.
+    :func:`miem.detect_points`; per-point arrays then have shape ``(N,)``. Clouds do not
+    implement the grid-only fields (``max_gap``, ``window``, ``max_reach``, ``theta0="auto"``
+    and the height test): any value but the neutral one is a ValueError (so
+    ``preset="recommended"`` on a cloud is refused for its height test), and the default for
+    clouds is the recommended angle test without the height test (:func:`miem.default_params`).
+    Grids reject the cloud-only ``radius``, ``K`` and ``link``.
 
     Parameters
     ----------
-    grid : array_like, shape (H, W, 3)
+    grid : array_like, shape (H, W, 3) or (N, 3)
         Organized scan: row = one laser profile, column = position along it. float32 or
         float64 are read in place (any strides); NaN (any non-finite coordinate) marks a dropout.
-    theta0 : float or "auto"
-        [75] Threshold angle in degrees, ``0 < theta0 < 180``. ``"auto"`` derives it from the
-        scan's own angle statistics: ``clip(180 - 6 sigma, 75, 170)`` with ``sigma`` a robust
-        spread of ``180 - angle``, so small burrs are caught on quiet scans without false alarms
-        on noisy ones (``result.params["theta0"]`` holds the value used).
-    scales : int or sequence of int
-        [(1,)] Neighbour distances in cells; ``(1, 2)`` also catches defects two cells wide.
-    max_gap : int
-        [1] Unusable cells (dropouts, removed points) that may be skipped to reach a neighbour.
-    min_step : float, optional
-        [None] Minimum neighbour distance in the grid's units (per scale: ``s * min_step``), so
-        that the test sees the same physical scale along and across profiles. None: off.
-    min_directions : int, optional
-        [None] Flagged directions needed for ABNORMAL (1-4); None: all available ones.
-    max_iterations : int
-        [10] Maximum number of passes (>= 1).
-    window : int
-        [21] Side, in cells, of the square used for the local plane under each point (odd, >= 3).
-    preset : {"paper", "recommended"}, optional
-        A named parameter set (:data:`miem.PRESETS`); explicit arguments override its values.
-        ``"recommended"`` (theta0 90, scales (1, 2), height_tolerance "4.5rms", edge_extent 12)
-        won the accuracy benchmark (overall F1 0.96 against 0.20 for ``"paper"``).
-    height_tolerance : float, str or None
-        [None] Height test, beyond the paper: after the angle passes, a NORMAL point farther than
-        this from its local plane becomes ABNORMAL (catches smooth spatter domes and wide burrs
-        the angle test cannot see). A length in the grid's units, or ``"<k>rms"`` for ``k`` times
-        the local plane's rms. None: off. The test abstains where a feature line (a group of
-        EDGE points longer than ``edge_extent``) lies in the window.
-    edge_extent : int or None
-        [0] (None: 0) With the height test: groups of EDGE points (8-connected) whose bounding box is at
-        most this many cells on its longer side are compact (a defect's halo, a short burr
-        ridge, a spatter dome) and are height-tested like NORMAL points; longer groups are
-        designed feature lines (creases, flanges, strips) and are never changed.
-    max_reach : int
-        With ``min_step``: how many cells beyond ``scale + max_gap`` the search may go.
-    heights : {"all", "abnormal"}
-        Which points get a height: all finite points, or only ABNORMAL ones (faster; the others
-        are NaN).
+    params : DetectParams or mapping, optional
+        The full parameter set (not together with ``preset``).
+    preset : {"recommended", "paper"}, optional
+        A named parameter set.
     num_threads : int, optional
         Threads (default: all cores). Labels do not depend on it.
-    radius, K, link : optional
-        Unorganized clouds only: neighbourhood radius (default 5 x the median point spacing),
-        number of tangent-plane directions (2-8) and defect linking distance (default
-        ``radius``); see :func:`miem.detect_points`.
-    min_group, height_radius : optional
-        Unorganized clouds only: floating groups smaller than ``min_group`` points are
-        ABNORMAL; radius of the height planes (default ``2 * radius``).
     shape : (int, int), optional
         An organized scan that arrives flattened (an ``(H*W, 3)`` array, e.g. an Open3D cloud
         read from an organized PCD): its ``(H, W)``, so that it keeps its grid and gets the
         organized detector. Without it, an ``(N, 3)`` array is an unorganized cloud; a warning
         says when one looks like a flattened grid (rows in scan-line order).
+    **overrides
+        Fields of :class:`miem.DetectParams` that replace those of ``params`` / the preset.
 
     Returns
     -------
     DetectResult
         For an unorganized cloud, a :class:`miem.PointsDetectResult` (adds ``degenerate``).
+        ``params`` records every field used, ``preset`` (its name, ``"custom"`` for ``params``)
+        and, with ``theta0="auto"``, the threshold found (``theta0``, ``theta0_auto``).
 
     Raises
     ------
     ValueError
-        Wrong shape or dtype, fewer than 3 finite points, or a parameter out of range.
+        Wrong shape or dtype, fewer than 3 finite points, a parameter out of range or not
+        implemented for this kind of data (the message names it), an unknown field name.
 
     Examples
     --------
@@ -633,12 +477,11 @@ def detect(
     >>> res = miem.detect(grid)
     >>> np.argwhere(res.labels == miem.ABNORMAL).tolist(), round(res.defects[0].peak_height, 6)
     ([[10, 12]], 3.0)
+    >>> miem.detect(grid, preset="paper").params["theta0"]
+    75.0
     """
-    if _is_open3d(grid):
-        from .io import from_open3d
-
-        grid = from_open3d(grid)
-    arr = _as_float_array(grid, "grid")
+    arr = _grid_or_cloud(grid)
+    nt = _threads(num_threads)
     if shape is not None:
         arr = _with_shape(arr, shape)
     elif arr.ndim == 2 and arr.shape[1] == 3:
@@ -650,79 +493,19 @@ def detect(
                 "its grid, or rebuild one with miem.io.grid_from_scanlines",
                 UserWarning, stacklevel=2)
     if arr.ndim == 2 and arr.shape[1] == 3:
-        given = {"max_gap": max_gap, "window": window}
-        bad = sorted(k for k, v in given.items() if v is not DEFAULT)
-        if max_reach != 32:
-            bad.append("max_reach")
-        if isinstance(theta0, str):
-            bad.append("theta0='auto'")
-        if bad:
-            raise ValueError(f"{', '.join(bad)}: apply to organized grids (H, W, 3) only, "
-                             f"not to an unorganized cloud {arr.shape}")
-        cfg = _resolve(preset, {
-            "theta0": theta0, "scales": scales, "min_step": min_step,
-            "min_directions": min_directions, "max_iterations": max_iterations,
-        })
-        from ._unorganized import detect_points
+        from ._unorganized import _detect_cloud
 
-        name = DEFAULT_PRESET if preset is None else preset
-        cloud = dict(CLOUD_PRESETS[name])
-        cloud.update({k: v for k, v in {"height_tolerance": height_tolerance,
-                                        "edge_extent": edge_extent,
-                                        "min_group": min_group}.items() if v is not DEFAULT})
-        res = detect_points(
-            arr, theta0=cfg["theta0"], scales=cfg["scales"],
-            min_step=cfg["min_step"], min_directions=cfg["min_directions"],
-            max_iterations=cfg["max_iterations"], radius=radius, K=K, link=link,
-            heights=heights, num_threads=num_threads, height_radius=height_radius, **cloud,
-        )
-        res.params["preset"] = DEFAULT_PRESET if preset is None else preset
-        return res
-    if (radius is not None or K != 4 or link is not None or min_group is not DEFAULT
-            or height_radius is not None):
-        raise ValueError("radius, K, link, min_group, height_radius: apply to unorganized clouds "
-                         "(N, 3) only")
-    cfg = _resolve(preset, {
-        "theta0": theta0, "scales": scales, "max_gap": max_gap, "min_step": min_step,
-        "min_directions": min_directions, "max_iterations": max_iterations, "window": window,
-        "height_tolerance": height_tolerance, "edge_extent": edge_extent,
-    })
+        p, name = resolve_params(params, preset, overrides, "cloud")
+        return _detect_cloud(arr, p, name, nt)
+    p, name = resolve_params(params, preset, overrides, "grid")
+    core_params = p._core_grid(nt)
     if arr.ndim != 3 or arr.shape[2] != 3:
         raise ValueError(f"grid: expected shape (H, W, 3) or (N, 3), got {arr.shape}")
     if arr.shape[0] * arr.shape[1] < 3:
         raise ValueError(f"grid: need at least 3 points, got {arr.shape[0] * arr.shape[1]}")
-    theta0 = cfg["theta0"]
-    auto = isinstance(theta0, str)
-    if auto:
-        if theta0 != "auto":
-            raise ValueError(f"theta0: expected degrees or 'auto', got {theta0!r}")
-        theta0_v = 75.0
-    else:
-        theta0_v = _theta0(theta0)
-    scale_list = _scales(cfg["scales"])
-    gap = _int("max_gap", cfg["max_gap"], 0)
-    min_step = cfg["min_step"]
-    step = _min_step(min_step)
-    step_v = -1.0 if step is None else step
-    min_directions = cfg["min_directions"]
-    md = 0 if min_directions is None else _int("min_directions", min_directions, 1)
-    if md > 4:
-        raise ValueError(f"min_directions: expected 1..4 or None, got {md}")
-    iters = _int("max_iterations", cfg["max_iterations"], 1)
-    win = _int("window", cfg["window"], 3)
-    if win % 2 == 0:
-        raise ValueError(f"window: expected an odd number of cells, got {win}")
-    h_abs, h_k = _height_tolerance(cfg["height_tolerance"])
-    extent = 0 if cfg["edge_extent"] is None else _int("edge_extent", cfg["edge_extent"], 0)
-    reach = _int("max_reach", max_reach, 1)
-    if heights not in ("all", "abnormal"):
-        raise ValueError(f"heights: expected 'all' or 'abnormal', got {heights!r}")
-    nt = _threads(num_threads)
 
     labels, flags, angle, height, plane_t, iterations, raw, theta0_used = _core.detect_organized(
-        arr, theta0_v, scale_list, gap, step_v, reach, md, iters, win,
-        0 if heights == "all" else 1, nt, auto, h_abs, h_k, extent,
-    )
+        arr, core_params)
     width = arr.shape[1]
     defects = [
         Defect(
@@ -732,15 +515,18 @@ def detect(
         )
         for (i, idx, c, n, pk, mh, ex, kind) in raw
     ]
-    params = dict(
-        preset=DEFAULT_PRESET if preset is None else preset, theta0=float(theta0_used),
-        theta0_auto=auto, scales=tuple(scale_list), max_gap=gap, min_step=min_step,
-        min_directions=min_directions, max_iterations=iters, window=win,
-        height_tolerance=cfg["height_tolerance"], edge_extent=extent, max_reach=reach,
-        heights=heights,
-    )
     return DetectResult(
         labels=labels, flags=flags, angle=angle, height=height,
         plane=None if plane_t is None else _plane(plane_t, "eigen"),
-        iterations=int(iterations), defects=defects, params=params,
+        iterations=int(iterations), defects=defects,
+        params=_params_record(p, name, "grid", theta0=float(theta0_used),
+                              theta0_auto=bool(core_params.theta0_auto)),
     )
+
+
+def _params_record(p: DetectParams, name: str, path: str, **extra: Any) -> dict:
+    """``result.params``: the preset's name, every field the detector read, and what the run
+    derived."""
+    out = {"preset": name, **p.flat(path)}
+    out.update(extra)
+    return out

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal, Optional, Union
+from typing import Any, Optional, Union
 
 import numpy as np
 
@@ -19,14 +19,10 @@ from ._api import (
     DetectResult,
     Plane,
     _as_float_array,
-    _int,
-    _min_step,
-    _real,
-    _scales,
-    _height_tolerance,
-    _theta0,
+    _params_record,
     _threads,
 )
+from .params import DetectParams, _positive, _real, resolve_params
 
 __all__ = [
     "NeighborGrid",
@@ -37,21 +33,11 @@ __all__ = [
     "point_spacing",
 ]
 
-_MAX_K = 8  # flags are 8-bit: one bit per direction
-
-
 def _points(points: object, name: str = "points") -> np.ndarray:
     arr = _as_float_array(points, name)
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise ValueError(f"{name}: expected shape (N, 3), got {arr.shape}")
     return arr
-
-
-def _positive(name: str, value: object) -> float:
-    v = _real(name, value)
-    if not v > 0.0:
-        raise ValueError(f"{name}: expected a length > 0, got {v}")
-    return v
 
 
 def _plane(t: tuple) -> Plane:
@@ -301,22 +287,11 @@ class PointsDetectResult(DetectResult):
 
 def detect_points(
     points: np.ndarray,
-    theta0: float = 75.0,
-    scales: Union[int, Sequence[int]] = (1,),
-    min_step: Optional[float] = None,
-    min_directions: Optional[int] = None,
-    max_iterations: int = 10,
+    params: Optional[DetectParams] = None,
     *,
-    radius: Optional[float] = None,
-    K: int = 4,
-    link: Optional[float] = None,
-    heights: Literal["all", "abnormal"] = "all",
+    preset: Optional[str] = None,
     num_threads: Optional[int] = None,
-    height_tolerance: Union[None, float, str] = None,
-    edge_extent: float = 0.0,
-    min_group: int = 0,
-    height_radius: Optional[float] = None,
-    merge_distance: float = 0.0,
+    **overrides: Any,
 ) -> PointsDetectResult:
     """Find abnormal points in an unorganized cloud with MIEM.
 
@@ -328,55 +303,30 @@ def detect_points(
     the points around them judged again, up to ``max_iterations`` passes. See ``docs/SPEC.md``,
     "Unorganized clouds", for the exact rules.
 
+    The parameters are a :class:`miem.DetectParams`, as for :func:`miem.detect`: ``params``,
+    a ``preset`` or the default for clouds (:func:`miem.default_params` ``("cloud")``: the
+    recommended angle test, theta0 90 and scales (1, 2), without the height test), with keyword
+    ``overrides``. The fields clouds use: ``theta0`` (degrees; "auto" is not implemented for
+    clouds), ``scales`` (multiples of ``min_step``), ``min_step`` (shortest tangent-plane offset,
+    default ``0.5 * spacing``), ``min_directions`` (1..K), ``max_iterations``, ``radius``
+    (default ``5 * spacing``, with ``spacing`` the median nearest-neighbour distance,
+    :func:`point_spacing`), ``K`` (2..8 directions), ``link`` (defect linking distance, default
+    ``radius``) and ``heights``. Any other field (the height test, ``window``, ``max_gap``,
+    ``max_reach``) must keep its neutral value: clouds do not implement it, so it is rejected.
+
     Parameters
     ----------
     points : array_like, shape (N, 3)
         The cloud, any order. float32 / float64 are read in place (any strides); other real
         dtypes are converted. Rows with a non-finite coordinate are INVALID and take no part.
-    theta0 : float
-        Threshold angle in degrees, ``0 < theta0 < 180`` (the paper's value is 75).
-    scales : int or sequence of int
-        Neighbour scales: at scale ``s`` the neighbours are at least ``s * min_step`` away.
-    min_step : float, optional
-        Shortest tangent-plane offset of a neighbour, in the points' units, ``>= 0``.
-        Default ``0.5 * spacing``.
-    min_directions : int, optional
-        Flagged directions needed for ABNORMAL (``1..K``); default: all available ones.
-    max_iterations : int
-        Maximum number of passes (>= 1).
-    radius : float, optional
-        Neighbourhood radius in the points' units, ``> 0``. Default ``5 * spacing``, with
-        ``spacing`` the median nearest-neighbour distance (:func:`point_spacing`).
-    K : int
-        Number of tangent-plane directions, ``2..8`` (flags are 8-bit). Default 4.
-    link : float, optional
-        ABNORMAL points closer than this (``<=``) belong to the same defect; default ``radius``.
-    heights : {"all", "abnormal"}
-        Which points get a height: every finite point, or only ABNORMAL ones (faster).
+    params : DetectParams or mapping, optional
+        The full parameter set (not together with ``preset``).
+    preset : {"recommended", "paper"}, optional
+        A named parameter set (``"recommended"`` is refused: its height test is grid-only).
     num_threads : int, optional
         Threads (default: all cores). The results do not depend on it.
-    height_tolerance : float, str or None
-        Height test, beyond the paper: after the angle passes, a NORMAL point farther than this
-        from the plane of its surroundings (the NORMAL points farther than ``radius`` and within
-        ``height_radius``) becomes ABNORMAL (a length, or ``"<k>rms"`` for ``k`` times that
-        plane's rms). None: off. The test abstains where a feature-line EDGE point is within
-        ``height_radius``.
-    edge_extent : float
-        With the height test: EDGE groups (points linked by ``link``) at most this many
-        spacings across are compact (a defect's halo, a short ridge) and are height-tested;
-        larger ones are feature lines. ``>= 0``.
-    min_group : int
-        ``0`` (off) or ``>= 3``: after the angle passes, groups of usable points (linked by
-        ``distance <= radius``) with fewer than ``min_group`` points are ABNORMAL (a cluster
-        or ridge so tall that its points only see each other).
-    height_radius : float, optional
-        Radius of the height planes (the test and ``height``), ``> 0``; default
-        ``2 * radius``.
-    merge_distance : float
-        Duplicate points: rows this close (``<=``, transitively; ``0``: equal coordinates) are
-        one point, detected once; every duplicate gets the labels, flags, angle and height of
-        the row it duplicates (the smallest row index of its group) and is listed in its
-        defect's ``indices``. ``params["merged"]`` counts the merged rows. ``>= 0``.
+    **overrides
+        Fields of :class:`miem.DetectParams`.
 
     Returns
     -------
@@ -412,40 +362,17 @@ def detect_points(
     ~5 % of such points had fewer than 3 neighbours and their removal cascaded).
     """
     arr = _points(points)
+    p, name = resolve_params(params, preset, overrides, "cloud")
+    return _detect_cloud(arr, p, name, _threads(num_threads))
+
+
+def _detect_cloud(arr: np.ndarray, p: DetectParams, name: str, nt: int) -> PointsDetectResult:
+    """detect_points on a checked (N, 3) float array with resolved parameters."""
     if arr.shape[0] < 3:
         raise ValueError(f"points: need at least 3 points, got {arr.shape[0]}")
-    theta0_v = _theta0(theta0)
-    scale_list = _scales(scales)
-    step_v = _min_step(min_step)
-    k = _int("K", K, 2)
-    if k > _MAX_K:
-        raise ValueError(f"K: expected 2..{_MAX_K} directions (flags are 8-bit), got {k}")
-    md = 0 if min_directions is None else _int("min_directions", min_directions, 1)
-    if md > k:
-        raise ValueError(f"min_directions: expected 1..K={k} or None, got {md}")
-    iters = _int("max_iterations", max_iterations, 1)
-    radius_v = None if radius is None else _positive("radius", radius)
-    link_v = None if link is None else _positive("link", link)
-    if heights not in ("all", "abnormal"):
-        raise ValueError(f"heights: expected 'all' or 'abnormal', got {heights!r}")
-    nt = _threads(num_threads)
-    h_abs, h_k = _height_tolerance(height_tolerance)
-    extent = _real("edge_extent", 0.0 if edge_extent is None else edge_extent)
-    if extent < 0:
-        raise ValueError(f"edge_extent: expected a number of spacings >= 0, got {extent}")
-    group = _int("min_group", min_group, 0)
-    if 0 < group < 3:
-        raise ValueError(f"min_group: expected 0 (off) or an integer >= 3, got {group}")
-    hr_v = None if height_radius is None else _positive("height_radius", height_radius)
-    merge_v = _real("merge_distance", merge_distance)
-    if not merge_v >= 0:
-        raise ValueError(f"merge_distance: expected a length >= 0, got {merge_v}")
-
+    core_params = p._core_cloud(nt)
     (labels, flags, angle, height, degenerate, plane_t, iterations, raw, spacing, radius_u,
-     min_step_u, link_u, height_radius_u, merged) = _core.detect_points(
-        arr, theta0_v, scale_list, radius_v, k, step_v, md, iters, link_v,
-        0 if heights == "all" else 1, nt, group, h_abs, h_k, extent, hr_v, merge_v,
-    )
+     min_step_u, link_u, height_radius_u, merged) = _core.detect_points(arr, core_params)
     defects = [
         Defect(
             id=int(i), indices=idx, cells=idx[:, None], count=int(idx.size), centroid=c,
@@ -454,12 +381,10 @@ def detect_points(
         )
         for (i, idx, c, n, pk, mh, ex, kind) in raw
     ]
-    params = dict(
-        theta0=theta0_v, scales=tuple(scale_list), min_step=float(min_step_u),
-        min_directions=min_directions, max_iterations=iters, radius=float(radius_u), K=k,
-        link=float(link_u), spacing=float(spacing), heights=heights,
-        height_tolerance=height_tolerance, edge_extent=extent, min_group=group,
-        height_radius=float(height_radius_u), merge_distance=merge_v, merged=int(merged),
+    params = _params_record(
+        p, name, "cloud", theta0=float(core_params.theta0_deg), theta0_auto=False,
+        min_step=float(min_step_u), radius=float(radius_u), link=float(link_u),
+        spacing=float(spacing), height_radius=float(height_radius_u), merged=int(merged),
     )
     return PointsDetectResult(
         labels=labels, flags=flags, angle=angle, height=height,

@@ -33,21 +33,6 @@ from . import io as mio
 
 __all__ = ["main"]
 
-# Command-line option -> miem.detect argument. Presets (--preset) are miem.PRESETS, the
-# detector's own named parameter sets: adding one there adds it here.
-_DETECT_OPTIONS = {
-    "theta0": "theta0",
-    "scales": "scales",
-    "max_gap": "max_gap",
-    "min_step": "min_step",
-    "min_directions": "min_directions",
-    "max_iterations": "max_iterations",
-    "window": "window",
-    "height_tolerance": "height_tolerance",
-    "max_reach": "max_reach",
-    "threads": "num_threads",
-}
-
 _WRITE_FORMATS = [name for name, spec in mio.FORMATS.items() if spec["write"]]
 _READ_FORMATS = list(mio.FORMATS)
 _AXES = {"x": 0, "y": 1, "z": 2}
@@ -88,22 +73,24 @@ def _cli_words(message: str) -> str:
     return re.sub(r"\bpass (--[\w-]+)", r"use \1", out)
 
 
-def _presets() -> tuple[dict[str, dict[str, Any]], str]:
-    from . import DEFAULT_PRESET, PRESETS
-
-    return PRESETS, DEFAULT_PRESET
+# The detection options are generated from the fields of miem.DetectParams (miem/params.py):
+# every field organized detection honours is an option, with its unit, help and default there.
 
 
-def _detect_defaults() -> dict[str, Any]:
-    """The default value of every detect option: the default preset, then detect's signature."""
-    from . import detect
+class _Unset:
+    """Default of a detection option not given: the preset's (or the config file's) value."""
 
-    presets, default = _presets()
-    sig = inspect.signature(detect)
-    out = {name: sig.parameters[name].default for name in _DETECT_OPTIONS.values()
-           if name in sig.parameters}
-    out.update(presets[default])
-    return out
+    def __repr__(self) -> str:
+        return "<from the preset>"
+
+
+_UNSET: Any = _Unset()
+
+
+def _grid_fields() -> dict[str, dict[str, Any]]:
+    from .params import DetectParams
+
+    return DetectParams.fields("grid")
 
 
 def _fmt_default(value: Any) -> str:
@@ -147,59 +134,47 @@ def _finite_float(text: str) -> float:
     return v
 
 
-def _theta0(text: str) -> float | str:
-    return "auto" if text.strip().lower() == "auto" else _finite_float(text)
-
-
-def _height_tolerance(text: str) -> float | str:
-    t = text.strip().lower()
-    if t.endswith("rms"):
-        _finite_float(t[:-3] or "x")
-        return t
-    return _finite_float(text)
+def _field_value(text: str) -> Any:
+    """A field value from the command line: 'off' / 'none' -> None, an integer, a number, else
+    the text ('auto', '4.5rms', 'abnormal'); miem.DetectParams checks it."""
+    t = text.strip()
+    if t.lower() in ("off", "none"):
+        return None
+    try:
+        return int(t)
+    except ValueError:
+        pass
+    try:
+        v = float(t)
+    except ValueError:
+        return t.lower()
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return v
 
 
 def _add_detect_options(parser: argparse.ArgumentParser) -> None:
-    d = _detect_defaults()
-    presets, default = _presets()
+    from .params import DEFAULT_PRESET, PRESETS
+
     g = parser.add_argument_group(
         "detection parameters",
-        f"A preset (miem.PRESETS) sets them all; the defaults below are preset '{default}', "
-        "the paper's method. An option given here overrides the preset.",
+        f"Generated from miem.DetectParams. The defaults below are preset '{DEFAULT_PRESET}', "
+        "the best measured configuration; '--preset paper' runs the paper's method exactly. "
+        "--config FILE (JSON or TOML, see 'miem config') replaces the preset's values, and an "
+        "option given here overrides both. 'off' switches an optional parameter off.",
     )
-    g.add_argument("--preset", choices=sorted(presets), default=default,
-                   help=f"named parameter set (default: {default})")
-    g.add_argument("--theta0", type=_theta0, metavar="DEG",
-                   help="angle threshold in degrees, 0 < DEG < 180: a direction is flagged when "
-                        "the interior angle at the point is at most DEG; 'auto' derives it from "
-                        f"the scan's angle statistics (default: {_fmt_default(d['theta0'])})")
-    g.add_argument("--scales", type=_positive_int, nargs="+", metavar="N",
-                   help="neighbour distances in grid cells; '1 2' also finds defects two "
-                        f"points wide (default: {_fmt_default(d['scales'])})")
-    g.add_argument("--max-gap", type=_nonneg_int, metavar="CELLS",
-                   help="missing or removed cells that may be skipped to reach a neighbour "
-                        f"(default: {_fmt_default(d['max_gap'])})")
-    g.add_argument("--min-step", type=_finite_float, metavar="LENGTH",
-                   help="minimum neighbour distance in the scan's units (mm), so that "
-                        "directions with a small point spacing see the same physical scale "
-                        f"(default: {_fmt_default(d['min_step'])})")
-    g.add_argument("--min-directions", type=int, choices=[1, 2, 3, 4], metavar="N",
-                   help="flagged directions needed for ABNORMAL, 1-4 "
-                        "(default: all available directions)")
-    g.add_argument("--max-iterations", type=_positive_int, metavar="N",
-                   help="maximum detection passes; each pass removes the points found and "
-                        f"judges the rest again (default: {_fmt_default(d['max_iterations'])})")
-    g.add_argument("--window", type=_positive_int, metavar="CELLS",
-                   help="side of the square (odd number of cells) whose NORMAL points give "
-                        f"the local surface for heights (default: {_fmt_default(d['window'])})")
-    g.add_argument("--height-tolerance", type=_height_tolerance, metavar="LENGTH|Krms",
-                   help="height test (beyond the paper): a NORMAL point farther than LENGTH "
-                        "(scan units, mm) from its local plane, or K times that plane's rms "
-                        "('4rms'), becomes ABNORMAL; catches smooth spatter and wide burrs "
-                        f"(default: {_fmt_default(d.get('height_tolerance'))})")
-    g.add_argument("--max-reach", type=_positive_int, metavar="CELLS",
-                   help="with --min-step: how many cells further the neighbour search may go "
-                        f"(default: {_fmt_default(d['max_reach'])})")
+    g.add_argument("--preset", choices=sorted(PRESETS), default=None,
+                   help=f"named parameter set (default: {DEFAULT_PRESET})")
+    g.add_argument("--config", metavar="FILE",
+                   help="detection parameters from a JSON or TOML file (e.g. the output of "
+                        "'miem config'); a 'preset' key in it picks the base")
+    for name, meta in _grid_fields().items():
+        unit = f" [{meta['unit']}]" if meta["unit"] else ""
+        kw: dict[str, Any] = {"nargs": "+"} if isinstance(meta["default"], tuple) else {}
+        g.add_argument(f"--{name.replace('_', '-')}", dest=name, type=_field_value,
+                       metavar=meta["metavar"], default=_UNSET,
+                       help=f"{meta['help']}{unit} (default: {_fmt_default(meta['default'])})",
+                       **kw)
     g.add_argument("--threads", type=_positive_int, metavar="N",
                    help="worker threads (default: all cores); results do not depend on it")
     s = parser.add_argument_group(
@@ -300,6 +275,23 @@ def _build_parser() -> argparse.ArgumentParser:
     _add_detect_options(p)
     p.set_defaults(func=_cmd_detect)
 
+    # config
+    from .params import DEFAULT_PRESET, PRESETS
+
+    p = sub.add_parser(
+        "config", formatter_class=fmt,
+        help="print a complete detection config to start from (JSON or TOML)",
+        description="Print every detection parameter of a preset (miem.DetectParams), with its "
+                    "unit and meaning in TOML comments, to edit and pass back with "
+                    "'miem detect --config FILE'.",
+    )
+    p.add_argument("--preset", choices=sorted(PRESETS), default=DEFAULT_PRESET,
+                   help=f"the preset to print (default: {DEFAULT_PRESET})")
+    p.add_argument("--format", choices=["toml", "json"], default="toml",
+                   help="output format (default: toml)")
+    p.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of stdout")
+    p.set_defaults(func=_cmd_config)
+
     # fit
     p = sub.add_parser(
         "fit", formatter_class=fmt,
@@ -397,31 +389,39 @@ def _build_parser() -> argparse.ArgumentParser:
 
 
 def _detect_kwargs(args: argparse.Namespace) -> dict[str, Any]:
-    """The miem.detect arguments: the preset, overridden by the options given.
+    """The miem.detect arguments: the preset (or the default), then --config, then the options.
 
     Raises
     ------
     ValueError
-        A parameter out of range (checked once here, by miem.detect itself on a tiny grid, so
-        that a bad option is a usage error rather than a failure of every scan).
+        A parameter out of range or a bad config file (checked once here, so that a bad option
+        is a usage error rather than a failure of every scan).
     """
-    from . import detect
+    from .params import DEFAULT_PRESET, PRESETS, load_config, resolve_params
 
-    kwargs: dict[str, Any] = {"preset": args.preset}
-    for opt, name in _DETECT_OPTIONS.items():
-        value = getattr(args, opt)
-        if value is not None:
-            kwargs[name] = tuple(value) if opt == "scales" else value
-    r, c = np.mgrid[0:3, 0:3]
-    detect(np.dstack([c, r, np.zeros((3, 3))]).astype(np.float64), **kwargs)
-    return kwargs
+    params, _ = resolve_params(None, args.preset, {}, "grid")
+    if args.config is not None:
+        params = load_config(args.config, base=params)
+    given = {name: getattr(args, name) for name in _grid_fields()}
+    params = params.for_path("grid", **{k: (tuple(v) if isinstance(v, list) else v)
+                                        for k, v in given.items() if v is not _UNSET})
+    params.check("grid")
+    # As a preset plus the fields that differ from it, so that reports name the preset.
+    name = args.preset or next((n for n, p in PRESETS.items() if p == params), DEFAULT_PRESET)
+    mine, base = params.flat("grid"), PRESETS[name].flat("grid")
+    diff = {k: v for k, v in mine.items() if v != base[k]}
+    return {"preset": name, **diff, "num_threads": args.threads}
 
 
 def _kwargs_or_exit(args: argparse.Namespace) -> dict[str, Any] | None:
     try:
         return _detect_kwargs(args)
     except ValueError as exc:
-        print(f"miem: error: bad detection parameter: {exc}", file=sys.stderr)
+        msg = str(exc)
+        name = msg.split(":", 1)[0]
+        if name in _grid_fields():  # name the option the user typed
+            msg = f"--{name.replace('_', '-')}{msg[len(name):]}"
+        print(f"miem: error: bad detection parameter: {msg}", file=sys.stderr)
         return None
 
 
@@ -801,6 +801,25 @@ def _print_summary(rows: list[tuple], out_dir: Path, scans: list[Path], failed: 
     tail = f"{done} of {len(scans)} scans done" + (f", {failed} failed" if failed else "")
     print(f"{tail}; outputs in {out_dir}/ (NAME.labels.*, NAME.defects.json, "
           "NAME.defects.csv)")
+
+
+# ---------------------------------------------------------------------------------------------
+# config
+
+
+def _cmd_config(args: argparse.Namespace) -> int:
+    from .params import PRESETS, dump_config
+
+    text = dump_config(PRESETS[args.preset], args.format)
+    if args.output is None:
+        sys.stdout.write(text)
+        return 0
+    try:
+        Path(args.output).write_text(text, encoding="utf-8")
+    except OSError as exc:
+        print(f"miem: error: cannot write {args.output}: {exc}", file=sys.stderr)
+        return 1
+    return 0
 
 
 # ---------------------------------------------------------------------------------------------

@@ -834,10 +834,15 @@ _HEIGHT_RMS_FLOOR = 1e-9
 _RMS_RE = re.compile(r"((?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?)rms")
 
 
+#: The preset used when none is given (SPEC "Parameters"): the best measured one.
+_DEFAULT_PRESET = "recommended"
+
+
 def _resolve_preset(preset: Any, given: dict[str, Any]) -> dict[str, Any]:
-    """Parameter values: the caller's where given, else the preset's, else the default."""
+    """Parameter values: the caller's where given, else the preset's (default: "recommended"),
+    else the default."""
     if preset is None:
-        table: dict[str, Any] = {}
+        table: dict[str, Any] = _PRESETS[_DEFAULT_PRESET]
     elif isinstance(preset, str) and preset in _PRESETS:
         table = _PRESETS[preset]
     else:
@@ -1144,8 +1149,9 @@ def detect(
     """Detect abnormal points in an organized scan (MIEM, reference implementation).
 
     Every parameter but ``grid`` and ``preset`` may be left out: it then takes the preset's
-    value, or, without a preset or when the preset does not set it, the default shown. A value
-    given explicitly always wins, even when equal to the default.
+    value (without a preset: ``"recommended"``, SPEC "Parameters": theta0 90, scales (1, 2),
+    height_tolerance "4.5rms", edge_extent 12), or, when the preset does not set it, the
+    default shown (the paper's value). A value given explicitly always wins.
 
     Parameters
     ----------
@@ -1184,8 +1190,9 @@ def detect(
         ``max_iterations`` passes). A float ``t > 0``: ``|h| > t`` (caller's length unit). A
         string ``"<k>rms"`` with ``k > 0`` (e.g. ``"4rms"``): ``|h| > k * rms`` of that window
         plane (and above a round-off floor). EDGE cells are never changed. None (default): off.
-    preset : {None, "paper"}, optional
-        Named parameter set; ``"paper"`` is the paper's setting (the defaults).
+    preset : {None, "recommended", "paper"}, optional
+        Named parameter set; ``"paper"`` is the paper's method exactly (the defaults shown),
+        None means ``"recommended"``.
 
     Returns
     -------
@@ -1800,21 +1807,24 @@ def _cloud_height_pass(
 
 def detect_points(
     points: ArrayLike,
-    theta0: float = 75.0,
-    scales: Sequence[int] = (1,),
+    theta0: float = 90.0,
+    scales: Sequence[int] = (1, 2),
     min_step: float | None = None,
     min_directions: int | None = None,
     max_iterations: int = 10,
     radius: float | None = None,
     K: int = 4,
     link: float | None = None,
-    height_tolerance: float | str | None = None,
-    edge_extent: float = 0,
-    min_group: int = 0,
+    height_tolerance: float | str | None = "7rms",
+    edge_extent: float = 12.0,
+    min_group: int = 40,
     height_radius: float | None = None,
     merge_distance: float = 0.0,
 ) -> RefPointsResult:
     """Detect abnormal points in an unorganized cloud (MIEM, reference implementation).
+
+    The defaults are the recommended preset's cloud values (SPEC "Parameters"); the paper's
+    method is ``theta0=75, scales=(1,), height_tolerance=None, edge_extent=0, min_group=0``.
 
     Parameters
     ----------

@@ -1325,7 +1325,8 @@ def _three_rows(
         _row(case, "eigenvalue", mod.fit_plane(grid, method="eigen")),
     ]
     t0 = time.perf_counter()
-    res = mod.detect(grid, theta0=theta0, scales=tuple(scales))
+    # the paper's method (with the given threshold and scales)
+    res = mod.detect(grid, preset="paper", theta0=theta0, scales=tuple(scales))
     seconds = time.perf_counter() - t0
     if res.plane is None:
         raise ValueError("the MIEM plane is undefined: every point was judged ABNORMAL")
@@ -1477,7 +1478,7 @@ def _format_points_report(rep: dict) -> str:
         "MIEM paper simulation (section 3), exactly as written: random points",
         (f"  cloud     {cloud.points.shape[0]:,} uniform random points on the same surface, "
          f"{rep['n_edge']} on two edge-strip beads"),
-        (f"  detector  miem.detect(points, theta0=75): radius {res.params['radius']:.3f} mm "
+        (f"  detector  miem.detect(pts, preset='paper'): radius {res.params['radius']:.3f} mm "
          f"(5 x spacing {res.params['spacing']:.3f}), {res.iterations} passes, "
          f"{rep['seconds'] * 1e3:.0f} ms"),
         "",
@@ -1547,7 +1548,8 @@ def _format_report(rep: PaperReport, theta0: float, scales: Sequence[int]) -> st
         )
     lines += [
         (
-            f"  detector  {rep.backend}.detect(theta0={theta0:g}, scales={tuple(scales)}): "
+            f"  detector  {rep.backend}.detect(preset='paper', theta0={theta0:g}, "
+            f"scales={tuple(scales)}): "
             f"{rep.result.iterations} passes, {rep.seconds * 1e3:.1f} ms"
         ),
         "",

@@ -7,13 +7,14 @@ nothing per profile.
 
 from __future__ import annotations
 
-from typing import List, NamedTuple, Optional, Sequence, Union
+from typing import Any, List, NamedTuple, Optional
 
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike
 
 from . import _core
-from ._api import _as_float_array, _int, _min_step, _scales, _theta0
+from ._api import _as_float_array, _params_record
+from .params import DetectParams, _int, resolve_params
 
 __all__ = ["ProfileStream", "StreamRow"]
 
@@ -45,29 +46,48 @@ class ProfileStream:
     same rows with the same parameters, for every input: a judgment reads the rows within
     ``R = max(scales) + max_gap`` (``+ max_reach`` with ``min_step``) of its own, each of the
     ``max_iterations`` passes widens that by ``R``, so the lag is ``max_iterations * R``
-    (defaults: 20 profiles). A lower ``max_iterations`` shortens it. Heights, flags, angles and
-    defects are not computed while streaming (a height would need ``window // 2`` more rows).
+    (default parameters: 10 * (2 + 1) = 30 profiles; the paper's: 20). A lower
+    ``max_iterations`` shortens it. Heights, flags, angles and defects are not computed while
+    streaming.
+
+    The parameters are a :class:`miem.DetectParams` as for :func:`miem.detect` (``params``, a
+    ``preset`` or keyword overrides). The stream does not implement the height test
+    (``height_tolerance``, ``edge_extent``), ``theta0="auto"``, heights (``window``,
+    ``heights``) or the cloud-only fields yet: any value but the neutral one is a ValueError,
+    so ``preset="recommended"`` is refused for its height test. The default,
+    :func:`miem.default_params` ``("stream")``, is the recommended angle test (theta0 90,
+    scales (1, 2)) without the height test: ``miem.detect(grid, params=stream.params)`` gives
+    the same labels.
 
     Parameters
     ----------
     width : int
         Points per profile.
-    theta0, scales, max_gap, min_step, min_directions, max_iterations, max_reach
-        As for :func:`miem.detect`. ``max_iterations`` is at most 254 here.
+    params : DetectParams or mapping, optional
+        The parameters (not together with ``preset``). ``max_iterations`` is at most 254 here.
+    preset : {"paper", "recommended"}, optional
+        A named parameter set.
     dtype : {numpy.float64, numpy.float32}
         Storage type of the coordinates kept for the lag (computation is always float64).
         Profiles of another dtype are converted.
+    **overrides
+        Fields of :class:`miem.DetectParams`.
+
+    Attributes
+    ----------
+    params : DetectParams
+        The parameters used.
 
     Raises
     ------
     ValueError
-        A parameter out of range.
+        A parameter out of range or not implemented by the stream (the message names it).
 
     Examples
     --------
     >>> import numpy as np, miem
     >>> stream = miem.ProfileStream(64)
-    >>> for r in range(40):
+    >>> for r in range(50):
     ...     profile = np.zeros((64, 3)); profile[:, 0] = np.arange(64) * 0.5; profile[:, 1] = r
     ...     if r == 10:
     ...         profile[30, 2] = 3.0                  # a burr tip
@@ -76,31 +96,21 @@ class ProfileStream:
     ...         print(done.row, np.flatnonzero(done.labels == miem.ABNORMAL))
     10 [30]
     >>> len(stream.flush())                          # the last `lag` rows
-    20
+    30
     """
 
     def __init__(
         self,
         width: int,
+        params: Optional[DetectParams] = None,
         *,
-        theta0: float = 75.0,
-        scales: Union[int, Sequence[int]] = (1,),
-        max_gap: int = 1,
-        min_step: Optional[float] = None,
-        min_directions: Optional[int] = None,
-        max_iterations: int = 10,
-        max_reach: int = 32,
+        preset: Optional[str] = None,
         dtype: DTypeLike = np.float64,
+        **overrides: Any,
     ) -> None:
         w = _int("width", width, 1)
-        theta0_v = _theta0(theta0)
-        scale_list = _scales(scales)
-        gap = _int("max_gap", max_gap, 0)
-        step = _min_step(min_step)
-        step_v = -1.0 if step is None else step
-        md = 0 if min_directions is None else _int("min_directions", min_directions, 1, 4)
-        iters = _int("max_iterations", max_iterations, 1, 254)
-        reach = _int("max_reach", max_reach, 1)
+        p, name = resolve_params(params, preset, overrides, "stream")
+        core_params = p._core_grid(0, "stream")
         try:
             dt = np.dtype(dtype)
         except TypeError:
@@ -111,12 +121,13 @@ class ProfileStream:
             cls = _core.ProfileStream32
         else:
             raise ValueError(f"dtype: expected float32 or float64, got {dt}")
+        code, message = _core.check_stream_params(w, core_params)
+        if code != _OK:
+            raise ValueError(message)
         self._dtype = dt
-        self._core = cls(w, theta0_v, scale_list, gap, step_v, reach, md, iters)
-        self.params = dict(
-            theta0=theta0_v, scales=tuple(scale_list), max_gap=gap, min_step=min_step,
-            min_directions=min_directions, max_iterations=iters, max_reach=reach,
-        )
+        self._core = cls(w, core_params)
+        self.params = p
+        self._record = _params_record(p, name, "stream")
 
     @property
     def width(self) -> int:

@@ -7,40 +7,15 @@
 #include <optional>
 
 #include "miem/organized.hpp"
+#include "miem/params.hpp"
 #include "miem/plane.hpp"
+#include "miem/status.hpp"
 #include "miem/views.hpp"
 
 namespace miem {
 
-/// What went wrong, if anything.
-enum class StatusCode : std::uint8_t {
-  kOk = 0,
-  kInvalidParameter = 1,  ///< a DetectParams field (or the stream width) is out of range
-  kInvalidInput = 2,      ///< null data or output, an empty view
-  kTooFewPoints = 3,      ///< fewer than 3 finite points
-  kDegenerate = 4,        ///< points all equal or collinear: no plane
-  kWrongWidth = 5,        ///< stream: profile size differs from the stream width (rejected)
-  kEmptyProfile = 6,      ///< stream: no finite point (taken as a row of dropouts)
-  kFinished = 7,          ///< stream: push after flush; call reset() to start a new stream
-  kOutOfMemory = 8,       ///< an allocation failed
-  kInternal = 9,          ///< an unexpected exception (a bug: please report it)
-};
-
-/// A status: a code and a static, human-readable message (never freed, never allocated).
-struct Status {
-  StatusCode code = StatusCode::kOk;
-  const char* message = "ok";
-
-  /// True for StatusCode::kOk only.
-  bool ok() const noexcept { return code == StatusCode::kOk; }
-  explicit operator bool() const noexcept { return ok(); }
-};
-
-/// "ok", "invalid parameter", ... for a code.
-const char* to_string(StatusCode code) noexcept;
-
-/// Checks detection parameters without throwing (the same rules as miem::validate).
-Status check_params(const DetectParams& params) noexcept;
+/// params.check(): the same rules and message as miem::validate, without throwing.
+inline Status check_params(const DetectParams& params) noexcept { return params.check(); }
 
 /// No-throw counterparts of the throwing API. The throwing functions stay the reference; these
 /// check their arguments first and never let an exception escape.

@@ -10,6 +10,7 @@
 
 #include <Eigen/Core>
 
+#include "miem/params.hpp"
 #include "miem/plane.hpp"
 #include "miem/views.hpp"
 
@@ -57,33 +58,6 @@ enum Label : std::uint8_t {
   kEdge = 2,      ///< flagged in some directions only: a designed feature edge; never ground
   kInvalid = 3,   ///< non-finite coordinates (dropout)
 };
-
-/// Which cells get a local height (METHOD section 6).
-enum class HeightMode : std::uint8_t {
-  kAll = 0,       ///< every finite cell (running window sums, O(1) per cell)
-  kAbnormal = 1,  ///< ABNORMAL cells only (direct window fits); others NaN. Much faster.
-};
-
-/// Detection parameters. Defaults are the paper's settings.
-struct DetectParams {
-  double theta0_deg = 75.0;       ///< flag a direction when its angle <= theta0 (0 < theta0 < 180)
-  std::vector<int> scales{1};     ///< neighbour scales in cells (each >= 1)
-  int max_gap = 1;                ///< unusable cells that may be skipped to find a neighbour
-  double min_step = -1.0;         ///< < 0: off; else neighbours at least s * min_step away
-  int max_reach = 32;             ///< extra cells searched for min_step (used only with it)
-  int min_directions = 0;         ///< 0: all available directions; else 1..4
-  int max_iterations = 10;        ///< passes at most (>= 1)
-  int window = 21;                ///< height-plane window in cells (odd >= 3)
-  HeightMode height_mode = HeightMode::kAll;  ///< which cells get a height
-  bool theta0_auto = false;       ///< derive theta0 from the scan's own angles (SPEC.md)
-  double height_abs = 0.0;        ///< > 0: height test, |height| above this is ABNORMAL
-  double height_k = 0.0;          ///< > 0: height test, |height| above k * local rms is ABNORMAL
-  int edge_extent = 0;            ///< height test: EDGE groups this compact (cells) are tested too
-  int num_threads = 0;            ///< 0: all available; the labels never depend on it
-};
-
-/// Throws std::invalid_argument naming the offending parameter.
-void validate(const DetectParams& params);
 
 /// Defect kinds.
 enum class DefectKind : std::uint8_t { kProtrusion = 0, kPit = 1, kIsolated = 2 };

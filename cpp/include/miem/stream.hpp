@@ -24,6 +24,18 @@ struct StreamRow {
   bool ready() const noexcept { return index >= 0; }
 };
 
+/// The default parameters of a stream: the recommended preset (DetectParams{}) without the
+/// fields a stream does not implement yet, which it rejects (check_stream_params): theta0_auto,
+/// the height test (height_abs, height_k) and edge_extent. So the stream runs the recommended
+/// angle test (theta0 90, scales {1, 2}); batch detect_organized with these parameters gives the
+/// same labels.
+DetectParams stream_default_params();
+
+/// Checks the parameters of a stream without throwing: params.check(), then what a stream does
+/// not implement (theta0_auto, height_abs / height_k > 0, edge_extent > 0), width >= 1 and
+/// max_iterations <= 254 (the per-cell pass counter is one byte).
+Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noexcept;
+
 /// Streaming organized detector: rows are laser profiles, pushed as they arrive.
 ///
 /// Labels are exactly those of batch detection (detect_organized, docs/SPEC.md) on the grid of
@@ -61,11 +73,12 @@ struct StreamRow {
 template <typename T = double>
 class ProfileStream {
  public:
-  /// A stream of profiles of `width` points. Throws std::invalid_argument on bad parameters
-  /// (see validate), when width < 1, or when max_iterations > 254 (the per-cell pass counter is
-  /// one byte). `params.height_mode`, `window` and `num_threads` are ignored.
+  /// A stream of profiles of `width` points. Throws std::invalid_argument with the message of
+  /// check_stream_params (a bad or unsupported field, width < 1, max_iterations > 254).
+  /// `params.window` and `height_mode` only shape heights, which a stream does not report;
+  /// `num_threads` is not used (one stream runs on its caller's thread).
   /// Use nothrow::make_stream in code built without exceptions.
-  ProfileStream(std::ptrdiff_t width, DetectParams params);
+  explicit ProfileStream(std::ptrdiff_t width, DetectParams params = stream_default_params());
 
   /// Points per profile.
   std::ptrdiff_t width() const noexcept { return width_; }

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "miem/organized.hpp"
+#include "miem/params.hpp"
 #include "miem/plane.hpp"
 #include "miem/views.hpp"
 
@@ -34,30 +35,6 @@ struct NormalsOutput {
 template <typename T>
 void estimate_normals(const PointsView<T>& points, double radius, const NormalsOutput& out,
                       int num_threads = 0);
-
-/// Parameters of unorganized detection. Defaults are the paper's settings (height test off,
-/// floating groups off).
-struct PointsDetectParams {
-  double theta0_deg = 75.0;          ///< flag a direction when its angle <= theta0 (0..180 open)
-  std::vector<int> scales{1};        ///< neighbour scales (each >= 1): s * min_step per scale
-  std::optional<double> radius;      ///< neighbourhood radius (> 0); default 5 * spacing
-  int num_directions = 4;            ///< K tangent-plane directions, 2..8 (flags are 8 bits)
-  std::optional<double> min_step;    ///< shortest tangent offset (>= 0); default 0.5 * spacing
-  int min_directions = 0;            ///< 0: all available directions; else 1..K
-  int max_iterations = 10;           ///< passes at most (>= 1)
-  std::optional<double> link;        ///< defect linking distance (> 0); default radius
-  int min_group = 0;                 ///< 0: off; else >= 3: smaller floating groups are ABNORMAL
-  double height_abs = 0.0;           ///< > 0: height test, |height| above this is ABNORMAL
-  double height_k = 0.0;             ///< > 0: height test, |height| above k * local rms
-  double edge_extent = 0.0;          ///< height test: EDGE groups this compact (spacings) tested
-  std::optional<double> height_radius;  ///< height-plane radius (> 0); default 2 * radius
-  double merge_distance = 0.0;       ///< points this close (>= 0; 0: equal) are one point
-  HeightMode height_mode = HeightMode::kAll;  ///< which points get a height
-  int num_threads = 0;               ///< 0: all available; the results never depend on it
-};
-
-/// Throws std::invalid_argument naming the offending parameter.
-void validate(const PointsDetectParams& params);
 
 /// Caller-owned per-point outputs of detect_points, N values each. `labels` is required; the
 /// others may be null.

@@ -60,31 +60,11 @@ py::array_t<double> scan_line(const py::array& line, int step) {
   return out;
 }
 
-py::tuple detect_organized(const py::array& grid, double theta0, std::vector<int> scales,
-                           int max_gap, double min_step, int max_reach, int min_directions,
-                           int max_iterations, int window, int height_mode, int num_threads,
-                           bool theta0_auto, double height_abs, double height_k,
-                           int edge_extent) {
+py::tuple detect_organized(const py::array& grid, const miem::DetectParams& p) {
   require_float(grid, "grid");
   if (grid.ndim() != 3 || grid.shape(2) != 3) {
     throw std::invalid_argument("grid: expected shape (H, W, 3)");
   }
-  miem::DetectParams p;
-  p.theta0_deg = theta0;
-  p.scales = std::move(scales);
-  p.max_gap = max_gap;
-  p.min_step = min_step;
-  p.max_reach = max_reach;
-  p.min_directions = min_directions;
-  p.max_iterations = max_iterations;
-  p.window = window;
-  if (height_mode != 0 && height_mode != 1) throw std::invalid_argument("height: bad mode");
-  p.height_mode = static_cast<miem::HeightMode>(height_mode);
-  p.num_threads = num_threads;
-  p.theta0_auto = theta0_auto;
-  p.height_abs = height_abs;
-  p.height_k = height_k;
-  p.edge_extent = edge_extent;
   miem::OrganizedDetector det(p);  // validates
 
   const py::ssize_t H = grid.shape(0), W = grid.shape(1);
@@ -123,11 +103,9 @@ PYBIND11_MODULE(_core, m) {
   m.def("fit_plane", &fit_plane, py::arg("points"), py::arg("method"), py::arg("num_threads"));
   m.def("scan_line_angles", &scan_line<false>, py::arg("line"), py::arg("step"));
   m.def("scan_line_heights", &scan_line<true>, py::arg("line"), py::arg("step"));
-  m.def("detect_organized", &detect_organized, py::arg("grid"), py::arg("theta0"),
-        py::arg("scales"), py::arg("max_gap"), py::arg("min_step"), py::arg("max_reach"),
-        py::arg("min_directions"), py::arg("max_iterations"), py::arg("window"),
-        py::arg("height_mode"), py::arg("num_threads"), py::arg("theta0_auto") = false,
-        py::arg("height_abs") = 0.0, py::arg("height_k") = 0.0, py::arg("edge_extent") = 0);
+  m.def("detect_organized", &detect_organized, py::arg("grid"), py::arg("params"));
+  void bind_params(py::module_ & m);  // python/miem/_bindings/params.cpp
+  bind_params(m);
   void bind_unorganized(py::module_ & m);  // python/miem/_bindings/unorganized.cpp
   bind_unorganized(m);
   void bind_stream(py::module_ & m);  // python/miem/_bindings/stream.cpp

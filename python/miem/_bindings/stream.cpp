@@ -21,10 +21,8 @@ namespace {
 template <typename T>
 class PyProfileStream {
  public:
-  PyProfileStream(std::ptrdiff_t width, double theta0, std::vector<int> scales, int max_gap,
-                  double min_step, int max_reach, int min_directions, int max_iterations)
-      : stream_(width, params(theta0, std::move(scales), max_gap, min_step, max_reach,
-                              min_directions, max_iterations)) {}
+  PyProfileStream(std::ptrdiff_t width, const miem::DetectParams& params)
+      : stream_(width, params) {}
 
   // Returns (status code, message, row index or -1, labels or None).
   py::tuple push(const py::array& profile) {
@@ -87,20 +85,6 @@ class PyProfileStream {
     std::atomic<bool>& busy_;
   };
 
-  static miem::DetectParams params(double theta0, std::vector<int> scales, int max_gap,
-                                   double min_step, int max_reach, int min_directions,
-                                   int max_iterations) {
-    miem::DetectParams p;
-    p.theta0_deg = theta0;
-    p.scales = std::move(scales);
-    p.max_gap = max_gap;
-    p.min_step = min_step;
-    p.max_reach = max_reach;
-    p.min_directions = min_directions;
-    p.max_iterations = max_iterations;
-    return p;
-  }
-
   py::object labels(const miem::StreamRow& row) const {
     if (!row.ready()) return py::none();
     py::array_t<std::uint8_t> a(stream_.width());
@@ -115,10 +99,8 @@ class PyProfileStream {
 template <typename T>
 void bind_one(py::module_& m, const char* name) {
   py::class_<PyProfileStream<T>>(m, name)
-      .def(py::init<std::ptrdiff_t, double, std::vector<int>, int, double, int, int, int>(),
-           py::arg("width"), py::arg("theta0"), py::arg("scales"), py::arg("max_gap"),
-           py::arg("min_step"), py::arg("max_reach"), py::arg("min_directions"),
-           py::arg("max_iterations"))
+      .def(py::init<std::ptrdiff_t, const miem::DetectParams&>(), py::arg("width"),
+           py::arg("params"))
       .def("push", &PyProfileStream<T>::push, py::arg("profile"))
       .def("flush", &PyProfileStream<T>::flush)
       .def("reset", &PyProfileStream<T>::reset)

@@ -147,31 +147,8 @@ py::tuple estimate_normals(const py::array& points, double radius, int num_threa
   return py::make_tuple(normals, rms, count, valid);
 }
 
-py::tuple detect_points(const py::array& points, double theta0, std::vector<int> scales,
-                        std::optional<double> radius, int K, std::optional<double> min_step,
-                        int min_directions, int max_iterations, std::optional<double> link,
-                        int height_mode, int num_threads, int min_group, double height_abs,
-                        double height_k, double edge_extent,
-                        std::optional<double> height_radius, double merge_distance) {
+py::tuple detect_points(const py::array& points, const miem::PointsDetectParams& p) {
   require_points(points, "points");
-  miem::PointsDetectParams p;
-  p.theta0_deg = theta0;
-  p.scales = std::move(scales);
-  p.radius = radius;
-  p.num_directions = K;
-  p.min_step = min_step;
-  p.min_directions = min_directions;
-  p.max_iterations = max_iterations;
-  p.link = link;
-  p.min_group = min_group;
-  p.height_abs = height_abs;
-  p.height_k = height_k;
-  p.edge_extent = edge_extent;
-  p.height_radius = height_radius;
-  p.merge_distance = merge_distance;
-  if (height_mode != 0 && height_mode != 1) throw std::invalid_argument("heights: bad mode");
-  p.height_mode = static_cast<miem::HeightMode>(height_mode);
-  p.num_threads = num_threads;
   miem::validate(p);
 
   const py::ssize_t n = points.shape(0);
@@ -214,10 +191,5 @@ void bind_unorganized(py::module_& m) {
   m.def("point_spacing", &point_spacing, py::arg("points"), py::arg("num_threads"));
   m.def("estimate_normals", &estimate_normals, py::arg("points"), py::arg("radius"),
         py::arg("num_threads"));
-  m.def("detect_points", &detect_points, py::arg("points"), py::arg("theta0"), py::arg("scales"),
-        py::arg("radius"), py::arg("K"), py::arg("min_step"), py::arg("min_directions"),
-        py::arg("max_iterations"), py::arg("link"), py::arg("height_mode"),
-        py::arg("num_threads"), py::arg("min_group") = 0, py::arg("height_abs") = 0.0,
-        py::arg("height_k") = 0.0, py::arg("edge_extent") = 0.0,
-        py::arg("height_radius") = py::none(), py::arg("merge_distance") = 0.0);
+  m.def("detect_points", &detect_points, py::arg("points"), py::arg("params"));
 }

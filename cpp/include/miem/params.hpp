@@ -1,0 +1,105 @@
+// Detection parameters, defined once per scope, each with one check(). The throwing API throws
+// the check's message, the no-throw API returns it. Defaults are the recommended preset (the best
+// measured configuration, docs/SPEC.md "Parameters"); paper_params() is the paper's method.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <vector>
+
+#include "miem/status.hpp"
+
+namespace miem {
+
+/// Which cells get a local height (METHOD section 6).
+enum class HeightMode : std::uint8_t {
+  kAll = 0,       ///< every finite cell (running window sums, O(1) per cell)
+  kAbnormal = 1,  ///< ABNORMAL cells only (direct window fits); others NaN. Much faster.
+};
+
+/// The angle test and its iteration: shared by organized batch detection, the profile stream
+/// and unorganized clouds.
+struct AngleParams {
+  double theta0_deg = 90.0;       ///< degrees: flag a direction when its angle <= theta0 (0..180 open)
+  bool theta0_auto = false;       ///< derive theta0 from the scan's own angles (grids only, SPEC.md)
+  std::vector<int> scales{1, 2};  ///< neighbour scales (each >= 1): cells, or s * min_step on clouds
+  int min_directions = 0;         ///< 0: all available directions; else 1..number of directions
+  int max_iterations = 10;        ///< angle passes at most, and height passes at most (>= 1)
+
+  /// theta0 (unless theta0_auto), scales, min_directions >= 0, max_iterations.
+  Status check() const noexcept;
+};
+
+/// Organized grids only (batch and stream): the neighbour search along the grid's four
+/// directions, the local height window and the height test.
+struct GridParams {
+  int max_gap = 1;                ///< cells: unusable cells that may be skipped to find a neighbour
+  double min_step = -1.0;         ///< length (scan units): < 0 off; else neighbours >= s * min_step away
+  int max_reach = 32;             ///< cells: extra cells searched for min_step (used only with it)
+  int window = 21;                ///< cells: side of the height-plane window (odd >= 3)
+  HeightMode height_mode = HeightMode::kAll;  ///< which cells get a height
+  double height_abs = 0.0;        ///< length: > 0 height test, |height| above this is ABNORMAL
+  double height_k = 4.5;          ///< multiple of the window rms: > 0 height test, |h| > k rms
+  int edge_extent = 12;           ///< cells: height test also on EDGE groups this compact
+
+  /// True when the height test is on (height_abs > 0 or height_k > 0).
+  bool height_test() const noexcept { return height_abs > 0.0 || height_k > 0.0; }
+
+  /// Every field's range (min_step finite, height_abs / height_k finite, edge_extent >= 0, ...).
+  Status check() const noexcept;
+};
+
+/// Unorganized clouds only: the neighbourhood and the K tangent-plane directions.
+struct CloudParams {
+  std::optional<double> radius;    ///< length: neighbourhood radius (> 0); default 5 * spacing
+  int num_directions = 4;          ///< K tangent-plane directions, 2..8 (flags are 8 bits)
+  std::optional<double> min_step;  ///< length: shortest tangent offset (>= 0); default 0.5 * spacing
+  std::optional<double> link;      ///< length: defect linking distance (> 0); default radius
+  int min_group = 40;              ///< points: 0 off; else >= 3, smaller floating groups ABNORMAL
+  double height_abs = 0.0;         ///< length: > 0 height test, |height| above this is ABNORMAL
+  double height_k = 7.0;           ///< multiple of the local rms: > 0 height test, |h| > k rms
+  double edge_extent = 12.0;       ///< spacings: height test also on EDGE groups this compact
+  std::optional<double> height_radius;  ///< length: height-plane radius (> 0); default 2 * radius
+  double merge_distance = 0.0;     ///< length: points this close (>= 0; 0: equal) are one point
+
+  /// radius, num_directions, min_step, link, min_group, the height test, height_radius,
+  /// merge_distance.
+  Status check() const noexcept;
+};
+
+/// Parameters of organized detection (OrganizedDetector, detect_organized, ProfileStream).
+/// Default-constructed: the recommended preset.
+struct DetectParams : AngleParams, GridParams {
+  int num_threads = 0;  ///< 0: all available; the labels never depend on it
+
+  /// AngleParams::check, GridParams::check, min_directions <= 4, num_threads >= 0.
+  Status check() const noexcept;
+};
+
+/// Parameters of unorganized detection (detect_points). Default-constructed: the recommended
+/// preset (angle test, floating groups, height test). theta0_auto is not implemented for
+/// clouds: check() rejects it.
+struct PointsDetectParams : AngleParams, CloudParams {
+  HeightMode height_mode = HeightMode::kAll;  ///< which points get a height
+  int num_threads = 0;                        ///< 0: all available; results never depend on it
+
+  /// AngleParams::check, CloudParams::check, min_directions <= num_directions, no theta0_auto.
+  Status check() const noexcept;
+};
+
+/// The recommended preset (== DetectParams{}): won the accuracy benchmark (bench/accuracy).
+DetectParams recommended_params();
+
+/// The paper's method exactly: theta0 75, scales {1}, no height test, edge_extent 0.
+DetectParams paper_params();
+
+/// The paper's method on clouds: theta0 75, scales {1}, no height test, no floating groups.
+PointsDetectParams paper_points_params();
+
+/// Throws std::invalid_argument naming the offending field (the message of params.check()).
+void validate(const DetectParams& params);
+
+/// Throws std::invalid_argument naming the offending field (the message of params.check()).
+void validate(const PointsDetectParams& params);
+
+}  // namespace miem
