@@ -105,3 +105,29 @@ def test_plain_build_is_release_and_explicit_choice_kept(tmp_path: Path) -> None
     finally:
         if env_type is not None:
             os.environ["CMAKE_BUILD_TYPE"] = env_type
+
+
+def test_readme_cpp_snippet_builds_and_runs(plain_build: Path, tmp_path: Path) -> None:
+    """README.md's C++ example, as written, against the installed package (find_package)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import readme_snippets as rs
+
+    blocks = rs.blocks("cpp")
+    assert blocks, "README.md has no block marked 'snippet: cpp'"
+    prefix, src, build = tmp_path / "prefix", tmp_path / "src", tmp_path / "build"
+    src.mkdir()
+    _check(_run(["cmake", "--install", str(plain_build), "--prefix", str(prefix),
+                 "--component", "cpp"]), "cmake --install")
+    (src / "main.cpp").write_text("".join(b.code for b in blocks if b.lang == "cpp"))
+    cmake_blocks = [b.code for b in rs.blocks("cpp-cmake")]
+    (src / "CMakeLists.txt").write_text(
+        "cmake_minimum_required(VERSION 3.16)\nproject(readme_snippet CXX)\n"
+        "add_executable(controller main.cpp)\n" + "".join(cmake_blocks))
+    cache = (plain_build / "CMakeCache.txt").read_text()
+    eigen = [ln.split("=", 1)[1] for ln in cache.splitlines() if ln.startswith("Eigen3_DIR:")]
+    cmd = ["cmake", "-S", str(src), "-B", str(build), "-DCMAKE_BUILD_TYPE=Release",
+           f"-DCMAKE_PREFIX_PATH={prefix}"] + ([f"-DEigen3_DIR={eigen[0]}"] if eigen else [])
+    _check(_run(cmd), "configure the README snippet")
+    _check(_run(["cmake", "--build", str(build)]), "build the README snippet")
+    out = _check(_run([str(build / "controller")]), "run the README snippet")
+    assert "defects" in out, out
