@@ -89,6 +89,7 @@ def test_cli_session_reproduces(tmp_path: Path) -> None:
     blocks = rs.blocks("cli-session")
     assert blocks, "README.md has no block marked 'snippet: cli-session'"
     for block in blocks:
+        assert rs.session(block), f"README.md line {block.line}: the session is empty"
         for command, shown in rs.session(block):
             proc = _shell(command, tmp_path, merged=True)
             # a command shown failing ends with `; echo "exit $?"`, so the shell exits 0
