@@ -17,16 +17,22 @@ the usable mask of the previous one within ``R``); a height pass reads the label
 and the compactness of EDGE groups, which an ``edge_extent`` ball decides; the heights and the
 defects' normals read the final labels within ``window // 2``. Passes that find nothing new leave
 the labels as they are, so a block that stops earlier or later than the whole grid still agrees
-on its home cells. Blocks start on the core's 64-cell window-fit tiles, so that window sums are
-added in the same order as on the whole grid and heights agree to the last bit (``strict=True``
-also makes the halo cover that rounding in the height passes, see :func:`grid_halo`).
+on its home cells. Blocks start on the core's 64 x 128-cell window-fit tiles, so that window
+sums are added in the same order as on the whole grid and heights agree to the last bit
+(``strict=True`` also makes the halo cover that rounding in the height passes, see
+:func:`grid_halo`). Parameters whose reach this module does not know are refused.
 
-Defects are 8-connected components of ABNORMAL cells: a component inside one block's home cells
-(not touching an inner block border) is taken from that block's detection as is; components
-touching inner borders are joined across blocks (union-find over their border cells) and each
-joined defect is detected once more on its bounding box plus the halo, which gives exactly the
-fields (centroid, heights, normal, extent, kind) ``miem.detect`` reports. The list is then
-ordered and numbered as ``miem.detect`` orders it.
+Defects are 8-connected components of ABNORMAL cells. Each block is detected with 16 more cells
+of context (_MARGIN): a defect whose first cell is at home and which lies within those 16 cells
+is taken from that block's detection as is. The home parts of components that touch an inner
+block border are joined across blocks (union-find over their cells); a joined defect that no
+block reported whole is detected once more on its bounding box plus the halo, which gives
+exactly the fields (centroid, heights, normal, extent, kind) ``miem.detect`` reports. The list
+is then ordered and numbered as ``miem.detect`` orders it.
+
+Unorganized clouds (:func:`detect_points`) are cut into square x-y tiles with a halo of
+:func:`points_halo`; three far sentinel points give every tile the whole cloud's minimum corner,
+so that the core's neighbour grid, and the order of its sums, are the whole cloud's.
 
 Global quantities: ``theta0="auto"`` (a median over the whole scan) is found first by an exact
 distributed selection (:func:`auto_theta0`); the MIEM plane and the iteration count are not
@@ -53,8 +59,6 @@ __all__ = ["DaskDetectResult", "DaskPointsResult", "auto_theta0", "detect", "det
            "grid_halo", "points_halo"]
 
 _LABEL_KEYS = ("labels", "flags", "angle", "height")
-_PARAM_KEYS = ("theta0", "scales", "max_gap", "min_step", "min_directions", "max_iterations",
-               "window", "height_tolerance", "edge_extent", "max_reach", "heights")
 _DTYPES = {"labels": np.uint8, "flags": np.uint8, "angle": np.float64, "height": np.float64}
 
 
@@ -159,17 +163,24 @@ def _numbered(defects: list, rest: tuple, arrays: tuple):
     return (defects, *rest) if arrays else defects
 
 
+def _detect(data: np.ndarray, kwargs: dict) -> Any:
+    """miem.detect with the caller's arguments (positional ones, e.g. a parameter set, travel
+    under the key "_args")."""
+    kw = dict(kwargs)
+    return miem.detect(data, *kw.pop("_args", ()), **kw)
+
+
 def _run_padded(ext: np.ndarray, kwargs: dict, sep: int) -> Any:
     """miem.detect on a block; a block with fewer than 3 finite points gets 3 points `sep` rows
     below it (beyond every reach and window), which change nothing on the block itself."""
     finite = np.isfinite(ext).all(axis=-1)
     if np.count_nonzero(finite) >= 3:
-        return miem.detect(ext, **kwargs), int(np.count_nonzero(finite))
+        return _detect(ext, kwargs), int(np.count_nonzero(finite))
     h, w = ext.shape[:2]
     pad = np.full((h + sep + 1, max(w, 3), 3), np.nan, dtype=ext.dtype)
     pad[:h, :w] = ext
     pad[-1, :3] = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
-    return miem.detect(pad, **kwargs), int(np.count_nonzero(finite))
+    return _detect(pad, kwargs), int(np.count_nonzero(finite))
 
 
 def _touches(cells: np.ndarray, home: tuple, shape: tuple) -> bool:
@@ -447,8 +458,8 @@ def detect(grid: Any, *args: Any, num_threads: Optional[int] = 1, strict: bool =
     grid = _as_grid(grid)
     kwargs = dict(kwargs, num_threads=num_threads)
     params = _probe_params(args, kwargs)
-    if args:  # positional parameters: pass the resolved values as keywords
-        kwargs = dict(kwargs, **{k: params[k] for k in _PARAM_KEYS if k in params})
+    if args:  # positional parameters (a parameter set) go to every block as given
+        kwargs = dict(kwargs, _args=args)
     if params.get("theta0_auto"):
         theta0 = auto_theta0(grid, kwargs, params)
         kwargs = dict(kwargs, theta0=theta0)
@@ -509,7 +520,8 @@ def auto_theta0(grid: Any, kwargs: Optional[dict] = None, params: Optional[dict]
     grid = _as_grid(grid)
     kwargs = dict(kwargs or {})
     if params is None:
-        params = _probe_params((), kwargs)
+        kw = dict(kwargs)
+        params = _probe_params(kw.pop("_args", ()), kw)
     survey = dict(kwargs, theta0=75.0, max_iterations=1, height_tolerance=None,
                   heights="abnormal")
     halo = grid_halo(dict(params, max_iterations=1, height_tolerance=None)) - \
@@ -656,8 +668,8 @@ def _sentinels(lo: np.ndarray, hi: np.ndarray, far: float, dtype: np.dtype) -> n
 def _run_points(pts: np.ndarray, kwargs: dict, sentinels: np.ndarray) -> Any:
     """miem.detect on part of a cloud, the sentinels appended (after every real point, so that
     index order and ties are kept)."""
-    return miem.detect(np.concatenate([pts, sentinels.astype(pts.dtype, copy=False)
-                                       if pts.dtype.kind == "f" else sentinels]), **kwargs)
+    return _detect(np.concatenate([pts, sentinels.astype(pts.dtype, copy=False)
+                                   if pts.dtype.kind == "f" else sentinels]), kwargs)
 
 
 def _detect_tile(pieces: list, box: tuple, kwargs: dict, params: dict,
