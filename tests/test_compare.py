@@ -361,3 +361,18 @@ def test_float32_scan_huge_coverage_and_inputs_untouched() -> None:
     refobj = miem.load_reference(ref)
     want = refdev.deviation(scan32.reshape(-1, 3), refobj.points, refobj.normals, 1e6, 1e6)
     np.testing.assert_allclose(a.deviation.reshape(-1), want.deviation, atol=1e-9)
+
+
+def test_agreement_spike_seen_by_both(synthetic) -> None:
+    scan, height, ref, res = synthetic
+    spiked = scan.copy()
+    r, c = 40, 60  # a 2 mm single-point spike on a flat, burr-free spot
+    assert height[r - 3:r + 4, c - 3:c + 4].max() == 0
+    spiked[r, c, 2] += 2.0
+    out = miem.compare(spiked, ref, init_transform=res.transform, register_scan=False)
+    det = miem.detect(spiked)
+    spike_c = [d.id for d in out.defects if r * scan.shape[1] + c in d.indices]
+    spike_m = [d.id for d in det.defects if r * scan.shape[1] + c in d.indices]
+    assert len(spike_c) == 1 and len(spike_m) == 1
+    assert (spike_c[0], (spike_m[0],)) in out.agreement.both
+    assert spike_m[0] not in out.agreement.miem_only
