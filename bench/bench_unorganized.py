@@ -155,12 +155,13 @@ def accuracy_lines() -> list[str]:
              "shuffled (bench/accuracy/clouds.py). The cloud values of the presets were chosen "
              "on the tune split; the test split differs in seeds, surfaces, noise and steps. "
              "F1 of the defect class per focus kind (target: >= 0.95 for every kind).", ""]
-    kinds = [k for k in KINDS] + ["paper"]
+    splits = {split: list(clouds(split)) for split in ("tune", "test")}
+    groups = {c.scene.spec.group for cl in splits.values() for c in cl}
+    kinds = [k for k in KINDS if k in groups] + sorted(groups - set(KINDS))
     head = "| split | settings | all | " + " | ".join(kinds) + " |"
     lines += [head, "|" + "---|" * (3 + len(kinds))]
     verdict = []
-    for split in ("tune", "test"):
-        cl = list(clouds(split))
+    for split, cl in splits.items():
         for preset in presets:
             per: dict[str, list] = {}
             for c in cl:
