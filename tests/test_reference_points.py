@@ -216,25 +216,36 @@ def test_detect_points_matches_literal_transcription(kwargs: dict, seed: int) ->
         "max_iterations": 10,
         **{k: v for k, v in kwargs.items() if k not in ("radius", "min_step", "K")},
     }
+    # Duplicate points are merged (SPEC "Duplicate points"): row 12 duplicates row 20, so the
+    # transcription runs without it and row 12 must then read like row 20.
+    distinct = pts.copy()
+    distinct[12] = np.nan
     labels, flags, angle, degenerate, passes = literal_detect_points(
-        pts,
+        distinct,
         min_step=res.params["min_step"],
         radius=res.params["radius"],
         K=res.params["K"],
         **used,
     )
+    for arr in (labels, flags, angle, degenerate):
+        arr[12] = arr[20]
+    assert res.params["merged"] == 1
     np.testing.assert_array_equal(res.labels, labels)
     np.testing.assert_array_equal(res.flags, flags)
     np.testing.assert_allclose(res.angle, angle, rtol=0, atol=1e-9)
     np.testing.assert_array_equal(res.degenerate, degenerate)
     assert res.iterations == passes
-    heights = literal_heights(pts, res.labels, res.params["height_radius"])
+    lab = res.labels.copy()
+    lab[12] = INV
+    heights = literal_heights(distinct, lab, res.params["height_radius"])
+    heights[12] = heights[20]
     np.testing.assert_allclose(res.height, heights, rtol=0, atol=1e-9)
 
 
 def test_spacing_radius_by_brute_force() -> None:
     pts = noisy_cloud(3, n=300)
     fin = pts[np.all(np.isfinite(pts), axis=1)]
+    fin = np.unique(fin, axis=0)  # duplicates are merged before the spacing (SPEC)
     d = np.linalg.norm(fin[:, None, :] - fin[None, :, :], axis=2)
     np.fill_diagonal(d, np.inf)
     spacing = float(np.median(d.min(axis=1)))
@@ -426,7 +437,8 @@ def test_defaults_recorded_on_known_lattice() -> None:
     h = 0.25
     pts = lattice(12, h, m=9)
     res = paper_detect_points(pts)
-    off = {"min_group": 0, "edge_extent": 0.0, "height_tolerance": None}
+    off = {"min_group": 0, "edge_extent": 0.0, "height_tolerance": None,
+           "merge_distance": 0.0, "merged": 0}
     assert res.params == {"spacing": h, "radius": 5 * h, "min_step": 0.5 * h, "link": 5 * h,
                           "K": 4, "height_radius": 10 * h, **off}
     assert isinstance(res.params["K"], int)
@@ -451,9 +463,11 @@ def test_spacing_median_and_duplicates() -> None:
     dup = np.vstack([pts, pts[:5]])
     res = paper_detect_points(dup)
     assert res.params["spacing"] == 1.0
-    # More than half duplicates: spacing 0 is an error.
-    with pytest.raises(ValueError, match="points"):
-        paper_detect_points(np.vstack([pts, pts]))
+    # More than half duplicates: merged (SPEC "Duplicate points"), the spacing is the lattice's.
+    both = paper_detect_points(np.vstack([pts, pts]))
+    assert both.params["spacing"] == 1.0 and both.params["merged"] == len(pts)
+    with pytest.raises(ValueError, match="one point"):
+        paper_detect_points(np.vstack([pts[:1]] * 5))
 
 
 def test_nonfinite_rows_are_invalid_and_indices_are_input_rows() -> None:
