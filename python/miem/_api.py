@@ -106,7 +106,9 @@ class Plane:
         if pts.ndim < 1 or pts.shape[-1] != 3:
             raise ValueError(f"points: expected shape (..., 3), got {pts.shape}")
         # Subtract the centroid first: exact for far-from-origin coordinates.
-        return (pts.astype(np.float64, copy=False) - self.centroid) @ self.normal
+        with np.errstate(invalid="ignore"):
+            dist = (pts.astype(np.float64, copy=False) - self.centroid) @ self.normal
+        return np.where(np.isfinite(pts).all(axis=-1), dist, np.nan)[()]
 
 
 @dataclass(frozen=True)
@@ -216,7 +218,28 @@ def _xyz_fields(arr: np.ndarray, name: str) -> np.ndarray:
     return np.stack(cols, axis=-1).astype(np.result_type(*cols, np.float32), copy=False)
 
 
-def _as_float_array(a: object, name: str) -> np.ndarray:
+#: Largest finite coordinate magnitude accepted, and the least the largest may be (SPEC
+#: "Numbers"): beyond them float64 overflows or underflows in the tests' powers of differences.
+COORDINATE_MAX = 1e18
+COORDINATE_MIN = 1e-18
+
+
+def _check_range(arr: np.ndarray, name: str, lower: bool = True) -> None:
+    """ValueError when the finite coordinates leave the SPEC range (one pass, no copy). With
+    ``lower=False`` only the upper bound is checked (a stream sees one profile at a time, and
+    the lower bound is about the whole scan)."""
+    finite = np.isfinite(arr)  # one byte per value, no float temporary
+    hi = float(np.max(arr, where=finite, initial=-np.inf))
+    lo = float(np.min(arr, where=finite, initial=np.inf))
+    top = max(abs(hi), abs(lo)) if hi >= lo else 0.0
+    if top > COORDINATE_MAX or (lower and 0.0 < top < COORDINATE_MIN):
+        raise ValueError(
+            f"{name}: finite coordinates reach a magnitude of {top:.3g}, outside the range the "
+            f"method computes without overflow (at most {COORDINATE_MAX:g}, largest at least "
+            f"{COORDINATE_MIN:g}); rescale the points")
+
+
+def _as_float_array(a: object, name: str, lower: bool = True) -> np.ndarray:
     """A float32/float64 native-order array view of `a` (copied only when it must be).
 
     A structured array with fields x, y, z is accepted wherever an ``(..., 3)`` array is.
@@ -237,6 +260,7 @@ def _as_float_array(a: object, name: str) -> np.ndarray:
     item = arr.itemsize
     if not arr.flags.aligned or any(s % item for s in arr.strides):
         arr = arr.copy()  # aligned and C-ordered: the core never reads a misaligned value
+    _check_range(arr, name, lower)
     return arr
 
 

@@ -153,13 +153,19 @@ def check_las(path: Path, compressed: bool) -> int:
             evlr_start, n_evlrs, n_points14 = struct.unpack_from("<QIQ", head, 235)
             n_points = n_points14 or n_points
         pos = header_size
+        laszip = b""
         for i in range(n_vlrs):  # each VLR's length must keep it before the point data
-            fh.seek(pos + 52)
-            raw = fh.read(2)
-            _need(path, len(raw) == 2, f"truncated: VLR {i} of {n_vlrs}")
-            pos += 54 + struct.unpack("<H", raw)[0]
+            fh.seek(pos)
+            raw = fh.read(54)
+            _need(path, len(raw) == 54, f"truncated: VLR {i} of {n_vlrs}")
+            length = struct.unpack_from("<H", raw, 20)[0]
+            if raw[2:16] == b"laszip encoded" and struct.unpack_from("<H", raw, 18)[0] == 22204:
+                laszip = fh.read(length)
+            pos += 54 + length
             _need(path, pos <= offset, f"corrupt header: VLR {i} of {n_vlrs} runs past the point "
                                        f"data offset {offset:,}")
+        if compressed and laszip:
+            _check_laz_chunk(path, fh, laszip, offset, rec_len, size)
         payload = (evlr_start if n_evlrs and evlr_start > offset else size) - offset
         need = n_points * rec_len
         if compressed:
@@ -182,6 +188,49 @@ def check_las(path: Path, compressed: bool) -> int:
                 pos += 60 + struct.unpack("<Q", raw)[0]
                 _need(path, pos <= size, f"truncated: EVLR {i} of {n_evlrs} runs past the end")
     return int(n_points)
+
+
+# Layers of each LASzip item type in a layered chunk (point formats 6-10); Byte14 has one per byte.
+_LAZ_LAYERS = {10: 9, 11: 1, 12: 2, 13: 1}
+
+
+def _check_laz_chunk(path: Path, fh, laszip: bytes, offset: int, rec_len: int, size: int) -> None:
+    """LAZ: the chunk table's count and, for layered chunks (compressor 3), the first chunk's
+    layer sizes must fit in the file.
+
+    lazrs allocates the chunk table and each layer at their declared sizes before decoding (one
+    corrupt count asks for tens of gigabytes, and a failed allocation aborts the process), so the
+    counts are checked here: the table starts with a u32 version and a u32 chunk count; a layered
+    chunk with the raw first point, a u32 point count and one u32 byte count per layer."""
+    if len(laszip) < 34 or struct.unpack_from("<H", laszip, 0)[0] not in (2, 3):
+        return
+    layered = struct.unpack_from("<H", laszip, 0)[0] == 3
+    n_items = struct.unpack_from("<H", laszip, 32)[0]
+    _need(path, 0 < n_items and len(laszip) >= 34 + 6 * n_items,
+          f"corrupt LASzip record: {n_items} items in {len(laszip)} bytes")
+    layers = 0
+    for k in range(n_items):
+        kind, item_size, _ = struct.unpack_from("<HHH", laszip, 34 + 6 * k)
+        layers += item_size if kind == 14 else _LAZ_LAYERS.get(kind, 0)
+    fh.seek(offset)
+    raw = fh.read(8)
+    _need(path, len(raw) == 8, "truncated: no LAZ chunk table offset")
+    table = struct.unpack("<q", raw)[0]
+    end = table if offset + 8 < table <= size else size
+    if offset + 8 < table <= size - 8:  # the chunk table: u32 version, u32 number of chunks
+        fh.seek(table)
+        n_chunks = struct.unpack("<II", fh.read(8))[1]
+        _need(path, n_chunks <= size - offset,
+              f"corrupt LAZ chunk table: {n_chunks:,} chunks in {size - offset:,} bytes")
+    if not layered:
+        return
+    fh.seek(offset + 8 + rec_len + 4)
+    raw = fh.read(4 * layers)
+    _need(path, len(raw) == 4 * layers, "truncated: the first LAZ chunk has no layer sizes")
+    sizes = struct.unpack(f"<{layers}I", raw)
+    room = end - fh.tell()
+    _need(path, sum(sizes) <= room,
+          f"corrupt LAZ chunk: its layers declare {sum(sizes):,} bytes, {room:,} are left")
 
 
 def check_las_grid(path: Path, shape: tuple[int, int], index: np.ndarray) -> int:

@@ -27,6 +27,7 @@ import io as _stdio
 import os
 import struct
 import tempfile
+import warnings
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -363,6 +364,10 @@ def read(path: PathLike, format: str | None = None) -> ScanData:
         raise
     except Exception as exc:  # the parsers raise many kinds on a corrupt file
         raise ScanFileError(p, f"cannot read it as {fmt}: {type(exc).__name__}: {exc}") from exc
+    except BaseException as exc:  # a Rust parser's panic (lazrs) is a BaseException
+        if type(exc).__name__ != "PanicException":
+            raise
+        raise ScanFileError(p, f"cannot read it as {fmt}: the parser panicked: {exc}") from exc
 
 
 def _is_gocator(path: Path) -> bool:
@@ -560,8 +565,10 @@ def _read_text(path: Path, fmt: str) -> ScanData:
                 names = cand
                 break
     try:
-        table = np.loadtxt(path, delimiter=delimiter, comments=("#", "//"), skiprows=skip,
-                           dtype=np.float64, ndmin=2, encoding="utf-8")
+        with warnings.catch_warnings():  # "input contained no data": reported just below
+            warnings.filterwarnings("ignore", "loadtxt: input contained no data", UserWarning)
+            table = np.loadtxt(path, delimiter=delimiter, comments=("#", "//"), skiprows=skip,
+                               dtype=np.float64, ndmin=2, encoding="utf-8")
     except ValueError as exc:
         raise ScanFileError(path, f"bad text row: {exc}") from exc
     if table.shape[0] == 0:

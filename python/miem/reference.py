@@ -231,12 +231,26 @@ def _check_int(name: str, value: Any, minimum: int, maximum: int | None = None) 
     return v
 
 
+#: SPEC "Numbers": the range of finite coordinate magnitudes the tests compute without overflow.
+COORDINATE_MAX = 1e18
+COORDINATE_MIN = 1e-18
+
+
 def _as_points_array(name: str, data: ArrayLike) -> NDArray[Any]:
-    """Convert to an array and check that its dtype is integer or floating."""
+    """Convert to an array and check that its dtype is integer or floating and its finite
+    coordinates are in the SPEC range."""
     arr = np.asarray(data)
     if arr.dtype.kind not in "iuf":
         raise ValueError(
             f"{name}: expected a numeric (integer or floating) array, got dtype {arr.dtype}"
+        )
+    mags = np.abs(arr[np.isfinite(arr)].astype(np.float64))
+    top = float(mags.max()) if mags.size else 0.0
+    if top > COORDINATE_MAX or 0.0 < top < COORDINATE_MIN:
+        raise ValueError(
+            f"{name}: finite coordinates reach a magnitude of {top:.3g}, outside the range the "
+            f"method computes without overflow (at most {COORDINATE_MAX:g}, largest at least "
+            f"{COORDINATE_MIN:g}); rescale the points"
         )
     return arr
 

@@ -7,6 +7,7 @@ nothing per profile.
 
 from __future__ import annotations
 
+import os
 from typing import Any, List, NamedTuple, Optional
 
 import numpy as np
@@ -21,6 +22,23 @@ __all__ = ["ProfileStream", "StreamRow"]
 # StatusCode values of the C++ core (miem/nothrow.hpp) that push() can return.
 _OK = 0
 _EMPTY_PROFILE = 6
+
+
+def _check_storage(width: int, dtype: np.dtype, passes: int, reach: int) -> None:
+    """ValueError naming `width` when the stream's buffers (``lag + 3 R + 1`` profiles of
+    coordinates and state, ``lag + R + 1`` of labels, README "Guarantees") exceed half of the
+    machine's memory, so that a typo never gets the process killed for memory."""
+    lag = passes * reach
+    need = width * ((lag + 3 * reach + 1) * (3 * dtype.itemsize + 1) + (lag + reach + 1) * 2)
+    try:
+        limit = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") // 2
+    except (AttributeError, ValueError, OSError):  # pragma: no cover - not POSIX
+        limit = 1 << 34
+    if need > limit:
+        raise ValueError(
+            f"width: a stream of {width:,} points per profile with a lag of {lag} profiles "
+            f"keeps about {need / 2**30:.1f} GiB, more than half of this machine's memory "
+            f"({limit / 2**30:.1f} GiB); lower max_iterations or split the profile")
 
 
 class StreamRow(NamedTuple):
@@ -125,7 +143,14 @@ class ProfileStream:
         if code != _OK:
             raise ValueError(message)
         self._dtype = dt
-        self._core = cls(w, core_params)
+        a, gp = p.angle, p.grid
+        _check_storage(w, dt, a.max_iterations, max(a.scales) + gp.max_gap
+                       + (0 if gp.min_step is None else gp.max_reach))
+        try:
+            self._core = cls(w, core_params)
+        except MemoryError:
+            raise ValueError(f"width: cannot allocate a stream of {w:,} points per profile "
+                             f"(max_iterations={a.max_iterations})") from None
         self.params = p
         self._record = _params_record(p, name, "stream")
 
@@ -175,7 +200,7 @@ class ProfileStream:
             Wrong shape or dtype kind, or the stream was flushed (call :meth:`reset`). A rejected
             profile leaves the stream unchanged.
         """
-        arr = _as_float_array(profile, "profile")  # native byte order, aligned
+        arr = _as_float_array(profile, "profile", lower=False)  # native order, aligned
         if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] != self.width:
             raise ValueError(f"profile: expected shape ({self.width}, 3), got {arr.shape}")
         if arr.dtype != self._dtype:

@@ -1,0 +1,6 @@
+"""Fuzz miem.io.read on .npz files (see fuzz/README.md)."""
+
+import _harness
+
+if __name__ == "__main__":
+    _harness.main(_harness.reader(".npz"))
