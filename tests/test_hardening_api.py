@@ -203,3 +203,113 @@ def test_stream_from_two_threads_is_refused_never_corrupted():
     assert stream.rows_pushed == sum(ok)
     rows = [r.row for r in stream.flush()]
     assert rows == list(range(sum(ok) - len(rows), sum(ok)))
+
+
+# ---------------------------------------------------------------------------------------------
+# item 6: scratch sized by the grid, not by the window
+
+
+def test_huge_window_on_a_small_grid_costs_the_grid(isolated):
+    code = isolated.CASES + """
+import numpy as np, miem
+y, x = np.mgrid[0:20, 0:20] * 0.5
+g = np.dstack([x, y, np.zeros_like(x)]); g[7, 9, 2] = 2.0
+ref = miem.detect(g, window=41)  # already covers the whole grid
+def same(w):
+    r = miem.detect(g, window=w)
+    np.testing.assert_array_equal(r.labels, ref.labels)
+    np.testing.assert_array_equal(r.height, ref.height)
+result = run_cases({str(w): (lambda w=w: same(w)) for w in (6001, 2**30 - 1)})
+"""
+    rep = isolated(code, timeout=60)
+    assert rep["ok"], rep
+    for w, rec in rep["result"].items():
+        assert rec["ok"] and rec["seconds"] < 5, (w, rec)
+    assert rep["peak_mb"] < PEAK_MB
+
+
+# ---------------------------------------------------------------------------------------------
+# item 10: overflow and non-finite results are reported
+
+
+@pytest.mark.parametrize("scale", [1e154, 1e300, 1e-310, 1e-30, 1e19])
+def test_coordinates_beyond_the_range_are_refused_by_core_and_reference(scale):
+    from miem import reference as ref
+
+    g = _grid() * scale
+    pts = g.reshape(-1, 3)
+    for call in (lambda: miem.detect(g), lambda: miem.fit_plane(pts, "lstsq"),
+                 lambda: miem.detect(pts[np.isfinite(pts).all(axis=1)]),
+                 lambda: miem.scan_line_angles(g[3]), lambda: ref.detect(g),
+                 lambda: ref.fit_plane(pts, "lstsq")):
+        with pytest.raises(ValueError, match="rescale"):
+            call()
+
+
+def test_the_range_edges_still_compute_like_unit_scale():
+    """Inside the range the answer is the unit-scale answer (power-of-two factors are exact)."""
+    g = _grid()
+    base = miem.detect(g)
+    for s in (2.0**54, 2.0**-50):  # grid coordinates up to 15.5: 2**54 x 15.5 < 1e18
+        res = miem.detect(g * s)
+        np.testing.assert_array_equal(res.labels, base.labels)
+        np.testing.assert_array_equal(res.height, base.height * s)
+        plane = miem.fit_plane(g.reshape(-1, 3) * s, "lstsq")
+        np.testing.assert_allclose(plane.normal, miem.fit_plane(g.reshape(-1, 3), "lstsq").normal,
+                                   atol=1e-12)
+
+
+def test_stream_refuses_profiles_beyond_the_range():
+    s = miem.ProfileStream(4)
+    s.push(np.zeros((4, 3)))
+    with pytest.raises(ValueError, match="profile.*rescale"):
+        s.push(np.full((4, 3), 1e300))
+    assert s.rows_pushed == 1  # refused, not half-taken
+
+
+def test_plane_distance_of_non_finite_points_is_nan():
+    plane = miem.fit_plane(_grid().reshape(-1, 3))
+    d = plane.distance(np.array([[np.inf, 0, 0], [0, 0, -np.inf], [np.nan, 0, 0], [0, 0, 1.0]]))
+    assert np.isnan(d[:3]).all() and np.isfinite(d[3])
+
+
+# ---------------------------------------------------------------------------------------------
+# item 11: messages name the argument the caller gave
+
+
+def test_theta0_text_on_a_cloud_names_theta0():
+    cloud = np.random.default_rng(0).random((200, 3))
+    with pytest.raises(ValueError, match=r"^theta0: expected degrees .* got 'abc'"):
+        miem.detect(cloud, theta0="abc")
+
+
+@pytest.mark.parametrize("width", [2**30, 2**40])
+def test_huge_stream_width_names_width(width, isolated):
+    code = f"""
+import miem
+try:
+    miem.ProfileStream({width})
+    result = "constructed"
+except ValueError as exc:
+    result = str(exc)
+"""
+    rep = isolated(code, timeout=30)
+    assert rep["ok"] and rep["result"].startswith("width:"), rep
+    assert rep["peak_mb"] < PEAK_MB
+
+
+def test_functions_and_a_shared_neighbor_grid_from_several_threads():
+    """The core releases the GIL; concurrent calls give the sequential results."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    grids = [_grid(64, 64, seed=s) for s in range(6)]
+    cloud = grids[0].reshape(-1, 3)
+    cloud = cloud[np.isfinite(cloud).all(axis=1)]
+    ng = miem.NeighborGrid(cloud, 0.5)
+    seq = [miem.detect(g).labels for g in grids]
+    seq_q = [ng.radius_query(i, 1.0) for i in range(0, 400, 7)]
+    with ThreadPoolExecutor(4) as pool:
+        par = list(pool.map(lambda g: miem.detect(g).labels, grids))
+        par_q = list(pool.map(lambda i: ng.radius_query(i, 1.0), range(0, 400, 7)))
+    for a, b in zip(seq + seq_q, par + par_q):
+        np.testing.assert_array_equal(a, b)
