@@ -313,3 +313,51 @@ def test_functions_and_a_shared_neighbor_grid_from_several_threads():
         par_q = list(pool.map(lambda i: ng.radius_query(i, 1.0), range(0, 400, 7)))
     for a, b in zip(seq + seq_q, par + par_q):
         np.testing.assert_array_equal(a, b)
+
+
+# ---------------------------------------------------------------------------------------------
+# item 7: long thin grids cost what square ones do
+
+
+def _surface(h, w, seed=0):
+    rng = np.random.default_rng(seed)
+    g = np.empty((h, w, 3))
+    g[..., 0] = np.arange(w)[None, :] * 0.5
+    g[..., 1] = np.arange(h)[:, None] * 0.5
+    g[..., 2] = 0.01 * rng.standard_normal((h, w))
+    flat = g.reshape(-1, 3)
+    flat[rng.integers(0, h * w, 40), 2] += 2.0
+    flat[rng.integers(0, h * w, 40)] = np.nan
+    return g
+
+
+@pytest.mark.parametrize("shape", [(1, 20000), (2, 9000), (20000, 1), (3, 7000)])
+def test_thin_grids_match_the_reference(shape):
+    from miem import reference as ref
+
+    g = _surface(*shape)
+    core, oracle = miem.detect(g, scales=(1, 2)), ref.detect(g, scales=(1, 2))
+    np.testing.assert_array_equal(core.labels, oracle.labels)
+    np.testing.assert_array_equal(core.flags, oracle.flags)
+    np.testing.assert_allclose(core.height, oracle.height, atol=1e-9, equal_nan=True)
+    assert len(np.unique(core.labels)) >= 2
+
+
+def test_thin_grid_memory_in_line_with_a_square_one(isolated):
+    code = isolated.CASES + """
+import resource, numpy as np, miem
+def grow(h, w, nt):
+    rng = np.random.default_rng(0)
+    g = np.empty((h, w, 3)); g[..., 0] = np.arange(w)[None, :]; g[..., 1] = np.arange(h)[:, None]
+    g[..., 2] = 0.01 * rng.standard_normal((h, w))
+    miem.detect(g[:4, :4] if h > 4 else g[:, :8], num_threads=nt)  # load everything first
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    miem.detect(g, num_threads=nt)
+    return (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) / 1024
+result = {f"{h}x{w}": grow(h, w, 2) for h, w in [(1, 2_000_000), (1414, 1414), (2_000_000, 1)]}
+"""
+    rep = isolated(code, timeout=120)
+    assert rep["ok"], rep
+    grow = rep["result"]
+    # the thin grids run first: each figure is the growth of the process's peak from that call
+    assert grow["1x2000000"] < 150 and grow["2000000x1"] < 150, grow

@@ -198,23 +198,31 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
   }
 
   const int smax = *std::max_element(p.scales.begin(), p.scales.end());
-  const bool row_kernel = p.min_step < 0.0 && smax <= 64;
+  // The row kernel keeps 2 smax + 1 converted rows per thread (about 32 bytes per cell each):
+  // on a long thin grid (1 x 10^7) that is gigabytes, so it runs only while its scratch stays
+  // within 8 bytes per grid cell (at least 1 MiB), with no more threads than rows; beyond, the
+  // scalar judge (same labels, SPEC) reads the grid in place (README "Guarantees").
+  const int ntk = static_cast<int>(std::min<std::ptrdiff_t>(nt, H));
+  const double kernel_bytes = static_cast<double>(ntk) * static_cast<double>(W) *
+                              (32.0 * (2 * smax + 1) + 24.0);
+  const bool row_kernel = p.min_step < 0.0 && smax <= 64 &&
+                          kernel_bytes <= std::max(double(1 << 20), 8.0 * static_cast<double>(N));
   if (row_kernel) {
-    if (ws.rows.size() < static_cast<std::size_t>(nt)) ws.rows.resize(nt);
-    for (int t = 0; t < nt; ++t) ws.rows[t].resize(2 * smax + 1, W);
+    if (ws.rows.size() < static_cast<std::size_t>(ntk)) ws.rows.resize(ntk);
+    for (int t = 0; t < ntk; ++t) ws.rows[t].resize(2 * smax + 1, W);
   }
   // Pass 1 over every finite cell (row kernel; the scalar judge for min_step and fallbacks).
   auto pass1 = [&](double* angle_out) {
     const CellJudge<T> judge(g, usable, p);
     if (row_kernel) {
-#pragma omp parallel num_threads(nt) if (nt > 1)
+#pragma omp parallel num_threads(ntk) if (ntk > 1)
       {
         int tid = 0;
 #ifdef MIEM_HAVE_OPENMP
         tid = omp_get_thread_num();
 #endif
         // Contiguous row blocks, one per thread: each row is converted once per block.
-        const std::ptrdiff_t r0 = H * tid / nt, r1 = H * (tid + 1) / nt;
+        const std::ptrdiff_t r0 = H * tid / ntk, r1 = H * (tid + 1) / ntk;
         pass1_rows(g, usable, p, smax, r0, r1, ws.rows[tid], judge, labels, out.flags,
                    angle_out);
       }

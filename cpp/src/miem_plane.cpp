@@ -10,41 +10,52 @@ std::optional<Plane> miem_plane(const GridView<T>& g, const std::uint8_t* labels
                                 int num_threads, Workspace& ws) {
   const std::ptrdiff_t H = g.rows, W = g.cols;
   const int nt = thread_count(num_threads, H * W);
+  // Blocks of whole rows with at least 4096 cells each (one row per block on wide grids): the
+  // moments buffer stays small on tall thin grids (10^7 x 1) and the blocks depend on the shape
+  // only, so the result is the same for any thread count.
+  const std::ptrdiff_t per = std::max<std::ptrdiff_t>(1, (4096 + W - 1) / W);
+  const std::ptrdiff_t B = (H + per - 1) / per;
   std::vector<Moments>& rows = ws.plane_rows;
-  rows.resize(static_cast<std::size_t>(H));
+  rows.resize(static_cast<std::size_t>(B));
 #pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
-  for (std::ptrdiff_t r = 0; r < H; ++r) {
+  for (std::ptrdiff_t b = 0; b < B; ++b) {
     Moments m;
     Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-    const std::uint8_t* lab = labels + r * W;
-    for (std::ptrdiff_t c = 0; c < W; ++c) {
-      const std::uint8_t l = lab[c];
-      if (l == kNormal || l == kEdge) {
-        sum += g(r, c);
-        ++m.n;
+    const std::ptrdiff_t r0 = b * per, r1 = std::min(H, r0 + per);
+    for (std::ptrdiff_t r = r0; r < r1; ++r) {
+      const std::uint8_t* lab = labels + r * W;
+      for (std::ptrdiff_t c = 0; c < W; ++c) {
+        const std::uint8_t l = lab[c];
+        if (l == kNormal || l == kEdge) {
+          sum += g(r, c);
+          ++m.n;
+        }
       }
     }
     if (m.n > 0) {
       m.mean = sum / static_cast<double>(m.n);
       double sxx = 0, sxy = 0, sxz = 0, syy = 0, syz = 0, szz = 0;
-      for (std::ptrdiff_t c = 0; c < W; ++c) {
-        const std::uint8_t l = lab[c];
-        if (l == kNormal || l == kEdge) {
-          const Eigen::Vector3d q = g(r, c) - m.mean;
-          sxx += q.x() * q.x();
-          sxy += q.x() * q.y();
-          sxz += q.x() * q.z();
-          syy += q.y() * q.y();
-          syz += q.y() * q.z();
-          szz += q.z() * q.z();
+      for (std::ptrdiff_t r = r0; r < r1; ++r) {
+        const std::uint8_t* lab = labels + r * W;
+        for (std::ptrdiff_t c = 0; c < W; ++c) {
+          const std::uint8_t l = lab[c];
+          if (l == kNormal || l == kEdge) {
+            const Eigen::Vector3d q = g(r, c) - m.mean;
+            sxx += q.x() * q.x();
+            sxy += q.x() * q.y();
+            sxz += q.x() * q.z();
+            syy += q.y() * q.y();
+            syz += q.y() * q.z();
+            szz += q.z() * q.z();
+          }
         }
       }
       m.scatter << sxx, sxy, sxz, sxy, syy, syz, sxz, syz, szz;
     }
-    rows[static_cast<std::size_t>(r)] = m;
+    rows[static_cast<std::size_t>(b)] = m;
   }
-  for (std::ptrdiff_t width = 1; width < H; width *= 2)
-    for (std::ptrdiff_t b = 0; b + width < H; b += 2 * width) rows[b].merge(rows[b + width]);
+  for (std::ptrdiff_t width = 1; width < B; width *= 2)
+    for (std::ptrdiff_t b = 0; b + width < B; b += 2 * width) rows[b].merge(rows[b + width]);
   Plane plane;
   if (eigen_plane_from_moments(rows[0], &plane) == PlaneStatus::kOk) return plane;
   return std::nullopt;

@@ -34,6 +34,10 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
   }
   if (out.labels == nullptr) throw std::invalid_argument("out.labels: must not be null");
   eff_ = params_;  // same-size assignment: no allocation after the first run
+  // A window wider than the grid covers all of it from every cell, as 2 max(H, W) + 1 does: the
+  // same windows, so the scratch the window sizes is bounded by the grid (README "Guarantees").
+  const std::ptrdiff_t cover = 2 * std::max(g.rows, g.cols) + 1;
+  if (eff_.window > cover) eff_.window = static_cast<int>(cover);
   const DetectParams& p = eff_;
   const std::size_t N = static_cast<std::size_t>(g.rows * g.cols);
   std::uint8_t* labels = out.labels;
