@@ -21,7 +21,14 @@ try:
 except BaseException as exc:
     out = {"ok": False, "type": type(exc).__name__, "message": str(exc),
            "mro": [c.__name__ for c in type(exc).__mro__]}
-out["peak_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+# VmHWM: this interpreter's own peak; ru_maxrss would keep the forking parent's size (Linux
+# carries it across exec).
+try:
+    with open("/proc/self/status") as fh:
+        hwm = [ln for ln in fh if ln.startswith("VmHWM:")][0]
+    out["peak_mb"] = int(hwm.split()[1]) / 1024
+except (OSError, IndexError):
+    out["peak_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 sys.stdout.flush()
 print("\\n@@REPORT@@" + json.dumps(out))
 """
