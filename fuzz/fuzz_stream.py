@@ -48,7 +48,7 @@ def test_one_input(data: bytes) -> None:
         except ValueError as exc:  # coordinates beyond the SPEC range: refused, not mislabelled
             assert "rescale" in str(exc), exc
             try:
-                miem.detect(grid, **params)
+                miem.detect(grid, stream.params)
             except ValueError as batch:
                 assert "rescale" in str(batch), batch
                 return
@@ -61,7 +61,7 @@ def test_one_input(data: bytes) -> None:
     assert labels.shape == (rows, width) and labels.max() <= 3
     if np.isfinite(grid).all(axis=2).sum() >= 3:
         try:
-            batch = miem.detect(grid, **params).labels
+            batch = miem.detect(grid, stream.params).labels  # the parameters the stream used
         except ValueError as exc:  # all coordinates below 1e-18: only the batch can tell
             assert "rescale" in str(exc), exc
             return
