@@ -36,11 +36,11 @@ def _transform() -> np.ndarray:
 
 
 def cases():
-    import miem
+    from miem import io as mio
 
     if REAL.exists():
-        data = miem.io.read(REAL)
-        grid = miem.io.grid_from_scanlines(data.points)
+        data = mio.read(REAL)
+        grid = mio.grid_from_scanlines(data.points)
         yield "second_source.pcd (real)", grid, "recommended"
     for h, n in ((300, 100), (600, 400), (1000, 1200)):
         yield f"synthetic {h}x{h}, {n} injected", scan_grid(h, h, seed=1, n_defects=n), "paper"

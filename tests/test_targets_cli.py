@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import miem
+from miem import io as mio
 from miem import robot_formats as rf
 from miem.cli import main
 
@@ -85,8 +86,8 @@ def test_real_scan_targets(tmp_path) -> None:
     assert main(["plan", str(DATA), "--preset", "recommended", "--tool-radius", "3",
                  "--min-height", "0.2", "-o", str(out)]) == 0
     doc = json.loads(out.read_text())
-    data = miem.io.read(DATA)
-    grid = miem.io.grid_from_scanlines(data.points)
+    data = mio.read(DATA)
+    grid = mio.grid_from_scanlines(data.points)
     res = miem.detect(grid, preset="recommended")
     prot = [d for d in res.defects if d.kind == "protrusion" and d.peak_height >= 0.2]
     assert 0 < len(doc["targets"]) <= len(prot)
