@@ -24,6 +24,8 @@ from common import best_of, cpu_name, scan_grid  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 OUT = HERE / "results_targets.md"
+README = HERE.parent / "README.md"
+MARKERS = ("<!-- targets-results:start -->", "<!-- targets-results:end -->")
 REAL = HERE.parents[1] / "shared" / "data" / "real" / "second_source.pcd"
 
 
@@ -46,7 +48,7 @@ def cases():
         yield f"synthetic {h}x{h}, {n} injected", scan_grid(h, h, seed=1, n_defects=n), "paper"
 
 
-def run(repeats: int) -> str:
+def run(repeats: int) -> tuple:
     import miem
     from miem import reference_targets as ref
 
@@ -91,16 +93,37 @@ def run(repeats: int) -> str:
     for name, nd, nt, length, td, tc, tr in rows:
         lines.append(f"| {name} | {nd:,} | {nt:,} | {length:,.1f} | {td:.2f} | {tc * 1e3:.2f} | "
                      f"{tr * 1e3:,.1f} | {tr / tc:,.0f}x |")
-    return "\n".join(lines) + "\n"
+    real = [r for r in rows if "real" in r[0]]
+    big = max(rows, key=lambda r: r[1])
+    parts = [f"{r[5] * 1e3:.0f} ms for the {r[1]:,} defects of {r[0].split()[0]} (detection "
+             f"{r[4]:.2f} s)" for r in real]
+    parts.append(f"{big[5] * 1e3:.0f} ms for {big[1]:,} defects on a {big[0].split()[1]} grid")
+    ratios = [r[6] / r[5] for r in rows]
+    summary = (f"`plan_targets`: {'; '.join(parts)}; {min(ratios):,.0f}-{max(ratios):,.0f}x "
+               "faster than the NumPy reference.")
+    return "\n".join(lines) + "\n", summary
+
+
+def _write_readme(summary: str) -> None:
+    if not README.exists():
+        return
+    text = README.read_text(encoding="utf-8")
+    if MARKERS[0] not in text or MARKERS[1] not in text:
+        return
+    head, rest = text.split(MARKERS[0], 1)
+    _, tail = rest.split(MARKERS[1], 1)
+    README.write_text(f"{head}{MARKERS[0]}\n{summary}\n{MARKERS[1]}{tail}", encoding="utf-8")
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=5)
     args = ap.parse_args(argv)
-    text = run(args.repeats)
+    text, summary = run(args.repeats)
     print(text)
+    print(summary)
     OUT.write_text(text, encoding="utf-8")
+    _write_readme(summary)
     return 0
 
 

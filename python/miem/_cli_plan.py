@@ -130,6 +130,8 @@ def _cmd_plan(args: argparse.Namespace) -> int:
 
 
 def _print_plan(plan: Any, path: Path, written: list) -> None:
+    from . import robot_formats as rf
+
     u = plan.units
     rej = ", ".join(f"{n} {k}" for k, n in plan.rejected.items() if n) or "none"
     print(f"{path.name}: {plan.defects_in:,} defects -> {len(plan.targets)} targets "
@@ -137,13 +139,13 @@ def _print_plan(plan: Any, path: Path, written: list) -> None:
           f"{u} in frame {plan.frame}")
     if plan.targets:
         print(f"  {'#':>3} {'x':>10} {'y':>10} {'z':>10} {'depth':>7} {'area':>7} "
-              f"{'pts':>4} {'defects':<12}")
+              f"{'pts':>4} defects")
         for t in plan.targets[:15]:
             depth = f"{t.depth:.3f}" if math.isfinite(t.depth) else "n/a"
-            ids = " ".join(str(i) for i in t.defect_ids)
+            ids = rf.ids_text(t.defect_ids, limit=4)
             print(f"  {t.index + 1:>3} {t.position[0]:>10.3f} {t.position[1]:>10.3f} "
                   f"{t.position[2]:>10.3f} {depth:>7} {t.area:>7.3f} {t.count:>4} "
-                  f"{ids[:40]:<12}")
+                  f"{ids}")
         if len(plan.targets) > 15:
             print(f"  ... {len(plan.targets) - 15} more")
     print("wrote " + ", ".join(str(w) for w in written))

@@ -29,6 +29,7 @@ from .targets import TargetPlan
 __all__ = [
     "FORMATS",
     "UNIT_SCALE",
+    "ids_text",
     "to_json",
     "to_csv",
     "to_pose_array",
@@ -59,6 +60,12 @@ def _scale_to(plan: TargetPlan, unit: str) -> float:
         raise ValueError(f"units: the plan's unit {plan.units!r} is not one of "
                          f"{sorted(UNIT_SCALE)}; {unit} output needs a known unit")
     return UNIT_SCALE[plan.units] / UNIT_SCALE[unit]
+
+
+def ids_text(ids: Tuple[int, ...], limit: int = 8) -> str:
+    """Defect ids for a comment or a table cell: the first `limit`, then how many in all."""
+    head = " ".join(str(i) for i in ids[:limit])
+    return head if len(ids) <= limit else f"{head} ... ({len(ids)} defects)"
 
 
 def _num(v: float) -> Optional[float]:
@@ -229,7 +236,7 @@ def to_rapid(plan: TargetPlan, module: str = "MiemTargets", proc: str = "Grind",
     lines.append("    ConfL\\Off;")
     for k, t in zip(names, plan.targets):
         lines.append(f"    ! target {k}: depth {_f(t.depth * s, 3) if math.isfinite(t.depth) else 'n/a'}"
-                     f" mm, defects {' '.join(str(i) for i in t.defect_ids)}")
+                     f" mm, defects {ids_text(t.defect_ids)}")
         lines.append(f"    MoveL pA{k},{approach_speed},{zone},{tool}\\WObj:={wobj};")
         lines.append(f"    MoveL pT{k},{speed},fine,{tool}\\WObj:={wobj};")
         lines.append(f"    MoveL pR{k},{approach_speed},{zone},{tool}\\WObj:={wobj};")
@@ -285,7 +292,7 @@ def to_krl(plan: TargetPlan, name: str = "miem_targets", vel_cp: float = 0.1,
             dat.append(f"DECL E6POS {tag}{k}={{X {x},Y {y},Z {z},A {a},B {b},C {c},"
                        "E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}")
         depth = _f(t.depth * s, 3) if math.isfinite(t.depth) else "n/a"
-        src += [f"  ; target {k}: depth {depth} mm",
+        src += [f"  ; target {k}: depth {depth} mm, defects {ids_text(t.defect_ids)}",
                 f"  $VEL.CP = {approach_vel_cp:g}", f"  LIN XA{k} C_DIS",
                 f"  $VEL.CP = {vel_cp:g}", f"  LIN XT{k}",
                 f"  $VEL.CP = {approach_vel_cp:g}", f"  LIN XR{k} C_DIS"]
