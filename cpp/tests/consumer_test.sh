@@ -83,4 +83,10 @@ for want in "rows 20-20 cols 30-30" "rows 30-30 cols 70-70" "rows 60-60 cols 100
             "rows 75-75 cols 140-140" "rows 65-66 cols 50-51 points 4"; do
   grep -q "$want" "$work/out.txt" || { echo "missing defect: $want" >&2; exit 1; }
 done
+echo "== grinding targets"
+"$work/example/grind_targets" "$work/profiles.txt" 850 -120 310 > "$work/targets.txt"
+cat "$work/targets.txt"
+grep -q "defects 5, targets 4," "$work/targets.txt"  # the pit is not ground
+grep -q "CONST robtarget pT1:=" "$work/targets.txt"
+grep -q "scaled transform: T_base_sensor" "$work/targets.txt"
 echo "consumer test passed"
