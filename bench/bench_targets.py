@@ -97,7 +97,7 @@ def run(repeats: int) -> tuple:
     big = max(rows, key=lambda r: r[1])
     parts = [f"{r[5] * 1e3:.0f} ms for the {r[1]:,} defects of {r[0].split()[0]} (detection "
              f"{r[4]:.2f} s)" for r in real]
-    parts.append(f"{big[5] * 1e3:.0f} ms for {big[1]:,} defects on a {big[0].split()[1]} grid")
+    parts.append(f"{big[5] * 1e3:.0f} ms for {big[1]:,} defects on a {big[0].split()[1].rstrip(',')} grid")
     ratios = [r[6] / r[5] for r in rows]
     summary = (f"`plan_targets`: {'; '.join(parts)}; {min(ratios):,.0f}-{max(ratios):,.0f}x "
                "faster than the NumPy reference.")

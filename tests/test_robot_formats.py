@@ -100,8 +100,12 @@ def test_rapid_module_round_trip(plan, tmp_path) -> None:
 
 
 def test_krl_pair_round_trip(plan, tmp_path) -> None:
-    src_path, dat_path = rf.write(plan, tmp_path / "grind.src", name="grind")
+    src_path, dat_path = rf.write(plan, tmp_path / "grind.src")
     assert dat_path.name == "grind.dat"
+    with pytest.raises(ValueError, match="name: KRL needs"):
+        rf.write(plan, tmp_path / "grind.src", name="other")
+    with pytest.raises(ValueError, match="name:"):
+        rf.write(plan, tmp_path / "9 lives.src")
     src, dat = src_path.read_text(), dat_path.read_text()
     assert "DEF grind( )" in src and "DEFDAT grind" in dat and src.rstrip().endswith("END")
     points, moves = rf.parse_krl(src, dat)

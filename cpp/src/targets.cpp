@@ -230,18 +230,26 @@ std::vector<int> order_path(const std::vector<Eigen::Vector3d>& points,
     seq.push_back(best);
     cur = best;
   }
-  // 2-opt on the open path, first node fixed: reverse seq[i..j] when that shortens it.
+  // 2-opt on the open path, first node fixed: reverse seq[i..j] when that shortens it. Nodes
+  // are kept in path order (P) with their edge lengths, so a move is judged with two distances.
   const int m = static_cast<int>(seq.size());
-  const auto d = [&](int a, int b) { return (at(seq[a]) - at(seq[b])).norm(); };
+  std::vector<Eigen::Vector3d> P(static_cast<std::size_t>(m));
+  for (int k = 0; k < m; ++k) P[k] = at(seq[k]);
+  std::vector<double> edge(static_cast<std::size_t>(std::max(m - 1, 0)));
+  for (int k = 0; k + 1 < m; ++k) edge[k] = (P[k + 1] - P[k]).norm();
   bool improved = true;
   for (int pass = 0; improved && pass < 1000; ++pass) {
     improved = false;
     for (int i = 1; i + 1 < m; ++i) {
       for (int j = i + 1; j < m; ++j) {
-        double delta = d(i - 1, j) - d(i - 1, i);
-        if (j + 1 < m) delta += d(i, j + 1) - d(j, j + 1);
-        if (delta < -1e-9 * (1.0 + d(i - 1, i))) {
+        double delta = (P[j] - P[i - 1]).norm() - edge[i - 1];
+        if (j + 1 < m) delta += (P[j + 1] - P[i]).norm() - edge[j];
+        if (delta < -1e-9 * (1.0 + edge[i - 1])) {
           std::reverse(seq.begin() + i, seq.begin() + j + 1);
+          std::reverse(P.begin() + i, P.begin() + j + 1);
+          std::reverse(edge.begin() + i, edge.begin() + j);
+          edge[i - 1] = (P[i] - P[i - 1]).norm();
+          if (j + 1 < m) edge[j] = (P[j + 1] - P[j]).norm();
           improved = true;
         }
       }

@@ -161,7 +161,8 @@ def parse_csv(text: str) -> Tuple[Dict[str, str], List[Dict[str, Any]]]:
 
 def to_pose_array(plan: TargetPlan, frame_id: Optional[str] = None, with_approach: bool = False,
                   stamp: Tuple[int, int] = (0, 0)) -> Dict[str, Any]:
-    """A ``geometry_msgs/PoseArray`` message dict, positions in metres (REP 103).
+    """A ``geometry_msgs/PoseArray`` message dict (ROS 2 field names), positions in metres
+    (REP 103).
 
     Parameters
     ----------
@@ -271,7 +272,9 @@ def to_krl(plan: TargetPlan, name: str = "miem_targets", vel_cp: float = 0.1,
     """A KUKA KRL ``.src`` (``LIN`` moves) and ``.dat`` (``E6POS`` points) pair.
 
     Positions in mm, ``A, B, C`` in degrees about Z, Y, X. ``S`` and ``T`` are left out (``LIN``
-    does not use them); ``$VEL.CP`` in m/s for the grinding and the approach moves.
+    does not use them); ``$VEL.CP`` in m/s for the grinding and the approach moves. ``name``
+    is the DEF / DEFDAT name, which KRL requires to be the file name (:func:`write` uses the
+    file's stem).
     """
     _ident(name, "name", limit=24)
     for v, what in ((vel_cp, "vel_cp"), (approach_vel_cp, "approach_vel_cp")):
@@ -332,7 +335,7 @@ def write(plan: TargetPlan, path: PathLike, format: Optional[str] = None,
         Default from the suffix: .json, .csv, .yaml/.yml (ros), .mod (rapid), .src (krl).
     options
         Passed to the format's function (:func:`to_rapid`, :func:`to_krl`,
-        :func:`to_pose_array`).
+        :func:`to_pose_array`). For ``krl`` the program name defaults to the file's stem.
     """
     p = Path(path)
     if format is None:
@@ -345,9 +348,14 @@ def write(plan: TargetPlan, path: PathLike, format: Optional[str] = None,
     if format not in FORMATS:
         raise ValueError(f"format: expected one of {sorted(FORMATS)}, got {format!r}")
     if format == "krl":
-        src, dat = to_krl(plan, **options)
         src_path = p if p.suffix.lower() == ".src" else p.with_suffix(".src")
         dat_path = src_path.with_suffix(".dat")
+        # KRL requires DEF / DEFDAT names equal to the file name.
+        options.setdefault("name", src_path.stem)
+        if options["name"].lower() != src_path.stem.lower():
+            raise ValueError(f"name: KRL needs the program name to be the file name "
+                             f"{src_path.stem!r}, got {options['name']!r}")
+        src, dat = to_krl(plan, **options)
         src_path.write_text(src, encoding="utf-8")
         dat_path.write_text(dat, encoding="utf-8")
         return [src_path, dat_path]

@@ -433,17 +433,20 @@ def plan_targets(
     height = np.ascontiguousarray(np.asarray(result.height).reshape(-1), dtype=np.float64)
     plan = _core.plan_targets(grid, lab, height, defects, stack, p, roi_mask)
 
-    targets = []
-    for k, t in enumerate(plan.targets):
-        n = np.array(t.normal)
-        targets.append(Target(
-            index=k, point=np.array(t.point), point_scan=np.array(t.point_scan), normal=n,
-            approach_axis=-n, rotation=np.array(t.rotation), position=np.array(t.position),
-            approach_point=np.array(t.approach_point), retract_point=np.array(t.retract_point),
-            quaternion=np.array(t.quaternion), abc=np.array(t.abc_deg), depth=float(t.depth),
-            area=float(t.area), volume=float(t.volume), count=int(t.count),
-            defect_ids=tuple(int(i) for i in t.defect_ids), peak_index=int(t.peak_index),
-        ))
+    a = plan.arrays()
+    targets = [
+        Target(
+            index=k, point=a["point"][k], point_scan=a["point_scan"][k], normal=a["normal"][k],
+            approach_axis=-a["normal"][k], rotation=a["rotation"][k],
+            position=a["position"][k], approach_point=a["approach_point"][k],
+            retract_point=a["retract_point"][k], quaternion=a["quaternion"][k],
+            abc=a["abc_deg"][k], depth=float(a["depth"][k]), area=float(a["area"][k]),
+            volume=float(a["volume"][k]), count=int(a["count"][k]),
+            defect_ids=tuple(int(i) for i in a["defect_ids"][k]),
+            peak_index=int(a["peak_index"][k]),
+        )
+        for k in range(len(a["depth"]))
+    ]
     params = dict(
         at=at, kinds=kinds, min_height=p.min_height, min_area=p.min_area,
         min_count=p.min_count, roi=None if roi is None else ("mask" if roi_mask is not None

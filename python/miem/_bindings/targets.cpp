@@ -92,6 +92,58 @@ miem::TargetPlan plan(const py::array& grid, const py::array& labels, const py::
   return miem::plan_targets(v, lab, hgt, defects, tv, params, roi);
 }
 
+template <int N>
+py::array_t<double> stack(const std::vector<miem::Target>& ts,
+                          Eigen::Matrix<double, N, 1> (*get)(const miem::Target&)) {
+  py::array_t<double> out({static_cast<py::ssize_t>(ts.size()), static_cast<py::ssize_t>(N)});
+  auto m = out.mutable_unchecked<2>();
+  for (std::size_t k = 0; k < ts.size(); ++k) {
+    const Eigen::Matrix<double, N, 1> v = get(ts[k]);
+    for (int i = 0; i < N; ++i) m(static_cast<py::ssize_t>(k), i) = v(i);
+  }
+  return out;
+}
+
+// {field: array}: (M, 3) vectors, (M, 3, 3) rotations, (M, 4) quaternions, (M,) scalars.
+py::dict plan_arrays(const miem::TargetPlan& p) {
+  using V3 = Eigen::Matrix<double, 3, 1>;
+  const auto& ts = p.targets;
+  const auto M = static_cast<py::ssize_t>(ts.size());
+  py::dict d;
+  d["point"] = stack<3>(ts, [](const miem::Target& t) -> V3 { return t.point; });
+  d["point_scan"] = stack<3>(ts, [](const miem::Target& t) -> V3 { return t.point_scan; });
+  d["normal"] = stack<3>(ts, [](const miem::Target& t) -> V3 { return t.normal; });
+  d["position"] = stack<3>(ts, [](const miem::Target& t) -> V3 { return t.position; });
+  d["approach_point"] = stack<3>(ts, [](const miem::Target& t) -> V3 { return t.approach_point; });
+  d["retract_point"] = stack<3>(ts, [](const miem::Target& t) -> V3 { return t.retract_point; });
+  d["abc_deg"] = stack<3>(ts, [](const miem::Target& t) -> V3 { return t.abc_deg; });
+  d["quaternion"] = stack<4>(ts, [](const miem::Target& t) -> Eigen::Vector4d { return t.quaternion; });
+  py::array_t<double> rot({M, py::ssize_t{3}, py::ssize_t{3}});
+  py::array_t<double> depth(M), area(M), volume(M);
+  py::array_t<std::int64_t> count(M), peak(M);
+  auto r = rot.mutable_unchecked<3>();
+  for (py::ssize_t k = 0; k < M; ++k) {
+    const miem::Target& t = ts[static_cast<std::size_t>(k)];
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) r(k, i, j) = t.rotation(i, j);
+    depth.mutable_at(k) = t.depth;
+    area.mutable_at(k) = t.area;
+    volume.mutable_at(k) = t.volume;
+    count.mutable_at(k) = t.count;
+    peak.mutable_at(k) = t.peak_index;
+  }
+  d["rotation"] = rot;
+  d["depth"] = depth;
+  d["area"] = area;
+  d["volume"] = volume;
+  d["count"] = count;
+  d["peak_index"] = peak;
+  py::list ids;
+  for (const miem::Target& t : ts) ids.append(py::tuple(py::cast(t.defect_ids)));
+  d["defect_ids"] = ids;
+  return d;
+}
+
 }  // namespace
 
 void bind_targets(py::module_& m) {
@@ -143,6 +195,8 @@ void bind_targets(py::module_& m) {
       .def_readonly("path_length", &miem::TargetPlan::path_length)
       .def_readonly("defects_in", &miem::TargetPlan::defects_in)
       .def_readonly("defects_used", &miem::TargetPlan::defects_used)
+      .def("arrays", &plan_arrays,
+           "Every target field stacked over the targets: one array per field (fast to read)")
       .def_property_readonly("rejected", [](const miem::TargetPlan& p) {
         py::dict d;
         d["kind"] = p.rejected.kind;
