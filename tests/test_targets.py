@@ -432,3 +432,16 @@ def test_cloud_result() -> None:
         assert t.area == pytest.approx(res.params["spacing"] ** 2)
     with pytest.raises(ValueError, match="T_base_sensor.*organized"):
         miem.plan_targets(res, pts, np.repeat(T_SENSOR[None], 2, axis=0))
+
+
+def test_default_approach_is_20_mm_in_the_scan_units(tilted) -> None:
+    grid, res = tilted
+    for units, dist in (("mm", 20.0), ("m", 0.02), ("cm", 2.0)):
+        t = miem.plan_targets(res, grid, units=units).targets[0]
+        np.testing.assert_allclose(t.approach_point - t.position, dist * t.normal, atol=1e-12)
+        np.testing.assert_allclose(t.retract_point - t.position, dist * t.normal, atol=1e-12)
+    with pytest.raises(ValueError, match="tool.approach"):
+        miem.plan_targets(res, grid, units="furlong")
+    t = miem.plan_targets(res, grid, units="furlong", tool=miem.Tool(approach=1.0, retract=2.0))
+    np.testing.assert_allclose(t.targets[0].retract_point - t.targets[0].position,
+                               2.0 * t.targets[0].normal, atol=1e-12)

@@ -55,10 +55,10 @@ def add_parser(sub: Any) -> None:
                    help="merge defects closer than this into one target (default: 0, no merge)")
     g.add_argument("--standoff", type=cli._finite_float, default=0.0, metavar="LENGTH",
                    help="tool pose offset from the surface along the normal (default: 0)")
-    g.add_argument("--approach", type=cli._finite_float, default=20.0, metavar="LENGTH",
-                   help="approach point above the pose (default: 20)")
-    g.add_argument("--retract", type=cli._finite_float, default=20.0, metavar="LENGTH",
-                   help="retract point above the pose (default: 20)")
+    g.add_argument("--approach", type=cli._finite_float, metavar="LENGTH",
+                   help="approach point above the pose, scan units (default: 20 mm)")
+    g.add_argument("--retract", type=cli._finite_float, metavar="LENGTH",
+                   help="retract point above the pose, scan units (default: 20 mm)")
     g.add_argument("--at", choices=["peak", "centroid"], default="peak",
                    help="target point on a defect (default: peak)")
     g.add_argument("--kinds", nargs="+", choices=["protrusion", "pit", "isolated"],
@@ -106,7 +106,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         tool = Tool(radius=args.tool_radius, standoff=args.standoff, approach=args.approach,
                     retract=args.retract)
         loaded = cli._load(path, args)
-        result = cli._detect(loaded, kwargs, path)
+        result = cli._detect(loaded, kwargs, path, args)
         plan = plan_targets(result, loaded.grid, T, tool=tool, at=args.at, kinds=args.kinds,
                             min_height=args.min_height, min_area=args.min_area,
                             min_count=args.min_count, roi=roi,

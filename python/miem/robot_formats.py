@@ -24,7 +24,7 @@ from typing import Any, Dict, List, Optional, Tuple, Union
 
 import numpy as np
 
-from .targets import TargetPlan
+from .targets import UNIT_SCALE, TargetPlan
 
 __all__ = [
     "FORMATS",
@@ -45,8 +45,6 @@ __all__ = [
 FORMATS = {"json": (".json",), "csv": (".csv",), "ros": (".yaml",), "ros-json": (".json",),
            "rapid": (".mod",), "krl": (".src", ".dat")}
 
-#: Length units and their size in metres.
-UNIT_SCALE = {"m": 1.0, "mm": 1e-3, "um": 1e-6, "cm": 1e-2, "in": 0.0254}
 
 PathLike = Union[str, Path]
 _CSV_COLUMNS = ["index", "x", "y", "z", "qw", "qx", "qy", "qz", "a", "b", "c", "nx", "ny", "nz",

@@ -22,10 +22,16 @@ import numpy as np
 from . import _core
 from ._api import DetectResult, _as_float_array, _int, _real
 
-__all__ = ["Tool", "Target", "TargetPlan", "plan_targets", "read_transform", "KINDS"]
+__all__ = ["Tool", "Target", "TargetPlan", "plan_targets", "read_transform", "KINDS",
+           "UNIT_SCALE"]
 
 #: Defect kinds that can be targeted.
 KINDS = ("protrusion", "pit", "isolated")
+
+#: Length units and their size in metres (robot files convert with these).
+UNIT_SCALE = {"m": 1.0, "mm": 1e-3, "um": 1e-6, "cm": 1e-2, "in": 0.0254}
+
+_DEFAULT_CLEARANCE_MM = 20.0
 
 PathLike = Union[str, Path]
 
@@ -41,16 +47,18 @@ class Tool:
     standoff : float
         The tool pose sits this far from the surface point along the normal (e.g. a contact
         offset; 0: on the point).
-    approach : float
-        The approach point is this far above the tool pose, along the normal.
-    retract : float
-        The retract point is this far above the tool pose, along the normal.
+    approach : float, optional
+        The approach point is this far above the tool pose, along the normal (default: 20 mm
+        in the plan's ``units``).
+    retract : float, optional
+        The retract point is this far above the tool pose, along the normal (default: 20 mm
+        in the plan's ``units``).
     """
 
     radius: float = 0.0
     standoff: float = 0.0
-    approach: float = 20.0
-    retract: float = 20.0
+    approach: Optional[float] = None
+    retract: Optional[float] = None
 
 
 @dataclass(frozen=True)
@@ -330,8 +338,11 @@ def plan_targets(
         Start of the path in the base frame (a point or a pose). Default: the deepest target.
     order : bool
         Order into a short path; False keeps the targets deepest first.
-    units, frame : str
-        Names written into the robot files.
+    units : str
+        The scan's length unit, written into the robot files (which convert to mm or m with
+        :data:`UNIT_SCALE`); sets the 20 mm default approach and retract distances.
+    frame : str
+        Name of the base frame, written into the robot files.
 
     Returns
     -------
@@ -385,8 +396,14 @@ def plan_targets(
     p.min_count = _int("min_count", min_count, 1)
     p.tool_radius = _nonneg("tool.radius", tool.radius)
     p.standoff = _real("tool.standoff", tool.standoff)
-    p.approach = _nonneg("tool.approach", tool.approach)
-    p.retract = _nonneg("tool.retract", tool.retract)
+    for name in ("approach", "retract"):
+        value = getattr(tool, name)
+        if value is None:
+            if units not in UNIT_SCALE:
+                raise ValueError(f"tool.{name}: give it in the scan's units; the 20 mm default "
+                                 f"needs units in {sorted(UNIT_SCALE)}, got {units!r}")
+            value = _DEFAULT_CLEARANCE_MM * 1e-3 / UNIT_SCALE[units]
+        setattr(p, name, _nonneg(f"tool.{name}", value))
     p.edge_clearance = _nonneg("edge_clearance", edge_clearance)
     toward = _vec3(toward_sensor, "toward_sensor")
     if not np.any(toward):
