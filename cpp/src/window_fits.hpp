@@ -303,6 +303,7 @@ void window_fits(const GridView<T>& g, const std::uint8_t* cls, int window, int 
     double* ring = F + 4 * cap;  // (window + 1) rows x 3 x span: rows in the window, SoA
     std::uint8_t* okf = sc.flags.data();
     std::uint8_t* redo = okf + cap;
+    std::uint8_t* wrow = redo + cap;  // want() of this row's cells
     const double ox = origin.x(), oy = origin.y(), oz = origin.z();
     const std::ptrdiff_t ncols = tc1 - tc0, nring = 2 * half + 2;
     auto ring_row = [&](std::ptrdiff_t rr) { return ring + (rr % nring) * 3 * span; };
@@ -322,7 +323,11 @@ void window_fits(const GridView<T>& g, const std::uint8_t* cls, int window, int 
         if (r - half - 1 >= 0) add_row(r - half - 1, -1.0);
       }
       std::ptrdiff_t m = 0;
-      for (std::ptrdiff_t c = tc0; c < tc1; ++c) m += want(r * W + c) ? 1 : 0;
+      for (std::ptrdiff_t j = 0; j < ncols; ++j) {
+        const bool w = want(r * W + tc0 + j);
+        wrow[j] = w;
+        m += w;
+      }
       if (m == 0) continue;
       // Box sums along the row: 11 running sums, one column in and one out per cell.
       {
@@ -351,7 +356,7 @@ void window_fits(const GridView<T>& g, const std::uint8_t* cls, int window, int 
       if (compact) {
         std::ptrdiff_t k2 = 0;
         for (std::ptrdiff_t j = 0; j < ncols; ++j) {
-          if (!want(r * W + tc0 + j)) continue;
+          if (!wrow[j]) continue;
           for (int k = 0; k < kMoments; ++k) S[k * cap + k2] = S[k * cap + j];
           for (int k = 0; k < 3; ++k) Q[k * cap + k2] = Q[k * cap + j];
           ++k2;
@@ -366,7 +371,7 @@ void window_fits(const GridView<T>& g, const std::uint8_t* cls, int window, int 
       std::ptrdiff_t k2 = 0;
       for (std::ptrdiff_t j = 0; j < ncols; ++j) {
         const std::ptrdiff_t i = r * W + tc0 + j;
-        if (!want(i)) continue;
+        if (!wrow[j]) continue;
         const std::ptrdiff_t e = compact ? k2++ : j;
         WindowFit f;
         if (redo[e]) {
