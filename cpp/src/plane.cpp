@@ -11,6 +11,7 @@
 #include <Eigen/Eigenvalues>
 
 #include "parallel.hpp"
+#include "plane_math.hpp"
 
 namespace miem {
 
@@ -20,33 +21,10 @@ constexpr std::ptrdiff_t kBlock = 4096;  // points per block: stays in L1/L2 for
 
 template <typename T>
 Moments block_moments(const PointsView<T>& pts, std::ptrdiff_t begin, std::ptrdiff_t end) {
-  Moments m;
-  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-  std::int64_t n = 0;
-  for (std::ptrdiff_t i = begin; i < end; ++i) {
-    const Eigen::Vector3d p = pts[i];
-    if (!p.allFinite()) continue;
-    sum += p;
-    ++n;
-  }
-  if (n == 0) return m;
-  m.n = n;
-  m.mean = sum / static_cast<double>(n);
   // Second pass over the (cached) block, centred on its own mean.
-  double sxx = 0, sxy = 0, sxz = 0, syy = 0, syz = 0, szz = 0;
-  for (std::ptrdiff_t i = begin; i < end; ++i) {
-    const Eigen::Vector3d p = pts[i];
-    if (!p.allFinite()) continue;
-    const Eigen::Vector3d q = p - m.mean;
-    sxx += q.x() * q.x();
-    sxy += q.x() * q.y();
-    sxz += q.x() * q.z();
-    syy += q.y() * q.y();
-    syz += q.y() * q.z();
-    szz += q.z() * q.z();
-  }
-  m.scatter << sxx, sxy, sxz, sxy, syy, syz, sxz, syz, szz;
-  return m;
+  return detail::two_pass_moments(
+      begin, end, [&](std::ptrdiff_t i) { return pts[i]; },
+      [&](std::ptrdiff_t i) { return pts[i].allFinite(); });
 }
 
 }  // namespace

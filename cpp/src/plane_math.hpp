@@ -9,6 +9,8 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>  // cross
 
+#include "miem/plane.hpp"
+
 namespace miem::detail {
 
 /// Eigenvalues l0 <= l1 <= l2 of a symmetric positive semi-definite M and the unit eigenvector
@@ -45,6 +47,37 @@ inline bool smallest_eigenpair(const Eigen::Matrix3d& M, double* l0, double* l1,
   if (!(nb > 0.0)) return false;
   *normal = best / std::sqrt(nb);
   return true;
+}
+
+/// Moments of point(i) for the i in [begin, end) with keep(i): the sum, then the scatter centred
+/// on the mean (two passes over a block that stays in cache). The arithmetic of every block of
+/// fit_plane and of the MIEM plane's rows.
+template <typename Point, typename Keep>
+Moments two_pass_moments(std::ptrdiff_t begin, std::ptrdiff_t end, Point point, Keep keep) {
+  Moments m;
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  std::int64_t n = 0;
+  for (std::ptrdiff_t i = begin; i < end; ++i) {
+    if (!keep(i)) continue;
+    sum += point(i);
+    ++n;
+  }
+  if (n == 0) return m;
+  m.n = n;
+  m.mean = sum / static_cast<double>(n);
+  double sxx = 0, sxy = 0, sxz = 0, syy = 0, syz = 0, szz = 0;
+  for (std::ptrdiff_t i = begin; i < end; ++i) {
+    if (!keep(i)) continue;
+    const Eigen::Vector3d q = point(i) - m.mean;
+    sxx += q.x() * q.x();
+    sxy += q.x() * q.y();
+    sxz += q.x() * q.z();
+    syy += q.y() * q.y();
+    syz += q.y() * q.z();
+    szz += q.z() * q.z();
+  }
+  m.scatter << sxx, sxy, sxz, sxy, syy, syz, sxz, syz, szz;
+  return m;
 }
 
 }  // namespace miem::detail
