@@ -149,15 +149,9 @@ int main(int argc, char** argv) {
     // The paper's settings (heights of the ABNORMAL points, of every point) and the default
     // preset ("recommended": theta0 90, scales (1, 2), height test 4.5 rms, edge_extent 12).
     for (int cfg = 0; cfg < 3; ++cfg) {
-      miem::DetectParams p;
+      miem::DetectParams p = cfg == 2 ? miem::recommended_params() : miem::paper_params();
       p.num_threads = 1;
       p.height_mode = cfg == 0 ? miem::HeightMode::kAbnormal : miem::HeightMode::kAll;
-      if (cfg == 2) {
-        p.theta0_deg = 90.0;
-        p.scales = {1, 2};
-        p.height_k = 4.5;
-        p.edge_extent = 12;
-      }
       miem::OrganizedDetector det(p);
       std::vector<std::uint8_t> labels(N);
       miem::DetectSummary summary;

@@ -48,13 +48,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "cannot read %s\n", argv[1]);
     return 2;
   }
-  miem::DetectParams p;
-  if (preset == "recommended") {
-    p.theta0_deg = 90.0;
-    p.scales = {1, 2};
-    p.height_k = 4.5;
-    p.edge_extent = 12;
-  }
+  miem::DetectParams p = preset == "paper" ? miem::paper_params() : miem::recommended_params();
   p.num_threads = nt;
   const auto g = miem::GridView<double>::dense(xyz.data(), H, W);
   const std::size_t N = static_cast<std::size_t>(H * W);
