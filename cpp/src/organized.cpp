@@ -7,6 +7,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "edge_test.hpp"
 #include "stages.hpp"
 
 namespace miem {
@@ -55,8 +56,14 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
     const bool keep = p.height_mode == HeightMode::kAll;
     summary.iterations += detail::height_test(g, p, labels, keep ? height : nullptr, ws_);
   }
+  const bool edge_test = p.edge_test();
+  if (edge_test) {  // SPEC "Edge test": after the height passes
+    summary.iterations += detail::edge_passes(g, labels, p.edge_window, p.edge_k,
+                                              p.max_iterations, p.num_threads, ws_.edge_sums);
+  }
   summary.plane = detail::miem_plane(g, labels, p.num_threads, ws_);
-  detail::heights(g, p, labels, height, height_test, ws_);
+  // the height test's window fits are stale once the edge test may have changed labels
+  detail::heights(g, p, labels, height, height_test && !edge_test, ws_);
   summary.defects = detail::organized_defects(g, labels, height, p.window, ws_);
   return summary;
 }

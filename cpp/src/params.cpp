@@ -41,6 +41,12 @@ Status GridParams::check() const noexcept {
   if (!std::isfinite(height_abs)) return bad("height_abs: must be finite (<= 0 = off)");
   if (!std::isfinite(height_k)) return bad("height_k: must be finite (<= 0 = off)");
   if (edge_extent < 0) return bad("edge_extent: must be an integer >= 0");
+  if (!(std::isfinite(edge_k) && edge_k >= 0.0)) {
+    return bad("edge_k: must be finite and >= 0 (0 = off)");
+  }
+  if (edge_window < 3 || edge_window % 2 == 0) {
+    return bad("edge_window: must be an odd integer >= 3");
+  }
   return kOkStatus;
 }
 

@@ -241,6 +241,9 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& p) noexcept
     return bad("edge_extent: belongs to the height test, not implemented by ProfileStream yet; "
                "set it to 0");
   }
+  if (p.edge_test()) {
+    return bad("edge_k: the edge test is not implemented by ProfileStream yet; set it to 0");
+  }
   if (width < 1) return bad("width: must be at least 1 point per profile");
   if (p.max_iterations > 254) return bad("max_iterations: a stream supports at most 254 passes");
   const long long reach = static_cast<long long>(

@@ -80,7 +80,10 @@ _TILE = (64, 128)
 #: Grid parameters whose reach grid_halo knows; any other parameter that is on is refused.
 _GRID_KNOWN = {"preset", "theta0", "theta0_auto", "scales", "max_gap", "min_step",
                "min_directions", "max_iterations", "window", "height_tolerance", "edge_extent",
-               "max_reach", "heights"}
+               "max_reach", "heights",
+               # read only by the edge test, whose reach is not covered: edge_tolerance (its
+               # switch) is refused when on
+               "edge_window"}
 
 
 def grid_halo(params: dict, strict: bool = False) -> int:

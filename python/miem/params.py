@@ -192,6 +192,13 @@ class GridParams:
         12, "cells", "with the height test: EDGE groups whose bounding box is at most this long "
         "are compact (a defect's halo) and height-tested too; longer ones are feature lines",
         "CELLS", stream=0)
+    edge_tolerance: Optional[float] = _f(
+        None, "k x rms", "edge test (SPEC 'Edge test', beyond the paper, after the height test): "
+        "a point standing proud of a feature line or the scan's outline by more than k times "
+        "the rms of its one-sided sub-window plane becomes ABNORMAL; None: off", "K", stream=None)
+    edge_window: int = _f(
+        11, "cells", "with the edge test: side of its one-sided sub-windows (odd >= 3)", "CELLS",
+        stream=11)
 
 
 @dataclass(frozen=True)
@@ -369,6 +376,16 @@ class DetectParams:
         p.height_mode = _height_mode(g.heights)
         p.height_abs, p.height_k = _height_tolerance(g.height_tolerance)
         p.edge_extent = _int("edge_extent", g.edge_extent, 0)
+        if g.edge_tolerance is None:
+            p.edge_k = 0.0
+        else:
+            p.edge_k = _real("edge_tolerance", g.edge_tolerance)
+            if not p.edge_k > 0.0:
+                raise ValueError(
+                    f"edge_tolerance: expected None (off) or a number > 0, got {p.edge_k}")
+        p.edge_window = _int("edge_window", g.edge_window, 3)
+        if p.edge_window % 2 == 0:
+            raise ValueError(f"edge_window: expected an odd integer >= 3, got {p.edge_window}")
         p.num_threads = num_threads
         _raise_unless_ok(p.check())
         return p

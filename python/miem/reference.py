@@ -808,6 +808,8 @@ _DEFAULTS: dict[str, Any] = {
     "max_reach": 32,
     "height_tolerance": None,
     "edge_extent": 0,
+    "edge_tolerance": None,
+    "edge_window": 11,
 }
 
 #: Presets of :func:`detect` (SPEC "Presets"): name -> parameter values. Explicit keyword
@@ -1078,7 +1080,7 @@ def _edge_pass(
     proud = np.zeros(h.shape[1], dtype=bool)
     for a, b in _EDGE_OPPOSITE:
         for x, y in ((a, b), (b, a)):
-            falls = empty[y] | (_dot3(nrm[x], cen[y] - cen[x]) < -k * rms[x])
+            falls = empty[y] | (valid[y] & (_dot3(nrm[x], cen[y] - cen[x]) < -k * rms[x]))
             proud |= clean[x] & (h[x] > k * rms[x]) & falls
     out[cells] = ~fits.any(axis=0) & proud
     return out
@@ -1158,6 +1160,8 @@ def detect(
     max_reach: int = _UNSET,
     height_tolerance: float | str | None = _UNSET,
     edge_extent: int = _UNSET,
+    edge_tolerance: float | None = _UNSET,
+    edge_window: int = _UNSET,
     preset: str | None = None,
 ) -> RefResult:
     """Detect abnormal points in an organized scan (MIEM, reference implementation).
@@ -1204,6 +1208,12 @@ def detect(
         ``max_iterations`` passes). A float ``t > 0``: ``|h| > t`` (caller's length unit). A
         string ``"<k>rms"`` with ``k > 0`` (e.g. ``"4rms"``): ``|h| > k * rms`` of that window
         plane (and above a round-off floor). EDGE cells are never changed. None (default): off.
+    edge_tolerance : float or None, optional
+        Edge test (SPEC "Edge test", beyond the paper), run after the height passes: the
+        tolerance ``k > 0`` in rms units of the one-sided sub-window planes. None (default): off.
+    edge_window : int, optional
+        Side, in cells, of the edge test's sub-windows (half-size ``edge_window // 2``); odd
+        ``>= 3``. Default 11.
     preset : {None, "recommended", "paper"}, optional
         Named parameter set; ``"paper"`` is the paper's method exactly (the defaults shown),
         None means ``"recommended"``.
@@ -1233,6 +1243,8 @@ def detect(
             "max_reach": max_reach,
             "height_tolerance": height_tolerance,
             "edge_extent": edge_extent,
+            "edge_tolerance": edge_tolerance,
+            "edge_window": edge_window,
         },
     )
     auto = isinstance(opts["theta0"], str) and opts["theta0"] == "auto"
@@ -1248,6 +1260,14 @@ def detect(
     )
     tolerance = _parse_height_tolerance(opts["height_tolerance"])
     extent = 0 if opts["edge_extent"] is None else _check_int("edge_extent", opts["edge_extent"], 0)
+    edge_k = opts["edge_tolerance"]
+    if edge_k is not None and (
+        not _is_real(edge_k) or not math.isfinite(float(edge_k)) or not float(edge_k) > 0.0
+    ):
+        raise ValueError(f"edge_tolerance: expected None or a finite number > 0, got {edge_k!r}")
+    edge_win = _check_int("edge_window", opts["edge_window"], 3)
+    if edge_win % 2 == 0:
+        raise ValueError(f"edge_window: expected an odd integer >= 3, got {edge_win}")
     arr = _as_points_array("grid", grid)
     if arr.ndim != 3 or arr.shape[2] != 3:
         raise ValueError(f"grid: expected shape (H, W, 3), got {arr.shape}")
@@ -1305,6 +1325,13 @@ def detect(
                 if not new_abn.any():
                     break
 
+    if edge_k is not None:  # SPEC "Edge test": after the height passes
+        labels, edge_passes = edge_test(g, labels, window=edge_win, tolerance=float(edge_k),
+                                        max_iterations=iters)
+        passes += edge_passes
+        abnormal = labels == ABNORMAL
+
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         plane = _eigen_plane(g[finite & ~abnormal])
         height, normals = _window_fits(g, labels == NORMAL, finite, win)
         defects = _defects(g, labels, height, normals, finite)
@@ -1325,6 +1352,8 @@ def detect(
             if tolerance is None
             else (tolerance[1] if tolerance[0] == "abs" else str(opts["height_tolerance"]))
         ),
+        "edge_tolerance": None if edge_k is None else float(edge_k),
+        "edge_window": edge_win,
     }
     return RefResult(
         labels=labels,

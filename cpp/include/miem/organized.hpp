@@ -45,6 +45,7 @@ struct Workspace {
   std::vector<std::uint8_t> hmask;   ///< height stages: compact, want, fresh, mark bits
   std::vector<std::int64_t> fresh, candidates, queue;
   std::vector<double> height_scratch, survey;
+  std::vector<double> edge_sums;     ///< edge test: integral images of the support moments
   std::vector<RowScratch> rows;      ///< per thread
   std::vector<FitScratch> fits;      ///< per thread
   std::vector<Moments> plane_rows;

@@ -41,11 +41,17 @@ struct GridParams {
   double height_abs = 0.0;        ///< length: > 0 height test, |height| above this is ABNORMAL
   double height_k = 4.5;          ///< multiple of the window rms: > 0 height test, |h| > k rms
   int edge_extent = 12;           ///< cells: height test also on EDGE groups this compact
+  double edge_k = 0.0;            ///< multiple of the sub-window rms: > 0 edge test (SPEC "Edge test")
+  int edge_window = 11;           ///< cells: edge test sub-window side (odd >= 3; half-size / 2)
 
   /// True when the height test is on (height_abs > 0 or height_k > 0).
   bool height_test() const noexcept { return height_abs > 0.0 || height_k > 0.0; }
 
-  /// Every field's range (min_step finite, height_abs / height_k finite, edge_extent >= 0, ...).
+  /// True when the edge test is on (edge_k > 0). Off by default.
+  bool edge_test() const noexcept { return edge_k > 0.0; }
+
+  /// Every field's range (min_step finite, height_abs / height_k finite, edge_extent >= 0,
+  /// edge_k finite >= 0, edge_window odd >= 3, ...).
   Status check() const noexcept;
 };
 

@@ -54,7 +54,12 @@ void bind_params(py::module_& m) {
                      "multiple of the window plane's rms: height test; <= 0: off")
       .def_readwrite("edge_extent", &miem::GridParams::edge_extent,
                      "cells: EDGE groups this compact are height-tested too (>= 0)")
+      .def_readwrite("edge_k", &miem::GridParams::edge_k,
+                     "multiple of the sub-window rms: edge test (SPEC 'Edge test'); 0: off")
+      .def_readwrite("edge_window", &miem::GridParams::edge_window,
+                     "cells: edge test sub-window side (odd >= 3)")
       .def("height_test", &miem::GridParams::height_test)
+      .def("edge_test", &miem::GridParams::edge_test)
       .def("check", [](const miem::GridParams& p) { return status_tuple(p.check()); });
 
   py::class_<miem::CloudParams>(m, "CloudParams", "Unorganized clouds only: neighbourhood, K.")

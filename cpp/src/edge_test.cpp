@@ -1,0 +1,187 @@
+// Edge test (SPEC "Edge test"). Per pass: integral images of the support (NORMAL) moments, then
+// for every candidate 8 one-sided sub-window planes from four corner reads each. Cells are
+// judged against the pass's fixed support (Jacobi), so rows run in parallel with identical
+// results for any thread count. The arithmetic follows miem.reference.edge_test step by step.
+#include "edge_test.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include "miem/organized.hpp"
+#include "parallel.hpp"
+#include "plane_math.hpp"
+
+namespace miem::detail {
+
+namespace {
+
+constexpr int kM = 11;  // n, x, y, z, xx, xy, xz, yy, yz, zz (support), INVALID count
+constexpr double kCleanRatio = 2.0;
+constexpr double kRankTol = 1e-12;
+// (row_lo, row_hi, col_lo, col_hi) in units: -2 = -r, -1 = -1, 1 = 1, 2 = r.
+constexpr int kSides[8][4] = {{-2, 2, -2, -1}, {-2, 2, 1, 2},  {-2, -1, -2, 2}, {1, 2, -2, 2},
+                              {-2, -1, -2, -1}, {-2, -1, 1, 2}, {1, 2, -2, -1}, {1, 2, 1, 2}};
+constexpr int kOpposite[4][2] = {{0, 1}, {2, 3}, {4, 7}, {5, 6}};
+
+inline std::ptrdiff_t offset(int code, std::ptrdiff_t r) {
+  return code == -2 ? -r : (code == 2 ? r : code);
+}
+
+// SPEC "Plane fit" orientation: n_z > 0, or if n_z == 0 the first non-zero component positive.
+inline Eigen::Vector3d orient(const Eigen::Vector3d& n) {
+  const double lead = n.z() != 0.0 ? n.z() : (n.x() != 0.0 ? n.x() : n.y());
+  const double s = lead < 0.0 ? -1.0 : 1.0;
+  return Eigen::Vector3d(n.x() * s + 0.0, n.y() * s + 0.0, n.z() * s + 0.0);
+}
+
+inline double dot3(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  return a.x() * b.x() + a.y() * b.y() + a.z() * b.z();
+}
+
+struct Side {
+  bool valid = false, empty = false;
+  double h = 0.0, rms = 0.0;
+  Eigen::Vector3d normal, centroid;
+};
+
+}  // namespace
+
+template <typename T>
+int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
+                int max_iterations, int num_threads, std::vector<double>& scratch) {
+  const std::ptrdiff_t H = g.rows, W = g.cols, N = H * W, r = window / 2;
+  const double n_min = static_cast<double>(std::max<std::ptrdiff_t>(3, (r * r) / 2));
+  const std::ptrdiff_t W1 = W + 1;
+  const std::size_t need = static_cast<std::size_t>((H + 1) * W1 * kM + W * kM);
+  if (scratch.size() < need) scratch.resize(need);
+  double* S = scratch.data();
+  double* col = S + (H + 1) * W1 * kM;
+  std::vector<std::uint8_t> cand(static_cast<std::size_t>(N)), mark(static_cast<std::size_t>(N));
+  for (std::ptrdiff_t i = 0; i < N; ++i) cand[i] = labels[i] == kNormal || labels[i] == kEdge;
+  const int nt = thread_count(num_threads, N);
+  int passes = 0;
+  for (int it = 0; it < max_iterations; ++it) {
+    ++passes;
+    // origin: the mean of the pass's support cells (row-major sum)
+    Eigen::Vector3d o = Eigen::Vector3d::Zero();
+    std::ptrdiff_t n_support = 0;
+    for (std::ptrdiff_t i = 0; i < N; ++i) {
+      if (labels[i] == kNormal) {
+        o += g(i / W, i % W);
+        ++n_support;
+      }
+    }
+    if (n_support > 0) o /= static_cast<double>(n_support);
+    // integral images: running sums down each column, then along each row (NumPy's order)
+    std::fill(S, S + W1 * kM, 0.0);
+    std::fill(col, col + W * kM, 0.0);
+    for (std::ptrdiff_t rr = 0; rr < H; ++rr) {
+      double* out = S + (rr + 1) * W1 * kM;
+      std::fill(out, out + kM, 0.0);
+      for (std::ptrdiff_t cc = 0; cc < W; ++cc) {
+        const std::uint8_t l = labels[rr * W + cc];
+        double t[kM] = {0.0};
+        if (l == kNormal) {
+          const Eigen::Vector3d p = g(rr, cc) - o;
+          t[0] = 1.0;
+          t[1] = p.x(), t[2] = p.y(), t[3] = p.z();
+          t[4] = p.x() * p.x(), t[5] = p.x() * p.y(), t[6] = p.x() * p.z();
+          t[7] = p.y() * p.y(), t[8] = p.y() * p.z(), t[9] = p.z() * p.z();
+        }
+        t[10] = l == kInvalid ? 1.0 : 0.0;
+        double* cs = col + cc * kM;
+        const double* left = out + cc * kM;
+        double* cur = out + (cc + 1) * kM;
+        for (int q = 0; q < kM; ++q) {
+          cs[q] += t[q];
+          cur[q] = left[q] + cs[q];
+        }
+      }
+    }
+#pragma omp parallel for schedule(dynamic, 8) num_threads(nt) if (nt > 1)
+    for (std::ptrdiff_t rr = 0; rr < H; ++rr) {
+      Side sd[8];
+      for (std::ptrdiff_t cc = 0; cc < W; ++cc) {
+        const std::ptrdiff_t i = rr * W + cc;
+        mark[i] = 0;
+        if (!cand[i] || !(labels[i] == kNormal || labels[i] == kEdge)) continue;
+        const Eigen::Vector3d pt = g(rr, cc) - o;
+        double best = std::numeric_limits<double>::infinity();
+        for (int s = 0; s < 8; ++s) {
+          const std::ptrdiff_t r0 = std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][0], r), 0, H);
+          const std::ptrdiff_t r1 =
+              std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][1], r) + 1, 0, H);
+          const std::ptrdiff_t c0 = std::clamp<std::ptrdiff_t>(cc + offset(kSides[s][2], r), 0, W);
+          const std::ptrdiff_t c1 =
+              std::clamp<std::ptrdiff_t>(cc + offset(kSides[s][3], r) + 1, 0, W);
+          const double* a = S + (r1 * W1 + c1) * kM;
+          const double* b = S + (r0 * W1 + c1) * kM;
+          const double* c = S + (r1 * W1 + c0) * kM;
+          const double* d = S + (r0 * W1 + c0) * kM;
+          double m[kM];
+          for (int q = 0; q < kM; ++q) m[q] = a[q] - b[q] - c[q] + d[q];
+          Side& x = sd[s];
+          const double n = m[0], nn = std::max(n, 1.0);
+          x.empty = m[10] >= n_min;
+          x.centroid = Eigen::Vector3d(m[1] / nn, m[2] / nn, m[3] / nn);
+          x.valid = false;
+          if (!(n >= n_min)) continue;
+          const Eigen::Vector3d& ce = x.centroid;
+          Eigen::Matrix3d M;
+          M(0, 0) = m[4] - nn * ce.x() * ce.x();
+          M(0, 1) = M(1, 0) = m[5] - nn * ce.x() * ce.y();
+          M(0, 2) = M(2, 0) = m[6] - nn * ce.x() * ce.z();
+          M(1, 1) = m[7] - nn * ce.y() * ce.y();
+          M(1, 2) = M(2, 1) = m[8] - nn * ce.y() * ce.z();
+          M(2, 2) = m[9] - nn * ce.z() * ce.z();
+          double l0 = 0.0, l1 = 0.0, l2 = 0.0;
+          Eigen::Vector3d nv;
+          if (!smallest_eigenpair(M, &l0, &l1, &l2, &nv)) continue;
+          if (!(l2 > 0.0) || l1 <= kRankTol * l2) continue;
+          x.valid = true;
+          x.normal = orient(nv);
+          x.h = dot3(pt - ce, x.normal);
+          x.rms = std::sqrt(std::max(l0, 0.0) / nn);
+          best = std::min(best, x.rms);
+        }
+        bool fits = false, proud = false;
+        for (int s = 0; s < 8; ++s) {
+          const Side& x = sd[s];
+          if (x.valid && x.rms <= kCleanRatio * best && !(std::abs(x.h) > k * x.rms)) fits = true;
+        }
+        if (fits) continue;
+        for (const auto& pair : kOpposite) {
+          for (int flip = 0; flip < 2; ++flip) {
+            const Side& x = sd[pair[flip]];
+            const Side& y = sd[pair[1 - flip]];
+            if (!x.valid || !(x.rms <= kCleanRatio * best) || !(x.h > k * x.rms)) continue;
+            const bool falls =
+                y.empty || (y.valid && dot3(x.normal, y.centroid - x.centroid) < -k * x.rms);
+            if (falls) proud = true;
+          }
+        }
+        mark[i] = proud ? 1 : 0;
+      }
+    }
+    std::ptrdiff_t added = 0;
+    for (std::ptrdiff_t i = 0; i < N; ++i) {
+      if (mark[i]) {
+        labels[i] = kAbnormal;
+        ++added;
+      }
+    }
+    if (added == 0) break;
+  }
+  return passes;
+}
+
+template int edge_passes<float>(const GridView<float>&, std::uint8_t*, int, double, int, int,
+                                std::vector<double>&);
+template int edge_passes<double>(const GridView<double>&, std::uint8_t*, int, double, int, int,
+                                 std::vector<double>&);
+
+}  // namespace miem::detail
