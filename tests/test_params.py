@@ -116,6 +116,7 @@ OTHER = {
     "max_gap": 2, "min_step": 0.5, "max_reach": 5, "window": 9, "heights": "abnormal",
     "height_tolerance": 0.05, "edge_extent": 4, "radius": 1.2, "K": 6, "link": 0.9,
     "min_group": 5, "height_radius": 2.0, "merge_distance": 0.01,
+    "edge_tolerance": 8.0, "edge_window": 7,
 }
 ALL_FIELDS = {name for path in miem.params.PATHS for name in miem.DetectParams.fields(path)}
 
@@ -167,6 +168,8 @@ def test_grid_fields_change_the_result() -> None:
             kw["window"] = 7
         if name == "edge_extent":  # only with the height test
             kw = {"height_tolerance": 0.05, "edge_extent": 30}
+        if name == "edge_window":  # only with the edge test
+            kw = {"edge_tolerance": 8.0, "edge_window": 7}
         res, oracle = miem.detect(g, preset="paper", **kw), ref.detect(g, preset="paper", **kw)
         np.testing.assert_array_equal(res.labels, oracle.labels)  # used as the reference does
         np.testing.assert_allclose(res.height, oracle.height, atol=1e-8, equal_nan=True)
