@@ -11,7 +11,9 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include "judge.hpp"
 #include "miem/organized.hpp"
+#include "miem/plane.hpp"
 #include "parallel.hpp"
 #include "plane_math.hpp"
 
@@ -29,17 +31,6 @@ constexpr int kOpposite[4][2] = {{0, 1}, {2, 3}, {4, 7}, {5, 6}};
 
 inline std::ptrdiff_t offset(int code, std::ptrdiff_t r) {
   return code == -2 ? -r : (code == 2 ? r : code);
-}
-
-// SPEC "Plane fit" orientation: n_z > 0, or if n_z == 0 the first non-zero component positive.
-inline Eigen::Vector3d orient(const Eigen::Vector3d& n) {
-  const double lead = n.z() != 0.0 ? n.z() : (n.x() != 0.0 ? n.x() : n.y());
-  const double s = lead < 0.0 ? -1.0 : 1.0;
-  return Eigen::Vector3d(n.x() * s + 0.0, n.y() * s + 0.0, n.z() * s + 0.0);
-}
-
-inline double dot3(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
-  return a.x() * b.x() + a.y() * b.y() + a.z() * b.z();
 }
 
 struct Side {
@@ -143,7 +134,7 @@ int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k
           if (!smallest_eigenpair(M, &l0, &l1, &l2, &nv)) continue;
           if (!(l2 > 0.0) || l1 <= kRankTol * l2) continue;
           x.valid = true;
-          x.normal = orient(nv);
+          x.normal = orient_normal(nv);  // SPEC "Plane fit" orientation
           x.h = dot3(pt - ce, x.normal);
           x.rms = std::sqrt(std::max(l0, 0.0) / nn);
           best = std::min(best, x.rms);
