@@ -183,3 +183,20 @@ def test_big_endian_npy_reads_native_and_detects(tmp_path):
     np.testing.assert_array_equal(scan.points, g)
     res = miem.detect(scan.points)
     assert np.argwhere(res.abnormal).tolist() == [[10, 12]]
+
+
+def test_laz_fixed_chunk_size_beyond_the_file_is_refused():
+    """Found by fuzz_laz: a LASzip record whose fixed chunk size (4.1e9 points of 38 bytes) made
+    lazrs' parallel decoder ask for 157 GB and abort the process. Read in a child process, so a
+    regression fails this test instead of killing the suite."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    crash = Path(__file__).resolve().parents[1] / "fuzz" / "corpus" / "laz" / "regress-chunk-size.laz"
+    code = ("import miem.io as m, sys\n"
+            "try:\n    m.read(sys.argv[1])\nexcept m.ScanFileError as e:\n    print('refused:', e)\n")
+    proc = subprocess.run([sys.executable, "-c", code, str(crash)], capture_output=True,
+                          text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "refused:" in proc.stdout and "chunks of 4,127,145,136 points" in proc.stdout

@@ -208,6 +208,15 @@ def _check_laz_chunk(path: Path, fh, laszip: bytes, offset: int, rec_len: int, s
     n_items = struct.unpack_from("<H", laszip, 32)[0]
     _need(path, 0 < n_items and len(laszip) >= 34 + 6 * n_items,
           f"corrupt LASzip record: {n_items} items in {len(laszip)} bytes")
+    # A fixed chunk size (0xFFFFFFFF: variable) is the point count lazrs' parallel decoder
+    # allocates per chunk, whatever the file holds: bound it by what the file can hold, or by
+    # 256 MiB for small files (laspy writes 50,000-point chunks even for 10 points).
+    chunk_size = struct.unpack_from("<I", laszip, 12)[0]
+    if chunk_size != 0xFFFFFFFF:
+        room = max(LAZ_MAX_RATIO * max(size - offset, 1), 256 << 20)
+        _need(path, chunk_size * max(rec_len, 1) <= room,
+              f"corrupt LASzip record: chunks of {chunk_size:,} points of {rec_len} bytes "
+              f"cannot be in {size - offset:,} compressed bytes")
     layers = 0
     for k in range(n_items):
         kind, item_size, _ = struct.unpack_from("<HHH", laszip, 34 + 6 * k)
