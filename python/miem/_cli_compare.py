@@ -16,18 +16,9 @@ from typing import Any
 import numpy as np
 
 from . import io as mio
+from .cli import _finite_float as _float  # one parser for finite numbers
 
 __all__ = ["add_parser"]
-
-
-def _float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return v
 
 
 def add_parser(sub: Any) -> None:
