@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import resource
 import tempfile
 import time
 from pathlib import Path
@@ -59,8 +58,25 @@ def scan(rows: int, width: int, chunk: int, seed: int = 0) -> "da.Array":
     return da.concatenate(parts)
 
 
+def _status_mb(field: str) -> float:
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith(field + ":"):
+                return float(line.split()[1]) / 1024.0
+    raise RuntimeError(f"{field} not in /proc/self/status")
+
+
+def reset_peak_mb() -> float:
+    """The worker's resident memory now, its peak reset to it (Linux: clear_refs 5), so that
+    the peak measured afterwards is this run's, not inherited from the process it was forked
+    from or from imports (ru_maxrss cannot be reset)."""
+    with open("/proc/self/clear_refs", "w") as f:
+        f.write("5")
+    return _status_mb("VmRSS")
+
+
 def peak_rss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    return _status_mb("VmHWM")
 
 
 def run(rows: int, width: int, chunk: int, workers: int, preset: str, out_dir: Path) -> dict:
@@ -70,7 +86,7 @@ def run(rows: int, width: int, chunk: int, workers: int, preset: str, out_dir: P
                                   dashboard_address=":0", memory_limit="10GiB") as cluster:
         with distributed.Client(cluster) as client:
             client.run(lambda: __import__("miem.dask"))  # imports are not detection time
-            base = max(client.run(peak_rss_mb).values())
+            base = max(client.run(reset_peak_mb).values())
             grid = scan(rows, width, chunk)
             t0 = time.perf_counter()
             res = mdask.detect(grid, preset=preset)

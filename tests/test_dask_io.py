@@ -124,3 +124,42 @@ def test_npy_writer_streams_detection(tmp_path) -> None:
     np.testing.assert_array_equal(np.load(tmp_path / "height.npy"), want.height)
     assert [d.indices.tolist() for d in defects] == [d.indices.tolist() for d in want.defects]
     assert len(defects) == 2
+
+
+@pytest.mark.parametrize("ext", ["las", "laz"])
+def test_las_writer_streams_cloud_labels(tmp_path, ext) -> None:
+    laspy = pytest.importorskip("laspy")
+    if ext == "laz":
+        pytest.importorskip("lazrs")
+    import miem.dask as mdask
+
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(0.0, 20.0, (3000, 2))
+    pts = np.column_stack([xy, 0.02 * np.sin(xy[:, 0])])
+    pts[[10, 1500, 2900], 2] += 1.5  # three spikes, in different chunks
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales, header.offsets = np.array([1e-4] * 3), np.zeros(3)
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = pts.T
+    las.intensity = np.arange(3000) % 65536
+    las.write(tmp_path / f"p.{ext}")
+    cloud = cio.open_las(tmp_path / f"p.{ext}", chunks=700)
+    kw = dict(preset="paper", radius=1.2, min_step=0.15)
+    res = mdask.detect_points(cloud, **kw)
+    out = cio.LasWriter(tmp_path / f"p.{ext}", tmp_path / "labels.las", chunks=500)
+    da.store([res.labels, res.height], [out.labels, out.height], lock=False)
+    back = laspy.read(tmp_path / "labels.las")
+    want = miem.detect(cloud.compute(), **kw)  # the points as the file holds them
+    np.testing.assert_array_equal(np.asarray(back["miem_label"]), want.labels)
+    np.testing.assert_array_equal(np.asarray(back["miem_height"]), want.height)
+    assert set(np.flatnonzero(want.labels == miem.ABNORMAL)) >= {10, 1500, 2900}
+    # every source field is copied unchanged
+    np.testing.assert_array_equal(back.X, las.X)
+    np.testing.assert_array_equal(back.intensity, las.intensity)
+    with pytest.raises(ValueError, match="dst: expected a .las"):
+        cio.LasWriter(tmp_path / f"p.{ext}", tmp_path / "x.laz")
+    with pytest.raises(ValueError, match="already has"):
+        cio.LasWriter(tmp_path / "labels.las", tmp_path / "again.las")
+    with pytest.raises(ValueError, match="src: .* not a LAS"):
+        (tmp_path / "bad.las").write_bytes(b"LASF" + b"\0" * 50)
+        cio.LasWriter(tmp_path / "bad.las", tmp_path / "o.las")

@@ -8,6 +8,8 @@ The file must be reachable by the same path from every worker (a shared or local
 - :func:`open_pcd`: binary PCD; organized (``HEIGHT > 1``) as ``(H, W, 3)``, else ``(N, 3)``.
 - :func:`open_las`: LAS/LAZ as ``(N, 3)`` float64 (laspy's chunked reader, one seek per block).
 - :class:`NpyWriter`: a ``.npy`` target for ``dask.array.store`` (labels, heights).
+- :class:`LasWriter`: a copy of a LAS/LAZ file with ``miem_label`` / ``miem_height`` point
+  fields, each a ``dask.array.store`` target (the labels go back beside the points they judge).
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import numpy as np
 
 import dask.array as da
 
-__all__ = ["NpyWriter", "open_las", "open_npy", "open_pcd"]
+__all__ = ["LasWriter", "NpyWriter", "open_las", "open_npy", "open_pcd"]
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -219,3 +221,94 @@ class NpyWriter:
         mm[key] = value
         mm.flush()
         del mm
+
+
+class _LasField:
+    """One point field of an uncompressed LAS file as a ``dask.array.store`` target."""
+
+    def __init__(self, path: str, offset: int, record: np.dtype, count: int, name: str) -> None:
+        self.path, self.offset, self.record, self.name = path, offset, record, name
+        self.shape, self.dtype = (count,), record[name]
+
+    def __setitem__(self, key: Any, value: np.ndarray) -> None:
+        mm = np.memmap(self.path, dtype=self.record, mode="r+", offset=self.offset,
+                       shape=self.shape)
+        mm[self.name][key] = value
+        mm.flush()
+        del mm
+
+
+class LasWriter:
+    """A copy of a LAS/LAZ file (written uncompressed, ``.las``) whose points carry two extra
+    fields, ``miem_label`` (uint8: ``miem.NORMAL`` ... ``miem.INVALID``) and ``miem_height``
+    (float64, the points' units; NaN until written), every other field copied unchanged.
+
+    The copy is written once, chunk by chunk (laspy's chunk iterator: memory follows
+    ``chunks``); then ``labels`` and ``height`` are targets for ``dask.array.store`` that write
+    each block of results into the points it belongs to, on whichever worker computed it. The
+    extra fields are standard LAS "extra bytes": CloudCompare, PDAL and laspy show them as
+    scalar fields.
+
+    >>> pts = open_las("part.laz")
+    >>> res = miem.dask.detect_points(pts, radius=1.0, min_step=0.1)
+    >>> out = LasWriter("part.laz", "part_labels.las")
+    >>> da.store([res.labels, res.height], [out.labels, out.height], lock=False)
+
+    Parameters
+    ----------
+    src : str or path
+        The LAS/LAZ file the results belong to (as read by :func:`open_las`).
+    dst : str or path
+        The copy to write (``.las``; an existing file is replaced). Must differ from ``src``.
+    chunks : int
+        Points copied per step.
+    """
+
+    def __init__(self, src: PathLike, dst: PathLike, chunks: int = 1 << 22) -> None:
+        import laspy
+
+        from . import INVALID
+
+        p = _path(src)
+        step = _positive("chunks", chunks)
+        out = Path(dst)
+        if out.suffix.lower() != ".las":
+            raise ValueError(f"dst: expected a .las path (written uncompressed, so that blocks "
+                             f"can be written in any order), got {out}")
+        if out.resolve() == p.resolve():
+            raise ValueError(f"dst: must not be the source file {p}")
+        try:
+            reader = laspy.open(str(p))
+        except Exception as exc:
+            raise ValueError(f"src: {p} is not a LAS/LAZ file ({type(exc).__name__}: {exc})"
+                             ) from None
+        with reader:
+            src_h = reader.header
+            fmt = laspy.PointFormat(src_h.point_format.id)
+            for dim in src_h.point_format.extra_dimensions:  # the source's own extra bytes
+                fmt.add_extra_dimension(laspy.ExtraBytesParams(dim.name, dim.dtype))
+            names = set(fmt.dimension_names)
+            clash = names & {"miem_label", "miem_height"}
+            if clash:
+                raise ValueError(f"src: already has the field(s) {sorted(clash)}")
+            header = laspy.LasHeader(point_format=fmt, version=src_h.version)
+            header.offsets, header.scales = src_h.offsets, src_h.scales
+            header.add_extra_dims([laspy.ExtraBytesParams("miem_label", np.uint8),
+                                   laspy.ExtraBytesParams("miem_height", np.float64)])
+            count = int(src_h.point_count)
+            with laspy.open(str(out), mode="w", header=header) as writer:
+                for chunk in reader.chunk_iterator(step):
+                    rec = laspy.ScaleAwarePointRecord.zeros(len(chunk), header=header)
+                    for name in chunk.array.dtype.names:
+                        rec.array[name] = chunk.array[name]
+                    rec.array["miem_label"] = int(INVALID)  # until written
+                    rec.array["miem_height"] = np.nan
+                    writer.write_points(rec)
+        with laspy.open(str(out)) as check:
+            offset = int(check.header.offset_to_point_data)
+            record = check.header.point_format.dtype()
+            if int(check.header.point_count) != count:
+                raise ValueError(f"dst: wrote {check.header.point_count} of {count} points")
+        self.path, self.count = str(out), count
+        self.labels = _LasField(self.path, offset, record, count, "miem_label")
+        self.height = _LasField(self.path, offset, record, count, "miem_height")

@@ -186,20 +186,16 @@ def _run_padded(ext: np.ndarray, kwargs: dict, sep: int) -> Any:
     return _detect(pad, kwargs), int(np.count_nonzero(finite))
 
 
-def _touches(cells: np.ndarray, home: tuple, shape: tuple) -> bool:
-    """True when a cell lies on an inner border of the home block (rows/cols shared with
-    another block), i.e. the component may continue in a neighbouring block."""
-    r0, r1, c0, c1 = home
-    H, W = shape
-    r, c = cells[:, 0], cells[:, 1]
-    return bool(((r0 > 0) & (r == r0)).any() or ((r1 < H) & (r == r1 - 1)).any()
-                or ((c0 > 0) & (c == c0)).any() or ((c1 < W) & (c == c1 - 1)).any())
-
-
 def _components(mask: np.ndarray) -> tuple:
     from scipy import ndimage
 
     return ndimage.label(mask, structure=np.ones((3, 3), dtype=bool))
+
+
+def _find_objects(comp: np.ndarray) -> list:
+    from scipy import ndimage
+
+    return ndimage.find_objects(comp)
 
 
 #: Cells beyond its home block within which a block reports a defect whole: defects that start
@@ -231,12 +227,16 @@ def _detect_block(ext: np.ndarray, origin: tuple, home: tuple, shape: tuple, kwa
         if lo[0] >= r0 - m and hi[0] < r1 + m and lo[1] >= c0 - m and hi[1] < c1 + m:
             whole.append(dataclasses.replace(d, indices=cells[:, 0] * W + cells[:, 1],
                                              cells=cells))
-    comp, n = _components(out["labels"] == ABNORMAL)
+    comp, _ = _components(out["labels"] == ABNORMAL)
     open_parts = []
-    for k in range(1, n + 1):
-        rc = np.argwhere(comp == k) + (r0, c0)
-        if _touches(rc, home, shape):
-            open_parts.append(rc[:, 0].astype(np.int64) * W + rc[:, 1])
+    inner = [comp[0] if r0 > 0 else None, comp[-1] if r1 < H else None,
+             comp[:, 0] if c0 > 0 else None, comp[:, -1] if c1 < W else None]
+    touching = np.unique(np.concatenate([b for b in inner if b is not None] + [[0]]))[1:]
+    boxes = _find_objects(comp)
+    for k in touching:  # only components on an inner border, each read within its box
+        box = boxes[k - 1]
+        rc = np.argwhere(comp[box] == k) + (r0 + box[0].start, c0 + box[1].start)
+        open_parts.append(rc[:, 0].astype(np.int64) * W + rc[:, 1])
     out["whole"] = whole
     out["open"] = open_parts
     out["n_finite"] = int(np.count_nonzero(np.isfinite(ext[sl]).all(axis=-1)))
