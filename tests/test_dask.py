@@ -211,7 +211,7 @@ def test_bad_input_is_rejected() -> None:
         mdask.detect(g, window=4)
     with pytest.raises(ValueError, match="grid"):
         mdask.detect(da.zeros((10, 4), chunks=5))
-    with pytest.raises(ValueError, match="radius"):  # a cloud: detect_points' checks
+    with pytest.raises(ValueError, match="points: fewer than 3 distinct"):  # a cloud
         mdask.detect(da.zeros((10, 3), chunks=5))
     empty = mdask.detect(da.full((20, 20, 3), np.nan, chunks=(10, 10, 3)))
     with pytest.raises(ValueError, match="fewer than 3 finite points"):
@@ -300,10 +300,7 @@ def test_cloud_tiles_equal_whole_cloud(client, preset: str) -> None:
     kw = {"preset": preset, "max_iterations": 2, "tile": 40.0}
     cloud_cfg = miem.CLOUD_PRESETS.get(preset, {})
     if cloud_cfg.get("height_tolerance") is not None and cloud_cfg.get("edge_extent"):
-        # compact EDGE groups are measured in spacings of the whole cloud: refused, not guessed
-        with pytest.raises(ValueError, match="edge_extent"):
-            mdask.detect_points(pts, radius=3.0, min_step=0.4, **kw)
-        kw["edge_extent"] = 0
+        kw["edge_extent"] = 3  # compact EDGE groups, in the whole cloud's spacings
     if cloud_cfg.get("min_group"):
         kw["min_group"] = 3  # groups of 40 would make the halo cover the whole test cloud
     want, res = check_points_equal(pts, 2000, **kw)
@@ -330,17 +327,42 @@ def test_cloud_small_tiles_full_iterations(client) -> None:
     _defects_equal(defects, want.defects)
 
 
-def test_cloud_needs_explicit_lengths() -> None:
+def test_cloud_refusals() -> None:
     pts = da.from_array(cloud(20), chunks=(100, 3))
-    with pytest.raises(ValueError, match="radius, min_step, link"):
-        mdask.detect_points(pts)
-    with pytest.raises(ValueError, match="min_step"):
-        mdask.detect_points(pts, radius=3.0)
     with pytest.raises(ValueError, match="window"):
         mdask.detect_points(pts, radius=3.0, min_step=0.5, window=5)
     with pytest.raises(ValueError, match="tile"):
         mdask.detect_points(pts, radius=3.0, min_step=0.5, tile=-1.0)
-    with pytest.raises(ValueError, match="edge_extent"):
-        mdask.detect_points(pts, radius=3.0, min_step=0.5, height_tolerance=0.5, edge_extent=2)
+    with pytest.raises(ValueError, match="spacing"):
+        mdask.detect_points(pts, spacing=-1.0)
     with pytest.raises(ValueError, match="new_rule: miem.dask does not know"):
         mdask._refuse_unknown({"new_rule": 2, "off_rule": 0, "radius": 1.0}, {"radius"})
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_cloud_spacing_from_tiles_equals_the_whole_clouds(dtype) -> None:
+    pts = cloud(70, seed=4).astype(dtype)
+    dup = pts[np.isfinite(pts).all(axis=1)][:900] + dtype(1e-3)  # near duplicates, shuffled in
+    pts = np.concatenate([pts, dup])[np.random.default_rng(0).permutation(len(pts) + 900)]
+    arr = da.from_array(pts, chunks=(400, 3))
+    fin = np.isfinite(pts).all(axis=1)
+    lo, hi = pts[fin].min(axis=0), pts[fin].max(axis=0)
+    with dask.config.set(scheduler="sync"):
+        got = mdask._cloud_spacing(arr, lo, hi, 0.0)
+        merged = mdask._cloud_spacing(arr, lo, hi, 0.01)
+    assert got == miem.point_spacing(pts)  # every finite row counts
+    assert merged == miem.detect(pts, merge_distance=0.01).params["spacing"]  # distinct ones
+    assert merged != got
+
+
+def test_cloud_default_preset_without_lengths(client) -> None:
+    """A plain call on a cloud: the whole cloud's spacing (found from the tiles) sets radius,
+    min_step, link, height_radius and the compact-EDGE span, as miem.detect on the whole."""
+    pts = cloud(90, seed=5)
+    want = miem.detect(pts)
+    res = mdask.detect_points(da.from_array(pts, chunks=(700, 3)))
+    assert res.params["spacing"] == want.params["spacing"]
+    defects, labels, height = res.defects(res.labels, res.height)
+    np.testing.assert_array_equal(labels, want.labels)
+    np.testing.assert_array_equal(height, want.height)
+    _defects_equal(defects, want.defects)

@@ -115,7 +115,7 @@ OTHER = {
     "theta0": 100.0, "scales": (1, 3), "min_directions": 2, "max_iterations": 3,
     "max_gap": 2, "min_step": 0.5, "max_reach": 5, "window": 9, "heights": "abnormal",
     "height_tolerance": 0.05, "edge_extent": 4, "radius": 1.2, "K": 6, "link": 0.9,
-    "min_group": 5, "height_radius": 2.0, "merge_distance": 0.01,
+    "min_group": 5, "height_radius": 2.0, "merge_distance": 0.01, "spacing": 0.35,
     "edge_tolerance": 8.0, "edge_window": 7,
 }
 ALL_FIELDS = {name for path in miem.params.PATHS for name in miem.DetectParams.fields(path)}

@@ -75,6 +75,9 @@ Status CloudParams::check() const noexcept {
   if (!(std::isfinite(merge_distance) && merge_distance >= 0.0)) {
     return bad("merge_distance: must be finite and >= 0");
   }
+  if (spacing && !(std::isfinite(*spacing) && *spacing > 0.0)) {
+    return bad("spacing: must be finite and > 0");
+  }
   return kOkStatus;
 }
 

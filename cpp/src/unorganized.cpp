@@ -101,6 +101,31 @@ double point_spacing(const PointsView<T>& points, int num_threads) {
   return median_spacing(nearest_other(points, num_threads));
 }
 
+template <typename T>
+void distinct_spacings(const PointsView<T>& points, double merge_distance, double* out,
+                       int num_threads) {
+  if (!(std::isfinite(merge_distance) && merge_distance >= 0.0)) {
+    throw std::invalid_argument("merge_distance: must be finite and >= 0");
+  }
+  const std::vector<double> nn = nearest_other(points, num_threads);
+  const Duplicates dup = find_duplicates(points, nn, merge_distance, num_threads);
+  if (dup.merged == 0) {
+    std::copy(nn.begin(), nn.end(), out);
+    return;
+  }
+  std::fill(out, out + points.size, kNaN);
+  const std::size_t m = dup.distinct.size();
+  if (m < 3) return;  // detect_points refuses such a cloud
+  std::vector<T> buf(3 * m);
+  for (std::size_t k = 0; k < m; ++k) {
+    const T* q = points.data + dup.distinct[k] * points.point_stride;
+    for (int a = 0; a < 3; ++a) buf[3 * k + a] = q[a * points.coord_stride];
+  }
+  const PointsView<T> view{buf.data(), static_cast<std::ptrdiff_t>(m), 3, 1};
+  const std::vector<double> dn = nearest_other(view, num_threads);
+  for (std::size_t k = 0; k < m; ++k) out[dup.distinct[k]] = dn[k];
+}
+
 // ---------------------------------------------------------------------------------------------
 // normals
 
@@ -417,7 +442,7 @@ PointsDetectSummary detect_points(const PointsView<T>& points, const PointsDetec
   if (out.labels == nullptr) throw std::invalid_argument("out.labels: must not be null");
   const std::vector<double> nn = nearest_other(points, p.num_threads);  // >= 3 finite, not one
   Duplicates dup = find_duplicates(points, nn, p.merge_distance, p.num_threads);
-  if (dup.merged == 0) return detect_distinct(points, p, out, median_spacing(nn));
+  if (dup.merged == 0) return detect_distinct(points, p, out, p.spacing ? *p.spacing : median_spacing(nn));
   // Detect on the distinct points (the representatives), then label every duplicate like the
   // point it duplicates (SPEC "Duplicate points").
   const std::size_t m = dup.distinct.size();
@@ -436,8 +461,8 @@ PointsDetectSummary detect_points(const PointsView<T>& points, const PointsDetec
   const PointsOutput sub{labels.data(), out.flags ? flags.data() : nullptr,
                          out.angle_deg ? angle.data() : nullptr, height.data(),
                          out.degenerate ? degenerate.data() : nullptr};
-  PointsDetectSummary summary =
-      detect_distinct(view, p, sub, median_spacing(nearest_other(view, p.num_threads)));
+  PointsDetectSummary summary = detect_distinct(
+      view, p, sub, p.spacing ? *p.spacing : median_spacing(nearest_other(view, p.num_threads)));
   std::vector<std::int64_t> slot(static_cast<std::size_t>(points.size), -1);
   for (std::size_t k = 0; k < m; ++k) slot[dup.distinct[k]] = static_cast<std::int64_t>(k);
   for (std::ptrdiff_t i = 0; i < points.size; ++i) {
@@ -484,6 +509,8 @@ PointsDetectResult detect_points(const PointsView<T>& points, const PointsDetect
 }
 
 template double point_spacing<float>(const PointsView<float>&, int);
+template void distinct_spacings<float>(const PointsView<float>&, double, double*, int);
+template void distinct_spacings<double>(const PointsView<double>&, double, double*, int);
 template double point_spacing<double>(const PointsView<double>&, int);
 template void estimate_normals<float>(const PointsView<float>&, double, const NormalsOutput&, int);
 template void estimate_normals<double>(const PointsView<double>&, double, const NormalsOutput&,

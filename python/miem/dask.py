@@ -34,8 +34,9 @@ Unorganized clouds (:func:`detect_points`) are cut into square x-y tiles with a 
 :func:`points_halo`; three far sentinel points give every tile the whole cloud's minimum corner,
 so that the core's neighbour grid, and the order of its sums, are the whole cloud's.
 
-Global quantities: ``theta0="auto"`` (a median over the whole scan) is found first by an exact
-distributed selection (:func:`auto_theta0`); the MIEM plane and the iteration count are not
+Global quantities: ``theta0="auto"`` (a median over the whole scan) and a cloud's ``spacing``
+(a median over the whole cloud) are found first by an exact distributed selection
+(:func:`auto_theta0`, ``_cloud_spacing``); the MIEM plane and the iteration count are not
 reported.
 """
 
@@ -577,30 +578,82 @@ _POINT_FILL = {"labels": int(miem.INVALID), "flags": 0, "angle": np.nan, "height
 #: Cloud parameters whose reach points_halo knows; any other parameter that is on is refused.
 _POINT_KNOWN = {"preset", "theta0", "scales", "min_step", "min_directions", "max_iterations",
                 "radius", "K", "link", "spacing", "heights", "height_tolerance", "edge_extent",
-                "min_group", "height_radius"}
+                "min_group", "height_radius", "merge_distance", "merged"}
 
 
-def _probe_points(kwargs: dict) -> dict:
-    """The cloud parameters ``miem.detect(points, **kwargs)`` resolves; none may depend on the
-    cloud's spacing (a median over the whole cloud, which a tile does not see)."""
+def _probe_points(kwargs: dict) -> tuple:
+    """The cloud parameters ``miem.detect(points, **kwargs)`` resolves, and whether any of them
+    depends on the cloud's spacing (a median over the whole cloud: :func:`cloud_spacing`)."""
     rng = np.random.default_rng(0)
     probe = np.column_stack([rng.uniform(0, 8, (64, 2)), np.zeros(64)])
     a = dict(miem.detect(probe, **kwargs).params)
     b = dict(miem.detect(probe * 2.0, **kwargs).params)
     lengths = ("radius", "min_step", "link", "height_radius")
-    derived = [k for k in lengths if k in a and a[k] != b[k]]
-    if derived:
-        raise ValueError(
-            f"{', '.join(derived)}: miem.dask needs explicit values (the defaults are multiples "
-            "of the median point spacing, a quantity of the whole cloud); pass e.g. "
-            "radius=5 * spacing, min_step=0.5 * spacing with spacing from "
-            "miem.point_spacing(sample)")
-    if a.get("height_tolerance") is not None and a.get("edge_extent", 0):
-        raise ValueError(
-            f"edge_extent: {a['edge_extent']} spacings of the whole cloud (the height test's "
-            "compact EDGE groups) cannot be judged tile by tile; pass edge_extent=0")
+    derived = any(k in a and a[k] != b[k] for k in lengths)
+    compact = a.get("height_tolerance") is not None and a.get("edge_extent", 0) > 0
     _refuse_unknown(a, _POINT_KNOWN)
-    return a
+    return a, (derived or compact) and kwargs.get("spacing") is None
+
+
+def _nn_tile(pieces: list, box: tuple, merge: float, pad: float,
+             sentinels: np.ndarray) -> np.ndarray:
+    """The bit patterns of the distinct-point spacings (SPEC "Spacing") of a tile's home points,
+    from the tile and the points within `pad` of it: exact up to `pad`, +inf beyond."""
+    from . import _core
+
+    pieces = [p for p in pieces if p is not None]
+    if not pieces:
+        return np.zeros(0, np.uint64)
+    pts = np.concatenate([p[1] for p in pieces])
+    if pts.dtype.kind != "f":  # as miem.detect converts them
+        pts = pts.astype(np.float64)
+    n = pts.shape[0]
+    nn = _core.distinct_spacings(np.concatenate([pts, sentinels.astype(pts.dtype)]), merge, 1)
+    nn = nn[:n][_in_home(pts[:, :2].astype(np.float64), box)]
+    nn = nn[~np.isnan(nn)]
+    nn[nn > pad] = np.inf
+    return np.ascontiguousarray(nn).view(np.uint64)
+
+
+def _cloud_spacing(points: "da.Array", lo3: np.ndarray, hi3: np.ndarray, merge: float) -> float:
+    """The whole cloud's spacing as ``miem.detect`` measures it (the median over the distinct
+    points of the distance to the nearest other distinct point), from x-y tiles that each see
+    their neighbours within an eighth of a tile, by exact distributed selection."""
+    lo, hi = lo3[:2].astype(np.float64), hi3[:2].astype(np.float64)
+    area = max(float(np.prod(hi - lo)), 1e-300)
+    tile = max(float(np.sqrt(area * max(points.chunks[0]) / max(points.shape[0], 1))), 1e-300)
+    pad = max(tile / 8.0, 4.0 * merge)
+    sentinels = _sentinels(lo3, hi3, 4 * pad + float(np.max(hi3 - lo3)) + 1.0, points.dtype)
+    n = (int(np.floor((hi[0] - lo[0]) / tile)) + 1, int(np.floor((hi[1] - lo[1]) / tile)) + 1)
+    starts = np.cumsum((0,) + points.chunks[0])
+    splits = [delayed(_split, pure=True)(c, int(s), lo, tile, n, pad)
+              for c, s in zip(points.to_delayed().ravel(), starts)]
+    blocks = [delayed(_nn_tile, pure=True)([delayed(dict.get)(sp, (i, j)) for sp in splits],
+                                           _box(lo, tile, n, i, j), merge, pad, sentinels)
+              for i in range(n[0]) for j in range(n[1])]
+    blocks = list(dask.persist(*blocks))
+    m = sum(dask.compute(*[delayed(len)(b) for b in blocks]))
+    if m < 3:
+        raise ValueError(f"points: fewer than 3 distinct finite points (found {m}; "
+                         "duplicates within merge_distance count once)")
+    mid = m // 2
+    s = _kth(blocks, mid)
+    if m % 2 == 0:
+        s = (_kth(blocks, mid - 1) + s) / 2.0
+    if not np.isfinite(s):
+        raise ValueError(f"points: the median spacing exceeds {pad:g} (an eighth of a tile); "
+                         "pass spacing= (e.g. miem.point_spacing of a representative part)")
+    if not s > 0:
+        raise ValueError("points: spacing is 0 (more than half of the finite points are "
+                         "duplicates within merge_distance)")
+    return float(s)
+
+
+def _box(lo: np.ndarray, tile: float, n: tuple, i: int, j: int) -> tuple:
+    """Tile (i, j)'s home box; the outer tiles reach to infinity."""
+    return (lo[0] + i * tile if i else -np.inf, lo[0] + (i + 1) * tile if i < n[0] - 1
+            else np.inf, lo[1] + j * tile if j else -np.inf,
+            lo[1] + (j + 1) * tile if j < n[1] - 1 else np.inf)
 
 
 def _refuse_unknown(params: dict, known: set) -> None:
@@ -616,16 +669,19 @@ def points_halo(params: dict) -> float:
 
     ``max_iterations * radius`` (angle passes, each reads the neighbours within radius),
     ``+ min_group * radius`` (floating groups: a group of fewer than min_group points lies within
-    that chain distance), ``+ max_iterations * (height_radius + link)`` with the height test
-    (a pass reads NORMAL points and feature-line EDGE points within height_radius, an EDGE
-    point's group is seen within link), ``+ link + max(height_radius, link)`` so that the
-    heights and the defects that leave the tile by up to ``link`` are exact.
+    that chain distance), ``+ max_iterations * (height_radius + link + edge_extent * spacing)``
+    with the height test (a pass reads NORMAL points and feature-line EDGE points within
+    height_radius; whether an EDGE point's group is compact, i.e. spans at most
+    ``edge_extent * spacing``, is seen within that span plus link: a compact group lies within
+    it, and a group that reaches beyond it is seen to), ``+ link + max(height_radius, link)``
+    so that the heights and the defects that leave the tile by up to ``link`` are exact.
     """
     r, link = params["radius"], params["link"]
     hr = params.get("height_radius") or r
     lag = params["max_iterations"] * r + params.get("min_group", 0) * r
     if params.get("height_tolerance") is not None:
-        lag += params["max_iterations"] * (hr + link)
+        compact = params.get("edge_extent", 0.0) * params["spacing"]
+        lag += params["max_iterations"] * (hr + link + compact)
     return lag + link + max(hr, link)
 
 
@@ -853,8 +909,10 @@ def detect_points(points: Any, *, tile: Optional[float] = None, num_threads: Opt
     num_threads : int, optional
         Threads per tile detection (default 1).
     **kwargs
-        As for :func:`miem.detect` on a cloud; ``radius`` and ``min_step`` must be given
-        (their defaults are multiples of the whole cloud's median spacing).
+        As for :func:`miem.detect` on a cloud, with the same defaults. When a default depends
+        on the whole cloud's median spacing (``radius``, ``min_step``, the compact-EDGE span)
+        and ``spacing`` is not given, it is found first by one pass over the tiles (exact
+        distributed selection, docs/SPEC.md "Blocks").
 
     Returns
     -------
@@ -869,13 +927,16 @@ def detect_points(points: Any, *, tile: Optional[float] = None, num_threads: Opt
     if len(points.chunks[1]) != 1:
         points = points.rechunk({1: 3})
     kwargs = dict(kwargs, num_threads=num_threads)
-    params = _probe_points(kwargs)
-    pad = points_halo(params)
+    params, need_spacing = _probe_points(kwargs)
     fin = da.isfinite(points).all(axis=1)[:, None]
     lo3, hi3 = dask.compute(da.where(fin, points, np.inf).min(axis=0).astype(points.dtype),
                             da.where(fin, points, -np.inf).max(axis=0).astype(points.dtype))
     if not np.isfinite(lo3.astype(np.float64)).all():
         lo3 = hi3 = np.zeros(3, dtype=points.dtype)
+    if need_spacing:
+        kwargs["spacing"] = _cloud_spacing(points, lo3, hi3, params["merge_distance"])
+        params, _ = _probe_points(kwargs)
+    pad = points_halo(params)
     sentinels = _sentinels(lo3, hi3, 2 * (pad + params["radius"] + params["link"]) + 1.0,
                            points.dtype)
     lo, hi = lo3[:2].astype(np.float64), hi3[:2].astype(np.float64)
@@ -896,9 +957,7 @@ def detect_points(points: Any, *, tile: Optional[float] = None, num_threads: Opt
     tiles = []
     for i in range(n[0]):
         for j in range(n[1]):
-            box = (lo[0] + i * tile if i else -np.inf, lo[0] + (i + 1) * tile if i < n[0] - 1
-                   else np.inf, lo[1] + j * tile if j else -np.inf,
-                   lo[1] + (j + 1) * tile if j < n[1] - 1 else np.inf)
+            box = _box(lo, tile, n, i, j)
             pieces = [delayed(dict.get)(sp, (i, j)) for sp in splits]
             tiles.append(delayed(_detect_tile, pure=True)(pieces, box, kwargs, params,
                                                           sentinels))

@@ -231,6 +231,9 @@ class CloudParams:
     merge_distance: float = _f(
         0.0, "length", "duplicate points: rows this close (0: equal coordinates) are one point, "
         "detected once and labelled alike", "LENGTH")
+    spacing: Optional[float] = _f(
+        None, "length", "the cloud's point spacing, the unit of the defaults and of edge_extent; "
+        "None: the median nearest-neighbour distance", "LENGTH")
 
 
 _PART_TYPES = {"angle": AngleParams, "grid": GridParams, "cloud": CloudParams}
@@ -416,6 +419,7 @@ class DetectParams:
         p.height_radius = (None if c.height_radius is None
                            else _positive("height_radius", c.height_radius))
         p.merge_distance = _length0("merge_distance", c.merge_distance)
+        p.spacing = None if c.spacing is None else _positive("spacing", c.spacing)
         p.num_threads = num_threads
         _raise_unless_ok(p.check())
         return p

@@ -1863,6 +1863,7 @@ def detect_points(
     min_group: int = 40,
     height_radius: float | None = None,
     merge_distance: float = 0.0,
+    spacing: float | None = None,
 ) -> RefPointsResult:
     """Detect abnormal points in an unorganized cloud (MIEM, reference implementation).
 
@@ -1911,6 +1912,9 @@ def detect_points(
     merge_distance : float, optional
         SPEC "Duplicate points": finite rows within this distance (``<=``, transitively) are
         one point, the group's smallest row; the others take its results. ``>= 0``.
+    spacing : float or None, optional
+        The unit of the defaults (radius, min_step) and of ``edge_extent``; None means the
+        median nearest-neighbour distance of the distinct points. ``> 0``.
 
     Returns
     -------
@@ -1944,6 +1948,7 @@ def detect_points(
         raise ValueError(f"min_group: expected 0 (off) or an integer >= 3, got {group}")
 
     merge = _check_length("merge_distance", merge_distance, allow_zero=True)
+    spacing_in = None if spacing is None else _check_length("spacing", spacing, allow_zero=False)
 
     p, finite = _cloud_array(points)
     n_all = p.shape[0]
@@ -1963,7 +1968,7 @@ def detect_points(
         )
 
     tree = _kdtree(pts)
-    spacing = _spacing(tree, pts)
+    spacing = _spacing(tree, pts) if spacing_in is None else spacing_in
     r = 5.0 * spacing if r_in is None else r_in
     step = 0.5 * spacing if min_step is None else float(min_step)
     lnk = r if link_in is None else link_in

@@ -67,9 +67,12 @@ struct CloudParams {
   double edge_extent = 12.0;       ///< spacings: height test also on EDGE groups this compact
   std::optional<double> height_radius;  ///< length: height-plane radius (> 0); default 2 * radius
   double merge_distance = 0.0;     ///< length: points this close (>= 0; 0: equal) are one point
+  /// length: the cloud's point spacing (> 0), the unit of the defaults and of edge_extent;
+  /// default: the median nearest-neighbour distance of the distinct points (point_spacing).
+  std::optional<double> spacing;
 
   /// radius, num_directions, min_step, link, min_group, the height test, height_radius,
-  /// merge_distance.
+  /// merge_distance, spacing.
   Status check() const noexcept;
 };
 

@@ -20,6 +20,15 @@ namespace miem {
 template <typename T>
 double point_spacing(const PointsView<T>& points, int num_threads = 0);
 
+/// What detect_points takes the median of when CloudParams::spacing is not given: for every
+/// row that represents its duplicate group (within merge_distance, SPEC "Duplicate points"),
+/// the distance to the nearest other distinct point; NaN for the other rows and non-finite ones.
+/// `out` has points.size elements. Lets a caller that holds the cloud in parts (miem.dask)
+/// find the same spacing. Throws as point_spacing for fewer than 3 finite points.
+template <typename T>
+void distinct_spacings(const PointsView<T>& points, double merge_distance, double* out,
+                       int num_threads = 0);
+
 /// Caller-owned outputs of estimate_normals, each for every row of the input.
 struct NormalsOutput {
   double* normals = nullptr;        ///< N x 3 row-major oriented unit normals (NaN when invalid)

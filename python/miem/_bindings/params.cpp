@@ -84,6 +84,8 @@ void bind_params(py::module_& m) {
                      "length: height-plane radius (> 0); None: 2 x radius")
       .def_readwrite("merge_distance", &miem::CloudParams::merge_distance,
                      "length: points this close are one point (>= 0; 0: equal coordinates)")
+      .def_readwrite("spacing", &miem::CloudParams::spacing,
+                     "length: the point spacing (> 0); None: median nearest-neighbour distance")
       .def("check", [](const miem::CloudParams& p) { return status_tuple(p.check()); });
 
   py::class_<miem::DetectParams, miem::AngleParams, miem::GridParams>(

@@ -127,6 +127,22 @@ double point_spacing(const py::array& points, int num_threads) {
   return miem::point_spacing(v, num_threads);
 }
 
+py::array_t<double> distinct_spacings(const py::array& points, double merge_distance,
+                                      int num_threads) {
+  require_points(points, "points");
+  py::array_t<double> out(points.shape(0));
+  if (is_f32(points)) {
+    const auto v = view_of<float>(points, "points");
+    py::gil_scoped_release nogil;
+    miem::distinct_spacings(v, merge_distance, out.mutable_data(), num_threads);
+  } else {
+    const auto v = view_of<double>(points, "points");
+    py::gil_scoped_release nogil;
+    miem::distinct_spacings(v, merge_distance, out.mutable_data(), num_threads);
+  }
+  return out;
+}
+
 py::tuple estimate_normals(const py::array& points, double radius, int num_threads) {
   require_points(points, "points");
   const py::ssize_t n = points.shape(0);
@@ -189,6 +205,8 @@ void bind_unorganized(py::module_& m) {
       .def_property_readonly("num_indexed", &PyNeighborGrid::num_indexed)
       .def_property_readonly("points", &PyNeighborGrid::points);
   m.def("point_spacing", &point_spacing, py::arg("points"), py::arg("num_threads"));
+  m.def("distinct_spacings", &distinct_spacings, py::arg("points"), py::arg("merge_distance"),
+        py::arg("num_threads"));
   m.def("estimate_normals", &estimate_normals, py::arg("points"), py::arg("radius"),
         py::arg("num_threads"));
   m.def("detect_points", &detect_points, py::arg("points"), py::arg("params"));
