@@ -1,6 +1,7 @@
 // The MIEM plane (docs/SPEC.md "MIEM plane"): the eigenvalue fit of the finite points that are
 // not ABNORMAL. Per-row moments, merged in a fixed tree order, so the same for any thread count.
 #include "parallel.hpp"
+#include "plane_math.hpp"
 #include "stages.hpp"
 
 namespace miem::detail {
@@ -19,39 +20,14 @@ std::optional<Plane> miem_plane(const GridView<T>& g, const std::uint8_t* labels
   rows.resize(static_cast<std::size_t>(B));
 #pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
   for (std::ptrdiff_t b = 0; b < B; ++b) {
-    Moments m;
-    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
     const std::ptrdiff_t r0 = b * per, r1 = std::min(H, r0 + per);
-    for (std::ptrdiff_t r = r0; r < r1; ++r) {
-      const std::uint8_t* lab = labels + r * W;
-      for (std::ptrdiff_t c = 0; c < W; ++c) {
-        const std::uint8_t l = lab[c];
-        if (l == kNormal || l == kEdge) {
-          sum += g(r, c);
-          ++m.n;
-        }
-      }
-    }
-    if (m.n > 0) {
-      m.mean = sum / static_cast<double>(m.n);
-      double sxx = 0, sxy = 0, sxz = 0, syy = 0, syz = 0, szz = 0;
+    const Moments m = two_pass_moments([&](auto&& f) {
       for (std::ptrdiff_t r = r0; r < r1; ++r) {
         const std::uint8_t* lab = labels + r * W;
-        for (std::ptrdiff_t c = 0; c < W; ++c) {
-          const std::uint8_t l = lab[c];
-          if (l == kNormal || l == kEdge) {
-            const Eigen::Vector3d q = g(r, c) - m.mean;
-            sxx += q.x() * q.x();
-            sxy += q.x() * q.y();
-            sxz += q.x() * q.z();
-            syy += q.y() * q.y();
-            syz += q.y() * q.z();
-            szz += q.z() * q.z();
-          }
-        }
+        for (std::ptrdiff_t c = 0; c < W; ++c)
+          if (lab[c] == kNormal || lab[c] == kEdge) f(g(r, c));
       }
-      m.scatter << sxx, sxy, sxz, sxy, syy, syz, sxz, syz, szz;
-    }
+    });
     rows[static_cast<std::size_t>(b)] = m;
   }
   for (std::ptrdiff_t width = 1; width < B; width *= 2)

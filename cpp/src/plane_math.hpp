@@ -49,35 +49,43 @@ inline bool smallest_eigenpair(const Eigen::Matrix3d& M, double* l0, double* l1,
   return true;
 }
 
-/// Moments of point(i) for the i in [begin, end) with keep(i): the sum, then the scatter centred
-/// on the mean (two passes over a block that stays in cache). The arithmetic of every block of
-/// fit_plane and of the MIEM plane's rows.
-template <typename Point, typename Keep>
-Moments two_pass_moments(std::ptrdiff_t begin, std::ptrdiff_t end, Point point, Keep keep) {
+/// Moments of the points that each(f) hands to f (f(point) per point, in a fixed order; each is
+/// called twice): the sum, then the scatter centred on the mean (two passes over a block that
+/// stays in cache). The arithmetic of every block of fit_plane and of the MIEM plane's rows.
+template <typename Each>
+Moments two_pass_moments(Each each) {
   Moments m;
   Eigen::Vector3d sum = Eigen::Vector3d::Zero();
   std::int64_t n = 0;
-  for (std::ptrdiff_t i = begin; i < end; ++i) {
-    if (!keep(i)) continue;
-    sum += point(i);
+  each([&](const Eigen::Vector3d& q) {
+    sum += q;
     ++n;
-  }
+  });
   if (n == 0) return m;
   m.n = n;
   m.mean = sum / static_cast<double>(n);
   double sxx = 0, sxy = 0, sxz = 0, syy = 0, syz = 0, szz = 0;
-  for (std::ptrdiff_t i = begin; i < end; ++i) {
-    if (!keep(i)) continue;
-    const Eigen::Vector3d q = point(i) - m.mean;
+  const Eigen::Vector3d mean = m.mean;
+  each([&](const Eigen::Vector3d& p) {
+    const Eigen::Vector3d q = p - mean;
     sxx += q.x() * q.x();
     sxy += q.x() * q.y();
     sxz += q.x() * q.z();
     syy += q.y() * q.y();
     syz += q.y() * q.z();
     szz += q.z() * q.z();
-  }
+  });
   m.scatter << sxx, sxy, sxz, sxy, syy, syz, sxz, syz, szz;
   return m;
+}
+
+/// two_pass_moments of point(i) for the i in [begin, end) with keep(i).
+template <typename Point, typename Keep>
+Moments two_pass_moments(std::ptrdiff_t begin, std::ptrdiff_t end, Point point, Keep keep) {
+  return two_pass_moments([&](auto&& f) {
+    for (std::ptrdiff_t i = begin; i < end; ++i)
+      if (keep(i)) f(point(i));
+  });
 }
 
 }  // namespace miem::detail

@@ -180,6 +180,33 @@ MIEM_FIT_CLONES inline void add_row_moments(const std::uint8_t* __restrict cl, s
   }
 }
 
+// The window slides down one row: adds the moments of row a (class bytes ca, SoA coordinates
+// ax, ay, az) and subtracts those of row b, in one pass over the column sums (as two
+// add_row_moments calls, but each column sum read and written once).
+MIEM_FIT_CLONES inline void move_row_moments(
+    const std::uint8_t* __restrict ca, const double* __restrict ax, const double* __restrict ay,
+    const double* __restrict az, const std::uint8_t* __restrict cb, const double* __restrict bx,
+    const double* __restrict by, const double* __restrict bz, std::ptrdiff_t n,
+    double* __restrict cs, std::ptrdiff_t stride) {
+  for (std::ptrdiff_t j = 0; j < n; ++j) {
+    const bool ia = (ca[j] & kInPlane) != 0, ib = (cb[j] & kInPlane) != 0;
+    const double wa = ia ? 1.0 : 0.0, wb = ib ? 1.0 : 0.0;
+    const double xa = ia ? ax[j] : 0.0, ya = ia ? ay[j] : 0.0, za = ia ? az[j] : 0.0;
+    const double xb = ib ? bx[j] : 0.0, yb = ib ? by[j] : 0.0, zb = ib ? bz[j] : 0.0;
+    cs[j] += wa - wb;
+    cs[stride + j] += xa - xb;
+    cs[2 * stride + j] += ya - yb;
+    cs[3 * stride + j] += za - zb;
+    cs[4 * stride + j] += xa * xa - xb * xb;
+    cs[5 * stride + j] += xa * ya - xb * yb;
+    cs[6 * stride + j] += xa * za - xb * zb;
+    cs[7 * stride + j] += ya * ya - yb * yb;
+    cs[8 * stride + j] += ya * za - yb * zb;
+    cs[9 * stride + j] += za * za - zb * zb;
+    cs[10 * stride + j] += ((ca[j] & kLine) ? 1.0 : 0.0) - ((cb[j] & kLine) ? 1.0 : 0.0);
+  }
+}
+
 // Row r, columns [c0, c0 + n), as SoA coordinates relative to (ox, oy, oz).
 template <typename T>
 void load_rel(const GridView<T>& g, std::ptrdiff_t r, std::ptrdiff_t c0, std::ptrdiff_t n,
@@ -187,6 +214,13 @@ void load_rel(const GridView<T>& g, std::ptrdiff_t r, std::ptrdiff_t c0, std::pt
               double* __restrict z) {
   const T* base = g.data + r * g.row_stride + c0 * g.col_stride;
   const std::ptrdiff_t ps = g.col_stride, yo = g.coord_stride, zo = 2 * g.coord_stride;
+  // The next row's cells are read next: ask for them now (a tile's row segment is about one
+  // page, too short for the hardware prefetcher to start on its own).
+  if (r + 1 < g.rows) {
+    const char* nb = reinterpret_cast<const char*>(base + g.row_stride);
+    const std::ptrdiff_t bytes = ((n - 1) * ps + zo + 1) * static_cast<std::ptrdiff_t>(sizeof(T));
+    for (std::ptrdiff_t off = 0; off < bytes; off += 64) __builtin_prefetch(nb + off);
+  }
   for (std::ptrdiff_t j = 0; j < n; ++j) {
     const T* q = base + j * ps;
     x[j] = static_cast<double>(q[0]) - ox;
@@ -319,8 +353,18 @@ void window_fits(const GridView<T>& g, const std::uint8_t* cls, int window, int 
       add_row(rr, 1.0);
     for (std::ptrdiff_t r = tr0; r < tr1; ++r) {
       if (r > tr0) {
-        if (r + half < H) add_row(r + half, 1.0);
-        if (r - half - 1 >= 0) add_row(r - half - 1, -1.0);
+        const std::ptrdiff_t ra = r + half, rb = r - half - 1;  // row in, row out
+        if (ra < H && rb >= 0) {
+          double* a = ring_row(ra);
+          const double* b = ring_row(rb);
+          load_rel(g, ra, C0, nc, ox, oy, oz, a, a + span, a + 2 * span);
+          move_row_moments(cls + ra * W + C0, a, a + span, a + 2 * span, cls + rb * W + C0, b,
+                           b + span, b + 2 * span, nc, cs + pad, stride);
+        } else if (ra < H) {
+          add_row(ra, 1.0);
+        } else if (rb >= 0) {
+          add_row(rb, -1.0);
+        }
       }
       std::ptrdiff_t m = 0;
       for (std::ptrdiff_t j = 0; j < ncols; ++j) {
