@@ -65,7 +65,8 @@ def test_score_mask_hand_counts() -> None:
     dev = np.where(cls == 1, 0.5, 0.0)
     dev[2, 3] = 0.25
     regions = [np.array([1, 2, 5]), np.array([10, 11])]
-    tr = rt.RealTruth(np.zeros((3, 4, 3)), dev, cls, regions, np.array([0.5, 0.25]), 0.1)
+    tr = rt.RealTruth(np.zeros((3, 4, 3)), dev, cls, regions, np.array([0.5, 0.25]), 0.1,
+                      cls == 0)
     flagged = np.zeros((3, 4), bool)
     flagged[0, 1] = flagged[0, 0] = flagged[0, 3] = flagged[1, 2] = True
     s = rt.score_mask(flagged, tr)
@@ -279,3 +280,33 @@ def test_dask_rejects_the_edge_test() -> None:
         mdask.detect(g, edge_tolerance=8.0)
     # off (the default): accepted, equal to miem.detect
     np.testing.assert_array_equal(mdask.detect(g).labels, miem.detect(g).labels)
+
+
+# --------------------------------------------------------------------------------------------
+# min_step="auto"
+
+
+def test_auto_min_step_from_profile_jitter() -> None:
+    import miem
+
+    rng = np.random.default_rng(5)
+    h, w = 60, 80
+    x, y = np.meshgrid(np.arange(w) * 0.05, np.arange(h) * 0.1)
+    jitter = rng.normal(0.0, 0.05, (h, 1))  # whole profiles offset: sigma 0.05 mm across
+    g = np.stack([x, y, 0.1 * x + jitter + 0.0 * y], axis=-1)
+    res = miem.detect(g, preset="recommended", min_step="auto")
+    oracle = ref.detect(g, preset="recommended", min_step="auto")
+    assert res.params["min_step_auto"] and oracle.params["min_step_auto"]
+    assert res.params["min_step"] == pytest.approx(oracle.params["min_step"], rel=1e-12)
+    # across: second differences of iid offsets have sigma sqrt(6) * 0.05; along: none
+    assert 0.1 < res.params["min_step"] < 0.3
+    np.testing.assert_array_equal(res.labels, oracle.labels)
+    plain = miem.detect(g, preset="recommended")
+    assert (res.labels == miem.EDGE).sum() < (plain.labels == miem.EDGE).sum()
+    # a quiet grid: 4 sigma below the spacing, min_step stays off
+    quiet = g.copy()
+    quiet[..., 2] = 0.1 * x + rng.normal(0.0, 0.001, (h, w))
+    assert miem.detect(quiet, min_step="auto").params["min_step"] is None
+    assert ref.detect(quiet, min_step="auto").params["min_step"] is None
+    with pytest.raises(ValueError, match="min_step"):
+        miem.detect(g, min_step="often")

@@ -39,7 +39,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from suite import REAL_DIR  # noqa: E402
+from suite import REAL_DIR, _window_rms  # noqa: E402
 
 SOURCE, TARGET = "second_source.pcd", "target.pcd"
 REGISTRATION = HERE / "real_registration.json"
@@ -137,6 +137,10 @@ class RealTruth:
         Largest deviation in each region (mm).
     nn_median : float
         Median scan-to-golden nearest distance over covered cells (registration quality).
+    flat : ndarray (H, W) bool
+        *Flat surface*: CLEAN cells at least 10 cells from any cell that is not CLEAN, whose
+        5 x 5 local plane rms is at most 3 times the scan's median (where EDGE labels are
+        banding, not features).
     """
 
     grid: np.ndarray
@@ -145,6 +149,7 @@ class RealTruth:
     regions: list
     region_height: np.ndarray
     nn_median: float
+    flat: np.ndarray
 
 
 def _components(mask: np.ndarray) -> list[np.ndarray]:
@@ -195,7 +200,13 @@ def truth() -> RealTruth:
     regions = _components(np.nan_to_num(dev_grid, nan=-1.0) > THRESHOLD)
     flat = dev_grid.reshape(-1)
     heights = np.array([flat[r].max() for r in regions])
-    return RealTruth(grid, dev_grid, cls, regions, heights, float(np.median(dist[covered])))
+    from scipy import ndimage
+
+    rms = _window_rms(grid)
+    smooth = np.isfinite(rms) & (rms <= 3.0 * np.nanmedian(rms))
+    away = ~ndimage.binary_dilation(cls != CLEAN, structure=np.ones((21, 21), dtype=bool))
+    flat = (cls == CLEAN) & away & smooth
+    return RealTruth(grid, dev_grid, cls, regions, heights, float(np.median(dist[covered])), flat)
 
 
 @dataclass(frozen=True)

@@ -1112,6 +1112,28 @@ def edge_test(
     return labels, passes
 
 
+def _auto_min_step(g: NDArray[np.float64], finite: NDArray[np.bool_]) -> float | None:
+    """SPEC "min_step='auto'" (reference): per grid axis, the median distance of finite
+    neighbour pairs and the robust z noise ``1.4826 median|z[i-1] - 2 z[i] + z[i+1]| / sqrt(6)``
+    of finite triples; ``4 * max(noise)`` when above ``min(spacing)``, else None."""
+    spacing, noise = [], []
+    for gg, ff in ((g, finite), (g.transpose(1, 0, 2), finite.T)):
+        dist, d2 = [], []
+        for row, fin in zip(gg, ff):
+            for c in range(row.shape[0] - 1):
+                if fin[c] and fin[c + 1]:
+                    dist.append(math.sqrt(float(np.sum((row[c + 1] - row[c]) ** 2))))
+            ok = fin[:-2] & fin[1:-1] & fin[2:]
+            d2.extend(np.abs(row[:-2, 2] - 2.0 * row[1:-1, 2] + row[2:, 2])[ok].tolist())
+        if dist and d2:
+            spacing.append(float(np.median(dist)))
+            noise.append(1.4826 * float(np.median(d2)) / math.sqrt(6.0))
+    if not spacing:
+        return None
+    m = 4.0 * max(noise)
+    return m if m > min(spacing) else None
+
+
 def _validate_detect_params(
     theta0: Any,
     scales: Any,
@@ -1248,6 +1270,12 @@ def detect(
         },
     )
     auto = isinstance(opts["theta0"], str) and opts["theta0"] == "auto"
+    step_auto = isinstance(opts["min_step"], str) and opts["min_step"] == "auto"
+    if step_auto:
+        arr0 = np.asarray(_as_points_array("grid", grid), dtype=np.float64)
+        if arr0.ndim != 3 or arr0.shape[2] != 3:
+            raise ValueError(f"grid: expected shape (H, W, 3), got {arr0.shape}")
+        opts["min_step"] = _auto_min_step(arr0, np.all(np.isfinite(arr0), axis=2))
     (theta0_deg, scale_tuple, gap, step, min_dir, iters, win, reach) = _validate_detect_params(
         _DEFAULTS["theta0"] if auto else opts["theta0"],
         opts["scales"],
@@ -1343,6 +1371,7 @@ def detect(
         "scales": scale_tuple,
         "max_gap": gap,
         "min_step": step,
+        "min_step_auto": step_auto,
         "min_directions": min_dir,
         "max_iterations": iters,
         "window": win,
