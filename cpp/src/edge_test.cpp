@@ -51,22 +51,22 @@ int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k
   if (scratch.size() < need) scratch.resize(need);
   double* S = scratch.data();
   double* col = S + (H + 1) * W1 * kM;
-  std::vector<std::uint8_t> cand(static_cast<std::size_t>(N)), mark(static_cast<std::size_t>(N));
-  for (std::ptrdiff_t i = 0; i < N; ++i) cand[i] = labels[i] == kNormal || labels[i] == kEdge;
+  std::vector<std::uint8_t> todo(static_cast<std::size_t>(N)), mark(static_cast<std::size_t>(N));
+  for (std::ptrdiff_t i = 0; i < N; ++i) todo[i] = labels[i] == kNormal || labels[i] == kEdge;
+  // origin: the mean of the support cells at the start (row-major sum), fixed for every pass
+  Eigen::Vector3d o = Eigen::Vector3d::Zero();
+  std::ptrdiff_t n_support = 0;
+  for (std::ptrdiff_t i = 0; i < N; ++i) {
+    if (labels[i] == kNormal) {
+      o += g(i / W, i % W);
+      ++n_support;
+    }
+  }
+  if (n_support > 0) o /= static_cast<double>(n_support);
   const int nt = thread_count(num_threads, N);
   int passes = 0;
   for (int it = 0; it < max_iterations; ++it) {
     ++passes;
-    // origin: the mean of the pass's support cells (row-major sum)
-    Eigen::Vector3d o = Eigen::Vector3d::Zero();
-    std::ptrdiff_t n_support = 0;
-    for (std::ptrdiff_t i = 0; i < N; ++i) {
-      if (labels[i] == kNormal) {
-        o += g(i / W, i % W);
-        ++n_support;
-      }
-    }
-    if (n_support > 0) o /= static_cast<double>(n_support);
     // integral images: running sums down each column, then along each row (NumPy's order)
     std::fill(S, S + W1 * kM, 0.0);
     std::fill(col, col + W * kM, 0.0);
@@ -99,7 +99,7 @@ int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k
       for (std::ptrdiff_t cc = 0; cc < W; ++cc) {
         const std::ptrdiff_t i = rr * W + cc;
         mark[i] = 0;
-        if (!cand[i] || !(labels[i] == kNormal || labels[i] == kEdge)) continue;
+        if (!todo[i] || !(labels[i] == kNormal || labels[i] == kEdge)) continue;
         const Eigen::Vector3d pt = g(rr, cc) - o;
         double best = std::numeric_limits<double>::infinity();
         for (int s = 0; s < 8; ++s) {
@@ -159,10 +159,18 @@ int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k
       }
     }
     std::ptrdiff_t added = 0;
+    std::fill(todo.begin(), todo.end(), std::uint8_t{0});
     for (std::ptrdiff_t i = 0; i < N; ++i) {
-      if (mark[i]) {
-        labels[i] = kAbnormal;
-        ++added;
+      if (!mark[i]) continue;
+      labels[i] = kAbnormal;
+      ++added;
+      // only cells with a new ABNORMAL cell in their window can change at the next pass
+      const std::ptrdiff_t rr = i / W, cc = i % W;
+      for (std::ptrdiff_t a = std::max<std::ptrdiff_t>(0, rr - r); a <= std::min(H - 1, rr + r); ++a) {
+        for (std::ptrdiff_t b = std::max<std::ptrdiff_t>(0, cc - r); b <= std::min(W - 1, cc + r);
+             ++b) {
+          todo[a * W + b] = 1;
+        }
       }
     }
     if (added == 0) break;

@@ -830,12 +830,14 @@ _PRESETS: dict[str, dict[str, Any]] = {
         "theta0": 90.0,
         "scales": (1, 2),
         "max_gap": 1,
-        "min_step": None,
+        "min_step": "auto",
         "min_directions": None,
         "max_iterations": 10,
         "window": 21,
         "height_tolerance": "4.5rms",
         "edge_extent": 12,
+        "edge_tolerance": 4.0,
+        "edge_window": 15,
     },
 }
 
@@ -1004,6 +1006,7 @@ def _side_fits(
     invalid: NDArray[np.bool_],
     cells: NDArray[np.bool_],
     r: int,
+    origin: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], ...]:
     """Height and rms of every cell of ``cells`` against the plane of the ``support`` cells of
     each of its 8 sub-windows (SPEC "Edge test"), from integral images of the moments.
@@ -1012,7 +1015,6 @@ def _side_fits(
     ``cells`` in row-major order.
     """
     hh, ww = support.shape
-    origin = grid[support].mean(axis=0) if support.any() else np.zeros(3)
     p = np.where(support[..., None], grid - origin, 0.0)
     terms = [support.astype(np.float64)] + [p[..., a] for a in range(3)]
     terms += [p[..., a] * p[..., b] for a in range(3) for b in range(a, 3)]
@@ -1064,6 +1066,7 @@ def _edge_pass(
     candidates: NDArray[np.bool_],
     window: int,
     k: float,
+    origin: NDArray[np.float64],
 ) -> NDArray[np.bool_]:
     """One edge pass (SPEC "Edge test"): the candidate cells that become ABNORMAL."""
     cells = candidates & ((labels == NORMAL) | (labels == EDGE))
@@ -1071,7 +1074,7 @@ def _edge_pass(
     if not cells.any():
         return out
     h, rms, valid, nrm, cen, empty = _side_fits(grid, labels == NORMAL, labels == INVALID,
-                                                cells, window // 2)
+                                                cells, window // 2, origin)
     best = np.min(np.where(valid, rms, np.inf), axis=0)
     clean = valid & (rms <= _EDGE_CLEAN_RATIO * best)
     fits = clean & ~(np.abs(h) > k * rms)
@@ -1100,15 +1103,19 @@ def edge_test(
     of edge passes run.
     """
     labels = labels.copy()
-    cand = (labels == NORMAL) | (labels == EDGE)
+    todo = (labels == NORMAL) | (labels == EDGE)
+    normal = labels == NORMAL
+    origin = grid[normal].mean(axis=0) if normal.any() else np.zeros(3)
     passes = 0
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         for _ in range(max_iterations):
             passes += 1
-            new = _edge_pass(grid, labels, cand, window, tolerance)
+            new = _edge_pass(grid, labels, todo, window, tolerance, origin)
             labels[new] = ABNORMAL
             if not new.any():
                 break
+            # only cells with a new ABNORMAL cell in their window can change
+            todo = _box_count(new, window) > 0
     return labels, passes
 
 
