@@ -24,12 +24,17 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
+sys.path.insert(0, str(HERE.parent))
+
 import miem  # noqa: E402
 import real_truth as rt  # noqa: E402
 from score import Counts, confusion  # noqa: E402
-from suite import EDGE_KINDS, scenes  # noqa: E402
+from suite import EDGE_KINDS, KINDS, scenes  # noqa: E402
 
 RESULTS = HERE / "results_edges.md"
+SPEED = HERE.parent / "results_edges.md"  # fragment appended to bench/RESULTS.md
+README = HERE.parents[1] / "README.md"
+README_START, README_END = "<!-- edges:start -->", "<!-- edges:end -->"
 TUNED = HERE / "edge_tuned.json"
 RECOMMENDED = HERE / "recommended.json"
 EDGE_FA_MAX, NORMAL_FA_MAX = 0.001, 0.0001
@@ -69,6 +74,19 @@ def region_counts(flagged: np.ndarray, region: np.ndarray, heights: np.ndarray,
     return found, n
 
 
+def old_kinds(split: str = "test") -> dict:
+    """The suite's other scene groups (defect kinds, paper, real crops): Counts per group for
+    ``before`` and ``recommended``."""
+    out: dict = {"before": {}, "recommended": {}}
+    for sc in scenes(split):
+        if sc.spec.group in EDGE_KINDS:
+            continue
+        for name in out:
+            c = confusion(CONTENDERS[name](sc.points) == miem.ABNORMAL, sc.truth)
+            out[name][sc.spec.group] = out[name].get(sc.spec.group, Counts()) + c
+    return out
+
+
 def synthetic(split: str = "test") -> dict:
     """Per contender and edge kind: summed Counts, regions found, regions, EDGE share."""
     out: dict = {name: {} for name in CONTENDERS}
@@ -94,8 +112,7 @@ def real() -> dict:
         t0 = time.perf_counter()
         labels = run(tr.grid)
         dt = time.perf_counter() - t0
-        clean = tr.classes == rt.CLEAN
-        edge_share = float(((labels == miem.EDGE) & clean).sum() / clean.sum())
+        edge_share = float(((labels == miem.EDGE) & tr.flat).sum() / tr.flat.sum())
         out[name] = (rt.score_mask(labels == miem.ABNORMAL, tr), edge_share, dt, labels)
     return out
 
@@ -134,7 +151,7 @@ def _f(v: float) -> str:
     return "nan" if not np.isfinite(v) else f"{v:.3f}"
 
 
-def write(syn: dict, rl: dict | None, seconds: float) -> None:
+def write(syn: dict, rl: dict | None, seconds: float, old: dict) -> None:
     lines = [
         "# Burrs on edges: accuracy",
         "",
@@ -161,6 +178,23 @@ def write(syn: dict, rl: dict | None, seconds: float) -> None:
                 c, f, n = syn[name][kind]
             lines.append(f"| {kind} | {name} | {_f(c.f1)} | {_f(c.precision)} | {_f(c.recall)} "
                          f"| {100 * c.edge_fa:.3f} % | {100 * c.normal_fa:.4f} % | {f}/{n} |")
+    lines += [
+        "",
+        "## The suite's other groups (test split): the edge test keeps them",
+        "",
+        "| group | before F1 | recommended F1 | before edge FA | recommended edge FA | "
+        "recommended normal FA |",
+        "|---|---|---|---|---|---|",
+    ]
+    for g in (*KINDS, "paper", "real"):
+        if g not in old["before"]:
+            continue
+        b, r = old["before"][g], old["recommended"][g]
+        lines.append(f"| {g} | {_f(b.f1)} | {_f(r.f1)} | {100 * np.nan_to_num(b.edge_fa):.3f} % | "
+                     f"{100 * np.nan_to_num(r.edge_fa):.3f} % | {100 * r.normal_fa:.4f} % |")
+    tb, tr_ = Counts.total(old["before"].values()), Counts.total(old["recommended"].values())
+    lines.append(f"| all | {_f(tb.f1)} | {_f(tr_.f1)} | {100 * tb.edge_fa:.3f} % | "
+                 f"{100 * tr_.edge_fa:.3f} % | {100 * tr_.normal_fa:.4f} % |")
     if rl is not None:
         tr = rt.truth()
         counts = {k: int((tr.classes == v).sum()) for k, v in
@@ -173,10 +207,13 @@ def write(syn: dict, rl: dict | None, seconds: float) -> None:
             f"Truth (`bench/accuracy/real_truth.py`): golden sample registered onto the "
             f"426 x 724 grid, median scan-to-golden distance {tr.nn_median:.3f} mm; cells "
             f"{counts}; {sum(1 for r in tr.regions)} regions with deviation > 0.2 mm. "
-            "Region columns count regions holding a BURR cell (tall: > 0.3 mm).",
+            "Region columns count regions holding a BURR cell (tall: > 0.3 mm). Flat surface: "
+            f"{int(tr.flat.sum())} CLEAN cells 10 cells or more from any other class, locally "
+            "smooth. Time: one run of `miem.detect` on the whole grid (edge test and "
+            "`min_step` search included).",
             "",
             "| contender | recall | precision | F1 | regions found | tall regions found | "
-            "EDGE on clean surface | time (s) |",
+            "EDGE on flat surface | time (s) |",
             "|---|---|---|---|---|---|---|---|",
         ]
         for name, (s, edge_share, dt, _) in rl.items():
@@ -223,6 +260,53 @@ def tune() -> dict:
     return best
 
 
+def speed() -> list[str]:
+    """Cost of the edge test and of min_step='auto' (best of 3, one run, this machine)."""
+    from common import best_of
+
+    grids = []
+    if rt.available():
+        grids.append(("real scan 426 x 724", rt.truth().grid))
+    sc = next(s for s in scenes("test", real=False) if s.spec.group == "edge_wall")
+    grids.append((f"edge scene {sc.shape[0]} x {sc.shape[1]}", sc.points))
+    lines = [
+        "## Edge test: speed cost (`bench/accuracy/edges.py`)",
+        "",
+        "One `miem.detect` call, best of 3, all threads. `before`: recommended without the edge "
+        "test and without `min_step='auto'`; `+auto`: with `min_step='auto'`; `recommended`: "
+        "with both (the preset).",
+        "",
+        "| grid | before (ms) | +auto (ms) | recommended (ms) | recommended / before |",
+        "|---|---|---|---|---|",
+    ]
+    for name, g in grids:
+        t0 = best_of(lambda: miem.detect(g, **BEFORE), 3)
+        t1 = best_of(lambda: miem.detect(g, preset="recommended", edge_tolerance=None), 3)
+        t2 = best_of(lambda: miem.detect(g, preset="recommended"), 3)
+        lines.append(f"| {name} | {1e3 * t0:.0f} | {1e3 * t1:.0f} | {1e3 * t2:.0f} | "
+                     f"{t2 / t0:.1f}x |")
+    lines += ["", "Accuracy: `bench/accuracy/results_edges.md`."]
+    SPEED.write_text("\n".join(lines) + "\n")
+    return lines
+
+
+def update_readme(rl: dict) -> None:
+    """The real-scan before/after table and picture between the README's edges markers."""
+    text = README.read_text()
+    if README_START not in text or README_END not in text:
+        return
+    rows = ["| settings | burr cells found (recall) | precision | burr regions found | "
+            "EDGE on flat surface |", "|---|---|---|---|---|"]
+    for name, (s, edge_share, _, _) in rl.items():
+        rows.append(f"| {name} | {_f(s.recall)} | {_f(s.precision)} | "
+                    f"{s.regions_found}/{s.regions} | {100 * edge_share:.2f} % |")
+    body = "\n".join([README_START, *rows, "",
+                      "![real scan: burrs found before and after](bench/accuracy/plots/"
+                      f"{PLOT.name})", README_END])
+    i, j = text.index(README_START), text.index(README_END) + len(README_END)
+    README.write_text(text[:i] + body + text[j:])
+
+
 def main() -> int:
     if "--tune" in sys.argv[1:]:
         print(tune())
@@ -233,7 +317,11 @@ def main() -> int:
     if rt.available():
         rl = real()
         plot(rl)
-    write(syn, rl, time.perf_counter() - t0)
+    old = old_kinds("test")
+    write(syn, rl, time.perf_counter() - t0, old)
+    if rl is not None:
+        update_readme(rl)
+    print("\n".join(speed()))
     print(RESULTS.read_text())
     return 0
 
