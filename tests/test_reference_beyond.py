@@ -616,3 +616,6 @@ def test_auto_rejected_and_height_test_taken_by_detect_points() -> None:
         ref.detect_points(pts, theta0="auto")
     # clouds implement the height test (SPEC "Unorganized clouds"): the value is used
     assert ref.detect_points(pts, height_tolerance=1.0).params["height_tolerance"] == 1.0
+    # bad values raise
+    with pytest.raises(ValueError, match="height_tolerance"):
+        ref.detect_points(pts, height_tolerance=-1.0)
