@@ -206,22 +206,41 @@ def test_core_equals_reference(k: float, window: int) -> None:
 
 def test_lip_before_the_outline_and_only_abnormal_added() -> None:
     pts = _lip_scene()
-    base = miem.detect(pts, preset="recommended")
+    base = miem.detect(pts, preset="recommended", edge_tolerance=None)
     res = miem.detect(pts, preset="recommended", edge_tolerance=8.0)
     changed = res.labels != base.labels
     assert changed.any() and (res.labels[changed] == miem.ABNORMAL).all()
     # by construction: only lip cells (rows 12..27, columns 18..19) are raised
     rows, cols = np.nonzero(changed)
     assert rows.min() >= 12 and rows.max() <= 27 and cols.min() >= 18 and cols.max() <= 19
-    assert base.params["edge_tolerance"] is None  # off by default
+    assert base.params["edge_tolerance"] is None
 
 
-def test_off_by_default_everywhere() -> None:
-    assert miem.DetectParams().grid.edge_tolerance is None
-    assert _core.DetectParams().edge_k == 0.0 and not _core.DetectParams().edge_test()
+def test_on_by_default_on_grids_off_where_not_implemented() -> None:
+    rec = miem.DetectParams().grid
+    assert (rec.edge_tolerance, rec.edge_window, rec.min_step) == (4.0, 15, "auto")
+    c = _core.DetectParams()
+    assert (c.edge_k, c.edge_window, c.min_step_auto, c.min_step) == (4.0, 15, True, -1.0)
+    assert c.edge_test()
     pts = _lip_scene()
-    np.testing.assert_array_equal(miem.detect(pts).labels,
-                                  miem.detect(pts, edge_tolerance=None).labels)
+    res = miem.detect(pts)
+    np.testing.assert_array_equal(
+        res.labels, miem.detect(pts, edge_tolerance=4.0, edge_window=15, min_step="auto").labels)
+    np.testing.assert_array_equal(res.labels, ref.detect(pts).labels)  # the reference default
+    assert (res.labels != miem.detect(pts, edge_tolerance=None).labels).any()  # it runs
+    # the paper's method has neither
+    p = _core.paper_params()
+    assert p.edge_k == 0.0 and not p.min_step_auto
+    # the stream's default leaves both out (C++ and Python), and refuses them when asked
+    s = _core.stream_default_params()
+    assert s.edge_k == 0.0 and not s.min_step_auto
+    assert miem.ProfileStream(10).params.grid.min_step is None
+    with pytest.raises(ValueError, match="min_step"):
+        miem.ProfileStream(10, min_step="auto")
+    p = _core.stream_default_params()
+    p.min_step_auto = True
+    with pytest.raises(ValueError, match="min_step_auto"):
+        _core.ProfileStream64(10, p)
 
 
 @pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf"), "8", True])
@@ -278,8 +297,13 @@ def test_dask_rejects_the_edge_test() -> None:
     g = _lip_scene()
     with pytest.raises(ValueError, match="edge_tolerance"):
         mdask.detect(g, edge_tolerance=8.0)
-    # off (the default): accepted, equal to miem.detect
-    np.testing.assert_array_equal(mdask.detect(g).labels, miem.detect(g).labels)
+    # its default leaves out the edge test and min_step="auto" (not implemented there yet)
+    np.testing.assert_array_equal(mdask.detect(g).labels,
+                                  miem.detect(g, edge_tolerance=None, min_step=None).labels)
+    with pytest.raises(ValueError, match="min_step"):
+        mdask.detect(g, min_step="auto", edge_tolerance=None)
+    with pytest.raises(ValueError, match="edge_tolerance"):
+        mdask.detect(g, preset="recommended")
 
 
 # --------------------------------------------------------------------------------------------
@@ -311,3 +335,48 @@ def test_auto_min_step_from_profile_jitter() -> None:
     assert ref.detect(quiet, min_step="auto").params["min_step"] is None
     with pytest.raises(ValueError, match="min_step"):
         miem.detect(g, min_step="often")
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_auto_min_step_core_equals_reference(dtype: type) -> None:
+    """The core's auto_min_step (C++) gives the reference's value to the last bit, with
+    dropouts, on unevenly spaced profiles with 1 um z steps; labels equal for 1 and 2 threads."""
+    rng = np.random.default_rng(11)
+    h, w = 50, 61
+    y = np.cumsum(rng.choice([0.1, 0.2, 1.0], size=h))  # uneven profile spacing
+    x = np.arange(w) * 0.05
+    xx, yy = np.meshgrid(x, y)
+    z = np.round(0.02 * xx + rng.normal(0.0, 0.02, (h, 1)) + rng.normal(0, 0.002, (h, w)), 3)
+    g = np.stack([xx, yy, z], axis=-1).astype(dtype)
+    g[rng.random((h, w)) < 0.05] = np.nan
+    oracle = ref.detect(g)
+    assert oracle.params["min_step_auto"] and oracle.params["min_step"] is not None
+    for nt in (1, 2):
+        res = miem.detect(g, num_threads=nt)
+        assert res.params["min_step"] == oracle.params["min_step"]  # same arithmetic
+        np.testing.assert_array_equal(res.labels, oracle.labels)
+    # hand check of the rule on this grid (float64 of the stored values)
+    g64 = g.astype(np.float64)
+    fin = np.isfinite(g64).all(axis=-1)
+    spacing, noise = [], []
+    for a in (g64, g64.transpose(1, 0, 2)):
+        f = np.isfinite(a).all(axis=-1)
+        pair = f[:, :-1] & f[:, 1:]
+        spacing.append(np.median(np.linalg.norm(a[:, 1:] - a[:, :-1], axis=-1)[pair]))
+        tri = f[:, :-2] & f[:, 1:-1] & f[:, 2:]
+        d2 = np.abs(a[:, :-2, 2] - 2 * a[:, 1:-1, 2] + a[:, 2:, 2])[tri]
+        noise.append(1.4826 * np.median(d2) / np.sqrt(6.0))
+    assert fin.sum() > 0
+    assert 4 * max(noise) > min(spacing)
+    assert res.params["min_step"] == pytest.approx(4 * max(noise), rel=1e-12)
+
+
+def test_cpp_min_step_auto_and_a_length_is_an_error() -> None:
+    p = _core.DetectParams()
+    p.min_step = 0.2  # with min_step_auto still on: refused, not silently ignored
+    code, msg = p.check()
+    assert code != 0 and msg.startswith("min_step")
+    p.min_step_auto = False
+    assert p.check()[0] == 0
+    with pytest.raises(ValueError, match="min_step"):
+        miem.detect(_grid(_noise((12, 12))), min_step="sometimes")

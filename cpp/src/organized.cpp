@@ -7,6 +7,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "auto_min_step.hpp"
 #include "edge_test.hpp"
 #include "stages.hpp"
 
@@ -39,6 +40,10 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
   // same windows, so the scratch the window sizes is bounded by the grid (README "Guarantees").
   const std::ptrdiff_t cover = 2 * std::max(g.rows, g.cols) + 1;
   if (eff_.window > cover) eff_.window = static_cast<int>(cover);
+  if (eff_.min_step_auto) {  // SPEC "min_step='auto'", before the angle passes
+    eff_.min_step = detail::auto_min_step(g, ws_.survey);
+    eff_.min_step_auto = false;
+  }
   const DetectParams& p = eff_;
   const std::size_t N = static_cast<std::size_t>(g.rows * g.cols);
   std::uint8_t* labels = out.labels;
@@ -51,6 +56,7 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
   DetectSummary summary;
   summary.iterations = detail::angle_passes(g, eff_, out, ws_);
   summary.theta0_deg = p.theta0_deg;
+  summary.min_step = p.min_step;
   const bool height_test = p.height_abs > 0.0 || p.height_k > 0.0;
   if (height_test) {
     const bool keep = p.height_mode == HeightMode::kAll;

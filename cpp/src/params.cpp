@@ -33,6 +33,9 @@ Status AngleParams::check() const noexcept {
 Status GridParams::check() const noexcept {
   if (max_gap < 0) return bad("max_gap: must be an integer >= 0");
   if (!std::isfinite(min_step)) return bad("min_step: must be finite (negative = off)");
+  if (min_step_auto && min_step >= 0.0) {
+    return bad("min_step: a length with min_step_auto on; set min_step_auto = false to use it");
+  }
   if (max_reach < 1) return bad("max_reach: must be an integer >= 1");
   if (window < 3 || window % 2 == 0) return bad("window: must be an odd integer >= 3");
   if (height_mode != HeightMode::kAll && height_mode != HeightMode::kAbnormal) {
@@ -112,6 +115,8 @@ DetectParams paper_params() {
   p.height_abs = 0.0;
   p.height_k = 0.0;
   p.edge_extent = 0;
+  p.min_step_auto = false;
+  p.edge_k = 0.0;
   return p;
 }
 

@@ -224,6 +224,8 @@ DetectParams stream_default_params() {
   p.height_abs = 0.0;
   p.height_k = 0.0;
   p.edge_extent = 0;
+  p.min_step_auto = false;  // a stream cannot see the whole scan: give min_step as a length
+  p.edge_k = 0.0;
   return p;
 }
 
@@ -243,6 +245,10 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& p) noexcept
   }
   if (p.edge_test()) {
     return bad("edge_k: the edge test is not implemented by ProfileStream yet; set it to 0");
+  }
+  if (p.min_step_auto) {
+    return bad("min_step_auto: a stream cannot see the whole scan; set it to false and give "
+               "min_step as a length (e.g. auto_min_step() of a first scan)");
   }
   if (width < 1) return bad("width: must be at least 1 point per profile");
   if (p.max_iterations > 254) return bad("max_iterations: a stream supports at most 254 passes");

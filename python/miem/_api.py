@@ -442,13 +442,16 @@ def detect(
     ``theta0``. Flagged in every available direction: ABNORMAL; in some only: EDGE (a designed
     feature edge); in none: NORMAL. ABNORMAL points are removed and the rest judged again, up to
     ``max_iterations`` passes; then (beyond the paper) the height test turns NORMAL points far
-    from their local plane into ABNORMAL. See ``docs/SPEC.md`` for the exact rules.
+    from their local plane into ABNORMAL, and the edge test turns points standing proud of a
+    feature line or the scan's outline (burrs on cut edges and wall tops) into ABNORMAL. See
+    ``docs/SPEC.md`` for the exact rules.
 
     The parameters are a :class:`miem.DetectParams` (each field's unit and meaning is listed
     there and in ``docs/SPEC.md`` "Parameters"): ``params``, or a named ``preset``
     (:data:`miem.PRESETS`), or by default the recommended preset, the best measured
-    configuration (theta0 90, scales (1, 2), height_tolerance "4.5rms", edge_extent 12; overall
-    F1 0.96 against 0.20 for the paper's method on the accuracy benchmark). ``preset="paper"``
+    configuration (theta0 90, scales (1, 2), min_step "auto", height_tolerance "4.5rms",
+    edge_extent 12, edge_tolerance 4, edge_window 15; bench/accuracy/RESULTS.md and
+    results_edges.md give its scores against the paper's method). ``preset="paper"``
     runs the paper's method exactly. Keyword ``overrides`` (any field name, e.g.
     ``theta0=80``) replace single fields.
 
@@ -484,7 +487,8 @@ def detect(
     DetectResult
         For an unorganized cloud, a :class:`miem.PointsDetectResult` (adds ``degenerate``).
         ``params`` records every field used, ``preset`` (its name, ``"custom"`` for ``params``)
-        and, with ``theta0="auto"``, the threshold found (``theta0``, ``theta0_auto``).
+        and, with ``theta0="auto"``, the threshold found (``theta0``, ``theta0_auto``); with
+        ``min_step="auto"``, the value used (``min_step``, None when off; ``min_step_auto``).
 
     Raises
     ------
@@ -528,8 +532,8 @@ def detect(
     if arr.shape[0] * arr.shape[1] < 3:
         raise ValueError(f"grid: need at least 3 points, got {arr.shape[0] * arr.shape[1]}")
 
-    labels, flags, angle, height, plane_t, iterations, raw, theta0_used = _core.detect_organized(
-        arr, core_params)
+    (labels, flags, angle, height, plane_t, iterations, raw, theta0_used,
+     min_step_used) = _core.detect_organized(arr, core_params)
     width = arr.shape[1]
     defects = [
         Defect(
@@ -544,7 +548,9 @@ def detect(
         plane=None if plane_t is None else _plane(plane_t, "eigen"),
         iterations=int(iterations), defects=defects,
         params=_params_record(p, name, "grid", theta0=float(theta0_used),
-                              theta0_auto=bool(core_params.theta0_auto)),
+                              theta0_auto=bool(core_params.theta0_auto),
+                              min_step=None if min_step_used < 0 else float(min_step_used),
+                              min_step_auto=bool(core_params.min_step_auto)),
     )
 
 

@@ -134,13 +134,16 @@ def _raise_unless_ok(status: Tuple[int, str]) -> None:
         raise ValueError(message)
 
 
-def _f(default: Any, unit: str, help: str, metavar: str, stream: Any = dataclasses.MISSING
-       ) -> Any:
+def _f(default: Any, unit: str, help: str, metavar: str, stream: Any = dataclasses.MISSING,
+       stream_refuses: Any = dataclasses.MISSING) -> Any:
     """A field with its unit, help text and command-line metavar; ``stream``: the only value
-    ProfileStream accepts (a grid field it does not implement yet)."""
+    ProfileStream accepts (a grid field it does not implement yet), or with ``stream_refuses``:
+    the stream's default, and the one value the stream refuses."""
     meta: Dict[str, Any] = {"unit": unit, "help": help, "metavar": metavar}
     if stream is not dataclasses.MISSING:
         meta["stream"] = stream
+    if stream_refuses is not dataclasses.MISSING:
+        meta["stream_refuses"] = stream_refuses
     return field(default=default, metadata=meta)
 
 
@@ -172,9 +175,11 @@ class GridParams:
 
     max_gap: int = _f(
         1, "cells", "missing or removed cells that may be skipped to reach a neighbour", "CELLS")
-    min_step: Optional[float] = _f(
-        None, "length", "minimum neighbour distance in the scan's units, so that every "
-        "direction sees the same physical scale; None: off", "LENGTH")
+    min_step: Union[None, float, str] = _f(
+        "auto", "length", "minimum neighbour distance in the scan's units, so that every "
+        "direction sees the same physical scale; 'auto': from the scan's spacing and profile "
+        "noise (SPEC \"min_step='auto'\"; result.params holds the value used; ProfileStream "
+        "needs a length); None: off", "LENGTH|auto", stream=None, stream_refuses="auto")
     max_reach: int = _f(
         32, "cells", "with min_step: how many cells beyond scale + max_gap the neighbour search "
         "may go", "CELLS")
@@ -193,12 +198,12 @@ class GridParams:
         "are compact (a defect's halo) and height-tested too; longer ones are feature lines",
         "CELLS", stream=0)
     edge_tolerance: Optional[float] = _f(
-        None, "k x rms", "edge test (SPEC 'Edge test', beyond the paper, after the height test): "
+        4.0, "k x rms", "edge test (SPEC 'Edge test', beyond the paper, after the height test): "
         "a point standing proud of a feature line or the scan's outline by more than k times "
         "the rms of its one-sided sub-window plane becomes ABNORMAL; None: off", "K", stream=None)
     edge_window: int = _f(
-        11, "cells", "with the edge test: side of its one-sided sub-windows (odd >= 3)", "CELLS",
-        stream=11)
+        15, "cells", "with the edge test: side of its one-sided sub-windows (odd >= 3)", "CELLS",
+        stream=15)
 
 
 @dataclass(frozen=True)
@@ -344,9 +349,14 @@ class DetectParams:
             bad.append((f"theta0={self.angle.theta0!r}", "theta0=<degrees>"))
         if path == "stream":
             for name, meta in DetectParams.fields("grid").items():
-                if "stream" in meta and getattr(self.grid, name) != meta["stream"]:
-                    bad.append((f"{name}={getattr(self.grid, name)!r}",
-                                f"{name}={meta['stream']!r}"))
+                if "stream" not in meta:
+                    continue
+                value = getattr(self.grid, name)
+                if "stream_refuses" in meta:
+                    if value == meta["stream_refuses"]:
+                        bad.append((f"{name}={value!r}", f"{name}=<a value> or {meta['stream']!r}"))
+                elif value != meta["stream"]:
+                    bad.append((f"{name}={value!r}", f"{name}={meta['stream']!r}"))
         if bad:
             raise ValueError(
                 f"{', '.join(b[0] for b in bad)}: not implemented for {_WHAT[path]} yet; the "
@@ -373,7 +383,11 @@ class DetectParams:
         p = _core.DetectParams()
         self._core_angle(p)
         p.max_gap = _int("max_gap", g.max_gap, 0)
-        p.min_step = -1.0 if g.min_step is None else _length0("min_step", g.min_step)
+        p.min_step_auto = isinstance(g.min_step, str)
+        if p.min_step_auto and g.min_step != "auto":
+            raise ValueError(f"min_step: expected a length >= 0, 'auto' or None, got {g.min_step!r}")
+        p.min_step = -1.0 if g.min_step is None or p.min_step_auto else _length0("min_step",
+                                                                                  g.min_step)
         p.max_reach = _int("max_reach", g.max_reach, 1)
         p.window = _int("window", g.window, 3)
         p.height_mode = _height_mode(g.heights)
@@ -452,13 +466,15 @@ def _length0(name: str, value: object) -> float:
 #: Named parameter sets (parameter objects). ``"paper"`` is the paper's method exactly (on
 #: clouds too: no height test, no floating groups). ``"recommended"`` is the default: its grid
 #: values were chosen on the tuning split of the accuracy benchmark
-#: (``bench/accuracy/recommended.json``; overall F1 0.96 on the test split against 0.20 for
-#: ``"paper"``, ``bench/accuracy/RESULTS.md``), its cloud values on the tuning split of the
-#: held-out-style cloud scenes (``bench/accuracy/clouds.py``).
+#: (``bench/accuracy/recommended.json``; ``min_step``, ``edge_tolerance`` and ``edge_window``
+#: by ``bench/accuracy/edges.py --tune``; test-split scores in ``bench/accuracy/RESULTS.md`` and
+#: ``results_edges.md``), its cloud values on the tuning split of the held-out-style cloud
+#: scenes (``bench/accuracy/clouds.py``).
 PRESETS: Dict[str, DetectParams] = {
     "paper": DetectParams(
         angle=AngleParams(theta0=75.0, scales=(1,)),
-        grid=GridParams(height_tolerance=None, edge_extent=0),
+        grid=GridParams(min_step=None, height_tolerance=None, edge_extent=0,
+                        edge_tolerance=None),
         cloud=CloudParams(height_tolerance=None, edge_extent=0.0, min_group=0),
     ),
     "recommended": DetectParams(),
@@ -477,8 +493,9 @@ DEFAULT_PRESET = "recommended"
 def default_params(path: str = "grid") -> DetectParams:
     """The default parameters of a detector: the default preset, except that ``"stream"``
     leaves out what ProfileStream does not implement yet (the height test: the grid part's
-    ``height_tolerance=None``, ``edge_extent=0``), so that the stream runs the recommended angle
-    test (theta0 90, scales (1, 2))."""
+    ``height_tolerance=None``, ``edge_extent=0``; the edge test: ``edge_tolerance=None``;
+    ``min_step="auto"``, which needs the whole scan: ``min_step=None``), so that the stream runs
+    the recommended angle test (theta0 90, scales (1, 2))."""
     _parts(path)
     base = PRESETS[DEFAULT_PRESET]
     if path != "stream":

@@ -809,7 +809,7 @@ _DEFAULTS: dict[str, Any] = {
     "height_tolerance": None,
     "edge_extent": 0,
     "edge_tolerance": None,
-    "edge_window": 11,
+    "edge_window": 15,
 }
 
 #: Presets of :func:`detect` (SPEC "Presets"): name -> parameter values. Explicit keyword
@@ -825,6 +825,8 @@ _PRESETS: dict[str, dict[str, Any]] = {
         "window": 21,
         "height_tolerance": None,
         "edge_extent": 0,
+        "edge_tolerance": None,
+        "edge_window": 15,
     },
     "recommended": {
         "theta0": 90.0,

@@ -91,6 +91,7 @@ struct OrganizedOutput {
 struct DetectSummary {
   int iterations = 0;                ///< angle passes plus height passes
   double theta0_deg = 0.0;           ///< the threshold used (differs from params with auto)
+  double min_step = -1.0;            ///< the min_step used (< 0: off; from the grid with auto)
   std::optional<Plane> plane;        ///< the MIEM plane (eigen fit of non-ABNORMAL points)
   std::vector<Defect> defects;       ///< ordered by |peak_height| descending
 };
@@ -119,9 +120,17 @@ class OrganizedDetector {
 
  private:
   DetectParams params_;
-  DetectParams eff_;  // params_ with theta0 resolved (theta0_auto)
+  DetectParams eff_;  // params_ with theta0 and min_step resolved (theta0_auto, min_step_auto)
   detail::Workspace ws_;
 };
+
+/// SPEC "min_step='auto'": the min_step that GridParams::min_step_auto gives on `grid` (scan
+/// units), or -1 when the grid's unit neighbours are far enough apart (off). Per grid axis, the
+/// median distance of finite neighbour pairs and the robust noise 1.4826 median|z[i-1] - 2 z[i]
+/// + z[i+1]| / sqrt(6) of finite triples; 4 * max(noise) when that exceeds min(spacing).
+/// Give a stream this value (computed on a first scan) as min_step.
+template <typename T>
+double auto_min_step(const GridView<T>& grid);
 
 /// One-call organized detection with owned outputs.
 template <typename T>

@@ -35,23 +35,25 @@ struct AngleParams {
 struct GridParams {
   int max_gap = 1;                ///< cells: unusable cells that may be skipped to find a neighbour
   double min_step = -1.0;         ///< length (scan units): < 0 off; else neighbours >= s * min_step away
+  bool min_step_auto = true;      ///< min_step from the grid's spacing and noise (auto_min_step,
+                                  ///< SPEC "min_step='auto'"); then min_step must stay < 0
   int max_reach = 32;             ///< cells: extra cells searched for min_step (used only with it)
   int window = 21;                ///< cells: side of the height-plane window (odd >= 3)
   HeightMode height_mode = HeightMode::kAll;  ///< which cells get a height
   double height_abs = 0.0;        ///< length: > 0 height test, |height| above this is ABNORMAL
   double height_k = 4.5;          ///< multiple of the window rms: > 0 height test, |h| > k rms
   int edge_extent = 12;           ///< cells: height test also on EDGE groups this compact
-  double edge_k = 0.0;            ///< multiple of the sub-window rms: > 0 edge test (SPEC "Edge test")
-  int edge_window = 11;           ///< cells: edge test sub-window side (odd >= 3; half-size / 2)
+  double edge_k = 4.0;            ///< multiple of the sub-window rms: > 0 edge test (SPEC "Edge test")
+  int edge_window = 15;           ///< cells: edge test sub-window side (odd >= 3; half-size / 2)
 
   /// True when the height test is on (height_abs > 0 or height_k > 0).
   bool height_test() const noexcept { return height_abs > 0.0 || height_k > 0.0; }
 
-  /// True when the edge test is on (edge_k > 0). Off by default.
+  /// True when the edge test is on (edge_k > 0).
   bool edge_test() const noexcept { return edge_k > 0.0; }
 
-  /// Every field's range (min_step finite, height_abs / height_k finite, edge_extent >= 0,
-  /// edge_k finite >= 0, edge_window odd >= 3, ...).
+  /// Every field's range (min_step finite and < 0 with min_step_auto, height_abs / height_k
+  /// finite, edge_extent >= 0, edge_k finite >= 0, edge_window odd >= 3, ...).
   Status check() const noexcept;
 };
 
@@ -99,7 +101,8 @@ struct PointsDetectParams : AngleParams, CloudParams {
 /// The recommended preset (== DetectParams{}): won the accuracy benchmark (bench/accuracy).
 DetectParams recommended_params();
 
-/// The paper's method exactly: theta0 75, scales {1}, no height test, edge_extent 0.
+/// The paper's method exactly: theta0 75, scales {1}, no min_step, no height test, edge_extent 0,
+/// no edge test.
 DetectParams paper_params();
 
 /// The paper's method on clouds: theta0 75, scales {1}, no height test, no floating groups.

@@ -26,13 +26,15 @@ struct StreamRow {
 
 /// The default parameters of a stream: the recommended preset (DetectParams{}) without the
 /// fields a stream does not implement yet, which it rejects (check_stream_params): theta0_auto,
-/// the height test (height_abs, height_k) and edge_extent. So the stream runs the recommended
-/// angle test (theta0 90, scales {1, 2}); batch detect_organized with these parameters gives the
-/// same labels.
+/// the height test (height_abs, height_k), edge_extent, the edge test (edge_k) and
+/// min_step_auto (a stream cannot see the whole scan: give min_step as a length, e.g.
+/// auto_min_step() of a first scan). So the stream runs the recommended angle test (theta0 90,
+/// scales {1, 2}); batch detect_organized with these parameters gives the same labels.
 DetectParams stream_default_params();
 
 /// Checks the parameters of a stream without throwing: params.check(), then what a stream does
-/// not implement (theta0_auto, height_abs / height_k > 0, edge_extent > 0), width >= 1 and
+/// not implement (theta0_auto, height_abs / height_k > 0, edge_extent > 0, edge_k > 0,
+/// min_step_auto), width >= 1 and
 /// max_iterations <= 254 (the per-cell pass counter is one byte).
 Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noexcept;
 

@@ -43,6 +43,8 @@ void bind_params(py::module_& m) {
                      "cells: unusable cells that may be skipped to find a neighbour (>= 0)")
       .def_readwrite("min_step", &miem::GridParams::min_step,
                      "length: neighbours at least s * min_step away; < 0: off")
+      .def_readwrite("min_step_auto", &miem::GridParams::min_step_auto,
+                     "min_step from the grid's spacing and noise (SPEC min_step='auto')")
       .def_readwrite("max_reach", &miem::GridParams::max_reach,
                      "cells: extra cells searched with min_step (>= 1)")
       .def_readwrite("window", &miem::GridParams::window,

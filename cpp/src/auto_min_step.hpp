@@ -1,0 +1,16 @@
+// min_step = "auto" (SPEC "min_step='auto'"): the neighbour distance a grid needs so that its
+// profile noise does not read as feature lines. Internal form with a reusable buffer.
+#pragma once
+
+#include <vector>
+
+#include "miem/views.hpp"
+
+namespace miem::detail {
+
+/// The min_step GridParams::min_step_auto resolves to on `g` (scan units), or -1 (off).
+/// `scratch` is reused between calls (at most rows * cols doubles).
+template <typename T>
+double auto_min_step(const GridView<T>& g, std::vector<double>& scratch);
+
+}  // namespace miem::detail
