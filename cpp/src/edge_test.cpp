@@ -24,6 +24,7 @@ namespace {
 constexpr int kM = 11;  // n, x, y, z, xx, xy, xz, yy, yz, zz (support), INVALID count
 constexpr double kCleanRatio = 2.0;
 constexpr double kRankTol = 1e-12;
+constexpr double kRoundOff = 1e-9;  // tolerance floor: times sqrt((l1 + l2) / n), as the height test
 // (row_lo, row_hi, col_lo, col_hi) in units: -2 = -r, -1 = -1, 1 = 1, 2 = r.
 constexpr int kSides[8][4] = {{-2, 2, -2, -1}, {-2, 2, 1, 2},  {-2, -1, -2, 2}, {1, 2, -2, 2},
                               {-2, -1, -2, -1}, {-2, -1, 1, 2}, {1, 2, -2, -1}, {1, 2, 1, 2}};
@@ -35,7 +36,7 @@ inline std::ptrdiff_t offset(int code, std::ptrdiff_t r) {
 
 struct Side {
   bool valid = false, empty = false;
-  double h = 0.0, rms = 0.0;
+  double h = 0.0, rms = 0.0, tol = 0.0;  // tol: max(k rms, the round-off floor)
   Eigen::Vector3d normal, centroid;
 };
 
@@ -137,21 +138,22 @@ int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k
           x.normal = orient_normal(nv);  // SPEC "Plane fit" orientation
           x.h = dot3(pt - ce, x.normal);
           x.rms = std::sqrt(std::max(l0, 0.0) / nn);
+          x.tol = std::max(k * x.rms, kRoundOff * std::sqrt((l1 + l2) / nn));
           best = std::min(best, x.rms);
         }
         bool fits = false, proud = false;
         for (int s = 0; s < 8; ++s) {
           const Side& x = sd[s];
-          if (x.valid && x.rms <= kCleanRatio * best && !(std::abs(x.h) > k * x.rms)) fits = true;
+          if (x.valid && x.rms <= kCleanRatio * best && !(std::abs(x.h) > x.tol)) fits = true;
         }
         if (fits) continue;
         for (const auto& pair : kOpposite) {
           for (int flip = 0; flip < 2; ++flip) {
             const Side& x = sd[pair[flip]];
             const Side& y = sd[pair[1 - flip]];
-            if (!x.valid || !(x.rms <= kCleanRatio * best) || !(x.h > k * x.rms)) continue;
+            if (!x.valid || !(x.rms <= kCleanRatio * best) || !(x.h > x.tol)) continue;
             const bool falls =
-                y.empty || (y.valid && dot3(x.normal, y.centroid - x.centroid) < -k * x.rms);
+                y.empty || (y.valid && dot3(x.normal, y.centroid - x.centroid) < -x.tol);
             if (falls) proud = true;
           }
         }

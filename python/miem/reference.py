@@ -1013,8 +1013,9 @@ def _side_fits(
     """Height and rms of every cell of ``cells`` against the plane of the ``support`` cells of
     each of its 8 sub-windows (SPEC "Edge test"), from integral images of the moments.
 
-    Returns ``h`` and ``rms`` of shape ``(8, N)`` and ``valid`` ``(8, N)`` for the ``N`` cells of
-    ``cells`` in row-major order.
+    Returns ``h``, ``rms``, ``spread = sqrt((l1 + l2) / n)``, ``valid``, the normals, centroids
+    and ``empty``, of shape ``(8, N)`` (``(8, N, 3)``) for the ``N`` cells of ``cells`` in
+    row-major order.
     """
     hh, ww = support.shape
     p = np.where(support[..., None], grid - origin, 0.0)
@@ -1028,6 +1029,7 @@ def _side_fits(
     n_min = max(3, (r * r) // 2)
     hs = np.full((8, rr.size), np.nan)
     rms = np.full((8, rr.size), np.nan)
+    spread = np.full((8, rr.size), np.nan)
     valid = np.zeros((8, rr.size), dtype=bool)
     normals = np.full((8, rr.size, 3), np.nan)
     centroids = np.full((8, rr.size, 3), np.nan)
@@ -1055,11 +1057,12 @@ def _side_fits(
         nrm = _orient(evecs[:, :, 0])
         hs[k] = np.where(ok, _dot3(pt - cen, nrm), np.nan)
         rms[k] = np.where(ok, np.sqrt(np.maximum(evals[:, 0], 0.0) / nn), np.nan)
+        spread[k] = np.where(ok, np.sqrt((evals[:, 1] + evals[:, 2]) / nn), np.nan)
         valid[k] = ok
         normals[k] = nrm
         centroids[k] = cen
         empty[k] = m[:, 10] >= n_min
-    return hs, rms, valid, normals, centroids, empty
+    return hs, rms, spread, valid, normals, centroids, empty
 
 
 def _edge_pass(
@@ -1075,18 +1078,19 @@ def _edge_pass(
     out = np.zeros_like(cells)
     if not cells.any():
         return out
-    h, rms, valid, nrm, cen, empty = _side_fits(grid, labels == NORMAL, labels == INVALID,
-                                                cells, window // 2, origin)
+    h, rms, spread, valid, nrm, cen, empty = _side_fits(
+        grid, labels == NORMAL, labels == INVALID, cells, window // 2, origin)
     best = np.min(np.where(valid, rms, np.inf), axis=0)
     clean = valid & (rms <= _EDGE_CLEAN_RATIO * best)
-    fits = clean & ~(np.abs(h) > k * rms)
+    tol = np.maximum(k * rms, _HEIGHT_RMS_FLOOR * spread)  # round-off floor, as the height test
+    fits = clean & ~(np.abs(h) > tol)
     # P stands proud (outward, above the plane) of a clean side whose opposite side has no
     # support (an outline) or falls away below that plane (a convex edge, a wall top).
     proud = np.zeros(h.shape[1], dtype=bool)
     for a, b in _EDGE_OPPOSITE:
         for x, y in ((a, b), (b, a)):
-            falls = empty[y] | (valid[y] & (_dot3(nrm[x], cen[y] - cen[x]) < -k * rms[x]))
-            proud |= clean[x] & (h[x] > k * rms[x]) & falls
+            falls = empty[y] | (valid[y] & (_dot3(nrm[x], cen[y] - cen[x]) < -tol[x]))
+            proud |= clean[x] & (h[x] > tol[x]) & falls
     out[cells] = ~fits.any(axis=0) & proud
     return out
 
