@@ -179,6 +179,14 @@ def _core_scenes() -> list:
         r0 = int(np.clip(r - 24, 0, sc.shape[0] - 48))
         c0 = int(np.clip(c - 32, 0, sc.shape[1] - 64))
         out.append((spec.name, np.ascontiguousarray(sc.points[r0:r0 + 48, c0:c0 + 64])))
+    # taller than wide (not transposed), 200 rows: the core's ring of integral-image rows wraps
+    # (bands of 64 rows); lips across the band borders
+    z = _noise((200, 40), seed=8)
+    z[:, 21:] = np.nan
+    for r0 in (5, 55, 120, 185):
+        z[r0:r0 + 14, 19:21] += 0.1
+    out.append(("tall lip", _grid(z)))
+    out.append(("tall crop", np.ascontiguousarray(out[1][1].transpose(1, 0, 2))))
     return out
 
 

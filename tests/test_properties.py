@@ -244,9 +244,9 @@ def _swap_bits(flags, a, b):
 def test_labels_invariant_under_the_grid_symmetries(grid, params, how):
     """Reversing the profile order or the points along each profile, or swapping the roles of
     rows and columns, permutes the cells and the direction bits, never the labels (the angle
-    test is symmetric in a point's two neighbours; the height test is left out: its window
-    plane is fitted in an order-dependent local frame, equal only to rounding)."""
-    params = dict(params, height_tolerance=None)
+    test is symmetric in a point's two neighbours; the height and edge tests are left out: their
+    planes are fitted from sums in an order-dependent order, equal only to rounding)."""
+    params = dict(params, height_tolerance=None, edge_tolerance=None)
     res = miem.detect(grid, **params)
     if how == "rows":  # (1, 1) <-> (1, -1)
         moved, back, bits = grid[::-1], lambda a: a[::-1], (2, 3)

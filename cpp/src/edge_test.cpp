@@ -40,124 +40,130 @@ struct Side {
   Eigen::Vector3d normal, centroid;
 };
 
-}  // namespace
-
+// The passes on `g` (the grid or its transposed view) from the origin `o`. The integral images
+// are kept as a ring of R rows: a band of B judged rows and r + 1 rows either side of it.
 template <typename T>
-int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
-                int max_iterations, int num_threads, std::vector<double>& scratch) {
+int run_passes(const GridView<T>& g, std::uint8_t* labels, const Eigen::Vector3d& o, int window,
+               double k, int max_iterations, int num_threads, std::vector<double>& scratch) {
   const std::ptrdiff_t H = g.rows, W = g.cols, N = H * W, r = window / 2;
   const double n_min = static_cast<double>(std::max<std::ptrdiff_t>(3, (r * r) / 2));
   const std::ptrdiff_t W1 = W + 1;
-  const std::size_t need = static_cast<std::size_t>((H + 1) * W1 * kM + W * kM);
+  const std::ptrdiff_t B = std::max<std::ptrdiff_t>(64, 2 * r + 2);
+  const std::ptrdiff_t R = std::min(H + 1, B + 2 * r + 2);
+  const std::size_t need = static_cast<std::size_t>(R * W1 * kM + W * kM);
   if (scratch.size() < need) scratch.resize(need);
-  double* S = scratch.data();
-  double* col = S + (H + 1) * W1 * kM;
+  double* const S = scratch.data();
+  double* const col = S + R * W1 * kM;
+  const auto srow = [S, R, W1](std::ptrdiff_t s) { return S + (s % R) * W1 * kM; };
   std::vector<std::uint8_t> todo(static_cast<std::size_t>(N)), mark(static_cast<std::size_t>(N));
   for (std::ptrdiff_t i = 0; i < N; ++i) todo[i] = labels[i] == kNormal || labels[i] == kEdge;
-  // origin: the mean of the support cells at the start (row-major sum), fixed for every pass
-  Eigen::Vector3d o = Eigen::Vector3d::Zero();
-  std::ptrdiff_t n_support = 0;
-  for (std::ptrdiff_t i = 0; i < N; ++i) {
-    if (labels[i] == kNormal) {
-      o += g(i / W, i % W);
-      ++n_support;
-    }
-  }
-  if (n_support > 0) o /= static_cast<double>(n_support);
   const int nt = thread_count(num_threads, N);
   int passes = 0;
   for (int it = 0; it < max_iterations; ++it) {
     ++passes;
-    // integral images: running sums down each column, then along each row (NumPy's order)
-    std::fill(S, S + W1 * kM, 0.0);
+    // integral images: running sums down each column, then along each row (NumPy's order);
+    // S row s (0..H) holds the sums over grid rows < s, computed in order as the bands need them
     std::fill(col, col + W * kM, 0.0);
-    for (std::ptrdiff_t rr = 0; rr < H; ++rr) {
-      double* out = S + (rr + 1) * W1 * kM;
-      std::fill(out, out + kM, 0.0);
-      for (std::ptrdiff_t cc = 0; cc < W; ++cc) {
-        const std::uint8_t l = labels[rr * W + cc];
-        double t[kM] = {0.0};
-        if (l == kNormal) {
-          const Eigen::Vector3d p = g(rr, cc) - o;
-          t[0] = 1.0;
-          t[1] = p.x(), t[2] = p.y(), t[3] = p.z();
-          t[4] = p.x() * p.x(), t[5] = p.x() * p.y(), t[6] = p.x() * p.z();
-          t[7] = p.y() * p.y(), t[8] = p.y() * p.z(), t[9] = p.z() * p.z();
-        }
-        t[10] = l == kInvalid ? 1.0 : 0.0;
-        double* cs = col + cc * kM;
-        const double* left = out + cc * kM;
-        double* cur = out + (cc + 1) * kM;
-        for (int q = 0; q < kM; ++q) {
-          cs[q] += t[q];
-          cur[q] = left[q] + cs[q];
-        }
-      }
-    }
-#pragma omp parallel for schedule(dynamic, 8) num_threads(nt) if (nt > 1)
-    for (std::ptrdiff_t rr = 0; rr < H; ++rr) {
-      Side sd[8];
-      for (std::ptrdiff_t cc = 0; cc < W; ++cc) {
-        const std::ptrdiff_t i = rr * W + cc;
-        mark[i] = 0;
-        if (!todo[i] || !(labels[i] == kNormal || labels[i] == kEdge)) continue;
-        const Eigen::Vector3d pt = g(rr, cc) - o;
-        double best = std::numeric_limits<double>::infinity();
-        for (int s = 0; s < 8; ++s) {
-          const std::ptrdiff_t r0 = std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][0], r), 0, H);
-          const std::ptrdiff_t r1 =
-              std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][1], r) + 1, 0, H);
-          const std::ptrdiff_t c0 = std::clamp<std::ptrdiff_t>(cc + offset(kSides[s][2], r), 0, W);
-          const std::ptrdiff_t c1 =
-              std::clamp<std::ptrdiff_t>(cc + offset(kSides[s][3], r) + 1, 0, W);
-          const double* a = S + (r1 * W1 + c1) * kM;
-          const double* b = S + (r0 * W1 + c1) * kM;
-          const double* c = S + (r1 * W1 + c0) * kM;
-          const double* d = S + (r0 * W1 + c0) * kM;
-          double m[kM];
-          for (int q = 0; q < kM; ++q) m[q] = a[q] - b[q] - c[q] + d[q];
-          Side& x = sd[s];
-          const double n = m[0], nn = std::max(n, 1.0);
-          x.empty = m[10] >= n_min;
-          x.centroid = Eigen::Vector3d(m[1] / nn, m[2] / nn, m[3] / nn);
-          x.valid = false;
-          if (!(n >= n_min)) continue;
-          const Eigen::Vector3d& ce = x.centroid;
-          Eigen::Matrix3d M;
-          M(0, 0) = m[4] - nn * ce.x() * ce.x();
-          M(0, 1) = M(1, 0) = m[5] - nn * ce.x() * ce.y();
-          M(0, 2) = M(2, 0) = m[6] - nn * ce.x() * ce.z();
-          M(1, 1) = m[7] - nn * ce.y() * ce.y();
-          M(1, 2) = M(2, 1) = m[8] - nn * ce.y() * ce.z();
-          M(2, 2) = m[9] - nn * ce.z() * ce.z();
-          double l0 = 0.0, l1 = 0.0, l2 = 0.0;
-          Eigen::Vector3d nv;
-          if (!smallest_eigenpair(M, &l0, &l1, &l2, &nv)) continue;
-          if (!(l2 > 0.0) || l1 <= kRankTol * l2) continue;
-          x.valid = true;
-          x.normal = orient_normal(nv);  // SPEC "Plane fit" orientation
-          x.h = dot3(pt - ce, x.normal);
-          x.rms = std::sqrt(std::max(l0, 0.0) / nn);
-          x.tol = std::max(k * x.rms, kRoundOff * std::sqrt((l1 + l2) / nn));
-          best = std::min(best, x.rms);
-        }
-        bool fits = false, proud = false;
-        for (int s = 0; s < 8; ++s) {
-          const Side& x = sd[s];
-          if (x.valid && x.rms <= kCleanRatio * best && !(std::abs(x.h) > x.tol)) fits = true;
-        }
-        if (fits) continue;
-        for (const auto& pair : kOpposite) {
-          for (int flip = 0; flip < 2; ++flip) {
-            const Side& x = sd[pair[flip]];
-            const Side& y = sd[pair[1 - flip]];
-            if (!x.valid || !(x.rms <= kCleanRatio * best) || !(x.h > x.tol)) continue;
-            const bool falls =
-                y.empty || (y.valid && dot3(x.normal, y.centroid - x.centroid) < -x.tol);
-            if (falls) proud = true;
+    std::ptrdiff_t next = 0;
+    const auto compute_to = [&](std::ptrdiff_t last) {
+      for (; next <= last; ++next) {
+        double* out = srow(next);
+        std::fill(out, out + (next == 0 ? W1 : 1) * kM, 0.0);
+        if (next == 0) continue;
+        const std::ptrdiff_t rr = next - 1;
+        for (std::ptrdiff_t cc = 0; cc < W; ++cc) {
+          const std::uint8_t l = labels[rr * W + cc];
+          double t[kM] = {0.0};
+          if (l == kNormal) {
+            const Eigen::Vector3d p = g(rr, cc) - o;
+            t[0] = 1.0;
+            t[1] = p.x(), t[2] = p.y(), t[3] = p.z();
+            t[4] = p.x() * p.x(), t[5] = p.x() * p.y(), t[6] = p.x() * p.z();
+            t[7] = p.y() * p.y(), t[8] = p.y() * p.z(), t[9] = p.z() * p.z();
+          }
+          t[10] = l == kInvalid ? 1.0 : 0.0;
+          double* cs = col + cc * kM;
+          const double* left = out + cc * kM;
+          double* cur = out + (cc + 1) * kM;
+          for (int q = 0; q < kM; ++q) {
+            cs[q] += t[q];
+            cur[q] = left[q] + cs[q];
           }
         }
-        mark[i] = proud ? 1 : 0;
+      }
+    };
+    for (std::ptrdiff_t b0 = 0; b0 < H; b0 += B) {
+      const std::ptrdiff_t b1 = std::min(H, b0 + B);
+      compute_to(std::min(H, b1 + r));  // the band reads S rows max(0, b0 - r) .. b1 + r
+#pragma omp parallel for schedule(dynamic, 8) num_threads(nt) if (nt > 1)
+      for (std::ptrdiff_t rr = b0; rr < b1; ++rr) {
+        Side sd[8];
+        for (std::ptrdiff_t cc = 0; cc < W; ++cc) {
+          const std::ptrdiff_t i = rr * W + cc;
+          mark[i] = 0;
+          if (!todo[i] || !(labels[i] == kNormal || labels[i] == kEdge)) continue;
+          const Eigen::Vector3d pt = g(rr, cc) - o;
+          double best = std::numeric_limits<double>::infinity();
+          for (int s = 0; s < 8; ++s) {
+            const std::ptrdiff_t r0 =
+                std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][0], r), 0, H);
+            const std::ptrdiff_t r1 =
+                std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][1], r) + 1, 0, H);
+            const std::ptrdiff_t c0 =
+                std::clamp<std::ptrdiff_t>(cc + offset(kSides[s][2], r), 0, W);
+            const std::ptrdiff_t c1 =
+                std::clamp<std::ptrdiff_t>(cc + offset(kSides[s][3], r) + 1, 0, W);
+            const double* top = srow(r0);
+            const double* bottom = srow(r1);
+            const double* a = bottom + c1 * kM;
+            const double* b = top + c1 * kM;
+            const double* c = bottom + c0 * kM;
+            const double* d = top + c0 * kM;
+            double m[kM];
+            for (int q = 0; q < kM; ++q) m[q] = a[q] - b[q] - c[q] + d[q];
+            Side& x = sd[s];
+            const double n = m[0], nn = std::max(n, 1.0);
+            x.empty = m[10] >= n_min;
+            x.centroid = Eigen::Vector3d(m[1] / nn, m[2] / nn, m[3] / nn);
+            x.valid = false;
+            if (!(n >= n_min)) continue;
+            const Eigen::Vector3d& ce = x.centroid;
+            Eigen::Matrix3d M;
+            M(0, 0) = m[4] - nn * ce.x() * ce.x();
+            M(0, 1) = M(1, 0) = m[5] - nn * ce.x() * ce.y();
+            M(0, 2) = M(2, 0) = m[6] - nn * ce.x() * ce.z();
+            M(1, 1) = m[7] - nn * ce.y() * ce.y();
+            M(1, 2) = M(2, 1) = m[8] - nn * ce.y() * ce.z();
+            M(2, 2) = m[9] - nn * ce.z() * ce.z();
+            double l0 = 0.0, l1 = 0.0, l2 = 0.0;
+            Eigen::Vector3d nv;
+            if (!smallest_eigenpair(M, &l0, &l1, &l2, &nv)) continue;
+            if (!(l2 > 0.0) || l1 <= kRankTol * l2) continue;
+            x.valid = true;
+            x.normal = orient_normal(nv);  // SPEC "Plane fit" orientation
+            x.h = dot3(pt - ce, x.normal);
+            x.rms = std::sqrt(std::max(l0, 0.0) / nn);
+            x.tol = std::max(k * x.rms, kRoundOff * std::sqrt((l1 + l2) / nn));
+            best = std::min(best, x.rms);
+          }
+          bool fits = false, proud = false;
+          for (int s = 0; s < 8; ++s) {
+            const Side& x = sd[s];
+            if (x.valid && x.rms <= kCleanRatio * best && !(std::abs(x.h) > x.tol)) fits = true;
+          }
+          if (fits) continue;
+          for (const auto& pair : kOpposite) {
+            for (int flip = 0; flip < 2; ++flip) {
+              const Side& x = sd[pair[flip]];
+              const Side& y = sd[pair[1 - flip]];
+              if (!x.valid || !(x.rms <= kCleanRatio * best) || !(x.h > x.tol)) continue;
+              const bool falls =
+                  y.empty || (y.valid && dot3(x.normal, y.centroid - x.centroid) < -x.tol);
+              if (falls) proud = true;
+            }
+          }
+          mark[i] = proud ? 1 : 0;
+        }
       }
     }
     std::ptrdiff_t added = 0;
@@ -168,7 +174,8 @@ int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k
       ++added;
       // only cells with a new ABNORMAL cell in their window can change at the next pass
       const std::ptrdiff_t rr = i / W, cc = i % W;
-      for (std::ptrdiff_t a = std::max<std::ptrdiff_t>(0, rr - r); a <= std::min(H - 1, rr + r); ++a) {
+      for (std::ptrdiff_t a = std::max<std::ptrdiff_t>(0, rr - r); a <= std::min(H - 1, rr + r);
+           ++a) {
         for (std::ptrdiff_t b = std::max<std::ptrdiff_t>(0, cc - r); b <= std::min(W - 1, cc + r);
              ++b) {
           todo[a * W + b] = 1;
@@ -177,6 +184,35 @@ int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k
     }
     if (added == 0) break;
   }
+  return passes;
+}
+
+}  // namespace
+
+template <typename T>
+int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
+                int max_iterations, int num_threads, std::vector<double>& scratch) {
+  const std::ptrdiff_t H = g.rows, W = g.cols, N = H * W;
+  // origin: the mean of the support cells at the start (row-major sum), fixed for every pass
+  Eigen::Vector3d o = Eigen::Vector3d::Zero();
+  std::ptrdiff_t n_support = 0;
+  for (std::ptrdiff_t i = 0; i < N; ++i) {
+    if (labels[i] == kNormal) {
+      o += g(i / W, i % W);
+      ++n_support;
+    }
+  }
+  if (n_support > 0) o /= static_cast<double>(n_support);
+  if (W <= H) return run_passes(g, labels, o, window, k, max_iterations, num_threads, scratch);
+  // wider than tall: on the transposed grid (the ring of integral-image rows then spans the
+  // shorter side; the sub-windows are the same set, SPEC step 3)
+  const GridView<T> t{g.data, W, H, g.col_stride, g.row_stride, g.coord_stride};
+  std::vector<std::uint8_t> lt(static_cast<std::size_t>(N));
+  for (std::ptrdiff_t i = 0; i < H; ++i)
+    for (std::ptrdiff_t j = 0; j < W; ++j) lt[j * H + i] = labels[i * W + j];
+  const int passes = run_passes(t, lt.data(), o, window, k, max_iterations, num_threads, scratch);
+  for (std::ptrdiff_t i = 0; i < H; ++i)
+    for (std::ptrdiff_t j = 0; j < W; ++j) labels[i * W + j] = lt[j * H + i];
   return passes;
 }
 

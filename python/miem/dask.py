@@ -78,6 +78,19 @@ def _dask_defaults(args: tuple, kwargs: dict) -> dict:
     return {**_NOT_YET, **kwargs}
 
 
+def _refuse_not_yet(params: dict) -> None:
+    """Refuse what :data:`_NOT_YET` names when it is on (given by a field or a preset)."""
+    on = ["min_step='auto'"] if params.get("min_step_auto") else []
+    if params.get("edge_tolerance") is not None:
+        on.append(f"edge_tolerance={params['edge_tolerance']!r}")
+    if on:
+        raise ValueError(
+            f"{', '.join(on)}: not implemented by miem.dask yet (min_step='auto' is derived from "
+            "the whole scan, the edge test's reach is not in grid_halo), so refused; its default "
+            "leaves them out: min_step=<length> (e.g. miem.detect(block).params['min_step'] of a "
+            "representative block) or None, edge_tolerance=None")
+
+
 def _probe_params(args: tuple, kwargs: dict) -> dict:
     """The parameters ``miem.detect(grid, *args, **kwargs)`` resolves (presets, overrides and
     checks exactly as miem.detect does them), from a run on a tiny plane."""
@@ -478,15 +491,7 @@ def detect(grid: Any, *args: Any, num_threads: Optional[int] = 1, strict: bool =
     kwargs = dict(kwargs, num_threads=num_threads)
     kwargs = _dask_defaults(args, kwargs)
     params = _probe_params(args, kwargs)
-    on = ["min_step='auto'"] if params.get("min_step_auto") else []
-    if params.get("edge_tolerance") is not None:
-        on.append(f"edge_tolerance={params['edge_tolerance']!r}")
-    if on:
-        raise ValueError(
-            f"{', '.join(on)}: not implemented by miem.dask yet (min_step='auto' is derived from "
-            "the whole scan, the edge test's reach is not in grid_halo), so refused; its default "
-            "leaves them out: min_step=<length> (e.g. miem.detect(block).params['min_step'] of a "
-            "representative block) or None, edge_tolerance=None")
+    _refuse_not_yet(params)
     if args:  # positional parameters (a parameter set) go to every block as given
         kwargs = dict(kwargs, _args=args)
     if params.get("theta0_auto"):
@@ -548,9 +553,11 @@ def auto_theta0(grid: Any, kwargs: Optional[dict] = None, params: Optional[dict]
     """
     grid = _as_grid(grid)
     kwargs = dict(kwargs or {})
+    kwargs = _dask_defaults(kwargs.get("_args", ()), kwargs)
     if params is None:
         kw = dict(kwargs)
         params = _probe_params(kw.pop("_args", ()), kw)
+    _refuse_not_yet(params)
     survey = dict(kwargs, theta0=75.0, max_iterations=1, height_tolerance=None,
                   heights="abnormal")
     halo = grid_halo(dict(params, max_iterations=1, height_tolerance=None)) - \

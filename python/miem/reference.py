@@ -1108,10 +1108,15 @@ def edge_test(
     ``labels`` (H, W) are those after the height passes; returns the new labels and the number
     of edge passes run.
     """
+    normal = labels == NORMAL
+    # the mean of the support cells, summed in row-major order (a running sum)
+    origin = (np.cumsum(grid[normal], axis=0)[-1] / normal.sum() if normal.any()
+              else np.zeros(3))
+    transpose = grid.shape[1] > grid.shape[0]  # wider than tall: on the transposed grid
+    if transpose:
+        grid, labels = grid.transpose(1, 0, 2), labels.T
     labels = labels.copy()
     todo = (labels == NORMAL) | (labels == EDGE)
-    normal = labels == NORMAL
-    origin = grid[normal].mean(axis=0) if normal.any() else np.zeros(3)
     passes = 0
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         for _ in range(max_iterations):
@@ -1122,7 +1127,7 @@ def edge_test(
                 break
             # only cells with a new ABNORMAL cell in their window can change
             todo = _box_count(new, window) > 0
-    return labels, passes
+    return (np.ascontiguousarray(labels.T) if transpose else labels), passes
 
 
 def _auto_min_step(g: NDArray[np.float64], finite: NDArray[np.bool_]) -> float | None:
