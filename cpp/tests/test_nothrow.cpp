@@ -42,6 +42,8 @@ TEST(NoThrow, CheckParamsAgreesWithValidate) {
       {"height_k", [](miem::DetectParams& p) { p.height_k = INFINITY; }},
       {"edge_extent", [](miem::DetectParams& p) { p.edge_extent = -1; }},
       {"height_mode", [](miem::DetectParams& p) { p.height_mode = miem::HeightMode{7}; }},
+      // a length while min_step_auto is on would be ignored: refused
+      {"min_step", [](miem::DetectParams& p) { p.min_step = 0.2; }},
   };
   EXPECT_TRUE(miem::check_params(miem::DetectParams{}).ok());
   for (const Bad& b : bad) {
@@ -85,11 +87,17 @@ TEST(ParamTypes, DefaultsAreTheRecommendedPresetAndPaperIsThePaper) {
   EXPECT_EQ(d.height_k, 4.5);
   EXPECT_EQ(d.edge_extent, 12);
   EXPECT_TRUE(d.height_test());
+  EXPECT_TRUE(d.min_step_auto);  // min_step = "auto" (SPEC)
+  EXPECT_EQ(d.edge_k, 4.0);      // the edge test
+  EXPECT_EQ(d.edge_window, 15);
+  EXPECT_TRUE(d.edge_test());
   const miem::DetectParams paper = miem::paper_params();
   EXPECT_EQ(paper.theta0_deg, 75.0);
   EXPECT_EQ(paper.scales, (std::vector<int>{1}));
   EXPECT_FALSE(paper.height_test());
   EXPECT_EQ(paper.edge_extent, 0);
+  EXPECT_FALSE(paper.min_step_auto);
+  EXPECT_FALSE(paper.edge_test());
   EXPECT_EQ(paper.max_gap, 1);
   EXPECT_EQ(paper.window, 21);
   const miem::PointsDetectParams c;
