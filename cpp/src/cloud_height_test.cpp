@@ -47,23 +47,42 @@ void assign_roles(const NeighborGrid<T>& grid, const PointsView<T>& points,
   }
 }
 
-// The height verdict of point p from the NORMAL / line candidates gathered around it.
-inline bool too_far(const Gather& g, const Eigen::Vector3d& p, const std::uint8_t* role,
-                    const HeightTest& t, Selection& s) {
-  select(g, p, t.radius * t.radius, -1, s);
+// Keep the entries k of `s` with keep(k), in order, in `out` (which may be `s`).
+template <typename Keep>
+void compact(const Selection& s, Keep&& keep, Selection& out) {
+  out.reserve(s.n);
   std::size_t m = 0;
   for (std::size_t k = 0; k < s.n; ++k) {
-    const std::uint8_t r = role[s.id[k]];
-    if (r == kRoleLine) return false;  // designed feature nearby: the test abstains
-    if (r != kRoleNormal || s.d2[k] <= t.inner * t.inner) continue;  // the surroundings only
-    s.wx[m] = s.wx[k];
-    s.wy[m] = s.wy[k];
-    s.wz[m] = s.wz[k];
-    s.d2[m] = s.d2[k];
-    s.id[m] = s.id[k];
+    if (!keep(k)) continue;
+    out.wx[m] = s.wx[k];
+    out.wy[m] = s.wy[k];
+    out.wz[m] = s.wz[k];
+    out.d2[m] = s.d2[k];
+    out.id[m] = s.id[k];
     ++m;
   }
-  s.n = m;
+  out.n = m;
+}
+
+// The height verdict of point p from the NORMAL / line candidates gathered around it. With
+// `height`, also the point's height over the plane of the NORMAL points within t.radius: the
+// same selection, in the same order, as the heights stage's, so the same value to the bit.
+inline bool too_far(const Gather& g, const Eigen::Vector3d& p, const std::uint8_t* role,
+                    const HeightTest& t, JudgeScratch& js, double* height) {
+  Selection& s = js.sel;
+  select(g, p, t.radius * t.radius, -1, s);
+  bool line = false;
+  for (std::size_t k = 0; k < s.n && !line; ++k) line = role[s.id[k]] == kRoleLine;
+  if (height != nullptr) {
+    compact(s, [&](std::size_t k) { return role[s.id[k]] == kRoleNormal; }, js.sub);
+    LocalPlane ball;
+    *height = fit_selection(js.sub, false, &ball) == PlaneStatus::kOk
+                  ? -ball.normal.dot(ball.mean)
+                  : kNaN;
+  }
+  if (line) return false;  // designed feature nearby: the test abstains
+  const double in2 = t.inner * t.inner;
+  compact(s, [&](std::size_t k) { return role[s.id[k]] == kRoleNormal && s.d2[k] > in2; }, s);
   LocalPlane lp;
   if (fit_selection(s, false, &lp) != PlaneStatus::kOk) return false;
   const double h = std::abs(lp.normal.dot(lp.mean));
@@ -105,7 +124,10 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
         gather_box(grid, cell_box(grid, cell, t.radius), keep, js.gather);
         for (std::uint32_t k = b; k < e; ++k) {
           const std::uint32_t i = order[k];
-          if (tested(rl[i]) && too_far(js.gather, grid.sorted_point(k), rl, t, js.sel)) mark[i] = 1;
+          if (!tested(rl[i])) continue;
+          double* h = t.height != nullptr ? t.height + i : nullptr;
+          if (too_far(js.gather, grid.sorted_point(k), rl, t, js, h)) mark[i] = 1;
+          if (h != nullptr) t.have[i] = 1;
         }
       });
     } else {
@@ -131,12 +153,15 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
         JudgeScratch& js = scratch[thread_id()];
         const Eigen::Vector3d pi = points[i];
         gather_box(grid, grid.box_around(pi, pi, t.radius), keep, js.gather);
-        if (too_far(js.gather, pi, rl, t, js.sel)) mark[i] = 1;
+        if (too_far(js.gather, pi, rl, t, js, nullptr)) mark[i] = 1;
       }
     }
     std::ptrdiff_t added = 0;
     for (std::ptrdiff_t i = 0; i < N; ++i) {
       if (mark[i]) {
+        if (t.unnormal != nullptr && labels[i] == kNormal) {
+          t.unnormal->push_back(static_cast<std::uint32_t>(i));
+        }
         labels[i] = kAbnormal;
         mark[i] = 0;
         ++added;

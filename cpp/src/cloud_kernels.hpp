@@ -4,6 +4,9 @@
 #pragma once
 
 #include <algorithm>
+#include <chrono>
+#include <string>
+#include <utility>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -203,7 +206,7 @@ inline PlaneStatus fit_selection(const Selection& s, bool want_major, LocalPlane
 // Per-thread scratch of the judge.
 struct JudgeScratch {
   Gather gather;
-  Selection sel;
+  Selection sel, sub;  // sub: a subset of sel
   std::vector<double> best_d2;  // per (direction, side, scale) slot
   std::vector<int> best_m;      // position in `sel` of the slot's neighbour, -1: none
 };
@@ -355,6 +358,22 @@ CellBox cell_box(const NeighborGrid<T>& grid, std::ptrdiff_t cell, double r) {
   }
   return grid.box_around(lo, hi, r);
 }
+
+// Wall-clock laps of the detection stages (PointsDetectSummary::stage_seconds).
+class StageClock {
+ public:
+  explicit StageClock(std::vector<std::pair<std::string, double>>* out)
+      : out_(out), t_(std::chrono::steady_clock::now()) {}
+  void lap(const char* stage) {
+    const auto now = std::chrono::steady_clock::now();
+    out_->emplace_back(stage, std::chrono::duration<double>(now - t_).count());
+    t_ = now;
+  }
+
+ private:
+  std::vector<std::pair<std::string, double>>* out_;
+  std::chrono::steady_clock::time_point t_;
+};
 
 // Cell size for a grid used with query radius r.
 inline double grid_cell(double r) { return r; }

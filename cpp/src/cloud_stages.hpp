@@ -10,13 +10,18 @@
 
 namespace miem::cloud {
 
+/// Saturation value of the neighbour counts passed to floating_points.
+inline constexpr std::uint16_t kCountSaturated = 0xFFFF;
+
 /// Usable points (labels NORMAL or EDGE) whose group, usable points linked by distance <=
 /// `radius`, has fewer than `min_group` points; ascending. Bounded searches from the points with
 /// fewer than `min_group - 1` usable neighbours, so the cost is small when few are.
+/// `counts[i]`: the finite points other than i within `radius` of i (saturated at
+/// kCountSaturated, then recounted); it is consumed (the ABNORMAL neighbours are subtracted).
 template <typename T>
 std::vector<std::uint32_t> floating_points(const NeighborGrid<T>& grid, const PointsView<T>& points,
-                                           const std::uint8_t* labels, double radius,
-                                           int min_group, int num_threads);
+                                           const std::uint8_t* labels, std::uint16_t* counts,
+                                           double radius, int min_group, int num_threads);
 
 /// The height test's settings, resolved (lengths in the points' units).
 struct HeightTest {
@@ -27,6 +32,13 @@ struct HeightTest {
   double link = 0.0;           ///< EDGE grouping distance
   double compact_len = 0.0;    ///< EDGE groups at most this across are compact
   int max_iterations = 1;
+  /// Optional: the first pass also writes the height of every tested point over the plane of
+  /// the NORMAL points within `radius` (as the heights stage does) into `height[i]`, sets
+  /// `have[i] = 1`, and appends to `*unnormal` every NORMAL point a later verdict makes
+  /// ABNORMAL (whose neighbours' heights are then stale).
+  double* height = nullptr;
+  std::uint8_t* have = nullptr;
+  std::vector<std::uint32_t>* unnormal = nullptr;
 };
 
 /// Height passes: NORMAL and compact-EDGE points farther than the tolerance from the plane of

@@ -15,22 +15,33 @@ inline bool usable_label(std::uint8_t l) { return l == kNormal || l == kEdge; }
 
 template <typename T>
 std::vector<std::uint32_t> floating_points(const NeighborGrid<T>& grid, const PointsView<T>& points,
-                                           const std::uint8_t* labels, double radius,
-                                           int min_group, int num_threads) {
+                                           const std::uint8_t* labels, std::uint16_t* counts,
+                                           double radius, int min_group, int num_threads) {
   std::vector<std::uint32_t> out;
   if (min_group <= 0) return out;
   const std::ptrdiff_t N = points.size;
+  // Usable neighbours = finite neighbours - ABNORMAL neighbours (the finite points not usable);
+  // ABNORMAL points are few, so subtract theirs from the counts of the points around them.
+  for (std::ptrdiff_t a = 0; a < N; ++a) {
+    if (labels[a] != kAbnormal) continue;
+    grid.for_each_in_radius(points[a], radius, [&](std::ptrdiff_t j, double) {
+      if (j != a && counts[j] != kCountSaturated) --counts[j];
+    });
+  }
   // A member of a group of fewer than min_group points has fewer than min_group - 1 usable
   // neighbours: only such points can start a floating group.
   std::vector<std::uint8_t> sparse(static_cast<std::size_t>(N), 0);
   const int nt = detail::thread_count(num_threads, N);
-#pragma omp parallel for schedule(dynamic, 4096) num_threads(nt) if (nt > 1)
+#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
   for (std::ptrdiff_t i = 0; i < N; ++i) {
     if (!usable_label(labels[i])) continue;
-    int count = 0;
-    grid.for_each_in_radius(points[i], radius, [&](std::ptrdiff_t j, double) {
-      count += (j != i) && usable_label(labels[j]);
-    });
+    std::ptrdiff_t count = counts[i];
+    if (count == kCountSaturated) {  // recount
+      count = 0;
+      grid.for_each_in_radius(points[i], radius, [&](std::ptrdiff_t j, double) {
+        count += (j != i) && usable_label(labels[j]);
+      });
+    }
     sparse[i] = count < min_group - 1;
   }
   // 0: undecided, 1: floating, 2: in a group of at least min_group points.
@@ -67,9 +78,11 @@ std::vector<std::uint32_t> floating_points(const NeighborGrid<T>& grid, const Po
 
 template std::vector<std::uint32_t> floating_points<float>(const NeighborGrid<float>&,
                                                            const PointsView<float>&,
-                                                           const std::uint8_t*, double, int, int);
+                                                           const std::uint8_t*, std::uint16_t*,
+                                                           double, int, int);
 template std::vector<std::uint32_t> floating_points<double>(const NeighborGrid<double>&,
                                                             const PointsView<double>&,
-                                                            const std::uint8_t*, double, int, int);
+                                                            const std::uint8_t*, std::uint16_t*,
+                                                           double, int, int);
 
 }  // namespace miem::cloud

@@ -195,6 +195,7 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
   summary.height_radius = hr;
   const double r2 = hr * hr;  // of the height planes
 
+  StageClock clock(&summary.stage_seconds);
   const NeighborGrid<T> grid(points, grid_cell(radius), p.num_threads);
   const int nt = detail::thread_count(p.num_threads, grid.num_indexed(), 4096);
   std::vector<JudgeScratch> scratch(static_cast<std::size_t>(nt));
@@ -223,10 +224,13 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
     }
   }
 
+  clock.lap("grid");
   const PointJudge judge(p, radius, min_step);
   const std::uint8_t* st = state.data();
   auto usable = [st](std::uint32_t, std::uint32_t j) { return (st[j] & 1) != 0; };
   auto every = [](std::uint32_t, std::uint32_t) { return true; };
+  // Finite neighbours within radius (pass 1), for the floating groups.
+  std::vector<std::uint16_t> counts(p.min_group > 0 ? static_cast<std::size_t>(N) : 0);
   auto judge_point = [&](std::uint32_t i, const Eigen::Vector3d& pi, JudgeScratch& js) {
     std::uint8_t fl = 0;
     double an = kNaN;
@@ -244,6 +248,10 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
     const std::uint32_t e = grid.cell_begin(cell + 1);
     for (std::uint32_t k = grid.cell_begin(cell); k < e; ++k) {
       judge_point(order[k], grid.sorted_point(k), js);
+      if (!counts.empty()) {
+        counts[order[k]] = static_cast<std::uint16_t>(
+            std::min<std::size_t>(js.sel.n, kCountSaturated));  // select excluded the point
+      }
     }
   });
   std::vector<std::int64_t> fresh, candidates;
@@ -251,6 +259,7 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
     if (labels[i] == kAbnormal) fresh.push_back(i);
   }
   int iterations = 1;
+  clock.lap("angle pass 1");
 
   // Later passes: only the usable points within radius of a newly removed point.
   while (!fresh.empty() && iterations < p.max_iterations) {
@@ -283,12 +292,24 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
     ++iterations;
   }
   for (std::int64_t i : fresh) state[i] = 0;  // (last pass's removals, for consistency)
+  clock.lap("angle passes 2+");
 
   // Floating groups, then the height passes (cloud_stages.hpp).
-  for (std::uint32_t i : floating_points(grid, points, labels, radius, p.min_group, p.num_threads)) {
+  for (std::uint32_t i : floating_points(grid, points, labels, counts.data(), radius,
+                                            p.min_group, p.num_threads)) {
     labels[i] = kAbnormal;
     state[i] = 0;
   }
+  std::vector<std::uint16_t>().swap(counts);
+  clock.lap("floating groups");
+  std::vector<double> height_scratch;
+  double* height = out.height;
+  if (height == nullptr) {
+    height_scratch.assign(static_cast<std::size_t>(N), kNaN);
+    height = height_scratch.data();
+  }
+  // have[i]: height[i] is final (written by the height test's first pass and still valid).
+  std::vector<std::uint8_t> have;
   if (p.height_abs > 0.0 || p.height_k > 0.0) {
     HeightTest t;
     t.abs = p.height_abs;
@@ -298,12 +319,23 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
     t.link = link;
     t.compact_len = p.edge_extent * summary.spacing;
     t.max_iterations = p.max_iterations;
+    std::vector<std::uint32_t> unnormal;
+    if (p.height_mode == HeightMode::kAll) {
+      have.assign(static_cast<std::size_t>(N), 0);
+      t.height = height;
+      t.have = have.data();
+      t.unnormal = &unnormal;
+    }
     iterations += height_passes(grid, points, labels, t, scratch, p.num_threads);
+    for (std::uint32_t u : unnormal) {  // the NORMAL set within hr of these points changed
+      grid.for_each_in_radius(points[u], hr, [&](std::ptrdiff_t j, double) { have[j] = 0; });
+    }
     for (std::ptrdiff_t i = 0; i < N; ++i) {
       if (labels[i] == kAbnormal) state[i] &= static_cast<std::uint8_t>(~1u);
     }
   }
   summary.iterations = iterations;
+  clock.lap("height test");
 
   // The MIEM plane: finite non-ABNORMAL points, block moments merged in a fixed tree order.
   {
@@ -341,14 +373,9 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
     Plane plane;
     if (eigen_plane_from_moments(blocks[0], &plane) == PlaneStatus::kOk) summary.plane = plane;
   }
+  clock.lap("MIEM plane");
 
-  // Heights over the plane of the NORMAL points within radius.
-  std::vector<double> height_scratch;
-  double* height = out.height;
-  if (height == nullptr) {
-    height_scratch.assign(static_cast<std::size_t>(N), kNaN);
-    height = height_scratch.data();
-  }
+  // Heights over the plane of the NORMAL points within radius (those not already final).
   // NORMAL flags in grid order, so that the height gathers read memory sequentially.
   std::vector<std::uint8_t> normal_sorted(static_cast<std::size_t>(grid.num_indexed()));
   {
@@ -360,12 +387,18 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
   const std::uint8_t* ns = normal_sorted.data();
   auto normal_pt = [ns](std::uint32_t k, std::uint32_t) { return ns[k] != 0; };
   if (p.height_mode == HeightMode::kAll) {
+    const std::uint8_t* hv = have.empty() ? nullptr : have.data();
     parallel_cells(grid, nt, [&](std::ptrdiff_t cell, int tid) {
+      const std::uint32_t b = grid.cell_begin(cell), e = grid.cell_begin(cell + 1);
+      bool any = hv == nullptr;
+      for (std::uint32_t k = b; k < e && !any; ++k) any = !hv[order[k]];
+      if (!any) return;
       JudgeScratch& js = scratch[tid];
       gather_box(grid, cell_box(grid, cell, hr), normal_pt, js.gather);
-      const std::uint32_t e = grid.cell_begin(cell + 1);
-      for (std::uint32_t k = grid.cell_begin(cell); k < e; ++k) {
+      for (std::uint32_t k = b; k < e; ++k) {
         const std::uint32_t i = order[k];
+        if (hv != nullptr && hv[i]) continue;
+        height[i] = kNaN;
         LocalPlane lp;
         if (height_plane(js.gather, grid.sorted_point(k), r2, js.sel, &lp) == PlaneStatus::kOk) {
           height[i] = -lp.normal.dot(lp.mean);  // n . (p - centroid), centroid = p + mean
@@ -392,6 +425,7 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
     }
   }
 
+  clock.lap("heights");
   // Defects: components of ABNORMAL points under distance <= link, found in index order.
   constexpr std::uint8_t kSeen = 4;
   std::vector<std::int64_t> queue;
@@ -429,6 +463,7 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
     summary.defects.push_back(std::move(d));
   }
   detail::order_defects(summary.defects);
+  clock.lap("defects");
   return summary;
 }
 
@@ -440,9 +475,22 @@ PointsDetectSummary detect_points(const PointsView<T>& points, const PointsDetec
   validate(p);
   check_view(points);
   if (out.labels == nullptr) throw std::invalid_argument("out.labels: must not be null");
-  const std::vector<double> nn = nearest_other(points, p.num_threads);  // >= 3 finite, not one
+  std::vector<std::pair<std::string, double>> front;
+  StageClock clock(&front);
+  std::vector<double> nn = nearest_other(points, p.num_threads);  // >= 3 finite, not one
+  clock.lap("spacing");
   Duplicates dup = find_duplicates(points, nn, p.merge_distance, p.num_threads);
-  if (dup.merged == 0) return detect_distinct(points, p, out, p.spacing ? *p.spacing : median_spacing(nn));
+  clock.lap("duplicates");
+  auto with_front = [&front](PointsDetectSummary s) {
+    s.stage_seconds.insert(s.stage_seconds.begin(), front.begin(), front.end());
+    return s;
+  };
+  if (dup.merged == 0) {
+    const double spacing = p.spacing ? *p.spacing : median_spacing(std::move(nn));  // frees nn
+    std::vector<double>().swap(nn);  // (also when p.spacing is given): peak memory
+    dup = Duplicates{};
+    return with_front(detect_distinct(points, p, out, spacing));
+  }
   // Detect on the distinct points (the representatives), then label every duplicate like the
   // point it duplicates (SPEC "Duplicate points").
   const std::size_t m = dup.distinct.size();
@@ -490,7 +538,7 @@ PointsDetectSummary detect_points(const PointsView<T>& points, const PointsDetec
     d.indices = std::move(rows);
   }
   summary.merged = dup.merged;
-  return summary;
+  return with_front(std::move(summary));
 }
 
 template <typename T>

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numbers
 from collections.abc import Sequence
-from dataclasses import dataclass
-from typing import Any, Optional, Union
+from dataclasses import dataclass, field
+from typing import Any, Dict, Optional, Union
 
 import numpy as np
 
@@ -280,9 +280,13 @@ class PointsDetectResult(DetectResult):
     degenerate : ndarray, shape (N,), bool
         True where the point's last judgment met a degenerate neighbourhood (collinear or
         identical neighbours: no direction available, judged NORMAL).
+    stage_seconds : dict of str to float
+        Wall-clock seconds of each stage of the run, in run order (a profile, for benchmarks;
+        it varies from run to run and is no part of the result).
     """
 
     degenerate: Optional[np.ndarray] = None
+    stage_seconds: Optional[Dict[str, float]] = field(default=None, compare=False, repr=False)
 
 
 def detect_points(
@@ -372,7 +376,7 @@ def _detect_cloud(arr: np.ndarray, p: DetectParams, name: str, nt: int) -> Point
         raise ValueError(f"points: need at least 3 points, got {arr.shape[0]}")
     core_params = p._core_cloud(nt)
     (labels, flags, angle, height, degenerate, plane_t, iterations, raw, spacing, radius_u,
-     min_step_u, link_u, height_radius_u, merged) = _core.detect_points(arr, core_params)
+     min_step_u, link_u, height_radius_u, merged, stages) = _core.detect_points(arr, core_params)
     defects = [
         Defect(
             id=int(i), indices=idx, cells=idx[:, None], count=int(idx.size), centroid=c,
@@ -390,4 +394,5 @@ def _detect_cloud(arr: np.ndarray, p: DetectParams, name: str, nt: int) -> Point
         labels=labels, flags=flags, angle=angle, height=height,
         plane=None if plane_t is None else _plane(plane_t),
         iterations=int(iterations), defects=defects, params=params, degenerate=degenerate,
+        stage_seconds=dict(stages),
     )

@@ -5,6 +5,8 @@
 
 #include <cstdint>
 #include <optional>
+#include <string>
+#include <utility>
 #include <vector>
 
 #include "miem/organized.hpp"
@@ -66,6 +68,8 @@ struct PointsDetectSummary {
   double link = 0.0;
   double height_radius = 0.0;
   std::ptrdiff_t merged = 0;    ///< rows merged into another (duplicates), labelled like it
+  /// Wall-clock seconds of each stage, in run order (for profiles; never part of a result).
+  std::vector<std::pair<std::string, double>> stage_seconds;
 };
 
 /// Everything, owned.
