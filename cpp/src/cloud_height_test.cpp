@@ -47,44 +47,43 @@ void assign_roles(const NeighborGrid<T>& grid, const PointsView<T>& points,
   }
 }
 
-// Keep the entries k of `s` with keep(k), in order, in `out` (which may be `s`).
-template <typename Keep>
-void compact(const Selection& s, Keep&& keep, Selection& out) {
-  out.reserve(s.n);
+// The height verdict of point p from the NORMAL / line candidates gathered around it (tagged
+// with their roles). With `height`, also the point's height over the plane of the NORMAL points
+// within t.radius: summed in the same order as the heights stage's (height_plane), so the same
+// value to the bit.
+inline bool too_far(const Gather& g, const Eigen::Vector3d& p, const HeightTest& t,
+                    Selection& s, double* height) {
+  // The NORMAL points within t.radius (a branch-free compaction, as select), and whether a
+  // feature-line point is among the candidates within t.radius.
+  const double r2 = t.radius * t.radius, in2 = t.inner * t.inner;
+  s.reserve(g.n + 1);
+  const double px = p.x(), py = p.y(), pz = p.z();
   std::size_t m = 0;
-  for (std::size_t k = 0; k < s.n; ++k) {
-    if (!keep(k)) continue;
-    out.wx[m] = s.wx[k];
-    out.wy[m] = s.wy[k];
-    out.wz[m] = s.wz[k];
-    out.d2[m] = s.d2[k];
-    out.id[m] = s.id[k];
-    ++m;
-  }
-  out.n = m;
-}
-
-// The height verdict of point p from the NORMAL / line candidates gathered around it. With
-// `height`, also the point's height over the plane of the NORMAL points within t.radius: the
-// same selection, in the same order, as the heights stage's, so the same value to the bit.
-inline bool too_far(const Gather& g, const Eigen::Vector3d& p, const std::uint8_t* role,
-                    const HeightTest& t, JudgeScratch& js, double* height) {
-  Selection& s = js.sel;
-  select(g, p, t.radius * t.radius, -1, s);
   bool line = false;
-  for (std::size_t k = 0; k < s.n && !line; ++k) line = role[s.id[k]] == kRoleLine;
+  for (std::size_t k = 0; k < g.n; ++k) {
+    const double dx = g.x[k] - px, dy = g.y[k] - py, dz = g.z[k] - pz;
+    const double d2 = dx * dx + dy * dy + dz * dz;
+    const bool in = d2 <= r2;
+    line |= in & (g.tag[k] == kRoleLine);
+    s.wx[m] = dx;
+    s.wy[m] = dy;
+    s.wz[m] = dz;
+    s.d2[m] = d2;
+    m += static_cast<std::size_t>(in & (g.tag[k] == kRoleNormal));
+  }
+  s.n = m;
+  OffsetSums ball, around;  // around: beyond t.inner (the surroundings, not the point's bump)
+  for (std::size_t k = 0; k < m; ++k) {
+    const double dx = s.wx[k], dy = s.wy[k], dz = s.wz[k];
+    ball.add(1.0, dx, dy, dz);
+    around.add(s.d2[k] > in2 ? 1.0 : 0.0, dx, dy, dz);
+  }
+  LocalPlane lp;
   if (height != nullptr) {
-    compact(s, [&](std::size_t k) { return role[s.id[k]] == kRoleNormal; }, js.sub);
-    LocalPlane ball;
-    *height = fit_selection(js.sub, false, &ball) == PlaneStatus::kOk
-                  ? -ball.normal.dot(ball.mean)
-                  : kNaN;
+    *height = plane_from_sums(ball, &lp) == PlaneStatus::kOk ? -lp.normal.dot(lp.mean) : kNaN;
   }
   if (line) return false;  // designed feature nearby: the test abstains
-  const double in2 = t.inner * t.inner;
-  compact(s, [&](std::size_t k) { return role[s.id[k]] == kRoleNormal && s.d2[k] > in2; }, s);
-  LocalPlane lp;
-  if (fit_selection(s, false, &lp) != PlaneStatus::kOk) return false;
+  if (plane_from_sums(around, &lp) != PlaneStatus::kOk) return false;
   const double h = std::abs(lp.normal.dot(lp.mean));
   const double n = static_cast<double>(lp.n);
   const Eigen::Vector3d& ev = lp.eigenvalues;
@@ -105,8 +104,8 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
   std::vector<std::int64_t> queue, candidates;
   const std::uint32_t* order = grid.order();
   const std::uint8_t* rl = nullptr;
-  auto keep = [&rl](std::uint32_t, std::uint32_t j) {
-    return rl[j] == kRoleNormal || rl[j] == kRoleLine;
+  auto tag_of = [&rl](std::uint32_t, std::uint32_t j) {
+    return rl[j] == kRoleNormal || rl[j] == kRoleLine ? rl[j] : kSkipTag;
   };
   auto tested = [](std::uint8_t r) { return r == kRoleNormal || r == kRoleCompact; };
   int passes = 0;
@@ -121,12 +120,12 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
         for (std::uint32_t k = b; k < e && !any; ++k) any = tested(rl[order[k]]);
         if (!any) return;
         JudgeScratch& js = scratch[tid];
-        gather_box(grid, cell_box(grid, cell, t.radius), keep, js.gather);
+        gather_tagged(grid, cell_box(grid, cell, t.radius), tag_of, js.gather);
         for (std::uint32_t k = b; k < e; ++k) {
           const std::uint32_t i = order[k];
           if (!tested(rl[i])) continue;
           double* h = t.height != nullptr ? t.height + i : nullptr;
-          if (too_far(js.gather, grid.sorted_point(k), rl, t, js, h)) mark[i] = 1;
+          if (too_far(js.gather, grid.sorted_point(k), t, js.sel, h)) mark[i] = 1;
           if (h != nullptr) t.have[i] = 1;
         }
       });
@@ -152,8 +151,8 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
         const std::int64_t i = candidates[c];
         JudgeScratch& js = scratch[thread_id()];
         const Eigen::Vector3d pi = points[i];
-        gather_box(grid, grid.box_around(pi, pi, t.radius), keep, js.gather);
-        if (too_far(js.gather, pi, rl, t, js, nullptr)) mark[i] = 1;
+        gather_tagged(grid, grid.box_around(pi, pi, t.radius), tag_of, js.gather);
+        if (too_far(js.gather, pi, t, js.sel, nullptr)) mark[i] = 1;
       }
     }
     std::ptrdiff_t added = 0;

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <ctime>
 #include <string>
 #include <utility>
 #include <cmath>
@@ -49,21 +50,24 @@ std::ptrdiff_t count_finite(const PointsView<T>& points, int num_threads) {
 struct Gather {
   std::vector<double> x, y, z;
   std::vector<std::uint32_t> id;
+  std::vector<std::uint8_t> tag;  // a caller's per-candidate byte (gather_tagged)
   std::size_t n = 0;
 
   void clear() { n = 0; }
-  void push(const Eigen::Vector3d& q, std::uint32_t j) {
+  void push(const Eigen::Vector3d& q, std::uint32_t j, std::uint8_t t = 0) {
     if (n == x.size()) {
       const std::size_t cap = std::max<std::size_t>(64, 2 * n);
       x.resize(cap);
       y.resize(cap);
       z.resize(cap);
       id.resize(cap);
+      tag.resize(cap);
     }
     x[n] = q.x();
     y[n] = q.y();
     z[n] = q.z();
     id[n] = j;
+    tag[n] = t;
     ++n;
   }
 };
@@ -99,6 +103,22 @@ void gather_box(const NeighborGrid<T>& grid, const CellBox& box, Keep&& keep, Ga
   });
 }
 
+// Gather the points of `box` with tag_of(position in order(), index) != kSkipTag, with the tag.
+inline constexpr std::uint8_t kSkipTag = 0xFF;
+template <typename T, typename TagOf>
+void gather_tagged(const NeighborGrid<T>& grid, const CellBox& box, TagOf&& tag_of, Gather& g) {
+  g.clear();
+  const std::uint32_t* order = grid.order();
+  grid.for_each_cell(box, [&](std::ptrdiff_t cell) {
+    const std::uint32_t e = grid.cell_begin(cell + 1);
+    for (std::uint32_t k = grid.cell_begin(cell); k < e; ++k) {
+      const std::uint32_t j = order[k];
+      const std::uint8_t t = tag_of(k, j);
+      if (t != kSkipTag) g.push(grid.sorted_point(k), j, t);
+    }
+  });
+}
+
 // Select the gathered points within r of p (excluding index `self`, pass -1 to keep it).
 // Branchless compaction: every candidate is written, the count advances only for the kept ones.
 inline void select(const Gather& g, const Eigen::Vector3d& p, double r2, std::int64_t self,
@@ -130,11 +150,21 @@ inline void select(const Gather& g, const Eigen::Vector3d& p, double r2, std::in
 }
 
 // Eigen-decomposition of a symmetric 3 x 3 scatter matrix: eigenvalues ascending, orthonormal
-// eigenvectors in the columns of V. The QR iteration, as in fit_plane: the closed form
-// (computeDirect) is 2.5x faster but loses up to ~1e-8 of the norm on nearly collinear or
-// 3-point neighbourhoods, which would move normals and the degeneracy test.
+// eigenvectors in the columns of V. The closed form (computeDirect, 2.5x faster) when its result
+// is well conditioned: all three eigenvalues apart by more than 1 % of the largest (its error
+// is then ~1e-14 of the norm). Otherwise the QR iteration, as in fit_plane: the closed form loses
+// up to ~1e-8 of the norm on nearly collinear, 3-point or in-plane isotropic neighbourhoods,
+// which would move normals, the major direction and the degeneracy test.
 inline void eigen_sym3(const Eigen::Matrix3d& M, Eigen::Vector3d& w, Eigen::Matrix3d& V) {
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(M, Eigen::ComputeEigenvectors);
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+  es.computeDirect(M, Eigen::ComputeEigenvectors);
+  w = es.eigenvalues();
+  const double gap = 1e-2 * std::abs(w(2));
+  if (std::isfinite(w(2)) && w(1) - w(0) > gap && w(2) - w(1) > gap && w(0) > -gap) {
+    V = es.eigenvectors();
+    return;
+  }
+  es.compute(M, Eigen::ComputeEigenvectors);
   w = es.info() == Eigen::Success ? es.eigenvalues() : Eigen::Vector3d::Constant(kNaN);
   V = es.eigenvectors();
 }
@@ -203,10 +233,50 @@ inline PlaneStatus fit_selection(const Selection& s, bool want_major, LocalPlane
   return PlaneStatus::kOk;
 }
 
+// Raw moments of offsets w = q - p about the query point p (small numbers, so one pass loses
+// nothing that matters: the centred scatter is formed once, from sums of size radius^2).
+struct OffsetSums {
+  double n = 0, x = 0, y = 0, z = 0, xx = 0, xy = 0, xz = 0, yy = 0, yz = 0, zz = 0;
+  // Adds the offset with weight m (1: in, 0: out, for branch-free loops; adding 0 is exact).
+  void add(double m, double dx, double dy, double dz) {
+    const double mx = m * dx, my = m * dy, mz = m * dz;
+    n += m;
+    x += mx;
+    y += my;
+    z += mz;
+    xx += mx * dx;
+    xy += mx * dy;
+    xz += mx * dz;
+    yy += my * dy;
+    yz += my * dz;
+    zz += mz * dz;
+  }
+};
+
+// The eigen plane (SPEC "Plane fit") of the offsets summed in `s`: oriented normal, the centroid
+// offset from p, eigenvalues and count (no major direction).
+inline PlaneStatus plane_from_sums(const OffsetSums& s, LocalPlane* out) {
+  if (s.n < 3.0) return PlaneStatus::kTooFewPoints;
+  const double inv = 1.0 / s.n;
+  const double mx = s.x * inv, my = s.y * inv, mz = s.z * inv;
+  Eigen::Matrix3d M;
+  const double xy = s.xy - s.x * my, xz = s.xz - s.x * mz, yz = s.yz - s.y * mz;
+  M << s.xx - s.x * mx, xy, xz, xy, s.yy - s.y * my, yz, xz, yz, s.zz - s.z * mz;
+  Eigen::Vector3d ev;
+  Eigen::Matrix3d V;
+  eigen_sym3(M, ev, V);
+  if (!(ev(2) > 0.0) || ev(1) <= 1e-12 * ev(2)) return PlaneStatus::kDegenerate;
+  out->normal = orient_normal(V.col(0).normalized());
+  out->mean = Eigen::Vector3d(mx, my, mz);
+  out->eigenvalues = ev;
+  out->n = static_cast<std::size_t>(s.n);
+  return PlaneStatus::kOk;
+}
+
 // Per-thread scratch of the judge.
 struct JudgeScratch {
   Gather gather;
-  Selection sel, sub;  // sub: a subset of sel
+  Selection sel;
   std::vector<double> best_d2;  // per (direction, side, scale) slot
   std::vector<int> best_m;      // position in `sel` of the slot's neighbour, -1: none
 };
@@ -359,20 +429,26 @@ CellBox cell_box(const NeighborGrid<T>& grid, std::ptrdiff_t cell, double r) {
   return grid.box_around(lo, hi, r);
 }
 
-// Wall-clock laps of the detection stages (PointsDetectSummary::stage_seconds).
+// Wall-clock and process CPU laps of the detection stages (PointsDetectSummary::stage_seconds).
 class StageClock {
  public:
-  explicit StageClock(std::vector<std::pair<std::string, double>>* out)
-      : out_(out), t_(std::chrono::steady_clock::now()) {}
+  using Stage = PointsDetectSummary::Stage;
+  explicit StageClock(std::vector<Stage>* out) : out_(out), wall_(wall()), cpu_(cpu()) {}
   void lap(const char* stage) {
-    const auto now = std::chrono::steady_clock::now();
-    out_->emplace_back(stage, std::chrono::duration<double>(now - t_).count());
-    t_ = now;
+    const double w = wall(), c = cpu();
+    out_->push_back(Stage{stage, w - wall_, c - cpu_});
+    wall_ = w;
+    cpu_ = c;
   }
 
  private:
-  std::vector<std::pair<std::string, double>>* out_;
-  std::chrono::steady_clock::time_point t_;
+  static double wall() {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch())
+        .count();
+  }
+  static double cpu() { return static_cast<double>(std::clock()) / CLOCKS_PER_SEC; }
+  std::vector<Stage>* out_;
+  double wall_, cpu_;
 };
 
 // Cell size for a grid used with query radius r.
@@ -383,7 +459,9 @@ inline double grid_cell(double r) { return r; }
 inline PlaneStatus height_plane(const Gather& g, const Eigen::Vector3d& p, double r2, Selection& s,
                                 LocalPlane* lp) {
   select(g, p, r2, -1, s);
-  return fit_selection(s, false, lp);
+  OffsetSums sums;
+  for (std::size_t k = 0; k < s.n; ++k) sums.add(1.0, s.wx[k], s.wy[k], s.wz[k]);
+  return plane_from_sums(sums, lp);
 }
 
 

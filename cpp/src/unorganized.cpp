@@ -475,7 +475,7 @@ PointsDetectSummary detect_points(const PointsView<T>& points, const PointsDetec
   validate(p);
   check_view(points);
   if (out.labels == nullptr) throw std::invalid_argument("out.labels: must not be null");
-  std::vector<std::pair<std::string, double>> front;
+  std::vector<PointsDetectSummary::Stage> front;
   StageClock clock(&front);
   std::vector<double> nn = nearest_other(points, p.num_threads);  // >= 3 finite, not one
   clock.lap("spacing");

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Dict, Optional, Union
+from typing import Any, Dict, Optional, Tuple, Union
 
 import numpy as np
 
@@ -280,13 +280,13 @@ class PointsDetectResult(DetectResult):
     degenerate : ndarray, shape (N,), bool
         True where the point's last judgment met a degenerate neighbourhood (collinear or
         identical neighbours: no direction available, judged NORMAL).
-    stage_seconds : dict of str to float
-        Wall-clock seconds of each stage of the run, in run order (a profile, for benchmarks;
-        it varies from run to run and is no part of the result).
+    stage_seconds : dict of str to (float, float)
+        Wall-clock and process CPU seconds of each stage of the run, in run order (a profile,
+        for benchmarks; it varies from run to run and is no part of the result).
     """
 
     degenerate: Optional[np.ndarray] = None
-    stage_seconds: Optional[Dict[str, float]] = field(default=None, compare=False, repr=False)
+    stage_seconds: Optional[Dict[str, Tuple[float, float]]] = field(default=None, compare=False, repr=False)
 
 
 def detect_points(
@@ -394,5 +394,5 @@ def _detect_cloud(arr: np.ndarray, p: DetectParams, name: str, nt: int) -> Point
         labels=labels, flags=flags, angle=angle, height=height,
         plane=None if plane_t is None else _plane(plane_t),
         iterations=int(iterations), defects=defects, params=params, degenerate=degenerate,
-        stage_seconds=dict(stages),
+        stage_seconds={name: (wall, cpu) for name, wall, cpu in stages},
     )

@@ -68,8 +68,13 @@ struct PointsDetectSummary {
   double link = 0.0;
   double height_radius = 0.0;
   std::ptrdiff_t merged = 0;    ///< rows merged into another (duplicates), labelled like it
-  /// Wall-clock seconds of each stage, in run order (for profiles; never part of a result).
-  std::vector<std::pair<std::string, double>> stage_seconds;
+  /// Wall-clock and process CPU seconds of each stage, in run order (a profile, for
+  /// benchmarks; never part of a result).
+  struct Stage {
+    std::string name;
+    double wall = 0.0, cpu = 0.0;
+  };
+  std::vector<Stage> stage_seconds;
 };
 
 /// Everything, owned.

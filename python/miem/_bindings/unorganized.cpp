@@ -186,9 +186,11 @@ py::tuple detect_points(const py::array& points, const miem::PointsDetectParams&
   }
   py::list defects = defect_list(s.defects);
   py::object plane = plane_or_none(s.plane);
+  py::list stages;
+  for (const auto& st : s.stage_seconds) stages.append(py::make_tuple(st.name, st.wall, st.cpu));
   return py::make_tuple(labels, flags, angle, height, degenerate, plane, s.iterations, defects,
                         s.spacing, s.radius, s.min_step, s.link, s.height_radius, s.merged,
-                        s.stage_seconds);
+                        stages);
 }
 
 }  // namespace
