@@ -34,6 +34,9 @@ from common import best_of  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 OUT = HERE / "results_unorganized.md"
+#: The stage profile of the build before the #11 speed work (main at fbc6d8f with the stage clock
+#: added), written by ``--save-profile`` run against that build.
+PROFILE_BEFORE = HERE / "results_unorganized_profile_before.json"
 DEFAULT_N = 1_000_000
 
 
@@ -127,6 +130,60 @@ def peak_memory(pts: np.ndarray, what: str, radius: float, tmpdir: Path) -> dict
 
 # --------------------------------------------------------------------------------------------
 # script mode
+
+
+def stage_profile(pts: np.ndarray, repeats: int = 1) -> dict:
+    """Where the time of the default ``miem.detect(points)`` goes: per stage, the process CPU
+    seconds on 1 thread and the wall seconds on 2 threads (each the run with the least total
+    CPU, resp. wall, of `repeats`), from ``PointsDetectResult.stage_seconds``."""
+    import miem
+
+    out = {"n": int(len(pts)), "stages": {}}
+    for nt, key, idx in ((1, "cpu_1thread", 1), (2, "wall_2threads", 0)):
+        best = None
+        for _ in range(max(1, repeats)):
+            st = miem.detect(pts, num_threads=nt).stage_seconds
+            tot = sum(v[idx] for v in st.values())
+            if best is None or tot < best[0]:
+                best = (tot, st)
+        for name, v in best[1].items():
+            out["stages"].setdefault(name, {})[key] = float(v[idx])
+    return out
+
+
+def profile_lines(now: dict) -> list[str]:
+    """The stage table: before (PROFILE_BEFORE, when present) and now."""
+    before = json.loads(PROFILE_BEFORE.read_text()) if PROFILE_BEFORE.exists() else None
+    lines = ["### Where the time goes (default detection, 1M-point cloud)", "",
+             "Per stage of `miem.detect(points)` (`PointsDetectResult.stage_seconds`): process "
+             "CPU seconds on 1 thread and wall seconds on 2 threads (shared machine: compare "
+             "the CPU column). "
+             + ("'before' is main at fbc6d8f (the build before the #11 speed work, with only the "
+                f"stage clock added), measured by `--save-profile` on {before['when']}."
+                if before else "No 'before' profile (bench/results_unorganized_profile_before."
+                "json) was found."), ""]
+    names = list(now["stages"])
+    if before:
+        names += [k for k in before["stages"] if k not in now["stages"]]
+        lines += ["| stage | before: CPU s, 1 thread | now: CPU s, 1 thread | now: wall s, "
+                  "2 threads |", "|---|---|---|---|"]
+    else:
+        lines += ["| stage | CPU s, 1 thread | wall s, 2 threads |", "|---|---|---|"]
+
+    def cell(d: dict, name: str, key: str) -> str:
+        v = d["stages"].get(name, {}).get(key)
+        return "-" if v is None else f"{v:.2f}"
+
+    for name in names:
+        row = [name] + ([cell(before, name, "cpu_1thread")] if before else [])
+        row += [cell(now, name, "cpu_1thread"), cell(now, name, "wall_2threads")]
+        lines.append("| " + " | ".join(row) + " |")
+    tot = ["**total**"]
+    for d, key in ([(before, "cpu_1thread")] if before else []) + [(now, "cpu_1thread"),
+                                                                   (now, "wall_2threads")]:
+        tot.append(f"**{sum(v.get(key, 0.0) for v in d['stages'].values()):.2f}**")
+    lines += ["| " + " | ".join(tot) + " |", ""]
+    return lines
 
 
 def uneven_cloud(pts: np.ndarray, seed: int = 2) -> np.ndarray:
@@ -286,6 +343,7 @@ def run(n: int, repeats: int, accuracy: bool = True) -> str:
         summary += ". Open3D not installed: its rows are missing."
     lines += ["", summary, "Memory: VmHWM growth over the RSS before the call, in a fresh "
               "process.", ""]
+    lines += profile_lines(stage_profile(pts, repeats))
     if accuracy:
         lines += accuracy_lines()
     return "\n".join(lines)
@@ -297,7 +355,18 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--no-accuracy", action="store_true", help="skip the held-out-style clouds")
+    ap.add_argument("--save-profile", type=Path, metavar="JSON",
+                    help="only write the stage profile of the importable miem to JSON (how "
+                    f"{PROFILE_BEFORE.name} was made, against the earlier build)")
     args = ap.parse_args(argv)
+    if args.save_profile:
+        import time
+
+        prof = stage_profile(scan_cloud(args.n), args.repeats)
+        prof["when"] = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+        args.save_profile.write_text(json.dumps(prof, indent=1) + "\n")
+        print(json.dumps(prof, indent=1))
+        return 0
     text = run(args.n, args.repeats, not args.no_accuracy)
     print(text)
     args.out.write_text(text)

@@ -308,15 +308,15 @@ def detect_points(
     "Unorganized clouds", for the exact rules.
 
     The parameters are a :class:`miem.DetectParams`, as for :func:`miem.detect`: ``params``,
-    a ``preset`` or the default for clouds (:func:`miem.default_params` ``("cloud")``: the
-    recommended angle test, theta0 90 and scales (1, 2), without the height test), with keyword
-    ``overrides``. The fields clouds use: ``theta0`` (degrees; "auto" is not implemented for
-    clouds), ``scales`` (multiples of ``min_step``), ``min_step`` (shortest tangent-plane offset,
-    default ``0.5 * spacing``), ``min_directions`` (1..K), ``max_iterations``, ``radius``
-    (default ``5 * spacing``, with ``spacing`` the median nearest-neighbour distance,
-    :func:`point_spacing`), ``K`` (2..8 directions), ``link`` (defect linking distance, default
-    ``radius``) and ``heights``. Any other field (the height test, ``window``, ``max_gap``,
-    ``max_reach``) must keep its neutral value: clouds do not implement it, so it is rejected.
+    a ``preset`` or the default preset (``"recommended"``: theta0 90, scales (1, 2), floating
+    groups and the height test over the surroundings; ``"paper"`` is the paper's method), with
+    keyword ``overrides``. Clouds read the ``angle`` part (``theta0`` in degrees: "auto" is
+    refused for clouds; ``scales``, ``min_directions`` 1..K, ``max_iterations``) and the
+    ``cloud`` part (``radius``, default ``5 * spacing`` with ``spacing`` the median
+    nearest-neighbour distance, :func:`point_spacing`; ``K``; ``min_step``; ``link``;
+    ``heights``; ``height_tolerance``; ``edge_extent``; ``min_group``; ``height_radius``;
+    ``merge_distance``). A field of the ``grid`` part (``window``, ``max_gap``, the grid edge
+    test, ...) is a ``ValueError`` naming it: clouds do not implement it.
 
     Parameters
     ----------
@@ -326,7 +326,7 @@ def detect_points(
     params : DetectParams or mapping, optional
         The full parameter set (not together with ``preset``).
     preset : {"recommended", "paper"}, optional
-        A named parameter set (``"recommended"`` is refused: its height test is grid-only).
+        A named parameter set (default ``"recommended"``).
     num_threads : int, optional
         Threads (default: all cores). The results do not depend on it.
     **overrides
