@@ -279,6 +279,8 @@ struct JudgeScratch {
   Selection sel;
   std::vector<double> best_d2;  // per (direction, side, scale) slot
   std::vector<int> best_m;      // position in `sel` of the slot's neighbour, -1: none
+  std::vector<double> tlen;     // per selected neighbour: tangent-plane length
+  std::vector<std::uint16_t> hits;  // per selected neighbour: its (direction, side) cones
 };
 
 // The judgment of SPEC.md "Unorganized clouds" for one point against a fixed usable set.
@@ -333,23 +335,38 @@ class PointJudge {
     // Scale s: the neighbour beyond (2s - 1) * min_step (SPEC "Unorganized clouds").
     for (int si = 0; si < S_fast; ++si) step_len[si] = (2 * scales_[si] - 1) * min_step_;
     const int n_sel = static_cast<int>(s.n);
+    // Branch-free first: each neighbour's tangent-plane length and the (direction, side) cones
+    // it falls in, as bits 2k (g = +1) and 2k + 1 (g = -1) of hits[m]; which cone is
+    // unpredictable, so jumps on it would cost more than the arithmetic.
+    js.tlen.resize(s.n);
+    js.hits.resize(s.n);
+    double* __restrict tl = js.tlen.data();
+    std::uint16_t* __restrict hits = js.hits.data();
+    const double nx = n.x(), ny = n.y(), nz = n.z();
     for (int m = 0; m < n_sel; ++m) {
-      const Eigen::Vector3d w(wx[m], wy[m], wz[m]);
-      const Eigen::Vector3d t = w - w.dot(n) * n;
-      const double tlen = std::sqrt(t.dot(t));
-      if (!(tlen > 0.0)) continue;
+      const double wn = wx[m] * nx + wy[m] * ny + wz[m] * nz;
+      const double tx = wx[m] - wn * nx, ty = wy[m] - wn * ny, tz = wz[m] - wn * nz;
+      const double tlen = std::sqrt(tx * tx + ty * ty + tz * tz);
       const double lim = tlen * cos_half_;
-      const double d2 = sd2[m];
+      unsigned h = 0;
       for (int k = 0; k < K_; ++k) {
-        const double td = t.dot(d[k]);
-        int side;
-        if (td >= lim) {
-          side = 0;  // g = +1
-        } else if (-td >= lim) {
-          side = 1;  // g = -1
-        } else {
-          continue;
-        }
+        const double td = tx * d[k].x() + ty * d[k].y() + tz * d[k].z();
+        const bool pos = td >= lim;
+        const bool neg = !pos & (-td >= lim);
+        h |= (static_cast<unsigned>(pos) << (2 * k)) | (static_cast<unsigned>(neg) << (2 * k + 1));
+      }
+      tl[m] = tlen;
+      hits[m] = static_cast<std::uint16_t>(tlen > 0.0 ? h : 0u);
+    }
+    for (int m = 0; m < n_sel; ++m) {
+      unsigned h = hits[m];
+      if (h == 0) continue;
+      const double tlen = tl[m];
+      const double d2 = sd2[m];
+      while (h != 0) {
+        const int bit = __builtin_ctz(h);
+        h &= h - 1;
+        const int k = bit >> 1, side = bit & 1;  // side 0: g = +1, side 1: g = -1
         int* slot_m = bm + (k * 2 + side) * S;
         double* slot_d2 = bd2 + (k * 2 + side) * S;
         for (int si = 0; si < S; ++si) {
