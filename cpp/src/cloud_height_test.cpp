@@ -72,12 +72,19 @@ inline bool too_far(const Gather& g, const Eigen::Vector3d& p, const HeightTest&
     m += static_cast<std::size_t>(in & (g.tag[k] == kRoleNormal));
   }
   s.n = m;
-  OffsetSums ball, around;  // around: beyond t.inner (the surroundings, not the point's bump)
+  OffsetSums ball, inner;  // the surroundings (beyond t.inner, not the point's bump): the rest
+  std::uint32_t* __restrict near = s.id.data();  // positions of the inner ones (ids unused here)
+  std::size_t n_in = 0;
   for (std::size_t k = 0; k < m; ++k) {
-    const double dx = s.wx[k], dy = s.wy[k], dz = s.wz[k];
-    ball.add(1.0, dx, dy, dz);
-    around.add(s.d2[k] > in2 ? 1.0 : 0.0, dx, dy, dz);
+    ball.add(s.wx[k], s.wy[k], s.wz[k]);
+    near[n_in] = static_cast<std::uint32_t>(k);
+    n_in += static_cast<std::size_t>(s.d2[k] <= in2);
   }
+  for (std::size_t q = 0; q < n_in; ++q) {
+    const std::uint32_t k = near[q];
+    inner.add(s.wx[k], s.wy[k], s.wz[k]);
+  }
+  const OffsetSums around = ball.minus(inner);
   LocalPlane lp;
   if (height != nullptr) {
     *height = plane_from_sums(ball, &lp) == PlaneStatus::kOk ? -lp.normal.dot(lp.mean) : kNaN;
@@ -104,14 +111,24 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
   std::vector<std::int64_t> queue, candidates;
   const std::uint32_t* order = grid.order();
   const std::uint8_t* rl = nullptr;
-  auto tag_of = [&rl](std::uint32_t, std::uint32_t j) {
-    return rl[j] == kRoleNormal || rl[j] == kRoleLine ? rl[j] : kSkipTag;
-  };
+  // Candidate tags in grid order (sequential reads in the gathers).
+  std::vector<std::uint8_t> tag_sorted(static_cast<std::size_t>(grid.num_indexed()));
+  const std::uint8_t* ts = tag_sorted.data();
+  auto tag_of = [ts](std::uint32_t k, std::uint32_t) { return ts[k]; };
   auto tested = [](std::uint8_t r) { return r == kRoleNormal || r == kRoleCompact; };
   int passes = 0;
   while (passes < t.max_iterations) {
     assign_roles(grid, points, labels, t.link, t.compact_len, role, queue);
     rl = role.data();
+    {
+      const std::ptrdiff_t ni = grid.num_indexed();
+      const int ntn = detail::thread_count(num_threads, ni);
+#pragma omp parallel for schedule(static) num_threads(ntn) if (ntn > 1)
+      for (std::ptrdiff_t k = 0; k < ni; ++k) {
+        const std::uint8_t r = rl[order[k]];
+        tag_sorted[k] = r == kRoleNormal || r == kRoleLine ? r : kSkipTag;
+      }
+    }
     ++passes;
     if (passes == 1) {
       parallel_cells(grid, nt, [&](std::ptrdiff_t cell, int tid) {

@@ -237,19 +237,32 @@ inline PlaneStatus fit_selection(const Selection& s, bool want_major, LocalPlane
 // nothing that matters: the centred scatter is formed once, from sums of size radius^2).
 struct OffsetSums {
   double n = 0, x = 0, y = 0, z = 0, xx = 0, xy = 0, xz = 0, yy = 0, yz = 0, zz = 0;
-  // Adds the offset with weight m (1: in, 0: out, for branch-free loops; adding 0 is exact).
-  void add(double m, double dx, double dy, double dz) {
-    const double mx = m * dx, my = m * dy, mz = m * dz;
-    n += m;
-    x += mx;
-    y += my;
-    z += mz;
-    xx += mx * dx;
-    xy += mx * dy;
-    xz += mx * dz;
-    yy += my * dy;
-    yz += my * dz;
-    zz += mz * dz;
+  void add(double dx, double dy, double dz) {
+    n += 1.0;
+    x += dx;
+    y += dy;
+    z += dz;
+    xx += dx * dx;
+    xy += dx * dy;
+    xz += dx * dz;
+    yy += dy * dy;
+    yz += dy * dz;
+    zz += dz * dz;
+  }
+  // The sums of the offsets in *this but not in `part` (a subset of them).
+  OffsetSums minus(const OffsetSums& part) const {
+    OffsetSums r;
+    r.n = n - part.n;
+    r.x = x - part.x;
+    r.y = y - part.y;
+    r.z = z - part.z;
+    r.xx = xx - part.xx;
+    r.xy = xy - part.xy;
+    r.xz = xz - part.xz;
+    r.yy = yy - part.yy;
+    r.yz = yz - part.yz;
+    r.zz = zz - part.zz;
+    return r;
   }
 };
 
@@ -477,7 +490,7 @@ inline PlaneStatus height_plane(const Gather& g, const Eigen::Vector3d& p, doubl
                                 LocalPlane* lp) {
   select(g, p, r2, -1, s);
   OffsetSums sums;
-  for (std::size_t k = 0; k < s.n; ++k) sums.add(1.0, s.wx[k], s.wy[k], s.wz[k]);
+  for (std::size_t k = 0; k < s.n; ++k) sums.add(s.wx[k], s.wy[k], s.wz[k]);
   return plane_from_sums(sums, lp);
 }
 
