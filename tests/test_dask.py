@@ -370,3 +370,43 @@ def test_cloud_default_preset_without_lengths(client) -> None:
     np.testing.assert_array_equal(labels, want.labels)
     np.testing.assert_array_equal(height, want.height)
     _defects_equal(defects, want.defects)
+
+
+def _spec_min_step(g: np.ndarray):
+    """min_step='auto' straight from docs/SPEC.md, with NumPy medians on the whole grid."""
+    fin = np.isfinite(g).all(axis=-1)
+    spacing = noise = None
+    for dr, dc in ((0, 1), (1, 0)):
+        H, W = g.shape[0] - dr, g.shape[1] - dc
+        ok = fin[:H, :W] & fin[dr:dr + H, dc:dc + W]
+        d = g[dr:dr + H, dc:dc + W][ok] - g[:H, :W][ok]
+        H2, W2 = g.shape[0] - 2 * dr, g.shape[1] - 2 * dc
+        ok3 = fin[:H2, :W2] & fin[dr:dr + H2, dc:dc + W2] & fin[2 * dr:2 * dr + H2,
+                                                                 2 * dc:2 * dc + W2]
+        if not ok.any() or not ok3.any():
+            continue
+        z = g[..., 2]
+        sec = np.abs(z[:H2, :W2] - 2 * z[dr:dr + H2, dc:dc + W2]
+                     + z[2 * dr:2 * dr + H2, 2 * dc:2 * dc + W2])[ok3]
+        dist = float(np.median(np.sqrt((d ** 2).sum(axis=1))))
+        sigma = 1.4826 * float(np.median(sec)) / np.sqrt(6.0)
+        spacing = dist if spacing is None else min(spacing, dist)
+        noise = sigma if noise is None else max(noise, sigma)
+    return None if noise is None or not 4 * noise > spacing else 4 * noise
+
+
+@pytest.mark.parametrize("chunks", [(17, 23), (40, 61), (100, 100)])
+def test_min_step_auto_medians_from_blocks(chunks) -> None:
+    rng = np.random.default_rng(7)
+    yy, xx = np.mgrid[0:80, 0:61].astype(np.float64)
+    y = np.cumsum(rng.choice([0.1, 0.2, 1.0], 80))[:, None] + 0 * xx  # uneven profiles
+    g = np.dstack([xx * 0.05, y, np.round(rng.normal(0, 0.04, xx.shape), 3)])
+    g[rng.random(xx.shape) < 0.05] = np.nan
+    for grid in (g, g.astype(np.float32)):
+        want = _spec_min_step(grid.astype(np.float64))
+        assert want is not None  # the noise exceeds the along-profile spacing here
+        with dask.config.set(scheduler="sync"):
+            got = mdask.auto_min_step(da.from_array(grid, chunks=(*chunks, 3)))
+        assert got == want
+    flat = np.dstack([xx, yy, 0 * xx])  # no noise: off
+    assert mdask.auto_min_step(da.from_array(flat, chunks=(30, 30, 3))) is None

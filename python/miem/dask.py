@@ -56,8 +56,8 @@ from dask import delayed
 import miem
 from miem._api import ABNORMAL, Defect
 
-__all__ = ["DaskDetectResult", "DaskPointsResult", "auto_theta0", "detect", "detect_points",
-           "grid_halo", "points_halo"]
+__all__ = ["DaskDetectResult", "DaskPointsResult", "auto_min_step", "auto_theta0", "detect",
+           "detect_points", "grid_halo", "points_halo"]
 
 _LABEL_KEYS = ("labels", "flags", "angle", "height")
 _DTYPES = {"labels": np.uint8, "flags": np.uint8, "angle": np.float64, "height": np.float64}
@@ -579,6 +579,27 @@ def auto_theta0(grid: Any, kwargs: Optional[dict] = None, params: Optional[dict]
     if m % 2 == 0:
         med = 0.5 * (med + _kth(blocks, mid - 1, **compute_kwargs))
     return float(np.clip(180.0 - 6.0 * (med / 0.6745), 75.0, 170.0))
+
+
+def auto_min_step(grid: Any, **compute_kwargs: Any) -> Optional[float]:
+    """min_step="auto" of ``miem.detect`` over a whole Dask-held grid, exactly as miem.detect
+    derives it (docs/SPEC.md "min_step='auto'"): four medians over every block's neighbour
+    pairs and triples, each block read with two more rows and columns, by radix selection in
+    four rounds over the scan (nothing is gathered or held between rounds).
+
+    Returns
+    -------
+    float or None
+        The min_step length, or None (off: the unit neighbours lie far enough apart).
+    """
+    from . import _dask_select as sel
+
+    grid = _as_grid(grid)
+    H, W = grid.shape[:2]
+    blocks = [(grid[r0:min(H, r1 + 2), c0:min(W, c1 + 2)], (r1 - r0, c1 - c0))
+              for r0, r1, c0, c1 in _homes(grid)]
+    med = sel.medians(sel.min_step_survey, blocks, 4, **compute_kwargs)
+    return sel.min_step_from_medians(med)
 
 
 def _build(grid: "da.Array", kwargs: dict, params: dict, halo: int,
