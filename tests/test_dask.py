@@ -95,8 +95,8 @@ def _defects_equal(got: list, want: list) -> None:
 
 def check_equal(grid: np.ndarray, chunks, **kw) -> list:
     """miem.dask on `grid` in `chunks` against miem.detect on the whole grid; returns the
-    defects (for the caller's own checks). miem.dask does not run the edge test or
-    min_step="auto" yet: both are left out of every preset here (its own default)."""
+    defects (for the caller's own checks). miem.dask does not run the edge test yet: it is
+    left out of every preset here (its own default)."""
     kw = {**mdask._NOT_YET, **kw}
     want = miem.detect(grid, **{k: v for k, v in kw.items() if k != "strict"})
     res = mdask.detect(da.from_array(grid, chunks=chunks + (3,)), **kw)
@@ -408,5 +408,12 @@ def test_min_step_auto_medians_from_blocks(chunks) -> None:
         with dask.config.set(scheduler="sync"):
             got = mdask.auto_min_step(da.from_array(grid, chunks=(*chunks, 3)))
         assert got == want
+        assert got == miem.detect(grid).params["min_step"]  # the core's own
+        res = mdask.detect(da.from_array(grid, chunks=(*chunks, 3)), preset="recommended",
+                           edge_tolerance=None)
+        assert res.params["min_step"] == got and res.params["min_step_auto"]
+        with dask.config.set(scheduler="sync"):
+            labels = res.labels.compute()
+        np.testing.assert_array_equal(labels, miem.detect(grid, edge_tolerance=None).labels)
     flat = np.dstack([xx, yy, 0 * xx])  # no noise: off
     assert mdask.auto_min_step(da.from_array(flat, chunks=(30, 30, 3))) is None

@@ -64,10 +64,9 @@ _DTYPES = {"labels": np.uint8, "flags": np.uint8, "angle": np.float64, "height":
 
 
 #: Fields of the default (recommended) preset that miem.dask does not run yet, and the value its
-#: own default uses instead: the edge test (its reach is not in grid_halo) and min_step="auto"
-#: (derived from the whole scan, not from one block). Given explicitly (or by a preset), they
-#: are refused.
-_NOT_YET = {"edge_tolerance": None, "min_step": None}
+#: own default uses instead: the edge test (its sums are not yet independent of where a block
+#: starts). Given explicitly (or by a preset), it is refused.
+_NOT_YET = {"edge_tolerance": None}
 
 
 def _dask_defaults(args: tuple, kwargs: dict) -> dict:
@@ -80,15 +79,21 @@ def _dask_defaults(args: tuple, kwargs: dict) -> dict:
 
 def _refuse_not_yet(params: dict) -> None:
     """Refuse what :data:`_NOT_YET` names when it is on (given by a field or a preset)."""
-    on = ["min_step='auto'"] if params.get("min_step_auto") else []
     if params.get("edge_tolerance") is not None:
-        on.append(f"edge_tolerance={params['edge_tolerance']!r}")
-    if on:
         raise ValueError(
-            f"{', '.join(on)}: not implemented by miem.dask yet (min_step='auto' is derived from "
-            "the whole scan, the edge test's reach is not in grid_halo), so refused; its default "
-            "leaves them out: min_step=<length> (e.g. miem.detect(block).params['min_step'] of a "
-            "representative block) or None, edge_tolerance=None")
+            f"edge_tolerance={params['edge_tolerance']!r}: the edge test is not implemented by "
+            "miem.dask yet (its sums depend on where a block starts, so blocks would not equal "
+            "the whole scan), so refused; miem.dask's default leaves it out: edge_tolerance=None")
+
+
+def _resolve_min_step(grid: "da.Array", args: tuple, kwargs: dict, params: dict) -> tuple:
+    """min_step="auto" resolved over the whole grid (:func:`auto_min_step`) and given to every
+    block as the length (or None) it resolves to; params record it as auto."""
+    if not params.get("min_step_auto"):
+        return kwargs, params
+    kwargs = dict(kwargs, min_step=auto_min_step(grid))
+    kw = {k: v for k, v in kwargs.items() if k != "_args"}
+    return kwargs, dict(_probe_params(args, kw), min_step_auto=True)
 
 
 def _probe_params(args: tuple, kwargs: dict) -> dict:
@@ -110,6 +115,8 @@ _TILE = (64, 128)
 _GRID_KNOWN = {"preset", "theta0", "theta0_auto", "scales", "max_gap", "min_step",
                "min_directions", "max_iterations", "window", "height_tolerance", "edge_extent",
                "max_reach", "heights",
+               # resolved over the whole grid first (auto_min_step), then a min_step length
+               "min_step_auto",
                # read only by the edge test, whose reach is not covered: edge_tolerance (its
                # switch) is refused when on
                "edge_window"}
@@ -492,6 +499,7 @@ def detect(grid: Any, *args: Any, num_threads: Optional[int] = 1, strict: bool =
     kwargs = _dask_defaults(args, kwargs)
     params = _probe_params(args, kwargs)
     _refuse_not_yet(params)
+    kwargs, params = _resolve_min_step(grid, args, kwargs, params)
     if args:  # positional parameters (a parameter set) go to every block as given
         kwargs = dict(kwargs, _args=args)
     if params.get("theta0_auto"):
@@ -556,10 +564,13 @@ def auto_theta0(grid: Any, kwargs: Optional[dict] = None, params: Optional[dict]
     kwargs = _dask_defaults(kwargs.get("_args", ()), kwargs)
     if params is None:
         kw = dict(kwargs)
-        params = _probe_params(kw.pop("_args", ()), kw)
+        args = kw.pop("_args", ())
+        params = _probe_params(args, kw)
+        _refuse_not_yet(params)
+        kwargs, params = _resolve_min_step(grid, args, kwargs, params)
     _refuse_not_yet(params)
     survey = dict(kwargs, theta0=75.0, max_iterations=1, height_tolerance=None,
-                  heights="abnormal")
+                  edge_tolerance=None, heights="abnormal")
     halo = grid_halo(dict(params, max_iterations=1, height_tolerance=None)) - \
         params["window"] // 2
     H, W = grid.shape[:2]
