@@ -224,14 +224,15 @@ def test_clouds_run_the_preset_s_cloud_values_and_refuse_grid_fields() -> None:
 
 
 def test_stream_refuses_what_it_does_not_implement() -> None:
-    for kw, name in (({"theta0": "auto"}, "theta0"), ({"height_tolerance": "4rms"},
-                                                       "height_tolerance"),
-                     ({"edge_extent": 12}, "edge_extent"), ({"window": 9}, "window"),
-                     ({"heights": "abnormal"}, "heights"), ({"radius": 1.0}, "radius")):
+    for kw, name in (({"theta0": "auto"}, "theta0"), ({"edge_tolerance": 3.0}, "edge_tolerance"),
+                     ({"radius": 1.0}, "radius")):
         with pytest.raises(ValueError, match=name):
             miem.ProfileStream(16, **kw)
-    with pytest.raises(ValueError, match="height_tolerance"):
-        miem.ProfileStream(16, preset="recommended")
+    # the height test, its compact EDGE groups and heights are honoured now
+    for kw in ({"height_tolerance": "4rms"}, {"edge_extent": 5}, {"window": 9},
+               {"heights": "abnormal"}):
+        (name, value), = kw.items()
+        assert getattr(miem.ProfileStream(16, **kw).params.grid, name) == value
     # theta0_auto on the C++ side (the old silent drift: batch EDGE where the stream said NORMAL)
     p = core.stream_default_params()
     p.theta0_auto = True
@@ -239,6 +240,10 @@ def test_stream_refuses_what_it_does_not_implement() -> None:
     assert code == 1 and msg.startswith("theta0_auto")
     with pytest.raises(ValueError, match="theta0_auto"):
         core.ProfileStream64(16, p)
+    p = core.stream_default_params()
+    p.edge_k = 2.0
+    code, msg = core.check_stream_params(16, p)
+    assert code == 1 and msg.startswith("edge_k")
 
 
 @pytest.mark.parametrize("preset", [None, "paper"])
@@ -255,6 +260,7 @@ def test_stream_equals_batch_on_its_parameters(preset) -> None:
     want = miem.detect(g, params=s.params).labels
     np.testing.assert_array_equal(out, want)
     assert (want == miem.ABNORMAL).any()
+    assert s.params == (miem.PRESETS[preset or "recommended"])
 
 
 def test_nothrow_names_the_field_for_nan_height_and_negative_edge_extent() -> None:

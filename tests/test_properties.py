@@ -216,7 +216,7 @@ def test_core_equals_reference_on_clouds(points, params):
 def test_stream_equals_batch(grid, params, dtype):
     grid = grid.astype(dtype)
     stream = miem.ProfileStream(grid.shape[1], dtype=dtype, **params)
-    # batch detection with the stream's parameters (its default has no height test)
+    # batch detection with the stream's parameters (the default preset, height test included)
     batch = miem.detect(grid, params=stream.params).labels
     rows = {}
     for profile in grid:

@@ -1,4 +1,4 @@
-"""miem.stream.ProfileStream: labels equal miem.detect on the same rows; bad input."""
+"""miem.stream.ProfileStream: labels and heights equal miem.detect on the same rows; bad input."""
 
 from __future__ import annotations
 
@@ -31,8 +31,43 @@ def make_scan(h: int, w: int, seed: int) -> np.ndarray:
     return g
 
 
-def stream_all(stream: ProfileStream, grid: np.ndarray) -> np.ndarray:
+def make_full_scan(h, w, seed):
+    """Creases (long EDGE lines along and across the profiles), low bumps and bump clusters
+    the height test finds over several passes, burr tips, pits, dropouts, a lost profile."""
+    rng = np.random.default_rng(seed)
+    r, c = np.mgrid[0:h, 0:w]
+    x, y = c * 0.25, r * 0.3
+    z = 0.002 * x + 0.01 * y
+    z = z + 0.15 * np.abs(x - 0.13 * w) + 0.1 * np.maximum(0, y - 0.2 * h)  # creases
+    z = z + 0.8 * (x > 0.6 * w * 0.25) + 0.6 * (y > 0.7 * h * 0.3)  # steps: EDGE lines
+    z[:, w // 4] += 0.6          # a fin along the scan: a long EDGE line
+    z[h // 2, :] += 0.5          # one across the profiles
+    for _ in range(max(2, h * w // 4000)):  # short fins: compact EDGE groups
+        r0, c0 = rng.integers(2, h - 8), rng.integers(2, w - 8)
+        if rng.random() < 0.5:
+            z[r0:r0 + rng.integers(3, 7), c0] += 0.4
+        else:
+            z[r0, c0:c0 + rng.integers(3, 7)] += 0.4
+    z = z + rng.normal(0.0, 0.003, (h, w))
+    for _ in range(max(3, h * w // 1500)):  # low bumps, some in clusters
+        r0, c0 = rng.integers(0, h), rng.integers(0, w)
+        for _ in range(rng.integers(1, 4)):
+            rr = np.clip(r0 + rng.integers(-3, 4), 0, h - 1)
+            cc = np.clip(c0 + rng.integers(-3, 4), 0, w - 1)
+            s = rng.uniform(0.4, 1.2)
+            z += rng.uniform(0.02, 0.2) * np.exp(-((r - rr) ** 2 + (c - cc) ** 2) / (2 * s * s))
+    for _ in range(max(2, h * w // 3000)):
+        z[rng.integers(0, h), rng.integers(0, w)] += rng.uniform(-1.0, 1.5)
+    g = np.stack([x, y, z.round(4)], axis=-1)
+    g[rng.random((h, w)) < 0.01] = np.nan
+    g[h // 3] = np.nan
+    return g
+
+
+def stream_both(stream: ProfileStream, grid: np.ndarray) -> tuple:
+    """Labels and heights of every row, each taken when the stream hands it back."""
     out = np.full(grid.shape[:2], 99, dtype=np.uint8)
+    heights = np.full(grid.shape[:2], -1e300)
     expected = 0
     for r in range(grid.shape[0]):
         done = stream.push(grid[r])
@@ -40,14 +75,87 @@ def stream_all(stream: ProfileStream, grid: np.ndarray) -> np.ndarray:
             assert done is None
         else:
             assert isinstance(done, StreamRow) and done.row == r - stream.lag == expected
-            out[done.row] = done.labels
+            out[done.row], heights[done.row] = done.labels, done.heights
             expected += 1
     for done in stream.flush():
         assert done.row == expected
-        out[done.row] = done.labels
+        out[done.row], heights[done.row] = done.labels, done.heights
         expected += 1
     assert expected == grid.shape[0]
-    return out
+    return out, heights
+
+
+def stream_all(stream: ProfileStream, grid: np.ndarray) -> np.ndarray:
+    return stream_both(stream, grid)[0]
+
+
+def assert_heights_equal(got: np.ndarray, want: np.ndarray, signed: bool = True,
+                         atol: float = 1e-9) -> None:
+    """Equal up to rounding (the same window planes, summed in another order): NaN at the same
+    cells, values within 1e-9 of the scan's few-unit heights."""
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+    if not signed:  # a window whose NORMAL points are collinear: the orientation is ill-posed
+        got, want = np.abs(got), np.abs(want)
+    np.testing.assert_allclose(got[~np.isnan(want)], want[~np.isnan(want)], rtol=0, atol=atol)
+
+
+# Every preset, and variants that change each stage's lag (window, edge_extent, iterations),
+# heights of ABNORMAL points only, an absolute height tolerance, min_step, a wider gap.
+STAGE_VARIANTS = [
+    {}, {"heights": "abnormal"}, {"max_iterations": 3, "window": 7, "edge_extent": 4},
+    {"window": 5, "edge_extent": 30}, {"edge_extent": 0}, {"height_tolerance": "3rms"},
+    {"scales": (1, 2), "max_gap": 2, "min_step": 0.2, "max_reach": 4},
+]
+
+
+@pytest.mark.parametrize("preset", sorted(miem.PRESETS))
+@pytest.mark.parametrize("variant", range(len(STAGE_VARIANTS)))
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_stream_equals_detect_full_detector(preset: str, variant: int, dtype) -> None:
+    grid = make_full_scan(160, 70, 11 + variant).astype(dtype)
+    kw = STAGE_VARIANTS[variant]
+    want = miem.detect(grid, preset=preset, **kw)
+    stream = ProfileStream(70, preset=preset, dtype=dtype, **kw)
+    got, heights = stream_both(stream, grid)
+    np.testing.assert_array_equal(got, want.labels)
+    assert_heights_equal(heights, want.height)
+    assert (want.labels == miem.ABNORMAL).sum() > 0
+
+
+def test_stream_runs_the_whole_default_detector() -> None:
+    """The default stream is the default batch detector: the height test finds what the angle
+    test alone does not, over several passes, with compact EDGE groups; the stream agrees."""
+    grid = make_full_scan(300, 120, 5)
+    full = miem.detect(grid)
+    angle_only = miem.detect(grid, height_tolerance=None)
+    one_pass = miem.detect(grid, max_iterations=1)
+    no_compact = miem.detect(grid, edge_extent=0)
+    n = lambda r: int((r.labels == miem.ABNORMAL).sum())  # noqa: E731
+    assert n(full) > 3 * n(angle_only) and n(full) > n(one_pass) and n(full) > n(no_compact)
+    stream = ProfileStream(120)
+    assert stream.params == miem.PRESETS["recommended"]
+    got, heights = stream_both(stream, grid)
+    np.testing.assert_array_equal(got, full.labels)
+    assert_heights_equal(heights, full.height)
+
+
+def test_extreme_height_tolerance_labels_equal_and_heights_up_to_orientation() -> None:
+    """An absolute tolerance below the features removes most of the scan: windows left with a
+    line of NORMAL points have an ill-posed orientation (SPEC "Height"), where batch and stream
+    may differ in the sign, and the values by the rounding such a window amplifies."""
+    grid = make_full_scan(120, 90, 1)
+    want = miem.detect(grid, height_tolerance=0.03)
+    got, heights = stream_both(ProfileStream(90, height_tolerance=0.03), grid)
+    np.testing.assert_array_equal(got, want.labels)
+    assert_heights_equal(heights, want.height, signed=False, atol=1e-6)
+
+
+def test_lag_formula() -> None:
+    """L = P R + E + (P + 1) h with the height test, P R + h without (docs/SPEC.md)."""
+    assert ProfileStream(10).lag == 10 * 3 + 12 + 11 * 10 == 152
+    assert ProfileStream(10, preset="paper").lag == 10 * 2 + 10
+    assert ProfileStream(10, max_iterations=3, window=7, edge_extent=4).lag == 3 * 3 + 4 + 4 * 3
+    assert ProfileStream(10, height_tolerance=None, window=9).lag == 10 * 3 + 4
 
 
 @pytest.mark.parametrize(
@@ -66,10 +174,9 @@ def test_stream_equals_detect(params: dict, dtype) -> None:
 
 def test_lag_and_properties() -> None:
     s = ProfileStream(10, preset="paper")
-    assert (s.lag, s.width, s.dtype, s.rows_pushed, s.finished) == (20, 10, np.float64, 0, False)
-    assert ProfileStream(10, scales=(1, 2), max_gap=2, max_iterations=3).lag == 12
-    assert "lag=20" in repr(s)
-    assert ProfileStream(10).lag == 10 * (2 + 1)  # the default: scales (1, 2), max_gap 1
+    assert (s.lag, s.width, s.dtype, s.rows_pushed, s.finished) == (30, 10, np.float64, 0, False)
+    assert ProfileStream(10, preset="paper", scales=(1, 2), max_gap=2, max_iterations=3).lag == 22
+    assert "lag=30" in repr(s)
 
 
 def test_any_strides_and_dtypes_are_read() -> None:
@@ -120,7 +227,9 @@ def test_bad_input_raises_and_leaves_the_stream_unchanged() -> None:
     [({"width": 0}, "width"), ({"theta0": 180.0}, "theta0"), ({"scales": ()}, "scales"),
      ({"scales": (0,)}, "scales"), ({"max_gap": -1}, "max_gap"), ({"min_step": -1.0}, "min_step"),
      ({"min_directions": 5}, "min_directions"), ({"max_iterations": 255}, "max_iterations"),
-     ({"max_reach": 0}, "max_reach"), ({"dtype": np.int32}, "dtype")],
+     ({"max_reach": 0}, "max_reach"), ({"dtype": np.int32}, "dtype"),
+     ({"theta0": "auto"}, "theta0"), ({"edge_tolerance": 3.0}, "edge_tolerance"),
+     ({"window": 4}, "window"), ({"edge_extent": -1}, "edge_extent")],
 )
 def test_bad_parameters(kwargs: dict, match: str) -> None:
     args = {"width": 10, **kwargs}

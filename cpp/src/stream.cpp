@@ -221,27 +221,25 @@ std::ptrdiff_t mark_finite(const T* x, const T* y, const T* z, std::ptrdiff_t W,
 
 DetectParams stream_default_params() {
   DetectParams p;
-  p.height_abs = 0.0;
-  p.height_k = 0.0;
-  p.edge_extent = 0;
   p.min_step_auto = false;  // a stream cannot see the whole scan: give min_step as a length
-  p.edge_k = 0.0;
+  p.edge_k = 0.0;           // the edge test is not implemented by the stream yet
   return p;
+}
+
+long long stream_lag(const DetectParams& p) noexcept {
+  const long long reach = static_cast<long long>(
+                              *std::max_element(p.scales.begin(), p.scales.end())) +
+                          p.max_gap + (p.min_step >= 0.0 ? p.max_reach : 0);
+  const long long P = p.max_iterations, h = p.window / 2;
+  return P * reach + (p.height_test() ? p.edge_extent + (P + 1) * h : h);
 }
 
 Status check_stream_params(std::ptrdiff_t width, const DetectParams& p) noexcept {
   const auto bad = [](const char* msg) { return Status{StatusCode::kInvalidParameter, msg}; };
   if (Status st = p.check(); !st.ok()) return st;
   if (p.theta0_auto) {
-    return bad("theta0_auto: not implemented by ProfileStream yet; give theta0 in degrees");
-  }
-  if (p.height_test()) {
-    return bad("height_abs, height_k: the height test is not implemented by ProfileStream yet; "
-               "set both to 0 (stream_default_params())");
-  }
-  if (p.edge_extent != 0) {
-    return bad("edge_extent: belongs to the height test, not implemented by ProfileStream yet; "
-               "set it to 0");
+    return bad("theta0_auto: not implemented by ProfileStream (theta0 'auto' is the median of "
+               "the whole scan's angles, which a stream never sees); give theta0 in degrees");
   }
   if (p.edge_test()) {
     return bad("edge_k: the edge test is not implemented by ProfileStream yet; set it to 0");
@@ -256,6 +254,9 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& p) noexcept
                               *std::max_element(p.scales.begin(), p.scales.end())) +
                           p.max_gap + (p.min_step >= 0.0 ? p.max_reach : 0);
   if (reach > (1 << 20)) return bad("scales, max_gap, max_reach: reach too long");
+  if (stream_lag(p) + p.window > (1 << 20)) {
+    return bad("window, edge_extent, max_iterations: the stream's lag would exceed 2^20 profiles");
+  }
   return {};
 }
 
@@ -268,12 +269,23 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   const bool min_step = params_.min_step >= 0.0;
   const long long reach = static_cast<long long>(max_scale_) + params_.max_gap +
                           (min_step ? params_.max_reach : 0);
-  if (reach > (1 << 20)) throw std::invalid_argument("scales/max_gap/max_reach: reach too long");
   reach_ = static_cast<int>(reach);
   passes_ = params_.max_iterations;
-  lag_ = passes_ * reach_;
-  ring_ = static_cast<std::ptrdiff_t>(lag_) + reach_ + 1;
-  phys_ = ring_ + 2 * reach_;
+  alag_ = passes_ * reach_;
+  htest_ = params_.height_test();
+  half_ = params_.window / 2;
+  extent_ = htest_ ? params_.edge_extent : 0;
+  sums_ = htest_ || params_.height_mode == HeightMode::kAll;
+  lag_ = static_cast<int>(stream_lag(params_));
+  // The longest look-back of a stage at push n: heights read row n - L - h, height pass 1
+  // drops row n - L - h - 1 from its sums (without the height test), the EDGE grouping reads
+  // row n - A - 2E, the angle passes row n - A - R.
+  const long long back = std::max<long long>(
+      {static_cast<long long>(lag_) + half_ + 1, static_cast<long long>(alag_) + 2LL * extent_,
+       static_cast<long long>(alag_) + reach_});
+  ring_ = static_cast<std::ptrdiff_t>(back) + 2;
+  ext_ = std::max<std::ptrdiff_t>(2 * reach_, 2 * half_);
+  phys_ = ring_ + ext_;
   const double cells = static_cast<double>(phys_) * static_cast<double>(width_);
   if (cells * 3.0 * sizeof(T) > static_cast<double>(std::numeric_limits<std::ptrdiff_t>::max() / 4)) {
     throw std::invalid_argument("width: profile buffer too large");
@@ -292,6 +304,7 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   row_cand_.assign(static_cast<std::size_t>(ring_), 0);
   level_.assign(static_cast<std::size_t>(ring_), 0);
   bits_.assign(static_cast<std::size_t>(width_), 0);
+  init_stages();
 }
 
 template <typename T>
@@ -299,6 +312,7 @@ void ProfileStream<T>::reset() noexcept {
   pushed_ = 0;
   emitted_ = 0;
   finished_ = false;
+  reset_stages();
 }
 
 template <typename T>
@@ -339,7 +353,7 @@ Status ProfileStream<T>::push(const PointsView<T>& profile, StreamRow* out) noex
     }
   }
   const std::ptrdiff_t n_finite = mark_finite(x, y, z, W, st, lab);
-  if (s < 2 * reach_) {  // the copy after the ring's end (see phys_)
+  if (s < ext_) {  // the copy after the ring's end (see phys_)
     const std::size_t bytes = static_cast<std::size_t>(W) * sizeof(T);
     std::memcpy(x + ring_ * W, x, bytes);
     std::memcpy(y + ring_ * W, y, bytes);
@@ -349,6 +363,9 @@ Status ProfileStream<T>::push(const PointsView<T>& profile, StreamRow* out) noex
   std::memset(cand_.data() + s * W, 0, static_cast<std::size_t>(W));
   row_cand_[s] = 0;
   level_[s] = 0;
+  std::memset(hm_.data() + s * W, 0, static_cast<std::size_t>(W));
+  std::memset(hs_.data() + s * W, 0xff, static_cast<std::size_t>(W));
+  hrow_[s] = 0;
   pushed_ = row + 1;
 
   // The wavefront: pass p on row - p R (its rows within R have all run pass p - 1).
@@ -357,10 +374,12 @@ Status ProfileStream<T>::push(const PointsView<T>& profile, StreamRow* out) noex
     if (j < 0) break;
     run_pass(j, p);
   }
+  run_stages(false);
   const std::int64_t done = row - lag_;
   if (done >= 0) {
     out->index = done;
     out->labels = labels_.data() + slot(done) * W;
+    out->height = height_.data() + slot(done) * W;
     emitted_ = done + 1;
   }
   if (n_finite == 0) {
@@ -378,16 +397,18 @@ bool ProfileStream<T>::flush(StreamRow* out) noexcept {
     finished_ = true;
     // The end of the stream is now the grid border: finish every pass on the last rows, pass by
     // pass over all of them (each row's neighbours then have run the pass before).
-    const std::int64_t first = std::max<std::int64_t>(0, pushed_ - lag_);
+    const std::int64_t first = std::max<std::int64_t>(0, pushed_ - alag_);
     for (int p = 1; p <= passes_; ++p) {
       for (std::int64_t j = first; j < pushed_; ++j) {
         if (level_[slot(j)] == p - 1) run_pass(j, p);
       }
     }
+    run_stages(true);  // then every later stage on all the rows left, stage by stage
   }
   if (emitted_ >= pushed_) return false;
   out->index = emitted_;
   out->labels = labels_.data() + slot(emitted_) * width_;
+  out->height = height_.data() + slot(emitted_) * width_;
   ++emitted_;
   return true;
 }
@@ -398,7 +419,7 @@ void ProfileStream<T>::remove(std::int64_t row, std::ptrdiff_t col, int pass) no
   const std::ptrdiff_t W = width_, s = slot(row);
   labels_[s * W + col] = kAbnormal;
   state_[s * W + col] = static_cast<std::uint8_t>(pass);
-  if (s < 2 * reach_) state_[(s + ring_) * W + col] = static_cast<std::uint8_t>(pass);
+  if (s < ext_) state_[(s + ring_) * W + col] = static_cast<std::uint8_t>(pass);
   if (pass >= passes_) return;
   const std::uint8_t bit = static_cast<std::uint8_t>(1u << ((pass + 1) & 1));
   for (int k = 0; k < 4; ++k) {

@@ -7,8 +7,8 @@ part per scope: ``angle`` (:class:`AngleParams`, the angle test shared by every 
 (:class:`CloudParams`, unorganized clouds). Each field carries its default, unit and help text;
 a detector reads ``angle`` and its own part, and a keyword override names a field of those parts
 (``miem.detect(grid, window=15)``, ``miem.detect(points, radius=2.0)``); a field of another part
-is refused with a ValueError naming it. ``ProfileStream`` does not implement some grid fields
-yet (the height test, heights): their values other than the neutral one are refused too.
+is refused with a ValueError naming it. ``ProfileStream`` does not implement the edge test
+yet: its values other than the neutral one are refused too.
 The command line's detection options, ``--config`` files and ``miem config`` are generated from
 these fields.
 """
@@ -185,18 +185,18 @@ class GridParams:
         "may go", "CELLS")
     window: int = _f(
         21, "cells", "side of the square (odd) whose NORMAL points give the local plane for "
-        "heights and the height test", "CELLS", stream=21)
+        "heights and the height test", "CELLS")
     heights: str = _f(
         "all", "", "which points get a height: 'all' finite points or only 'abnormal' ones "
-        "(faster)", "{all,abnormal}", stream="all")
+        "(faster)", "{all,abnormal}")
     height_tolerance: Union[None, float, str] = _f(
         "4.5rms", "length or k x rms", "height test (beyond the paper): a NORMAL point "
         "farther than this from its local plane becomes ABNORMAL; a length or '<k>rms' (k times "
-        "the plane's rms); None: off", "LENGTH|Krms", stream=None)
+        "the plane's rms); None: off", "LENGTH|Krms")
     edge_extent: int = _f(
         12, "cells", "with the height test: EDGE groups whose bounding box is at most this long "
         "are compact (a defect's halo) and height-tested too; longer ones are feature lines",
-        "CELLS", stream=0)
+        "CELLS")
     edge_tolerance: Optional[float] = _f(
         4.0, "k x rms", "edge test (SPEC 'Edge test', beyond the paper, after the height test): "
         "a point standing proud of a feature line or the scan's outline by more than k times "
@@ -492,10 +492,10 @@ DEFAULT_PRESET = "recommended"
 
 def default_params(path: str = "grid") -> DetectParams:
     """The default parameters of a detector: the default preset, except that ``"stream"``
-    leaves out what ProfileStream does not implement yet (the height test: the grid part's
-    ``height_tolerance=None``, ``edge_extent=0``; the edge test: ``edge_tolerance=None``;
-    ``min_step="auto"``, which needs the whole scan: ``min_step=None``), so that the stream runs
-    the recommended angle test (theta0 90, scales (1, 2))."""
+    leaves out what ProfileStream does not implement yet: the edge test
+    (``edge_tolerance=None``) and ``min_step="auto"``, which needs the whole scan
+    (``min_step=None``; give a length to have it). The stream runs the rest of the default
+    detector: the angle test, the height test with compact EDGE groups, heights."""
     _parts(path)
     base = PRESETS[DEFAULT_PRESET]
     if path != "stream":

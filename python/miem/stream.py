@@ -1,8 +1,9 @@
-"""Streaming detection for line scanners: push profiles as they arrive, get final labels back.
+"""Streaming detection for line scanners: push profiles as they arrive, get final labels and
+heights back.
 
-The labels equal those of :func:`miem.detect` on all rows pushed so far (see
-:class:`ProfileStream`); the work runs in the C++ core (``miem::ProfileStream``), which allocates
-nothing per profile.
+The labels equal those of :func:`miem.detect` on all rows pushed so far, and the heights equal
+its heights up to rounding (see :class:`ProfileStream`); the work runs in the C++ core
+(``miem::ProfileStream``), which allocates nothing per profile.
 """
 
 from __future__ import annotations
@@ -24,12 +25,12 @@ _OK = 0
 _EMPTY_PROFILE = 6
 
 
-def _check_storage(width: int, dtype: np.dtype, passes: int, reach: int) -> None:
-    """ValueError naming `width` when the stream's buffers (``lag + 3 R + 1`` profiles of
-    coordinates and state, ``lag + R + 1`` of labels, README "Guarantees") exceed half of the
-    machine's memory, so that a typo never gets the process killed for memory."""
-    lag = passes * reach
-    need = width * ((lag + 3 * reach + 1) * (3 * dtype.itemsize + 1) + (lag + reach + 1) * 2)
+def _check_storage(width: int, dtype: np.dtype, lag: int, reach: int, half: int) -> None:
+    """ValueError naming `width` when the stream's buffers (about ``lag + 2 h + 2`` profiles of
+    coordinates, state, labels and heights, README "Guarantees") exceed half of the machine's
+    memory, so that a typo never gets the process killed for memory."""
+    rows = lag + half + 3 + max(2 * reach, 2 * half)
+    need = width * rows * (3 * dtype.itemsize + 14)
     try:
         limit = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") // 2
     except (AttributeError, ValueError, OSError):  # pragma: no cover - not POSIX
@@ -38,7 +39,8 @@ def _check_storage(width: int, dtype: np.dtype, passes: int, reach: int) -> None
         raise ValueError(
             f"width: a stream of {width:,} points per profile with a lag of {lag} profiles "
             f"keeps about {need / 2**30:.1f} GiB, more than half of this machine's memory "
-            f"({limit / 2**30:.1f} GiB); lower max_iterations or split the profile")
+            f"({limit / 2**30:.1f} GiB); lower max_iterations, edge_extent or window, or split "
+            f"the profile")
 
 
 class StreamRow(NamedTuple):
@@ -50,32 +52,39 @@ class StreamRow(NamedTuple):
         Row number: 0 is the first profile pushed (since construction or :meth:`reset`).
     labels : ndarray, shape (width,), uint8
         :class:`miem.Label` values of that profile's points.
+    heights : ndarray, shape (width,), float64
+        Local heights (as :attr:`miem.DetectResult.height`; NaN where none, and everywhere but
+        the ABNORMAL points with ``heights="abnormal"``).
     """
 
     row: int
     labels: np.ndarray
+    heights: np.ndarray
 
 
 class ProfileStream:
     """Streaming MIEM over laser profiles (rows of an organized scan), one at a time.
 
     Each :meth:`push` takes one profile and, once ``lag`` profiles have followed a row, hands
-    that row's final labels back. The labels are exactly those :func:`miem.detect` gives for the
-    same rows with the same parameters, for every input: a judgment reads the rows within
-    ``R = max(scales) + max_gap`` (``+ max_reach`` with ``min_step``) of its own, each of the
-    ``max_iterations`` passes widens that by ``R``, so the lag is ``max_iterations * R``
-    (default parameters: 10 * (2 + 1) = 30 profiles; the paper's: 20). A lower
-    ``max_iterations`` shortens it. Heights, flags, angles and defects are not computed while
-    streaming.
+    that row's final labels and heights back. The labels are exactly those :func:`miem.detect`
+    gives for the same rows with the same parameters, for every input; the heights equal its
+    heights up to rounding (the same window planes, summed in another order). The whole
+    detector runs: the angle passes, the height test with its compact EDGE groups, heights.
+    The lag (docs/SPEC.md "Streaming") is::
+
+        L = P R + E + (P + 1) h     (height test on;  L = P R + h without it)
+
+    with ``R = max(scales) + max_gap`` (``+ max_reach`` with ``min_step``) the rows one angle
+    judgment reads, ``P = max_iterations``, ``E = edge_extent`` (the rows that decide whether an
+    EDGE group is compact) and ``h = window // 2``: 10 * 2 + 12 + 11 * 10 = 142 profiles with
+    the defaults, 10 * 2 + 10 = 30 with ``preset="paper"`` (no height test). A lower
+    ``max_iterations``, ``edge_extent`` or ``window`` shortens it.
 
     The parameters are a :class:`miem.DetectParams` as for :func:`miem.detect` (``params``, a
-    ``preset`` or keyword overrides). The stream does not implement the height test
-    (``height_tolerance``, ``edge_extent``), ``theta0="auto"``, heights (``window``,
-    ``heights``) or the cloud-only fields yet: any value but the neutral one is a ValueError,
-    so ``preset="recommended"`` is refused for its height test. The default,
-    :func:`miem.default_params` ``("stream")``, is the recommended angle test (theta0 90,
-    scales (1, 2)) without the height test: ``miem.detect(grid, params=stream.params)`` gives
-    the same labels.
+    ``preset`` or keyword overrides; the default is the default preset, as for
+    :func:`miem.detect`). The stream does not implement ``theta0="auto"`` (the median of the
+    whole scan's angles, which a stream never sees: give degrees) nor the edge test
+    (``edge_tolerance``): they are a ValueError naming the field.
 
     Parameters
     ----------
@@ -105,16 +114,17 @@ class ProfileStream:
     --------
     >>> import numpy as np, miem
     >>> stream = miem.ProfileStream(64)
-    >>> for r in range(50):
+    >>> for r in range(200):
     ...     profile = np.zeros((64, 3)); profile[:, 0] = np.arange(64) * 0.5; profile[:, 1] = r
     ...     if r == 10:
     ...         profile[30, 2] = 3.0                  # a burr tip
     ...     done = stream.push(profile)
     ...     if done is not None and (done.labels == miem.ABNORMAL).any():
-    ...         print(done.row, np.flatnonzero(done.labels == miem.ABNORMAL))
-    10 [30]
-    >>> len(stream.flush())                          # the last `lag` rows
-    30
+    ...         hit = np.flatnonzero(done.labels == miem.ABNORMAL)
+    ...         print(done.row, hit, done.heights[hit])
+    10 [30] [3.]
+    >>> stream.lag, len(stream.flush())              # the last `lag` rows
+    (142, 142)
     """
 
     def __init__(
@@ -144,8 +154,8 @@ class ProfileStream:
             raise ValueError(message)
         self._dtype = dt
         a, gp = p.angle, p.grid
-        _check_storage(w, dt, a.max_iterations, max(a.scales) + gp.max_gap
-                       + (0 if gp.min_step is None else gp.max_reach))
+        _check_storage(w, dt, int(_core.stream_lag(core_params)), max(a.scales) + gp.max_gap
+                       + (0 if gp.min_step is None else gp.max_reach), gp.window // 2)
         try:
             self._core = cls(w, core_params)
         except MemoryError:
@@ -161,7 +171,7 @@ class ProfileStream:
 
     @property
     def lag(self) -> int:
-        """Profiles between pushing a row and getting its labels: ``max_iterations * R``."""
+        """Profiles between pushing a row and getting it back final (see the class)."""
         return int(self._core.lag)
 
     @property
@@ -191,7 +201,7 @@ class ProfileStream:
         Returns
         -------
         StreamRow or None
-            ``(row, labels)`` of the row pushed ``lag`` profiles ago; None while fewer than
+            ``(row, labels, heights)`` of the row pushed ``lag`` profiles ago; None while fewer than
             ``lag + 1`` profiles have been pushed.
 
         Raises
@@ -205,10 +215,10 @@ class ProfileStream:
             raise ValueError(f"profile: expected shape ({self.width}, 3), got {arr.shape}")
         if arr.dtype != self._dtype:
             arr = arr.astype(self._dtype)
-        code, message, row, labels = self._core.push(arr)
+        code, message, row, labels, heights = self._core.push(arr)
         if code not in (_OK, _EMPTY_PROFILE):
             raise ValueError(message)
-        return None if labels is None else StreamRow(int(row), labels)
+        return None if labels is None else StreamRow(int(row), labels, heights)
 
     def flush(self) -> List[StreamRow]:
         """End the stream and return every row still pending, oldest first.
@@ -221,7 +231,7 @@ class ProfileStream:
         list of StreamRow
             At most ``lag`` rows (empty on a second call).
         """
-        return [StreamRow(int(r), labels) for r, labels in self._core.flush()]
+        return [StreamRow(int(r), labels, heights) for r, labels, heights in self._core.flush()]
 
     def reset(self) -> None:
         """Start a new stream (a new part) with the same width and parameters."""

@@ -19,47 +19,58 @@ struct StreamRow {
   std::int64_t index = -1;               ///< row number (0 = first profile pushed); -1: none
   const std::uint8_t* labels = nullptr;  ///< `width` Label values; valid until the next call
                                          ///< of push, flush or reset
+  const double* height = nullptr;        ///< `width` heights (docs/SPEC.md "Height"; NaN where
+                                         ///< none), valid as long as `labels`
 
   /// True when a row was handed back.
   bool ready() const noexcept { return index >= 0; }
 };
 
-/// The default parameters of a stream: the recommended preset (DetectParams{}) without the
-/// fields a stream does not implement yet, which it rejects (check_stream_params): theta0_auto,
-/// the height test (height_abs, height_k), edge_extent, the edge test (edge_k) and
-/// min_step_auto (a stream cannot see the whole scan: give min_step as a length, e.g.
-/// auto_min_step() of a first scan). So the stream runs the recommended angle test (theta0 90,
-/// scales {1, 2}); batch detect_organized with these parameters gives the same labels.
+/// The default parameters of a stream: the default preset (DetectParams{}: angle test, height
+/// test with compact EDGE groups, heights) without the two fields a stream does not implement,
+/// which check_stream_params rejects: the edge test (edge_k = 0 here) and min_step_auto (a
+/// stream cannot see the whole scan: give min_step as a length, e.g. auto_min_step() of a first
+/// scan of the part; then stream == batch with that min_step).
 DetectParams stream_default_params();
 
+/// The lag L of a stream with these parameters (profiles between pushing a row and getting it
+/// back final), with R = max(scales) + max_gap (+ max_reach with min_step), h = window / 2,
+/// P = max_iterations, E = edge_extent:
+///     L = P R + E + (P + 1) h   with the height test,   L = P R + h   without.
+/// Defaults: 10 * 3 + 12 + 11 * 10 = 152. Assumes valid parameters.
+long long stream_lag(const DetectParams& params) noexcept;
+
 /// Checks the parameters of a stream without throwing: params.check(), then what a stream does
-/// not implement (theta0_auto, height_abs / height_k > 0, edge_extent > 0, edge_k > 0,
-/// min_step_auto), width >= 1 and
-/// max_iterations <= 254 (the per-cell pass counter is one byte).
+/// not implement (theta0_auto, the edge test edge_k > 0, min_step_auto), width >= 1,
+/// max_iterations <= 254 (the per-cell pass counter is one byte) and a lag below 2^20 profiles.
 Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noexcept;
 
 /// Streaming organized detector: rows are laser profiles, pushed as they arrive.
 ///
 /// Labels are exactly those of batch detection (detect_organized, docs/SPEC.md) on the grid of
-/// all rows pushed so far, for every input, not only for short defects. A cell's judgment reads
-/// the rows within R = max(scales) + max_gap (+ max_reach with min_step) of its own, and each
-/// further pass (a removal re-judges the cells whose rays meet it) widens that by R; after
-/// max_iterations passes nothing further away can matter. So row i is final once row
-/// i + L has arrived, with the lag
+/// all rows pushed so far, for every input, not only for short defects; heights equal batch
+/// heights up to rounding (both are the same window plane, summed in another order). The
+/// stages run as a wavefront over a ring of rows (docs/SPEC.md "Streaming"): when row n
+/// arrives,
+///   - angle pass p runs on row n - p R (R = max(scales) + max_gap, + max_reach with
+///     min_step: the rows one judgment reads; each pass widens that by R);
+///   - row n - P R is then final for the angle test; its compact EDGE groups are known E rows
+///     later (a group is compact when its bounding box is at most E = edge_extent cells, so E
+///     rows on either side decide it);
+///   - height pass 1 runs on row n - P R - E - h by running window sums (h = window / 2), pass
+///     p on row n - P R - E - p h, only on the cells within h of a cell the pass before removed;
+///   - heights are final h rows after the last height pass.
+/// So row i is final once row i + L has arrived, L = stream_lag(params) (142 profiles with
+/// the defaults; 20 + 10 with preset "paper"). Each cell keeps the pass that removed it, so a
+/// judgment at pass p sees exactly the cells of pass p - 1 even where rows around it have run
+/// pass p already. A lower max_iterations (most scans settle in 2-3 passes) or edge_extent
+/// shortens the lag, and equals batch detection with those parameters.
 ///
-///     L = max_iterations * R   (defaults: 10 * (1 + 1) = 20 profiles).
-///
-/// The passes run as a wavefront: when row n arrives, pass p runs on row n - p R, pass 1 on
-/// every finite cell, later passes only on the cells whose rays meet a cell removed by the pass
-/// before (as the batch detector does). A lower max_iterations shortens the lag (most scans
-/// settle in 2-3 passes) and equals batch detection with that max_iterations.
-///
-/// Memory: the last (max_iterations + 1) * R + 1 rows are kept in a ring (plus 2 R rows that
-/// repeat its first rows, so that the 2 R + 1 rows around any row form one strided GridView);
-/// about 27 * 3200 * 3 * 8 bytes = 2.1 MB for double profiles of 3200 points with the defaults.
-/// Heights, flags, angles and defects are not computed here (a height needs window / 2 more
-/// rows of lag): group the ABNORMAL labels downstream, or run OrganizedDetector on the rows of
-/// interest. (Batch detection also refuses a grid of fewer than 3 finite points; a stream
+/// Memory: the last L + h + 2 rows (about L + 2 h) are kept in a ring (plus max(2 R, 2 h) rows
+/// that repeat its first rows, so that the rows around any row form one strided GridView):
+/// about 176 * 3200 * (3 * 8 + 8 + 4) bytes = 20 MB for double profiles of 3200 points with the
+/// defaults. Flags, angles and defects are not reported here: group the ABNORMAL labels
+/// downstream. (Batch detection also refuses a grid of fewer than 3 finite points; a stream
 /// simply labels what it gets.)
 ///
 /// Speed: pass 1 runs a vectorised filter over the whole row (SSE2, or AVX2 where the CPU has
@@ -77,14 +88,13 @@ class ProfileStream {
  public:
   /// A stream of profiles of `width` points. Throws std::invalid_argument with the message of
   /// check_stream_params (a bad or unsupported field, width < 1, max_iterations > 254).
-  /// `params.window` and `height_mode` only shape heights, which a stream does not report;
   /// `num_threads` is not used (one stream runs on its caller's thread).
   /// Use nothrow::make_stream in code built without exceptions.
   explicit ProfileStream(std::ptrdiff_t width, DetectParams params = stream_default_params());
 
   /// Points per profile.
   std::ptrdiff_t width() const noexcept { return width_; }
-  /// The lag L: push n hands back row n - L.
+  /// The lag L: push n hands back row n - L (stream_lag(params())).
   int lag() const noexcept { return lag_; }
   /// The reach R of one judgment, in rows.
   int reach() const noexcept { return reach_; }
@@ -125,15 +135,35 @@ class ProfileStream {
   void pass1_fast(std::int64_t row) noexcept;
   std::uint8_t exact_label(std::int64_t row, std::ptrdiff_t col, std::uint32_t bits) const noexcept;
   void remove(std::int64_t row, std::ptrdiff_t col, int pass) noexcept;
+  // The stages after the angle passes (stream_stages.cpp): each advances its own next row up
+  // to the last row it may run on (all pushed rows once the stream is flushed).
+  void init_stages();
+  void reset_stages() noexcept;
+  void run_stages(bool to_end) noexcept;
+  void angle_final_row(std::int64_t row) noexcept;
+  void compact_row(std::int64_t row) noexcept;
+  void height_pass1_row(std::int64_t row) noexcept;
+  void height_pass_row(std::int64_t row, int pass) noexcept;
+  void final_row(std::int64_t row) noexcept;
+  void remove_height(std::int64_t row, std::ptrdiff_t col, int pass) noexcept;
+  void sums_add_row(int set, std::int64_t row, double sign) noexcept;
+  template <typename Fit>
+  void window_fit(std::int64_t row, std::ptrdiff_t col, int pass, Fit fit) noexcept;
 
   std::ptrdiff_t width_;
   DetectParams params_;
   int reach_ = 0;   // R
   int passes_ = 0;  // max_iterations
-  int lag_ = 0;     // L = passes_ * reach_
-  std::ptrdiff_t ring_ = 0;  // rows kept: L + R + 1
-  std::ptrdiff_t phys_ = 0;  // rows stored: ring_ + 2R, rows in slots [0, 2R) again at the end,
-                             // so that any 2R + 1 consecutive rows form one strided GridView
+  int alag_ = 0;    // A = passes_ * reach_: rows after which the angle labels are final
+  int lag_ = 0;     // L (stream_lag)
+  int half_ = 0;    // h = window / 2
+  int extent_ = 0;  // E = edge_extent with the height test, else 0
+  bool htest_ = false;  // the height test is on
+  bool sums_ = false;   // height pass 1 / heights run by running window sums (kAll or the test)
+  std::ptrdiff_t ring_ = 0;  // rows kept: the longest look-back + 2
+  std::ptrdiff_t ext_ = 0;   // max(2R, 2h)
+  std::ptrdiff_t phys_ = 0;  // rows stored: ring_ + ext_, rows in slots [0, ext_) again at the
+                             // end, so that any ext_ + 1 consecutive rows form one GridView
   int max_scale_ = 1;
   bool fast_ = false;  // pass 1 may use the vectorised kernel
   double cos0_ = 0.0;
@@ -149,6 +179,27 @@ class ProfileStream {
                                      // may be flagged; bit 31: a neighbour is missing
   std::int64_t pushed_ = 0, emitted_ = 0;
   bool finished_ = false;
+
+  // Height test and heights (stream_stages.cpp).
+  std::vector<std::uint8_t> hm_;   // ring_ rows: window classes and stage bits (kS* there)
+  std::vector<std::uint8_t> hs_;   // ring_ rows: height pass that removed the cell, 255 none
+  std::vector<std::uint8_t> hrow_; // ring_ rows: want bits of the row (any cell)
+  std::vector<double> height_;     // ring_ rows
+  std::int64_t next_final_ = 0, next_compact_ = 0, next_out_ = 0;
+  std::vector<std::int64_t> next_pass_;  // [p]: next row of height pass p (1..passes_)
+  std::vector<std::int64_t> queue_;      // EDGE grouping, (2E + 1) * width cells
+  std::vector<std::uint8_t> local_;      // one window's classes / labels
+  // Running window sums of height pass 1: column strips of kStrip cells, each with its own
+  // origin, two sets (the current and the next origin band, kBand rows apart).
+  std::ptrdiff_t strips_ = 0, span_ = 0, stride_ = 0, band_ = 0;
+  std::vector<double> cs_;      // 2 sets x strips x kMoments x stride_
+  std::vector<double> origin_;  // 2 sets x strips x 3
+  std::vector<std::uint8_t> has_origin_;  // 2 sets x strips
+  std::int64_t set_first_[2] = {0, 0};  // first row added to each set
+  int cur_ = 0;                           // the set in use
+  std::int64_t sums_next_ = 0;            // next row to add
+  std::vector<double> fit_buf_;           // S, Q, F and one row's relative coordinates
+  std::vector<std::uint8_t> fit_flags_;   // ok, redo
 };
 
 namespace nothrow {

@@ -107,6 +107,8 @@ void bind_params(py::module_& m) {
   m.def("paper_params", &miem::paper_params, "The paper's method exactly.");
   m.def("recommended_params", &miem::recommended_params, "The recommended preset.");
   m.def("paper_points_params", &miem::paper_points_params, "The paper's method on clouds.");
+  m.def("stream_lag", &miem::stream_lag, py::arg("params"),
+        "Profiles between pushing a row into a ProfileStream and getting it back final.");
   m.def("stream_default_params", &miem::stream_default_params,
         "The default parameters of a ProfileStream.");
   m.def(

@@ -24,7 +24,7 @@ class PyProfileStream {
   PyProfileStream(std::ptrdiff_t width, const miem::DetectParams& params)
       : stream_(width, params) {}
 
-  // Returns (status code, message, row index or -1, labels or None).
+  // Returns (status code, message, row index or -1, labels or None, heights or None).
   py::tuple push(const py::array& profile) {
     const Exclusive guard(busy_);
     if (!miem::bindings::is_dtype<T>(profile)) {
@@ -41,15 +41,16 @@ class PyProfileStream {
       py::gil_scoped_release nogil;
       st = stream_.push(view, &row);
     }
-    return py::make_tuple(static_cast<int>(st.code), st.message, row.index, labels(row));
+    return py::make_tuple(static_cast<int>(st.code), st.message, row.index, labels(row),
+                          heights(row));
   }
 
-  // Every pending row as (row index, labels), oldest first.
+  // Every pending row as (row index, labels, heights), oldest first.
   py::list flush() {
     const Exclusive guard(busy_);
     py::list out;
     miem::StreamRow row;
-    while (stream_.flush(&row)) out.append(py::make_tuple(row.index, labels(row)));
+    while (stream_.flush(&row)) out.append(py::make_tuple(row.index, labels(row), heights(row)));
     return out;
   }
 
@@ -89,6 +90,13 @@ class PyProfileStream {
     if (!row.ready()) return py::none();
     py::array_t<std::uint8_t> a(stream_.width());
     std::copy(row.labels, row.labels + stream_.width(), a.mutable_data());
+    return std::move(a);
+  }
+
+  py::object heights(const miem::StreamRow& row) const {
+    if (!row.ready()) return py::none();
+    py::array_t<double> a(stream_.width());
+    std::copy(row.height, row.height + stream_.width(), a.mutable_data());
     return std::move(a);
   }
 

@@ -1,0 +1,400 @@
+// The stream's stages after the angle passes (docs/SPEC.md "Streaming"): the compact EDGE groups,
+// the height passes and the heights, each run on one row per push at its own lag behind the
+// angle passes, with the batch stages' own routines (window_fits.hpp: the row moments, the
+// vectorised eigen solve, the direct window fit; stages.hpp: the height test's verdict;
+// judge.hpp: the window plane of HeightMode::kAbnormal).
+//
+// Height pass 1 fits every finite cell of its row from running window sums: column sums over
+// the window's rows (one row in, one row out per push), box sums along the row, per strip of
+// kStrip columns with the strip's own origin (as the batch tiles), and a new origin every band_
+// rows: the next band's sums are built alongside the current ones over the 2h + 1 rows before
+// it, so no push does more than one extra row. A removal marks the cells within h for the next
+// pass (fitted directly, few cells) and for the heights (their pass-1 height is stale).
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+
+#include "miem/stream.hpp"
+#include "stages.hpp"
+#include "window_fits.hpp"
+
+namespace miem {
+
+namespace {
+
+using detail::kInPlane;
+using detail::kLine;
+using detail::kMoments;
+
+// Bits of hm_ besides kInPlane (NORMAL after the angle passes) and kLine (EDGE of a group that
+// is not compact): what add_row_moments reads, so a row of hm_ is its own window classes.
+constexpr std::uint8_t kSEdge = 4;       // EDGE after the angle passes
+constexpr std::uint8_t kSCompact = 8;    // EDGE of a compact group
+constexpr std::uint8_t kSSeen = 16;      // grouped
+constexpr std::uint8_t kSWantEven = 32;  // re-fit at the next even / odd height pass
+constexpr std::uint8_t kSWantOdd = 64;
+constexpr std::uint8_t kSStale = 128;  // a cell within h was removed: the pass-1 height is stale
+constexpr std::ptrdiff_t kStrip = 128;
+constexpr std::uint8_t kNever = 255;  // hs_: not removed by the height test
+
+constexpr std::uint8_t want_bit(int pass) { return (pass & 1) ? kSWantOdd : kSWantEven; }
+
+}  // namespace
+
+template <typename T>
+void ProfileStream<T>::init_stages() {
+  const std::ptrdiff_t W = width_, n1 = ring_ * W;
+  hm_.assign(static_cast<std::size_t>(n1), 0);
+  hs_.assign(static_cast<std::size_t>(n1), kNever);
+  hrow_.assign(static_cast<std::size_t>(ring_), 0);
+  height_.assign(static_cast<std::size_t>(n1), detail::kNaN);
+  next_pass_.assign(static_cast<std::size_t>(passes_) + 1, 0);
+  queue_.reserve(static_cast<std::size_t>((2 * extent_ + 1) * W));
+  const std::ptrdiff_t side = 2 * static_cast<std::ptrdiff_t>(half_) + 1;
+  local_.assign(static_cast<std::size_t>(side * side), 0);
+  const std::ptrdiff_t cap = std::min(W, kStrip);
+  strips_ = (W + kStrip - 1) / kStrip;
+  span_ = std::min(W, kStrip + 2 * half_);
+  stride_ = span_ + 2 * (half_ + 1);
+  band_ = std::max<std::ptrdiff_t>(64, 2 * half_ + 2);
+  if (sums_) {
+    cs_.assign(static_cast<std::size_t>(2 * strips_ * kMoments * stride_), 0.0);
+    origin_.assign(static_cast<std::size_t>(2 * strips_ * 3), 0.0);
+    has_origin_.assign(static_cast<std::size_t>(2 * strips_), 0);
+    fit_buf_.assign(static_cast<std::size_t>((kMoments + 3 + 4) * cap + 3 * span_), 0.0);
+    fit_flags_.assign(static_cast<std::size_t>(2 * cap), 0);
+  }
+  reset_stages();
+}
+
+template <typename T>
+void ProfileStream<T>::reset_stages() noexcept {
+  next_final_ = next_compact_ = next_out_ = 0;
+  std::fill(next_pass_.begin(), next_pass_.end(), 0);
+  std::fill(cs_.begin(), cs_.end(), 0.0);
+  std::fill(has_origin_.begin(), has_origin_.end(), 0);
+  set_first_[0] = 0;
+  set_first_[1] = band_ - half_;
+  cur_ = 0;
+  sums_next_ = 0;
+}
+
+template <typename T>
+void ProfileStream<T>::run_stages(bool to_end) noexcept {
+  const std::int64_t last = pushed_ - 1;
+  auto upto = [&](long long offset) { return to_end ? last : last - offset; };
+  const long long A = alag_, E = extent_, h = half_;
+  for (const std::int64_t lim = upto(A); next_final_ <= lim;) angle_final_row(next_final_++);
+  if (htest_) {
+    for (const std::int64_t lim = upto(A + E); next_compact_ <= lim;) compact_row(next_compact_++);
+  }
+  if (sums_) {
+    std::int64_t& next = next_pass_[1];
+    for (const std::int64_t lim = upto(A + E + h); next <= lim;) height_pass1_row(next++);
+  }
+  if (htest_) {
+    for (int p = 2; p <= passes_; ++p) {
+      std::int64_t& next = next_pass_[static_cast<std::size_t>(p)];
+      for (const std::int64_t lim = upto(A + E + p * h); next <= lim;) height_pass_row(next++, p);
+    }
+  }
+  for (const std::int64_t lim = upto(lag_); next_out_ <= lim;) final_row(next_out_++);
+}
+
+// The angle labels of `row` are final: keep its classes (NORMAL, EDGE) for the later stages.
+template <typename T>
+void ProfileStream<T>::angle_final_row(std::int64_t row) noexcept {
+  const std::ptrdiff_t W = width_, s = slot(row);
+  const std::uint8_t* lab = labels_.data() + s * W;
+  std::uint8_t* hm = hm_.data() + s * W;
+  for (std::ptrdiff_t c = 0; c < W; ++c) {
+    hm[c] |= lab[c] == kNormal ? kInPlane : (lab[c] == kEdge ? kSEdge : 0);
+  }
+}
+
+// The EDGE groups through `row` (SPEC "height_tolerance": compact when the bounding box's longer
+// side is at most E cells). A compact group lies within E - 1 rows of each of its cells, so the
+// group of a cell, searched within E rows of it, is either whole (and its box decides) or reaches
+// E rows away (not compact). Every cell a search reaches is marked seen, with its verdict.
+template <typename T>
+void ProfileStream<T>::compact_row(std::int64_t row) noexcept {
+  const std::ptrdiff_t W = width_;
+  std::uint8_t* hm0 = hm_.data() + slot(row) * W;
+  const std::int64_t lo = std::max<std::int64_t>(0, row - extent_);
+  const std::int64_t hi = std::min<std::int64_t>(pushed_ - 1, row + extent_);
+  for (std::ptrdiff_t c = 0; extent_ > 0 && c < W; ++c) {
+    if ((hm0[c] & (kSEdge | kSSeen)) != kSEdge) continue;
+    queue_.clear();
+    queue_.push_back(row * W + c);
+    hm0[c] |= kSSeen | kSCompact;  // tentatively compact
+    std::int64_t r0 = row, r1 = row;
+    std::ptrdiff_t c0 = c, c1 = c;
+    bool long_group = false;  // meets a cell of a group already found not compact
+    for (std::size_t head = 0; head < queue_.size(); ++head) {
+      const std::int64_t r = queue_[head] / W;
+      const std::ptrdiff_t cc = static_cast<std::ptrdiff_t>(queue_[head] % W);
+      r0 = std::min(r0, r), r1 = std::max(r1, r), c0 = std::min(c0, cc), c1 = std::max(c1, cc);
+      for (std::int64_t rr = std::max(lo, r - 1); rr <= std::min(hi, r + 1); ++rr) {
+        std::uint8_t* hm = hm_.data() + slot(rr) * W;
+        for (std::ptrdiff_t q = std::max<std::ptrdiff_t>(0, cc - 1);
+             q <= std::min<std::ptrdiff_t>(W - 1, cc + 1); ++q) {
+          const std::uint8_t b = hm[q];
+          if (!(b & kSEdge)) continue;
+          if (b & kSSeen) {
+            long_group |= !(b & kSCompact);
+            continue;
+          }
+          hm[q] = static_cast<std::uint8_t>(b | kSSeen | kSCompact);
+          queue_.push_back(rr * W + q);
+        }
+      }
+    }
+    if (long_group || std::max<std::int64_t>(r1 - r0, c1 - c0) + 1 > extent_) {
+      for (const std::int64_t i : queue_) {
+        hm_[static_cast<std::size_t>(slot(i / W) * W + i % W)] &=
+            static_cast<std::uint8_t>(~kSCompact);
+      }
+    }
+  }
+  for (std::ptrdiff_t c = 0; c < W; ++c) {
+    if ((hm0[c] & (kSEdge | kSCompact)) == kSEdge) hm0[c] |= kLine;
+  }
+}
+
+// Adds (sign 1) or removes (sign -1) the window classes of `row` to the column sums of `set`.
+template <typename T>
+void ProfileStream<T>::sums_add_row(int set, std::int64_t row, double sign) noexcept {
+  const std::ptrdiff_t W = width_, pad = half_ + 1, plane = phys_ * W;
+  const GridView<T> g{xyz_.data() + slot(row) * W, 1, W, W, 1, plane};
+  const std::uint8_t* hm = hm_.data() + slot(row) * W;
+  double* x = fit_buf_.data() + (kMoments + 3 + 4) * std::min(W, kStrip);
+  for (std::ptrdiff_t t = 0; t < strips_; ++t) {
+    const std::ptrdiff_t tc0 = t * kStrip, tc1 = std::min(W, tc0 + kStrip);
+    const std::ptrdiff_t C0 = std::max<std::ptrdiff_t>(0, tc0 - half_);
+    const std::ptrdiff_t C1 = std::min<std::ptrdiff_t>(W, tc1 + half_);
+    const std::size_t k = static_cast<std::size_t>(set * strips_ + t);
+    double* o = origin_.data() + 3 * k;
+    if (!has_origin_[k] && sign > 0.0) {  // the strip's first NORMAL cell (before it, the
+      for (std::ptrdiff_t c = C0; c < C1; ++c) {  // rows added nothing but line counts)
+        if (hm[c] & kInPlane) {
+          const Eigen::Vector3d p = g(0, c);
+          o[0] = p.x(), o[1] = p.y(), o[2] = p.z();
+          has_origin_[k] = 1;
+          break;
+        }
+      }
+    }
+    detail::load_rel(g, 0, C0, C1 - C0, o[0], o[1], o[2], x, x + span_, x + 2 * span_);
+    detail::add_row_moments(hm + C0, C1 - C0, x, x + span_, x + 2 * span_, sign,
+                            cs_.data() + k * kMoments * stride_ + pad, stride_);
+  }
+}
+
+// Height pass 1 on `row` (and the heights of HeightMode::kAll): the window plane of every finite
+// cell from the running sums.
+template <typename T>
+void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
+  const std::ptrdiff_t W = width_, h = half_, pad = h + 1, plane = phys_ * W;
+  // The sums hold rows [row - h, row + h] (clipped): add the rows up to row + h, to the next
+  // band's set too from its first row, and drop row - h - 1.
+  const std::int64_t band = row / band_;
+  if (row == band * band_ && band > 0 && set_first_[cur_] != band * band_ - h) {
+    cur_ ^= 1;  // the next band's set, built over the last 2h + 1 rows, takes over
+  }
+  const int nxt = cur_ ^ 1;
+  const std::int64_t next_first = (band + 1) * band_ - h;
+  for (const std::int64_t lim = std::min<std::int64_t>(pushed_ - 1, row + h); sums_next_ <= lim;) {
+    const std::int64_t r = sums_next_++;
+    sums_add_row(cur_, r, 1.0);
+    if (r == next_first) {  // start the next set afresh
+      const std::size_t n = static_cast<std::size_t>(strips_ * kMoments * stride_);
+      std::fill(cs_.begin() + static_cast<std::ptrdiff_t>(nxt * n),
+                cs_.begin() + static_cast<std::ptrdiff_t>((nxt + 1) * n), 0.0);
+      std::fill(has_origin_.begin() + nxt * strips_, has_origin_.begin() + (nxt + 1) * strips_, 0);
+      set_first_[nxt] = next_first;
+    }
+    if (r >= next_first) sums_add_row(nxt, r, 1.0);
+  }
+  if (row - h - 1 >= set_first_[cur_]) sums_add_row(cur_, row - h - 1, -1.0);
+
+  const std::ptrdiff_t cap = std::min(W, kStrip), s = slot(row);
+  double* S = fit_buf_.data();
+  double* Q = S + kMoments * cap;
+  double* F = Q + 3 * cap;
+  std::uint8_t* okf = fit_flags_.data();
+  std::uint8_t* redo = okf + cap;
+  const GridView<T> g{xyz_.data() + s * W, 1, W, W, 1, plane};
+  const std::uint8_t* st = state_.data() + s * W;
+  std::uint8_t* hm = hm_.data() + s * W;
+  double* height = height_.data() + s * W;
+  for (std::ptrdiff_t t = 0; t < strips_; ++t) {
+    const std::ptrdiff_t tc0 = t * kStrip, tc1 = std::min(W, tc0 + kStrip), n = tc1 - tc0;
+    const std::ptrdiff_t C0 = std::max<std::ptrdiff_t>(0, tc0 - h);
+    const std::size_t k = static_cast<std::size_t>(cur_ * strips_ + t);
+    const double* o = origin_.data() + 3 * k;
+    const double* col = cs_.data() + k * kMoments * stride_ + pad + (tc0 - C0);
+    double acc[kMoments];  // box sums along the row: one column in and one out per cell
+    for (int m = 0; m < kMoments; ++m) {
+      double a = 0.0;
+      for (std::ptrdiff_t d = -h; d <= h; ++d) a += col[m * stride_ + d];
+      acc[m] = a;
+    }
+    for (std::ptrdiff_t j = 0; j < n; ++j) {
+      if (j > 0) {
+        for (int m = 0; m < kMoments; ++m)
+          acc[m] += col[m * stride_ + j + h] - col[m * stride_ + j - h - 1];
+      }
+      for (int m = 0; m < kMoments; ++m) S[m * cap + j] = acc[m];
+    }
+    for (std::ptrdiff_t j = 0; j < n; ++j) {
+      S[j] = std::round(S[j]);
+      S[10 * cap + j] = std::round(S[10 * cap + j]);
+    }
+    detail::load_rel(g, 0, tc0, n, o[0], o[1], o[2], Q, Q + cap, Q + 2 * cap);
+    detail::solve_fits(n, cap, S, Q, F, okf, redo);
+    for (std::ptrdiff_t j = 0; j < n; ++j) {
+      const std::ptrdiff_t c = tc0 + j;
+      if (st[c] == 0) {
+        height[c] = detail::kNaN;
+        continue;
+      }
+      detail::WindowFit f;
+      if (redo[j]) {
+        double sums[kMoments];
+        for (int m = 0; m < kMoments; ++m) sums[m] = S[m * cap + j];
+        f = detail::fit_from_sums(sums, Eigen::Vector3d(Q[j], Q[cap + j], Q[2 * cap + j]));
+      } else {
+        f.ok = okf[j] != 0;
+        f.n = S[j];
+        f.height = F[j];
+        f.l0 = F[cap + j];
+        f.l1 = F[2 * cap + j];
+        f.l2 = F[3 * cap + j];
+      }
+      f.edges = S[10 * cap + j];
+      height[c] = f.ok ? f.height : detail::kNaN;
+      if (htest_ && (hm[c] & (kInPlane | kSCompact)) && detail::height_far(f, params_)) {
+        remove_height(row, c, 1);
+      }
+    }
+  }
+}
+
+// The window of cell (row, col) with the classes of height pass `pass` (kNever: the final
+// labels, for the heights), handed to fit(sub-grid, classes, r, c) as a grid of its own.
+template <typename T>
+template <typename Fit>
+void ProfileStream<T>::window_fit(std::int64_t row, std::ptrdiff_t col, int pass,
+                                  Fit fit) noexcept {
+  const std::ptrdiff_t W = width_, h = half_;
+  const std::int64_t r0 = std::max<std::int64_t>(0, row - h);
+  const std::int64_t r1 = std::min<std::int64_t>(pushed_ - 1, row + h);
+  const std::ptrdiff_t c0 = std::max<std::ptrdiff_t>(0, col - h);
+  const std::ptrdiff_t c1 = std::min<std::ptrdiff_t>(W - 1, col + h), nc = c1 - c0 + 1;
+  const bool lines = pass != kNever;
+  std::uint8_t* loc = local_.data();
+  for (std::int64_t rr = r0; rr <= r1; ++rr) {
+    const std::uint8_t* hm = hm_.data() + slot(rr) * W;
+    const std::uint8_t* hs = hs_.data() + slot(rr) * W;
+    for (std::ptrdiff_t cc = c0; cc <= c1; ++cc) {
+      const std::uint8_t b = hm[cc];
+      *loc++ = ((b & kInPlane) && hs[cc] >= pass) ? kInPlane
+                                                  : ((lines && (b & kLine)) ? kLine : 0);
+    }
+  }
+  // Rows r0..r1 are consecutive in memory (the ring's extension, see phys_).
+  const GridView<T> sub{xyz_.data() + slot(r0) * W + c0, static_cast<std::ptrdiff_t>(r1 - r0 + 1),
+                        nc, W, 1, phys_ * W};
+  fit(sub, local_.data(), static_cast<std::ptrdiff_t>(row - r0), col - c0);
+}
+
+// Height pass `pass` >= 2 on `row`: the candidates whose window a removal of the pass before
+// changed, fitted directly.
+template <typename T>
+void ProfileStream<T>::height_pass_row(std::int64_t row, int pass) noexcept {
+  const std::ptrdiff_t W = width_, s = slot(row);
+  const std::uint8_t bit = want_bit(pass);
+  if (!(hrow_[s] & bit)) return;
+  hrow_[s] = static_cast<std::uint8_t>(hrow_[s] & ~bit);
+  std::uint8_t* hm = hm_.data() + s * W;
+  const std::uint8_t* hs = hs_.data() + s * W;
+  for (std::ptrdiff_t c = 0; c < W; ++c) {
+    if (!(hm[c] & bit)) continue;
+    hm[c] = static_cast<std::uint8_t>(hm[c] & ~bit);
+    if (hs[c] != kNever || !(hm[c] & (kInPlane | kSCompact))) continue;
+    bool far = false;
+    window_fit(row, c, pass, [&](const GridView<T>& g, const std::uint8_t* cls, std::ptrdiff_t r,
+                                 std::ptrdiff_t cc) {
+      far = detail::height_far(detail::direct_fit(g, cls, r, cc, half_), params_);
+    });
+    if (far) remove_height(row, c, pass);
+  }
+}
+
+// A removal by height pass `pass`: the cell becomes ABNORMAL; the cells within h are re-fitted at
+// the next pass and their pass-1 heights are stale.
+template <typename T>
+void ProfileStream<T>::remove_height(std::int64_t row, std::ptrdiff_t col, int pass) noexcept {
+  const std::ptrdiff_t W = width_, h = half_, s = slot(row);
+  labels_[s * W + col] = kAbnormal;
+  hs_[s * W + col] = static_cast<std::uint8_t>(pass);
+  const std::uint8_t bits =
+      static_cast<std::uint8_t>(kSStale | (pass < passes_ ? want_bit(pass + 1) : 0));
+  const std::ptrdiff_t c0 = std::max<std::ptrdiff_t>(0, col - h);
+  const std::ptrdiff_t c1 = std::min<std::ptrdiff_t>(W - 1, col + h);
+  for (std::int64_t rr = std::max<std::int64_t>(0, row - h);
+       rr <= std::min<std::int64_t>(pushed_ - 1, row + h); ++rr) {
+    std::uint8_t* hm = hm_.data() + slot(rr) * W;
+    for (std::ptrdiff_t cc = c0; cc <= c1; ++cc) hm[cc] |= bits;
+    hrow_[slot(rr)] |= bits & (kSWantEven | kSWantOdd);
+  }
+}
+
+// The heights of `row` over its final window: the pass-1 height where no removal touched the
+// window, else a direct fit (HeightMode::kAll); the window plane of each ABNORMAL cell, as
+// batch detection computes it (kAbnormal).
+template <typename T>
+void ProfileStream<T>::final_row(std::int64_t row) noexcept {
+  const std::ptrdiff_t W = width_, s = slot(row);
+  const std::uint8_t* hm = hm_.data() + s * W;
+  const std::uint8_t* lab = labels_.data() + s * W;
+  double* height = height_.data() + s * W;
+  if (params_.height_mode == HeightMode::kAbnormal) {
+    for (std::ptrdiff_t c = 0; c < W; ++c) {
+      height[c] = detail::kNaN;
+      if (lab[c] != kAbnormal) continue;
+      window_fit(row, c, kNever, [&](const GridView<T>& g, const std::uint8_t* cls,
+                                     std::ptrdiff_t r, std::ptrdiff_t cc) {
+        // window_plane reads labels: NORMAL (0) where the class is kInPlane, else INVALID
+        for (std::size_t i = 0; i < local_.size(); ++i) {
+          local_[i] = cls[i] == kInPlane ? kNormal : kInvalid;
+        }
+        Plane pl;
+        if (detail::window_plane(g, local_.data(), r, cc, half_, &pl) == PlaneStatus::kOk) {
+          height[c] = pl.signed_distance(g(r, cc));
+        }
+      });
+    }
+    return;
+  }
+  if (!htest_) return;  // the pass-1 heights are final
+  for (std::ptrdiff_t c = 0; c < W; ++c) {
+    if (!(hm[c] & kSStale) || lab[c] == kInvalid) continue;
+    window_fit(row, c, kNever, [&](const GridView<T>& g, const std::uint8_t* cls,
+                                   std::ptrdiff_t r, std::ptrdiff_t cc) {
+      const detail::WindowFit f = detail::direct_fit(g, cls, r, cc, half_);
+      height[c] = f.ok ? f.height : detail::kNaN;
+    });
+  }
+}
+
+// The members defined here (stream.cpp instantiates the others).
+#define MIEM_STREAM_STAGES(T)                                                               \
+  template void ProfileStream<T>::init_stages();                                           \
+  template void ProfileStream<T>::reset_stages() noexcept;                                 \
+  template void ProfileStream<T>::run_stages(bool) noexcept;
+MIEM_STREAM_STAGES(float)
+MIEM_STREAM_STAGES(double)
+#undef MIEM_STREAM_STAGES
+
+}  // namespace miem
