@@ -54,12 +54,18 @@ def test_default_is_the_recommended_preset_on_every_path() -> None:
     np.testing.assert_array_equal(miem.detect(pts).labels,
                                   miem.detect(pts, preset="recommended").labels)
     assert miem.detect(pts).params["height_tolerance"] == "7rms"
-    # the stream: the recommended angle test; the height test it does not implement is off
+    # the stream: the recommended detector, height test included, but for the edge test and
+    # min_step="auto" (in C++ too)
     d = miem.default_params("stream")
-    assert (d.angle.theta0, d.angle.scales) == (90.0, (1, 2))
-    assert d.grid.height_tolerance is None and d.grid.edge_extent == 0
+    assert d.grid.height_tolerance == "4.5rms" and d.grid.edge_extent == 12
     assert d.grid.edge_tolerance is None and d.grid.min_step is None  # the edge test, auto step
+    assert d.replace(edge_tolerance=4.0, min_step="auto").grid == miem.PRESETS["recommended"].grid
     assert miem.ProfileStream(8).params == d
+    cs, cd = core.stream_default_params(), core.DetectParams()
+    for name in ("theta0_deg", "scales", "height_k", "height_abs", "edge_extent", "window",
+                 "max_iterations", "max_gap"):
+        assert getattr(cs, name) == getattr(cd, name), name
+    assert (cs.edge_k, cs.min_step_auto, cd.min_step_auto) == (0.0, False, True)
 
 
 def test_presets_are_the_accuracy_benchmark_and_the_reference() -> None:

@@ -21,14 +21,17 @@ using miem::StatusCode;
 // the order on the way.
 template <typename T>
 std::vector<std::uint8_t> stream_labels(const std::vector<T>& grid, std::ptrdiff_t H,
-                                        std::ptrdiff_t W, const miem::DetectParams& p) {
+                                        std::ptrdiff_t W, const miem::DetectParams& p,
+                                        std::vector<double>* heights = nullptr) {
   miem::ProfileStream<T> s(W, p);
   std::vector<std::uint8_t> out(static_cast<std::size_t>(H * W), 99);
+  if (heights != nullptr) heights->assign(static_cast<std::size_t>(H * W), -1e300);
   std::int64_t next = 0;
   auto take = [&](const miem::StreamRow& row) {
     EXPECT_EQ(row.index, next);
     if (row.index < 0 || row.index >= H) return;
     std::copy(row.labels, row.labels + W, out.begin() + row.index * W);
+    if (heights != nullptr) std::copy(row.height, row.height + W, heights->begin() + row.index * W);
     ++next;
   };
   for (std::ptrdiff_t r = 0; r < H; ++r) {
@@ -54,15 +57,24 @@ void expect_stream_equals_batch(const std::vector<double>& grid_d, std::ptrdiff_
   const std::vector<T> grid(grid_d.begin(), grid_d.end());
   const miem::DetectResult batch =
       miem::detect_organized(miem::GridView<T>::dense(grid.data(), H, W), p);
-  const std::vector<std::uint8_t> streamed = stream_labels(grid, H, W, p);
-  std::size_t bad = 0;
+  std::vector<double> heights;
+  const std::vector<std::uint8_t> streamed = stream_labels(grid, H, W, p, &heights);
+  std::size_t bad = 0, bad_height = 0;
   for (std::size_t i = 0; i < streamed.size(); ++i) {
     if (streamed[i] != batch.labels[i] && ++bad <= 10) {
       ADD_FAILURE() << "cell (" << i / W << ", " << i % W << "): stream " << int(streamed[i])
                     << ", batch " << int(batch.labels[i]);
     }
+    // Heights: the same window planes summed in another order, equal up to rounding.
+    const double a = heights[i], b = batch.height[i];
+    const bool same = std::isnan(b) ? std::isnan(a) : std::abs(a - b) <= 1e-9;
+    if (!same && ++bad_height <= 10) {
+      ADD_FAILURE() << "cell (" << i / W << ", " << i % W << "): stream height " << a
+                    << ", batch " << b;
+    }
   }
   EXPECT_EQ(bad, 0u) << "of " << streamed.size() << " cells";
+  EXPECT_EQ(bad_height, 0u) << "of " << streamed.size() << " cells";
   // The scans must exercise the method: some ABNORMAL cells, and cascades when iterating.
   std::size_t abnormal = 0;
   for (auto l : batch.labels) abnormal += l == miem::kAbnormal;
@@ -79,7 +91,23 @@ std::vector<Named> param_sets() {
   std::vector<Named> v;
   miem::DetectParams p = miem::paper_params();
   v.push_back({"paper", p});
-  v.push_back({"stream_default", miem::stream_default_params()});
+  v.push_back({"recommended", miem::DetectParams{}, 260, 70});  // lag 152: push and flush
+  p = miem::DetectParams{};
+  p.height_mode = miem::HeightMode::kAbnormal;
+  v.push_back({"recommended_abnormal_heights", p, 260, 70});
+  p = miem::DetectParams{};
+  p.max_iterations = 3;
+  p.window = 7;
+  p.edge_extent = 4;
+  v.push_back({"height_test_short_lag", p, 120, 70});
+  p = miem::DetectParams{};
+  p.height_k = 0.0;
+  p.height_abs = 0.05;
+  p.window = 9;
+  v.push_back({"height_abs_window9", p, 120, 70});
+  p = miem::paper_params();
+  p.window = 9;
+  v.push_back({"paper_window9", p});
   p = miem::paper_params();
   p.scales = {1, 2};
   p.max_gap = 2;
@@ -138,19 +166,22 @@ TEST_P(StreamEqualsBatch, FloatProfiles) {
 INSTANTIATE_TEST_SUITE_P(Params, StreamEqualsBatch, ::testing::ValuesIn(param_sets()),
                          [](const auto& info) { return std::string(info.param.name); });
 
-TEST(Stream, LagIsPassesTimesReach) {
+// L = P R + E + (P + 1) h with the height test, P R + h without (docs/SPEC.md "Streaming").
+TEST(Stream, LagFormula) {
   miem::DetectParams p = miem::paper_params();
-  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 20);  // 10 * (1 + 1)
+  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 20 + 10);  // 10 * (1 + 1) + 21 / 2
   p.scales = {1, 2};
   p.max_gap = 2;
   p.max_iterations = 3;
   miem::ProfileStream<float> s(16, p);
   EXPECT_EQ(s.reach(), 4);
-  EXPECT_EQ(s.lag(), 12);
+  EXPECT_EQ(s.lag(), 12 + 10);
   p = miem::paper_params();
   p.min_step = 0.1;
   p.max_reach = 5;
-  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 10 * (1 + 1 + 5));
+  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 10 * (1 + 1 + 5) + 10);
+  EXPECT_EQ(miem::ProfileStream<>(16).lag(), 10 * 3 + 12 + 11 * 10);  // the default: 152
+  EXPECT_EQ(miem::stream_lag(miem::DetectParams{}), 152);
 }
 
 TEST(Stream, ThresholdGrazingAnglesMatchBatch) {
@@ -329,9 +360,7 @@ TEST(Stream, RejectsFieldsItDoesNotHonour) {
   };
   const Case cases[] = {
       {"theta0_auto", [](miem::DetectParams& p) { p.theta0_auto = true; }},
-      {"height_abs", [](miem::DetectParams& p) { p.height_abs = 0.1; }},
-      {"height_abs, height_k", [](miem::DetectParams& p) { p.height_k = 4.5; }},
-      {"edge_extent", [](miem::DetectParams& p) { p.edge_extent = 12; }},
+      {"edge_k", [](miem::DetectParams& p) { p.edge_k = 3.0; }},
   };
   for (const Case& c : cases) {
     miem::DetectParams p = miem::stream_default_params();
@@ -349,18 +378,19 @@ TEST(Stream, RejectsFieldsItDoesNotHonour) {
       EXPECT_STREQ(e.what(), st.message);
     }
   }
-  // The recommended preset itself has the height test: rejected until the stream implements it.
+  // The recommended preset, height test included, is the stream's default.
   std::optional<miem::ProfileStream<double>> s;
-  EXPECT_EQ(miem::nothrow::make_stream(10, miem::DetectParams{}, &s).code,
-            StatusCode::kInvalidParameter);
-  // The stream's default is the recommended angle test.
+  EXPECT_TRUE(miem::nothrow::make_stream(10, miem::DetectParams{}, &s).ok());
   const miem::DetectParams d = miem::stream_default_params();
   const miem::DetectParams r;
   EXPECT_EQ(d.theta0_deg, r.theta0_deg);
   EXPECT_EQ(d.scales, r.scales);
   EXPECT_EQ(d.max_gap, r.max_gap);
   EXPECT_EQ(d.max_iterations, r.max_iterations);
-  EXPECT_EQ(miem::ProfileStream<>(10).params().scales, r.scales);
+  EXPECT_EQ(d.height_k, r.height_k);
+  EXPECT_EQ(d.edge_extent, r.edge_extent);
+  EXPECT_EQ(d.window, r.window);
+  EXPECT_EQ(miem::ProfileStream<>(10).params().height_k, r.height_k);
 }
 
 }  // namespace

@@ -73,7 +73,13 @@ void run_without_allocating(const miem::DetectParams& p) {
 
 TEST(StreamAlloc, NoAllocationPerProfileDouble) {
   ASSERT_GT(g_news.load(), -1);
-  run_without_allocating<double>(miem::stream_default_params());
+  run_without_allocating<double>(miem::stream_default_params());  // the whole default detector
+}
+
+TEST(StreamAlloc, NoAllocationDefaultFloatAbnormalHeights) {
+  miem::DetectParams p;
+  p.height_mode = miem::HeightMode::kAbnormal;
+  run_without_allocating<float>(p);
 }
 
 TEST(StreamAlloc, NoAllocationPerProfileFloatScales) {
