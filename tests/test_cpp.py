@@ -8,6 +8,7 @@ with the end of the build or test log. Skipped only when GoogleTest is not insta
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -131,3 +132,5 @@ def test_readme_cpp_snippet_builds_and_runs(plain_build: Path, tmp_path: Path) -
     _check(_run(["cmake", "--build", str(build)]), "build the README snippet")
     out = _check(_run([str(build / "controller")]), "run the README snippet")
     assert "defects" in out, out
+    m = re.search(r"ABNORMAL points: batch (\d+), stream (\d+)", out)
+    assert m and m.group(1) == m.group(2) and int(m.group(1)) > 0, out  # the same detector

@@ -68,7 +68,7 @@ int main(int argc, char** argv) {
       pool[static_cast<std::size_t>(r * W + c)] =
           0.3 * std::sin(c * dx / 9.0) + 0.02 * std::sin(6.2831853 * r / pool_rows) + noise(rng);
 
-  miem::DetectParams params;  // defaults: theta0 75, scales {1}, max_gap 1, 10 passes
+  miem::DetectParams params;  // the default preset (recommended), the whole detector
   miem::ProfileStream<double> stream(W, params);
   std::vector<double> profile(static_cast<std::size_t>(W * 3));
   std::vector<double> lat;

@@ -168,7 +168,7 @@ int main(int argc, char** argv) {
     return 2;
   }
 
-  // The stream's default: the recommended angle test (theta0 90, scales {1, 2}).
+  // The stream's default: the whole recommended detector (angle and height tests, heights).
   const miem::DetectParams params = miem::stream_default_params();
   std::optional<miem::ProfileStream<float>> stream;
   const miem::Status made = miem::nothrow::make_stream(width, params, &stream);
