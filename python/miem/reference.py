@@ -25,7 +25,7 @@ Floating-point conventions (so that a careful core can match bit for bit where i
   75.0), 170.0)``, then the threshold cosine as above;
 * height test: ``h = n . P + d`` with ``d = -n . centroid`` of the window plane; absolute form
   ``|h| > t``; rms form ``|h| > k * sqrt(max(l0, 0) / n)`` and
-  ``|h| > 1e-9 * sqrt((l1 + l2) / n)``, ``n`` the number of NORMAL cells in the window.
+  ``|h| > 1e-6 * sqrt((l1 + l2) / n)``, ``n`` the number of NORMAL cells in the window.
 """
 
 from __future__ import annotations
@@ -848,8 +848,12 @@ _AUTO_K = 6.0
 _AUTO_MIN = 75.0
 _AUTO_MAX = 170.0
 _AUTO_MAD = 0.6745
-# Height test, rms form: |h| must also exceed this times sqrt((l1 + l2) / n) (round-off floor).
+# Height test, rms form: |h| must also exceed this times sqrt((l1 + l2) / n) (round-off floor):
+# clouds 1e-9; grids 1e-6, above the resolution of a window's l0 (the window sums' round-off),
+# so that on a noise-free surface (float32 quantisation only) the verdict is not decided by
+# rounding, which differs between window sums formed in another order (ProfileStream, tiles).
 _HEIGHT_RMS_FLOOR = 1e-9
+_GRID_HEIGHT_RMS_FLOOR = 1e-6
 # "<k>rms": k a plain decimal (digits, optional fraction, optional exponent), no sign or space.
 _RMS_RE = re.compile(r"((?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?)rms")
 
@@ -977,7 +981,7 @@ def _height_pass(
         return exists & (absh > value)
     n = np.maximum(count, 1).astype(np.float64)
     rms = np.sqrt(np.maximum(evals[..., 0], 0.0) / n)
-    floor = _HEIGHT_RMS_FLOOR * np.sqrt((evals[..., 1] + evals[..., 2]) / n)
+    floor = _GRID_HEIGHT_RMS_FLOOR * np.sqrt((evals[..., 1] + evals[..., 2]) / n)
     return exists & (absh > value * rms) & (absh > floor)
 
 
