@@ -266,7 +266,7 @@ def test_stream_equals_batch_on_its_parameters(preset) -> None:
     want = miem.detect(g, params=s.params).labels
     np.testing.assert_array_equal(out, want)
     assert (want == miem.ABNORMAL).any()
-    assert s.params == (miem.PRESETS[preset or "recommended"])
+    assert s.params == (miem.PRESETS[preset] if preset else miem.default_params("stream"))
 
 
 def test_nothrow_names_the_field_for_nan_height_and_negative_edge_extent() -> None:

@@ -108,14 +108,19 @@ STAGE_VARIANTS = [
 ]
 
 
+def stream_preset(name: str) -> miem.DetectParams:
+    """A preset as the stream runs it: without the edge test and min_step="auto" (refused)."""
+    return miem.PRESETS[name].replace(edge_tolerance=None, min_step=None)
+
+
 @pytest.mark.parametrize("preset", sorted(miem.PRESETS))
 @pytest.mark.parametrize("variant", range(len(STAGE_VARIANTS)))
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_stream_equals_detect_full_detector(preset: str, variant: int, dtype) -> None:
     grid = make_full_scan(160, 70, 11 + variant).astype(dtype)
     kw = STAGE_VARIANTS[variant]
-    want = miem.detect(grid, preset=preset, **kw)
-    stream = ProfileStream(70, preset=preset, dtype=dtype, **kw)
+    want = miem.detect(grid, params=stream_preset(preset), **kw)
+    stream = ProfileStream(70, params=stream_preset(preset), dtype=dtype, **kw)
     got, heights = stream_both(stream, grid)
     np.testing.assert_array_equal(got, want.labels)
     assert_heights_equal(heights, want.height)
@@ -123,20 +128,41 @@ def test_stream_equals_detect_full_detector(preset: str, variant: int, dtype) ->
 
 
 def test_stream_runs_the_whole_default_detector() -> None:
-    """The default stream is the default batch detector: the height test finds what the angle
-    test alone does not, over several passes, with compact EDGE groups; the stream agrees."""
+    """The default stream is the default batch detector but for the edge test and min_step
+    "auto": the height test finds what the angle test alone does not, over several passes, with
+    compact EDGE groups; the stream agrees."""
     grid = make_full_scan(300, 120, 5)
-    full = miem.detect(grid)
-    angle_only = miem.detect(grid, height_tolerance=None)
-    one_pass = miem.detect(grid, max_iterations=1)
-    no_compact = miem.detect(grid, edge_extent=0)
+    base = stream_preset("recommended")
+    full = miem.detect(grid, params=base)
+    angle_only = miem.detect(grid, params=base, height_tolerance=None)
+    one_pass = miem.detect(grid, params=base, max_iterations=1)
+    no_compact = miem.detect(grid, params=base, edge_extent=0)
     n = lambda r: int((r.labels == miem.ABNORMAL).sum())  # noqa: E731
     assert n(full) > 3 * n(angle_only) and n(full) > n(one_pass) and n(full) > n(no_compact)
     stream = ProfileStream(120)
-    assert stream.params == miem.PRESETS["recommended"]
+    assert stream.params == base == miem.default_params("stream")
     got, heights = stream_both(stream, grid)
     np.testing.assert_array_equal(got, full.labels)
     assert_heights_equal(heights, full.height)
+
+
+def test_min_step_auto_resolved_on_a_first_scan_then_given_to_the_stream() -> None:
+    """min_step="auto" needs the whole scan: the stream takes the value batch detection resolved
+    on a first scan of the part (``result.params["min_step"]``), and then equals batch with it."""
+    first, grid = make_full_scan(200, 80, 21), make_full_scan(200, 80, 22)
+    rng = np.random.default_rng(0)  # profile noise comparable to the spacing: "auto" turns on
+    first[..., 2] += rng.normal(0.0, 0.1, first.shape[:2])
+    grid[..., 2] += rng.normal(0.0, 0.1, grid.shape[:2])
+    step = miem.detect(first).params["min_step"]
+    assert isinstance(step, float) and step > 0
+    want = miem.detect(grid, params=stream_preset("recommended"), min_step=step)
+    got, heights = stream_both(ProfileStream(80, min_step=step), grid)
+    np.testing.assert_array_equal(got, want.labels)
+    assert_heights_equal(heights, want.height)
+    # the resolved value is what "auto" runs with on that scan
+    auto = miem.detect(first, params=stream_preset("recommended"), min_step="auto")
+    np.testing.assert_array_equal(
+        auto.labels, miem.detect(first, params=stream_preset("recommended"), min_step=step).labels)
 
 
 def test_extreme_height_tolerance_labels_equal_and_heights_up_to_orientation() -> None:
@@ -144,7 +170,7 @@ def test_extreme_height_tolerance_labels_equal_and_heights_up_to_orientation() -
     line of NORMAL points have an ill-posed orientation (SPEC "Height"), where batch and stream
     may differ in the sign, and the values by the rounding such a window amplifies."""
     grid = make_full_scan(120, 90, 1)
-    want = miem.detect(grid, height_tolerance=0.03)
+    want = miem.detect(grid, params=stream_preset("recommended"), height_tolerance=0.03)
     got, heights = stream_both(ProfileStream(90, height_tolerance=0.03), grid)
     np.testing.assert_array_equal(got, want.labels)
     assert_heights_equal(heights, want.height, signed=False, atol=1e-6)
@@ -229,6 +255,7 @@ def test_bad_input_raises_and_leaves_the_stream_unchanged() -> None:
      ({"min_directions": 5}, "min_directions"), ({"max_iterations": 255}, "max_iterations"),
      ({"max_reach": 0}, "max_reach"), ({"dtype": np.int32}, "dtype"),
      ({"theta0": "auto"}, "theta0"), ({"edge_tolerance": 3.0}, "edge_tolerance"),
+     ({"min_step": "auto"}, "min_step"), ({"preset": "recommended"}, "edge_tolerance"),
      ({"window": 4}, "window"), ({"edge_extent": -1}, "edge_extent")],
 )
 def test_bad_parameters(kwargs: dict, match: str) -> None:

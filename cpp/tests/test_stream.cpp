@@ -91,16 +91,19 @@ std::vector<Named> param_sets() {
   std::vector<Named> v;
   miem::DetectParams p = miem::paper_params();
   v.push_back({"paper", p});
-  v.push_back({"recommended", miem::DetectParams{}, 260, 70});  // lag 152: push and flush
-  p = miem::DetectParams{};
+  v.push_back({"stream_default", miem::stream_default_params(), 260, 70});  // lag 152
+  p = miem::stream_default_params();
   p.height_mode = miem::HeightMode::kAbnormal;
-  v.push_back({"recommended_abnormal_heights", p, 260, 70});
-  p = miem::DetectParams{};
+  v.push_back({"stream_default_abnormal_heights", p, 260, 70});
+  p = miem::stream_default_params();
+  p.min_step = 0.3;  // min_step given as a length (what min_step_auto would resolve)
+  v.push_back({"stream_default_min_step", p, 260, 70});
+  p = miem::stream_default_params();
   p.max_iterations = 3;
   p.window = 7;
   p.edge_extent = 4;
   v.push_back({"height_test_short_lag", p, 120, 70});
-  p = miem::DetectParams{};
+  p = miem::stream_default_params();
   p.height_k = 0.0;
   p.height_abs = 0.05;
   p.window = 9;
@@ -181,7 +184,7 @@ TEST(Stream, LagFormula) {
   p.max_reach = 5;
   EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 10 * (1 + 1 + 5) + 10);
   EXPECT_EQ(miem::ProfileStream<>(16).lag(), 10 * 3 + 12 + 11 * 10);  // the default: 152
-  EXPECT_EQ(miem::stream_lag(miem::DetectParams{}), 152);
+  EXPECT_EQ(miem::stream_lag(miem::stream_default_params()), 152);
 }
 
 TEST(Stream, ThresholdGrazingAnglesMatchBatch) {
@@ -361,6 +364,7 @@ TEST(Stream, RejectsFieldsItDoesNotHonour) {
   const Case cases[] = {
       {"theta0_auto", [](miem::DetectParams& p) { p.theta0_auto = true; }},
       {"edge_k", [](miem::DetectParams& p) { p.edge_k = 3.0; }},
+      {"min_step_auto", [](miem::DetectParams& p) { p.min_step_auto = true; }},
   };
   for (const Case& c : cases) {
     miem::DetectParams p = miem::stream_default_params();
@@ -378,9 +382,10 @@ TEST(Stream, RejectsFieldsItDoesNotHonour) {
       EXPECT_STREQ(e.what(), st.message);
     }
   }
-  // The recommended preset, height test included, is the stream's default.
+  // The stream's default is the default preset, height test included, without the edge test
+  // and min_step_auto (refused above).
   std::optional<miem::ProfileStream<double>> s;
-  EXPECT_TRUE(miem::nothrow::make_stream(10, miem::DetectParams{}, &s).ok());
+  EXPECT_TRUE(miem::nothrow::make_stream(10, miem::stream_default_params(), &s).ok());
   const miem::DetectParams d = miem::stream_default_params();
   const miem::DetectParams r;
   EXPECT_EQ(d.theta0_deg, r.theta0_deg);
@@ -390,6 +395,8 @@ TEST(Stream, RejectsFieldsItDoesNotHonour) {
   EXPECT_EQ(d.height_k, r.height_k);
   EXPECT_EQ(d.edge_extent, r.edge_extent);
   EXPECT_EQ(d.window, r.window);
+  EXPECT_EQ(d.edge_k, 0.0);
+  EXPECT_FALSE(d.min_step_auto);
   EXPECT_EQ(miem::ProfileStream<>(10).params().height_k, r.height_k);
 }
 

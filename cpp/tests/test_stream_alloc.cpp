@@ -77,7 +77,7 @@ TEST(StreamAlloc, NoAllocationPerProfileDouble) {
 }
 
 TEST(StreamAlloc, NoAllocationDefaultFloatAbnormalHeights) {
-  miem::DetectParams p;
+  miem::DetectParams p = miem::stream_default_params();
   p.height_mode = miem::HeightMode::kAbnormal;
   run_without_allocating<float>(p);
 }
