@@ -158,18 +158,29 @@ int main(int argc, char** argv) {
   }
   if (quick) n = std::min<std::ptrdiff_t>(n, 5000);
   std::vector<Scenario> scenarios;
-  // The stream's default (the recommended angle test; the stream has no height test yet).
+  // The stream's default: the default preset (angle test, height test with compact EDGE
+  // groups, heights) without the edge test and min_step_auto, which a stream does not run.
   const miem::DetectParams p = miem::stream_default_params();
-  scenarios.push_back({"defaults, clean", p, 0.0, false});
-  scenarios.push_back({"defaults, 1% dropouts", p, 0.01, false});
-  scenarios.push_back({"defaults, float32 storage", p, 0.001, true});
-  miem::DetectParams p2 = miem::paper_params();  // the paper's method (lag 20)
-  scenarios.push_back({"paper (theta0 75, scales (1,))", p2, 0.001, false});
-  // The stream's default is the default preset's angle test (it runs no height test yet).
-  scenarios.push_back({"default preset's angle test (theta0 90, scales (1, 2))", p, 0.001, false});
+  scenarios.push_back({"default preset, 0.1% dropouts", p, 0.001, false});
+  scenarios.push_back({"default preset, 1% dropouts", p, 0.01, false});
+  scenarios.push_back({"default preset, float32 storage", p, 0.001, true});
+  miem::DetectParams pa = p;
+  pa.height_mode = miem::HeightMode::kAbnormal;
+  scenarios.push_back({"default preset, heights of ABNORMAL points only", pa, 0.001, false});
+  // Where the time goes: the angle test alone (no height test, no heights), then with heights.
+  miem::DetectParams p0 = p;
+  p0.height_k = p0.height_abs = 0.0;
+  p0.height_mode = miem::HeightMode::kAbnormal;
+  scenarios.push_back({"stage: angle test only (no height test, ABNORMAL heights)", p0, 0.001,
+                       false});
+  miem::DetectParams p1 = p0;
+  p1.height_mode = miem::HeightMode::kAll;
+  scenarios.push_back({"stage: angle test + heights (no height test)", p1, 0.001, false});
+  miem::DetectParams p2 = miem::paper_params();  // the paper's method
+  scenarios.push_back({"paper (theta0 75, scales (1,), heights)", p2, 0.001, false});
   miem::DetectParams p3 = p;
   p3.max_iterations = 3;
-  scenarios.push_back({"max_iterations 3 (lag 9)", p3, 0.001, false});
+  scenarios.push_back({"default preset, max_iterations 3", p3, 0.001, false});
   const std::ptrdiff_t pool_rows = 1024;
   std::printf("[\n");
   bool first = true;
