@@ -96,8 +96,9 @@ MIEM_CLONES void kernel_line(std::ptrdiff_t n, const Side& A, const Side& B,
         good & (uv * std::fabs(uv) * b_prod > b_uv * std::fabs(b_uv) * prod);
     buv[c] = better ? uv : b_uv;
     bprod[c] = better ? prod : b_prod;
-    bits[c] |= (good * bit) | ((flagged * bit) << kFlagShift) | ((sa | sb) * kSlowBit) |
-               ((aa | ab) * near_bit);
+    // 0/1 lanes to masks by negation (an int64 multiply has no AVX2 instruction)
+    bits[c] |= (-good & bit) | (-flagged & (bit << kFlagShift)) | (-(sa | sb) & kSlowBit) |
+               (-(aa | ab) & near_bit);
   }
 }
 #undef MIEM_PICK

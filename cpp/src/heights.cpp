@@ -3,6 +3,8 @@
 // where that plane does not exist. HeightMode::kAll: every finite point, by the window sweep
 // (window_fits.hpp), reusing what the height test already fitted; kAbnormal: ABNORMAL points
 // only, each fitted directly.
+#include <algorithm>
+
 #include "judge.hpp"
 #include "parallel.hpp"
 #include "stages.hpp"
@@ -32,7 +34,21 @@ void heights(const GridView<T>& g, const DetectParams& p, const std::uint8_t* la
   }
   ws.cls.resize(static_cast<std::size_t>(N));
   std::uint8_t* cls = ws.cls.data();
-  const std::uint8_t* hm = reuse ? ws.hmask.data() : nullptr;
+  std::uint8_t* hm = reuse ? ws.hmask.data() : nullptr;
+  if (hm != nullptr) {
+    // ws.cls still holds the window classes the height test's fits used. A later stage (the edge
+    // test) may have taken NORMAL cells out of the planes: the heights of every window holding
+    // one are stale, the others stay exact.
+    for (std::ptrdiff_t i = 0; i < N; ++i) {
+      if (!(cls[i] & kInPlane) || labels[i] == kNormal) continue;
+      const std::ptrdiff_t r = i / W, c = i % W;
+      const std::ptrdiff_t c0 = std::max<std::ptrdiff_t>(0, c - half);
+      const std::ptrdiff_t c1 = std::min<std::ptrdiff_t>(W - 1, c + half);
+      for (std::ptrdiff_t rr = std::max<std::ptrdiff_t>(0, r - half);
+           rr <= std::min<std::ptrdiff_t>(H - 1, r + half); ++rr)
+        for (std::ptrdiff_t cc = c0; cc <= c1; ++cc) hm[rr * W + cc] &= ~kHFresh;
+    }
+  }
 #pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
   for (std::ptrdiff_t i = 0; i < N; ++i) {
     cls[i] = labels[i] == kNormal ? kInPlane : 0;  // feature lines do not matter here

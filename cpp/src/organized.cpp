@@ -68,8 +68,8 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
                                               p.max_iterations, p.num_threads, ws_.edge_sums);
   }
   summary.plane = detail::miem_plane(g, labels, p.num_threads, ws_);
-  // the height test's window fits are stale once the edge test may have changed labels
-  detail::heights(g, p, labels, height, height_test && !edge_test, ws_);
+  // heights() re-fits the windows the edge test changed and reuses the height test's others
+  detail::heights(g, p, labels, height, height_test, ws_);
   summary.defects = detail::organized_defects(g, labels, height, p.window, ws_);
   return summary;
 }

@@ -67,7 +67,8 @@ std::optional<Plane> miem_plane(const GridView<T>& g, const std::uint8_t* labels
                                 int num_threads, Workspace& ws);
 
 /// Heights (SPEC "Height"): every finite cell (HeightMode::kAll) or the ABNORMAL ones. With
-/// `reuse`, cells marked kHFresh by height_test keep the height it wrote.
+/// `reuse`, cells marked kHFresh by height_test keep the height it wrote, unless a cell its fits
+/// took as NORMAL (ws.cls) has changed label since (the edge test).
 template <typename T>
 void heights(const GridView<T>& g, const DetectParams& p, const std::uint8_t* labels,
              double* height, bool reuse, Workspace& ws);
