@@ -97,72 +97,108 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, const Eigen::Vector3d
       compute_to(std::min(H, b1 + r));  // the band reads S rows max(0, b0 - r) .. b1 + r
 #pragma omp parallel for schedule(dynamic, 8) num_threads(nt) if (nt > 1)
       for (std::ptrdiff_t rr = b0; rr < b1; ++rr) {
+        // Up to kChunk candidate cells of the row at a time: their 8 sub-window scatters are
+        // solved together (smallest_eigenpairs, vectorised), then each cell is judged.
+        constexpr int kChunk = 32, kCap = 8 * kChunk;
+        double Mb[6 * kCap], Eb[6 * kCap], nnb[kCap], ceb[3 * kCap];
+        std::uint8_t okb[kCap], redob[kCap], useb[kCap], emptyb[kCap];
+        std::ptrdiff_t cols[kChunk];
         Side sd[8];
-        for (std::ptrdiff_t cc = 0; cc < W; ++cc) {
-          const std::ptrdiff_t i = rr * W + cc;
-          mark[i] = 0;
-          if (!todo[i] || !(labels[i] == kNormal || labels[i] == kEdge)) continue;
-          const Eigen::Vector3d pt = g(rr, cc) - o;
-          double best = std::numeric_limits<double>::infinity();
-          for (int s = 0; s < 8; ++s) {
-            const std::ptrdiff_t r0 =
-                std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][0], r), 0, H);
-            const std::ptrdiff_t r1 =
-                std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][1], r) + 1, 0, H);
-            const std::ptrdiff_t c0 =
-                std::clamp<std::ptrdiff_t>(cc + offset(kSides[s][2], r), 0, W);
-            const std::ptrdiff_t c1 =
-                std::clamp<std::ptrdiff_t>(cc + offset(kSides[s][3], r) + 1, 0, W);
-            const double* top = srow(r0);
-            const double* bottom = srow(r1);
-            const double* a = bottom + c1 * kM;
-            const double* b = top + c1 * kM;
-            const double* c = bottom + c0 * kM;
-            const double* d = top + c0 * kM;
-            double m[kM];
-            for (int q = 0; q < kM; ++q) m[q] = a[q] - b[q] - c[q] + d[q];
-            Side& x = sd[s];
-            const double n = m[0], nn = std::max(n, 1.0);
-            x.empty = m[10] >= n_min;
-            x.centroid = Eigen::Vector3d(m[1] / nn, m[2] / nn, m[3] / nn);
-            x.valid = false;
-            if (!(n >= n_min)) continue;
-            const Eigen::Vector3d& ce = x.centroid;
-            Eigen::Matrix3d M;
-            M(0, 0) = m[4] - nn * ce.x() * ce.x();
-            M(0, 1) = M(1, 0) = m[5] - nn * ce.x() * ce.y();
-            M(0, 2) = M(2, 0) = m[6] - nn * ce.x() * ce.z();
-            M(1, 1) = m[7] - nn * ce.y() * ce.y();
-            M(1, 2) = M(2, 1) = m[8] - nn * ce.y() * ce.z();
-            M(2, 2) = m[9] - nn * ce.z() * ce.z();
-            double l0 = 0.0, l1 = 0.0, l2 = 0.0;
-            Eigen::Vector3d nv;
-            if (!smallest_eigenpair(M, &l0, &l1, &l2, &nv)) continue;
-            if (!(l2 > 0.0) || l1 <= kRankTol * l2) continue;
-            x.valid = true;
-            x.normal = orient_normal(nv);  // SPEC "Plane fit" orientation
-            x.h = dot3(pt - ce, x.normal);
-            x.rms = std::sqrt(std::max(l0, 0.0) / nn);
-            x.tol = std::max(k * x.rms, kRoundOff * std::sqrt((l1 + l2) / nn));
-            best = std::min(best, x.rms);
+        for (std::ptrdiff_t cc = 0; cc < W;) {
+          int m = 0;
+          for (; cc < W && m < kChunk; ++cc) {
+            const std::ptrdiff_t i = rr * W + cc;
+            mark[i] = 0;
+            if (todo[i] && (labels[i] == kNormal || labels[i] == kEdge)) cols[m++] = cc;
           }
-          bool fits = false, proud = false;
-          for (int s = 0; s < 8; ++s) {
-            const Side& x = sd[s];
-            if (x.valid && x.rms <= kCleanRatio * best && !(std::abs(x.h) > x.tol)) fits = true;
-          }
-          if (fits) continue;
-          for (const auto& pair : kOpposite) {
-            for (int flip = 0; flip < 2; ++flip) {
-              const Side& x = sd[pair[flip]];
-              const Side& y = sd[pair[1 - flip]];
-              if (!x.valid || !(x.rms <= kCleanRatio * best) || !(x.h > x.tol)) continue;
-              const bool falls =
-                  y.empty || (y.valid && dot3(x.normal, y.centroid - x.centroid) < -x.tol);
-              if (falls) proud = true;
+          if (m == 0) continue;
+          for (int j = 0; j < m; ++j) {
+            const std::ptrdiff_t c = cols[j];
+            for (int s = 0; s < 8; ++s) {
+              const int e = j * 8 + s;
+              const std::ptrdiff_t r0 =
+                  std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][0], r), 0, H);
+              const std::ptrdiff_t r1 =
+                  std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][1], r) + 1, 0, H);
+              const std::ptrdiff_t c0 =
+                  std::clamp<std::ptrdiff_t>(c + offset(kSides[s][2], r), 0, W);
+              const std::ptrdiff_t c1 =
+                  std::clamp<std::ptrdiff_t>(c + offset(kSides[s][3], r) + 1, 0, W);
+              const double* top = srow(r0);
+              const double* bottom = srow(r1);
+              const double* a = bottom + c1 * kM;
+              const double* b = top + c1 * kM;
+              const double* cq = bottom + c0 * kM;
+              const double* d = top + c0 * kM;
+              double mm[kM];
+              for (int q = 0; q < kM; ++q) mm[q] = a[q] - b[q] - cq[q] + d[q];
+              const double n = mm[0], nn = std::max(n, 1.0);
+              emptyb[e] = mm[10] >= n_min;
+              useb[e] = n >= n_min;
+              nnb[e] = nn;
+              const double cx = mm[1] / nn, cy = mm[2] / nn, cz = mm[3] / nn;
+              ceb[e] = cx, ceb[kCap + e] = cy, ceb[2 * kCap + e] = cz;
+              Mb[e] = mm[4] - nn * cx * cx;             // M(0, 0)
+              Mb[kCap + e] = mm[7] - nn * cy * cy;      // M(1, 1)
+              Mb[2 * kCap + e] = mm[9] - nn * cz * cz;  // M(2, 2)
+              Mb[3 * kCap + e] = mm[5] - nn * cx * cy;  // M(0, 1)
+              Mb[4 * kCap + e] = mm[8] - nn * cy * cz;  // M(1, 2)
+              Mb[5 * kCap + e] = mm[6] - nn * cx * cz;  // M(0, 2)
             }
           }
-          mark[i] = proud ? 1 : 0;
+          smallest_eigenpairs(8 * m, kCap, Mb, Eb, okb, redob);
+          for (int j = 0; j < m; ++j) {
+            const std::ptrdiff_t i = rr * W + cols[j];
+            const Eigen::Vector3d pt = g(rr, cols[j]) - o;
+            double best = std::numeric_limits<double>::infinity();
+            for (int s = 0; s < 8; ++s) {
+              const int e = j * 8 + s;
+              Side& x = sd[s];
+              x.empty = emptyb[e] != 0;
+              x.centroid = Eigen::Vector3d(ceb[e], ceb[kCap + e], ceb[2 * kCap + e]);
+              x.valid = false;
+              if (!useb[e]) continue;
+              double l0 = Eb[e], l1 = Eb[kCap + e], l2 = Eb[2 * kCap + e];
+              Eigen::Vector3d nv(Eb[3 * kCap + e], Eb[4 * kCap + e], Eb[5 * kCap + e]);
+              bool solved = okb[e] != 0;
+              if (redob[e]) {  // Newton needs more steps: the scalar routine, to the end
+                Eigen::Matrix3d M;
+                M(0, 0) = Mb[e];
+                M(1, 1) = Mb[kCap + e];
+                M(2, 2) = Mb[2 * kCap + e];
+                M(0, 1) = M(1, 0) = Mb[3 * kCap + e];
+                M(1, 2) = M(2, 1) = Mb[4 * kCap + e];
+                M(0, 2) = M(2, 0) = Mb[5 * kCap + e];
+                solved = smallest_eigenpair(M, &l0, &l1, &l2, &nv);
+              }
+              if (!solved) continue;
+              if (!(l2 > 0.0) || l1 <= kRankTol * l2) continue;
+              const double nn = nnb[e];
+              x.valid = true;
+              x.normal = orient_normal(nv);  // SPEC "Plane fit" orientation
+              x.h = dot3(pt - x.centroid, x.normal);
+              x.rms = std::sqrt(std::max(l0, 0.0) / nn);
+              x.tol = std::max(k * x.rms, kRoundOff * std::sqrt((l1 + l2) / nn));
+              best = std::min(best, x.rms);
+            }
+            bool fits = false, proud = false;
+            for (int s = 0; s < 8; ++s) {
+              const Side& x = sd[s];
+              if (x.valid && x.rms <= kCleanRatio * best && !(std::abs(x.h) > x.tol)) fits = true;
+            }
+            if (fits) continue;
+            for (const auto& pair : kOpposite) {
+              for (int flip = 0; flip < 2; ++flip) {
+                const Side& x = sd[pair[flip]];
+                const Side& y = sd[pair[1 - flip]];
+                if (!x.valid || !(x.rms <= kCleanRatio * best) || !(x.h > x.tol)) continue;
+                const bool falls =
+                    y.empty || (y.valid && dot3(x.normal, y.centroid - x.centroid) < -x.tol);
+                if (falls) proud = true;
+              }
+            }
+            mark[i] = proud ? 1 : 0;
+          }
         }
       }
     }

@@ -4,7 +4,9 @@
 // of M - l0 I. Accurate when l0 is well separated from l1, which a surface patch always is.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>  // cross
@@ -47,6 +49,81 @@ inline bool smallest_eigenpair(const Eigen::Matrix3d& M, double* l0, double* l1,
   if (!(nb > 0.0)) return false;
   *normal = best / std::sqrt(nb);
   return true;
+}
+
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+#define MIEM_EIG_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define MIEM_EIG_CLONES
+#endif
+
+// One Newton step of smallest_eigenpair on the characteristic cubic, masked by `live`.
+inline __attribute__((always_inline)) void newton_step(double& x, double& live, double tr,
+                                                        double c1, double det) {
+  const double q = ((x - tr) * x + c1) * x - det;
+  const double dq = (3.0 * x - 2.0 * tr) * x + c1;
+  const double step = q / (dq > 0.0 ? dq : 1.0);
+  const double go = (dq > 0.0 && step < 0.0) ? live : 0.0;  // (doubles: bools do not vectorise)
+  x = go != 0.0 ? x - step : x;
+  live = (-step <= 1e-17 * tr) ? 0.0 : go;
+}
+
+/// smallest_eigenpair for m matrices at once (SoA: entries a = M00, b = M11, c = M22, d = M01,
+/// e = M12, f = M02, `cap` apart in `M` in that order), in straight-line code that vectorises.
+/// Writes l0, l1, l2, nx, ny, nz (`cap` apart in `out`) and ok (smallest_eigenpair's return
+/// value). The iteration is smallest_eigenpair's with at most 4 steps: where it has not ended by
+/// then, redo is set and the caller runs smallest_eigenpair itself; elsewhere every output
+/// equals smallest_eigenpair's bit for bit.
+MIEM_EIG_CLONES inline void smallest_eigenpairs(std::ptrdiff_t m, std::ptrdiff_t cap,
+                                                const double* __restrict M,
+                                                double* __restrict out,
+                                                std::uint8_t* __restrict ok,
+                                                std::uint8_t* __restrict redo) {
+  const double *__restrict ma = M, *__restrict mb = M + cap, *__restrict mc = M + 2 * cap;
+  const double *__restrict md = M + 3 * cap, *__restrict me = M + 4 * cap;
+  const double* __restrict mf = M + 5 * cap;
+  double *__restrict o0 = out, *__restrict o1 = out + cap, *__restrict o2 = out + 2 * cap;
+  double *__restrict o3 = out + 3 * cap, *__restrict o4 = out + 4 * cap;
+  double* __restrict o5 = out + 5 * cap;
+#pragma GCC ivdep
+  for (std::ptrdiff_t i = 0; i < m; ++i) {  // (too many arrays for GCC's alias versioning)
+    const double a = ma[i], b = mb[i], c = mc[i], d = md[i], e = me[i], f = mf[i];
+    const double tr = a + b + c;
+    const double c1 = (a * b + b * c + a * c) - (d * d + e * e + f * f);
+    const double det = a * b * c + 2.0 * d * e * f - a * e * e - b * f * f - c * d * d;
+    double x = 0.0, live = tr > 0.0 ? 1.0 : 0.0;
+    newton_step(x, live, tr, c1, det);
+    newton_step(x, live, tr, c1, det);
+    newton_step(x, live, tr, c1, det);
+    newton_step(x, live, tr, c1, det);
+    const double s = tr - x, p = c1 - x * s;
+    const double disc = s * s - 4.0 * p;
+    const double hi = 0.5 * (s + std::sqrt(disc > 0.0 ? disc : 0.0));
+    const double ax = a - x, bx = b - x, cx = c - x;
+    const double u0 = d * e - f * bx, u1 = f * d - ax * e, u2 = ax * bx - d * d;  // r0 x r1
+    const double v0 = d * cx - f * e, v1 = f * f - ax * cx, v2 = ax * e - d * f;  // r0 x r2
+    const double w0 = bx * cx - e * e, w1 = e * f - d * cx, w2 = d * e - bx * f;  // r1 x r2
+    const double n01 = (u0 * u0 + u1 * u1) + u2 * u2;
+    const double n02 = (v0 * v0 + v1 * v1) + v2 * v2;
+    const double n12 = (w0 * w0 + w1 * w1) + w2 * w2;
+    // smallest_eigenpair's choice: n01 >= n02 ? (n01 >= n12 ? c01 : c12) : (n02 >= n12 ? c02 : c12)
+    const bool pu = (n01 >= n02) & (n01 >= n12);
+    const bool pv = !(n01 >= n02) & (n02 >= n12);
+    const double bx0 = pu ? u0 : (pv ? v0 : w0);
+    const double bx1 = pu ? u1 : (pv ? v1 : w1);
+    const double bx2 = pu ? u2 : (pv ? v2 : w2);
+    const double m12 = n02 > n12 ? n02 : n12;  // std::max(n01, std::max(n02, n12))
+    const double nb = n01 > m12 ? n01 : m12;
+    const double len = std::sqrt(nb > 0.0 ? nb : 1.0);
+    o0[i] = x;
+    o1[i] = hi > 0.0 ? p / hi : 0.0;
+    o2[i] = hi;
+    o3[i] = bx0 / len;
+    o4[i] = bx1 / len;
+    o5[i] = bx2 / len;
+    ok[i] = static_cast<std::uint8_t>((tr > 0.0) & (nb > 0.0));
+    redo[i] = static_cast<std::uint8_t>(live != 0.0);
+  }
 }
 
 /// Moments of the points that each(f) hands to f (f(point) per point, in a fixed order; each is

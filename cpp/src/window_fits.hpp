@@ -42,17 +42,6 @@ inline constexpr std::uint8_t kInPlane = 1, kLine = 2;
 
 inline constexpr int kMoments = 11;  // n, x, y, z, xx, xy, xz, yy, yz, zz, line count
 
-// One Newton step of smallest_eigenpair on the characteristic cubic, masked by `live`.
-inline __attribute__((always_inline)) void newton_step(double& x, double& live, double tr,
-                                                        double c1, double det) {
-  const double q = ((x - tr) * x + c1) * x - det;
-  const double dq = (3.0 * x - 2.0 * tr) * x + c1;
-  const double step = q / (dq > 0.0 ? dq : 1.0);
-  const double go = (dq > 0.0 && step < 0.0) ? live : 0.0;  // (doubles: bools do not vectorise)
-  x = go != 0.0 ? x - step : x;
-  live = (-step <= 1e-17 * tr) ? 0.0 : go;
-}
-
 /// Smallest eigenpair and height for m cells from their window sums (SoA, `cap` apart:
 /// S + k * cap is moment k; Q + k * cap is coordinate k of the cell, relative to the same
 /// origin). Writes fits to F (height, l0, l1, l2 at F + k * cap) and ok / redo flags; redo marks
