@@ -59,16 +59,19 @@ def breakdown(side: int, repeats: int) -> dict:
     import miem
 
     grid = scan_grid(side, side)
+    off = dict(preset=PRESET, edge_tolerance=None)
     cfg = {
-        "angle": dict(preset=PRESET, height_tolerance=None, heights="abnormal"),
-        "angle+heights": dict(preset=PRESET, height_tolerance=None),
+        "angle": dict(off, height_tolerance=None, heights="abnormal"),
+        "angle+heights": dict(off, height_tolerance=None),
+        "angle+heights+ht": off,
         "full": dict(preset=PRESET),
     }
     t = {k: cpu_time(lambda kw=kw: miem.detect(grid, num_threads=1, **kw), repeats)
          for k, kw in cfg.items()}
     return {"side": side, "miem": miem.__version__, "angle": t["angle"],
-            "heights": t["angle+heights"] - t["angle"], "height_test": t["full"] - t["angle+heights"],
-            "full": t["full"]}
+            "heights": t["angle+heights"] - t["angle"],
+            "height_test": t["angle+heights+ht"] - t["angle+heights"],
+            "edge_test": t["full"] - t["angle+heights+ht"], "full": t["full"]}
 
 
 def lead(side: int, repeats: int) -> list[dict]:
@@ -167,9 +170,21 @@ def memory(side: int) -> dict | None:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
-def stage_times(build_dir: Path, side: int, repeats: int) -> list[dict]:
-    """The C++ stages, timed alone (miem_bench_stages), 1 and 2 threads."""
-    cmd = ["cmake", "-S", str(ROOT), "-B", str(build_dir), "-DCMAKE_BUILD_TYPE=Release",
+STAGES = ("min_step_auto", "angle_passes", "height_test", "edge_test", "miem_plane", "heights",
+          "defects")
+# Earlier commits timed in the same run (C++ stages, 1 thread): (commit, what it is, preset the
+# old binary runs, preset the current binary runs for the same configuration).
+BASES = [
+    ("fbc6d8f", "start of this session (default before issue 10)", "recommended",
+     "recommended-no-edge"),
+    ("098b990", "issue 10 merged: today's default (min_step 'auto', edge test), before the "
+     "edge-test and heights work", "recommended", "recommended"),
+]
+
+
+def build_stages(src: Path, build_dir: Path) -> Path | None:
+    """Configure and build miem_bench_stages of the tree `src` in `build_dir`."""
+    cmd = ["cmake", "-S", str(src), "-B", str(build_dir), "-DCMAKE_BUILD_TYPE=Release",
            "-DMIEM_BUILD_BENCH=ON"]
     if shutil.which("ninja") and not (build_dir / "CMakeCache.txt").exists():
         cmd += ["-G", "Ninja"]
@@ -177,27 +192,68 @@ def stage_times(build_dir: Path, side: int, repeats: int) -> list[dict]:
         proc = subprocess.run(c, capture_output=True, text=True)
         if proc.returncode != 0:
             print(proc.stdout[-2000:], proc.stderr[-2000:], file=sys.stderr)
-            return []
+            return None
+    return build_dir / "bench" / "miem_bench_stages"
+
+
+def base_binary(commit: str) -> Path | None:
+    """miem_bench_stages built from an earlier commit (git archive into build/base-COMMIT)."""
+    root = ROOT / "build" / f"base-{commit}"
+    src = root / "src"
+    if not (src / "CMakeLists.txt").exists():
+        src.mkdir(parents=True, exist_ok=True)
+        arch = subprocess.run(["git", "-C", str(ROOT), "archive", commit], capture_output=True)
+        if arch.returncode != 0:
+            return None
+        subprocess.run(["tar", "-x", "-C", str(src)], input=arch.stdout, check=True)
+    return build_stages(src, root / "build")
+
+
+def run_stages(binary: Path, grid_file: Path, side: int, nt: int, repeats: int,
+               preset: str) -> dict:
+    out = subprocess.run([str(binary), str(grid_file), str(side), str(side), str(nt),
+                          str(repeats), preset], capture_output=True, text=True, check=True).stdout
+    row = json.loads(out)
+    for k in STAGES:
+        row.setdefault(k, 0.0)  # older binaries time fewer stages
+    return row
+
+
+def stage_times(build_dir: Path, side: int, repeats: int, with_bases: bool = True):
+    """The C++ stages, timed alone (miem_bench_stages), 1 and 2 threads; and the same scan on
+    the BASES commits' binaries (1 thread), all in this one run."""
+    binary = build_stages(ROOT, build_dir)
+    if binary is None:
+        return [], []
     grid_file = build_dir / f"grid_{side}.f64"
     scan_grid(side, side).astype(np.float64).tofile(grid_file)
     rows = []
-    for preset in ("recommended", "paper"):
+    for preset in ("recommended", "recommended-no-edge", "paper"):
         for nt in (1, 2):
-            out = subprocess.run([str(build_dir / "bench" / "miem_bench_stages"), str(grid_file),
-                                  str(side), str(side), str(nt), str(repeats), preset],
-                                 capture_output=True, text=True, check=True).stdout
-            rows.append(json.loads(out))
+            rows.append(run_stages(binary, grid_file, side, nt, repeats, preset))
+    before = []
+    for commit, what, old_preset, new_preset in (BASES if with_bases else []):
+        old = base_binary(commit)
+        if old is None:
+            continue
+        b = run_stages(old, grid_file, side, 1, repeats, old_preset)
+        a = run_stages(binary, grid_file, side, 1, repeats, new_preset)
+        if b["checksum"] != a["checksum"]:
+            what += " (labels differ!)"
+        before.append({"commit": commit, "what": what, "preset": new_preset, "before": b,
+                       "now": a})
     grid_file.unlink()
-    return rows
+    return rows, before
 
 
-def fmt(rows_lead, rows_sweep, rows_fit, mem, stages, now_bd, base_bd, meta) -> str:
+def fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, base_bd, meta) -> str:
     L = ["## Speed of the default detector (`python bench/bench_speed.py`)", ""]
     L.append(f"Written on {meta['date']}: miem {meta['miem']}, {meta['cpu']}, {os.cpu_count()} "
              f"cores, shared with other jobs (load average {meta['load0']:.1f} at the start, "
              f"{meta['load1']:.1f} at the end): read ratios and CPU-time figures before wall "
-             "seconds. Default preset = `\"recommended\"` (theta0 90, scales (1, 2), window 21, "
-             "height test 4.5 rms, edge_extent 12), heights at every point, defects.")
+             "seconds. Default preset = `\"recommended\"` (theta0 90, scales (1, 2), min_step "
+             "'auto', window 21, height test 4.5 rms, edge_extent 12, edge test 4 rms in 15-cell "
+             "windows), heights at every point, defects.")
     L += ["", f"### miem's default against Open3D, the same {meta['lead_side']}x{meta['lead_side']} "
           "scan", "",
           "| method | time | Mpoints/s | points flagged / removed |", "|---|---:|---:|---:|"]
@@ -235,28 +291,44 @@ def fmt(rows_lead, rows_sweep, rows_fit, mem, stages, now_bd, base_bd, meta) -> 
               f"grid (the four per-point outputs are {mem['outputs'] / 1e6:.0f} MB of it; "
               "target <= 2x)."]
     if stages:
+        n_side = meta["stage_side"]
         L += ["", "### Where the time goes", "",
-              f"Each stage of `OrganizedDetector::run` (cpp/src/stages.hpp) timed alone by "
-              f"`miem_bench_stages` on the {meta['stage_side']}x{meta['stage_side']} scan "
-              "(C++, no Python; 1 thread: CPU time, 2 threads: wall time).", "",
-              "| preset | threads | angle passes | height test | MIEM plane | heights | defects | "
-              "run() | Mpoints/s |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+              f"Each stage of `OrganizedDetector::run` (cpp/src/stages.hpp, organized.cpp) timed "
+              f"alone by `miem_bench_stages` on the {n_side}x{n_side} scan (C++, no Python; 1 "
+              "thread: CPU time, 2 threads: wall time). `recommended` is today's default "
+              "(min_step 'auto', edge test); `recommended-no-edge` the default before issue 10.",
+              "", "| preset | threads | " + " | ".join(STAGES) + " | run() | Mpoints/s |",
+              "|---|---:|" + "---:|" * (len(STAGES) + 2)]
         for s in stages:
             n = s["rows"] * s["cols"]
-            L.append(f"| {s['preset']} | {s['threads']} | " + " | ".join(
-                f"{s[k] * 1e3:.0f} ms" for k in ("angle_passes", "height_test", "miem_plane",
-                                                 "heights", "defects", "run"))
-                + f" | {n / s['run'] / 1e6:.1f} |")
+            L.append(f"| {s['preset']} | {s['threads']} | "
+                     + " | ".join(f"{s[k] * 1e3:.0f} ms" for k in STAGES + ("run",))
+                     + f" | {n / s['run'] / 1e6:.1f} |")
+    if before:
+        n_side = meta["stage_side"]
+        L += ["", f"Before and after, in this same run ({n_side}x{n_side}, 1 thread, CPU ms; "
+              "the earlier commits built from `git archive` into `build/base-COMMIT`; same "
+              "configuration and the same labels):", "",
+              "| build | preset | " + " | ".join(STAGES) + " | run() | Mpoints/s | speed-up |",
+              "|---|---|" + "---:|" * (len(STAGES) + 3)]
+        for b in before:
+            for label, s in ((f"{b['commit']}: {b['what']}", b["before"]), ("now", b["now"])):
+                n = s["rows"] * s["cols"]
+                up = f"{b['before']['run'] / s['run']:.2f}x" if label == "now" else ""
+                L.append(f"| {label} | {b['preset']} | "
+                         + " | ".join(f"{s[k] * 1e3:.0f}" for k in STAGES + ("run",))
+                         + f" | {n / s['run'] / 1e6:.1f} | {up} |")
     L += ["", "By configuration differences through the Python API (CPU time, 1 thread, "
           f"{meta['bd_side']}x{meta['bd_side']}; the same measurement on the build before the "
           "speed work, where recorded):", "",
-          "| build | angle test | + heights at every point | + height test | full default | "
-          "Mpoints/s |", "|---|---:|---:|---:|---:|---:|"]
+          "| build | angle test | + heights at every point | + height test | + edge test | "
+          "full default | Mpoints/s |", "|---|---:|---:|---:|---:|---:|---:|"]
     builds = ([("before: " + base_bd.get("label", "?"), base_bd)] if base_bd else [])
     for label, bd in builds + [("now", now_bd)]:
         n = bd["side"] ** 2
+        et = f"{bd['edge_test'] * 1e3:.0f} ms" if "edge_test" in bd else "- (none)"
         L.append(f"| {label} | {bd['angle'] * 1e3:.0f} ms | {bd['heights'] * 1e3:.0f} ms | "
-                 f"{bd['height_test'] * 1e3:.0f} ms | {bd['full'] * 1e3:.0f} ms | "
+                 f"{bd['height_test'] * 1e3:.0f} ms | {et} | {bd['full'] * 1e3:.0f} ms | "
                  f"{n / bd['full'] / 1e6:.1f} |")
     if base_bd:
         L.append("")
@@ -293,16 +365,16 @@ def main(argv=None) -> int:
     rows_sweep = sweep([256, 512] if q else [256, 512, 1024, 2048, 4096], reps)
     rows_fit = fit_sweep([100_000, 1_000_000] if q else [100_000, 1_000_000, 10_000_000], reps)
     mem = memory(meta["mem_side"])
-    stages = stage_times(args.build_dir, meta["stage_side"], reps)
+    stages, before = stage_times(args.build_dir, meta["stage_side"], reps)
     now_bd = breakdown(bd_side, reps)
     base_bd = json.loads(BASELINE.read_text()) if BASELINE.exists() else None
     if base_bd and base_bd.get("side") != bd_side:
         base_bd = None
     meta["load1"] = os.getloadavg()[0]
     RAW.write_text(json.dumps({"lead": rows_lead, "sweep": rows_sweep, "fit": rows_fit,
-                               "memory": mem, "stages": stages, "breakdown": now_bd,
+                               "memory": mem, "stages": stages, "before": before, "breakdown": now_bd,
                                "meta": meta}, indent=1) + "\n")
-    OUT.write_text(fmt(rows_lead, rows_sweep, rows_fit, mem, stages, now_bd, base_bd, meta))
+    OUT.write_text(fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, base_bd, meta))
     print(OUT.read_text())
     return 0
 

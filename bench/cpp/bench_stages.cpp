@@ -1,7 +1,7 @@
 // Where the time of organized detection goes: each stage of OrganizedDetector::run
 // (cpp/src/stages.hpp) timed on its own, in the order run() calls them.
 //
-// Usage: miem_bench_stages GRID.f64 ROWS COLS THREADS REPEATS [paper|recommended]
+// Usage: miem_bench_stages GRID.f64 ROWS COLS THREADS REPEATS [paper|recommended|recommended-no-edge]
 // GRID.f64 is ROWS x COLS x 3 doubles (numpy tofile). Prints one JSON object: the best time of
 // each stage over REPEATS runs (seconds; process CPU time with 1 thread, wall time with more),
 // the whole run() and the labels' checksum.
@@ -15,6 +15,8 @@
 #include <vector>
 
 #include "miem/organized.hpp"
+#include "../../cpp/src/auto_min_step.hpp"
+#include "../../cpp/src/edge_test.hpp"
 #include "../../cpp/src/stages.hpp"
 
 namespace {
@@ -49,32 +51,49 @@ int main(int argc, char** argv) {
     return 2;
   }
   miem::DetectParams p = preset == "paper" ? miem::paper_params() : miem::recommended_params();
+  if (preset == "recommended-no-edge") {  // the default before issue 10: no min_step, no edge test
+    p.min_step_auto = false;
+    p.edge_k = 0.0;
+  }
   p.num_threads = nt;
   const auto g = miem::GridView<double>::dense(xyz.data(), H, W);
   const std::size_t N = static_cast<std::size_t>(H * W);
   std::vector<std::uint8_t> labels(N), flags(N);
   std::vector<double> angle(N), height(N);
   const miem::OrganizedOutput out{labels.data(), flags.data(), angle.data(), height.data()};
-  const char* names[] = {"angle_passes", "height_test", "miem_plane", "heights", "defects"};
-  double best[5] = {1e30, 1e30, 1e30, 1e30, 1e30}, best_run = 1e30;
+  // the stages of OrganizedDetector::run, in its order (organized.cpp)
+  constexpr int kStages = 7;
+  const char* names[kStages] = {"min_step_auto", "angle_passes", "height_test", "edge_test",
+                                "miem_plane",    "heights",      "defects"};
+  double best[kStages], best_run = 1e30;
+  std::fill(best, best + kStages, 1e30);
   miem::detail::Workspace ws;
   miem::OrganizedDetector det(p);
   for (int rep = 0; rep < reps; ++rep) {
-    double t[6];
+    double t[kStages + 1];
     miem::DetectParams eff = p;
     t[0] = now();
-    miem::detail::angle_passes(g, eff, out, ws);
+    if (eff.min_step_auto) {
+      eff.min_step = miem::detail::auto_min_step(g, ws.survey);
+      eff.min_step_auto = false;
+    }
     t[1] = now();
-    const bool ht = eff.height_k > 0.0 || eff.height_abs > 0.0;
-    if (ht) miem::detail::height_test(g, eff, labels.data(), height.data(), ws);
+    miem::detail::angle_passes(g, eff, out, ws);
     t[2] = now();
-    auto plane = miem::detail::miem_plane(g, labels.data(), nt, ws);
+    const bool ht = eff.height_test();
+    if (ht) miem::detail::height_test(g, eff, labels.data(), height.data(), ws);
     t[3] = now();
-    miem::detail::heights(g, eff, labels.data(), height.data(), ht, ws);
+    if (eff.edge_test())
+      miem::detail::edge_passes(g, labels.data(), eff.edge_window, eff.edge_k,
+                                eff.max_iterations, nt, ws.edge_sums);
     t[4] = now();
-    auto defects = miem::detail::organized_defects(g, labels.data(), height.data(), eff.window, ws);
+    auto plane = miem::detail::miem_plane(g, labels.data(), nt, ws);
     t[5] = now();
-    for (int k = 0; k < 5; ++k) best[k] = std::min(best[k], t[k + 1] - t[k]);
+    miem::detail::heights(g, eff, labels.data(), height.data(), ht, ws);
+    t[6] = now();
+    auto defects = miem::detail::organized_defects(g, labels.data(), height.data(), eff.window, ws);
+    t[7] = now();
+    for (int k = 0; k < kStages; ++k) best[k] = std::min(best[k], t[k + 1] - t[k]);
     (void)plane;
     const double t0 = now();
     det.run(g, out);
@@ -84,7 +103,7 @@ int main(int argc, char** argv) {
   for (std::size_t i = 0; i < N; ++i) sum += labels[i] * static_cast<long long>(i % 7919);
   std::printf("{\"rows\": %td, \"cols\": %td, \"threads\": %d, \"preset\": \"%s\", ", H, W, nt,
               preset.c_str());
-  for (int k = 0; k < 5; ++k) std::printf("\"%s\": %.6f, ", names[k], best[k]);
+  for (int k = 0; k < kStages; ++k) std::printf("\"%s\": %.6f, ", names[k], best[k]);
   std::printf("\"run\": %.6f, \"clock\": \"%s\", \"checksum\": %lld}\n", best_run,
               g_cpu_clock ? "cpu" : "wall", sum);
   return 0;

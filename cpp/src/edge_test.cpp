@@ -40,6 +40,71 @@ struct Side {
   Eigen::Vector3d normal, centroid;
 };
 
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+#define MIEM_EDGE_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define MIEM_EDGE_CLONES
+#endif
+
+// Sub-window moments (SoA, moment q at mm + q * cap) to what the planes need: nn = max(n, 1),
+// the centroid, the centred scatter (a, b, c, d, e, f as smallest_eigenpairs reads it), whether
+// the side has enough support (use) and whether it is empty (INVALID count). Vectorised.
+MIEM_EDGE_CLONES void side_moments(std::ptrdiff_t m, std::ptrdiff_t cap, double n_min,
+                                   const double* __restrict mm, double* __restrict nnb,
+                                   double* __restrict ceb, double* __restrict Mb,
+                                   std::uint8_t* __restrict useb,
+                                   std::uint8_t* __restrict emptyb) {
+#pragma GCC ivdep
+  for (std::ptrdiff_t e = 0; e < m; ++e) {
+    const double n = mm[e], nn = n < 1.0 ? 1.0 : n;  // std::max(n, 1.0)
+    emptyb[e] = mm[10 * cap + e] >= n_min;
+    useb[e] = n >= n_min;
+    nnb[e] = nn;
+    const double cx = mm[cap + e] / nn, cy = mm[2 * cap + e] / nn, cz = mm[3 * cap + e] / nn;
+    ceb[e] = cx, ceb[cap + e] = cy, ceb[2 * cap + e] = cz;
+    Mb[e] = mm[4 * cap + e] - nn * cx * cx;            // M(0, 0)
+    Mb[cap + e] = mm[7 * cap + e] - nn * cy * cy;      // M(1, 1)
+    Mb[2 * cap + e] = mm[9 * cap + e] - nn * cz * cz;  // M(2, 2)
+    Mb[3 * cap + e] = mm[5 * cap + e] - nn * cx * cy;  // M(0, 1)
+    Mb[4 * cap + e] = mm[8 * cap + e] - nn * cy * cz;  // M(1, 2)
+    Mb[5 * cap + e] = mm[6 * cap + e] - nn * cx * cz;  // M(0, 2)
+  }
+}
+
+// One side's plane from its eigenpair (l0, l1, l2, unit nv): valid, oriented normal (SPEC "Plane
+// fit"), the cell's height h over it, rms and tolerance. Shared by the vector loop and the
+// scalar redo so that both give the same bits.
+inline __attribute__((always_inline)) void side_plane(
+    bool use, bool solved, double l0, double l1, double l2, double nx, double ny, double nz,
+    double nn, double cx, double cy, double cz, double px, double py, double pz, double k,
+    std::uint8_t& valid, double& h, double& rms, double& tol, double& ox, double& oy,
+    double& oz) {
+  valid = use & solved & (l2 > 0.0) & !(l1 <= kRankTol * l2);
+  const double sg = nz != 0.0 ? (nz > 0.0 ? 1.0 : -1.0)
+                              : (nx != 0.0 ? (nx > 0.0 ? 1.0 : -1.0) : (ny < 0.0 ? -1.0 : 1.0));
+  ox = nx * sg, oy = ny * sg, oz = nz * sg;  // orient_normal
+  h = ((px - cx) * ox + (py - cy) * oy) + (pz - cz) * oz;  // dot3(pt - centroid, normal)
+  rms = std::sqrt((l0 < 0.0 ? 0.0 : l0) / nn);  // std::max(l0, 0.0)
+  const double floor = kRoundOff * std::sqrt((l1 + l2) / nn), kr = k * rms;
+  tol = kr < floor ? floor : kr;  // std::max(k rms, floor)
+}
+
+// side_plane for m sides (SoA; P: the cell of each side, relative to the origin). Vectorised.
+MIEM_EDGE_CLONES void side_planes(std::ptrdiff_t m, std::ptrdiff_t cap, double k,
+                                  const std::uint8_t* __restrict useb,
+                                  const std::uint8_t* __restrict okb,
+                                  const double* __restrict Eb, const double* __restrict nnb,
+                                  const double* __restrict ceb, const double* __restrict P,
+                                  std::uint8_t* __restrict validb, double* __restrict F) {
+#pragma GCC ivdep
+  for (std::ptrdiff_t e = 0; e < m; ++e) {
+    side_plane(useb[e] != 0, okb[e] != 0, Eb[e], Eb[cap + e], Eb[2 * cap + e], Eb[3 * cap + e],
+               Eb[4 * cap + e], Eb[5 * cap + e], nnb[e], ceb[e], ceb[cap + e], ceb[2 * cap + e],
+               P[e], P[cap + e], P[2 * cap + e], k, validb[e], F[e], F[cap + e], F[2 * cap + e],
+               F[3 * cap + e], F[4 * cap + e], F[5 * cap + e]);
+  }
+}
+
 // The passes on `g` (the grid or its transposed view) from the origin `o`. The integral images
 // are kept as a ring of R rows: a band of B judged rows and r + 1 rows either side of it.
 template <typename T>
@@ -97,13 +162,14 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, const Eigen::Vector3d
       compute_to(std::min(H, b1 + r));  // the band reads S rows max(0, b0 - r) .. b1 + r
 #pragma omp parallel for schedule(dynamic, 8) num_threads(nt) if (nt > 1)
       for (std::ptrdiff_t rr = b0; rr < b1; ++rr) {
-        // Up to kChunk candidate cells of the row at a time: their 8 sub-window scatters are
-        // solved together (smallest_eigenpairs, vectorised), then each cell is judged.
-        constexpr int kChunk = 32, kCap = 8 * kChunk;
-        double Mb[6 * kCap], Eb[6 * kCap], nnb[kCap], ceb[3 * kCap];
-        std::uint8_t okb[kCap], redob[kCap], useb[kCap], emptyb[kCap];
+        // Up to kChunk candidate cells of the row at a time, all as SoA over their 8 sides:
+        // the sub-window sums (corner reads), then moments, eigenpairs and planes in vectorised
+        // loops; each cell is judged from those.
+        constexpr int kChunk = 16, kCap = 8 * kChunk;
+        double mm[kM * kCap], Mb[6 * kCap], Eb[6 * kCap], nnb[kCap], ceb[3 * kCap];
+        double F[6 * kCap], P[3 * kCap];  // F: h, rms, tol, oriented normal; P: the cells
+        std::uint8_t okb[kCap], redob[kCap], useb[kCap], emptyb[kCap], validb[kCap];
         std::ptrdiff_t cols[kChunk];
-        Side sd[8];
         for (std::ptrdiff_t cc = 0; cc < W;) {
           int m = 0;
           for (; cc < W && m < kChunk; ++cc) {
@@ -114,8 +180,10 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, const Eigen::Vector3d
           if (m == 0) continue;
           for (int j = 0; j < m; ++j) {
             const std::ptrdiff_t c = cols[j];
+            const Eigen::Vector3d pt = g(rr, c) - o;
             for (int s = 0; s < 8; ++s) {
               const int e = j * 8 + s;
+              P[e] = pt.x(), P[kCap + e] = pt.y(), P[2 * kCap + e] = pt.z();
               const std::ptrdiff_t r0 =
                   std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][0], r), 0, H);
               const std::ptrdiff_t r1 =
@@ -130,55 +198,45 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, const Eigen::Vector3d
               const double* b = top + c1 * kM;
               const double* cq = bottom + c0 * kM;
               const double* d = top + c0 * kM;
-              double mm[kM];
-              for (int q = 0; q < kM; ++q) mm[q] = a[q] - b[q] - cq[q] + d[q];
-              const double n = mm[0], nn = std::max(n, 1.0);
-              emptyb[e] = mm[10] >= n_min;
-              useb[e] = n >= n_min;
-              nnb[e] = nn;
-              const double cx = mm[1] / nn, cy = mm[2] / nn, cz = mm[3] / nn;
-              ceb[e] = cx, ceb[kCap + e] = cy, ceb[2 * kCap + e] = cz;
-              Mb[e] = mm[4] - nn * cx * cx;             // M(0, 0)
-              Mb[kCap + e] = mm[7] - nn * cy * cy;      // M(1, 1)
-              Mb[2 * kCap + e] = mm[9] - nn * cz * cz;  // M(2, 2)
-              Mb[3 * kCap + e] = mm[5] - nn * cx * cy;  // M(0, 1)
-              Mb[4 * kCap + e] = mm[8] - nn * cy * cz;  // M(1, 2)
-              Mb[5 * kCap + e] = mm[6] - nn * cx * cz;  // M(0, 2)
+              for (int q = 0; q < kM; ++q) mm[q * kCap + e] = a[q] - b[q] - cq[q] + d[q];
             }
           }
-          smallest_eigenpairs(8 * m, kCap, Mb, Eb, okb, redob);
+          const int ms = 8 * m;
+          side_moments(ms, kCap, n_min, mm, nnb, ceb, Mb, useb, emptyb);
+          smallest_eigenpairs(ms, kCap, Mb, Eb, okb, redob);
+          side_planes(ms, kCap, k, useb, okb, Eb, nnb, ceb, P, validb, F);
+          for (int e = 0; e < ms; ++e) {
+            if (!redob[e] || !useb[e]) continue;  // Newton needs more steps: the scalar routine
+            Eigen::Matrix3d M;
+            M(0, 0) = Mb[e];
+            M(1, 1) = Mb[kCap + e];
+            M(2, 2) = Mb[2 * kCap + e];
+            M(0, 1) = M(1, 0) = Mb[3 * kCap + e];
+            M(1, 2) = M(2, 1) = Mb[4 * kCap + e];
+            M(0, 2) = M(2, 0) = Mb[5 * kCap + e];
+            double l0 = 0.0, l1 = 0.0, l2 = 0.0;
+            Eigen::Vector3d nv = Eigen::Vector3d::Zero();
+            const bool solved = smallest_eigenpair(M, &l0, &l1, &l2, &nv);
+            side_plane(true, solved, l0, l1, l2, nv.x(), nv.y(), nv.z(), nnb[e], ceb[e],
+                       ceb[kCap + e], ceb[2 * kCap + e], P[e], P[kCap + e], P[2 * kCap + e], k,
+                       validb[e], F[e], F[kCap + e], F[2 * kCap + e], F[3 * kCap + e],
+                       F[4 * kCap + e], F[5 * kCap + e]);
+          }
           for (int j = 0; j < m; ++j) {
             const std::ptrdiff_t i = rr * W + cols[j];
-            const Eigen::Vector3d pt = g(rr, cols[j]) - o;
+            Side sd[8];
             double best = std::numeric_limits<double>::infinity();
             for (int s = 0; s < 8; ++s) {
               const int e = j * 8 + s;
               Side& x = sd[s];
               x.empty = emptyb[e] != 0;
               x.centroid = Eigen::Vector3d(ceb[e], ceb[kCap + e], ceb[2 * kCap + e]);
-              x.valid = false;
-              if (!useb[e]) continue;
-              double l0 = Eb[e], l1 = Eb[kCap + e], l2 = Eb[2 * kCap + e];
-              Eigen::Vector3d nv(Eb[3 * kCap + e], Eb[4 * kCap + e], Eb[5 * kCap + e]);
-              bool solved = okb[e] != 0;
-              if (redob[e]) {  // Newton needs more steps: the scalar routine, to the end
-                Eigen::Matrix3d M;
-                M(0, 0) = Mb[e];
-                M(1, 1) = Mb[kCap + e];
-                M(2, 2) = Mb[2 * kCap + e];
-                M(0, 1) = M(1, 0) = Mb[3 * kCap + e];
-                M(1, 2) = M(2, 1) = Mb[4 * kCap + e];
-                M(0, 2) = M(2, 0) = Mb[5 * kCap + e];
-                solved = smallest_eigenpair(M, &l0, &l1, &l2, &nv);
-              }
-              if (!solved) continue;
-              if (!(l2 > 0.0) || l1 <= kRankTol * l2) continue;
-              const double nn = nnb[e];
-              x.valid = true;
-              x.normal = orient_normal(nv);  // SPEC "Plane fit" orientation
-              x.h = dot3(pt - x.centroid, x.normal);
-              x.rms = std::sqrt(std::max(l0, 0.0) / nn);
-              x.tol = std::max(k * x.rms, kRoundOff * std::sqrt((l1 + l2) / nn));
+              x.valid = validb[e] != 0;
+              if (!x.valid) continue;
+              x.h = F[e];
+              x.rms = F[kCap + e];
+              x.tol = F[2 * kCap + e];
+              x.normal = Eigen::Vector3d(F[3 * kCap + e], F[4 * kCap + e], F[5 * kCap + e]);
               best = std::min(best, x.rms);
             }
             bool fits = false, proud = false;
