@@ -6,7 +6,8 @@ The README's results table (between the ``results:start`` / ``results:end`` mark
 from the same numbers. Fragments written by other benchmark scripts (``results_*.md`` beside this
 file) are included as they are: ``results_speed.md`` (bench_speed.py: the default detector against
 Open3D and PCL, size sweep, memory, threads, where the time goes) first, the others after.
-``--all`` first reruns those scripts (bench_speed.py, run_cpp.py, bench_unorganized.py), so one
+``--all`` first reruns those scripts (bench_speed.py, run_cpp.py, bench_unorganized.py,
+bench_edges.py), so one
 command regenerates every table.
 """
 
@@ -84,7 +85,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.all:
         quick = {"bench_speed.py": ["--quick"], "run_cpp.py": ["--quick"],
-                 "bench_unorganized.py": ["--n", "100000"]}
+                 "bench_unorganized.py": ["--n", "100000"], "bench_edges.py": []}
         for script, small in quick.items():
             cmd = [sys.executable, str(HERE / script)] + (small if args.quick else [])
             subprocess.run(cmd, check=True)

@@ -32,7 +32,6 @@ from score import Counts, confusion  # noqa: E402
 from suite import EDGE_KINDS, KINDS, scenes  # noqa: E402
 
 RESULTS = HERE / "results_edges.md"
-SPEED = HERE.parent / "results_edges.md"  # fragment appended to bench/RESULTS.md
 README = HERE.parents[1] / "README.md"
 README_START, README_END = "<!-- edges:start -->", "<!-- edges:end -->"
 TUNED = HERE / "edge_tuned.json"
@@ -260,36 +259,6 @@ def tune() -> dict:
     return best
 
 
-def speed() -> list[str]:
-    """Cost of the edge test and of min_step='auto' (best of 3, one run, this machine)."""
-    from common import best_of
-
-    grids = []
-    if rt.available():
-        grids.append(("real scan 426 x 724", rt.truth().grid))
-    sc = next(s for s in scenes("test", real=False) if s.spec.group == "edge_wall")
-    grids.append((f"edge scene {sc.shape[0]} x {sc.shape[1]}", sc.points))
-    lines = [
-        "## Edge test: speed cost (`bench/accuracy/edges.py`)",
-        "",
-        "One `miem.detect` call, best of 3, all threads. `before`: recommended without the edge "
-        "test and without `min_step='auto'`; `+auto`: with `min_step='auto'`; `recommended`: "
-        "with both (the preset).",
-        "",
-        "| grid | before (ms) | +auto (ms) | recommended (ms) | recommended / before |",
-        "|---|---|---|---|---|",
-    ]
-    for name, g in grids:
-        t0 = best_of(lambda: miem.detect(g, **BEFORE), 3)
-        t1 = best_of(lambda: miem.detect(g, preset="recommended", edge_tolerance=None), 3)
-        t2 = best_of(lambda: miem.detect(g, preset="recommended"), 3)
-        lines.append(f"| {name} | {1e3 * t0:.0f} | {1e3 * t1:.0f} | {1e3 * t2:.0f} | "
-                     f"{t2 / t0:.1f}x |")
-    lines += ["", "Accuracy: `bench/accuracy/results_edges.md`."]
-    SPEED.write_text("\n".join(lines) + "\n")
-    return lines
-
-
 def update_readme(rl: dict) -> None:
     """The real-scan before/after table and picture between the README's edges markers."""
     text = README.read_text()
@@ -321,7 +290,6 @@ def main() -> int:
     write(syn, rl, time.perf_counter() - t0, old)
     if rl is not None:
         update_readme(rl)
-    print("\n".join(speed()))
     print(RESULTS.read_text())
     return 0
 
