@@ -140,8 +140,9 @@ class Contender:
 
 
 def _miem_prepare(grid: np.ndarray, step: float, **params: Any) -> np.ndarray:
-    kwargs = miem_kwargs(params, step)
-    # The tuned fields over the paper's method (what the tuning grid was built on).
+    kwargs = {**EDGE_STAGE, **miem_kwargs(params, step)}
+    # The tuned fields over the paper's method (what the tuning grid was built on), with the
+    # edge stage of the default (tuned by edges.py --tune) on top.
     return miem.detect(grid, preset="paper", heights="abnormal", **kwargs).labels == miem.ABNORMAL
 
 
@@ -174,6 +175,10 @@ def _miem_grid() -> list[dict]:
 _TUNED_FIELDS = ("theta0", "scales", "max_gap", "min_step", "min_directions", "max_iterations",
                  "window", "height_tolerance", "edge_extent")
 PAPER = {k: miem.PRESETS["paper"].flat("grid")[k] for k in _TUNED_FIELDS}
+#: The default's edge stage (``min_step``, the edge test), tuned by ``edges.py --tune`` and kept
+#: by this benchmark's own tuning.
+EDGE_STAGE = {k: miem.PRESETS["recommended"].flat("grid")[k]
+              for k in ("min_step", "edge_tolerance", "edge_window")}
 
 
 # --------------------------------------------------------------------------------------------

@@ -28,7 +28,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 import miem
-from contenders import CONTENDERS, PAPER, miem_supports
+from contenders import CONTENDERS, EDGE_STAGE, PAPER, miem_supports
 from score import Counts, confusion, kind_counts
 from suite import EDGE_KINDS, KINDS, TALL_KINDS, Scene, scenes
 from tune import EDGE_FA_MAX, NORMAL_FA_MAX, best, evaluate, tune_miem
@@ -62,6 +62,7 @@ def _recommended_kwargs(params: dict) -> dict:
     out = dict(PAPER)
     if miem_supports("height_tolerance"):
         out["height_tolerance"] = None
+    out.update(EDGE_STAGE)  # owned by edges.py --tune
     out.update({k: v for k, v in params.items() if not k.endswith("_steps")})
     return _jsonable(out)
 
