@@ -196,9 +196,13 @@ def build_stages(src: Path, build_dir: Path) -> Path | None:
     return build_dir / "bench" / "miem_bench_stages"
 
 
-def base_binary(commit: str) -> Path | None:
-    """miem_bench_stages built from an earlier commit (git archive into build/base-COMMIT)."""
+def base_binary(commit: str, build: bool = True) -> Path | None:
+    """miem_bench_stages built from an earlier commit (git archive into build/base-COMMIT);
+    with build=False only one built before."""
     root = ROOT / "build" / f"base-{commit}"
+    if not build:
+        done = root / "build" / "bench" / "miem_bench_stages"
+        return done if done.exists() else None
     src = root / "src"
     if not (src / "CMakeLists.txt").exists():
         src.mkdir(parents=True, exist_ok=True)
@@ -219,9 +223,10 @@ def run_stages(binary: Path, grid_file: Path, side: int, nt: int, repeats: int,
     return row
 
 
-def stage_times(build_dir: Path, side: int, repeats: int, with_bases: bool = True):
+def stage_times(build_dir: Path, side: int, repeats: int, build_bases: bool = True):
     """The C++ stages, timed alone (miem_bench_stages), 1 and 2 threads; and the same scan on
-    the BASES commits' binaries (1 thread), all in this one run."""
+    the BASES commits' binaries (1 thread; built first unless build_bases is false), all in
+    this one run."""
     binary = build_stages(ROOT, build_dir)
     if binary is None:
         return [], []
@@ -232,8 +237,8 @@ def stage_times(build_dir: Path, side: int, repeats: int, with_bases: bool = Tru
         for nt in (1, 2):
             rows.append(run_stages(binary, grid_file, side, nt, repeats, preset))
     before = []
-    for commit, what, old_preset, new_preset in (BASES if with_bases else []):
-        old = base_binary(commit)
+    for commit, what, old_preset, new_preset in BASES:
+        old = base_binary(commit, build_bases)
         if old is None:
             continue
         b = run_stages(old, grid_file, side, 1, repeats, old_preset)
@@ -365,7 +370,8 @@ def main(argv=None) -> int:
     rows_sweep = sweep([256, 512] if q else [256, 512, 1024, 2048, 4096], reps)
     rows_fit = fit_sweep([100_000, 1_000_000] if q else [100_000, 1_000_000, 10_000_000], reps)
     mem = memory(meta["mem_side"])
-    stages, before = stage_times(args.build_dir, meta["stage_side"], reps)
+    # --quick uses only the earlier commits' binaries built before (building them takes minutes)
+    stages, before = stage_times(args.build_dir, meta["stage_side"], reps, build_bases=not q)
     now_bd = breakdown(bd_side, reps)
     base_bd = json.loads(BASELINE.read_text()) if BASELINE.exists() else None
     if base_bd and base_bd.get("side") != bd_side:
