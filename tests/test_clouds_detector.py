@@ -184,3 +184,31 @@ def test_recommended_preset_gives_clouds_the_whole_detector() -> None:
         miem.detect(np.zeros((4, 4, 3)), min_group=10)
     with pytest.raises(ValueError, match="max_gap"):
         miem.detect(pts, max_gap=2)
+
+
+def test_heights_after_the_height_test_equal_the_reference() -> None:
+    """The heights stage reuses the height test's first-pass planes and recomputes those whose
+    NORMAL points changed (a low, wide bump only the height test finds): every height equals the
+    reference's, and the ABNORMAL points' heights equal the heights="abnormal" path's bit for bit
+    (an independent gather per point)."""
+    rng = np.random.default_rng(3)
+    y, x = np.mgrid[0:50, 0:50] * 0.3
+    pts = np.column_stack([x.ravel(), y.ravel(), rng.normal(0.0, 0.005, x.size)])
+    pts[:, :2] += rng.uniform(-0.075, 0.075, (len(pts), 2))
+    bump = np.hypot(pts[:, 0] - 7.5, pts[:, 1] - 7.5) < 0.7
+    pts[bump, 2] += 0.08  # 16 noise sigmas, ~4 points wide: the angle test does not see it
+    order = rng.permutation(len(pts))
+    pts, bump = pts[order], bump[order]
+    on = miem.detect(pts)
+    off = miem.detect(pts, height_tolerance=None)
+    assert not (off.labels == miem.ABNORMAL).any()
+    np.testing.assert_array_equal(on.labels == miem.ABNORMAL, bump)  # all by the height test
+    oracle = ref.detect_points(pts)
+    np.testing.assert_array_equal(on.labels, oracle.labels)
+    np.testing.assert_allclose(on.height, oracle.height, atol=1e-12, equal_nan=True)
+    ab = miem.detect(pts, heights="abnormal")
+    np.testing.assert_array_equal(ab.labels, on.labels)
+    np.testing.assert_array_equal(ab.height[bump], on.height[bump])
+    assert np.isnan(ab.height[~bump]).all()
+    assert {"angle pass 1", "height test", "heights"} <= set(on.stage_seconds)
+    assert all(w >= 0.0 and c >= 0.0 for w, c in on.stage_seconds.values())
