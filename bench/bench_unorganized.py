@@ -154,14 +154,16 @@ def stage_profile(pts: np.ndarray, repeats: int = 1) -> dict:
 def profile_lines(now: dict) -> list[str]:
     """The stage table: before (PROFILE_BEFORE, when present) and now."""
     before = json.loads(PROFILE_BEFORE.read_text()) if PROFILE_BEFORE.exists() else None
-    lines = ["### Where the time goes (default detection, 1M-point cloud)", "",
+    if before is not None and before.get("n") != now["n"]:
+        before = None  # another cloud size: not comparable
+    lines = [f"### Where the time goes (default detection, {now['n']:,}-point cloud)", "",
              "Per stage of `miem.detect(points)` (`PointsDetectResult.stage_seconds`): process "
              "CPU seconds on 1 thread and wall seconds on 2 threads (shared machine: compare "
              "the CPU column). "
              + ("'before' is main at fbc6d8f (the build before the #11 speed work, with only the "
                 f"stage clock added), measured by `--save-profile` on {before['when']}."
-                if before else "No 'before' profile (bench/results_unorganized_profile_before."
-                "json) was found."), ""]
+                if before else "No 'before' profile of this cloud size "
+                "(bench/results_unorganized_profile_before.json, made with the default --n)."), ""]
     names = list(now["stages"])
     if before:
         names += [k for k in before["stages"] if k not in now["stages"]]
