@@ -68,6 +68,46 @@ inline __attribute__((always_inline)) void newton_step(double& x, double& live, 
   live = (-step <= 1e-17 * tr) ? 0.0 : go;
 }
 
+/// The arithmetic smallest_eigenpair does, for one matrix in straight-line code (vector loops
+/// inline it): l0 = x after at most 4 Newton steps (`live` still set: it has not ended), l1, l2
+/// = hi, tr, and the largest cross product (bx0, bx1, bx2) of two rows of M - l0 I with its
+/// squared norm nb (not yet normalised).
+inline __attribute__((always_inline)) void eigen_lane(double a, double b, double c, double d,
+                                                       double e, double f, double& tr,
+                                                       double& x, double& live, double& l1,
+                                                       double& hi, double& bx0, double& bx1,
+                                                       double& bx2, double& nb) {
+  tr = a + b + c;
+  const double c1 = (a * b + b * c + a * c) - (d * d + e * e + f * f);
+  const double det = a * b * c + 2.0 * d * e * f - a * e * e - b * f * f - c * d * d;
+  // Newton from 0 on q(x) = x^3 - tr x^2 + c1 x - det, fixed steps masked by `live`
+  x = 0.0;
+  live = tr > 0.0 ? 1.0 : 0.0;
+  newton_step(x, live, tr, c1, det);
+  newton_step(x, live, tr, c1, det);
+  newton_step(x, live, tr, c1, det);
+  newton_step(x, live, tr, c1, det);
+  const double s = tr - x, p = c1 - x * s;
+  const double disc = s * s - 4.0 * p;
+  hi = 0.5 * (s + std::sqrt(disc > 0.0 ? disc : 0.0));
+  l1 = hi > 0.0 ? p / hi : 0.0;
+  const double ax = a - x, bx = b - x, cx = c - x;
+  // Rows r0 = (ax, d, f), r1 = (d, bx, e), r2 = (f, e, cx); their cross products.
+  const double u0 = d * e - f * bx, u1 = f * d - ax * e, u2 = ax * bx - d * d;  // r0 x r1
+  const double v0 = d * cx - f * e, v1 = f * f - ax * cx, v2 = ax * e - d * f;  // r0 x r2
+  const double w0 = bx * cx - e * e, w1 = e * f - d * cx, w2 = d * e - bx * f;  // r1 x r2
+  const double n01 = (u0 * u0 + u1 * u1) + u2 * u2;
+  const double n02 = (v0 * v0 + v1 * v1) + v2 * v2;
+  const double n12 = (w0 * w0 + w1 * w1) + w2 * w2;
+  // smallest_eigenpair's choice: n01 >= n02 ? (n01 >= n12 ? c01 : c12) : (n02 >= n12 ? c02 : c12)
+  const bool pu = (n01 >= n02) & (n01 >= n12);
+  const bool pv = !(n01 >= n02) & (n02 >= n12);
+  bx0 = pu ? u0 : (pv ? v0 : w0);
+  bx1 = pu ? u1 : (pv ? v1 : w1);
+  bx2 = pu ? u2 : (pv ? v2 : w2);
+  nb = pu ? n01 : (pv ? n02 : n12);  // the largest of the three
+}
+
 /// smallest_eigenpair for m matrices at once (SoA: entries a = M00, b = M11, c = M22, d = M01,
 /// e = M12, f = M02, `cap` apart in `M` in that order), in straight-line code that vectorises.
 /// Writes l0, l1, l2, nx, ny, nz (`cap` apart in `out`) and ok (smallest_eigenpair's return
@@ -88,35 +128,11 @@ MIEM_EIG_CLONES inline void smallest_eigenpairs(std::ptrdiff_t m, std::ptrdiff_t
 #pragma GCC ivdep
   for (std::ptrdiff_t i = 0; i < m; ++i) {  // (too many arrays for GCC's alias versioning)
     const double a = ma[i], b = mb[i], c = mc[i], d = md[i], e = me[i], f = mf[i];
-    const double tr = a + b + c;
-    const double c1 = (a * b + b * c + a * c) - (d * d + e * e + f * f);
-    const double det = a * b * c + 2.0 * d * e * f - a * e * e - b * f * f - c * d * d;
-    double x = 0.0, live = tr > 0.0 ? 1.0 : 0.0;
-    newton_step(x, live, tr, c1, det);
-    newton_step(x, live, tr, c1, det);
-    newton_step(x, live, tr, c1, det);
-    newton_step(x, live, tr, c1, det);
-    const double s = tr - x, p = c1 - x * s;
-    const double disc = s * s - 4.0 * p;
-    const double hi = 0.5 * (s + std::sqrt(disc > 0.0 ? disc : 0.0));
-    const double ax = a - x, bx = b - x, cx = c - x;
-    const double u0 = d * e - f * bx, u1 = f * d - ax * e, u2 = ax * bx - d * d;  // r0 x r1
-    const double v0 = d * cx - f * e, v1 = f * f - ax * cx, v2 = ax * e - d * f;  // r0 x r2
-    const double w0 = bx * cx - e * e, w1 = e * f - d * cx, w2 = d * e - bx * f;  // r1 x r2
-    const double n01 = (u0 * u0 + u1 * u1) + u2 * u2;
-    const double n02 = (v0 * v0 + v1 * v1) + v2 * v2;
-    const double n12 = (w0 * w0 + w1 * w1) + w2 * w2;
-    // smallest_eigenpair's choice: n01 >= n02 ? (n01 >= n12 ? c01 : c12) : (n02 >= n12 ? c02 : c12)
-    const bool pu = (n01 >= n02) & (n01 >= n12);
-    const bool pv = !(n01 >= n02) & (n02 >= n12);
-    const double bx0 = pu ? u0 : (pv ? v0 : w0);
-    const double bx1 = pu ? u1 : (pv ? v1 : w1);
-    const double bx2 = pu ? u2 : (pv ? v2 : w2);
-    const double m12 = n02 > n12 ? n02 : n12;  // std::max(n01, std::max(n02, n12))
-    const double nb = n01 > m12 ? n01 : m12;
+    double tr, x, live, l1, hi, bx0, bx1, bx2, nb;
+    eigen_lane(a, b, c, d, e, f, tr, x, live, l1, hi, bx0, bx1, bx2, nb);
     const double len = std::sqrt(nb > 0.0 ? nb : 1.0);
     o0[i] = x;
-    o1[i] = hi > 0.0 ? p / hi : 0.0;
+    o1[i] = l1;
     o2[i] = hi;
     o3[i] = bx0 / len;
     o4[i] = bx1 / len;

@@ -73,35 +73,8 @@ MIEM_FIT_CLONES inline void solve_fits(std::ptrdiff_t m, std::ptrdiff_t cap,
     const double mx = s1[i] * inv_n, my = s2[i] * inv_n, mz = s3[i] * inv_n;
     const double a = s4[i] - n * mx * mx, d = s5[i] - n * mx * my, f = s6[i] - n * mx * mz;
     const double b = s7[i] - n * my * my, e = s8[i] - n * my * mz, c = s9[i] - n * mz * mz;
-    const double tr = a + b + c;
-    const double c1 = (a * b + b * c + a * c) - (d * d + e * e + f * f);
-    const double det = a * b * c + 2.0 * d * e * f - a * e * e - b * f * f - c * d * d;
-    // Newton from 0 on q(x) = x^3 - tr x^2 + c1 x - det (as smallest_eigenpair, fixed steps,
-    // written out so that the loop over cells vectorises).
-    double x = 0.0;
-    double live = tr > 0.0 ? 1.0 : 0.0;
-    newton_step(x, live, tr, c1, det);
-    newton_step(x, live, tr, c1, det);
-    newton_step(x, live, tr, c1, det);
-    newton_step(x, live, tr, c1, det);
-    const double s = tr - x, p = c1 - x * s;
-    const double disc = s * s - 4.0 * p;
-    const double hi = 0.5 * (s + std::sqrt(disc > 0.0 ? disc : 0.0));
-    const double l1 = hi > 0.0 ? p / hi : 0.0;
-    const double ax = a - x, bx = b - x, cx = c - x;
-    // Rows r0 = (ax, d, f), r1 = (d, bx, e), r2 = (f, e, cx); their cross products.
-    const double u0 = d * e - f * bx, u1 = f * d - ax * e, u2 = ax * bx - d * d;    // r0 x r1
-    const double v0 = d * cx - f * e, v1 = f * f - ax * cx, v2 = ax * e - d * f;    // r0 x r2
-    const double w0 = bx * cx - e * e, w1 = e * f - d * cx, w2 = d * e - bx * f;    // r1 x r2
-    const double n01 = u0 * u0 + u1 * u1 + u2 * u2;
-    const double n02 = v0 * v0 + v1 * v1 + v2 * v2;
-    const double n12 = w0 * w0 + w1 * w1 + w2 * w2;
-    const bool pick01 = (n01 >= n02) & (n01 >= n12);
-    const bool pick02 = !(n01 >= n02) & (n02 >= n12);
-    double nx = pick01 ? u0 : (pick02 ? v0 : w0);
-    double ny = pick01 ? u1 : (pick02 ? v1 : w1);
-    double nz = pick01 ? u2 : (pick02 ? v2 : w2);
-    const double nb = pick01 ? n01 : (pick02 ? n02 : n12);
+    double tr, x, live, l1, hi, nx, ny, nz, nb;
+    eigen_lane(a, b, c, d, e, f, tr, x, live, l1, hi, nx, ny, nz, nb);
     const double inv_len = 1.0 / std::sqrt(nb > 0.0 ? nb : 1.0);
     nx *= inv_len, ny *= inv_len, nz *= inv_len;
     const double sg = nz != 0.0 ? (nz > 0.0 ? 1.0 : -1.0)
