@@ -68,23 +68,27 @@ class ProfileStream:
     Each :meth:`push` takes one profile and, once ``lag`` profiles have followed a row, hands
     that row's final labels and heights back. The labels are exactly those :func:`miem.detect`
     gives for the same rows with the same parameters, for every input; the heights equal its
-    heights up to rounding (the same window planes, summed in another order). The whole
-    detector runs: the angle passes, the height test with its compact EDGE groups, heights.
+    heights up to rounding (the same window planes, summed in another order). The detector
+    runs but for the edge test: the angle passes, the height test with its compact EDGE
+    groups, heights.
     The lag (docs/SPEC.md "Streaming") is::
 
         L = P R + E + (P + 1) h     (height test on;  L = P R + h without it)
 
     with ``R = max(scales) + max_gap`` (``+ max_reach`` with ``min_step``) the rows one angle
     judgment reads, ``P = max_iterations``, ``E = edge_extent`` (the rows that decide whether an
-    EDGE group is compact) and ``h = window // 2``: 10 * 2 + 12 + 11 * 10 = 142 profiles with
+    EDGE group is compact) and ``h = window // 2``: 10 * 3 + 12 + 11 * 10 = 152 profiles with
     the defaults, 10 * 2 + 10 = 30 with ``preset="paper"`` (no height test). A lower
     ``max_iterations``, ``edge_extent`` or ``window`` shortens it.
 
     The parameters are a :class:`miem.DetectParams` as for :func:`miem.detect` (``params``, a
-    ``preset`` or keyword overrides; the default is the default preset, as for
-    :func:`miem.detect`). The stream does not implement ``theta0="auto"`` (the median of the
-    whole scan's angles, which a stream never sees: give degrees) nor the edge test
-    (``edge_tolerance``): they are a ValueError naming the field.
+    ``preset`` or keyword overrides; the default, :func:`miem.default_params` ``("stream")``, is
+    the default preset without the edge test and with ``min_step=None``). The stream does not
+    implement ``theta0="auto"`` (the median of the whole scan's angles, which a stream never
+    sees: give degrees), the edge test (``edge_tolerance``) nor ``min_step="auto"`` (it needs
+    the whole scan: give the value ``miem.detect(first_scan).params["min_step"]`` resolved on a
+    first scan of the part; the stream then equals batch detection with that value): they are
+    a ValueError naming the field, so ``preset="recommended"`` is refused for its edge test.
 
     Parameters
     ----------
@@ -124,7 +128,7 @@ class ProfileStream:
     ...         print(done.row, hit, done.heights[hit])
     10 [30] [3.]
     >>> stream.lag, len(stream.flush())              # the last `lag` rows
-    (142, 142)
+    (152, 152)
     """
 
     def __init__(
