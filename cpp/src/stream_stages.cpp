@@ -61,7 +61,7 @@ void ProfileStream<T>::init_stages() {
     cs_.assign(static_cast<std::size_t>(2 * strips_ * kMoments * stride_), 0.0);
     origin_.assign(static_cast<std::size_t>(2 * strips_ * 3), 0.0);
     has_origin_.assign(static_cast<std::size_t>(2 * strips_), 0);
-    fit_buf_.assign(static_cast<std::size_t>((kMoments + 3 + 4) * cap + 3 * span_), 0.0);
+    fit_buf_.assign(static_cast<std::size_t>((kMoments + 3 + 4) * cap + 6 * span_), 0.0);
     fit_flags_.assign(static_cast<std::size_t>(2 * cap), 0);
   }
   reset_stages();
@@ -161,17 +161,20 @@ void ProfileStream<T>::compact_row(std::int64_t row) noexcept {
   }
 }
 
-// Adds (sign 1) or removes (sign -1) the window classes of `row` to the column sums of `set`.
+// Adds (sign 1) or removes (sign -1) the window classes of row `in` to the column sums of `set`;
+// with `out` >= 0, adds row `in` and removes row `out` in one pass (move_row_moments).
 template <typename T>
-void ProfileStream<T>::sums_add_row(int set, std::int64_t row, double sign) noexcept {
+void ProfileStream<T>::sums_add_row(int set, std::int64_t in, double sign,
+                                    std::int64_t out) noexcept {
   const std::ptrdiff_t W = width_, pad = half_ + 1, plane = phys_ * W;
-  const GridView<T> g{xyz_.data() + slot(row) * W, 1, W, W, 1, plane};
-  const std::uint8_t* hm = hm_.data() + slot(row) * W;
+  const GridView<T> g{xyz_.data() + slot(in) * W, 1, W, W, 1, plane};
+  const std::uint8_t* hm = hm_.data() + slot(in) * W;
   double* x = fit_buf_.data() + (kMoments + 3 + 4) * std::min(W, kStrip);
+  double* xo = x + 3 * span_;  // the row leaving
   for (std::ptrdiff_t t = 0; t < strips_; ++t) {
     const std::ptrdiff_t tc0 = t * kStrip, tc1 = std::min(W, tc0 + kStrip);
     const std::ptrdiff_t C0 = std::max<std::ptrdiff_t>(0, tc0 - half_);
-    const std::ptrdiff_t C1 = std::min<std::ptrdiff_t>(W, tc1 + half_);
+    const std::ptrdiff_t C1 = std::min<std::ptrdiff_t>(W, tc1 + half_), nc = C1 - C0;
     const std::size_t k = static_cast<std::size_t>(set * strips_ + t);
     double* o = origin_.data() + 3 * k;
     if (!has_origin_[k] && sign > 0.0) {  // the strip's first NORMAL cell (before it, the
@@ -184,9 +187,17 @@ void ProfileStream<T>::sums_add_row(int set, std::int64_t row, double sign) noex
         }
       }
     }
-    detail::load_rel(g, 0, C0, C1 - C0, o[0], o[1], o[2], x, x + span_, x + 2 * span_);
-    detail::add_row_moments(hm + C0, C1 - C0, x, x + span_, x + 2 * span_, sign,
-                            cs_.data() + k * kMoments * stride_ + pad, stride_);
+    double* cs = cs_.data() + k * kMoments * stride_ + pad;
+    detail::load_rel(g, 0, C0, nc, o[0], o[1], o[2], x, x + span_, x + 2 * span_);
+    if (out < 0) {
+      detail::add_row_moments(hm + C0, nc, x, x + span_, x + 2 * span_, sign, cs, stride_);
+      continue;
+    }
+    const GridView<T> go{xyz_.data() + slot(out) * W, 1, W, W, 1, plane};
+    detail::load_rel(go, 0, C0, nc, o[0], o[1], o[2], xo, xo + span_, xo + 2 * span_);
+    detail::move_row_moments(hm + C0, x, x + span_, x + 2 * span_,
+                             hm_.data() + slot(out) * W + C0, xo, xo + span_, xo + 2 * span_,
+                             nc, cs, stride_);
   }
 }
 
@@ -203,9 +214,12 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
   }
   const int nxt = cur_ ^ 1;
   const std::int64_t next_first = (band + 1) * band_ - h;
-  for (const std::int64_t lim = std::min<std::int64_t>(pushed_ - 1, row + h); sums_next_ <= lim;) {
+  const std::int64_t lim = std::min<std::int64_t>(pushed_ - 1, row + h);
+  const bool drop = row - h - 1 >= set_first_[cur_];
+  const bool move = drop && sums_next_ == lim;  // the steady state: one row in, one out
+  for (; sums_next_ <= lim;) {
     const std::int64_t r = sums_next_++;
-    sums_add_row(cur_, r, 1.0);
+    sums_add_row(cur_, r, 1.0, move ? row - h - 1 : -1);
     if (r == next_first) {  // start the next set afresh
       const std::size_t n = static_cast<std::size_t>(strips_ * kMoments * stride_);
       std::fill(cs_.begin() + static_cast<std::ptrdiff_t>(nxt * n),
@@ -213,9 +227,9 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
       std::fill(has_origin_.begin() + nxt * strips_, has_origin_.begin() + (nxt + 1) * strips_, 0);
       set_first_[nxt] = next_first;
     }
-    if (r >= next_first) sums_add_row(nxt, r, 1.0);
+    if (r >= next_first) sums_add_row(nxt, r, 1.0, -1);
   }
-  if (row - h - 1 >= set_first_[cur_]) sums_add_row(cur_, row - h - 1, -1.0);
+  if (drop && !move) sums_add_row(cur_, row - h - 1, -1.0, -1);
 
   const std::ptrdiff_t cap = std::min(W, kStrip), s = slot(row);
   double* S = fit_buf_.data();

@@ -146,7 +146,7 @@ class ProfileStream {
   void height_pass_row(std::int64_t row, int pass) noexcept;
   void final_row(std::int64_t row) noexcept;
   void remove_height(std::int64_t row, std::ptrdiff_t col, int pass) noexcept;
-  void sums_add_row(int set, std::int64_t row, double sign) noexcept;
+  void sums_add_row(int set, std::int64_t in, double sign, std::int64_t out) noexcept;
   template <typename Fit>
   void window_fit(std::int64_t row, std::ptrdiff_t col, int pass, Fit fit) noexcept;
 
