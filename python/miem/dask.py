@@ -66,7 +66,7 @@ _DTYPES = {"labels": np.uint8, "flags": np.uint8, "angle": np.float64, "height":
 #: Fields of the default (recommended) preset that miem.dask does not run yet, and the value its
 #: own default uses instead: the edge test (its sums are not yet independent of where a block
 #: starts). Given explicitly (or by a preset), it is refused.
-_NOT_YET = {"edge_tolerance": None}
+_NOT_YET: dict = {}
 
 
 def _dask_defaults(args: tuple, kwargs: dict) -> dict:
@@ -78,12 +78,10 @@ def _dask_defaults(args: tuple, kwargs: dict) -> dict:
 
 
 def _refuse_not_yet(params: dict) -> None:
-    """Refuse what :data:`_NOT_YET` names when it is on (given by a field or a preset)."""
-    if params.get("edge_tolerance") is not None:
-        raise ValueError(
-            f"edge_tolerance={params['edge_tolerance']!r}: the edge test is not implemented by "
-            "miem.dask yet (its sums depend on where a block starts, so blocks would not equal "
-            "the whole scan), so refused; miem.dask's default leaves it out: edge_tolerance=None")
+    """Refuse what :data:`_NOT_YET` names when it is on (nothing at present)."""
+    on = [k for k in _NOT_YET if params.get(k) not in (None, 0, False)]
+    if on:
+        raise ValueError(f"{', '.join(on)}: not implemented by miem.dask yet")
 
 
 def _resolve_min_step(grid: "da.Array", args: tuple, kwargs: dict, params: dict) -> tuple:
@@ -117,9 +115,7 @@ _GRID_KNOWN = {"preset", "theta0", "theta0_auto", "scales", "max_gap", "min_step
                "max_reach", "heights",
                # resolved over the whole grid first (auto_min_step), then a min_step length
                "min_step_auto",
-               # read only by the edge test, whose reach is not covered: edge_tolerance (its
-               # switch) is refused when on
-               "edge_window"}
+               "edge_tolerance", "edge_window"}
 
 
 def grid_halo(params: dict, strict: bool = False) -> int:
@@ -154,6 +150,9 @@ def grid_halo(params: dict, strict: bool = False) -> int:
         if strict:
             per_pass = max(per_pass, max(_TILE) - 1 + half)
         lag += params["max_iterations"] * per_pass
+    if params.get("edge_tolerance") is not None:  # the edge passes, after the height passes
+        side = params["edge_window"] // 2
+        lag += params["max_iterations"] * (max(side, max(_TILE) - 1 + side) if strict else side)
     return lag + half
 
 
