@@ -97,7 +97,6 @@ def check_equal(grid: np.ndarray, chunks, **kw) -> list:
     """miem.dask on `grid` in `chunks` against miem.detect on the whole grid; returns the
     defects (for the caller's own checks). miem.dask does not run the edge test yet: it is
     left out of every preset here (its own default)."""
-    kw = {**mdask._NOT_YET, **kw}
     want = miem.detect(grid, **{k: v for k, v in kw.items() if k != "strict"})
     res = mdask.detect(da.from_array(grid, chunks=chunks + (3,)), **kw)
     defects, labels, flags, angle, height = res.defects(res.labels, res.flags, res.angle,
@@ -122,7 +121,7 @@ def _straddling(defects: list, borders_r=(), borders_c=()) -> int:
 
 @pytest.mark.parametrize("preset", list(miem.PRESETS))
 def test_row_blocks_equal_whole_grid_for_every_preset(client, preset: str) -> None:
-    halo = mdask.grid_halo(miem.detect(scene(8, 8), preset=preset, **mdask._NOT_YET).params)
+    halo = mdask.grid_halo(miem.detect(scene(8, 8), preset=preset).params)
     rows = max(64, halo // 2)  # blocks much smaller than the scan: edge blocks see part of it
     h = 6 * rows
     borders = tuple(rows * k for k in range(1, 6))
@@ -158,11 +157,10 @@ def test_halo_is_needed(client) -> None:
     # The same scene with a halo far below grid_halo: some labels differ, so the equality above
     # rests on the halo, not on luck.
     g = scene(256, 120, borders_r=(64, 128, 192), seed=4)
-    want = miem.detect(g, preset="recommended", **mdask._NOT_YET)
+    want = miem.detect(g, preset="recommended")
     params = dict(want.params)
-    res = mdask._build(da.from_array(g, chunks=(64, 120, 3)), {"preset": "recommended",
-                                                                "num_threads": 1,
-                                                                **mdask._NOT_YET}, params, 0, 0)
+    res = mdask._build(da.from_array(g, chunks=(64, 120, 3)),
+                       {"preset": "recommended", "num_threads": 1}, params, 0, 0)
     assert not np.array_equal(res.labels.compute(), want.labels)
 
 
@@ -181,7 +179,6 @@ def test_auto_theta0_equals_whole_grid(client, kw: dict) -> None:
     br, bc = (50, 100), (45, 90)
     g = scene(150, 135, borders_r=br, borders_c=bc, seed=8)
     g[:, :, 2] *= 3.0  # steeper noise: theta0 inside (75, 170), not at a bound
-    kw = {**mdask._NOT_YET, **kw}
     want = miem.detect(g, **kw)
     assert 75.0 < want.params["theta0"] < 170.0
     got = mdask.auto_theta0(da.from_array(g, chunks=(50, 45, 3)), kw)
@@ -194,9 +191,10 @@ def test_auto_theta0_equals_whole_grid(client, kw: dict) -> None:
 
 
 def test_strict_halo_and_pickled_blocks(client) -> None:
-    params = miem.detect(scene(8, 8), preset="recommended", **mdask._NOT_YET).params
-    assert mdask.grid_halo(params, strict=True) == 10 * 3 + 10 * (127 + 10) + 10
-    assert mdask.grid_halo(params) == 10 * 3 + 10 * (10 + 12) + 10
+    params = miem.detect(scene(8, 8), preset="recommended").params
+    # angle passes, height passes (window 21, edge_extent 12), edge passes (edge_window 15)
+    assert mdask.grid_halo(params, strict=True) == 10 * 3 + 10 * (127 + 10) + 10 * (127 + 7) + 10
+    assert mdask.grid_halo(params) == 10 * 3 + 10 * (10 + 12) + 10 * 7 + 10
     assert mdask.grid_halo(miem.detect(scene(8, 8), preset="paper").params, strict=True) == 30
     g = scene(150, 90, borders_r=(50, 100), seed=7)
     check_equal(g, (50, 90), preset="recommended", strict=True)

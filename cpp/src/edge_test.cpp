@@ -1,7 +1,8 @@
-// Edge test (SPEC "Edge test"). Per pass: integral images of the support (NORMAL) moments, then
-// for every candidate 8 one-sided sub-window planes from four corner reads each. Cells are
-// judged against the pass's fixed support (Jacobi), so rows run in parallel with identical
-// results for any thread count. The arithmetic follows miem.reference.edge_test step by step.
+// Edge test (SPEC "Edge test"). Per pass and per 64 x 128-cell tile: integral images of the
+// support (NORMAL) moments over the tile and the r cells around it, relative to the tile's first
+// finite cell, then for every candidate 8 one-sided sub-window planes from four corner reads
+// each. Cells are judged against the pass's fixed support (Jacobi), so tiles run in parallel
+// with identical results for any thread count. The formulas are miem.reference.edge_test's.
 #include "edge_test.hpp"
 
 #include <algorithm>
@@ -105,38 +106,71 @@ MIEM_EDGE_CLONES void side_planes(std::ptrdiff_t m, std::ptrdiff_t cap, double k
   }
 }
 
-// The passes on `g` (the grid or its transposed view) from the origin `o`. The integral images
-// are kept as a ring of R rows: a band of B judged rows and r + 1 rows either side of it.
+// The passes on `g`. Each kTileRows x kTileCols tile of the grid (fixed in grid coordinates, as
+// the window fits' tiles) gets its own integral images over the tile and the r cells around it,
+// relative to the tile's first finite cell (row-major). So a cell's sums depend on nothing
+// beyond its tile and r cells around it (a block of miem.dask that starts on a tile boundary
+// gives the same bits), and they stay small: sums cumulated over a whole tall grid lose the
+// precision that the smallest eigenvalue needs.
 template <typename T>
-int run_passes(const GridView<T>& g, std::uint8_t* labels, const Eigen::Vector3d& o, int window,
-               double k, int max_iterations, int num_threads, std::vector<double>& scratch) {
+int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
+               int max_iterations, int num_threads, std::vector<double>& scratch) {
+  constexpr std::ptrdiff_t kTileRows = 64, kTileCols = 128;
   const std::ptrdiff_t H = g.rows, W = g.cols, N = H * W, r = window / 2;
   const double n_min = static_cast<double>(std::max<std::ptrdiff_t>(3, (r * r) / 2));
-  const std::ptrdiff_t W1 = W + 1;
-  const std::ptrdiff_t B = std::max<std::ptrdiff_t>(64, 2 * r + 2);
-  const std::ptrdiff_t R = std::min(H + 1, B + 2 * r + 2);
-  const std::size_t need = static_cast<std::size_t>(R * W1 * kM + W * kM);
+  const std::ptrdiff_t ER = std::min(H, kTileRows + 2 * r), EC = std::min(W, kTileCols + 2 * r);
+  const std::ptrdiff_t stride = (EC + 1) * kM;           // one integral-image row
+  const std::ptrdiff_t per = (ER + 1) * stride + EC * kM;  // a thread's images + column sums
+  const std::ptrdiff_t tiles_r = (H + kTileRows - 1) / kTileRows;
+  const std::ptrdiff_t tiles_c = (W + kTileCols - 1) / kTileCols;
+  const int nt = std::max(1, std::min<int>(thread_count(num_threads, N),
+                                           static_cast<int>(tiles_r * tiles_c)));
+  const std::size_t need = static_cast<std::size_t>(per * nt);
   if (scratch.size() < need) scratch.resize(need);
-  double* const S = scratch.data();
-  double* const col = S + R * W1 * kM;
-  const auto srow = [S, R, W1](std::ptrdiff_t s) { return S + (s % R) * W1 * kM; };
   std::vector<std::uint8_t> todo(static_cast<std::size_t>(N)), mark(static_cast<std::size_t>(N));
   for (std::ptrdiff_t i = 0; i < N; ++i) todo[i] = labels[i] == kNormal || labels[i] == kEdge;
-  const int nt = thread_count(num_threads, N);
   int passes = 0;
   for (int it = 0; it < max_iterations; ++it) {
     ++passes;
-    // integral images: running sums down each column, then along each row (NumPy's order);
-    // S row s (0..H) holds the sums over grid rows < s, computed in order as the bands need them
-    std::fill(col, col + W * kM, 0.0);
-    std::ptrdiff_t next = 0;
-    const auto compute_to = [&](std::ptrdiff_t last) {
-      for (; next <= last; ++next) {
-        double* out = srow(next);
-        std::fill(out, out + (next == 0 ? W1 : 1) * kM, 0.0);
-        if (next == 0) continue;
-        const std::ptrdiff_t rr = next - 1;
-        for (std::ptrdiff_t cc = 0; cc < W; ++cc) {
+#pragma omp parallel for schedule(dynamic, 1) num_threads(nt) if (nt > 1)
+    for (std::ptrdiff_t tile = 0; tile < tiles_r * tiles_c; ++tile) {
+#ifdef MIEM_HAVE_OPENMP
+      double* const S = scratch.data() + per * omp_get_thread_num();
+#else
+      double* const S = scratch.data();
+#endif
+      double* const col = S + (ER + 1) * stride;
+      const std::ptrdiff_t R0 = (tile / tiles_c) * kTileRows, R1 = std::min(H, R0 + kTileRows);
+      const std::ptrdiff_t C0 = (tile % tiles_c) * kTileCols, C1 = std::min(W, C0 + kTileCols);
+      bool any = false;
+      for (std::ptrdiff_t rr = R0; rr < R1; ++rr) {
+        for (std::ptrdiff_t cc = C0; cc < C1; ++cc) {
+          const std::ptrdiff_t i = rr * W + cc;
+          mark[i] = 0;
+          any = any || (todo[i] && (labels[i] == kNormal || labels[i] == kEdge));
+        }
+      }
+      if (!any) continue;
+      // the tile's origin: its first finite cell (a candidate is finite, so there is one)
+      Eigen::Vector3d o = Eigen::Vector3d::Zero();
+      for (std::ptrdiff_t i = 0; i < (R1 - R0) * (C1 - C0); ++i) {
+        const std::ptrdiff_t rr = R0 + i / (C1 - C0), cc = C0 + i % (C1 - C0);
+        if (g.finite(rr, cc)) {
+          o = g(rr, cc);
+          break;
+        }
+      }
+      // integral images over rows e0..e1, columns f0..f1: running sums down each column, then
+      // along each row (NumPy's order); local row s holds the sums over rows e0 .. e0 + s - 1
+      const std::ptrdiff_t e0 = std::max<std::ptrdiff_t>(0, R0 - r), e1 = std::min(H, R1 + r);
+      const std::ptrdiff_t f0 = std::max<std::ptrdiff_t>(0, C0 - r), f1 = std::min(W, C1 + r);
+      const std::ptrdiff_t ew = f1 - f0;
+      std::fill(col, col + ew * kM, 0.0);
+      std::fill(S, S + (ew + 1) * kM, 0.0);
+      for (std::ptrdiff_t rr = e0; rr < e1; ++rr) {
+        double* out = S + (rr - e0 + 1) * stride;
+        std::fill(out, out + kM, 0.0);
+        for (std::ptrdiff_t cc = f0; cc < f1; ++cc) {
           const std::uint8_t l = labels[rr * W + cc];
           double t[kM] = {0.0};
           if (l == kNormal) {
@@ -147,21 +181,17 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, const Eigen::Vector3d
             t[7] = p.y() * p.y(), t[8] = p.y() * p.z(), t[9] = p.z() * p.z();
           }
           t[10] = l == kInvalid ? 1.0 : 0.0;
-          double* cs = col + cc * kM;
-          const double* left = out + cc * kM;
-          double* cur = out + (cc + 1) * kM;
+          double* cs = col + (cc - f0) * kM;
+          const double* left = out + (cc - f0) * kM;
+          double* cur = out + (cc - f0 + 1) * kM;
           for (int q = 0; q < kM; ++q) {
             cs[q] += t[q];
             cur[q] = left[q] + cs[q];
           }
         }
       }
-    };
-    for (std::ptrdiff_t b0 = 0; b0 < H; b0 += B) {
-      const std::ptrdiff_t b1 = std::min(H, b0 + B);
-      compute_to(std::min(H, b1 + r));  // the band reads S rows max(0, b0 - r) .. b1 + r
-#pragma omp parallel for schedule(dynamic, 8) num_threads(nt) if (nt > 1)
-      for (std::ptrdiff_t rr = b0; rr < b1; ++rr) {
+      const auto srow = [S, stride, e0](std::ptrdiff_t s) { return S + (s - e0) * stride; };
+      for (std::ptrdiff_t rr = R0; rr < R1; ++rr) {
         // Up to kChunk candidate cells of the row at a time, all as SoA over their 8 sides:
         // the sub-window sums (corner reads), then moments, eigenpairs and planes in vectorised
         // loops; each cell is judged from those.
@@ -170,11 +200,10 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, const Eigen::Vector3d
         double F[6 * kCap], P[3 * kCap];  // F: h, rms, tol, oriented normal; P: the cells
         std::uint8_t okb[kCap], redob[kCap], useb[kCap], emptyb[kCap], validb[kCap];
         std::ptrdiff_t cols[kChunk];
-        for (std::ptrdiff_t cc = 0; cc < W;) {
+        for (std::ptrdiff_t cc = C0; cc < C1;) {
           int m = 0;
-          for (; cc < W && m < kChunk; ++cc) {
+          for (; cc < C1 && m < kChunk; ++cc) {
             const std::ptrdiff_t i = rr * W + cc;
-            mark[i] = 0;
             if (todo[i] && (labels[i] == kNormal || labels[i] == kEdge)) cols[m++] = cc;
           }
           if (m == 0) continue;
@@ -194,10 +223,10 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, const Eigen::Vector3d
                   std::clamp<std::ptrdiff_t>(c + offset(kSides[s][3], r) + 1, 0, W);
               const double* top = srow(r0);
               const double* bottom = srow(r1);
-              const double* a = bottom + c1 * kM;
-              const double* b = top + c1 * kM;
-              const double* cq = bottom + c0 * kM;
-              const double* d = top + c0 * kM;
+              const double* a = bottom + (c1 - f0) * kM;
+              const double* b = top + (c1 - f0) * kM;
+              const double* cq = bottom + (c0 - f0) * kM;
+              const double* d = top + (c0 - f0) * kM;
               for (int q = 0; q < kM; ++q) mm[q * kCap + e] = a[q] - b[q] - cq[q] + d[q];
             }
           }
@@ -286,28 +315,7 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, const Eigen::Vector3d
 template <typename T>
 int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
                 int max_iterations, int num_threads, std::vector<double>& scratch) {
-  const std::ptrdiff_t H = g.rows, W = g.cols, N = H * W;
-  // origin: the mean of the support cells at the start (row-major sum), fixed for every pass
-  Eigen::Vector3d o = Eigen::Vector3d::Zero();
-  std::ptrdiff_t n_support = 0;
-  for (std::ptrdiff_t i = 0; i < N; ++i) {
-    if (labels[i] == kNormal) {
-      o += g(i / W, i % W);
-      ++n_support;
-    }
-  }
-  if (n_support > 0) o /= static_cast<double>(n_support);
-  if (W <= H) return run_passes(g, labels, o, window, k, max_iterations, num_threads, scratch);
-  // wider than tall: on the transposed grid (the ring of integral-image rows then spans the
-  // shorter side; the sub-windows are the same set, SPEC step 3)
-  const GridView<T> t{g.data, W, H, g.col_stride, g.row_stride, g.coord_stride};
-  std::vector<std::uint8_t> lt(static_cast<std::size_t>(N));
-  for (std::ptrdiff_t i = 0; i < H; ++i)
-    for (std::ptrdiff_t j = 0; j < W; ++j) lt[j * H + i] = labels[i * W + j];
-  const int passes = run_passes(t, lt.data(), o, window, k, max_iterations, num_threads, scratch);
-  for (std::ptrdiff_t i = 0; i < H; ++i)
-    for (std::ptrdiff_t j = 0; j < W; ++j) labels[i * W + j] = lt[j * H + i];
-  return passes;
+  return run_passes(g, labels, window, k, max_iterations, num_threads, scratch);
 }
 
 template int edge_passes<float>(const GridView<float>&, std::uint8_t*, int, double, int, int,

@@ -63,27 +63,6 @@ _LABEL_KEYS = ("labels", "flags", "angle", "height")
 _DTYPES = {"labels": np.uint8, "flags": np.uint8, "angle": np.float64, "height": np.float64}
 
 
-#: Fields of the default (recommended) preset that miem.dask does not run yet, and the value its
-#: own default uses instead: the edge test (its sums are not yet independent of where a block
-#: starts). Given explicitly (or by a preset), it is refused.
-_NOT_YET: dict = {}
-
-
-def _dask_defaults(args: tuple, kwargs: dict) -> dict:
-    """``kwargs`` with miem.dask's own default for :data:`_NOT_YET` unless the caller chose a
-    parameter set (positional, ``params`` or ``preset``) or the field."""
-    if args or kwargs.get("params") is not None or kwargs.get("preset") is not None:
-        return kwargs
-    return {**_NOT_YET, **kwargs}
-
-
-def _refuse_not_yet(params: dict) -> None:
-    """Refuse what :data:`_NOT_YET` names when it is on (nothing at present)."""
-    on = [k for k in _NOT_YET if params.get(k) not in (None, 0, False)]
-    if on:
-        raise ValueError(f"{', '.join(on)}: not implemented by miem.dask yet")
-
-
 def _resolve_min_step(grid: "da.Array", args: tuple, kwargs: dict, params: dict) -> tuple:
     """min_step="auto" resolved over the whole grid (:func:`auto_min_step`) and given to every
     block as the length (or None) it resolves to; params record it as auto."""
@@ -136,7 +115,9 @@ def grid_halo(params: dict, strict: bool = False) -> int:
     -------
     int
         ``max_iterations * R (+ max_iterations * (window // 2 + edge_extent) with the height
-        test) + window // 2``, with ``R = max(scales) + max_gap (+ max_reach with min_step)``.
+        test) (+ max_iterations * (edge_window // 2) with the edge test) + window // 2``, with
+        ``R = max(scales) + max_gap (+ max_reach with min_step)``. The edge test's sums are per
+        64 x 128 tile too (docs/SPEC.md "Edge test"); ``strict`` covers them as the window sums.
     """
     _refuse_unknown(params, _GRID_KNOWN | {"halo", "chunks"})
     reach = max(params["scales"]) + params["max_gap"]
@@ -495,9 +476,7 @@ def detect(grid: Any, *args: Any, num_threads: Optional[int] = 1, strict: bool =
         return detect_points(grid, num_threads=num_threads, **kwargs)  # type: ignore[return-value]
     grid = _as_grid(grid)
     kwargs = dict(kwargs, num_threads=num_threads)
-    kwargs = _dask_defaults(args, kwargs)
     params = _probe_params(args, kwargs)
-    _refuse_not_yet(params)
     kwargs, params = _resolve_min_step(grid, args, kwargs, params)
     if args:  # positional parameters (a parameter set) go to every block as given
         kwargs = dict(kwargs, _args=args)
@@ -560,14 +539,11 @@ def auto_theta0(grid: Any, kwargs: Optional[dict] = None, params: Optional[dict]
     """
     grid = _as_grid(grid)
     kwargs = dict(kwargs or {})
-    kwargs = _dask_defaults(kwargs.get("_args", ()), kwargs)
     if params is None:
         kw = dict(kwargs)
         args = kw.pop("_args", ())
         params = _probe_params(args, kw)
-        _refuse_not_yet(params)
         kwargs, params = _resolve_min_step(grid, args, kwargs, params)
-    _refuse_not_yet(params)
     survey = dict(kwargs, theta0=75.0, max_iterations=1, height_tolerance=None,
                   edge_tolerance=None, heights="abnormal")
     halo = grid_halo(dict(params, max_iterations=1, height_tolerance=None)) - \

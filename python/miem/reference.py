@@ -1069,21 +1069,52 @@ def _side_fits(
     return hs, rms, spread, valid, normals, centroids, empty
 
 
+#: The edge test's tiles (SPEC "Edge test" step 3): rows x columns, fixed in grid coordinates.
+_EDGE_TILE = (64, 128)
+
+
 def _edge_pass(
     grid: NDArray[np.float64],
     labels: NDArray[np.uint8],
     candidates: NDArray[np.bool_],
     window: int,
     k: float,
-    origin: NDArray[np.float64],
 ) -> NDArray[np.bool_]:
-    """One edge pass (SPEC "Edge test"): the candidate cells that become ABNORMAL."""
+    """One edge pass (SPEC "Edge test"): the candidate cells that become ABNORMAL, tile by
+    tile (each tile's sums over the tile and ``r`` cells around it, from its own origin)."""
     cells = candidates & ((labels == NORMAL) | (labels == EDGE))
     out = np.zeros_like(cells)
-    if not cells.any():
-        return out
+    hh, ww = cells.shape
+    r = window // 2
+    for t0 in range(0, hh, _EDGE_TILE[0]):
+        for u0 in range(0, ww, _EDGE_TILE[1]):
+            t1, u1 = min(hh, t0 + _EDGE_TILE[0]), min(ww, u0 + _EDGE_TILE[1])
+            if not cells[t0:t1, u0:u1].any():
+                continue
+            tile = grid[t0:t1, u0:u1]
+            fin = np.isfinite(tile).all(axis=-1)
+            origin = tile[np.unravel_index(np.argmax(fin), fin.shape)]  # first finite cell
+            e0, e1, f0, f1 = max(0, t0 - r), min(hh, t1 + r), max(0, u0 - r), min(ww, u1 + r)
+            sel = np.zeros((e1 - e0, f1 - f0), dtype=bool)
+            sel[t0 - e0:t1 - e0, u0 - f0:u1 - f0] = cells[t0:t1, u0:u1]
+            lab = labels[e0:e1, f0:f1]
+            part = _edge_verdicts(grid[e0:e1, f0:f1], lab, sel, r, k, origin)
+            out[e0:e1, f0:f1] |= part
+    return out
+
+
+def _edge_verdicts(
+    grid: NDArray[np.float64],
+    labels: NDArray[np.uint8],
+    cells: NDArray[np.bool_],
+    r: int,
+    k: float,
+    origin: NDArray[np.float64],
+) -> NDArray[np.bool_]:
+    """Steps 4-6 of the edge test for the cells of ``cells`` (sums relative to ``origin``)."""
+    out = np.zeros_like(cells)
     h, rms, spread, valid, nrm, cen, empty = _side_fits(
-        grid, labels == NORMAL, labels == INVALID, cells, window // 2, origin)
+        grid, labels == NORMAL, labels == INVALID, cells, r, origin)
     best = np.min(np.where(valid, rms, np.inf), axis=0)
     clean = valid & (rms <= _EDGE_CLEAN_RATIO * best)
     tol = np.maximum(k * rms, _HEIGHT_RMS_FLOOR * spread)  # round-off floor, as the height test
@@ -1112,26 +1143,19 @@ def edge_test(
     ``labels`` (H, W) are those after the height passes; returns the new labels and the number
     of edge passes run.
     """
-    normal = labels == NORMAL
-    # the mean of the support cells, summed in row-major order (a running sum)
-    origin = (np.cumsum(grid[normal], axis=0)[-1] / normal.sum() if normal.any()
-              else np.zeros(3))
-    transpose = grid.shape[1] > grid.shape[0]  # wider than tall: on the transposed grid
-    if transpose:
-        grid, labels = grid.transpose(1, 0, 2), labels.T
     labels = labels.copy()
     todo = (labels == NORMAL) | (labels == EDGE)
     passes = 0
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         for _ in range(max_iterations):
             passes += 1
-            new = _edge_pass(grid, labels, todo, window, tolerance, origin)
+            new = _edge_pass(grid, labels, todo, window, tolerance)
             labels[new] = ABNORMAL
             if not new.any():
                 break
             # only cells with a new ABNORMAL cell in their window can change
             todo = _box_count(new, window) > 0
-    return (np.ascontiguousarray(labels.T) if transpose else labels), passes
+    return labels, passes
 
 
 def _auto_min_step(g: NDArray[np.float64], finite: NDArray[np.bool_]) -> float | None:
