@@ -68,7 +68,8 @@ int main(int argc, char** argv) {
       pool[static_cast<std::size_t>(r * W + c)] =
           0.3 * std::sin(c * dx / 9.0) + 0.02 * std::sin(6.2831853 * r / pool_rows) + noise(rng);
 
-  miem::DetectParams params;  // the default preset (recommended), the whole detector
+  // the stream's default: the recommended detector without the edge test and min_step auto
+  const miem::DetectParams params = miem::stream_default_params();
   miem::ProfileStream<double> stream(W, params);
   std::vector<double> profile(static_cast<std::size_t>(W * 3));
   std::vector<double> lat;
