@@ -89,17 +89,22 @@ struct Selection {
   }
 };
 
+// Calls f(position in order(), index) for every point of `box`, in cell-key order.
+template <typename T, typename F>
+void for_each_in_box(const NeighborGrid<T>& grid, const CellBox& box, F&& f) {
+  const std::uint32_t* order = grid.order();
+  grid.for_each_cell(box, [&](std::ptrdiff_t cell) {
+    const std::uint32_t e = grid.cell_begin(cell + 1);
+    for (std::uint32_t k = grid.cell_begin(cell); k < e; ++k) f(k, order[k]);
+  });
+}
+
 // Gather the points of `box` that pass `keep(position in order(), index)`, in cell-key order.
 template <typename T, typename Keep>
 void gather_box(const NeighborGrid<T>& grid, const CellBox& box, Keep&& keep, Gather& g) {
   g.clear();
-  const std::uint32_t* order = grid.order();
-  grid.for_each_cell(box, [&](std::ptrdiff_t cell) {
-    const std::uint32_t e = grid.cell_begin(cell + 1);
-    for (std::uint32_t k = grid.cell_begin(cell); k < e; ++k) {
-      const std::uint32_t j = order[k];
-      if (keep(k, j)) g.push(grid.sorted_point(k), j);
-    }
+  for_each_in_box(grid, box, [&](std::uint32_t k, std::uint32_t j) {
+    if (keep(k, j)) g.push(grid.sorted_point(k), j);
   });
 }
 
@@ -108,14 +113,9 @@ inline constexpr std::uint8_t kSkipTag = 0xFF;
 template <typename T, typename TagOf>
 void gather_tagged(const NeighborGrid<T>& grid, const CellBox& box, TagOf&& tag_of, Gather& g) {
   g.clear();
-  const std::uint32_t* order = grid.order();
-  grid.for_each_cell(box, [&](std::ptrdiff_t cell) {
-    const std::uint32_t e = grid.cell_begin(cell + 1);
-    for (std::uint32_t k = grid.cell_begin(cell); k < e; ++k) {
-      const std::uint32_t j = order[k];
-      const std::uint8_t t = tag_of(k, j);
-      if (t != kSkipTag) g.push(grid.sorted_point(k), j, t);
-    }
+  for_each_in_box(grid, box, [&](std::uint32_t k, std::uint32_t j) {
+    const std::uint8_t t = tag_of(k, j);
+    if (t != kSkipTag) g.push(grid.sorted_point(k), j, t);
   });
 }
 
