@@ -72,6 +72,26 @@ MIEM_EDGE_CLONES void side_moments(std::ptrdiff_t m, std::ptrdiff_t cap, double 
   }
 }
 
+// A lower bound of each side's rms^2 = l0 / nn without solving, exact in floating point: the
+// solver's Newton iteration starts at 0 with the step to det / c1 (q(0) = -det, q'(0) = c1, the
+// same expressions as eigen_lane) and then only rises, so its l0 >= fl(det / c1) bit for bit
+// (and l0 >= 0); division and sqrt round monotonically. Sides without support get +inf (never
+// valid). Vectorised.
+MIEM_EDGE_CLONES void side_bounds(std::ptrdiff_t m, std::ptrdiff_t cap,
+                                  const double* __restrict Mb, const double* __restrict nnb,
+                                  const std::uint8_t* __restrict useb, double* __restrict lowb) {
+#pragma GCC ivdep
+  for (std::ptrdiff_t i = 0; i < m; ++i) {
+    const double a = Mb[i], b = Mb[cap + i], c = Mb[2 * cap + i];
+    const double d = Mb[3 * cap + i], e = Mb[4 * cap + i], f = Mb[5 * cap + i];
+    const double tr = a + b + c;
+    const double c1 = (a * b + b * c + a * c) - (d * d + e * e + f * f);
+    const double det = a * b * c + 2.0 * d * e * f - a * e * e - b * f * f - c * d * d;
+    const double x1 = (tr > 0.0 && c1 > 0.0 && det > 0.0) ? det / (c1 > 0.0 ? c1 : 1.0) : 0.0;
+    lowb[i] = useb[i] ? x1 / nnb[i] : std::numeric_limits<double>::infinity();
+  }
+}
+
 // One side's plane from its eigenpair (l0, l1, l2, unit nv): valid, oriented normal (SPEC "Plane
 // fit"), the cell's height h over it, rms and tolerance. Shared by the vector loop and the
 // scalar redo so that both give the same bits.
@@ -199,6 +219,7 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
         double mm[kM * kCap], Mb[6 * kCap], Eb[6 * kCap], nnb[kCap], ceb[3 * kCap];
         double F[6 * kCap], P[3 * kCap];  // F: h, rms, tol, oriented normal; P: the cells
         std::uint8_t okb[kCap], redob[kCap], useb[kCap], emptyb[kCap], validb[kCap];
+        double lowb[kCap];
         std::ptrdiff_t cols[kChunk];
         for (std::ptrdiff_t cc = C0; cc < C1;) {
           int m = 0;
@@ -230,9 +251,63 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
               for (int q = 0; q < kM; ++q) mm[q * kCap + e] = a[q] - b[q] - cq[q] + d[q];
             }
           }
+          side_moments(8 * m, kCap, n_min, mm, nnb, ceb, Mb, useb, emptyb);
+          // Shortcut (exact): a cell that fits a clean side cannot become ABNORMAL (step 6).
+          // Solve only the side s* with the smallest rms lower bound: when its rms is within
+          // kCleanRatio of the smallest bound it is clean whatever the other sides give, and
+          // when the cell fits it the verdict is "no" without the other seven solves. The
+          // others (and cells without a supported side: no valid side, "no") go on below.
+          side_bounds(8 * m, kCap, Mb, nnb, useb, lowb);
+          int nf = 0;
+          {
+            double M1[6 * kChunk], E1[6 * kChunk], nn1[kChunk], ce1[3 * kChunk], P1[3 * kChunk];
+            double F1[6 * kChunk], low1[kChunk];
+            std::uint8_t use1[kChunk], ok1[kChunk], redo1[kChunk], valid1[kChunk];
+            for (int j = 0; j < m; ++j) {
+              int sb = 0;
+              for (int s = 1; s < 8; ++s)
+                if (lowb[j * 8 + s] < lowb[j * 8 + sb]) sb = s;
+              const int e = j * 8 + sb;
+              low1[j] = lowb[e];
+              use1[j] = useb[e];
+              nn1[j] = nnb[e];
+              for (int q = 0; q < 6; ++q) M1[q * kChunk + j] = Mb[q * kCap + e];
+              for (int q = 0; q < 3; ++q) {
+                ce1[q * kChunk + j] = ceb[q * kCap + e];
+                P1[q * kChunk + j] = P[q * kCap + e];
+              }
+            }
+            smallest_eigenpairs_long(m, kChunk, M1, E1, ok1, redo1);
+            side_planes(m, kChunk, k, use1, ok1, E1, nn1, ce1, P1, valid1, F1);
+            for (int j = 0; j < m; ++j) {
+              const std::ptrdiff_t i = rr * W + cols[j];
+              if (!use1[j]) {  // no side with support: none valid, none to stand proud of
+                mark[i] = 0;
+                continue;
+              }
+              const bool clean = F1[kChunk + j] <= kCleanRatio * std::sqrt(low1[j]);  // <= 2 best
+              if (!redo1[j] && valid1[j] && clean && !(std::abs(F1[j]) > F1[2 * kChunk + j])) {
+                mark[i] = 0;
+                continue;
+              }
+              if (nf != j) {  // compact the cells left to the front
+                for (int s = 0; s < 8; ++s) {
+                  const int from = j * 8 + s, to = nf * 8 + s;
+                  for (int q = 0; q < 6; ++q) Mb[q * kCap + to] = Mb[q * kCap + from];
+                  for (int q = 0; q < 3; ++q) {
+                    ceb[q * kCap + to] = ceb[q * kCap + from];
+                    P[q * kCap + to] = P[q * kCap + from];
+                  }
+                  nnb[to] = nnb[from], useb[to] = useb[from], emptyb[to] = emptyb[from];
+                }
+              }
+              cols[nf++] = cols[j];
+            }
+          }
+          m = nf;
+          if (m == 0) continue;
           const int ms = 8 * m;
-          side_moments(ms, kCap, n_min, mm, nnb, ceb, Mb, useb, emptyb);
-          smallest_eigenpairs(ms, kCap, Mb, Eb, okb, redob);
+          smallest_eigenpairs_long(ms, kCap, Mb, Eb, okb, redob);
           side_planes(ms, kCap, k, useb, okb, Eb, nnb, ceb, P, validb, F);
           for (int e = 0; e < ms; ++e) {
             if (!redob[e] || !useb[e]) continue;  // Newton needs more steps: the scalar routine

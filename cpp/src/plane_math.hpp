@@ -72,6 +72,7 @@ inline __attribute__((always_inline)) void newton_step(double& x, double& live, 
 /// inline it): l0 = x after at most 4 Newton steps (`live` still set: it has not ended), l1, l2
 /// = hi, tr, and the largest cross product (bx0, bx1, bx2) of two rows of M - l0 I with its
 /// squared norm nb (not yet normalised).
+template <int Steps = 4>
 inline __attribute__((always_inline)) void eigen_lane(double a, double b, double c, double d,
                                                        double e, double f, double& tr,
                                                        double& x, double& live, double& l1,
@@ -83,10 +84,7 @@ inline __attribute__((always_inline)) void eigen_lane(double a, double b, double
   // Newton from 0 on q(x) = x^3 - tr x^2 + c1 x - det, fixed steps masked by `live`
   x = 0.0;
   live = tr > 0.0 ? 1.0 : 0.0;
-  newton_step(x, live, tr, c1, det);
-  newton_step(x, live, tr, c1, det);
-  newton_step(x, live, tr, c1, det);
-  newton_step(x, live, tr, c1, det);
+  for (int it = 0; it < Steps; ++it) newton_step(x, live, tr, c1, det);  // (unrolled)
   const double s = tr - x, p = c1 - x * s;
   const double disc = s * s - 4.0 * p;
   hi = 0.5 * (s + std::sqrt(disc > 0.0 ? disc : 0.0));
@@ -111,14 +109,13 @@ inline __attribute__((always_inline)) void eigen_lane(double a, double b, double
 /// smallest_eigenpair for m matrices at once (SoA: entries a = M00, b = M11, c = M22, d = M01,
 /// e = M12, f = M02, `cap` apart in `M` in that order), in straight-line code that vectorises.
 /// Writes l0, l1, l2, nx, ny, nz (`cap` apart in `out`) and ok (smallest_eigenpair's return
-/// value). The iteration is smallest_eigenpair's with at most 4 steps: where it has not ended by
-/// then, redo is set and the caller runs smallest_eigenpair itself; elsewhere every output
-/// equals smallest_eigenpair's bit for bit.
-MIEM_EIG_CLONES inline void smallest_eigenpairs(std::ptrdiff_t m, std::ptrdiff_t cap,
-                                                const double* __restrict M,
-                                                double* __restrict out,
-                                                std::uint8_t* __restrict ok,
-                                                std::uint8_t* __restrict redo) {
+/// value). The iteration is smallest_eigenpair's with at most Steps steps: where it has not
+/// ended by then, redo is set and the caller runs smallest_eigenpair itself; elsewhere every
+/// output equals smallest_eigenpair's bit for bit.
+template <int Steps>
+inline __attribute__((always_inline)) void smallest_eigenpairs_n(
+    std::ptrdiff_t m, std::ptrdiff_t cap, const double* __restrict M, double* __restrict out,
+    std::uint8_t* __restrict ok, std::uint8_t* __restrict redo) {
   const double *__restrict ma = M, *__restrict mb = M + cap, *__restrict mc = M + 2 * cap;
   const double *__restrict md = M + 3 * cap, *__restrict me = M + 4 * cap;
   const double* __restrict mf = M + 5 * cap;
@@ -129,7 +126,7 @@ MIEM_EIG_CLONES inline void smallest_eigenpairs(std::ptrdiff_t m, std::ptrdiff_t
   for (std::ptrdiff_t i = 0; i < m; ++i) {  // (too many arrays for GCC's alias versioning)
     const double a = ma[i], b = mb[i], c = mc[i], d = md[i], e = me[i], f = mf[i];
     double tr, x, live, l1, hi, bx0, bx1, bx2, nb;
-    eigen_lane(a, b, c, d, e, f, tr, x, live, l1, hi, bx0, bx1, bx2, nb);
+    eigen_lane<Steps>(a, b, c, d, e, f, tr, x, live, l1, hi, bx0, bx1, bx2, nb);
     const double len = std::sqrt(nb > 0.0 ? nb : 1.0);
     o0[i] = x;
     o1[i] = l1;
@@ -140,6 +137,26 @@ MIEM_EIG_CLONES inline void smallest_eigenpairs(std::ptrdiff_t m, std::ptrdiff_t
     ok[i] = static_cast<std::uint8_t>((tr > 0.0) & (nb > 0.0));
     redo[i] = static_cast<std::uint8_t>(live != 0.0);
   }
+}
+
+/// smallest_eigenpairs_n with 4 Newton steps (enough for flat patches: l0 << l1).
+MIEM_EIG_CLONES inline void smallest_eigenpairs(std::ptrdiff_t m, std::ptrdiff_t cap,
+                                                const double* __restrict M,
+                                                double* __restrict out,
+                                                std::uint8_t* __restrict ok,
+                                                std::uint8_t* __restrict redo) {
+  smallest_eigenpairs_n<4>(m, cap, M, out, ok, redo);
+}
+
+/// smallest_eigenpairs_n with 8 Newton steps: the edge test's sub-windows of rough or curved
+/// surfaces (l0 nearer l1) rarely end within 4 (on the real scan almost never: all went to the
+/// scalar routine), within 8 nearly always.
+MIEM_EIG_CLONES inline void smallest_eigenpairs_long(std::ptrdiff_t m, std::ptrdiff_t cap,
+                                                     const double* __restrict M,
+                                                     double* __restrict out,
+                                                     std::uint8_t* __restrict ok,
+                                                     std::uint8_t* __restrict redo) {
+  smallest_eigenpairs_n<8>(m, cap, M, out, ok, redo);
 }
 
 /// Moments of the points that each(f) hands to f (f(point) per point, in a fixed order; each is
