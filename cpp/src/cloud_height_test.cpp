@@ -47,49 +47,31 @@ void assign_roles(const NeighborGrid<T>& grid, const PointsView<T>& points,
   }
 }
 
-// The height verdict of point p from the NORMAL / line candidates gathered around it (tagged
-// with their roles). With `height`, also the point's height over the plane of the NORMAL points
-// within t.radius: summed in the same order as the heights stage's (height_plane), so the same
-// value to the bit.
-inline bool too_far(const Gather& g, const Eigen::Vector3d& p, const HeightTest& t,
-                    Selection& s, double* height) {
-  // The NORMAL points within t.radius (a branch-free compaction, as select), and whether a
-  // feature-line point is among the candidates within t.radius.
+// The height verdict of point p from the NORMAL candidates `g` and the feature-line candidates
+// `lines` gathered around it. With `height`, also the point's height over the plane of the NORMAL
+// points within t.radius: the same selection and sums as the heights stage's (height_plane), so
+// the same value to the bit.
+inline bool too_far(const Gather& g, const Gather& lines, const Eigen::Vector3d& p,
+                    const HeightTest& t, Selection& s, double* height) {
   const double r2 = t.radius * t.radius, in2 = t.inner * t.inner;
-  s.reserve(g.n + 1);
   const double px = p.x(), py = p.y(), pz = p.z();
-  std::size_t m = 0;
-  bool line = false;
-  for (std::size_t k = 0; k < g.n; ++k) {
-    const double dx = g.x[k] - px, dy = g.y[k] - py, dz = g.z[k] - pz;
-    const double d2 = dx * dx + dy * dy + dz * dz;
-    const bool in = d2 <= r2;
-    line |= in & (g.tag[k] == kRoleLine);
-    s.wx[m] = dx;
-    s.wy[m] = dy;
-    s.wz[m] = dz;
-    s.d2[m] = d2;
-    m += static_cast<std::size_t>(in & (g.tag[k] == kRoleNormal));
+  bool line = false;  // a feature-line point within t.radius: the test abstains
+  for (std::size_t k = 0; k < lines.n; ++k) {
+    const double dx = lines.x[k] - px, dy = lines.y[k] - py, dz = lines.z[k] - pz;
+    line |= dx * dx + dy * dy + dz * dz <= r2;
   }
-  s.n = m;
-  OffsetSums ball, inner;  // the surroundings (beyond t.inner, not the point's bump): the rest
-  std::uint32_t* __restrict near = s.id.data();  // positions of the inner ones (ids unused here)
-  std::size_t n_in = 0;
-  for (std::size_t k = 0; k < m; ++k) {
-    ball.add(s.wx[k], s.wy[k], s.wz[k]);
-    near[n_in] = static_cast<std::uint32_t>(k);
-    n_in += static_cast<std::size_t>(s.d2[k] <= in2);
-  }
-  for (std::size_t q = 0; q < n_in; ++q) {
-    const std::uint32_t k = near[q];
-    inner.add(s.wx[k], s.wy[k], s.wz[k]);
-  }
-  const OffsetSums around = ball.minus(inner);
+  if (line && height == nullptr) return false;
+  // The NORMAL points within t.radius: those beyond t.inner are the surroundings (`around`, not
+  // the point's own bump).
+  OffsetSums around, inner;
+  ball_sums(g, p, r2, in2, s, &around, &inner);
   LocalPlane lp;
   if (height != nullptr) {
-    *height = plane_from_sums(ball, &lp) == PlaneStatus::kOk ? -lp.normal.dot(lp.mean) : kNaN;
+    *height = plane_from_sums(around.plus(inner), &lp) == PlaneStatus::kOk
+                  ? -lp.normal.dot(lp.mean)
+                  : kNaN;
   }
-  if (line) return false;  // designed feature nearby: the test abstains
+  if (line) return false;
   if (plane_from_sums(around, &lp) != PlaneStatus::kOk) return false;
   const double h = std::abs(lp.normal.dot(lp.mean));
   const double n = static_cast<double>(lp.n);
@@ -111,10 +93,11 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
   std::vector<std::int64_t> queue, candidates;
   const std::uint32_t* order = grid.order();
   const std::uint8_t* rl = nullptr;
-  // Candidate tags in grid order (sequential reads in the gathers).
-  std::vector<std::uint8_t> tag_sorted(static_cast<std::size_t>(grid.num_indexed()));
-  const std::uint8_t* ts = tag_sorted.data();
-  auto tag_of = [ts](std::uint32_t k, std::uint32_t) { return ts[k]; };
+  // Candidate classes in grid order (sequential reads in the gathers): NORMAL points into the
+  // main list, feature-line points aside.
+  std::vector<std::uint8_t> class_sorted(static_cast<std::size_t>(grid.num_indexed()));
+  const std::uint8_t* cs = class_sorted.data();
+  auto class_of = [cs](std::uint32_t k, std::uint32_t) { return cs[k]; };
   auto tested = [](std::uint8_t r) { return r == kRoleNormal || r == kRoleCompact; };
   int passes = 0;
   while (passes < t.max_iterations) {
@@ -126,7 +109,7 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
 #pragma omp parallel for schedule(static) num_threads(ntn) if (ntn > 1)
       for (std::ptrdiff_t k = 0; k < ni; ++k) {
         const std::uint8_t r = rl[order[k]];
-        tag_sorted[k] = r == kRoleNormal || r == kRoleLine ? r : kSkipTag;
+        class_sorted[k] = r == kRoleNormal ? kClassMain : r == kRoleLine ? kClassAside : kClassSkip;
       }
     }
     ++passes;
@@ -137,12 +120,12 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
         for (std::uint32_t k = b; k < e && !any; ++k) any = tested(rl[order[k]]);
         if (!any) return;
         JudgeScratch& js = scratch[tid];
-        gather_tagged(grid, cell_box(grid, cell, t.radius), tag_of, js.gather);
+        gather_split(grid, cell_box(grid, cell, t.radius), class_of, js.gather, js.aside);
         for (std::uint32_t k = b; k < e; ++k) {
           const std::uint32_t i = order[k];
           if (!tested(rl[i])) continue;
           double* h = t.height != nullptr ? t.height + i : nullptr;
-          if (too_far(js.gather, grid.sorted_point(k), t, js.sel, h)) mark[i] = 1;
+          if (too_far(js.gather, js.aside, grid.sorted_point(k), t, js.sel, h)) mark[i] = 1;
           if (h != nullptr) t.have[i] = 1;
         }
       });
@@ -168,8 +151,8 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
         const std::int64_t i = candidates[c];
         JudgeScratch& js = scratch[thread_id()];
         const Eigen::Vector3d pi = points[i];
-        gather_tagged(grid, grid.box_around(pi, pi, t.radius), tag_of, js.gather);
-        if (too_far(js.gather, pi, t, js.sel, nullptr)) mark[i] = 1;
+        gather_split(grid, grid.box_around(pi, pi, t.radius), class_of, js.gather, js.aside);
+        if (too_far(js.gather, js.aside, pi, t, js.sel, nullptr)) mark[i] = 1;
       }
     }
     std::ptrdiff_t added = 0;

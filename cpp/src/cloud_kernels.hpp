@@ -10,6 +10,7 @@
 #include <utility>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <vector>
 
@@ -50,24 +51,21 @@ std::ptrdiff_t count_finite(const PointsView<T>& points, int num_threads) {
 struct Gather {
   std::vector<double> x, y, z;
   std::vector<std::uint32_t> id;
-  std::vector<std::uint8_t> tag;  // a caller's per-candidate byte (gather_tagged)
   std::size_t n = 0;
 
   void clear() { n = 0; }
-  void push(const Eigen::Vector3d& q, std::uint32_t j, std::uint8_t t = 0) {
+  void push(const Eigen::Vector3d& q, std::uint32_t j) {
     if (n == x.size()) {
       const std::size_t cap = std::max<std::size_t>(64, 2 * n);
       x.resize(cap);
       y.resize(cap);
       z.resize(cap);
       id.resize(cap);
-      tag.resize(cap);
     }
     x[n] = q.x();
     y[n] = q.y();
     z[n] = q.z();
     id[n] = j;
-    tag[n] = t;
     ++n;
   }
 };
@@ -77,6 +75,9 @@ struct Selection {
   std::vector<double> wx, wy, wz, d2;
   std::vector<std::uint32_t> id;
   std::size_t n = 0;
+  std::vector<double> all_d2;      // select's scratch: every candidate's squared distance
+  std::vector<std::uint32_t> pos;  // select's scratch: positions of the kept candidates
+  std::vector<std::uint32_t> ball;  // ball_sums' scratch
 
   void reserve(std::size_t cap) {
     if (wx.size() < cap) {
@@ -85,6 +86,9 @@ struct Selection {
       wz.resize(cap);
       d2.resize(cap);
       id.resize(cap);
+      all_d2.resize(cap);
+      pos.resize(cap);
+      ball.resize(cap);
     }
   }
 };
@@ -108,19 +112,28 @@ void gather_box(const NeighborGrid<T>& grid, const CellBox& box, Keep&& keep, Ga
   });
 }
 
-// Gather the points of `box` with tag_of(position in order(), index) != kSkipTag, with the tag.
-inline constexpr std::uint8_t kSkipTag = 0xFF;
-template <typename T, typename TagOf>
-void gather_tagged(const NeighborGrid<T>& grid, const CellBox& box, TagOf&& tag_of, Gather& g) {
-  g.clear();
+// Gather the points of `box` by class_of(position in order(), index): kClassMain into `main`,
+// kClassAside into `aside`, kClassSkip nowhere (each list in cell-key order).
+enum : std::uint8_t { kClassMain = 0, kClassAside = 1, kClassSkip = 2 };
+template <typename T, typename ClassOf>
+void gather_split(const NeighborGrid<T>& grid, const CellBox& box, ClassOf&& class_of,
+                  Gather& main, Gather& aside) {
+  main.clear();
+  aside.clear();
   for_each_in_box(grid, box, [&](std::uint32_t k, std::uint32_t j) {
-    const std::uint8_t t = tag_of(k, j);
-    if (t != kSkipTag) g.push(grid.sorted_point(k), j, t);
+    const std::uint8_t c = class_of(k, j);
+    if (c == kClassMain) {
+      main.push(grid.sorted_point(k), j);
+    } else if (c == kClassAside) {
+      aside.push(grid.sorted_point(k), j);
+    }
   });
 }
 
-// Select the gathered points within r of p (excluding index `self`, pass -1 to keep it).
-// Branchless compaction: every candidate is written, the count advances only for the kept ones.
+// Select the gathered points within r of p (excluding index `self`, pass -1 to keep it), in
+// gather order. Three loops: every candidate's squared distance (vectorised: no dependence
+// between candidates), the positions of the kept ones (a branch-free compaction), then their
+// offsets.
 inline void select(const Gather& g, const Eigen::Vector3d& p, double r2, std::int64_t self,
                    Selection& s) {
   s.reserve(g.n + 1);
@@ -128,23 +141,39 @@ inline void select(const Gather& g, const Eigen::Vector3d& p, double r2, std::in
   const double* __restrict gy = g.y.data();
   const double* __restrict gz = g.z.data();
   const std::uint32_t* __restrict gid = g.id.data();
+  double* __restrict all = s.all_d2.data();
+  std::uint32_t* __restrict pos = s.pos.data();
+  const double px = p.x(), py = p.y(), pz = p.z();
+  const std::size_t n = g.n;
+  for (std::size_t k = 0; k < n; ++k) {
+    const double dx = gx[k] - px, dy = gy[k] - py, dz = gz[k] - pz;
+    all[k] = dx * dx + dy * dy + dz * dz;
+  }
+  std::size_t m = 0;
+  if (self < 0) {
+    for (std::size_t k = 0; k < n; ++k) {
+      pos[m] = static_cast<std::uint32_t>(k);
+      m += static_cast<std::size_t>(all[k] <= r2);
+    }
+  } else {
+    const std::uint32_t me = static_cast<std::uint32_t>(self);
+    for (std::size_t k = 0; k < n; ++k) {
+      pos[m] = static_cast<std::uint32_t>(k);
+      m += static_cast<std::size_t>((all[k] <= r2) & (gid[k] != me));
+    }
+  }
   double* __restrict wx = s.wx.data();
   double* __restrict wy = s.wy.data();
   double* __restrict wz = s.wz.data();
   double* __restrict sd2 = s.d2.data();
   std::uint32_t* __restrict sid = s.id.data();
-  std::size_t m = 0;
-  const double px = p.x(), py = p.y(), pz = p.z();
-  const std::size_t n = g.n;
-  for (std::size_t k = 0; k < n; ++k) {
-    const double dx = gx[k] - px, dy = gy[k] - py, dz = gz[k] - pz;
-    const double d2 = dx * dx + dy * dy + dz * dz;
-    wx[m] = dx;
-    wy[m] = dy;
-    wz[m] = dz;
-    sd2[m] = d2;
-    sid[m] = gid[k];
-    m += static_cast<std::size_t>((d2 <= r2) & (static_cast<std::int64_t>(gid[k]) != self));
+  for (std::size_t q = 0; q < m; ++q) {
+    const std::uint32_t k = pos[q];
+    wx[q] = gx[k] - px;
+    wy[q] = gy[k] - py;
+    wz[q] = gz[k] - pz;
+    sd2[q] = all[k];
+    sid[q] = gid[k];
   }
   s.n = m;
 }
@@ -249,6 +278,21 @@ struct OffsetSums {
     yz += dy * dz;
     zz += dz * dz;
   }
+  // The sums of the offsets in *this and in `other` (disjoint sets).
+  OffsetSums plus(const OffsetSums& o) const {
+    OffsetSums r;
+    r.n = n + o.n;
+    r.x = x + o.x;
+    r.y = y + o.y;
+    r.z = z + o.z;
+    r.xx = xx + o.xx;
+    r.xy = xy + o.xy;
+    r.xz = xz + o.xz;
+    r.yy = yy + o.yy;
+    r.yz = yz + o.yz;
+    r.zz = zz + o.zz;
+    return r;
+  }
   // The sums of the offsets in *this but not in `part` (a subset of them).
   OffsetSums minus(const OffsetSums& part) const {
     OffsetSums r;
@@ -265,6 +309,85 @@ struct OffsetSums {
     return r;
   }
 };
+
+// Moments of the offsets g[pos[q]] - p, q = 0 .. n - 1, in two lanes (the even and the odd q),
+// added at the end: two independent chains of additions. The result depends only on the
+// sequence of points, never on how it was gathered.
+inline OffsetSums offset_sums(const Gather& g, const std::uint32_t* __restrict pos, std::size_t n,
+                              const Eigen::Vector3d& p) {
+  const double* __restrict gx = g.x.data();
+  const double* __restrict gy = g.y.data();
+  const double* __restrict gz = g.z.data();
+  const double px = p.x(), py = p.y(), pz = p.z();
+  double a[9][2] = {};  // x y z xx xy xz yy yz zz, per lane
+  auto add = [&](int l, std::uint32_t k) {
+    const double x = gx[k] - px, y = gy[k] - py, z = gz[k] - pz;
+    a[0][l] += x;
+    a[1][l] += y;
+    a[2][l] += z;
+    a[3][l] += x * x;
+    a[4][l] += x * y;
+    a[5][l] += x * z;
+    a[6][l] += y * y;
+    a[7][l] += y * z;
+    a[8][l] += z * z;
+  };
+  std::size_t q = 0;
+  for (; q + 1 < n; q += 2) {
+    add(0, pos[q]);
+    add(1, pos[q + 1]);
+  }
+  if (q < n) add(0, pos[q]);
+  OffsetSums s;
+  s.n = static_cast<double>(n);
+  s.x = a[0][0] + a[0][1];
+  s.y = a[1][0] + a[1][1];
+  s.z = a[2][0] + a[2][1];
+  s.xx = a[3][0] + a[3][1];
+  s.xy = a[4][0] + a[4][1];
+  s.xz = a[5][0] + a[5][1];
+  s.yy = a[6][0] + a[6][1];
+  s.yz = a[7][0] + a[7][1];
+  s.zz = a[8][0] + a[8][1];
+  return s;
+}
+
+// The moments of the gathered points within sqrt(r2) of p, in two parts: those within
+// sqrt(in2) (`inner`) and the others (`ring`); in gather order. The ball's are ring + inner.
+inline void ball_sums(const Gather& g, const Eigen::Vector3d& p, double r2, double in2,
+                      Selection& s, OffsetSums* ring, OffsetSums* inner) {
+  s.reserve(g.n + 1);
+  const double* __restrict gx = g.x.data();
+  const double* __restrict gy = g.y.data();
+  const double* __restrict gz = g.z.data();
+  double* __restrict all = s.all_d2.data();
+  std::uint32_t* __restrict out_pos = s.pos.data();  // ring positions
+  std::uint32_t* __restrict in_pos = s.id.data();    // inner positions
+  const double px = p.x(), py = p.y(), pz = p.z();
+  const std::size_t n = g.n;
+  for (std::size_t k = 0; k < n; ++k) {
+    const double dx = gx[k] - px, dy = gy[k] - py, dz = gz[k] - pz;
+    all[k] = dx * dx + dy * dy + dz * dz;
+  }
+  // The ball first (most candidates are outside it), then inner or ring.
+  std::uint32_t* __restrict ball = s.ball.data();
+  std::size_t m = 0;
+  for (std::size_t k = 0; k < n; ++k) {
+    ball[m] = static_cast<std::uint32_t>(k);
+    m += static_cast<std::size_t>(all[k] <= r2);
+  }
+  std::size_t m_out = 0, m_in = 0;
+  for (std::size_t q = 0; q < m; ++q) {
+    const std::uint32_t k = ball[q];
+    const bool in = all[k] <= in2;
+    out_pos[m_out] = k;
+    in_pos[m_in] = k;
+    m_out += static_cast<std::size_t>(!in);
+    m_in += static_cast<std::size_t>(in);
+  }
+  *ring = offset_sums(g, out_pos, m_out, p);
+  *inner = offset_sums(g, in_pos, m_in, p);
+}
 
 // The eigen plane (SPEC "Plane fit") of the offsets summed in `s`: oriented normal, the centroid
 // offset from p, eigenvalues and count (no major direction).
@@ -289,8 +412,10 @@ inline PlaneStatus plane_from_sums(const OffsetSums& s, LocalPlane* out) {
 // Per-thread scratch of the judge.
 struct JudgeScratch {
   Gather gather;
+  Gather aside;  // a second list of candidates (gather_split)
   Selection sel;
-  std::vector<double> best_d2;  // per (direction, side, scale) slot
+  std::vector<std::uint64_t> best_key;  // per (direction, side, scale) slot: bits of its d2
+  std::vector<std::uint32_t> best_id;   // the slot's neighbour's point index
   std::vector<int> best_m;      // position in `sel` of the slot's neighbour, -1: none
   std::vector<double> tlen;     // per selected neighbour: tangent-plane length
   std::vector<std::uint16_t> hits;  // per selected neighbour: its (direction, side) cones
@@ -307,6 +432,7 @@ class PointJudge {
         scales_(p.scales),
         cos0_(std::cos(p.theta0_deg * kDegToRad)),
         cos_half_(std::cos(kPi / (2.0 * p.num_directions))) {
+    for (int si : scales_) step_.push_back((2 * si - 1) * min_step_);
     for (int k = 0; k < K_; ++k) {
       const double a = static_cast<double>(k) * kPi / static_cast<double>(K_);
       ck_[k] = std::cos(a);
@@ -334,19 +460,14 @@ class PointJudge {
     for (int k = 0; k < K_; ++k) d[k] = ck_[k] * e1 + sk_[k] * e2;
     const int S = static_cast<int>(scales_.size());
     const std::size_t slots = static_cast<std::size_t>(K_) * 2 * S;
-    js.best_d2.assign(slots, kInf);
     js.best_m.assign(slots, -1);
-    double* __restrict bd2 = js.best_d2.data();
     int* __restrict bm = js.best_m.data();
     const double* wx = s.wx.data();
     const double* wy = s.wy.data();
     const double* wz = s.wz.data();
     const double* sd2 = s.d2.data();
     const std::uint32_t* sid = s.id.data();
-    double step_len[16];
-    const int S_fast = std::min(S, 16);
-    // Scale s: the neighbour beyond (2s - 1) * min_step (SPEC "Unorganized clouds").
-    for (int si = 0; si < S_fast; ++si) step_len[si] = (2 * scales_[si] - 1) * min_step_;
+    // Scale s: the neighbour beyond (2s - 1) * min_step (SPEC "Unorganized clouds"): step_.
     const int n_sel = static_cast<int>(s.n);
     // Branch-free first: each neighbour's tangent-plane length and the (direction, side) cones
     // it falls in, as bits 2k (g = +1) and 2k + 1 (g = -1) of hits[m]; which cone is
@@ -371,24 +492,34 @@ class PointJudge {
       tl[m] = tlen;
       hits[m] = static_cast<std::uint16_t>(tlen > 0.0 ? h : 0u);
     }
+    // Per (direction, side, scale) slot: the nearest (then smallest index) neighbour, the
+    // updates done with masks (which neighbour is nearer is unpredictable). d2 >= 0, so its bit
+    // pattern orders as the value.
+    js.best_key.assign(slots, ~std::uint64_t{0});
+    js.best_id.assign(slots, ~std::uint32_t{0});
+    std::uint64_t* __restrict bkey = js.best_key.data();
+    std::uint32_t* __restrict bid = js.best_id.data();
     for (int m = 0; m < n_sel; ++m) {
       unsigned h = hits[m];
       if (h == 0) continue;
       const double tlen = tl[m];
-      const double d2 = sd2[m];
+      std::uint64_t key;
+      std::memcpy(&key, &sd2[m], sizeof key);
+      const std::uint32_t id = sid[m];
       while (h != 0) {
         const int bit = __builtin_ctz(h);
         h &= h - 1;
-        const int k = bit >> 1, side = bit & 1;  // side 0: g = +1, side 1: g = -1
-        int* slot_m = bm + (k * 2 + side) * S;
-        double* slot_d2 = bd2 + (k * 2 + side) * S;
+        const int base = bit * S;  // slot (k, side) = bit: side 0 is g = +1, side 1 is g = -1
         for (int si = 0; si < S; ++si) {
-          const double need = si < S_fast ? step_len[si] : (2 * scales_[si] - 1) * min_step_;
-          if (!(tlen >= need)) continue;
-          if (d2 < slot_d2[si] || (d2 == slot_d2[si] && sid[m] < sid[slot_m[si]])) {
-            slot_d2[si] = d2;
-            slot_m[si] = m;
-          }
+          const int q = base + si;
+          const bool better = (tlen >= step_[si]) &
+                              ((key < bkey[q]) | ((key == bkey[q]) & (id < bid[q])));
+          const std::uint64_t m64 = 0 - static_cast<std::uint64_t>(better);
+          const std::uint32_t m32 = static_cast<std::uint32_t>(m64);
+          bkey[q] = (key & m64) | (bkey[q] & ~m64);
+          bid[q] = (id & m32) | (bid[q] & ~m32);
+          bm[q] = static_cast<int>((static_cast<std::uint32_t>(m) & m32) |
+                                   (static_cast<std::uint32_t>(bm[q]) & ~m32));
         }
       }
     }
@@ -426,6 +557,7 @@ class PointJudge {
   double r2_, min_step_;
   int K_, min_dirs_;
   const std::vector<int>& scales_;
+  std::vector<double> step_;  // per scale s: (2 s - 1) * min_step
   double cos0_, cos_half_;
   double ck_[kMaxDirections] = {}, sk_[kMaxDirections] = {};
 };
@@ -485,13 +617,13 @@ class StageClock {
 inline double grid_cell(double r) { return r; }
 
 // Height plane of a point (NORMAL points within sqrt(r2), itself included when NORMAL) from the
-// gathered NORMAL candidates.
-inline PlaneStatus height_plane(const Gather& g, const Eigen::Vector3d& p, double r2, Selection& s,
-                                LocalPlane* lp) {
-  select(g, p, r2, -1, s);
-  OffsetSums sums;
-  for (std::size_t k = 0; k < s.n; ++k) sums.add(s.wx[k], s.wy[k], s.wz[k]);
-  return plane_from_sums(sums, lp);
+// gathered NORMAL candidates, summed as ball_sums with inner radius sqrt(in2) (the height test's
+// split, so that its heights are the same to the bit).
+inline PlaneStatus height_plane(const Gather& g, const Eigen::Vector3d& p, double r2, double in2,
+                                Selection& s, LocalPlane* lp) {
+  OffsetSums ring, inner;
+  ball_sums(g, p, r2, in2, s, &ring, &inner);
+  return plane_from_sums(ring.plus(inner), lp);
 }
 
 

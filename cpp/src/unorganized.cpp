@@ -400,7 +400,7 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
         if (hv != nullptr && hv[i]) continue;
         height[i] = kNaN;
         LocalPlane lp;
-        if (height_plane(js.gather, grid.sorted_point(k), r2, js.sel, &lp) == PlaneStatus::kOk) {
+        if (height_plane(js.gather, grid.sorted_point(k), r2, radius * radius, js.sel, &lp) == PlaneStatus::kOk) {
           height[i] = -lp.normal.dot(lp.mean);  // n . (p - centroid), centroid = p + mean
         }
       }
@@ -419,7 +419,7 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
       const Eigen::Vector3d pi = points[i];
       gather_box(grid, grid.box_around(pi, pi, hr), normal_pt, js.gather);
       LocalPlane lp;
-      if (height_plane(js.gather, pi, r2, js.sel, &lp) == PlaneStatus::kOk) {
+      if (height_plane(js.gather, pi, r2, radius * radius, js.sel, &lp) == PlaneStatus::kOk) {
         height[i] = -lp.normal.dot(lp.mean);
       }
     }
@@ -457,7 +457,7 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
       const Eigen::Vector3d pk = points[peak_idx];
       gather_box(grid, grid.box_around(pk, pk, hr), normal_pt, js0.gather);
       LocalPlane lp;
-      if (height_plane(js0.gather, pk, r2, js0.sel, &lp) == PlaneStatus::kOk) d.normal = lp.normal;
+      if (height_plane(js0.gather, pk, r2, radius * radius, js0.sel, &lp) == PlaneStatus::kOk) d.normal = lp.normal;
     }
     detail::finish_defect(d, point_at, touches_surface);
     summary.defects.push_back(std::move(d));
