@@ -50,7 +50,7 @@ def test_edge_scene_truth(kind: str) -> None:
 def test_edge_specs_split() -> None:
     test = [s for s in suite.specs("test", real=False) if s.group in suite.EDGE_KINDS]
     tune = [s for s in suite.specs("tune", real=False) if s.group in suite.EDGE_KINDS]
-    assert len(test) == 4 * len(suite.EDGE_KINDS) and len(tune) == 2 * len(suite.EDGE_KINDS)
+    assert len(test) == 10 * len(suite.EDGE_KINDS) and len(tune) == 2 * len(suite.EDGE_KINDS)
     assert not {s.params["seed"] for s in test} & {s.params["seed"] for s in tune}
     sc = suite.build(test[0])
     assert sc.region is not None and sc.n_defects == len(sc.region_height)
