@@ -110,6 +110,26 @@ def lead(side: int, repeats: int) -> list[dict]:
     return rows
 
 
+def pcl_rows(build_dir: Path, side: int, repeats: int) -> list[dict]:
+    """PCL's counterparts of the Open3D jobs of :func:`lead` on the same scan (its finite points,
+    one thread): ``miem_bench_pcl --grid``, built here where PCL is installed; [] without it."""
+    if build_stages(ROOT, build_dir) is None:
+        return []
+    done = subprocess.run(["cmake", "--build", str(build_dir), "-j", "2", "--target",
+                           "miem_bench_pcl"], capture_output=True, text=True)
+    binary = build_dir / "bench" / "miem_bench_pcl"
+    if done.returncode != 0 or not binary.exists():
+        return []
+    grid_file = build_dir / f"lead_{side}.f64"
+    np.ascontiguousarray(scan_grid(side, side), dtype=np.float64).tofile(grid_file)
+    out = subprocess.run([str(binary), "--grid", str(grid_file), str(side), str(side),
+                          "--repeats", str(repeats)], capture_output=True, text=True, check=True)
+    n = side * side
+    return [{"who": r["method"], "t": r["median_ms"] / 1e3, "mpts": n / r["median_ms"] / 1e3,
+             "flagged": None if r["flagged"] < 0 else int(r["flagged"])}
+            for r in json.loads(out.stdout)]
+
+
 def sweep(sides: list[int], repeats: int) -> list[dict]:
     import miem
 
@@ -259,17 +279,18 @@ def fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, base_bd, m
              "seconds. Default preset = `\"recommended\"` (theta0 90, scales (1, 2), min_step "
              "'auto', window 21, height test 4.5 rms, edge_extent 12, edge test 4 rms in 15-cell "
              "windows), heights at every point, defects.")
-    L += ["", f"### miem's default against Open3D, the same {meta['lead_side']}x{meta['lead_side']} "
-          "scan", "",
+    L += ["", f"### miem's default against Open3D and PCL, the same {meta['lead_side']}x"
+          f"{meta['lead_side']} scan", "",
           "| method | time | Mpoints/s | points flagged / removed |", "|---|---:|---:|---:|"]
     for r in rows_lead:
         fl = "-" if r["flagged"] is None else f"{r['flagged']:,}"
         L.append(f"| {r['who']} | {r['t'] * 1e3:.0f} ms | {r['mpts']:.1f} | {fl} |")
     L += ["", "The scan has 200 injected spikes and pits (plus their 2x2 clusters) and 0.5% "
-          "dropouts; Open3D's filters get its finite points as an unorganized cloud (they are "
-          "other methods: what a user would run instead). PCL on an organized cloud: see "
-          "\"Organized detection against PCL\" below (run by `bench/run_cpp.py` where "
-          "`libpcl-dev` is installed).", ""]
+          "dropouts; Open3D's and PCL's filters get its finite points as an unorganized cloud "
+          "(they are other methods: what a user would run instead; PCL 1.13 from Debian's "
+          "`libpcl-dev`, `bench/cpp/bench_pcl.cpp --grid`, kd-tree search, its rows only where "
+          "PCL is installed). PCL's organized-cloud filters on a depth-camera cloud: see "
+          "\"Organized detection against PCL\" below.", ""]
     L += ["### Size sweep (default preset)", "",
           "| grid | points | CPU ms, 1 thread | Mpoints/s, 1 thread (CPU) | ns / point | "
           "wall ms, 1 thread | wall ms, 2 threads | 2 threads / 1 thread |",
@@ -366,7 +387,7 @@ def main(argv=None) -> int:
             "load0": load0, "lead_side": 512 if q else 1024, "mem_side": 512 if q else 2048,
             "stage_side": 512 if q else 2048, "bd_side": bd_side}
     reps = 2 if q else 3
-    rows_lead = lead(meta["lead_side"], reps)
+    rows_lead = lead(meta["lead_side"], reps) + pcl_rows(args.build_dir, meta["lead_side"], reps)
     rows_sweep = sweep([256, 512] if q else [256, 512, 1024, 2048, 4096], reps)
     rows_fit = fit_sweep([100_000, 1_000_000] if q else [100_000, 1_000_000, 10_000_000], reps)
     mem = memory(meta["mem_side"])

@@ -5,6 +5,13 @@
 // memory in place (GridView over pcl::PointXYZ, no copy). One thread each. Prints JSON.
 //
 //   miem_bench_pcl [--repeats 5] [--quick]
+//   miem_bench_pcl --grid GRID.f64 ROWS COLS [--repeats 3]
+//
+// --grid: PCL's counterparts of the Open3D jobs in bench/bench_speed.py's lead table, on that
+// table's scan (float64 x, y, z row-major; dropouts NaN): the finite points as an unorganized
+// cloud, one thread: StatisticalOutlierRemoval(20, 2.0), RadiusOutlierRemoval(0.6, 8) and
+// NormalEstimation (KNN 20), each with a kd-tree. Prints JSON rows (method, median_ms, points,
+// flagged: points removed).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -15,8 +22,11 @@
 #include <vector>
 
 #include <pcl/features/integral_image_normal.h>
+#include <pcl/features/normal_3d.h>
 #include <pcl/features/organized_edge_detection.h>
+#include <pcl/filters/radius_outlier_removal.h>
 #include <pcl/filters/statistical_outlier_removal.h>
+#include <pcl/search/kdtree.h>
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
 
@@ -121,9 +131,82 @@ void print_row(bool first, const char* method, int W, int H, double ms, const Sc
   std::fflush(stdout);
 }
 
+// The --grid mode (see the file comment).
+int run_grid(const char* path, long rows, long cols, int repeats) {
+  if (rows <= 0 || cols <= 0) {
+    std::fprintf(stderr, "--grid: ROWS and COLS must be > 0\n");
+    return 2;
+  }
+  const std::size_t n = static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols);
+  std::vector<double> xyz(3 * n);
+  FILE* f = std::fopen(path, "rb");
+  if (f == nullptr || std::fread(xyz.data(), sizeof(double), xyz.size(), f) != xyz.size()) {
+    std::fprintf(stderr, "--grid: cannot read %zu points from %s\n", n, path);
+    if (f != nullptr) std::fclose(f);
+    return 2;
+  }
+  std::fclose(f);
+  Cloud::Ptr cloud(new Cloud);
+  for (std::size_t i = 0; i < n; ++i) {
+    const double* p = &xyz[3 * i];
+    if (std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]))
+      cloud->push_back(pcl::PointXYZ(static_cast<float>(p[0]), static_cast<float>(p[1]),
+                                     static_cast<float>(p[2])));
+  }
+  const long m = static_cast<long>(cloud->size());
+  auto row = [&](bool first, const char* method, double ms, long flagged) {
+    std::printf("%s{\"method\": \"%s\", \"median_ms\": %.3f, \"points\": %ld, "
+                "\"flagged\": %ld}", first ? "" : ",\n", method, ms, m, flagged);
+    std::fflush(stdout);
+  };
+  std::printf("[\n");
+  {
+    Cloud kept;
+    pcl::StatisticalOutlierRemoval<pcl::PointXYZ> sor;
+    const double ms = median_ms(repeats, [&] {
+      sor.setInputCloud(cloud);
+      sor.setMeanK(20);
+      sor.setStddevMulThresh(2.0);
+      sor.filter(kept);
+    });
+    row(true, "PCL `StatisticalOutlierRemoval(20, 2.0)` (1 thread)", ms,
+        m - static_cast<long>(kept.size()));
+  }
+  {
+    Cloud kept;
+    pcl::RadiusOutlierRemoval<pcl::PointXYZ> ror;
+    const double ms = median_ms(repeats, [&] {
+      ror.setInputCloud(cloud);
+      ror.setRadiusSearch(0.6);
+      ror.setMinNeighborsInRadius(8);
+      ror.filter(kept);
+    });
+    row(false, "PCL `RadiusOutlierRemoval(0.6, 8)` (1 thread)", ms,
+        m - static_cast<long>(kept.size()));
+  }
+  {
+    pcl::PointCloud<pcl::Normal> normals;
+    pcl::NormalEstimation<pcl::PointXYZ, pcl::Normal> ne;
+    const double ms = median_ms(repeats, [&] {
+      ne.setInputCloud(cloud);
+      ne.setSearchMethod(pcl::search::KdTree<pcl::PointXYZ>::Ptr(
+          new pcl::search::KdTree<pcl::PointXYZ>));
+      ne.setKSearch(20);
+      ne.compute(normals);
+    });
+    row(false, "PCL `NormalEstimation` (KNN 20, 1 thread)", ms, -1);
+  }
+  std::printf("\n]\n");
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
+  if (argc >= 5 && std::string(argv[1]) == "--grid") {
+    const int reps = argc >= 7 && std::string(argv[5]) == "--repeats" ? std::atoi(argv[6]) : 3;
+    return run_grid(argv[2], std::atol(argv[3]), std::atol(argv[4]), std::max(1, reps));
+  }
   int repeats = 5;
   bool quick = false;
   for (int i = 1; i < argc; ++i) {
@@ -131,7 +214,8 @@ int main(int argc, char** argv) {
     if (a == "--repeats" && i + 1 < argc) repeats = std::atoi(argv[++i]);
     else if (a == "--quick") quick = true;
     else {
-      std::fprintf(stderr, "usage: %s [--repeats N] [--quick]\n", argv[0]);
+      std::fprintf(stderr, "usage: %s [--repeats N] [--quick] | --grid FILE ROWS COLS "
+                   "[--repeats N]\n", argv[0]);
       return 2;
     }
   }
