@@ -159,31 +159,24 @@ int run_grid(const char* path, long rows, long cols, int repeats) {
                 "\"flagged\": %ld}", first ? "" : ",\n", method, ms, m, flagged);
     std::fflush(stdout);
   };
+  // A PCL filter, timed on the cloud; the points it removes are the flagged ones.
+  auto filter_row = [&](bool first, const char* method, auto& filter) {
+    Cloud kept;
+    const double ms = median_ms(repeats, [&] {
+      filter.setInputCloud(cloud);
+      filter.filter(kept);
+    });
+    row(first, method, ms, m - static_cast<long>(kept.size()));
+  };
   std::printf("[\n");
-  {
-    Cloud kept;
-    pcl::StatisticalOutlierRemoval<pcl::PointXYZ> sor;
-    const double ms = median_ms(repeats, [&] {
-      sor.setInputCloud(cloud);
-      sor.setMeanK(20);
-      sor.setStddevMulThresh(2.0);
-      sor.filter(kept);
-    });
-    row(true, "PCL `StatisticalOutlierRemoval(20, 2.0)` (1 thread)", ms,
-        m - static_cast<long>(kept.size()));
-  }
-  {
-    Cloud kept;
-    pcl::RadiusOutlierRemoval<pcl::PointXYZ> ror;
-    const double ms = median_ms(repeats, [&] {
-      ror.setInputCloud(cloud);
-      ror.setRadiusSearch(0.6);
-      ror.setMinNeighborsInRadius(8);
-      ror.filter(kept);
-    });
-    row(false, "PCL `RadiusOutlierRemoval(0.6, 8)` (1 thread)", ms,
-        m - static_cast<long>(kept.size()));
-  }
+  pcl::StatisticalOutlierRemoval<pcl::PointXYZ> sor;
+  sor.setMeanK(20);
+  sor.setStddevMulThresh(2.0);
+  filter_row(true, "PCL `StatisticalOutlierRemoval(20, 2.0)` (1 thread)", sor);
+  pcl::RadiusOutlierRemoval<pcl::PointXYZ> ror;
+  ror.setRadiusSearch(0.6);
+  ror.setMinNeighborsInRadius(8);
+  filter_row(false, "PCL `RadiusOutlierRemoval(0.6, 8)` (1 thread)", ror);
   {
     pcl::PointCloud<pcl::Normal> normals;
     pcl::NormalEstimation<pcl::PointXYZ, pcl::Normal> ne;
