@@ -62,7 +62,12 @@ void ProfileStream<T>::init_stages() {
     origin_.assign(static_cast<std::size_t>(2 * strips_ * 3), 0.0);
     has_origin_.assign(static_cast<std::size_t>(2 * strips_), 0);
     fit_buf_.assign(static_cast<std::size_t>((kMoments + 3 + 4) * cap + 6 * span_), 0.0);
-    fit_flags_.assign(static_cast<std::size_t>(2 * cap), 0);
+    fit_flags_.assign(static_cast<std::size_t>(3 * cap), 0);
+  }
+  if (htest_) {  // region_fits: column sums and classes of a segment and its window
+    region_cs_.assign(static_cast<std::size_t>(kMoments * (span_ + 2 * (half_ + 1))), 0.0);
+    region_cls_.assign(static_cast<std::size_t>(span_), 0);
+    want_row_.assign(static_cast<std::size_t>(W), 0);
   }
   reset_stages();
 }
@@ -237,6 +242,7 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
   double* F = Q + 3 * cap;
   std::uint8_t* okf = fit_flags_.data();
   std::uint8_t* redo = okf + cap;
+  std::uint8_t* wrow = redo + cap;
   const GridView<T> g{xyz_.data() + s * W, 1, W, W, 1, plane};
   const std::uint8_t* st = state_.data() + s * W;
   std::uint8_t* hm = hm_.data() + s * W;
@@ -247,50 +253,24 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
     const std::size_t k = static_cast<std::size_t>(cur_ * strips_ + t);
     const double* o = origin_.data() + 3 * k;
     const double* col = cs_.data() + k * kMoments * stride_ + pad + (tc0 - C0);
-    double acc[kMoments];  // box sums along the row: one column in and one out per cell
-    for (int m = 0; m < kMoments; ++m) {
-      double a = 0.0;
-      for (std::ptrdiff_t d = -h; d <= h; ++d) a += col[m * stride_ + d];
-      acc[m] = a;
-    }
+    std::ptrdiff_t m = 0;
     for (std::ptrdiff_t j = 0; j < n; ++j) {
-      if (j > 0) {
-        for (int m = 0; m < kMoments; ++m)
-          acc[m] += col[m * stride_ + j + h] - col[m * stride_ + j - h - 1];
-      }
-      for (int m = 0; m < kMoments; ++m) S[m * cap + j] = acc[m];
+      const bool finite = st[tc0 + j] != 0;
+      wrow[j] = finite;
+      m += finite;
+      if (!finite) height[tc0 + j] = detail::kNaN;
     }
-    for (std::ptrdiff_t j = 0; j < n; ++j) {
-      S[j] = std::round(S[j]);
-      S[10 * cap + j] = std::round(S[10 * cap + j]);
-    }
+    if (m == 0) continue;
     detail::load_rel(g, 0, tc0, n, o[0], o[1], o[2], Q, Q + cap, Q + 2 * cap);
-    detail::solve_fits(n, cap, S, Q, F, okf, redo);
-    for (std::ptrdiff_t j = 0; j < n; ++j) {
-      const std::ptrdiff_t c = tc0 + j;
-      if (st[c] == 0) {
-        height[c] = detail::kNaN;
-        continue;
-      }
-      detail::WindowFit f;
-      if (redo[j]) {
-        double sums[kMoments];
-        for (int m = 0; m < kMoments; ++m) sums[m] = S[m * cap + j];
-        f = detail::fit_from_sums(sums, Eigen::Vector3d(Q[j], Q[cap + j], Q[2 * cap + j]));
-      } else {
-        f.ok = okf[j] != 0;
-        f.n = S[j];
-        f.height = F[j];
-        f.l0 = F[cap + j];
-        f.l1 = F[2 * cap + j];
-        f.l2 = F[3 * cap + j];
-      }
-      f.edges = S[10 * cap + j];
-      height[c] = f.ok ? f.height : detail::kNaN;
-      if (htest_ && (hm[c] & (kInPlane | kSCompact)) && detail::height_far(f, params_)) {
-        remove_height(row, c, 1);
-      }
-    }
+    detail::row_fits(col, stride_, h, n, cap, wrow, m, S, Q, F, okf, redo,
+                     [&](std::ptrdiff_t j, const detail::WindowFit& f) {
+                       const std::ptrdiff_t c = tc0 + j;
+                       height[c] = f.ok ? f.height : detail::kNaN;
+                       if (htest_ && (hm[c] & (kInPlane | kSCompact)) &&
+                           detail::height_far(f, params_)) {
+                         remove_height(row, c, 1);
+                       }
+                     });
   }
 }
 
@@ -332,17 +312,17 @@ void ProfileStream<T>::height_pass_row(std::int64_t row, int pass) noexcept {
   hrow_[s] = static_cast<std::uint8_t>(hrow_[s] & ~bit);
   std::uint8_t* hm = hm_.data() + s * W;
   const std::uint8_t* hs = hs_.data() + s * W;
+  std::uint8_t* want = want_row_.data();
   for (std::ptrdiff_t c = 0; c < W; ++c) {
-    if (!(hm[c] & bit)) continue;
-    hm[c] = static_cast<std::uint8_t>(hm[c] & ~bit);
-    if (hs[c] != kNever || !(hm[c] & (kInPlane | kSCompact))) continue;
-    bool far = false;
-    window_fit(row, c, pass, [&](const GridView<T>& g, const std::uint8_t* cls, std::ptrdiff_t r,
-                                 std::ptrdiff_t cc) {
-      far = detail::height_far(detail::direct_fit(g, cls, r, cc, half_), params_);
-    });
-    if (far) remove_height(row, c, pass);
+    const std::uint8_t b = hm[c];
+    want[c] = (b & bit) && hs[c] == kNever && (b & (kInPlane | kSCompact));
+    hm[c] = static_cast<std::uint8_t>(b & ~bit);
   }
+  // Jacobi: every verdict of the row first (the removals below change later rows' windows only
+  // through hs_, which this pass reads as ">= pass")
+  region_fits(row, pass, [&](std::ptrdiff_t c, const detail::WindowFit& f) {
+    if (detail::height_far(f, params_)) remove_height(row, c, pass);
+  });
 }
 
 // A removal by height pass `pass`: the cell becomes ABNORMAL; the cells within h are re-fitted at
@@ -392,13 +372,80 @@ void ProfileStream<T>::final_row(std::int64_t row) noexcept {
     return;
   }
   if (!htest_) return;  // the pass-1 heights are final
-  for (std::ptrdiff_t c = 0; c < W; ++c) {
-    if (!(hm[c] & kSStale) || lab[c] == kInvalid) continue;
-    window_fit(row, c, kNever, [&](const GridView<T>& g, const std::uint8_t* cls,
-                                   std::ptrdiff_t r, std::ptrdiff_t cc) {
-      const detail::WindowFit f = detail::direct_fit(g, cls, r, cc, half_);
-      height[c] = f.ok ? f.height : detail::kNaN;
-    });
+  std::uint8_t* want = want_row_.data();
+  for (std::ptrdiff_t c = 0; c < W; ++c) want[c] = (hm[c] & kSStale) && lab[c] != kInvalid;
+  region_fits(row, kNever, [&](std::ptrdiff_t c, const detail::WindowFit& f) {
+    height[c] = f.ok ? f.height : detail::kNaN;
+  });
+}
+
+// The window fits of the cells of `row` marked in want_row_, over the classes of height pass
+// `pass` (kNever: the final labels, without feature-line counts), handed to visit(col, fit) in
+// ascending col. The wanted cells go in segments of at most kStrip columns: a segment's window
+// rows are summed column by column (window_fits.hpp's row moments and row_fits, relative to
+// its first wanted cell) when that reads fewer cells than fitting each window directly.
+template <typename T>
+template <typename Visit>
+void ProfileStream<T>::region_fits(std::int64_t row, int pass, Visit visit) noexcept {
+  const std::ptrdiff_t W = width_, h = half_, side = 2 * h + 1, plane = phys_ * W;
+  const std::ptrdiff_t cap = std::min(W, kStrip), pad = h + 1;
+  const std::int64_t r0 = std::max<std::int64_t>(0, row - h);
+  const std::int64_t r1 = std::min<std::int64_t>(pushed_ - 1, row + h);
+  const bool lines = pass != kNever;
+  const std::uint8_t* want = want_row_.data();
+  double* S = fit_buf_.data();
+  double* Q = S + kMoments * cap;
+  double* F = Q + 3 * cap;
+  double* x = F + 4 * cap;  // one row's relative coordinates, 3 x span_
+  std::uint8_t* okf = fit_flags_.data();
+  std::uint8_t* redo = okf + cap;
+  std::uint8_t* wrow = redo + cap;
+  std::uint8_t* cl = region_cls_.data();
+  for (std::ptrdiff_t c = 0; c < W;) {
+    if (!want[c]) {
+      ++c;
+      continue;
+    }
+    const std::ptrdiff_t ca = c, end = std::min(W, ca + kStrip);
+    std::ptrdiff_t cb = ca, m = 0;
+    for (std::ptrdiff_t q = ca; q < end; ++q) {
+      if (want[q]) cb = q, ++m;
+    }
+    c = cb + 1;
+    const std::ptrdiff_t seg = cb - ca + 1;
+    if (m * side <= seg + 2 * h) {  // few cells: each window directly
+      for (std::ptrdiff_t q = ca; q <= cb; ++q) {
+        if (!want[q]) continue;
+        window_fit(row, q, pass, [&](const GridView<T>& g, const std::uint8_t* cls,
+                                     std::ptrdiff_t r, std::ptrdiff_t cc) {
+          visit(q, detail::direct_fit(g, cls, r, cc, half_));
+        });
+      }
+      continue;
+    }
+    const std::ptrdiff_t C0 = std::max<std::ptrdiff_t>(0, ca - h);
+    const std::ptrdiff_t C1 = std::min<std::ptrdiff_t>(W, cb + h + 1), nc = C1 - C0;
+    const std::ptrdiff_t stride = nc + 2 * pad;
+    double* cs = region_cs_.data();
+    std::fill(cs, cs + kMoments * stride, 0.0);
+    const GridView<T> g0{xyz_.data() + slot(row) * W, 1, W, W, 1, plane};
+    const Eigen::Vector3d o = g0(0, ca);
+    for (std::int64_t rr = r0; rr <= r1; ++rr) {
+      const std::uint8_t* hm = hm_.data() + slot(rr) * W + C0;
+      const std::uint8_t* hs = hs_.data() + slot(rr) * W + C0;
+      for (std::ptrdiff_t j = 0; j < nc; ++j) {
+        const std::uint8_t b = hm[j];
+        cl[j] = ((b & kInPlane) && hs[j] >= pass) ? kInPlane
+                                                  : ((lines && (b & kLine)) ? kLine : 0);
+      }
+      const GridView<T> g{xyz_.data() + slot(rr) * W, 1, W, W, 1, plane};
+      detail::load_rel(g, 0, C0, nc, o.x(), o.y(), o.z(), x, x + span_, x + 2 * span_);
+      detail::add_row_moments(cl, nc, x, x + span_, x + 2 * span_, 1.0, cs + pad, stride);
+    }
+    for (std::ptrdiff_t j = 0; j < seg; ++j) wrow[j] = want[ca + j];
+    detail::load_rel(g0, 0, ca, seg, o.x(), o.y(), o.z(), Q, Q + cap, Q + 2 * cap);
+    detail::row_fits(cs + pad + (ca - C0), stride, h, seg, cap, wrow, m, S, Q, F, okf, redo,
+                     [&](std::ptrdiff_t j, const detail::WindowFit& f) { visit(ca + j, f); });
   }
 }
 

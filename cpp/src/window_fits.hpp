@@ -191,6 +191,70 @@ void load_rel(const GridView<T>& g, std::ptrdiff_t r, std::ptrdiff_t c0, std::pt
   }
 }
 
+/// The window fits of the wanted cells of one row segment of `ncols` cells from the column sums
+/// of the window's rows: `col` + k * stride + j is moment k of the segment's column j, with
+/// `half` + 1 valid (or zero-padded) columns on either side. wrow[j]: fit cell j (m of them);
+/// Q (3 x cap, SoA): the cells relative to the sums' origin, overwritten. S (kMoments x cap),
+/// F (4 x cap), ok and redo (cap each) are scratch. Calls visit(j, fit) in ascending j.
+/// Shared by the batch window sweep below and the stream's running sums.
+template <typename Visit>
+void row_fits(const double* col, std::ptrdiff_t stride, std::ptrdiff_t half, std::ptrdiff_t ncols,
+              std::ptrdiff_t cap, const std::uint8_t* wrow, std::ptrdiff_t m, double* S,
+              double* Q, double* F, std::uint8_t* okf, std::uint8_t* redo, Visit visit) {
+  // Box sums along the row: 11 running sums, one column in and one out per cell.
+  {
+    double acc[kMoments];
+    for (int k = 0; k < kMoments; ++k) {
+      double a = 0.0;
+      for (std::ptrdiff_t d = -half; d <= half; ++d) a += col[k * stride + d];
+      acc[k] = a;
+    }
+    for (std::ptrdiff_t j = 0; j < ncols; ++j) {
+      if (j > 0) {
+        for (int k = 0; k < kMoments; ++k)
+          acc[k] += col[k * stride + j + half] - col[k * stride + j - half - 1];
+      }
+      for (int k = 0; k < kMoments; ++k) S[k * cap + j] = acc[k];
+    }
+  }
+  const bool compact = 4 * m < ncols;  // few wanted cells: solve only those
+  if (compact) {
+    std::ptrdiff_t k2 = 0;
+    for (std::ptrdiff_t j = 0; j < ncols; ++j) {
+      if (!wrow[j]) continue;
+      for (int k = 0; k < kMoments; ++k) S[k * cap + k2] = S[k * cap + j];
+      for (int k = 0; k < 3; ++k) Q[k * cap + k2] = Q[k * cap + j];
+      ++k2;
+    }
+  }
+  const std::ptrdiff_t ns = compact ? m : ncols;
+  for (std::ptrdiff_t j = 0; j < ns; ++j) {
+    S[j] = std::round(S[j]);
+    S[10 * cap + j] = std::round(S[10 * cap + j]);
+  }
+  solve_fits(ns, cap, S, Q, F, okf, redo);
+  std::ptrdiff_t k2 = 0;
+  for (std::ptrdiff_t j = 0; j < ncols; ++j) {
+    if (!wrow[j]) continue;
+    const std::ptrdiff_t e = compact ? k2++ : j;
+    WindowFit f;
+    if (redo[e]) {
+      double sums[kMoments];
+      for (int k = 0; k < kMoments; ++k) sums[k] = S[k * cap + e];
+      f = fit_from_sums(sums, Eigen::Vector3d(Q[e], Q[cap + e], Q[2 * cap + e]));
+    } else {
+      f.ok = okf[e] != 0;
+      f.n = S[e];
+      f.height = F[e];
+      f.l0 = F[cap + e];
+      f.l1 = F[2 * cap + e];
+      f.l2 = F[3 * cap + e];
+    }
+    f.edges = S[10 * cap + e];
+    visit(j, f);
+  }
+}
+
 /// The window fit of one cell from its window's cells directly (sums relative to the cell).
 template <typename T>
 WindowFit direct_fit(const GridView<T>& g, const std::uint8_t* cls, std::ptrdiff_t r,
@@ -335,66 +399,14 @@ void window_fits(const GridView<T>& g, const std::uint8_t* cls, int window, int 
         m += w;
       }
       if (m == 0) continue;
-      // Box sums along the row: 11 running sums, one column in and one out per cell.
-      {
-        const double* col = cs + pad + (tc0 - C0);  // column of cell tc0
-        double acc[kMoments];
-        for (int k = 0; k < kMoments; ++k) {
-          double a = 0.0;
-          for (std::ptrdiff_t d = -half; d <= half; ++d) a += col[k * stride + d];
-          acc[k] = a;
-        }
-        for (std::ptrdiff_t j = 0; j < ncols; ++j) {
-          if (j > 0) {
-            for (int k = 0; k < kMoments; ++k)
-              acc[k] += col[k * stride + j + half] - col[k * stride + j - half - 1];
-          }
-          for (int k = 0; k < kMoments; ++k) S[k * cap + j] = acc[k];
-        }
-      }
       {
         const double* x = ring_row(r) + (tc0 - C0);
         std::copy(x, x + ncols, Q);
         std::copy(x + span, x + span + ncols, Q + cap);
         std::copy(x + 2 * span, x + 2 * span + ncols, Q + 2 * cap);
       }
-      const bool compact = 4 * m < ncols;  // few wanted cells: solve only those
-      if (compact) {
-        std::ptrdiff_t k2 = 0;
-        for (std::ptrdiff_t j = 0; j < ncols; ++j) {
-          if (!wrow[j]) continue;
-          for (int k = 0; k < kMoments; ++k) S[k * cap + k2] = S[k * cap + j];
-          for (int k = 0; k < 3; ++k) Q[k * cap + k2] = Q[k * cap + j];
-          ++k2;
-        }
-      }
-      const std::ptrdiff_t ns = compact ? m : ncols;
-      for (std::ptrdiff_t j = 0; j < ns; ++j) {
-        S[j] = std::round(S[j]);
-        S[10 * cap + j] = std::round(S[10 * cap + j]);
-      }
-      solve_fits(ns, cap, S, Q, F, okf, redo);
-      std::ptrdiff_t k2 = 0;
-      for (std::ptrdiff_t j = 0; j < ncols; ++j) {
-        const std::ptrdiff_t i = r * W + tc0 + j;
-        if (!wrow[j]) continue;
-        const std::ptrdiff_t e = compact ? k2++ : j;
-        WindowFit f;
-        if (redo[e]) {
-          double sums[kMoments];
-          for (int k = 0; k < kMoments; ++k) sums[k] = S[k * cap + e];
-          f = fit_from_sums(sums, Eigen::Vector3d(Q[e], Q[cap + e], Q[2 * cap + e]));
-        } else {
-          f.ok = okf[e] != 0;
-          f.n = S[e];
-          f.height = F[e];
-          f.l0 = F[cap + e];
-          f.l1 = F[2 * cap + e];
-          f.l2 = F[3 * cap + e];
-        }
-        f.edges = S[10 * cap + e];
-        visit(i, f);
-      }
+      row_fits(cs + pad + (tc0 - C0), stride, half, ncols, cap, wrow, m, S, Q, F, okf, redo,
+               [&](std::ptrdiff_t j, const WindowFit& f) { visit(r * W + tc0 + j, f); });
     }
   }
 }

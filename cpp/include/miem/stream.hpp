@@ -149,6 +149,8 @@ class ProfileStream {
   void sums_add_row(int set, std::int64_t in, double sign, std::int64_t out) noexcept;
   template <typename Fit>
   void window_fit(std::int64_t row, std::ptrdiff_t col, int pass, Fit fit) noexcept;
+  template <typename Visit>
+  void region_fits(std::int64_t row, int pass, Visit visit) noexcept;
 
   std::ptrdiff_t width_;
   DetectParams params_;
@@ -199,7 +201,10 @@ class ProfileStream {
   int cur_ = 0;                           // the set in use
   std::int64_t sums_next_ = 0;            // next row to add
   std::vector<double> fit_buf_;           // S, Q, F and one row's relative coordinates
-  std::vector<std::uint8_t> fit_flags_;   // ok, redo
+  std::vector<std::uint8_t> fit_flags_;   // ok, redo, wanted (one strip each)
+  std::vector<std::uint8_t> want_row_;    // region_fits: the cells of a row to fit
+  std::vector<double> region_cs_;         // region_fits: a segment's column sums
+  std::vector<std::uint8_t> region_cls_;  // region_fits: one row's classes
 };
 
 namespace nothrow {
