@@ -191,6 +191,29 @@ void load_rel(const GridView<T>& g, std::ptrdiff_t r, std::ptrdiff_t c0, std::pt
   }
 }
 
+/// S + k * cap + j = the sum of col + k * stride over columns j - half .. j + half, for j in
+/// [0, n), as running sums: S[j] = S[j - 1] + (col[j + half] - col[j - half - 1]).
+MIEM_FIT_CLONES inline void box_sums(const double* __restrict col, std::ptrdiff_t stride,
+                                     std::ptrdiff_t half, std::ptrdiff_t n, std::ptrdiff_t cap,
+                                     double* __restrict S) {
+  for (int k = 0; k < kMoments; ++k) {
+    const double* c = col + k * stride;
+    double* s = S + k * cap;
+    double a = 0.0;
+    for (std::ptrdiff_t d = -half; d <= half; ++d) a += c[d];
+    s[0] = a;
+    for (std::ptrdiff_t j = 1; j < n; ++j) s[j] = c[j + half] - c[j - half - 1];
+  }
+  double acc[kMoments];
+  for (int k = 0; k < kMoments; ++k) acc[k] = S[k * cap];
+  for (std::ptrdiff_t j = 1; j < n; ++j) {
+    for (int k = 0; k < kMoments; ++k) {
+      acc[k] += S[k * cap + j];
+      S[k * cap + j] = acc[k];
+    }
+  }
+}
+
 /// The window fits of the wanted cells of one row segment of `ncols` cells from the column sums
 /// of the window's rows: `col` + k * stride + j is moment k of the segment's column j, with
 /// `half` + 1 valid (or zero-padded) columns on either side. wrow[j]: fit cell j (m of them);
@@ -201,22 +224,9 @@ template <typename Visit>
 void row_fits(const double* col, std::ptrdiff_t stride, std::ptrdiff_t half, std::ptrdiff_t ncols,
               std::ptrdiff_t cap, const std::uint8_t* wrow, std::ptrdiff_t m, double* S,
               double* Q, double* F, std::uint8_t* okf, std::uint8_t* redo, Visit visit) {
-  // Box sums along the row: 11 running sums, one column in and one out per cell.
-  {
-    double acc[kMoments];
-    for (int k = 0; k < kMoments; ++k) {
-      double a = 0.0;
-      for (std::ptrdiff_t d = -half; d <= half; ++d) a += col[k * stride + d];
-      acc[k] = a;
-    }
-    for (std::ptrdiff_t j = 0; j < ncols; ++j) {
-      if (j > 0) {
-        for (int k = 0; k < kMoments; ++k)
-          acc[k] += col[k * stride + j + half] - col[k * stride + j - half - 1];
-      }
-      for (int k = 0; k < kMoments; ++k) S[k * cap + j] = acc[k];
-    }
-  }
+  // Box sums along the row: 11 running sums, one column in and one out per cell. The column
+  // differences first (a loop that vectorises), then the running sums over them.
+  box_sums(col, stride, half, ncols, cap, S);
   const bool compact = 4 * m < ncols;  // few wanted cells: solve only those
   if (compact) {
     std::ptrdiff_t k2 = 0;
