@@ -14,10 +14,11 @@
 
 namespace miem::detail {
 
-/// Fills centroid, peak_height and mean_height of a defect whose indices are set (ascending);
-/// returns the peak point's index, or -1 when no member has a finite height.
-template <typename PointAt>
-std::int64_t summarize_defect(Defect& d, const double* height, PointAt point_at) {
+/// Fills centroid, peak_height and mean_height of a defect whose indices are set (ascending),
+/// the height of index i being height_at(i); returns the peak point's index, or -1 when no
+/// member has a finite height.
+template <typename HeightAt, typename PointAt>
+std::int64_t summarize_defect_at(Defect& d, HeightAt height_at, PointAt point_at) {
   Eigen::Vector3d sum = Eigen::Vector3d::Zero();
   double hsum = 0.0;
   int hcount = 0;
@@ -25,7 +26,7 @@ std::int64_t summarize_defect(Defect& d, const double* height, PointAt point_at)
   d.peak_height = std::numeric_limits<double>::quiet_NaN();
   for (std::int64_t i : d.indices) {
     sum += point_at(i);
-    const double h = height[i];
+    const double h = height_at(i);
     if (std::isfinite(h)) {
       hsum += h;
       ++hcount;
@@ -38,6 +39,12 @@ std::int64_t summarize_defect(Defect& d, const double* height, PointAt point_at)
   d.centroid = sum / static_cast<double>(d.indices.size());
   d.mean_height = hcount > 0 ? hsum / hcount : std::numeric_limits<double>::quiet_NaN();
   return peak_idx;
+}
+
+/// summarize_defect_at with the heights of a grid or cloud (height[i]).
+template <typename PointAt>
+std::int64_t summarize_defect(Defect& d, const double* height, PointAt point_at) {
+  return summarize_defect_at(d, [height](std::int64_t i) { return height[i]; }, point_at);
 }
 
 /// Fills extent (diameter in the tangent plane of d.normal, 3-D when it is NaN) and kind.

@@ -305,6 +305,7 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   level_.assign(static_cast<std::size_t>(ring_), 0);
   bits_.assign(static_cast<std::size_t>(width_), 0);
   init_stages();
+  init_defects();
 }
 
 template <typename T>
@@ -313,6 +314,7 @@ void ProfileStream<T>::reset() noexcept {
   emitted_ = 0;
   finished_ = false;
   reset_stages();
+  reset_defects();
 }
 
 template <typename T>
@@ -377,9 +379,12 @@ Status ProfileStream<T>::push(const PointsView<T>& profile, StreamRow* out) noex
   run_stages(false);
   const std::int64_t done = row - lag_;
   if (done >= 0) {
+    defect_row(done);
     out->index = done;
     out->labels = labels_.data() + slot(done) * W;
     out->height = height_.data() + slot(done) * W;
+    out->defects = done_.data();
+    out->n_defects = n_done_;
     emitted_ = done + 1;
   }
   if (n_finite == 0) {
@@ -406,9 +411,12 @@ bool ProfileStream<T>::flush(StreamRow* out) noexcept {
     run_stages(true);  // then every later stage on all the rows left, stage by stage
   }
   if (emitted_ >= pushed_) return false;
+  defect_row(emitted_);
   out->index = emitted_;
   out->labels = labels_.data() + slot(emitted_) * width_;
   out->height = height_.data() + slot(emitted_) * width_;
+  out->defects = done_.data();
+  out->n_defects = n_done_;
   ++emitted_;
   return true;
 }

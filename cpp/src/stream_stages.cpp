@@ -357,17 +357,8 @@ void ProfileStream<T>::final_row(std::int64_t row) noexcept {
     for (std::ptrdiff_t c = 0; c < W; ++c) {
       height[c] = detail::kNaN;
       if (lab[c] != kAbnormal) continue;
-      window_fit(row, c, kNever, [&](const GridView<T>& g, const std::uint8_t* cls,
-                                     std::ptrdiff_t r, std::ptrdiff_t cc) {
-        // window_plane reads labels: NORMAL (0) where the class is kInPlane, else INVALID
-        for (std::size_t i = 0; i < local_.size(); ++i) {
-          local_[i] = cls[i] == kInPlane ? kNormal : kInvalid;
-        }
-        Plane pl;
-        if (detail::window_plane(g, local_.data(), r, cc, half_, &pl) == PlaneStatus::kOk) {
-          height[c] = pl.signed_distance(g(r, cc));
-        }
-      });
+      Plane pl;
+      if (final_window_plane(row, c, &pl)) height[c] = pl.signed_distance(row_view(row)(0, c));
     }
     return;
   }
@@ -449,11 +440,30 @@ void ProfileStream<T>::region_fits(std::int64_t row, int pass, Visit visit) noex
   }
 }
 
+// The window plane of cell (row, col) over the final labels, as batch detection computes it
+// (window_plane: the heights of HeightMode::kAbnormal, the defects' normals). False: none.
+template <typename T>
+bool ProfileStream<T>::final_window_plane(std::int64_t row, std::ptrdiff_t col,
+                                          Plane* plane) noexcept {
+  bool ok = false;
+  window_fit(row, col, kNever, [&](const GridView<T>& g, const std::uint8_t* cls,
+                                   std::ptrdiff_t r, std::ptrdiff_t cc) {
+    // window_plane reads labels: NORMAL (0) where the class is kInPlane, else INVALID
+    for (std::size_t i = 0; i < local_.size(); ++i) {
+      local_[i] = cls[i] == kInPlane ? kNormal : kInvalid;
+    }
+    ok = detail::window_plane(g, local_.data(), r, cc, half_, plane) == PlaneStatus::kOk;
+  });
+  return ok;
+}
+
 // The members defined here (stream.cpp instantiates the others).
 #define MIEM_STREAM_STAGES(T)                                                               \
   template void ProfileStream<T>::init_stages();                                           \
   template void ProfileStream<T>::reset_stages() noexcept;                                 \
-  template void ProfileStream<T>::run_stages(bool) noexcept;
+  template void ProfileStream<T>::run_stages(bool) noexcept;                               \
+  template bool ProfileStream<T>::final_window_plane(std::int64_t, std::ptrdiff_t,          \
+                                                     Plane*) noexcept;
 MIEM_STREAM_STAGES(float)
 MIEM_STREAM_STAGES(double)
 #undef MIEM_STREAM_STAGES

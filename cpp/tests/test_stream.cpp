@@ -3,6 +3,7 @@
 // both storage types; and bad profiles handled with a status without corrupting the stream.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -22,7 +23,8 @@ using miem::StatusCode;
 template <typename T>
 std::vector<std::uint8_t> stream_labels(const std::vector<T>& grid, std::ptrdiff_t H,
                                         std::ptrdiff_t W, const miem::DetectParams& p,
-                                        std::vector<double>* heights = nullptr) {
+                                        std::vector<double>* heights = nullptr,
+                                        std::vector<miem::Defect>* defects = nullptr) {
   miem::ProfileStream<T> s(W, p);
   std::vector<std::uint8_t> out(static_cast<std::size_t>(H * W), 99);
   if (heights != nullptr) heights->assign(static_cast<std::size_t>(H * W), -1e300);
@@ -32,6 +34,7 @@ std::vector<std::uint8_t> stream_labels(const std::vector<T>& grid, std::ptrdiff
     if (row.index < 0 || row.index >= H) return;
     std::copy(row.labels, row.labels + W, out.begin() + row.index * W);
     if (heights != nullptr) std::copy(row.height, row.height + W, heights->begin() + row.index * W);
+    if (defects != nullptr) defects->insert(defects->end(), row.defects, row.defects + row.n_defects);
     ++next;
   };
   for (std::ptrdiff_t r = 0; r < H; ++r) {
@@ -51,6 +54,40 @@ std::vector<std::uint8_t> stream_labels(const std::vector<T>& grid, std::ptrdiff
   return out;
 }
 
+// The stream's defects are batch detection's (as a set: the stream numbers them in the order
+// reported): the same cells, kind and (up to the heights' rounding) summaries.
+void expect_same_defects(std::vector<miem::Defect> got, std::vector<miem::Defect> want) {
+  auto by_first = [](const miem::Defect& a, const miem::Defect& b) {
+    return a.indices.front() < b.indices.front();
+  };
+  std::sort(got.begin(), got.end(), by_first);
+  std::sort(want.begin(), want.end(), by_first);
+  ASSERT_EQ(got.size(), want.size());
+  ASSERT_FALSE(want.empty());
+  std::vector<int> ids;
+  for (const miem::Defect& d : got) ids.push_back(d.id);
+  std::sort(ids.begin(), ids.end());
+  for (std::size_t k = 0; k < ids.size(); ++k) EXPECT_EQ(ids[k], static_cast<int>(k));
+  auto near = [](double a, double b) {
+    return std::isnan(b) ? std::isnan(a) : std::abs(a - b) <= 1e-9 * (1.0 + std::abs(b));
+  };
+  for (std::size_t k = 0; k < got.size(); ++k) {
+    const miem::Defect& a = got[k];
+    const miem::Defect& b = want[k];
+    SCOPED_TRACE("defect at cell " + std::to_string(b.indices.front()));
+    EXPECT_EQ(a.indices, b.indices);
+    EXPECT_EQ(a.kind, b.kind);
+    EXPECT_EQ(a.centroid, b.centroid);  // the same points summed in the same (index) order
+    EXPECT_TRUE(near(a.peak_height, b.peak_height)) << a.peak_height << " vs " << b.peak_height;
+    EXPECT_TRUE(near(a.mean_height, b.mean_height)) << a.mean_height << " vs " << b.mean_height;
+    EXPECT_TRUE(near(a.extent, b.extent)) << a.extent << " vs " << b.extent;
+    for (int i = 0; i < 3; ++i) {
+      EXPECT_TRUE(near(a.normal[i], b.normal[i])) << a.normal.transpose() << " vs "
+                                                  << b.normal.transpose();
+    }
+  }
+}
+
 template <typename T>
 void expect_stream_equals_batch(const std::vector<double>& grid_d, std::ptrdiff_t H,
                                 std::ptrdiff_t W, const miem::DetectParams& p) {
@@ -58,7 +95,9 @@ void expect_stream_equals_batch(const std::vector<double>& grid_d, std::ptrdiff_
   const miem::DetectResult batch =
       miem::detect_organized(miem::GridView<T>::dense(grid.data(), H, W), p);
   std::vector<double> heights;
-  const std::vector<std::uint8_t> streamed = stream_labels(grid, H, W, p, &heights);
+  std::vector<miem::Defect> defects;
+  const std::vector<std::uint8_t> streamed = stream_labels(grid, H, W, p, &heights, &defects);
+  expect_same_defects(defects, batch.summary.defects);
   std::size_t bad = 0, bad_height = 0;
   for (std::size_t i = 0; i < streamed.size(); ++i) {
     if (streamed[i] != batch.labels[i] && ++bad <= 10) {
@@ -401,3 +440,22 @@ TEST(Stream, RejectsFieldsItDoesNotHonour) {
 }
 
 }  // namespace
+
+// A defect longer than the ring (a trench along the scan, ABNORMAL with min_directions 3): its
+// cells are kept after their rows left the ring, and it is reported once, after its last row.
+TEST(StreamDefects, GroupLongerThanTheRing) {
+  const std::ptrdiff_t H = 320, W = 60;
+  miem::test::ScanOptions o;
+  o.nan_rows = false;
+  std::vector<double> g = miem::test::make_scan(H, W, 5, o);
+  for (std::ptrdiff_t r = 5; r < 300; ++r) g[static_cast<std::size_t>((r * W + 30) * 3 + 2)] -= 1.0;
+  for (miem::DetectParams p : {miem::paper_params(), miem::stream_default_params()}) {
+    p.min_directions = 3;
+    const miem::DetectResult batch = miem::detect_organized(
+        miem::GridView<double>::dense(g.data(), H, W), p);
+    std::size_t longest = 0;
+    for (const miem::Defect& d : batch.summary.defects) longest = std::max(longest, d.indices.size());
+    ASSERT_GT(longest, 200u);  // one cell per row: longer than the ring (about lag + 3h rows)
+    expect_stream_equals_batch<double>(g, H, W, p);
+  }
+}

@@ -21,6 +21,13 @@ struct StreamRow {
                                          ///< of push, flush or reset
   const double* height = nullptr;        ///< `width` heights (docs/SPEC.md "Height"; NaN where
                                          ///< none), valid as long as `labels`
+  /// The defects this call made final (docs/SPEC.md "Streaming": 8-connected ABNORMAL groups,
+  /// summarised as detect_organized summarises them, reported by the first call that hands
+  /// back a row after the group, i.e. once no later profile can change it), in the order of
+  /// their first cell; `id` numbers the stream's defects in the order reported. `indices` are
+  /// flat r * width + c with r counted from the first profile. Valid as long as `labels`.
+  const Defect* defects = nullptr;
+  std::size_t n_defects = 0;
 
   /// True when a row was handed back.
   bool ready() const noexcept { return index >= 0; }
@@ -147,6 +154,17 @@ class ProfileStream {
   void final_row(std::int64_t row) noexcept;
   void remove_height(std::int64_t row, std::ptrdiff_t col, int pass) noexcept;
   void sums_add_row(int set, std::int64_t in, double sign, std::int64_t out) noexcept;
+  bool final_window_plane(std::int64_t row, std::ptrdiff_t col, Plane* plane) noexcept;
+  GridView<T> row_view(std::int64_t row) const noexcept {
+    return GridView<T>{xyz_.data() + slot(row) * width_, 1, width_, width_, 1, phys_ * width_};
+  }
+  // Defects (stream_defects.cpp).
+  void init_defects();
+  void reset_defects() noexcept;
+  void defect_row(std::int64_t row) noexcept;
+  std::int32_t find_slot(std::int32_t s) noexcept;
+  std::int32_t merge_slots(std::int32_t a, std::int32_t b) noexcept;
+  void report(std::int32_t root) noexcept;
   template <typename Fit>
   void window_fit(std::int64_t row, std::ptrdiff_t col, int pass, Fit fit) noexcept;
   template <typename Visit>
@@ -205,6 +223,28 @@ class ProfileStream {
   std::vector<std::uint8_t> want_row_;    // region_fits: the cells of a row to fit
   std::vector<double> region_cs_;         // region_fits: a segment's column sums
   std::vector<std::uint8_t> region_cls_;  // region_fits: one row's classes
+
+  // Defects (stream_defects.cpp): open groups as union-find slots over the cells of the last
+  // row handed back; their cells in a pool of singly linked members.
+  struct DefectSlot {
+    std::int32_t parent = 0, head = -1, tail = -1;
+    std::int64_t count = 0, last_row = -1, peak_idx = -1;
+    double peak_h = 0.0;
+    Eigen::Vector3d normal = Eigen::Vector3d::Zero();  // window-plane normal at the peak
+    bool touches = false, closed = false;
+  };
+  std::vector<std::int32_t> dprev_, dcur_;  // per column: slot of the ABNORMAL cell, or -1
+  std::vector<DefectSlot> slots_;
+  std::vector<std::int32_t> slot_free_, dead_, closed_;
+  std::vector<std::int64_t> mem_idx_;
+  std::vector<double> mem_pt_, mem_h_;
+  std::vector<std::int32_t> mem_next_;
+  std::int32_t mem_free_ = -1;
+  std::vector<std::int32_t> order_;     // a closing group's members in index order
+  std::vector<double> sorted_pt_, sorted_h_;
+  std::vector<Defect> done_;            // the defects of this call: done_[0, n_done_)
+  std::size_t n_done_ = 0;
+  std::int64_t defects_reported_ = 0;
 };
 
 namespace nothrow {
