@@ -64,8 +64,9 @@ def make_full_scan(h, w, seed):
     return g
 
 
-def stream_both(stream: ProfileStream, grid: np.ndarray) -> tuple:
-    """Labels and heights of every row, each taken when the stream hands it back."""
+def stream_both(stream: ProfileStream, grid: np.ndarray, defects: list | None = None) -> tuple:
+    """Labels and heights of every row, each taken when the stream hands it back (and, into
+    `defects`, the defects each row made final)."""
     out = np.full(grid.shape[:2], 99, dtype=np.uint8)
     heights = np.full(grid.shape[:2], -1e300)
     expected = 0
@@ -77,12 +78,42 @@ def stream_both(stream: ProfileStream, grid: np.ndarray) -> tuple:
             assert isinstance(done, StreamRow) and done.row == r - stream.lag == expected
             out[done.row], heights[done.row] = done.labels, done.heights
             expected += 1
+            if defects is not None:
+                defects.extend(_final(done, grid.shape[0]))
     for done in stream.flush():
         assert done.row == expected
         out[done.row], heights[done.row] = done.labels, done.heights
         expected += 1
+        if defects is not None:
+            defects.extend(_final(done, grid.shape[0]))
     assert expected == grid.shape[0]
     return out, heights
+
+
+def _final(done: StreamRow, rows: int) -> list:
+    """A row's defects, each reported by the first row after its last one (or the scan's last
+    row): no later profile could have changed it."""
+    for d in done.defects:
+        assert d.cells[:, 0].max() == done.row - 1 or done.row == rows - 1
+    return done.defects
+
+
+def assert_same_defects(got: list, want: list, labels: np.ndarray) -> None:
+    """The stream's defects are detect's, as a set (the stream numbers them as reported): the
+    same points and kind, summaries equal up to the heights' rounding."""
+    assert len(want) > 0
+    assert sorted(d.id for d in got) == list(range(len(got)))
+    got = sorted(got, key=lambda d: d.indices[0])
+    want = sorted(want, key=lambda d: d.indices[0])
+    assert [d.indices.tolist() for d in got] == [d.indices.tolist() for d in want]
+    for a, b in zip(got, want):
+        assert a.kind == b.kind and a.count == b.count
+        np.testing.assert_array_equal(a.cells, b.cells)
+        np.testing.assert_array_equal(a.centroid, b.centroid)
+        np.testing.assert_allclose([a.peak_height, a.mean_height, a.extent, *a.normal],
+                                   [b.peak_height, b.mean_height, b.extent, *b.normal],
+                                   rtol=1e-9, atol=1e-9, equal_nan=True)
+    assert sum(d.count for d in want) == (labels == miem.ABNORMAL).sum()
 
 
 def stream_all(stream: ProfileStream, grid: np.ndarray) -> np.ndarray:
@@ -121,10 +152,12 @@ def test_stream_equals_detect_full_detector(preset: str, variant: int, dtype) ->
     kw = STAGE_VARIANTS[variant]
     want = miem.detect(grid, params=stream_preset(preset), **kw)
     stream = ProfileStream(70, params=stream_preset(preset), dtype=dtype, **kw)
-    got, heights = stream_both(stream, grid)
+    defects: list = []
+    got, heights = stream_both(stream, grid, defects)
     np.testing.assert_array_equal(got, want.labels)
     assert_heights_equal(heights, want.height)
     assert (want.labels == miem.ABNORMAL).sum() > 0
+    assert_same_defects(defects, want.defects, want.labels)
 
 
 def test_stream_runs_the_whole_default_detector() -> None:

@@ -534,15 +534,7 @@ def detect(
 
     (labels, flags, angle, height, plane_t, iterations, raw, theta0_used,
      min_step_used) = _core.detect_organized(arr, core_params)
-    width = arr.shape[1]
-    defects = [
-        Defect(
-            id=int(i), indices=idx, cells=np.stack([idx // width, idx % width], axis=1),
-            count=int(idx.size), centroid=c, normal=n, peak_height=float(pk),
-            mean_height=float(mh), extent=float(ex), kind=str(kind),
-        )
-        for (i, idx, c, n, pk, mh, ex, kind) in raw
-    ]
+    defects = _grid_defects(raw, arr.shape[1])
     return DetectResult(
         labels=labels, flags=flags, angle=angle, height=height,
         plane=None if plane_t is None else _plane(plane_t, "eigen"),
@@ -552,6 +544,19 @@ def detect(
                               min_step=None if min_step_used < 0 else float(min_step_used),
                               min_step_auto=bool(core_params.min_step_auto)),
     )
+
+
+def _grid_defects(raw: list, width: int) -> "list[Defect]":
+    """Defect objects from the core's (id, indices, centroid, normal, peak, mean, extent, kind)
+    tuples of a grid ``width`` points wide."""
+    return [
+        Defect(
+            id=int(i), indices=idx, cells=np.stack([idx // width, idx % width], axis=1),
+            count=int(idx.size), centroid=c, normal=n, peak_height=float(pk),
+            mean_height=float(mh), extent=float(ex), kind=str(kind),
+        )
+        for (i, idx, c, n, pk, mh, ex, kind) in raw
+    ]
 
 
 def _params_record(p: DetectParams, name: str, path: str, **extra: Any) -> dict:

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike, DTypeLike
 
 from . import _core
-from ._api import _as_float_array, _params_record
+from ._api import Defect, _as_float_array, _grid_defects, _params_record
 from .params import DetectParams, _int, resolve_params
 
 __all__ = ["ProfileStream", "StreamRow"]
@@ -55,11 +55,18 @@ class StreamRow(NamedTuple):
     heights : ndarray, shape (width,), float64
         Local heights (as :attr:`miem.DetectResult.height`; NaN where none, and everywhere but
         the ABNORMAL points with ``heights="abnormal"``).
+    defects : list of Defect
+        The defects that became final with this row (:class:`miem.Defect`, as
+        :attr:`miem.DetectResult.defects` holds them: no later profile can change them),
+        ordered by their first point. ``indices`` and ``cells`` count rows from the first
+        profile pushed; ``id`` numbers the stream's defects in the order reported (not by
+        height: the stream cannot rank what it has not seen yet).
     """
 
     row: int
     labels: np.ndarray
     heights: np.ndarray
+    defects: List[Defect]
 
 
 class ProfileStream:
@@ -205,8 +212,9 @@ class ProfileStream:
         Returns
         -------
         StreamRow or None
-            ``(row, labels, heights)`` of the row pushed ``lag`` profiles ago; None while fewer than
-            ``lag + 1`` profiles have been pushed.
+            ``(row, labels, heights, defects)`` of the row pushed ``lag`` profiles ago (with
+            the defects it made final); None while fewer than ``lag + 1`` profiles have been
+            pushed.
 
         Raises
         ------
@@ -219,10 +227,12 @@ class ProfileStream:
             raise ValueError(f"profile: expected shape ({self.width}, 3), got {arr.shape}")
         if arr.dtype != self._dtype:
             arr = arr.astype(self._dtype)
-        code, message, row, labels, heights = self._core.push(arr)
+        code, message, row, labels, heights, defects = self._core.push(arr)
         if code not in (_OK, _EMPTY_PROFILE):
             raise ValueError(message)
-        return None if labels is None else StreamRow(int(row), labels, heights)
+        if labels is None:
+            return None
+        return StreamRow(int(row), labels, heights, _grid_defects(defects, self.width))
 
     def flush(self) -> List[StreamRow]:
         """End the stream and return every row still pending, oldest first.
@@ -235,7 +245,9 @@ class ProfileStream:
         list of StreamRow
             At most ``lag`` rows (empty on a second call).
         """
-        return [StreamRow(int(r), labels, heights) for r, labels, heights in self._core.flush()]
+        w = self.width
+        return [StreamRow(int(r), labels, heights, _grid_defects(defects, w))
+                for r, labels, heights, defects in self._core.flush()]
 
     def reset(self) -> None:
         """Start a new stream (a new part) with the same width and parameters."""

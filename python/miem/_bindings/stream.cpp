@@ -24,7 +24,8 @@ class PyProfileStream {
   PyProfileStream(std::ptrdiff_t width, const miem::DetectParams& params)
       : stream_(width, params) {}
 
-  // Returns (status code, message, row index or -1, labels or None, heights or None).
+  // Returns (status code, message, row index or -1, labels or None, heights or None, defects:
+  // the (id, indices, centroid, normal, peak, mean, extent, kind) tuples this call made final).
   py::tuple push(const py::array& profile) {
     const Exclusive guard(busy_);
     if (!miem::bindings::is_dtype<T>(profile)) {
@@ -42,15 +43,17 @@ class PyProfileStream {
       st = stream_.push(view, &row);
     }
     return py::make_tuple(static_cast<int>(st.code), st.message, row.index, labels(row),
-                          heights(row));
+                          heights(row), defects(row));
   }
 
-  // Every pending row as (row index, labels, heights), oldest first.
+  // Every pending row as (row index, labels, heights, defects), oldest first.
   py::list flush() {
     const Exclusive guard(busy_);
     py::list out;
     miem::StreamRow row;
-    while (stream_.flush(&row)) out.append(py::make_tuple(row.index, labels(row), heights(row)));
+    while (stream_.flush(&row)) {
+      out.append(py::make_tuple(row.index, labels(row), heights(row), defects(row)));
+    }
     return out;
   }
 
@@ -98,6 +101,11 @@ class PyProfileStream {
     py::array_t<double> a(stream_.width());
     std::copy(row.height, row.height + stream_.width(), a.mutable_data());
     return std::move(a);
+  }
+
+  static py::list defects(const miem::StreamRow& row) {
+    return miem::bindings::defect_list(
+        std::vector<miem::Defect>(row.defects, row.defects + row.n_defects));
   }
 
   miem::ProfileStream<T> stream_;
