@@ -77,7 +77,8 @@ class ProfileStream:
     gives for the same rows with the same parameters, for every input; the heights equal its
     heights up to rounding (the same window planes, summed in another order). The detector
     runs but for the edge test: the angle passes, the height test with its compact EDGE
-    groups, heights.
+    groups, heights, and the defects (:attr:`StreamRow.defects`: each reported once no later
+    profile can change it; over a scan, the same set as :attr:`miem.DetectResult.defects`).
     The lag (docs/SPEC.md "Streaming") is::
 
         L = P R + E + (P + 1) h     (height test on;  L = P R + h without it)

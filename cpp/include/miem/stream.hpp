@@ -76,9 +76,10 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 /// Memory: the last L + h + 2 rows (about L + 2 h) are kept in a ring (plus max(2 R, 2 h) rows
 /// that repeat its first rows, so that the rows around any row form one strided GridView):
 /// about 176 * 3200 * (3 * 8 + 8 + 4) bytes = 20 MB for double profiles of 3200 points with the
-/// defaults. Flags, angles and defects are not reported here: group the ABNORMAL labels
-/// downstream. (Batch detection also refuses a grid of fewer than 3 finite points; a stream
-/// simply labels what it gets.)
+/// defaults, plus the cells of the open defects (a pool reserved for 16 rows' worth of cells,
+/// which grows, once, only for more). Defects come with the rows (StreamRow::defects) once
+/// final; flags and angles are not reported. (Batch detection also refuses a grid of fewer
+/// than 3 finite points; a stream simply labels what it gets.)
 ///
 /// Speed: pass 1 runs a vectorised filter over the whole row (SSE2, or AVX2 where the CPU has
 /// it) and judges exactly only the few cells that might be flagged; cells next to a dropout go
