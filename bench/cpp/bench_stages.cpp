@@ -85,7 +85,7 @@ int main(int argc, char** argv) {
     t[3] = now();
     if (eff.edge_test())
       miem::detail::edge_passes(g, labels.data(), eff.edge_window, eff.edge_k,
-                                eff.max_iterations, nt, ws.edge_sums);
+                                eff.max_iterations, nt, ws.edge_sums, ws.edge_flags);
     t[4] = now();
     auto plane = miem::detail::miem_plane(g, labels.data(), nt, ws);
     t[5] = now();

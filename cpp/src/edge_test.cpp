@@ -134,7 +134,8 @@ MIEM_EDGE_CLONES void side_planes(std::ptrdiff_t m, std::ptrdiff_t cap, double k
 // precision that the smallest eigenvalue needs.
 template <typename T>
 int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
-               int max_iterations, int num_threads, std::vector<double>& scratch) {
+               int max_iterations, int num_threads, std::vector<double>& scratch,
+               std::vector<std::uint8_t>& flags) {
   constexpr std::ptrdiff_t kTileRows = 64, kTileCols = 128;
   const std::ptrdiff_t H = g.rows, W = g.cols, N = H * W, r = window / 2;
   const double n_min = static_cast<double>(std::max<std::ptrdiff_t>(3, (r * r) / 2));
@@ -147,7 +148,9 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
                                            static_cast<int>(tiles_r * tiles_c)));
   const std::size_t need = static_cast<std::size_t>(per * nt);
   if (scratch.size() < need) scratch.resize(need);
-  std::vector<std::uint8_t> todo(static_cast<std::size_t>(N)), mark(static_cast<std::size_t>(N));
+  if (flags.size() < static_cast<std::size_t>(2 * N)) flags.resize(static_cast<std::size_t>(2 * N));
+  std::uint8_t* const todo = flags.data();
+  std::uint8_t* const mark = todo + N;
   for (std::ptrdiff_t i = 0; i < N; ++i) todo[i] = labels[i] == kNormal || labels[i] == kEdge;
   int passes = 0;
   for (int it = 0; it < max_iterations; ++it) {
@@ -365,7 +368,7 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
       }
     }
     std::ptrdiff_t added = 0;
-    std::fill(todo.begin(), todo.end(), std::uint8_t{0});
+    std::fill(todo, todo + N, std::uint8_t{0});
     for (std::ptrdiff_t i = 0; i < N; ++i) {
       if (!mark[i]) continue;
       labels[i] = kAbnormal;
@@ -389,13 +392,14 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
 
 template <typename T>
 int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
-                int max_iterations, int num_threads, std::vector<double>& scratch) {
-  return run_passes(g, labels, window, k, max_iterations, num_threads, scratch);
+                int max_iterations, int num_threads, std::vector<double>& scratch,
+                std::vector<std::uint8_t>& flags) {
+  return run_passes(g, labels, window, k, max_iterations, num_threads, scratch, flags);
 }
 
 template int edge_passes<float>(const GridView<float>&, std::uint8_t*, int, double, int, int,
-                                std::vector<double>&);
+                                std::vector<double>&, std::vector<std::uint8_t>&);
 template int edge_passes<double>(const GridView<double>&, std::uint8_t*, int, double, int, int,
-                                 std::vector<double>&);
+                                 std::vector<double>&, std::vector<std::uint8_t>&);
 
 }  // namespace miem::detail

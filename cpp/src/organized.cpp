@@ -65,7 +65,8 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
   const bool edge_test = p.edge_test();
   if (edge_test) {  // SPEC "Edge test": after the height passes
     summary.iterations += detail::edge_passes(g, labels, p.edge_window, p.edge_k,
-                                              p.max_iterations, p.num_threads, ws_.edge_sums);
+                                              p.max_iterations, p.num_threads, ws_.edge_sums,
+                                              ws_.edge_flags);
   }
   summary.plane = detail::miem_plane(g, labels, p.num_threads, ws_);
   // heights() re-fits the windows the edge test changed and reuses the height test's others

@@ -222,16 +222,28 @@ std::ptrdiff_t mark_finite(const T* x, const T* y, const T* z, std::ptrdiff_t W,
 DetectParams stream_default_params() {
   DetectParams p;
   p.min_step_auto = false;  // a stream cannot see the whole scan: give min_step as a length
-  p.edge_k = 0.0;           // the edge test is not implemented by the stream yet
   return p;
 }
+
+namespace {
+// Rows of an edge block above its band of 64 (whole tile bands: at least 64 + (P - 1) r) and
+// below it (P r); stream_edges.cpp has the reasons.
+long long edge_top(const DetectParams& p) {
+  const long long r = p.edge_window / 2, P = p.max_iterations;
+  return 64 * (1 + (((P - 1) * r + 63) / 64));
+}
+long long edge_bottom(const DetectParams& p) {
+  return static_cast<long long>(p.max_iterations) * (p.edge_window / 2);
+}
+}  // namespace
 
 long long stream_lag(const DetectParams& p) noexcept {
   const long long reach = static_cast<long long>(
                               *std::max_element(p.scales.begin(), p.scales.end())) +
                           p.max_gap + (p.min_step >= 0.0 ? p.max_reach : 0);
   const long long P = p.max_iterations, h = p.window / 2;
-  return P * reach + (p.height_test() ? p.edge_extent + (P + 1) * h : h);
+  const long long base = P * reach + (p.height_test() ? p.edge_extent + (P + 1) * h : h);
+  return base + (p.edge_test() ? 63 + edge_bottom(p) : 0);
 }
 
 Status check_stream_params(std::ptrdiff_t width, const DetectParams& p) noexcept {
@@ -241,12 +253,10 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& p) noexcept
     return bad("theta0_auto: not implemented by ProfileStream (theta0 'auto' is the median of "
                "the whole scan's angles, which a stream never sees); give theta0 in degrees");
   }
-  if (p.edge_test()) {
-    return bad("edge_k: the edge test is not implemented by ProfileStream yet; set it to 0");
-  }
   if (p.min_step_auto) {
-    return bad("min_step_auto: a stream cannot see the whole scan; set it to false and give "
-               "min_step as a length (e.g. auto_min_step() of a first scan)");
+    return bad("min_step_auto: a stream cannot see the whole scan (min_step 'auto' takes "
+               "medians over all of it); set it to false and give min_step as a length: "
+               "miem::auto_min_step(first_scan) on a first scan of the part (-1: off)");
   }
   if (width < 1) return bad("width: must be at least 1 point per profile");
   if (p.max_iterations > 254) return bad("max_iterations: a stream supports at most 254 passes");
@@ -273,18 +283,25 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   passes_ = params_.max_iterations;
   alag_ = passes_ * reach_;
   htest_ = params_.height_test();
+  edge_ = params_.edge_test();
   half_ = params_.window / 2;
   extent_ = htest_ ? params_.edge_extent : 0;
   sums_ = htest_ || params_.height_mode == HeightMode::kAll;
   lag_ = static_cast<int>(stream_lag(params_));
+  lagh_ = alag_ + (htest_ ? extent_ + passes_ * half_ : 0);
+  etop_ = edge_ ? static_cast<int>(edge_top(params_)) : 0;
+  ebot_ = edge_ ? static_cast<int>(edge_bottom(params_)) : 0;
   // The longest look-back of a stage at push n: heights read row n - L - h, height pass 1
   // drops row n - L - h - 1 from its sums (without the height test), the EDGE grouping reads
-  // row n - A - 2E, the angle passes row n - A - R.
+  // row n - A - 2E, the angle passes row n - A - R, an edge block starts etop_ rows above a
+  // band of 64 whose last row is n - lagh_ - ebot_.
   const long long back = std::max<long long>(
       {static_cast<long long>(lag_) + half_ + 1, static_cast<long long>(alag_) + 2LL * extent_,
-       static_cast<long long>(alag_) + reach_});
+       static_cast<long long>(alag_) + reach_,
+       edge_ ? static_cast<long long>(lagh_) + ebot_ + kEdgeTileRows + etop_ : 0LL});
   ring_ = static_cast<std::ptrdiff_t>(back) + 2;
-  ext_ = std::max<std::ptrdiff_t>(2 * reach_, 2 * half_);
+  // Any ext_ + 1 consecutive rows form one GridView: a judgment's rows, a window, an edge block.
+  ext_ = std::max<std::ptrdiff_t>({2 * reach_, 2 * half_, edge_ ? edge_block_rows() : 0});
   phys_ = ring_ + ext_;
   const double cells = static_cast<double>(phys_) * static_cast<double>(width_);
   if (cells * 3.0 * sizeof(T) > static_cast<double>(std::numeric_limits<std::ptrdiff_t>::max() / 4)) {
@@ -305,6 +322,7 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   level_.assign(static_cast<std::size_t>(ring_), 0);
   bits_.assign(static_cast<std::size_t>(width_), 0);
   init_stages();
+  init_edges();
   init_defects();
 }
 
@@ -368,6 +386,7 @@ Status ProfileStream<T>::push(const PointsView<T>& profile, StreamRow* out) noex
   std::memset(hm_.data() + s * W, 0, static_cast<std::size_t>(W));
   std::memset(hs_.data() + s * W, 0xff, static_cast<std::size_t>(W));
   hrow_[s] = 0;
+  if (edge_) std::memset(eold_.data() + s * W, 0, static_cast<std::size_t>(W));
   pushed_ = row + 1;
 
   // The wavefront: pass p on row - p R (its rows within R have all run pass p - 1).

@@ -64,7 +64,7 @@ void ProfileStream<T>::init_stages() {
     fit_buf_.assign(static_cast<std::size_t>((kMoments + 3 + 4) * cap + 6 * span_), 0.0);
     fit_flags_.assign(static_cast<std::size_t>(3 * cap), 0);
   }
-  if (htest_) {  // region_fits: column sums and classes of a segment and its window
+  if (htest_ || edge_) {  // region_fits: column sums and classes of a segment and its window
     region_cs_.assign(static_cast<std::size_t>(kMoments * (span_ + 2 * (half_ + 1))), 0.0);
     region_cls_.assign(static_cast<std::size_t>(span_), 0);
     want_row_.assign(static_cast<std::size_t>(W), 0);
@@ -75,6 +75,7 @@ void ProfileStream<T>::init_stages() {
 template <typename T>
 void ProfileStream<T>::reset_stages() noexcept {
   next_final_ = next_compact_ = next_out_ = 0;
+  next_band_ = 0;
   std::fill(next_pass_.begin(), next_pass_.end(), 0);
   std::fill(cs_.begin(), cs_.end(), 0.0);
   std::fill(has_origin_.begin(), has_origin_.end(), 0);
@@ -101,6 +102,13 @@ void ProfileStream<T>::run_stages(bool to_end) noexcept {
     for (int p = 2; p <= passes_; ++p) {
       std::int64_t& next = next_pass_[static_cast<std::size_t>(p)];
       for (const std::int64_t lim = upto(A + E + p * h); next <= lim;) height_pass_row(next++, p);
+    }
+  }
+  if (edge_) {  // a band of 64 rows once the height passes are final through ebot_ rows below
+    const std::int64_t ready = to_end ? last : last - lagh_;
+    while (next_band_ * kEdgeTileRows <= last &&
+           (to_end || (next_band_ + 1) * kEdgeTileRows + ebot_ - 1 <= ready)) {
+      edge_band(next_band_++);
     }
   }
   for (const std::int64_t lim = upto(lag_); next_out_ <= lim;) final_row(next_out_++);
@@ -344,6 +352,19 @@ void ProfileStream<T>::remove_height(std::int64_t row, std::ptrdiff_t col, int p
   }
 }
 
+// The heights in the window of cell (row, col) are stale: fitted again when handed back.
+template <typename T>
+void ProfileStream<T>::mark_stale(std::int64_t row, std::ptrdiff_t col) noexcept {
+  const std::ptrdiff_t W = width_, h = half_;
+  const std::ptrdiff_t c0 = std::max<std::ptrdiff_t>(0, col - h);
+  const std::ptrdiff_t c1 = std::min<std::ptrdiff_t>(W - 1, col + h);
+  for (std::int64_t rr = std::max<std::int64_t>(0, row - h);
+       rr <= std::min<std::int64_t>(pushed_ - 1, row + h); ++rr) {
+    std::uint8_t* hm = hm_.data() + slot(rr) * W;
+    for (std::ptrdiff_t cc = c0; cc <= c1; ++cc) hm[cc] |= kSStale;
+  }
+}
+
 // The heights of `row` over its final window: the pass-1 height where no removal touched the
 // window, else a direct fit (HeightMode::kAll); the window plane of each ABNORMAL cell, as
 // batch detection computes it (kAbnormal).
@@ -362,7 +383,7 @@ void ProfileStream<T>::final_row(std::int64_t row) noexcept {
     }
     return;
   }
-  if (!htest_) return;  // the pass-1 heights are final
+  if (!htest_ && !edge_) return;  // the pass-1 heights are final
   std::uint8_t* want = want_row_.data();
   for (std::ptrdiff_t c = 0; c < W; ++c) want[c] = (hm[c] & kSStale) && lab[c] != kInvalid;
   region_fits(row, kNever, [&](std::ptrdiff_t c, const detail::WindowFit& f) {
@@ -463,7 +484,8 @@ bool ProfileStream<T>::final_window_plane(std::int64_t row, std::ptrdiff_t col,
   template void ProfileStream<T>::reset_stages() noexcept;                                 \
   template void ProfileStream<T>::run_stages(bool) noexcept;                               \
   template bool ProfileStream<T>::final_window_plane(std::int64_t, std::ptrdiff_t,          \
-                                                     Plane*) noexcept;
+                                                     Plane*) noexcept;                       \
+  template void ProfileStream<T>::mark_stale(std::int64_t, std::ptrdiff_t) noexcept;
 MIEM_STREAM_STAGES(float)
 MIEM_STREAM_STAGES(double)
 #undef MIEM_STREAM_STAGES

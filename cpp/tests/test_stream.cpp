@@ -124,7 +124,43 @@ struct Named {
   const char* name;
   miem::DetectParams params;
   std::ptrdiff_t rows = 90, cols = 70;
+  bool outline = false;  // make_outline_scan: the edge test has work
 };
+
+// make_scan with the last third of every profile missing (the part ends: an outline) and lips
+// raised along the outline (burrs on a cut edge, for the edge test), some on the feature line
+// of a step across the profiles.
+std::vector<double> make_outline_scan(std::ptrdiff_t H, std::ptrdiff_t W, std::uint64_t seed) {
+  std::vector<double> g = miem::test::make_scan(H, W, seed);
+  auto z = [&](std::ptrdiff_t r, std::ptrdiff_t c) -> double& {
+    return g[static_cast<std::size_t>((r * W + c) * 3 + 2)];
+  };
+  const std::ptrdiff_t end = 2 * W / 3;
+  for (std::ptrdiff_t r = 0; r < H; ++r) {
+    for (std::ptrdiff_t c = end; c < W; ++c) {
+      for (int k = 0; k < 3; ++k) g[static_cast<std::size_t>((r * W + c) * 3 + k)] = NAN;
+    }
+    if (r >= H / 2) {
+      for (std::ptrdiff_t c = 0; c < W / 4; ++c) z(r, c) += 0.6;  // a step: a feature line
+    }
+  }
+  std::uint64_t s = seed * 2654435761u + 1;
+  auto next = [&]() { return (s = s * 6364136223846793005u + 1442695040888963407u) >> 33; };
+  for (std::ptrdiff_t r0 = 3; r0 + 8 < H; r0 += 17 + static_cast<std::ptrdiff_t>(next() % 23)) {
+    const std::ptrdiff_t len = 2 + static_cast<std::ptrdiff_t>(next() % 7);
+    const double lift = 0.02 + 0.01 * static_cast<double>(next() % 8);
+    const bool on_step = next() % 3 == 0 && r0 > H / 2;
+    for (std::ptrdiff_t r = r0; r < r0 + len; ++r) {
+      if (on_step) {
+        z(r, W / 4 - 1) += lift;
+      } else {
+        z(r, end - 1) += lift;
+        if (next() % 2) z(r, end - 2) += 0.5 * lift;
+      }
+    }
+  }
+  return g;
+}
 
 std::vector<Named> param_sets() {
   std::vector<Named> v;
@@ -147,6 +183,23 @@ std::vector<Named> param_sets() {
   p.height_abs = 0.05;
   p.window = 9;
   v.push_back({"height_abs_window9", p, 120, 70});
+  // The edge test (the stream's default has it), on scans with outlines and lipped edges.
+  v.push_back({"stream_default_outline", miem::stream_default_params(), 420, 60, true});
+  p = miem::stream_default_params();
+  p.max_iterations = 3;
+  p.window = 7;
+  p.edge_window = 9;
+  p.edge_extent = 4;
+  v.push_back({"edge_short_lag_window9", p, 260, 60, true});
+  p = miem::stream_default_params();
+  p.edge_window = 5;
+  p.edge_k = 2.5;
+  p.max_iterations = 4;
+  v.push_back({"edge_window5_k2p5", p, 300, 60, true});
+  p = miem::paper_params();  // the edge test without the height test
+  p.edge_k = 3.0;
+  p.edge_window = 11;
+  v.push_back({"paper_edge", p, 300, 60, true});
   p = miem::paper_params();
   p.window = 9;
   v.push_back({"paper_window9", p});
@@ -190,25 +243,36 @@ std::vector<Named> param_sets() {
 
 class StreamEqualsBatch : public ::testing::TestWithParam<Named> {};
 
+std::vector<double> scan_for(const Named& n, std::uint64_t seed) {
+  if (!n.outline) return miem::test::make_scan(n.rows, n.cols, seed);
+  // The scan must give the edge test work: it changes batch labels.
+  std::vector<double> g = make_outline_scan(n.rows, n.cols, seed);
+  miem::DetectParams off = n.params;
+  off.edge_k = 0.0;
+  const auto view = miem::GridView<double>::dense(g.data(), n.rows, n.cols);
+  EXPECT_NE(miem::detect_organized(view, n.params).labels,
+            miem::detect_organized(view, off).labels);
+  return g;
+}
+
 TEST_P(StreamEqualsBatch, DoubleProfiles) {
   const Named& n = GetParam();
   for (std::uint64_t seed : {1u, 2u, 3u}) {
     SCOPED_TRACE("seed " + std::to_string(seed));
-    expect_stream_equals_batch<double>(miem::test::make_scan(n.rows, n.cols, seed), n.rows,
-                                       n.cols, n.params);
+    expect_stream_equals_batch<double>(scan_for(n, seed), n.rows, n.cols, n.params);
   }
 }
 
 TEST_P(StreamEqualsBatch, FloatProfiles) {
   const Named& n = GetParam();
-  expect_stream_equals_batch<float>(miem::test::make_scan(n.rows, n.cols, 11), n.rows, n.cols,
-                                    n.params);
+  expect_stream_equals_batch<float>(scan_for(n, 11), n.rows, n.cols, n.params);
 }
 
 INSTANTIATE_TEST_SUITE_P(Params, StreamEqualsBatch, ::testing::ValuesIn(param_sets()),
                          [](const auto& info) { return std::string(info.param.name); });
 
-// L = P R + E + (P + 1) h with the height test, P R + h without (docs/SPEC.md "Streaming").
+// L = P R + E + (P + 1) h with the height test, P R + h without, + 63 + P r with the edge test
+// (docs/SPEC.md "Streaming").
 TEST(Stream, LagFormula) {
   miem::DetectParams p = miem::paper_params();
   EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 20 + 10);  // 10 * (1 + 1) + 21 / 2
@@ -222,8 +286,16 @@ TEST(Stream, LagFormula) {
   p.min_step = 0.1;
   p.max_reach = 5;
   EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 10 * (1 + 1 + 5) + 10);
-  EXPECT_EQ(miem::ProfileStream<>(16).lag(), 10 * 3 + 12 + 11 * 10);  // the default: 152
-  EXPECT_EQ(miem::stream_lag(miem::stream_default_params()), 152);
+  // The default: with the edge test (r = 15 / 2), 63 + P r more rows: 152 + 63 + 70.
+  EXPECT_EQ(miem::ProfileStream<>(16).lag(), 10 * 3 + 12 + 11 * 10 + 63 + 10 * 7);
+  EXPECT_EQ(miem::stream_lag(miem::stream_default_params()), 285);
+  p = miem::stream_default_params();
+  p.max_iterations = 3;
+  p.window = 7;
+  p.edge_window = 9;
+  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 3 * 3 + 12 + 4 * 3 + 63 + 3 * 4);
+  p.edge_k = 0.0;  // the edge test off: P R + E + (P + 1) h
+  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 3 * 3 + 12 + 4 * 3);
 }
 
 TEST(Stream, ThresholdGrazingAnglesMatchBatch) {
@@ -402,7 +474,6 @@ TEST(Stream, RejectsFieldsItDoesNotHonour) {
   };
   const Case cases[] = {
       {"theta0_auto", [](miem::DetectParams& p) { p.theta0_auto = true; }},
-      {"edge_k", [](miem::DetectParams& p) { p.edge_k = 3.0; }},
       {"min_step_auto", [](miem::DetectParams& p) { p.min_step_auto = true; }},
   };
   for (const Case& c : cases) {
@@ -421,8 +492,8 @@ TEST(Stream, RejectsFieldsItDoesNotHonour) {
       EXPECT_STREQ(e.what(), st.message);
     }
   }
-  // The stream's default is the default preset, height test included, without the edge test
-  // and min_step_auto (refused above).
+  // The stream's default is the default preset, height and edge tests included, without
+  // min_step_auto (refused above).
   std::optional<miem::ProfileStream<double>> s;
   EXPECT_TRUE(miem::nothrow::make_stream(10, miem::stream_default_params(), &s).ok());
   const miem::DetectParams d = miem::stream_default_params();
@@ -434,8 +505,11 @@ TEST(Stream, RejectsFieldsItDoesNotHonour) {
   EXPECT_EQ(d.height_k, r.height_k);
   EXPECT_EQ(d.edge_extent, r.edge_extent);
   EXPECT_EQ(d.window, r.window);
-  EXPECT_EQ(d.edge_k, 0.0);
+  EXPECT_EQ(d.edge_k, r.edge_k);
+  EXPECT_GT(d.edge_k, 0.0);
+  EXPECT_EQ(d.edge_window, r.edge_window);
   EXPECT_FALSE(d.min_step_auto);
+  EXPECT_LT(d.min_step, 0.0);
   EXPECT_EQ(miem::ProfileStream<>(10).params().height_k, r.height_k);
 }
 

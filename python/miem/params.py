@@ -7,8 +7,8 @@ part per scope: ``angle`` (:class:`AngleParams`, the angle test shared by every 
 (:class:`CloudParams`, unorganized clouds). Each field carries its default, unit and help text;
 a detector reads ``angle`` and its own part, and a keyword override names a field of those parts
 (``miem.detect(grid, window=15)``, ``miem.detect(points, radius=2.0)``); a field of another part
-is refused with a ValueError naming it. ``ProfileStream`` does not implement the edge test
-yet: its values other than the neutral one are refused too.
+is refused with a ValueError naming it. ``ProfileStream`` refuses ``min_step="auto"`` (it
+needs the whole scan; give the length a first scan resolves).
 The command line's detection options, ``--config`` files and ``miem config`` are generated from
 these fields.
 """
@@ -200,10 +200,9 @@ class GridParams:
     edge_tolerance: Optional[float] = _f(
         4.0, "k x rms", "edge test (SPEC 'Edge test', beyond the paper, after the height test): "
         "a point standing proud of a feature line or the scan's outline by more than k times "
-        "the rms of its one-sided sub-window plane becomes ABNORMAL; None: off", "K", stream=None)
+        "the rms of its one-sided sub-window plane becomes ABNORMAL; None: off", "K")
     edge_window: int = _f(
-        15, "cells", "with the edge test: side of its one-sided sub-windows (odd >= 3)", "CELLS",
-        stream=15)
+        15, "cells", "with the edge test: side of its one-sided sub-windows (odd >= 3)", "CELLS")
 
 
 @dataclass(frozen=True)
@@ -354,7 +353,12 @@ class DetectParams:
                 value = getattr(self.grid, name)
                 if "stream_refuses" in meta:
                     if value == meta["stream_refuses"]:
-                        bad.append((f"{name}={value!r}", f"{name}=<a value> or {meta['stream']!r}"))
+                        raise ValueError(
+                            f"{name}={value!r}: ProfileStream cannot resolve it (it takes "
+                            f"medians over the whole scan, which a stream never sees); give a "
+                            f"length or None: the value miem.detect(first_scan).params"
+                            f"[{name!r}] resolves on a first scan of the part (C++: "
+                            f"miem::auto_min_step)")
                 elif value != meta["stream"]:
                     bad.append((f"{name}={value!r}", f"{name}={meta['stream']!r}"))
         if bad:
@@ -492,10 +496,10 @@ DEFAULT_PRESET = "recommended"
 
 def default_params(path: str = "grid") -> DetectParams:
     """The default parameters of a detector: the default preset, except that ``"stream"``
-    leaves out what ProfileStream does not implement yet: the edge test
-    (``edge_tolerance=None``) and ``min_step="auto"``, which needs the whole scan
-    (``min_step=None``; give a length to have it). The stream runs the rest of the default
-    detector: the angle test, the height test with compact EDGE groups, heights."""
+    has ``min_step=None`` instead of ``"auto"``, which needs the whole scan (give the length
+    that ``miem.detect(first_scan).params["min_step"]`` resolves on a first scan of the part).
+    The stream runs the rest of the default detector: the angle test, the height test with
+    compact EDGE groups, the edge test, heights and defects."""
     _parts(path)
     base = PRESETS[DEFAULT_PRESET]
     if path != "stream":

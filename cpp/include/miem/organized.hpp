@@ -46,6 +46,7 @@ struct Workspace {
   std::vector<std::int64_t> fresh, candidates, queue;
   std::vector<double> height_scratch, survey;
   std::vector<double> edge_sums;     ///< edge test: integral images of the support moments
+  std::vector<std::uint8_t> edge_flags;  ///< edge test: candidates and marks of a pass
   std::vector<RowScratch> rows;      ///< per thread
   std::vector<FitScratch> fits;      ///< per thread
   std::vector<Moments> plane_rows;

@@ -156,9 +156,15 @@ class ProfileStream {
   void remove_height(std::int64_t row, std::ptrdiff_t col, int pass) noexcept;
   void sums_add_row(int set, std::int64_t in, double sign, std::int64_t out) noexcept;
   bool final_window_plane(std::int64_t row, std::ptrdiff_t col, Plane* plane) noexcept;
+  void mark_stale(std::int64_t row, std::ptrdiff_t col) noexcept;
   GridView<T> row_view(std::int64_t row) const noexcept {
     return GridView<T>{xyz_.data() + slot(row) * width_, 1, width_, width_, 1, phys_ * width_};
   }
+  // The edge test (stream_edges.cpp).
+  static constexpr std::int64_t kEdgeTileRows = 64;  // SPEC "Edge test": tiles of 64 rows
+  std::ptrdiff_t edge_block_rows() const noexcept { return etop_ + kEdgeTileRows + ebot_; }
+  void init_edges();
+  void edge_band(std::int64_t band) noexcept;
   // Defects (stream_defects.cpp).
   void init_defects();
   void reset_defects() noexcept;
@@ -180,6 +186,9 @@ class ProfileStream {
   int half_ = 0;    // h = window / 2
   int extent_ = 0;  // E = edge_extent with the height test, else 0
   bool htest_ = false;  // the height test is on
+  bool edge_ = false;   // the edge test is on
+  int lagh_ = 0;        // rows behind the newest at which the height passes' labels are final
+  int etop_ = 0, ebot_ = 0;  // rows of an edge block above and below its band
   bool sums_ = false;   // height pass 1 / heights run by running window sums (kAll or the test)
   std::ptrdiff_t ring_ = 0;  // rows kept: the longest look-back + 2
   std::ptrdiff_t ext_ = 0;   // max(2R, 2h)
@@ -224,6 +233,13 @@ class ProfileStream {
   std::vector<std::uint8_t> want_row_;    // region_fits: the cells of a row to fit
   std::vector<double> region_cs_;         // region_fits: a segment's column sums
   std::vector<std::uint8_t> region_cls_;  // region_fits: one row's classes
+
+  // Edge test (stream_edges.cpp).
+  std::vector<std::uint8_t> eold_;    // ring_ rows: 0, or 1 + the label the edge test changed
+  std::vector<std::uint8_t> eblock_;  // one block's labels
+  std::vector<double> escratch_;      // the edge test's sums
+  std::vector<std::uint8_t> eflags_;  // the edge test's candidates and marks
+  std::int64_t next_band_ = 0;
 
   // Defects (stream_defects.cpp): open groups as union-find slots over the cells of the last
   // row handed back; their cells in a pool of singly linked members.
