@@ -256,9 +256,10 @@ def test_on_by_default_on_grids_off_where_not_implemented() -> None:
     # the paper's method has neither
     p = _core.paper_params()
     assert p.edge_k == 0.0 and not p.min_step_auto
-    # the stream's default leaves both out (C++ and Python), and refuses them when asked
+    # the stream's default has the edge test and leaves min_step="auto" out (C++ and Python),
+    # which it refuses when asked (it needs the whole scan)
     s = _core.stream_default_params()
-    assert s.edge_k == 0.0 and not s.min_step_auto
+    assert s.edge_k == _core.DetectParams().edge_k > 0 and not s.min_step_auto
     assert miem.ProfileStream(10).params.grid.min_step is None
     with pytest.raises(ValueError, match="min_step"):
         miem.ProfileStream(10, min_step="auto")
@@ -306,15 +307,16 @@ def test_cloud_path_rejects_the_edge_test() -> None:
         miem.detect(pts, edge_tolerance=8.0)
 
 
-def test_stream_rejects_the_edge_test() -> None:
-    with pytest.raises(ValueError, match="edge_tolerance"):
-        miem.ProfileStream(10, edge_tolerance=8.0)
+def test_stream_runs_the_edge_test() -> None:
+    # the stream honours the edge test, any odd window (tests/test_stream.py: stream == batch)
+    s = miem.ProfileStream(10, edge_tolerance=8.0, edge_window=9)
+    assert (s.params.grid.edge_tolerance, s.params.grid.edge_window) == (8.0, 9)
     p = _core.DetectParams()
     p.height_abs = p.height_k = 0.0
     p.edge_extent = 0
     p.edge_k = 8.0
-    with pytest.raises(ValueError, match="edge_k"):
-        _core.ProfileStream64(10, p)
+    p.min_step_auto = False
+    assert _core.ProfileStream64(10, p).lag > _core.stream_lag(_core.paper_params())
 
 
 def _stacked_edge_scan(n_rows: int, n_cols: int) -> np.ndarray:

@@ -54,18 +54,18 @@ def test_default_is_the_recommended_preset_on_every_path() -> None:
     np.testing.assert_array_equal(miem.detect(pts).labels,
                                   miem.detect(pts, preset="recommended").labels)
     assert miem.detect(pts).params["height_tolerance"] == "7rms"
-    # the stream: the recommended detector, height test included, but for the edge test and
-    # min_step="auto" (in C++ too)
+    # the stream: the recommended detector, height and edge tests included, but for
+    # min_step="auto", which needs the whole scan (in C++ too)
     d = miem.default_params("stream")
     assert d.grid.height_tolerance == "4.5rms" and d.grid.edge_extent == 12
-    assert d.grid.edge_tolerance is None and d.grid.min_step is None  # the edge test, auto step
-    assert d.replace(edge_tolerance=4.0, min_step="auto").grid == miem.PRESETS["recommended"].grid
+    assert d.grid.edge_tolerance == 4.0 and d.grid.min_step is None
+    assert d.replace(min_step="auto").grid == miem.PRESETS["recommended"].grid
     assert miem.ProfileStream(8).params == d
     cs, cd = core.stream_default_params(), core.DetectParams()
     for name in ("theta0_deg", "scales", "height_k", "height_abs", "edge_extent", "window",
-                 "max_iterations", "max_gap"):
+                 "max_iterations", "max_gap", "edge_k", "edge_window"):
         assert getattr(cs, name) == getattr(cd, name), name
-    assert (cs.edge_k, cs.min_step_auto, cd.min_step_auto) == (0.0, False, True)
+    assert (cs.min_step_auto, cd.min_step_auto, cs.min_step) == (False, True, -1.0)
 
 
 def test_presets_are_the_accuracy_benchmark_and_the_reference() -> None:
@@ -230,13 +230,15 @@ def test_clouds_run_the_preset_s_cloud_values_and_refuse_grid_fields() -> None:
 
 
 def test_stream_refuses_what_it_does_not_implement() -> None:
-    for kw, name in (({"theta0": "auto"}, "theta0"), ({"edge_tolerance": 3.0}, "edge_tolerance"),
+    for kw, name in (({"theta0": "auto"}, "theta0"), ({"min_step": "auto"}, "min_step"),
                      ({"radius": 1.0}, "radius")):
         with pytest.raises(ValueError, match=name):
             miem.ProfileStream(16, **kw)
-    # the height test, its compact EDGE groups and heights are honoured now
+    with pytest.raises(ValueError, match=r"params\['min_step'\]"):  # says how to get a length
+        miem.ProfileStream(16, preset="recommended")
+    # the height test, its compact EDGE groups, heights and the edge test are honoured now
     for kw in ({"height_tolerance": "4rms"}, {"edge_extent": 5}, {"window": 9},
-               {"heights": "abnormal"}):
+               {"heights": "abnormal"}, {"edge_tolerance": 3.0}, {"edge_window": 7}):
         (name, value), = kw.items()
         assert getattr(miem.ProfileStream(16, **kw).params.grid, name) == value
     # theta0_auto on the C++ side (the old silent drift: batch EDGE where the stream said NORMAL)
@@ -247,9 +249,10 @@ def test_stream_refuses_what_it_does_not_implement() -> None:
     with pytest.raises(ValueError, match="theta0_auto"):
         core.ProfileStream64(16, p)
     p = core.stream_default_params()
-    p.edge_k = 2.0
+    p.min_step_auto = True
+    p.min_step = -1.0
     code, msg = core.check_stream_params(16, p)
-    assert code == 1 and msg.startswith("edge_k")
+    assert code == 1 and msg.startswith("min_step_auto") and "auto_min_step" in msg
 
 
 @pytest.mark.parametrize("preset", [None, "paper"])

@@ -5,6 +5,7 @@ from __future__ import annotations
 import miem
 import numpy as np
 import pytest
+from miem import _core
 from miem.stream import ProfileStream, StreamRow
 
 
@@ -140,8 +141,9 @@ STAGE_VARIANTS = [
 
 
 def stream_preset(name: str) -> miem.DetectParams:
-    """A preset as the stream runs it: without the edge test and min_step="auto" (refused)."""
-    return miem.PRESETS[name].replace(edge_tolerance=None, min_step=None)
+    """A preset as the stream runs it: min_step="auto" (refused: it needs the whole scan)
+    becomes None."""
+    return miem.PRESETS[name].replace(min_step=None)
 
 
 @pytest.mark.parametrize("preset", sorted(miem.PRESETS))
@@ -160,10 +162,46 @@ def test_stream_equals_detect_full_detector(preset: str, variant: int, dtype) ->
     assert_same_defects(defects, want.defects, want.labels)
 
 
+def make_outline_scan(h: int, w: int, seed: int) -> np.ndarray:
+    """make_full_scan whose profiles end at 2/3 of the width (an outline) with lips raised
+    along it (burrs on a cut edge): the edge test has work."""
+    g = make_full_scan(h, w, seed)
+    rng = np.random.default_rng(seed + 100)
+    end = 2 * w // 3
+    g[:, end:] = np.nan
+    r0 = 3
+    while r0 + 10 < h:
+        n = int(rng.integers(2, 9))
+        g[r0:r0 + n, end - 1, 2] += rng.uniform(0.03, 0.1)
+        r0 += int(rng.integers(15, 40))
+    return g
+
+
+@pytest.mark.parametrize("kw", [{}, {"edge_window": 9, "max_iterations": 4},
+                                {"edge_tolerance": 2.5, "edge_window": 5, "window": 9}])
+def test_stream_runs_the_edge_test_as_batch(kw: dict) -> None:
+    """The edge test in the stream (lag + 63 + P r): labels, heights and defects equal batch
+    detection's on a scan whose outline carries burrs the edge test finds."""
+    grid = make_outline_scan(420, 60, 3)
+    p = miem.default_params("stream").replace(**kw)
+    want = miem.detect(grid, params=p)
+    without = miem.detect(grid, params=p, edge_tolerance=None)
+    assert (want.labels == miem.ABNORMAL).sum() > (without.labels == miem.ABNORMAL).sum()
+    stream = ProfileStream(60, params=p)
+    r = p.grid.edge_window // 2
+    assert stream.lag == _core.stream_lag(p.replace(edge_tolerance=None)._core_grid(0, "stream")) \
+        + 63 + p.angle.max_iterations * r
+    defects: list = []
+    got, heights = stream_both(stream, grid, defects)
+    np.testing.assert_array_equal(got, want.labels)
+    assert_heights_equal(heights, want.height)
+    assert_same_defects(defects, want.defects, want.labels)
+
+
 def test_stream_runs_the_whole_default_detector() -> None:
-    """The default stream is the default batch detector but for the edge test and min_step
-    "auto": the height test finds what the angle test alone does not, over several passes, with
-    compact EDGE groups; the stream agrees."""
+    """The default stream is the default batch detector but for min_step "auto": the height
+    test finds what the angle test alone does not, over several passes, with compact EDGE
+    groups; the stream agrees."""
     grid = make_full_scan(300, 120, 5)
     base = stream_preset("recommended")
     full = miem.detect(grid, params=base)
@@ -210,11 +248,15 @@ def test_extreme_height_tolerance_labels_equal_and_heights_up_to_orientation() -
 
 
 def test_lag_formula() -> None:
-    """L = P R + E + (P + 1) h with the height test, P R + h without (docs/SPEC.md)."""
-    assert ProfileStream(10).lag == 10 * 3 + 12 + 11 * 10 == 152
+    """L = P R + E + (P + 1) h with the height test, P R + h without, + 63 + P r with the edge
+    test (docs/SPEC.md)."""
+    assert ProfileStream(10).lag == 10 * 3 + 12 + 11 * 10 + 63 + 10 * 7 == 285
+    assert ProfileStream(10, edge_tolerance=None).lag == 10 * 3 + 12 + 11 * 10 == 152
     assert ProfileStream(10, preset="paper").lag == 10 * 2 + 10
-    assert ProfileStream(10, max_iterations=3, window=7, edge_extent=4).lag == 3 * 3 + 4 + 4 * 3
-    assert ProfileStream(10, height_tolerance=None, window=9).lag == 10 * 3 + 4
+    assert ProfileStream(10, max_iterations=3, window=7, edge_extent=4,
+                         edge_window=9).lag == 3 * 3 + 4 + 4 * 3 + 63 + 3 * 4
+    assert ProfileStream(10, height_tolerance=None, edge_tolerance=None,
+                         window=9).lag == 10 * 3 + 4
 
 
 @pytest.mark.parametrize(
@@ -287,8 +329,9 @@ def test_bad_input_raises_and_leaves_the_stream_unchanged() -> None:
      ({"scales": (0,)}, "scales"), ({"max_gap": -1}, "max_gap"), ({"min_step": -1.0}, "min_step"),
      ({"min_directions": 5}, "min_directions"), ({"max_iterations": 255}, "max_iterations"),
      ({"max_reach": 0}, "max_reach"), ({"dtype": np.int32}, "dtype"),
-     ({"theta0": "auto"}, "theta0"), ({"edge_tolerance": 3.0}, "edge_tolerance"),
-     ({"min_step": "auto"}, "min_step"), ({"preset": "recommended"}, "edge_tolerance"),
+     ({"theta0": "auto"}, "theta0"), ({"edge_tolerance": -3.0}, "edge_tolerance"),
+     ({"min_step": "auto"}, "min_step"), ({"preset": "recommended"}, "min_step"),
+     ({"edge_window": 4}, "edge_window"),
      ({"window": 4}, "window"), ({"edge_extent": -1}, "edge_extent")],
 )
 def test_bad_parameters(kwargs: dict, match: str) -> None:

@@ -25,11 +25,13 @@ _OK = 0
 _EMPTY_PROFILE = 6
 
 
-def _check_storage(width: int, dtype: np.dtype, lag: int, reach: int, half: int) -> None:
+def _check_storage(width: int, dtype: np.dtype, lag: int, reach: int, half: int,
+                   edge_block: int = 0) -> None:
     """ValueError naming `width` when the stream's buffers (about ``lag + 2 h + 2`` profiles of
-    coordinates, state, labels and heights, README "Guarantees") exceed half of the machine's
-    memory, so that a typo never gets the process killed for memory."""
-    rows = lag + half + 3 + max(2 * reach, 2 * half)
+    coordinates, state, labels and heights, plus two edge blocks with the edge test, README
+    "Guarantees") exceed half of the machine's memory, so that a typo never gets the process
+    killed for memory."""
+    rows = lag + half + 3 + max(2 * reach, 2 * half) + 2 * edge_block
     need = width * rows * (3 * dtype.itemsize + 14)
     try:
         limit = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") // 2
@@ -75,28 +77,32 @@ class ProfileStream:
     Each :meth:`push` takes one profile and, once ``lag`` profiles have followed a row, hands
     that row's final labels and heights back. The labels are exactly those :func:`miem.detect`
     gives for the same rows with the same parameters, for every input; the heights equal its
-    heights up to rounding (the same window planes, summed in another order). The detector
-    runs but for the edge test: the angle passes, the height test with its compact EDGE
-    groups, heights, and the defects (:attr:`StreamRow.defects`: each reported once no later
+    heights up to rounding (the same window planes, summed in another order). The whole
+    detector runs: the angle passes, the height test with its compact EDGE groups, the edge
+    test, heights, and the defects (:attr:`StreamRow.defects`: each reported once no later
     profile can change it; over a scan, the same set as :attr:`miem.DetectResult.defects`).
     The lag (docs/SPEC.md "Streaming") is::
 
         L = P R + E + (P + 1) h     (height test on;  L = P R + h without it)
+          + 63 + P r                (with the edge test)
 
     with ``R = max(scales) + max_gap`` (``+ max_reach`` with ``min_step``) the rows one angle
     judgment reads, ``P = max_iterations``, ``E = edge_extent`` (the rows that decide whether an
-    EDGE group is compact) and ``h = window // 2``: 10 * 3 + 12 + 11 * 10 = 152 profiles with
-    the defaults, 10 * 2 + 10 = 30 with ``preset="paper"`` (no height test). A lower
-    ``max_iterations``, ``edge_extent`` or ``window`` shortens it.
+    EDGE group is compact), ``h = window // 2`` and ``r = edge_window // 2`` (the edge test
+    runs on bands of 64 profiles, its tiles, with ``P r`` profiles after each): 10 * 3 + 12 +
+    11 * 10 + 63 + 10 * 7 = 285 profiles with the defaults, 10 * 2 + 10 = 30 with
+    ``preset="paper"``. A lower ``max_iterations``, ``edge_extent``, ``window`` or
+    ``edge_window`` shortens it; ``edge_tolerance=None`` takes 133 profiles off (and most of
+    the time: bench/RESULTS.md).
 
     The parameters are a :class:`miem.DetectParams` as for :func:`miem.detect` (``params``, a
     ``preset`` or keyword overrides; the default, :func:`miem.default_params` ``("stream")``, is
-    the default preset without the edge test and with ``min_step=None``). The stream does not
-    implement ``theta0="auto"`` (the median of the whole scan's angles, which a stream never
-    sees: give degrees), the edge test (``edge_tolerance``) nor ``min_step="auto"`` (it needs
-    the whole scan: give the value ``miem.detect(first_scan).params["min_step"]`` resolved on a
-    first scan of the part; the stream then equals batch detection with that value): they are
-    a ValueError naming the field, so ``preset="recommended"`` is refused for its edge test.
+    the default preset with ``min_step=None``). The stream does not implement
+    ``theta0="auto"`` (the median of the whole scan's angles, which a stream never sees: give
+    degrees) nor ``min_step="auto"`` (it needs the whole scan: give the value
+    ``miem.detect(first_scan).params["min_step"]`` resolved on a first scan of the part; the
+    stream then equals batch detection with that value): they are a ValueError naming the
+    field, so ``preset="recommended"`` is refused for its ``min_step``.
 
     Parameters
     ----------
@@ -126,7 +132,7 @@ class ProfileStream:
     --------
     >>> import numpy as np, miem
     >>> stream = miem.ProfileStream(64)
-    >>> for r in range(200):
+    >>> for r in range(400):
     ...     profile = np.zeros((64, 3)); profile[:, 0] = np.arange(64) * 0.5; profile[:, 1] = r
     ...     if r == 10:
     ...         profile[30, 2] = 3.0                  # a burr tip
@@ -136,7 +142,7 @@ class ProfileStream:
     ...         print(done.row, hit, done.heights[hit])
     10 [30] [3.]
     >>> stream.lag, len(stream.flush())              # the last `lag` rows
-    (152, 152)
+    (285, 285)
     """
 
     def __init__(
@@ -166,8 +172,10 @@ class ProfileStream:
             raise ValueError(message)
         self._dtype = dt
         a, gp = p.angle, p.grid
+        r, P = gp.edge_window // 2, a.max_iterations
+        block = 0 if gp.edge_tolerance is None else 64 * (2 + ((P - 1) * r + 63) // 64) + P * r
         _check_storage(w, dt, int(_core.stream_lag(core_params)), max(a.scales) + gp.max_gap
-                       + (0 if gp.min_step is None else gp.max_reach), gp.window // 2)
+                       + (0 if gp.min_step is None else gp.max_reach), gp.window // 2, block)
         try:
             self._core = cls(w, core_params)
         except MemoryError:
