@@ -34,21 +34,21 @@ struct StreamRow {
 };
 
 /// The default parameters of a stream: the default preset (DetectParams{}: angle test, height
-/// test with compact EDGE groups, heights) without the two fields a stream does not implement,
-/// which check_stream_params rejects: the edge test (edge_k = 0 here) and min_step_auto (a
-/// stream cannot see the whole scan: give min_step as a length, e.g. auto_min_step() of a first
-/// scan of the part; then stream == batch with that min_step).
+/// test with compact EDGE groups, edge test, heights) without min_step_auto, which
+/// check_stream_params rejects (a stream cannot see the whole scan: give min_step as a length,
+/// auto_min_step() of a first scan of the part; then stream == batch with that min_step).
 DetectParams stream_default_params();
 
 /// The lag L of a stream with these parameters (profiles between pushing a row and getting it
 /// back final), with R = max(scales) + max_gap (+ max_reach with min_step), h = window / 2,
-/// P = max_iterations, E = edge_extent:
-///     L = P R + E + (P + 1) h   with the height test,   L = P R + h   without.
-/// Defaults: 10 * 3 + 12 + 11 * 10 = 152. Assumes valid parameters.
+/// P = max_iterations, E = edge_extent, r = edge_window / 2:
+///     L = P R + E + (P + 1) h   with the height test,   L = P R + h   without,
+///       + 63 + P r              with the edge test (run on bands of 64 rows, its tiles).
+/// Defaults: 10 * 3 + 12 + 11 * 10 + 63 + 10 * 7 = 285. Assumes valid parameters.
 long long stream_lag(const DetectParams& params) noexcept;
 
 /// Checks the parameters of a stream without throwing: params.check(), then what a stream does
-/// not implement (theta0_auto, the edge test edge_k > 0, min_step_auto), width >= 1,
+/// not implement (theta0_auto, min_step_auto), width >= 1,
 /// max_iterations <= 254 (the per-cell pass counter is one byte) and a lag below 2^20 profiles.
 Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noexcept;
 
@@ -66,17 +66,22 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 ///     rows on either side decide it);
 ///   - height pass 1 runs on row n - P R - E - h by running window sums (h = window / 2), pass
 ///     p on row n - P R - E - p h, only on the cells within h of a cell the pass before removed;
-///   - heights are final h rows after the last height pass.
-/// So row i is final once row i + L has arrived, L = stream_lag(params) (142 profiles with
-/// the defaults; 20 + 10 with preset "paper"). Each cell keeps the pass that removed it, so a
+///   - the edge test runs batch detection's edge passes on a block of rows per band of 64
+///     (its tiles) once the height passes have run P r rows below the band; the block starts
+///     on a tile boundary at least 64 + (P - 1) r rows above the band, so that the band's
+///     results are those of the whole grid bit for bit (docs/SPEC.md "Streaming");
+///   - heights are final h rows after the last height pass (and the edge test).
+/// So row i is final once row i + L has arrived, L = stream_lag(params) (285 profiles with
+/// the defaults, 152 without the edge test; 20 + 10 with preset "paper"). Each cell keeps the pass that removed it, so a
 /// judgment at pass p sees exactly the cells of pass p - 1 even where rows around it have run
 /// pass p already. A lower max_iterations (most scans settle in 2-3 passes) or edge_extent
 /// shortens the lag, and equals batch detection with those parameters.
 ///
-/// Memory: the last L + h + 2 rows (about L + 2 h) are kept in a ring (plus max(2 R, 2 h) rows
-/// that repeat its first rows, so that the rows around any row form one strided GridView):
-/// about 176 * 3200 * (3 * 8 + 8 + 4) bytes = 20 MB for double profiles of 3200 points with the
-/// defaults, plus the cells of the open defects (a pool reserved for 16 rows' worth of cells,
+/// Memory: the last L + h + 2 rows (about L + 2 h; with the edge test, back to the start of
+/// the next edge block: 406 rows at the defaults) are kept in a ring, plus max(2 R, 2 h, an
+/// edge block: 262 rows at the defaults) rows that repeat its first rows, so that the rows
+/// around any row form one strided GridView: about 70 MB for double profiles of 3200 points
+/// with the defaults (20 MB without the edge test), plus the cells of the open defects (a pool reserved for 16 rows' worth of cells,
 /// which grows, once, only for more). Defects come with the rows (StreamRow::defects) once
 /// final; flags and angles are not reported. (Batch detection also refuses a grid of fewer
 /// than 3 finite points; a stream simply labels what it gets.)
