@@ -2,7 +2,10 @@
 // miem::ProfileStream on laser profiles of 3200 points, one core. Prints one JSON object per
 // scenario (bench/run_cpp.py turns them into bench/results_cpp.md).
 //
-//   miem_bench_stream [--width 3200] [--profiles 100000] [--quick]
+//   miem_bench_stream [--width 3200] [--profiles 100000] [--edge-profiles 3000] [--quick]
+//                     [--only INDEX]
+// Scenarios with the edge test push at most --edge-profiles profiles (the edge test runs on
+// blocks of about four tile bands once per band of 64 profiles: far slower per profile).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -35,6 +38,14 @@ struct Scenario {
   miem::DetectParams params;
   double dropout_rate;
   bool use_float;
+};
+
+// The stage scenarios' names (bench/run_cpp.py takes each stage's time as the difference of
+// consecutive ones).
+constexpr const char* kStageNames[] = {
+    "stage: angle test only (no height test, no edge test, ABNORMAL heights)",
+    "stage: angle test + heights",
+    "stage: angle test + heights + height test (the default without the edge test)",
 };
 
 // A pool of profiles (rows) of a curved sheet, periodic in rows, with scanner noise (z quantised
@@ -142,24 +153,30 @@ void run(const Scenario& sc, std::ptrdiff_t W, std::ptrdiff_t n_profiles, std::p
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::ptrdiff_t W = 3200, n = 100000;
+  std::ptrdiff_t W = 3200, n = 100000, n_edge = 3000;
   bool quick = false;
   int only = -1;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     if (a == "--width" && i + 1 < argc) W = std::atol(argv[++i]);
     else if (a == "--profiles" && i + 1 < argc) n = std::atol(argv[++i]);
+    else if (a == "--edge-profiles" && i + 1 < argc) n_edge = std::atol(argv[++i]);
     else if (a == "--quick") quick = true;
     else if (a == "--only" && i + 1 < argc) only = std::atoi(argv[++i]);
     else {
-      std::fprintf(stderr, "usage: %s [--width N] [--profiles N] [--quick] [--only INDEX]\n", argv[0]);
+      std::fprintf(stderr,
+                   "usage: %s [--width N] [--profiles N] [--edge-profiles N] [--quick] "
+                   "[--only INDEX]\n",
+                   argv[0]);
       return 2;
     }
   }
   if (quick) n = std::min<std::ptrdiff_t>(n, 5000);
+  if (quick) n_edge = std::min<std::ptrdiff_t>(n_edge, 600);
   std::vector<Scenario> scenarios;
   // The stream's default: the default preset (angle test, height test with compact EDGE
-  // groups, heights) without the edge test and min_step_auto, which a stream does not run.
+  // groups, edge test, heights, defects) with min_step given as a length (off here): the
+  // one field a stream cannot resolve itself.
   const miem::DetectParams p = miem::stream_default_params();
   scenarios.push_back({"default preset, 0.1% dropouts", p, 0.001, false});
   scenarios.push_back({"default preset, 1% dropouts", p, 0.01, false});
@@ -167,28 +184,33 @@ int main(int argc, char** argv) {
   miem::DetectParams pa = p;
   pa.height_mode = miem::HeightMode::kAbnormal;
   scenarios.push_back({"default preset, heights of ABNORMAL points only", pa, 0.001, false});
-  // Where the time goes: the angle test alone (no height test, no heights), then with heights.
+  // Where the time goes: the angle test alone (no height test, no heights), then with
+  // heights, then with the height test; the default adds the edge test.
   miem::DetectParams p0 = p;
   p0.height_k = p0.height_abs = 0.0;
+  p0.edge_k = 0.0;
   p0.height_mode = miem::HeightMode::kAbnormal;
-  scenarios.push_back({"stage: angle test only (no height test, ABNORMAL heights)", p0, 0.001,
-                       false});
+  scenarios.push_back({kStageNames[0], p0, 0.001, false});
   miem::DetectParams p1 = p0;
   p1.height_mode = miem::HeightMode::kAll;
-  scenarios.push_back({"stage: angle test + heights (no height test)", p1, 0.001, false});
-  miem::DetectParams p2 = miem::paper_params();  // the paper's method
-  scenarios.push_back({"paper (theta0 75, scales (1,), heights)", p2, 0.001, false});
-  miem::DetectParams p3 = p;
-  p3.max_iterations = 3;
-  scenarios.push_back({"default preset, max_iterations 3", p3, 0.001, false});
+  scenarios.push_back({kStageNames[1], p1, 0.001, false});
+  miem::DetectParams p2 = p;
+  p2.edge_k = 0.0;
+  scenarios.push_back({kStageNames[2], p2, 0.001, false});
+  miem::DetectParams p3 = miem::paper_params();  // the paper's method
+  scenarios.push_back({"paper (theta0 75, scales (1,), heights)", p3, 0.001, false});
+  miem::DetectParams p4 = p;
+  p4.max_iterations = 3;
+  scenarios.push_back({"default preset, max_iterations 3", p4, 0.001, false});
   const std::ptrdiff_t pool_rows = 1024;
   std::printf("[\n");
   bool first = true;
   for (std::size_t k = 0; k < scenarios.size(); ++k) {
     const Scenario& sc = scenarios[k];
     if (only >= 0 && static_cast<int>(k) != only) continue;
-    if (sc.use_float) run<float>(sc, W, n, pool_rows, first);
-    else run<double>(sc, W, n, pool_rows, first);
+    const std::ptrdiff_t m = sc.params.edge_test() ? std::min(n, n_edge) : n;
+    if (sc.use_float) run<float>(sc, W, m, pool_rows, first);
+    else run<double>(sc, W, m, pool_rows, first);
     first = false;
   }
   std::printf("\n]\n");
