@@ -435,6 +435,40 @@ def test_auto_min_step_core_equals_reference(dtype: type) -> None:
     assert res.params["min_step"] == pytest.approx(4 * max(noise), rel=1e-12)
 
 
+def test_auto_min_step_core_equals_reference_on_random_grids() -> None:
+    """The core selects its four medians without sorting (float32 key histograms, then the
+    few values of the middle keys): the reference's value to the last bit on grids with ties
+    (quantised z), runs of equal values, dropouts, odd and even counts, 1-row and 1-column
+    grids, float32, and a grid big enough for 2 threads to split it."""
+    rng = np.random.default_rng(23)
+    grids = []
+    for trial in range(40):
+        h, w = (1, 30) if trial == 0 else ((30, 1) if trial == 1 else tuple(rng.integers(2, 25, 2)))
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+        z = rng.normal(0.0, 1.0, (h, w)) * 10.0 ** rng.uniform(-3, 1)
+        if trial % 3 == 0:
+            z = np.round(z, 1)  # many equal values
+        g = np.dstack([xx * 1e-3, yy * rng.choice([1e-3, 5e-3]), z])
+        g[rng.random((h, w)) < rng.uniform(0.0, 0.3)] = np.nan
+        grids.append(g)
+    yy, xx = np.mgrid[0:300, 0:260].astype(np.float64)
+    big = np.dstack([xx * 0.1, yy * 0.2, np.round(rng.normal(0.0, 0.15, xx.shape), 2)])
+    big[rng.random(xx.shape) < 0.05] = np.nan
+    grids.append(big)
+    n_on = 0
+    for g in grids:
+        fin = np.isfinite(g).all(axis=-1)
+        if fin.sum() < 3:
+            continue
+        for dtype in (np.float64, np.float32):
+            gg = g.astype(dtype)
+            want = ref._auto_min_step(gg.astype(np.float64), np.isfinite(gg).all(axis=-1))
+            n_on += want is not None
+            for nt in (1, 2):
+                assert miem.detect(gg, num_threads=nt).params["min_step"] == want
+    assert n_on > 40  # the medians decide (min_step on), not only the "off" branch
+
+
 def test_cpp_min_step_auto_and_a_length_is_an_error() -> None:
     p = _core.DetectParams()
     p.min_step = 0.2  # with min_step_auto still on: refused, not silently ignored

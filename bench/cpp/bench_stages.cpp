@@ -74,7 +74,7 @@ int main(int argc, char** argv) {
     miem::DetectParams eff = p;
     t[0] = now();
     if (eff.min_step_auto) {
-      eff.min_step = miem::detail::auto_min_step(g, ws.survey);
+      eff.min_step = miem::detail::auto_min_step(g, ws.survey, nt);
       eff.min_step_auto = false;
     }
     t[1] = now();

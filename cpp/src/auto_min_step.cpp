@@ -2,62 +2,204 @@
 // profiles) the median distance of finite neighbour pairs and the robust z noise
 // 1.4826 median|z[i-1] - 2 z[i] + z[i+1]| / sqrt(6) of finite triples; min_step is
 // 4 * max(noise) when that exceeds min(spacing), else off (-1).
+//
+// The four medians are exact (NumPy's: the middle value, or the mean of the two middle values)
+// and need neither a buffer of the values nor a sort: the values are non-negative, so their
+// float32 roundings order like them (rounding is monotone) and the float32 bit patterns order
+// like the floats. Three passes over the grid, each computing the four quantities at once:
+// histograms of the patterns' high 16 bits; in the bin of each middle rank, histograms of the
+// low 16 bits (the float32 value of that rank); the doubles that round to that value (few), in
+// which the rank is then selected. Distances are selected by their squares (sqrt is monotone:
+// the middle distances are the square roots of the middle squares). Rows are split between
+// threads; counts add up and the few values are the same set, so the value is the same for
+// any thread count.
 #include "auto_min_step.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
-
-#include <Eigen/Core>
+#include <cstdint>
+#include <cstring>
 
 #include "miem/organized.hpp"
+#include "parallel.hpp"
 
 namespace miem {
 namespace detail {
 namespace {
 
-// np.median: the middle value, or the mean of the two middle values.
-double median(std::vector<double>& v) {
-  const std::size_t n = v.size(), mid = n / 2;
-  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(mid), v.end());
-  const double hi = v[mid];
-  if (n % 2 == 1) return hi;
-  const double lo = *std::max_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(mid));
-  return (lo + hi) / 2.0;
+constexpr std::size_t kBins = 1 << 16;
+constexpr int kQ = 4;  // along: distance^2, |second difference|; across: the same
+
+inline std::uint32_t key(double v) {  // float32 bit pattern of a non-negative v
+  const float f = static_cast<float>(v);
+  std::uint32_t u;
+  std::memcpy(&u, &f, sizeof u);
+  return u;
+}
+
+// The four quantities of the cells whose first cell is in rows [r0, r1): f(q, value). `fin`
+// (3 * cols bytes) holds the finite flags of three consecutive rows as a ring.
+template <typename T, typename F>
+void visit(const GridView<T>& g, std::ptrdiff_t r0, std::ptrdiff_t r1, std::uint8_t* fin,
+           F&& f) {
+  const std::ptrdiff_t H = g.rows, W = g.cols, rs = g.row_stride, cs = g.col_stride;
+  const std::ptrdiff_t ks = g.coord_stride;
+  const auto row = [&](std::ptrdiff_t r) { return fin + (r % 3) * W; };
+  const auto flags = [&](std::ptrdiff_t r) {
+    std::uint8_t* out = row(r);
+    for (std::ptrdiff_t c = 0; c < W; ++c) out[c] = g.finite(r, c);
+  };
+  // as (g(b) - g(a)).squaredNorm() and the second difference of z, from cell pointers
+  const auto dist2 = [ks](const T* a, const T* b) {
+    const double dx = static_cast<double>(b[0]) - static_cast<double>(a[0]);
+    const double dy = static_cast<double>(b[ks]) - static_cast<double>(a[ks]);
+    const double dz = static_cast<double>(b[2 * ks]) - static_cast<double>(a[2 * ks]);
+    return dx * dx + dy * dy + dz * dz;
+  };
+  const auto second = [ks](const T* a, const T* b, const T* c) {
+    return std::abs(static_cast<double>(a[2 * ks]) - 2.0 * static_cast<double>(b[2 * ks]) +
+                    static_cast<double>(c[2 * ks]));
+  };
+  for (std::ptrdiff_t r = r0; r < std::min(H, r0 + 2); ++r) flags(r);
+  for (std::ptrdiff_t r = r0; r < r1; ++r) {
+    if (r + 2 < H) flags(r + 2);
+    const std::uint8_t* f0 = row(r);
+    const T* p0 = g.data + r * rs;
+    for (std::ptrdiff_t c = 0; c + 1 < W; ++c) {
+      if (!(f0[c] & f0[c + 1])) continue;
+      const T* a = p0 + c * cs;
+      f(0, dist2(a, a + cs));
+      if (c + 2 < W && f0[c + 2]) f(1, second(a, a + cs, a + 2 * cs));
+    }
+    if (r + 1 >= H) continue;
+    const std::uint8_t* f1 = row(r + 1);
+    const std::uint8_t* f2 = r + 2 < H ? row(r + 2) : nullptr;
+    for (std::ptrdiff_t c = 0; c < W; ++c) {
+      if (!(f0[c] & f1[c])) continue;
+      const T* a = p0 + c * cs;
+      f(2, dist2(a, a + rs));
+      if (f2 && f2[c]) f(3, second(a, a + rs, a + 2 * rs));
+    }
+  }
+}
+
+// A middle rank being selected: quantity q, its rank among q's values, the key bits known.
+struct Pick {
+  int q = 0;
+  std::size_t rank = 0;
+  std::uint32_t hi = 0, full = 0;  // the high 16 bits, then the whole float32 pattern
+};
+
+// The smallest b with sum(h[0..b]) > rank; rank becomes the rank within bin b.
+std::uint32_t bin_of(const std::uint32_t* h, std::size_t& rank) {
+  std::size_t b = 0;
+  while (h[b] <= rank) rank -= h[b++];
+  return static_cast<std::uint32_t>(b);
 }
 
 }  // namespace
 
 template <typename T>
-double auto_min_step(const GridView<T>& g, std::vector<double>& buf) {
+double auto_min_step(const GridView<T>& g, std::vector<double>& scratch, int num_threads) {
+  const std::ptrdiff_t H = g.rows, W = g.cols;
+  if (H < 1 || W < 1) return -1.0;
+  const int nt = std::max(1, std::min<int>(thread_count(num_threads, H * W),
+                                           static_cast<int>(H)));
+  // per thread: 4 histograms and the finite-flag ring (in 32-bit words)
+  const std::size_t ring = static_cast<std::size_t>(3 * W + 3) / 4;
+  const std::size_t per = kQ * kBins + ring;
+  std::vector<std::uint32_t> work(per * static_cast<std::size_t>(nt));
+  std::array<std::size_t, kQ> count{};
+  std::vector<std::uint32_t> hist(kQ * kBins, 0);
+  const auto rows_of = [&](int t) {
+    return std::pair<std::ptrdiff_t, std::ptrdiff_t>{H * t / nt, H * (t + 1) / nt};
+  };
+  const auto ring_of = [&](int t) {
+    return reinterpret_cast<std::uint8_t*>(work.data() + per * t + kQ * kBins);
+  };
+  // pass 1: counts and high-16-bit histograms
+#pragma omp parallel for schedule(static, 1) num_threads(nt) if (nt > 1)
+  for (int t = 0; t < nt; ++t) {
+    std::uint32_t* h = work.data() + per * t;
+    std::fill(h, h + kQ * kBins, 0u);
+    const auto [r0, r1] = rows_of(t);
+    visit(g, r0, r1, ring_of(t), [h](int q, double v) { ++h[q * kBins + (key(v) >> 16)]; });
+  }
+  for (int t = 0; t < nt; ++t)
+    for (std::size_t i = 0; i < kQ * kBins; ++i) hist[i] += work[per * t + i];
+  for (int q = 0; q < kQ; ++q)
+    for (std::size_t b = 0; b < kBins; ++b) count[q] += hist[q * kBins + b];
+  // the middle ranks of each quantity and their high bits
+  std::vector<Pick> picks;
+  for (int q = 0; q < kQ; ++q) {
+    const std::size_t n = count[q];
+    if (n == 0) continue;
+    for (std::size_t rank : {(n - 1) / 2, n / 2}) {
+      if (!picks.empty() && picks.back().q == q && picks.back().rank == rank) continue;
+      Pick p;
+      p.q = q;
+      p.rank = rank;
+      p.hi = bin_of(hist.data() + q * kBins, p.rank);
+      picks.push_back(p);
+    }
+  }
+  const int np = static_cast<int>(picks.size());
+  // pass 2: per pick, the low 16 bits within its bin (the pick's histograms reuse `work`)
+  std::vector<std::uint32_t> lo(static_cast<std::size_t>(np) * kBins, 0);
+  const std::size_t per2 = static_cast<std::size_t>(np) * kBins + ring;
+  work.assign(per2 * static_cast<std::size_t>(nt), 0u);
+#pragma omp parallel for schedule(static, 1) num_threads(nt) if (nt > 1)
+  for (int t = 0; t < nt; ++t) {
+    std::uint32_t* h = work.data() + per2 * t;
+    const auto [r0, r1] = rows_of(t);
+    visit(g, r0, r1, reinterpret_cast<std::uint8_t*>(h + np * kBins), [&](int q, double v) {
+      const std::uint32_t k = key(v);
+      for (int s = 0; s < np; ++s)
+        if (picks[s].q == q && (k >> 16) == picks[s].hi) ++h[s * kBins + (k & 0xFFFF)];
+    });
+  }
+  for (int t = 0; t < nt; ++t)
+    for (std::size_t i = 0; i < static_cast<std::size_t>(np) * kBins; ++i)
+      lo[i] += work[per2 * t + i];
+  for (int s = 0; s < np; ++s)
+    picks[s].full = (picks[s].hi << 16) | bin_of(lo.data() + s * kBins, picks[s].rank);
+  // pass 3: the doubles of each pick's float32 value, then the rank among them
+  std::vector<std::vector<double>> few(static_cast<std::size_t>(np * nt));
+  const std::size_t per3 = ring;
+  work.assign(per3 * static_cast<std::size_t>(nt), 0u);
+#pragma omp parallel for schedule(static, 1) num_threads(nt) if (nt > 1)
+  for (int t = 0; t < nt; ++t) {
+    const auto [r0, r1] = rows_of(t);
+    visit(g, r0, r1, reinterpret_cast<std::uint8_t*>(work.data() + per3 * t),
+          [&](int q, double v) {
+            const std::uint32_t k = key(v);
+            for (int s = 0; s < np; ++s)
+              if (picks[s].q == q && k == picks[s].full) few[s * nt + t].push_back(v);
+          });
+  }
+  std::array<double, kQ> med{};
+  for (int q = 0; q < kQ; ++q) {
+    double sum = 0.0;
+    int k = 0;
+    for (int s = 0; s < np; ++s) {
+      if (picks[s].q != q) continue;
+      std::vector<double>& v = scratch;
+      v.clear();
+      for (int t = 0; t < nt; ++t) v.insert(v.end(), few[s * nt + t].begin(), few[s * nt + t].end());
+      const auto mid = v.begin() + static_cast<std::ptrdiff_t>(picks[s].rank);
+      std::nth_element(v.begin(), mid, v.end());
+      sum += (q % 2 == 0) ? std::sqrt(*mid) : *mid;  // distances: the root of the square
+      ++k;
+    }
+    med[q] = k == 2 ? sum / 2.0 : sum;  // the mean of the two middle values, or the middle
+  }
   double spacing = 0.0, noise = 0.0;
   bool any = false;
   for (int axis = 0; axis < 2; ++axis) {  // 0: along a profile (columns), 1: across (rows)
-    // neighbours one step along the axis; the cells are visited row by row (a median does not
-    // depend on the order)
-    const std::ptrdiff_t dr = axis, dc = 1 - axis;
-    buf.clear();
-    for (std::ptrdiff_t r = 0; r + dr < g.rows; ++r) {
-      for (std::ptrdiff_t c = 0; c + dc < g.cols; ++c) {
-        if (!g.finite(r, c) || !g.finite(r + dr, c + dc)) continue;
-        const Eigen::Vector3d d = g(r + dr, c + dc) - g(r, c);
-        buf.push_back(std::sqrt(d.x() * d.x() + d.y() * d.y() + d.z() * d.z()));
-      }
-    }
-    if (buf.empty()) continue;
-    const double dist = median(buf);
-    buf.clear();
-    for (std::ptrdiff_t r = 0; r + 2 * dr < g.rows; ++r) {
-      for (std::ptrdiff_t c = 0; c + 2 * dc < g.cols; ++c) {
-        if (!g.finite(r, c) || !g.finite(r + dr, c + dc) || !g.finite(r + 2 * dr, c + 2 * dc)) {
-          continue;
-        }
-        const double z0 = g(r, c).z(), z1 = g(r + dr, c + dc).z();
-        const double z2 = g(r + 2 * dr, c + 2 * dc).z();
-        buf.push_back(std::abs(z0 - 2.0 * z1 + z2));
-      }
-    }
-    if (buf.empty()) continue;
-    const double sigma = 1.4826 * median(buf) / std::sqrt(6.0);
+    if (count[2 * axis] == 0 || count[2 * axis + 1] == 0) continue;
+    const double dist = med[2 * axis];
+    const double sigma = 1.4826 * med[2 * axis + 1] / std::sqrt(6.0);
     spacing = any ? std::min(spacing, dist) : dist;
     noise = any ? std::max(noise, sigma) : sigma;
     any = true;
@@ -67,15 +209,15 @@ double auto_min_step(const GridView<T>& g, std::vector<double>& buf) {
   return m > spacing ? m : -1.0;
 }
 
-template double auto_min_step<float>(const GridView<float>&, std::vector<double>&);
-template double auto_min_step<double>(const GridView<double>&, std::vector<double>&);
+template double auto_min_step<float>(const GridView<float>&, std::vector<double>&, int);
+template double auto_min_step<double>(const GridView<double>&, std::vector<double>&, int);
 
 }  // namespace detail
 
 template <typename T>
 double auto_min_step(const GridView<T>& grid) {
   std::vector<double> buf;
-  return detail::auto_min_step(grid, buf);
+  return detail::auto_min_step(grid, buf, 1);
 }
 
 template double auto_min_step<float>(const GridView<float>&);

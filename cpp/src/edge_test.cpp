@@ -126,6 +126,20 @@ MIEM_EDGE_CLONES void side_planes(std::ptrdiff_t m, std::ptrdiff_t cap, double k
   }
 }
 
+// Rectangle sums of one side for m consecutive cells, all kM moment planes (`plane` apart in
+// the images, `cap` apart in out): out[j] = a[j] - b[j] - c[j] + d[j], the corner formula of the
+// general path. Vectorised.
+MIEM_EDGE_CLONES void rect_sums(int m, std::ptrdiff_t plane, std::ptrdiff_t cap,
+                                const double* a, const double* b, const double* c,
+                                const double* d, double* __restrict out) {
+  for (int q = 0; q < kM; ++q) {
+    const double *__restrict aq = a + q * plane, *__restrict bq = b + q * plane;
+    const double *__restrict cq = c + q * plane, *__restrict dq = d + q * plane;
+    double* __restrict oq = out + q * cap;
+    for (int j = 0; j < m; ++j) oq[j] = aq[j] - bq[j] - cq[j] + dq[j];
+  }
+}
+
 // The passes on `g`. Each kTileRows x kTileCols tile of the grid (fixed in grid coordinates, as
 // the window fits' tiles) gets its own integral images over the tile and the r cells around it,
 // relative to the tile's first finite cell (row-major). So a cell's sums depend on nothing
@@ -140,8 +154,9 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
   const std::ptrdiff_t H = g.rows, W = g.cols, N = H * W, r = window / 2;
   const double n_min = static_cast<double>(std::max<std::ptrdiff_t>(3, (r * r) / 2));
   const std::ptrdiff_t ER = std::min(H, kTileRows + 2 * r), EC = std::min(W, kTileCols + 2 * r);
-  const std::ptrdiff_t stride = (EC + 1) * kM;           // one integral-image row
-  const std::ptrdiff_t per = (ER + 1) * stride + EC * kM;  // a thread's images + column sums
+  // integral images as kM planes (one per moment) of ER + 1 rows of L = EC + 1 columns
+  const std::ptrdiff_t L = EC + 1, plane = (ER + 1) * L;
+  const std::ptrdiff_t per = kM * plane + kM * EC;  // a thread's images + column sums
   const std::ptrdiff_t tiles_r = (H + kTileRows - 1) / kTileRows;
   const std::ptrdiff_t tiles_c = (W + kTileCols - 1) / kTileCols;
   const int nt = std::max(1, std::min<int>(thread_count(num_threads, N),
@@ -162,7 +177,7 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
 #else
       double* const S = scratch.data();
 #endif
-      double* const col = S + (ER + 1) * stride;
+      double* const col = S + kM * plane;  // moment q of column x at col[q * EC + x]
       const std::ptrdiff_t R0 = (tile / tiles_c) * kTileRows, R1 = std::min(H, R0 + kTileRows);
       const std::ptrdiff_t C0 = (tile % tiles_c) * kTileCols, C1 = std::min(W, C0 + kTileCols);
       bool any = false;
@@ -188,11 +203,11 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
       const std::ptrdiff_t e0 = std::max<std::ptrdiff_t>(0, R0 - r), e1 = std::min(H, R1 + r);
       const std::ptrdiff_t f0 = std::max<std::ptrdiff_t>(0, C0 - r), f1 = std::min(W, C1 + r);
       const std::ptrdiff_t ew = f1 - f0;
-      std::fill(col, col + ew * kM, 0.0);
-      std::fill(S, S + (ew + 1) * kM, 0.0);
+      std::fill(col, col + kM * EC, 0.0);
+      for (int q = 0; q < kM; ++q) std::fill(S + q * plane, S + q * plane + ew + 1, 0.0);
       for (std::ptrdiff_t rr = e0; rr < e1; ++rr) {
-        double* out = S + (rr - e0 + 1) * stride;
-        std::fill(out, out + kM, 0.0);
+        double* out = S + (rr - e0 + 1) * L;  // row rr - e0 + 1 of plane 0
+        for (int q = 0; q < kM; ++q) out[q * plane] = 0.0;
         for (std::ptrdiff_t cc = f0; cc < f1; ++cc) {
           const std::uint8_t l = labels[rr * W + cc];
           double t[kM] = {0.0};
@@ -204,26 +219,27 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
             t[7] = p.y() * p.y(), t[8] = p.y() * p.z(), t[9] = p.z() * p.z();
           }
           t[10] = l == kInvalid ? 1.0 : 0.0;
-          double* cs = col + (cc - f0) * kM;
-          const double* left = out + (cc - f0) * kM;
-          double* cur = out + (cc - f0 + 1) * kM;
+          const std::ptrdiff_t x = cc - f0;
           for (int q = 0; q < kM; ++q) {
-            cs[q] += t[q];
-            cur[q] = left[q] + cs[q];
+            double& cs = col[q * EC + x];
+            cs += t[q];
+            out[q * plane + x + 1] = out[q * plane + x] + cs;
           }
         }
       }
-      const auto srow = [S, stride, e0](std::ptrdiff_t s) { return S + (s - e0) * stride; };
+      const auto srow = [L, e0](std::ptrdiff_t s) { return (s - e0) * L; };  // row offset
       for (std::ptrdiff_t rr = R0; rr < R1; ++rr) {
-        // Up to kChunk candidate cells of the row at a time, all as SoA over their 8 sides:
-        // the sub-window sums (corner reads), then moments, eigenpairs and planes in vectorised
-        // loops; each cell is judged from those.
+        // Up to kChunk candidate cells of the row at a time, all as SoA over their 8 sides
+        // (entry e = side * m + cell): the sub-window sums (corner reads, vectorised over the
+        // cells when they are consecutive and away from the grid border), then moments,
+        // eigenpairs and planes in vectorised loops; each cell is judged from those.
         constexpr int kChunk = 16, kCap = 8 * kChunk;
         double mm[kM * kCap], Mb[6 * kCap], Eb[6 * kCap], nnb[kCap], ceb[3 * kCap];
         double F[6 * kCap], P[3 * kCap];  // F: h, rms, tol, oriented normal; P: the cells
         std::uint8_t okb[kCap], redob[kCap], useb[kCap], emptyb[kCap], validb[kCap];
         double lowb[kCap];
         std::ptrdiff_t cols[kChunk];
+        int keep[kChunk];
         for (std::ptrdiff_t cc = C0; cc < C1;) {
           int m = 0;
           for (; cc < C1 && m < kChunk; ++cc) {
@@ -232,26 +248,37 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
           }
           if (m == 0) continue;
           for (int j = 0; j < m; ++j) {
-            const std::ptrdiff_t c = cols[j];
-            const Eigen::Vector3d pt = g(rr, c) - o;
+            const Eigen::Vector3d pt = g(rr, cols[j]) - o;
             for (int s = 0; s < 8; ++s) {
-              const int e = j * 8 + s;
+              const int e = s * m + j;
               P[e] = pt.x(), P[kCap + e] = pt.y(), P[2 * kCap + e] = pt.z();
-              const std::ptrdiff_t r0 =
-                  std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][0], r), 0, H);
-              const std::ptrdiff_t r1 =
-                  std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][1], r) + 1, 0, H);
-              const std::ptrdiff_t c0 =
-                  std::clamp<std::ptrdiff_t>(c + offset(kSides[s][2], r), 0, W);
-              const std::ptrdiff_t c1 =
-                  std::clamp<std::ptrdiff_t>(c + offset(kSides[s][3], r) + 1, 0, W);
-              const double* top = srow(r0);
-              const double* bottom = srow(r1);
-              const double* a = bottom + (c1 - f0) * kM;
-              const double* b = top + (c1 - f0) * kM;
-              const double* cq = bottom + (c0 - f0) * kM;
-              const double* d = top + (c0 - f0) * kM;
-              for (int q = 0; q < kM; ++q) mm[q * kCap + e] = a[q] - b[q] - cq[q] + d[q];
+            }
+          }
+          const bool run = cols[m - 1] - cols[0] == m - 1 && rr - r >= 0 && rr + r + 1 <= H &&
+                           cols[0] - r >= 0 && cols[m - 1] + r + 1 <= W;
+          for (int s = 0; s < 8; ++s) {
+            const std::ptrdiff_t r0 = std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][0], r), 0, H);
+            const std::ptrdiff_t r1 =
+                std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][1], r) + 1, 0, H);
+            const std::ptrdiff_t top = srow(r0), bottom = srow(r1);
+            if (run) {  // consecutive cells, no clipping: contiguous corners
+              const std::ptrdiff_t x0 = cols[0] + offset(kSides[s][2], r) - f0;
+              const std::ptrdiff_t x1 = cols[0] + offset(kSides[s][3], r) + 1 - f0;
+              rect_sums(m, plane, kCap, S + bottom + x1, S + top + x1, S + bottom + x0,
+                        S + top + x0, mm + s * m);
+              continue;
+            }
+            for (int j = 0; j < m; ++j) {
+              const std::ptrdiff_t c = cols[j];
+              const std::ptrdiff_t x0 =
+                  std::clamp<std::ptrdiff_t>(c + offset(kSides[s][2], r), 0, W) - f0;
+              const std::ptrdiff_t x1 =
+                  std::clamp<std::ptrdiff_t>(c + offset(kSides[s][3], r) + 1, 0, W) - f0;
+              const int e = s * m + j;
+              for (int q = 0; q < kM; ++q) {
+                const double* Sq = S + q * plane;
+                mm[q * kCap + e] = Sq[bottom + x1] - Sq[top + x1] - Sq[bottom + x0] + Sq[top + x0];
+              }
             }
           }
           side_moments(8 * m, kCap, n_min, mm, nnb, ceb, Mb, useb, emptyb);
@@ -269,8 +296,8 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
             for (int j = 0; j < m; ++j) {
               int sb = 0;
               for (int s = 1; s < 8; ++s)
-                if (lowb[j * 8 + s] < lowb[j * 8 + sb]) sb = s;
-              const int e = j * 8 + sb;
+                if (lowb[s * m + j] < lowb[sb * m + j]) sb = s;
+              const int e = sb * m + j;
               low1[j] = lowb[e];
               use1[j] = useb[e];
               nn1[j] = nnb[e];
@@ -293,18 +320,24 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
                 mark[i] = 0;
                 continue;
               }
-              if (nf != j) {  // compact the cells left to the front
-                for (int s = 0; s < 8; ++s) {
-                  const int from = j * 8 + s, to = nf * 8 + s;
-                  for (int q = 0; q < 6; ++q) Mb[q * kCap + to] = Mb[q * kCap + from];
-                  for (int q = 0; q < 3; ++q) {
-                    ceb[q * kCap + to] = ceb[q * kCap + from];
-                    P[q * kCap + to] = P[q * kCap + from];
-                  }
-                  nnb[to] = nnb[from], useb[to] = useb[from], emptyb[to] = emptyb[from];
-                }
-              }
+              keep[nf] = j;
               cols[nf++] = cols[j];
+            }
+          }
+          // the cells left to the front, entry s * m + keep[f] to s * nf + f (in this order no
+          // entry is overwritten before it is moved: s * nf + f <= s * m + keep[f])
+          if (nf != m) {
+            for (int s = 0; s < 8; ++s) {
+              for (int f = 0; f < nf; ++f) {
+                const int from = s * m + keep[f], to = s * nf + f;
+                if (from == to) continue;
+                for (int q = 0; q < 6; ++q) Mb[q * kCap + to] = Mb[q * kCap + from];
+                for (int q = 0; q < 3; ++q) {
+                  ceb[q * kCap + to] = ceb[q * kCap + from];
+                  P[q * kCap + to] = P[q * kCap + from];
+                }
+                nnb[to] = nnb[from], useb[to] = useb[from], emptyb[to] = emptyb[from];
+              }
             }
           }
           m = nf;
@@ -334,7 +367,7 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
             Side sd[8];
             double best = std::numeric_limits<double>::infinity();
             for (int s = 0; s < 8; ++s) {
-              const int e = j * 8 + s;
+              const int e = s * m + j;
               Side& x = sd[s];
               x.empty = emptyb[e] != 0;
               x.centroid = Eigen::Vector3d(ceb[e], ceb[kCap + e], ceb[2 * kCap + e]);

@@ -41,7 +41,7 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
   const std::ptrdiff_t cover = 2 * std::max(g.rows, g.cols) + 1;
   if (eff_.window > cover) eff_.window = static_cast<int>(cover);
   if (eff_.min_step_auto) {  // SPEC "min_step='auto'", before the angle passes
-    eff_.min_step = detail::auto_min_step(g, ws_.survey);
+    eff_.min_step = detail::auto_min_step(g, ws_.survey, eff_.num_threads);
     eff_.min_step_auto = false;
   }
   const DetectParams& p = eff_;
