@@ -72,19 +72,20 @@ inline __attribute__((always_inline)) void newton_step(double& x, double& live, 
 /// inline it): l0 = x after at most 4 Newton steps (`live` still set: it has not ended), l1, l2
 /// = hi, tr, and the largest cross product (bx0, bx1, bx2) of two rows of M - l0 I with its
 /// squared norm nb (not yet normalised).
-template <int Steps = 4>
-inline __attribute__((always_inline)) void eigen_lane(double a, double b, double c, double d,
-                                                       double e, double f, double& tr,
-                                                       double& x, double& live, double& l1,
-                                                       double& hi, double& bx0, double& bx1,
-                                                       double& bx2, double& nb) {
+inline __attribute__((always_inline)) void eigen_start(double a, double b, double c, double d,
+                                                        double e, double f, double& tr,
+                                                        double& c1, double& det) {
   tr = a + b + c;
-  const double c1 = (a * b + b * c + a * c) - (d * d + e * e + f * f);
-  const double det = a * b * c + 2.0 * d * e * f - a * e * e - b * f * f - c * d * d;
-  // Newton from 0 on q(x) = x^3 - tr x^2 + c1 x - det, fixed steps masked by `live`
-  x = 0.0;
-  live = tr > 0.0 ? 1.0 : 0.0;
-  for (int it = 0; it < Steps; ++it) newton_step(x, live, tr, c1, det);  // (unrolled)
+  c1 = (a * b + b * c + a * c) - (d * d + e * e + f * f);
+  det = a * b * c + 2.0 * d * e * f - a * e * e - b * f * f - c * d * d;
+}
+
+// eigen_lane after the Newton steps: l1, l2 = hi and the largest cross product.
+inline __attribute__((always_inline)) void eigen_finish(double a, double b, double c, double d,
+                                                         double e, double f, double tr,
+                                                         double c1, double x, double& l1,
+                                                         double& hi, double& bx0, double& bx1,
+                                                         double& bx2, double& nb) {
   const double s = tr - x, p = c1 - x * s;
   const double disc = s * s - 4.0 * p;
   hi = 0.5 * (s + std::sqrt(disc > 0.0 ? disc : 0.0));
@@ -106,16 +107,38 @@ inline __attribute__((always_inline)) void eigen_lane(double a, double b, double
   nb = pu ? n01 : (pv ? n02 : n12);  // the largest of the three
 }
 
+/// The arithmetic smallest_eigenpair does, for one matrix in straight-line code (vector loops
+/// inline it): l0 = x after at most 4 Newton steps (`live` still set: it has not ended), l1, l2
+/// = hi, tr, and the largest cross product (bx0, bx1, bx2) of two rows of M - l0 I with its
+/// squared norm nb (not yet normalised).
+inline __attribute__((always_inline)) void eigen_lane(double a, double b, double c, double d,
+                                                       double e, double f, double& tr,
+                                                       double& x, double& live, double& l1,
+                                                       double& hi, double& bx0, double& bx1,
+                                                       double& bx2, double& nb) {
+  double c1, det;
+  eigen_start(a, b, c, d, e, f, tr, c1, det);
+  // Newton from 0 on q(x) = x^3 - tr x^2 + c1 x - det, fixed steps masked by `live`
+  x = 0.0;
+  live = tr > 0.0 ? 1.0 : 0.0;
+  newton_step(x, live, tr, c1, det);
+  newton_step(x, live, tr, c1, det);
+  newton_step(x, live, tr, c1, det);
+  newton_step(x, live, tr, c1, det);
+  eigen_finish(a, b, c, d, e, f, tr, c1, x, l1, hi, bx0, bx1, bx2, nb);
+}
+
 /// smallest_eigenpair for m matrices at once (SoA: entries a = M00, b = M11, c = M22, d = M01,
 /// e = M12, f = M02, `cap` apart in `M` in that order), in straight-line code that vectorises.
 /// Writes l0, l1, l2, nx, ny, nz (`cap` apart in `out`) and ok (smallest_eigenpair's return
-/// value). The iteration is smallest_eigenpair's with at most Steps steps: where it has not
-/// ended by then, redo is set and the caller runs smallest_eigenpair itself; elsewhere every
-/// output equals smallest_eigenpair's bit for bit.
-template <int Steps>
-inline __attribute__((always_inline)) void smallest_eigenpairs_n(
-    std::ptrdiff_t m, std::ptrdiff_t cap, const double* __restrict M, double* __restrict out,
-    std::uint8_t* __restrict ok, std::uint8_t* __restrict redo) {
+/// value). The iteration is smallest_eigenpair's with at most 4 steps: where it has not ended by
+/// then, redo is set and the caller runs smallest_eigenpair itself; elsewhere every output
+/// equals smallest_eigenpair's bit for bit.
+MIEM_EIG_CLONES inline void smallest_eigenpairs(std::ptrdiff_t m, std::ptrdiff_t cap,
+                                                const double* __restrict M,
+                                                double* __restrict out,
+                                                std::uint8_t* __restrict ok,
+                                                std::uint8_t* __restrict redo) {
   const double *__restrict ma = M, *__restrict mb = M + cap, *__restrict mc = M + 2 * cap;
   const double *__restrict md = M + 3 * cap, *__restrict me = M + 4 * cap;
   const double* __restrict mf = M + 5 * cap;
@@ -126,7 +149,7 @@ inline __attribute__((always_inline)) void smallest_eigenpairs_n(
   for (std::ptrdiff_t i = 0; i < m; ++i) {  // (too many arrays for GCC's alias versioning)
     const double a = ma[i], b = mb[i], c = mc[i], d = md[i], e = me[i], f = mf[i];
     double tr, x, live, l1, hi, bx0, bx1, bx2, nb;
-    eigen_lane<Steps>(a, b, c, d, e, f, tr, x, live, l1, hi, bx0, bx1, bx2, nb);
+    eigen_lane(a, b, c, d, e, f, tr, x, live, l1, hi, bx0, bx1, bx2, nb);
     const double len = std::sqrt(nb > 0.0 ? nb : 1.0);
     o0[i] = x;
     o1[i] = l1;
@@ -139,24 +162,54 @@ inline __attribute__((always_inline)) void smallest_eigenpairs_n(
   }
 }
 
-/// smallest_eigenpairs_n with 4 Newton steps (enough for flat patches: l0 << l1).
-MIEM_EIG_CLONES inline void smallest_eigenpairs(std::ptrdiff_t m, std::ptrdiff_t cap,
-                                                const double* __restrict M,
-                                                double* __restrict out,
-                                                std::uint8_t* __restrict ok,
-                                                std::uint8_t* __restrict redo) {
-  smallest_eigenpairs_n<4>(m, cap, M, out, ok, redo);
-}
-
-/// smallest_eigenpairs_n with 8 Newton steps: the edge test's sub-windows of rough or curved
-/// surfaces (l0 nearer l1) rarely end within 4 (on the real scan almost never: all went to the
-/// scalar routine), within 8 nearly always.
+/// smallest_eigenpairs with up to 8 Newton steps, stopping once every lane of a block of 128
+/// has ended (steps of an ended lane change nothing, so the bits are those of the fixed steps):
+/// the edge test's sub-windows of rough or curved surfaces (l0 nearer l1) rarely end within 4
+/// (on the real scan almost never), within 8 nearly always; flat ones end within 3 or 4.
 MIEM_EIG_CLONES inline void smallest_eigenpairs_long(std::ptrdiff_t m, std::ptrdiff_t cap,
                                                      const double* __restrict M,
                                                      double* __restrict out,
                                                      std::uint8_t* __restrict ok,
                                                      std::uint8_t* __restrict redo) {
-  smallest_eigenpairs_n<8>(m, cap, M, out, ok, redo);
+  constexpr std::ptrdiff_t kB = 128;
+  for (std::ptrdiff_t b0 = 0; b0 < m; b0 += kB) {
+    const std::ptrdiff_t n = std::min(kB, m - b0);
+    const double *__restrict ma = M + b0, *__restrict mb = ma + cap, *__restrict mc = ma + 2 * cap;
+    const double *__restrict md = ma + 3 * cap, *__restrict me = ma + 4 * cap;
+    const double* __restrict mf = ma + 5 * cap;
+    double *__restrict o0 = out + b0, *__restrict o1 = o0 + cap, *__restrict o2 = o0 + 2 * cap;
+    double *__restrict o3 = o0 + 3 * cap, *__restrict o4 = o0 + 4 * cap;
+    double* __restrict o5 = o0 + 5 * cap;
+    double tr[kB], c1[kB], det[kB], x[kB], live[kB];
+    for (std::ptrdiff_t i = 0; i < n; ++i) {
+      eigen_start(ma[i], mb[i], mc[i], md[i], me[i], mf[i], tr[i], c1[i], det[i]);
+      x[i] = 0.0;
+      live[i] = tr[i] > 0.0 ? 1.0 : 0.0;
+    }
+    for (int it = 0; it < 8; ++it) {
+      std::int64_t any = 0;
+      for (std::ptrdiff_t i = 0; i < n; ++i) {
+        newton_step(x[i], live[i], tr[i], c1[i], det[i]);
+        any |= static_cast<std::int64_t>(live[i] != 0.0);
+      }
+      if (any == 0) break;
+    }
+#pragma GCC ivdep
+    for (std::ptrdiff_t i = 0; i < n; ++i) {
+      const double a = ma[i], b = mb[i], c = mc[i], d = md[i], e = me[i], f = mf[i];
+      double l1, hi, bx0, bx1, bx2, nb;
+      eigen_finish(a, b, c, d, e, f, tr[i], c1[i], x[i], l1, hi, bx0, bx1, bx2, nb);
+      const double len = std::sqrt(nb > 0.0 ? nb : 1.0);
+      o0[i] = x[i];
+      o1[i] = l1;
+      o2[i] = hi;
+      o3[i] = bx0 / len;
+      o4[i] = bx1 / len;
+      o5[i] = bx2 / len;
+      ok[b0 + i] = static_cast<std::uint8_t>((tr[i] > 0.0) & (nb > 0.0));
+      redo[b0 + i] = static_cast<std::uint8_t>(live[i] != 0.0);
+    }
+  }
 }
 
 /// Moments of the points that each(f) hands to f (f(point) per point, in a fixed order; each is

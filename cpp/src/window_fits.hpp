@@ -67,26 +67,53 @@ MIEM_FIT_CLONES inline void solve_fits(std::ptrdiff_t m, std::ptrdiff_t cap,
   double* __restrict f0 = F + cap;
   double* __restrict f1 = F + 2 * cap;
   double* __restrict f2 = F + 3 * cap;
-  for (std::ptrdiff_t i = 0; i < m; ++i) {
-    const double n = s0[i];
-    const double inv_n = 1.0 / (n > 0.0 ? n : 1.0);
-    const double mx = s1[i] * inv_n, my = s2[i] * inv_n, mz = s3[i] * inv_n;
-    const double a = s4[i] - n * mx * mx, d = s5[i] - n * mx * my, f = s6[i] - n * mx * mz;
-    const double b = s7[i] - n * my * my, e = s8[i] - n * my * mz, c = s9[i] - n * mz * mz;
-    double tr, x, live, l1, hi, nx, ny, nz, nb;
-    eigen_lane(a, b, c, d, e, f, tr, x, live, l1, hi, nx, ny, nz, nb);
-    const double inv_len = 1.0 / std::sqrt(nb > 0.0 ? nb : 1.0);
-    nx *= inv_len, ny *= inv_len, nz *= inv_len;
-    const double sg = nz != 0.0 ? (nz > 0.0 ? 1.0 : -1.0)
-                                : (nx != 0.0 ? (nx > 0.0 ? 1.0 : -1.0) : (ny < 0.0 ? -1.0 : 1.0));
-    const double h = sg * ((nx * (qx[i] - mx) + ny * (qy[i] - my)) + nz * (qz[i] - mz));
-    fh[i] = h;
-    f0[i] = x;
-    f1[i] = l1;
-    f2[i] = hi;
-    ok[i] = static_cast<std::uint8_t>((n >= 3.0) & (tr > 0.0) & (nb > 0.0) & (hi > 0.0) &
-                                      (l1 > 1e-12 * hi));
-    redo[i] = static_cast<std::uint8_t>((live != 0.0) & (n >= 3.0));
+  // Blocks of kB cells: the centred scatters, then the Newton steps for the whole block until
+  // every cell has ended (at most 4: the steps of an ended cell change nothing, so the bits are
+  // those of eigen_lane's fixed steps; flat windows end within 2 or 3), then the rest.
+  constexpr std::ptrdiff_t kB = 128;
+  for (std::ptrdiff_t b0 = 0; b0 < m; b0 += kB) {
+    const std::ptrdiff_t nb_ = std::min(kB, m - b0);
+    double A[kB], B[kB], C[kB], D[kB], E[kB], Fm[kB], MX[kB], MY[kB], MZ[kB];
+    double tr[kB], c1[kB], det[kB], x[kB], live[kB];
+    for (std::ptrdiff_t t = 0; t < nb_; ++t) {
+      const std::ptrdiff_t i = b0 + t;
+      const double n = s0[i];
+      const double inv_n = 1.0 / (n > 0.0 ? n : 1.0);
+      const double mx = s1[i] * inv_n, my = s2[i] * inv_n, mz = s3[i] * inv_n;
+      MX[t] = mx, MY[t] = my, MZ[t] = mz;
+      A[t] = s4[i] - n * mx * mx, D[t] = s5[i] - n * mx * my, Fm[t] = s6[i] - n * mx * mz;
+      B[t] = s7[i] - n * my * my, E[t] = s8[i] - n * my * mz, C[t] = s9[i] - n * mz * mz;
+      eigen_start(A[t], B[t], C[t], D[t], E[t], Fm[t], tr[t], c1[t], det[t]);
+      x[t] = 0.0;
+      live[t] = tr[t] > 0.0 ? 1.0 : 0.0;
+    }
+    for (int it = 0; it < 4; ++it) {
+      std::int64_t any = 0;
+      for (std::ptrdiff_t t = 0; t < nb_; ++t) {
+        newton_step(x[t], live[t], tr[t], c1[t], det[t]);
+        any |= static_cast<std::int64_t>(live[t] != 0.0);
+      }
+      if (any == 0) break;
+    }
+    for (std::ptrdiff_t t = 0; t < nb_; ++t) {
+      const std::ptrdiff_t i = b0 + t;
+      const double n = s0[i], mx = MX[t], my = MY[t], mz = MZ[t];
+      double l1, hi, nx, ny, nz, nb;
+      eigen_finish(A[t], B[t], C[t], D[t], E[t], Fm[t], tr[t], c1[t], x[t], l1, hi, nx, ny, nz,
+                   nb);
+      const double inv_len = 1.0 / std::sqrt(nb > 0.0 ? nb : 1.0);
+      nx *= inv_len, ny *= inv_len, nz *= inv_len;
+      const double sg = nz != 0.0 ? (nz > 0.0 ? 1.0 : -1.0)
+                                  : (nx != 0.0 ? (nx > 0.0 ? 1.0 : -1.0) : (ny < 0.0 ? -1.0 : 1.0));
+      const double h = sg * ((nx * (qx[i] - mx) + ny * (qy[i] - my)) + nz * (qz[i] - mz));
+      fh[i] = h;
+      f0[i] = x[t];
+      f1[i] = l1;
+      f2[i] = hi;
+      ok[i] = static_cast<std::uint8_t>((n >= 3.0) & (tr[t] > 0.0) & (nb > 0.0) & (hi > 0.0) &
+                                        (l1 > 1e-12 * hi));
+      redo[i] = static_cast<std::uint8_t>((live[t] != 0.0) & (n >= 3.0));
+    }
   }
 }
 
