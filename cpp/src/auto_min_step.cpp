@@ -4,15 +4,18 @@
 // 4 * max(noise) when that exceeds min(spacing), else off (-1).
 //
 // The four medians are exact (NumPy's: the middle value, or the mean of the two middle values)
-// and need neither a buffer of the values nor a sort: the values are non-negative, so their
-// float32 roundings order like them (rounding is monotone) and the float32 bit patterns order
-// like the floats. Three passes over the grid, each computing the four quantities at once:
-// histograms of the patterns' high 16 bits; in the bin of each middle rank, histograms of the
-// low 16 bits (the float32 value of that rank); the doubles that round to that value (few), in
-// which the rank is then selected. Distances are selected by their squares (sqrt is monotone:
-// the middle distances are the square roots of the middle squares). Rows are split between
-// threads; counts add up and the few values are the same set, so the value is the same for
-// any thread count.
+// without a sort of all values. band_medians: a sample of the cells gives a narrow band of
+// values around each middle; one pass over the grid counts the values below it and keeps those
+// in it, where the middle ranks are selected. When a middle rank falls outside its band (or the
+// grid is small), key_medians decides: the values are non-negative, so their float32 roundings
+// order like them (rounding is monotone) and the float32 bit patterns order like the floats.
+// Three passes over the grid, each computing the four quantities at once: histograms of the
+// patterns' high 16 bits; in the bin of each middle rank, histograms of the low 16 bits (the
+// float32 value of that rank); the doubles that round to that value (few), in which the rank is
+// then selected. Distances are selected by their squares (sqrt is monotone: the middle
+// distances are the square roots of the middle squares). Rows are split between threads;
+// counts add up and the kept values are the same set, so the value is the same for any thread
+// count.
 #include "auto_min_step.hpp"
 
 #include <algorithm>
@@ -91,6 +94,9 @@ struct Pick {
   std::uint32_t hi = 0, full = 0;  // the high 16 bits, then the whole float32 pattern
 };
 
+using Counts = std::array<std::size_t, kQ>;
+using Mids = std::array<std::array<double, 2>, kQ>;  // ranks (n - 1) / 2 and n / 2
+
 // The smallest b with sum(h[0..b]) > rank; rank becomes the rank within bin b.
 std::uint32_t bin_of(const std::uint32_t* h, std::size_t& rank) {
   std::size_t b = 0;
@@ -98,19 +104,16 @@ std::uint32_t bin_of(const std::uint32_t* h, std::size_t& rank) {
   return static_cast<std::uint32_t>(b);
 }
 
-}  // namespace
-
+// The middle values of each quantity (Mids) by the key histograms: always exact.
 template <typename T>
-double auto_min_step(const GridView<T>& g, std::vector<double>& scratch, int num_threads) {
+void key_medians(const GridView<T>& g, int nt, Counts& count, Mids& mids,
+                 std::vector<double>& scratch) {
   const std::ptrdiff_t H = g.rows, W = g.cols;
-  if (H < 1 || W < 1) return -1.0;
-  const int nt = std::max(1, std::min<int>(thread_count(num_threads, H * W),
-                                           static_cast<int>(H)));
   // per thread: 4 histograms and the finite-flag ring (in 32-bit words)
   const std::size_t ring = static_cast<std::size_t>(3 * W + 3) / 4;
   const std::size_t per = kQ * kBins + ring;
   std::vector<std::uint32_t> work(per * static_cast<std::size_t>(nt));
-  std::array<std::size_t, kQ> count{};
+  count = Counts{};
   std::vector<std::uint32_t> hist(kQ * kBins, 0);
   const auto rows_of = [&](int t) {
     return std::pair<std::ptrdiff_t, std::ptrdiff_t>{H * t / nt, H * (t + 1) / nt};
@@ -178,21 +181,127 @@ double auto_min_step(const GridView<T>& g, std::vector<double>& scratch, int num
               if (picks[s].q == q && k == picks[s].full) few[s * nt + t].push_back(v);
           });
   }
+  for (int s = 0; s < np; ++s) {
+    std::vector<double>& v = scratch;
+    v.clear();
+    for (int t = 0; t < nt; ++t)
+      v.insert(v.end(), few[s * nt + t].begin(), few[s * nt + t].end());
+    const auto mid = v.begin() + static_cast<std::ptrdiff_t>(picks[s].rank);
+    std::nth_element(v.begin(), mid, v.end());
+    // the pick of rank (n - 1) / 2 comes first (the only one when n is odd)
+    const bool first = s == 0 || picks[s - 1].q != picks[s].q;
+    if (first) {
+      mids[picks[s].q] = {*mid, *mid};
+    } else {
+      mids[picks[s].q][1] = *mid;
+    }
+  }
+}
+
+// The middle values from a band around a sample's middle: the sample gives values a <= b with the middle ranks between them unless the sample is far off; one pass
+// counts the values below a and keeps those in [a, b] (a few per cent), where the ranks are
+// then selected. False (nothing decided) when a middle rank falls outside the band.
+template <typename T>
+bool band_medians(const GridView<T>& g, int nt, Counts& count, Mids& mids,
+                  std::vector<double>& scratch) {
+  const std::ptrdiff_t H = g.rows, W = g.cols;
+  if (H * W < (std::ptrdiff_t{1} << 16)) return false;
+  // the sample: every k-th cell in row-major order (k prime and not dividing the row length,
+  // so the sample walks across all rows and columns: spacings may change from row to row)
+  std::ptrdiff_t k = 61;
+  while (W % k == 0) k += 2;
+  std::array<std::vector<double>, kQ> smp;
+  const auto fin = [&g](std::ptrdiff_t r, std::ptrdiff_t c) { return g.finite(r, c); };
+  const std::ptrdiff_t rs = g.row_stride, cs = g.col_stride, ks = g.coord_stride;
+  const auto z = [&](const T* p) { return static_cast<double>(p[2 * ks]); };
+  const auto dist2 = [ks](const T* a, const T* b) {  // as visit's
+    const double dx = static_cast<double>(b[0]) - static_cast<double>(a[0]);
+    const double dy = static_cast<double>(b[ks]) - static_cast<double>(a[ks]);
+    const double dz = static_cast<double>(b[2 * ks]) - static_cast<double>(a[2 * ks]);
+    return dx * dx + dy * dy + dz * dz;
+  };
+  for (std::ptrdiff_t i = 0; i < H * W; i += k) {
+    const std::ptrdiff_t r = i / W, c = i % W;
+    if (!fin(r, c)) continue;
+    const T* p = g.data + r * rs + c * cs;
+    if (c + 1 < W && fin(r, c + 1)) {
+      smp[0].push_back(dist2(p, p + cs));
+      if (c + 2 < W && fin(r, c + 2))
+        smp[1].push_back(std::abs(z(p) - 2.0 * z(p + cs) + z(p + 2 * cs)));
+    }
+    if (r + 1 < H && fin(r + 1, c)) {
+      smp[2].push_back(dist2(p, p + rs));
+      if (r + 2 < H && fin(r + 2, c))
+        smp[3].push_back(std::abs(z(p) - 2.0 * z(p + rs) + z(p + 2 * rs)));
+    }
+  }
+  std::array<double, kQ> a{}, b{};
+  for (int q = 0; q < kQ; ++q) {
+    std::vector<double>& v = smp[q];
+    const std::size_t n = v.size();
+    if (n < 1000) return false;
+    const double d = 4.0 / std::sqrt(static_cast<double>(n));
+    const auto i0 = static_cast<std::size_t>(std::max(0.0, std::floor(n * (0.5 - d))));
+    const auto i1 = std::min(n - 1, static_cast<std::size_t>(std::ceil(n * (0.5 + d))));
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(i0), v.end());
+    a[q] = v[i0];
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(i1), v.end());
+    b[q] = v[i1];
+  }
+  std::vector<std::array<std::size_t, 2 * kQ>> tally(static_cast<std::size_t>(nt));
+  std::vector<std::array<std::vector<double>, kQ>> in(static_cast<std::size_t>(nt));
+  std::vector<std::uint8_t> rings(static_cast<std::size_t>(3 * W * nt));
+#pragma omp parallel for schedule(static, 1) num_threads(nt) if (nt > 1)
+  for (int t = 0; t < nt; ++t) {
+    std::array<std::size_t, 2 * kQ> c{};  // totals, then the counts below a
+    auto& keep = in[t];
+    visit(g, H * t / nt, H * (t + 1) / nt, rings.data() + 3 * W * t, [&](int q, double v) {
+      ++c[q];
+      c[kQ + q] += v < a[q];
+      if ((v >= a[q]) & (v <= b[q])) keep[q].push_back(v);
+    });
+    tally[t] = c;
+  }
+  count = Counts{};
+  for (int q = 0; q < kQ; ++q) {
+    std::size_t below = 0;
+    std::vector<double>& v = scratch;
+    v.clear();
+    for (int t = 0; t < nt; ++t) {
+      count[q] += tally[t][q];
+      below += tally[t][kQ + q];
+      v.insert(v.end(), in[t][q].begin(), in[t][q].end());
+    }
+    const std::size_t n = count[q];
+    if (n == 0) continue;
+    const std::size_t ranks[2] = {(n - 1) / 2, n / 2};
+    for (int k = 0; k < 2; ++k) {
+      if (ranks[k] < below || ranks[k] - below >= v.size()) return false;
+      const auto at = v.begin() + static_cast<std::ptrdiff_t>(ranks[k] - below);
+      std::nth_element(v.begin(), at, v.end());
+      mids[q][k] = *at;
+    }
+  }
+  return true;
+}
+
+}  // namespace
+
+template <typename T>
+double auto_min_step(const GridView<T>& g, std::vector<double>& scratch, int num_threads) {
+  const std::ptrdiff_t H = g.rows, W = g.cols;
+  if (H < 1 || W < 1) return -1.0;
+  const int nt = std::max(1, std::min<int>(thread_count(num_threads, H * W),
+                                           static_cast<int>(H)));
+  Counts count{};
+  Mids mids{};
+  if (!band_medians(g, nt, count, mids, scratch)) key_medians(g, nt, count, mids, scratch);
   std::array<double, kQ> med{};
   for (int q = 0; q < kQ; ++q) {
-    double sum = 0.0;
-    int k = 0;
-    for (int s = 0; s < np; ++s) {
-      if (picks[s].q != q) continue;
-      std::vector<double>& v = scratch;
-      v.clear();
-      for (int t = 0; t < nt; ++t) v.insert(v.end(), few[s * nt + t].begin(), few[s * nt + t].end());
-      const auto mid = v.begin() + static_cast<std::ptrdiff_t>(picks[s].rank);
-      std::nth_element(v.begin(), mid, v.end());
-      sum += (q % 2 == 0) ? std::sqrt(*mid) : *mid;  // distances: the root of the square
-      ++k;
-    }
-    med[q] = k == 2 ? sum / 2.0 : sum;  // the mean of the two middle values, or the middle
+    if (count[q] == 0) continue;
+    const auto f = [q](double v) { return q % 2 == 0 ? std::sqrt(v) : v; };  // distances: roots
+    // np.median: the middle value, or the mean of the two middle values
+    med[q] = count[q] % 2 == 1 ? f(mids[q][1]) : (f(mids[q][0]) + f(mids[q][1])) / 2.0;
   }
   double spacing = 0.0, noise = 0.0;
   bool any = false;
