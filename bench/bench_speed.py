@@ -199,6 +199,8 @@ BASES = [
      "recommended-no-edge"),
     ("098b990", "issue 10 merged: today's default (min_step 'auto', edge test), before the "
      "edge-test and heights work", "recommended", "recommended"),
+    ("eb54b71", "before the edge test's shortcut, the sort-free min_step medians and the "
+     "early-ending eigen solves", "recommended", "recommended"),
 ]
 
 
