@@ -52,7 +52,7 @@ void assign_roles(const NeighborGrid<T>& grid, const PointsView<T>& points,
 // points within t.radius: the same selection and sums as the heights stage's (height_plane), so
 // the same value to the bit.
 inline bool too_far(const Gather& g, const Gather& lines, const Eigen::Vector3d& p,
-                    const HeightTest& t, Selection& s, double* height) {
+                    const HeightTest& t, Selection& s, double* height, double* rms_out) {
   const double r2 = t.radius * t.radius, in2 = t.inner * t.inner;
   const double px = p.x(), py = p.y(), pz = p.z();
   bool line = false;  // a feature-line point within t.radius: the test abstains
@@ -76,8 +76,9 @@ inline bool too_far(const Gather& g, const Gather& lines, const Eigen::Vector3d&
   const double h = std::abs(lp.normal.dot(lp.mean));
   const double n = static_cast<double>(lp.n);
   const Eigen::Vector3d& ev = lp.eigenvalues;
-  if (t.abs > 0.0 && h > t.abs) return true;
   const double rms = std::sqrt(std::max(ev(0), 0.0) / n);
+  if (rms_out != nullptr) *rms_out = rms;
+  if (t.abs > 0.0 && h > t.abs) return true;
   return t.k > 0.0 && h > t.k * rms && h > 1e-9 * std::sqrt((ev(1) + ev(2)) / n);
 }
 
@@ -125,7 +126,8 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
           const std::uint32_t i = order[k];
           if (!tested(rl[i])) continue;
           double* h = t.height != nullptr ? t.height + i : nullptr;
-          if (too_far(js.gather, js.aside, grid.sorted_point(k), t, js.sel, h)) mark[i] = 1;
+          double* rms = t.first_rms != nullptr ? t.first_rms + i : nullptr;
+          if (too_far(js.gather, js.aside, grid.sorted_point(k), t, js.sel, h, rms)) mark[i] = 1;
           if (h != nullptr) t.have[i] = 1;
         }
       });
@@ -152,7 +154,7 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
         JudgeScratch& js = scratch[thread_id()];
         const Eigen::Vector3d pi = points[i];
         gather_split(grid, grid.box_around(pi, pi, t.radius), class_of, js.gather, js.aside);
-        if (too_far(js.gather, js.aside, pi, t, js.sel, nullptr)) mark[i] = 1;
+        if (too_far(js.gather, js.aside, pi, t, js.sel, nullptr, nullptr)) mark[i] = 1;
       }
     }
     std::ptrdiff_t added = 0;

@@ -39,6 +39,9 @@ struct HeightTest {
   double* height = nullptr;
   std::uint8_t* have = nullptr;
   std::vector<std::uint32_t>* unnormal = nullptr;
+  /// Optional: the first pass writes the rms of each tested point's surroundings plane where
+  /// the test gave a verdict (the plane exists, no feature line near); others are left as is.
+  double* first_rms = nullptr;
 };
 
 /// Height passes: NORMAL and compact-EDGE points farther than the tolerance from the plane of
@@ -48,5 +51,25 @@ struct HeightTest {
 template <typename T>
 int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std::uint8_t* labels,
                   const HeightTest& t, std::vector<JudgeScratch>& scratch, int num_threads);
+
+/// The cloud edge test's settings, resolved (SPEC "Unorganized clouds: edge test").
+struct CloudEdgeTest {
+  double k = 0.0;        ///< tolerance in sector rms
+  double radius = 0.0;   ///< the frame's plane: finite points within this (the point included)
+  double r_edge = 0.0;   ///< sector radius
+  double gap = 0.0;      ///< sector members lie at least this far from the point in the tangent plane
+  int max_iterations = 1;
+};
+
+/// Edge passes after the height passes: candidates are the NORMAL and EDGE points whose
+/// `first_rms` (height_passes' HeightTest::first_rms, NaN: no verdict) is NaN or above 1.5 x the
+/// median; one becomes ABNORMAL when it fits none of its clean sectors and stands proud of one
+/// whose opposite is empty or falls away. NORMAL points made ABNORMAL are appended to
+/// `*unnormal` (when given). Returns the number of passes run.
+template <typename T>
+int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
+                      std::uint8_t* labels, const double* first_rms, const CloudEdgeTest& e,
+                      std::vector<JudgeScratch>& scratch, int num_threads,
+                      std::vector<std::uint32_t>* unnormal);
 
 }  // namespace miem::cloud

@@ -81,6 +81,12 @@ Status CloudParams::check() const noexcept {
   if (spacing && !(std::isfinite(*spacing) && *spacing > 0.0)) {
     return bad("spacing: must be finite and > 0");
   }
+  if (!(std::isfinite(edge_k) && edge_k >= 0.0)) {
+    return bad("edge_k: must be finite and >= 0 (0 = off)");
+  }
+  if (edge_radius && !(std::isfinite(*edge_radius) && *edge_radius > 0.0)) {
+    return bad("edge_radius: must be finite and > 0");
+  }
   return kOkStatus;
 }
 
@@ -128,6 +134,7 @@ PointsDetectParams paper_points_params() {
   p.height_abs = 0.0;
   p.height_k = 0.0;
   p.edge_extent = 0.0;
+  p.edge_k = 0.0;
   return p;
 }
 

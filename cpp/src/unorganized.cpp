@@ -194,6 +194,7 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
   const double hr = p.height_radius ? *p.height_radius : 2.0 * radius;
   summary.height_radius = hr;
   const double r2 = hr * hr;  // of the height planes
+  if (p.edge_k > 0.0) summary.edge_radius = p.edge_radius ? *p.edge_radius : hr;
 
   StageClock clock(&summary.stage_seconds);
   const NeighborGrid<T> grid(points, grid_cell(radius), p.num_threads);
@@ -310,6 +311,8 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
   }
   // have[i]: height[i] is final (written by the height test's first pass and still valid).
   std::vector<std::uint8_t> have;
+  // The edge test's candidates: the first height pass's surroundings rms (NaN: no verdict).
+  std::vector<double> first_rms(p.edge_k > 0.0 ? static_cast<std::size_t>(N) : 0, kNaN);
   if (p.height_abs > 0.0 || p.height_k > 0.0) {
     HeightTest t;
     t.abs = p.height_abs;
@@ -326,6 +329,7 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
       t.have = have.data();
       t.unnormal = &unnormal;
     }
+    if (p.edge_k > 0.0) t.first_rms = first_rms.data();
     iterations += height_passes(grid, points, labels, t, scratch, p.num_threads);
     for (std::uint32_t u : unnormal) {  // the NORMAL set within hr of these points changed
       grid.for_each_in_radius(points[u], hr, [&](std::ptrdiff_t j, double) { have[j] = 0; });
@@ -334,8 +338,27 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
       if (labels[i] == kAbnormal) state[i] &= static_cast<std::uint8_t>(~1u);
     }
   }
-  summary.iterations = iterations;
   clock.lap("height test");
+  if (p.edge_k > 0.0) {  // the edge test
+    CloudEdgeTest et;
+    et.k = p.edge_k;
+    et.radius = radius;
+    et.r_edge = summary.edge_radius;
+    et.gap = min_step;
+    et.max_iterations = p.max_iterations;
+    std::vector<std::uint32_t> unnormal;
+    iterations += cloud_edge_passes(grid, points, labels, first_rms.data(), et, scratch,
+                                    p.num_threads, have.empty() ? nullptr : &unnormal);
+    std::vector<double>().swap(first_rms);
+    for (std::uint32_t u : unnormal) {  // the NORMAL set within hr of these points changed
+      grid.for_each_in_radius(points[u], hr, [&](std::ptrdiff_t j, double) { have[j] = 0; });
+    }
+    for (std::ptrdiff_t i = 0; i < N; ++i) {
+      if (labels[i] == kAbnormal) state[i] &= static_cast<std::uint8_t>(~1u);
+    }
+    clock.lap("edge test");
+  }
+  summary.iterations = iterations;
 
   // The MIEM plane: finite non-ABNORMAL points, block moments merged in a fixed tree order.
   {

@@ -376,7 +376,8 @@ def _detect_cloud(arr: np.ndarray, p: DetectParams, name: str, nt: int) -> Point
         raise ValueError(f"points: need at least 3 points, got {arr.shape[0]}")
     core_params = p._core_cloud(nt)
     (labels, flags, angle, height, degenerate, plane_t, iterations, raw, spacing, radius_u,
-     min_step_u, link_u, height_radius_u, merged, stages) = _core.detect_points(arr, core_params)
+     min_step_u, link_u, height_radius_u, merged, stages,
+     edge_radius_u) = _core.detect_points(arr, core_params)
     defects = [
         Defect(
             id=int(i), indices=idx, cells=idx[:, None], count=int(idx.size), centroid=c,
@@ -389,6 +390,7 @@ def _detect_cloud(arr: np.ndarray, p: DetectParams, name: str, nt: int) -> Point
         p, name, "cloud", theta0=float(core_params.theta0_deg), theta0_auto=False,
         min_step=float(min_step_u), radius=float(radius_u), link=float(link_u),
         spacing=float(spacing), height_radius=float(height_radius_u), merged=int(merged),
+        edge_radius=float(edge_radius_u) if edge_radius_u > 0 else None,
     )
     return PointsDetectResult(
         labels=labels, flags=flags, angle=angle, height=height,

@@ -238,6 +238,14 @@ class CloudParams:
     spacing: Optional[float] = _f(
         None, "length", "the cloud's point spacing, the unit of the defaults and of edge_extent; "
         "None: the median nearest-neighbour distance", "LENGTH")
+    edge_tolerance: Optional[float] = _f(
+        3.0, "k x rms", "edge test (SPEC 'Unorganized clouds: edge test', after the height "
+        "test): a point standing proud of a feature line or the cloud's outline "
+        "by more than k times the rms of a one-sided sector's plane becomes ABNORMAL; None: off",
+        "K")
+    edge_radius: Optional[float] = _f(
+        None, "length", "with the edge test: radius of its sectors; None: height_radius",
+        "LENGTH")
 
 
 _PART_TYPES = {"angle": AngleParams, "grid": GridParams, "cloud": CloudParams}
@@ -438,6 +446,10 @@ class DetectParams:
                            else _positive("height_radius", c.height_radius))
         p.merge_distance = _length0("merge_distance", c.merge_distance)
         p.spacing = None if c.spacing is None else _positive("spacing", c.spacing)
+        p.edge_k = 0.0 if c.edge_tolerance is None else _positive("edge_tolerance",
+                                                                  c.edge_tolerance)
+        p.edge_radius = (None if c.edge_radius is None
+                         else _positive("edge_radius", c.edge_radius))
         p.num_threads = num_threads
         _raise_unless_ok(p.check())
         return p
@@ -479,14 +491,16 @@ PRESETS: Dict[str, DetectParams] = {
         angle=AngleParams(theta0=75.0, scales=(1,)),
         grid=GridParams(min_step=None, height_tolerance=None, edge_extent=0,
                         edge_tolerance=None),
-        cloud=CloudParams(height_tolerance=None, edge_extent=0.0, min_group=0),
+        cloud=CloudParams(height_tolerance=None, edge_extent=0.0, min_group=0,
+                          edge_tolerance=None),
     ),
     "recommended": DetectParams(),
 }
 
 #: The cloud-only values of each preset that differ between presets (a view of PRESETS).
 CLOUD_PRESETS: Dict[str, Dict[str, Any]] = {
-    name: {k: getattr(p.cloud, k) for k in ("height_tolerance", "edge_extent", "min_group")}
+    name: {k: getattr(p.cloud, k)
+           for k in ("height_tolerance", "edge_extent", "min_group", "edge_tolerance")}
     for name, p in PRESETS.items()
 }
 

@@ -1895,8 +1895,10 @@ def _cloud_height_pass(
     compact: NDArray[np.bool_],
     line: NDArray[np.bool_],
     tolerance: tuple[str, float],
+    stats: NDArray[np.float64] | None = None,
 ) -> NDArray[np.bool_]:
-    """One cloud height pass: the NORMAL and compact-EDGE points that become ABNORMAL.
+    """One cloud height pass: the NORMAL and compact-EDGE points that become ABNORMAL (with
+    ``stats``, also each point's surroundings rms where the test gave a verdict, NaN elsewhere).
 
     ``(hi, hj, hw)`` are the pairs within the height radius, each point paired with itself too;
     ``outer`` marks the pairs farther apart than ``radius`` (the plane is fitted to those: the
@@ -1915,12 +1917,139 @@ def _cloud_height_pass(
     h[exists] = -_dot3(nrm[exists], cen[exists])
     absh = np.abs(h)
     mode, value = tolerance
-    if mode == "abs":
-        return exists & (absh > value)
     n = np.maximum(cnt, 1).astype(np.float64)
     rms = np.sqrt(np.maximum(evals[:, 0], 0.0) / n)
+    if stats is not None:  # the surroundings' rms where the test gave a verdict (edge test)
+        stats[:] = np.where(exists, rms, np.nan)
+    if mode == "abs":
+        return exists & (absh > value)
     floor = _HEIGHT_RMS_FLOOR * np.sqrt((evals[:, 1] + evals[:, 2]) / n)
     return exists & (absh > value * rms) & (absh > floor)
+
+
+#: Cloud edge test (SPEC "Unorganized clouds: edge test"): a point's surroundings rms in the
+#: first height pass above this multiple of the median makes it a candidate.
+_CLOUD_EDGE_SUSPECT = 1.5
+
+
+def _cloud_frames(
+    tree: Any, pts: NDArray[np.float64], idx: NDArray[np.int64], radius: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """Tangent directions ``e1``, ``e2`` of the points ``idx`` from the plane of the finite
+    points within ``radius`` (the point included), with the tangent basis rule of the angle
+    test; ``ok`` False where that plane is impossible."""
+    m = idx.size
+    e1 = np.full((m, 3), np.nan)
+    e2 = np.full((m, 3), np.nan)
+    pi, _, w, _ = _ball_pairs(tree, pts, pts[idx], radius)
+    _, _, evals, evecs, ok = _group_fits(pi, w, m, np.ones(m, dtype=bool))
+    if ok.any():
+        _, e1[ok], e2[ok] = _tangent_basis(evals[ok], evecs[ok])
+    return e1, e2, ok
+
+
+def _cloud_edge_pass(
+    tree: Any,
+    pts: NDArray[np.float64],
+    labels: NDArray[np.uint8],
+    cand: NDArray[np.int64],
+    e1: NDArray[np.float64],
+    e2: NDArray[np.float64],
+    r_edge: float,
+    gap: float,
+    k: float,
+) -> NDArray[np.bool_]:
+    """One cloud edge pass: which of the points ``cand`` (tangent directions ``e1``, ``e2``)
+    become ABNORMAL, the support being the NORMAL points of ``labels``."""
+    m = cand.size
+    out = np.zeros(m, dtype=bool)
+    if m == 0:
+        return out
+    pi, pj, w, _ = _ball_pairs(tree, pts, pts[cand], r_edge)
+    a = _dot3(w, e1[pi])
+    b = _dot3(w, e2[pi])
+    rho = np.sqrt(a * a + b * b)
+    keep = (pj != cand[pi]) & (rho > 0.0) & (rho >= gap)
+    pi, pj, w, a, b = pi[keep], pj[keep], w[keep], a[keep], b[keep]
+    theta = np.arctan2(b, a)
+    theta = np.where(theta < 0.0, theta + 2.0 * math.pi, theta)
+    octant = np.minimum((theta / (math.pi / 4.0)).astype(np.int64), 7)
+    # Sector s holds octants s and s + 1 (mod 8): an octant o lies in sectors o and o - 1.
+    sec_i = np.concatenate([pi * 8 + octant, pi * 8 + (octant + 7) % 8])
+    sec_j = np.concatenate([pj, pj])
+    sec_w = np.concatenate([w, w])
+    n_groups = m * 8
+    finite = np.bincount(sec_i, minlength=n_groups).astype(np.float64).reshape(m, 8)
+    full = np.max(finite, axis=1)  # the count of a sector wholly on the surface
+    sup = labels[sec_j] == NORMAL
+    cnt, cen, evals, evecs, ok = _group_fits(
+        sec_i[sup], sec_w[sup], n_groups, np.ones(n_groups, dtype=bool))
+    cnt = cnt.reshape(m, 8).astype(np.float64)
+    ok = ok.reshape(m, 8)
+    half = (full / 2.0)[:, None]
+    valid = ok & (cnt >= np.maximum(3.0, half))  # at least half a full sector of support
+    empty = finite < half  # less than half a full sector of returns: the surface ends
+    nrm = np.full((n_groups, 3), np.nan)
+    good = ok.reshape(-1)
+    nrm[good] = _orient(evecs[good][:, :, 0])
+    nrm = nrm.reshape(m, 8, 3)
+    cen = cen.reshape(m, 8, 3)
+    evals = evals.reshape(m, 8, 3)
+    n = np.maximum(cnt, 1.0)
+    h = -np.einsum("ijk,ijk->ij", nrm, cen)  # u . (P - centroid), centroid = P + cen
+    rms = np.sqrt(np.maximum(evals[:, :, 0], 0.0) / n)
+    spread = np.sqrt((evals[:, :, 1] + evals[:, :, 2]) / n)
+    tol = np.maximum(k * rms, _HEIGHT_RMS_FLOOR * spread)
+    best = np.min(np.where(valid, rms, np.inf), axis=1)
+    clean = valid & (rms <= _EDGE_CLEAN_RATIO * best[:, None])
+    fits = clean & ~(np.abs(h) > tol)
+    proud = np.zeros(m, dtype=bool)
+    for s in range(8):
+        o = (s + 4) % 8
+        drop = np.einsum("ij,ij->i", nrm[:, s], cen[:, o] - cen[:, s])
+        falls = empty[:, o] | (valid[:, o] & (drop < -tol[:, s]))
+        proud |= clean[:, s] & (h[:, s] > tol[:, s]) & falls
+    return ~fits.any(axis=1) & proud
+
+
+def _cloud_edge_test(
+    tree: Any,
+    pts: NDArray[np.float64],
+    labels: NDArray[np.uint8],
+    suspect: NDArray[np.bool_],
+    radius: float,
+    r_edge: float,
+    gap: float,
+    k: float,
+    iters: int,
+) -> int:
+    """Edge passes (SPEC "Unorganized clouds: edge test") on ``labels`` in place; returns the
+    number of passes run."""
+    todo = suspect & ((labels == NORMAL) | (labels == EDGE))
+    cand_all = np.flatnonzero(todo)
+    e1, e2, ok = _cloud_frames(tree, pts, cand_all, radius)
+    frame_of = np.full(pts.shape[0], -1, dtype=np.int64)
+    frame_of[cand_all[ok]] = np.flatnonzero(ok)
+    testable = frame_of >= 0
+    passes = 0
+    judge = testable.copy()
+    for _ in range(iters):
+        passes += 1
+        cand = np.flatnonzero(judge & ((labels == NORMAL) | (labels == EDGE)))
+        f = frame_of[cand]
+        new = cand[_cloud_edge_pass(tree, pts, labels, cand, e1[f], e2[f], r_edge, gap, k)]
+        labels[new] = ABNORMAL
+        if new.size == 0:
+            break
+        # only candidates with a new ABNORMAL point within r_edge can change
+        near = np.zeros(pts.shape[0], dtype=bool)
+        lists = tree.query_ball_point(pts[new], _query_radius(r_edge))
+        for i, js in zip(new, lists):
+            js = np.asarray(js, dtype=np.int64)
+            d = pts[js] - pts[i]
+            near[js[np.sqrt(_dot3(d, d)) <= r_edge]] = True
+        judge = testable & near
+    return passes
 
 
 def detect_points(
@@ -1939,6 +2068,8 @@ def detect_points(
     height_radius: float | None = None,
     merge_distance: float = 0.0,
     spacing: float | None = None,
+    edge_tolerance: float | None = 3.0,
+    edge_radius: float | None = None,
 ) -> RefPointsResult:
     """Detect abnormal points in an unorganized cloud (MIEM, reference implementation).
 
@@ -1990,6 +2121,10 @@ def detect_points(
     spacing : float or None, optional
         The unit of the defaults (radius, min_step) and of ``edge_extent``; None means the
         median nearest-neighbour distance of the distinct points. ``> 0``.
+    edge_tolerance : float or None, optional
+        Edge test (SPEC "Unorganized clouds: edge test"): None (off) or ``k > 0``.
+    edge_radius : float or None, optional
+        Radius of the edge test's sectors; None means ``height_radius``. ``> 0``.
 
     Returns
     -------
@@ -2024,6 +2159,10 @@ def detect_points(
 
     merge = _check_length("merge_distance", merge_distance, allow_zero=True)
     spacing_in = None if spacing is None else _check_length("spacing", spacing, allow_zero=False)
+    edge_k = None if edge_tolerance is None else _check_length(
+        "edge_tolerance", edge_tolerance, allow_zero=False)
+    re_in = None if edge_radius is None else _check_length(
+        "edge_radius", edge_radius, allow_zero=False)
 
     p, finite = _cloud_array(points)
     n_all = p.shape[0]
@@ -2089,19 +2228,31 @@ def detect_points(
 
         # Pairs within the height radius, each point paired with itself (offset 0) too.
         hi, hj, hw, hd = _ball_pairs(tree, pts, pts, hr)
+        re_used = hr if re_in is None else re_in
+        first_rms = np.full(n_pts, np.nan)  # NaN: no height verdict (every point, test off)
         if tolerance is not None:
             outer = hd > r
-            for _ in range(iters):
+            for it in range(iters):
                 passes += 1
                 edge = labels == EDGE
                 compact = _cloud_compact_edges(pts, edge, lnk, extent * spacing)
                 new_abn = _cloud_height_pass(
-                    hi, hj, hw, outer, labels == NORMAL, compact, edge & ~compact, tolerance
+                    hi, hj, hw, outer, labels == NORMAL, compact, edge & ~compact, tolerance,
+                    first_rms if it == 0 else None,
                 )
                 labels[new_abn] = ABNORMAL
                 abnormal |= new_abn
                 if not new_abn.any():
                     break
+        if edge_k is not None:
+            # Candidates: where the first height pass gave no verdict, or saw rough
+            # surroundings (rms above _CLOUD_EDGE_SUSPECT x the median).
+            fin = np.isfinite(first_rms)
+            med = float(np.median(first_rms[fin])) if fin.any() else np.inf
+            suspect = ~fin | (first_rms > _CLOUD_EDGE_SUSPECT * med)
+            passes += _cloud_edge_test(tree, pts, labels, suspect, r, re_used, step,
+                                       edge_k, iters)
+            abnormal = labels == ABNORMAL
 
         plane = _eigen_plane(pts[~abnormal])
 
@@ -2148,6 +2299,8 @@ def detect_points(
         params={"spacing": spacing, "radius": r, "min_step": step, "link": lnk, "K": k_dirs,
                 "height_radius": hr, "min_group": group, "edge_extent": extent,
                 "merge_distance": merge, "merged": int(dup_rows.size),
+                "edge_tolerance": edge_k,
+                "edge_radius": None if edge_k is None else re_used,
                 "height_tolerance": (
                     None if tolerance is None
                     else (tolerance[1] if tolerance[0] == "abs" else str(height_tolerance))

@@ -67,6 +67,7 @@ struct PointsDetectSummary {
   double min_step = 0.0;
   double link = 0.0;
   double height_radius = 0.0;
+  double edge_radius = 0.0;     ///< the edge test's sector radius used (0 when it is off)
   std::ptrdiff_t merged = 0;    ///< rows merged into another (duplicates), labelled like it
   /// Wall-clock and process CPU seconds of each stage, in run order (a profile, for
   /// benchmarks; never part of a result).

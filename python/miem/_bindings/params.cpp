@@ -88,6 +88,10 @@ void bind_params(py::module_& m) {
                      "length: points this close are one point (>= 0; 0: equal coordinates)")
       .def_readwrite("spacing", &miem::CloudParams::spacing,
                      "length: the point spacing (> 0); None: median nearest-neighbour distance")
+      .def_readwrite("edge_k", &miem::CloudParams::edge_k,
+                     "multiple of the sector rms: edge test (needs the height test); 0: off")
+      .def_readwrite("edge_radius", &miem::CloudParams::edge_radius,
+                     "length: edge-test sector radius (> 0); None: height_radius")
       .def("check", [](const miem::CloudParams& p) { return status_tuple(p.check()); });
 
   py::class_<miem::DetectParams, miem::AngleParams, miem::GridParams>(

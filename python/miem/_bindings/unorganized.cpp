@@ -190,7 +190,7 @@ py::tuple detect_points(const py::array& points, const miem::PointsDetectParams&
   for (const auto& st : s.stage_seconds) stages.append(py::make_tuple(st.name, st.wall, st.cpu));
   return py::make_tuple(labels, flags, angle, height, degenerate, plane, s.iterations, defects,
                         s.spacing, s.radius, s.min_step, s.link, s.height_radius, s.merged,
-                        stages);
+                        stages, s.edge_radius);
 }
 
 }  // namespace

@@ -1,0 +1,205 @@
+// Edge test on unorganized clouds (docs/SPEC.md, "Unorganized clouds: edge test"): the grid edge
+// test's one-sided sub-windows become eight 90-degree sectors of a point's disk in its tangent
+// plane. Jacobi passes; the first judges every candidate, later ones only the candidates within
+// the edge radius of a point the pass before made ABNORMAL.
+#include <algorithm>
+#include <cmath>
+
+#include "cloud_stages.hpp"
+
+namespace miem::cloud {
+
+namespace {
+
+constexpr int kSectors = 8;
+constexpr double kCleanRatio = 2.0;     // a clean sector: rms <= 2 x the best
+constexpr double kRmsFloor = 1e-9;      // of the tolerance, as the height test's
+constexpr double kSuspect = 1.5;        // candidates: surroundings rms above 1.5 x the median
+
+// NumPy's median of the finite values (the mean of the two middle ones for an even count);
+// +inf when there is none.
+double finite_median(const double* v, std::ptrdiff_t n) {
+  std::vector<double> f;
+  for (std::ptrdiff_t i = 0; i < n; ++i) {
+    if (std::isfinite(v[i])) f.push_back(v[i]);
+  }
+  if (f.empty()) return kInf;
+  const std::size_t mid = f.size() / 2;
+  std::nth_element(f.begin(), f.begin() + mid, f.end());
+  double m = f[mid];
+  if (f.size() % 2 == 0) m = (*std::max_element(f.begin(), f.begin() + mid) + m) / 2.0;
+  return m;
+}
+
+// Tangent directions of a candidate.
+struct Frame {
+  Eigen::Vector3d e1, e2;
+};
+
+// The verdict on point p (index i) with tangent frame f, from the finite points gathered around
+// it: NORMAL ones (the support) in `sup`, the others in `rest`.
+bool stands_proud(const Gather& sup, const Gather& rest, std::uint32_t i, const Eigen::Vector3d& p,
+                  const Frame& f, const CloudEdgeTest& e) {
+  const double r2 = e.r_edge * e.r_edge;
+  OffsetSums oct[kSectors];
+  double fin[kSectors] = {};
+  auto visit = [&](const Gather& g, bool support) {
+    for (std::size_t k = 0; k < g.n; ++k) {
+      if (g.id[k] == i) continue;
+      const double wx = g.x[k] - p.x(), wy = g.y[k] - p.y(), wz = g.z[k] - p.z();
+      if (!(wx * wx + wy * wy + wz * wz <= r2)) continue;
+      const double a = wx * f.e1.x() + wy * f.e1.y() + wz * f.e1.z();
+      const double b = wx * f.e2.x() + wy * f.e2.y() + wz * f.e2.z();
+      const double rho = std::sqrt(a * a + b * b);
+      if (!(rho > 0.0 && rho >= e.gap)) continue;
+      double theta = std::atan2(b, a);
+      if (theta < 0.0) theta += 2.0 * kPi;
+      const int o = std::min(static_cast<int>(theta / (kPi / 4.0)), kSectors - 1);
+      fin[o] += 1.0;
+      if (support) oct[o].add(wx, wy, wz);
+    }
+  };
+  visit(sup, true);
+  visit(rest, false);
+  // Sector s: octants s and s + 1 (mod 8), [45 s, 45 s + 90) degrees from e1 towards e2.
+  double finite[kSectors], full = 0.0;
+  for (int s = 0; s < kSectors; ++s) {
+    finite[s] = fin[s] + fin[(s + 1) % kSectors];
+    full = std::max(full, finite[s]);
+  }
+  const double half = full / 2.0;
+  bool valid[kSectors], empty[kSectors];
+  double h[kSectors], rms[kSectors], tol[kSectors];
+  LocalPlane lp[kSectors];
+  double best = kInf;
+  for (int s = 0; s < kSectors; ++s) {
+    const OffsetSums sums = oct[s].plus(oct[(s + 1) % kSectors]);
+    empty[s] = finite[s] < half;
+    valid[s] = sums.n >= std::max(3.0, half) && plane_from_sums(sums, &lp[s]) == PlaneStatus::kOk;
+    if (!valid[s]) continue;
+    const double n = static_cast<double>(lp[s].n);
+    const Eigen::Vector3d& ev = lp[s].eigenvalues;
+    h[s] = -lp[s].normal.dot(lp[s].mean);  // u . (P - centroid), centroid = P + mean
+    rms[s] = std::sqrt(std::max(ev(0), 0.0) / n);
+    tol[s] = std::max(e.k * rms[s], kRmsFloor * std::sqrt((ev(1) + ev(2)) / n));
+    best = std::min(best, rms[s]);
+  }
+  bool clean[kSectors];
+  for (int s = 0; s < kSectors; ++s) {
+    clean[s] = valid[s] && rms[s] <= kCleanRatio * best;
+    if (clean[s] && !(std::abs(h[s]) > tol[s])) return false;  // P fits a clean sector
+  }
+  for (int s = 0; s < kSectors; ++s) {
+    if (!clean[s] || !(h[s] > tol[s])) continue;
+    const int o = (s + kSectors / 2) % kSectors;
+    if (empty[o]) return true;  // an outline: the surface ends beyond P
+    if (valid[o] && lp[s].normal.dot(lp[o].mean - lp[s].mean) < -tol[s]) return true;  // convex
+  }
+  return false;
+}
+
+}  // namespace
+
+template <typename T>
+int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
+                      std::uint8_t* labels, const double* first_rms, const CloudEdgeTest& e,
+                      std::vector<JudgeScratch>& scratch, int num_threads,
+                      std::vector<std::uint32_t>* unnormal) {
+  const std::ptrdiff_t N = points.size;
+  const int nt = static_cast<int>(scratch.size());
+  const double thr = kSuspect * finite_median(first_rms, N);
+  std::vector<std::uint32_t> cand;
+  for (std::ptrdiff_t i = 0; i < N; ++i) {
+    if ((labels[i] == kNormal || labels[i] == kEdge) &&
+        (!std::isfinite(first_rms[i]) || first_rms[i] > thr)) {
+      cand.push_back(static_cast<std::uint32_t>(i));
+    }
+  }
+  // Frames: the plane of the finite points within radius, the point included (as the normals).
+  const std::ptrdiff_t nc = static_cast<std::ptrdiff_t>(cand.size());
+  std::vector<Frame> frame(cand.size());
+  std::vector<std::uint8_t> framed(cand.size(), 0);
+  const double fr2 = e.radius * e.radius;
+  auto every = [](std::uint32_t, std::uint32_t) { return true; };
+  {
+    const int ntc = std::min(nt, detail::thread_count(num_threads, nc, 256));
+#pragma omp parallel for schedule(dynamic, 32) num_threads(ntc) if (ntc > 1)
+    for (std::ptrdiff_t c = 0; c < nc; ++c) {
+      JudgeScratch& js = scratch[thread_id()];
+      const Eigen::Vector3d p = points[cand[c]];
+      gather_box(grid, grid.box_around(p, p, e.radius), every, js.gather);
+      select(js.gather, p, fr2, -1, js.sel);
+      LocalPlane lp;
+      if (fit_selection(js.sel, true, &lp) != PlaneStatus::kOk) continue;
+      frame[c].e1 = lp.major;
+      frame[c].e2 = lp.normal.cross(lp.major);
+      framed[c] = 1;
+    }
+  }
+  std::vector<std::int32_t> slot(static_cast<std::size_t>(N), -1);  // candidate position
+  for (std::ptrdiff_t c = 0; c < nc; ++c) {
+    if (framed[c]) slot[cand[c]] = static_cast<std::int32_t>(c);
+  }
+  std::vector<std::uint32_t> todo;
+  for (std::ptrdiff_t c = 0; c < nc; ++c) {
+    if (framed[c]) todo.push_back(static_cast<std::uint32_t>(c));
+  }
+  const std::uint32_t* order = grid.order();
+  std::vector<std::uint8_t> class_sorted(static_cast<std::size_t>(grid.num_indexed()));
+  const std::uint8_t* cs = class_sorted.data();
+  auto class_of = [cs](std::uint32_t k, std::uint32_t) { return cs[k]; };
+  std::vector<std::uint8_t> verdict, mark(static_cast<std::size_t>(N), 0);
+  std::vector<std::uint32_t> fresh;
+  int passes = 0;
+  while (passes < e.max_iterations) {
+    ++passes;
+    for (std::ptrdiff_t k = 0; k < grid.num_indexed(); ++k) {
+      class_sorted[k] = labels[order[k]] == kNormal ? kClassMain : kClassAside;
+    }
+    const std::ptrdiff_t nj = static_cast<std::ptrdiff_t>(todo.size());
+    verdict.assign(todo.size(), 0);
+    const int ntj = std::min(nt, detail::thread_count(num_threads, nj, 256));
+#pragma omp parallel for schedule(dynamic, 32) num_threads(ntj) if (ntj > 1)
+    for (std::ptrdiff_t j = 0; j < nj; ++j) {
+      const std::uint32_t c = todo[j], i = cand[c];
+      if (labels[i] != kNormal && labels[i] != kEdge) continue;
+      JudgeScratch& js = scratch[thread_id()];
+      const Eigen::Vector3d p = points[i];
+      gather_split(grid, grid.box_around(p, p, e.r_edge), class_of, js.gather, js.aside);
+      verdict[j] = stands_proud(js.gather, js.aside, i, p, frame[c], e);
+    }
+    fresh.clear();
+    for (std::ptrdiff_t j = 0; j < nj; ++j) {
+      if (!verdict[j]) continue;
+      const std::uint32_t i = cand[todo[j]];
+      if (unnormal != nullptr && labels[i] == kNormal) unnormal->push_back(i);
+      labels[i] = kAbnormal;
+      fresh.push_back(i);
+    }
+    if (fresh.empty()) break;
+    // Only the candidates with a new ABNORMAL point within r_edge can change.
+    todo.clear();
+    for (std::uint32_t u : fresh) {
+      grid.for_each_in_radius(points[u], e.r_edge, [&](std::ptrdiff_t j, double) {
+        if (slot[j] >= 0 && !mark[j]) {
+          mark[j] = 1;
+          todo.push_back(static_cast<std::uint32_t>(slot[j]));
+        }
+      });
+    }
+    for (std::uint32_t c : todo) mark[cand[c]] = 0;
+    std::sort(todo.begin(), todo.end());
+  }
+  return passes;
+}
+
+template int cloud_edge_passes<float>(const NeighborGrid<float>&, const PointsView<float>&,
+                                      std::uint8_t*, const double*, const CloudEdgeTest&,
+                                      std::vector<JudgeScratch>&, int,
+                                      std::vector<std::uint32_t>*);
+template int cloud_edge_passes<double>(const NeighborGrid<double>&, const PointsView<double>&,
+                                       std::uint8_t*, const double*, const CloudEdgeTest&,
+                                       std::vector<JudgeScratch>&, int,
+                                       std::vector<std::uint32_t>*);
+
+}  // namespace miem::cloud
