@@ -300,11 +300,13 @@ def test_cpp_check_names_the_field() -> None:
     assert p.check()[0] == 0 and p.edge_test()
 
 
-def test_cloud_path_rejects_the_edge_test() -> None:
+def test_cloud_path_has_its_own_edge_test_not_the_grid_window() -> None:
     pts = _grid(_noise((12, 12))).reshape(-1, 3)
     pts = pts[np.random.default_rng(1).permutation(len(pts))]  # a cloud, not scan-line order
-    with pytest.raises(ValueError, match="edge_tolerance"):
-        miem.detect(pts, edge_tolerance=8.0)
+    res = miem.detect(pts, edge_tolerance=8.0)  # the cloud edge test (SPEC "Unorganized clouds")
+    assert res.params["edge_tolerance"] == 8.0
+    with pytest.raises(ValueError, match="edge_window"):
+        miem.detect(pts, edge_window=15)
 
 
 def test_stream_runs_the_edge_test() -> None:

@@ -438,7 +438,7 @@ def test_defaults_recorded_on_known_lattice() -> None:
     pts = lattice(12, h, m=9)
     res = paper_detect_points(pts)
     off = {"min_group": 0, "edge_extent": 0.0, "height_tolerance": None,
-           "merge_distance": 0.0, "merged": 0}
+           "merge_distance": 0.0, "merged": 0, "edge_tolerance": None, "edge_radius": None}
     assert res.params == {"spacing": h, "radius": 5 * h, "min_step": 0.5 * h, "link": 5 * h,
                           "K": 4, "height_radius": 10 * h, **off}
     assert isinstance(res.params["K"], int)

@@ -11,7 +11,7 @@ namespace miem::cloud {
 
 namespace {
 
-constexpr int kSectors = 8;
+constexpr int kSectors = 16;  // 8 quarter-disk and 8 half-disk sectors
 constexpr double kCleanRatio = 2.0;     // a clean sector: rms <= 2 x the best
 constexpr double kRmsFloor = 1e-9;      // of the tolerance, as the height test's
 constexpr double kSuspect = 1.5;        // candidates: surroundings rms above 1.5 x the median
@@ -41,8 +41,8 @@ struct Frame {
 bool stands_proud(const Gather& sup, const Gather& rest, std::uint32_t i, const Eigen::Vector3d& p,
                   const Frame& f, const CloudEdgeTest& e) {
   const double r2 = e.r_edge * e.r_edge;
-  OffsetSums oct[kSectors];
-  double fin[kSectors] = {};
+  OffsetSums oct[8];
+  double fin[8] = {};
   auto visit = [&](const Gather& g, bool support) {
     for (std::size_t k = 0; k < g.n; ++k) {
       if (g.id[k] == i) continue;
@@ -54,28 +54,35 @@ bool stands_proud(const Gather& sup, const Gather& rest, std::uint32_t i, const 
       if (!(rho > 0.0 && rho >= e.gap)) continue;
       double theta = std::atan2(b, a);
       if (theta < 0.0) theta += 2.0 * kPi;
-      const int o = std::min(static_cast<int>(theta / (kPi / 4.0)), kSectors - 1);
+      const int o = std::min(static_cast<int>(theta / (kPi / 4.0)), 7);
       fin[o] += 1.0;
       if (support) oct[o].add(wx, wy, wz);
     }
   };
   visit(sup, true);
   visit(rest, false);
-  // Sector s: octants s and s + 1 (mod 8), [45 s, 45 s + 90) degrees from e1 towards e2.
-  double finite[kSectors], full = 0.0;
-  for (int s = 0; s < kSectors; ++s) {
-    finite[s] = fin[s] + fin[(s + 1) % kSectors];
-    full = std::max(full, finite[s]);
+  // Sectors 0-7: s holds octants s, s + 1 (mod 8), [45 s, 45 s + 90) degrees from e1 towards
+  // e2; sectors 8-15: 8 + s holds octants s .. s + 3, [45 s, 45 s + 180).
+  double finite[kSectors];
+  OffsetSums sums[kSectors];
+  double full[2] = {0.0, 0.0};
+  for (int s = 0; s < 8; ++s) {
+    finite[s] = fin[s] + fin[(s + 1) % 8];
+    sums[s] = oct[s].plus(oct[(s + 1) % 8]);
+    finite[8 + s] = finite[s] + finite[(s + 2) % 8];
+    sums[8 + s] = sums[s].plus(oct[(s + 2) % 8].plus(oct[(s + 3) % 8]));
+    full[0] = std::max(full[0], finite[s]);
   }
-  const double half = full / 2.0;
+  for (int s = 8; s < kSectors; ++s) full[1] = std::max(full[1], finite[s]);
   bool valid[kSectors], empty[kSectors];
   double h[kSectors], rms[kSectors], tol[kSectors];
   LocalPlane lp[kSectors];
   double best = kInf;
   for (int s = 0; s < kSectors; ++s) {
-    const OffsetSums sums = oct[s].plus(oct[(s + 1) % kSectors]);
+    const double half = full[s / 8] / 2.0;
     empty[s] = finite[s] < half;
-    valid[s] = sums.n >= std::max(3.0, half) && plane_from_sums(sums, &lp[s]) == PlaneStatus::kOk;
+    valid[s] = sums[s].n >= std::max(3.0, half) &&
+               plane_from_sums(sums[s], &lp[s]) == PlaneStatus::kOk;
     if (!valid[s]) continue;
     const double n = static_cast<double>(lp[s].n);
     const Eigen::Vector3d& ev = lp[s].eigenvalues;
@@ -91,7 +98,7 @@ bool stands_proud(const Gather& sup, const Gather& rest, std::uint32_t i, const 
   }
   for (int s = 0; s < kSectors; ++s) {
     if (!clean[s] || !(h[s] > tol[s])) continue;
-    const int o = (s + kSectors / 2) % kSectors;
+    const int o = (s / 8) * 8 + (s % 8 + 4) % 8;  // the opposite sector of the same width
     if (empty[o]) return true;  // an outline: the surface ends beyond P
     if (valid[o] && lp[s].normal.dot(lp[o].mean - lp[s].mean) < -tol[s]) return true;  // convex
   }

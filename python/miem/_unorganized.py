@@ -390,7 +390,7 @@ def _detect_cloud(arr: np.ndarray, p: DetectParams, name: str, nt: int) -> Point
         p, name, "cloud", theta0=float(core_params.theta0_deg), theta0_auto=False,
         min_step=float(min_step_u), radius=float(radius_u), link=float(link_u),
         spacing=float(spacing), height_radius=float(height_radius_u), merged=int(merged),
-        edge_radius=float(edge_radius_u) if edge_radius_u > 0 else None,
+        edge_radius=float(edge_radius_u) if edge_radius_u > 0 else p.cloud.edge_radius,
     )
     return PointsDetectResult(
         labels=labels, flags=flags, angle=angle, height=height,

@@ -239,10 +239,10 @@ class CloudParams:
         None, "length", "the cloud's point spacing, the unit of the defaults and of edge_extent; "
         "None: the median nearest-neighbour distance", "LENGTH")
     edge_tolerance: Optional[float] = _f(
-        3.0, "k x rms", "edge test (SPEC 'Unorganized clouds: edge test', after the height "
+        None, "k x rms", "edge test (SPEC 'Unorganized clouds: edge test', after the height "
         "test): a point standing proud of a feature line or the cloud's outline "
-        "by more than k times the rms of a one-sided sector's plane becomes ABNORMAL; None: off",
-        "K")
+        "by more than k times the rms of a one-sided sector's plane becomes ABNORMAL (3 was "
+        "measured on the held-out-style clouds; not in the default); None: off", "K")
     edge_radius: Optional[float] = _f(
         None, "length", "with the edge test: radius of its sectors; None: height_radius",
         "LENGTH")
@@ -491,8 +491,7 @@ PRESETS: Dict[str, DetectParams] = {
         angle=AngleParams(theta0=75.0, scales=(1,)),
         grid=GridParams(min_step=None, height_tolerance=None, edge_extent=0,
                         edge_tolerance=None),
-        cloud=CloudParams(height_tolerance=None, edge_extent=0.0, min_group=0,
-                          edge_tolerance=None),
+        cloud=CloudParams(height_tolerance=None, edge_extent=0.0, min_group=0),
     ),
     "recommended": DetectParams(),
 }

@@ -1930,6 +1930,8 @@ def _cloud_height_pass(
 #: Cloud edge test (SPEC "Unorganized clouds: edge test"): a point's surroundings rms in the
 #: first height pass above this multiple of the median makes it a candidate.
 _CLOUD_EDGE_SUSPECT = 1.5
+#: Cloud edge test: 8 quarter-disk and 8 half-disk sectors.
+_CLOUD_SECTORS = 16
 
 
 def _cloud_frames(
@@ -1974,27 +1976,30 @@ def _cloud_edge_pass(
     theta = np.arctan2(b, a)
     theta = np.where(theta < 0.0, theta + 2.0 * math.pi, theta)
     octant = np.minimum((theta / (math.pi / 4.0)).astype(np.int64), 7)
-    # Sector s holds octants s and s + 1 (mod 8): an octant o lies in sectors o and o - 1.
-    sec_i = np.concatenate([pi * 8 + octant, pi * 8 + (octant + 7) % 8])
-    sec_j = np.concatenate([pj, pj])
-    sec_w = np.concatenate([w, w])
-    n_groups = m * 8
-    finite = np.bincount(sec_i, minlength=n_groups).astype(np.float64).reshape(m, 8)
-    full = np.max(finite, axis=1)  # the count of a sector wholly on the surface
+    # Sectors 0-7: s holds octants s, s + 1 (90 degrees); sectors 8-15: 8 + s holds octants
+    # s .. s + 3 (180 degrees). An octant o lies in sectors o, o - 1 and 8 + o - 3 .. 8 + o.
+    lists = [(octant - d) % 8 for d in (0, 1)] + [8 + (octant - d) % 8 for d in range(4)]
+    sec_i = np.concatenate([pi * _CLOUD_SECTORS + s for s in lists])
+    sec_j = np.tile(pj, len(lists))
+    sec_w = np.tile(w, (len(lists), 1))
+    n_groups = m * _CLOUD_SECTORS
+    finite = np.bincount(sec_i, minlength=n_groups).astype(np.float64).reshape(m, -1)
+    full = np.concatenate([np.repeat(np.max(finite[:, :8], axis=1)[:, None], 8, axis=1),
+                           np.repeat(np.max(finite[:, 8:], axis=1)[:, None], 8, axis=1)], axis=1)
     sup = labels[sec_j] == NORMAL
     cnt, cen, evals, evecs, ok = _group_fits(
         sec_i[sup], sec_w[sup], n_groups, np.ones(n_groups, dtype=bool))
-    cnt = cnt.reshape(m, 8).astype(np.float64)
-    ok = ok.reshape(m, 8)
-    half = (full / 2.0)[:, None]
+    cnt = cnt.reshape(m, -1).astype(np.float64)
+    ok = ok.reshape(m, -1)
+    half = full / 2.0
     valid = ok & (cnt >= np.maximum(3.0, half))  # at least half a full sector of support
     empty = finite < half  # less than half a full sector of returns: the surface ends
     nrm = np.full((n_groups, 3), np.nan)
     good = ok.reshape(-1)
     nrm[good] = _orient(evecs[good][:, :, 0])
-    nrm = nrm.reshape(m, 8, 3)
-    cen = cen.reshape(m, 8, 3)
-    evals = evals.reshape(m, 8, 3)
+    nrm = nrm.reshape(m, -1, 3)
+    cen = cen.reshape(m, -1, 3)
+    evals = evals.reshape(m, -1, 3)
     n = np.maximum(cnt, 1.0)
     h = -np.einsum("ijk,ijk->ij", nrm, cen)  # u . (P - centroid), centroid = P + cen
     rms = np.sqrt(np.maximum(evals[:, :, 0], 0.0) / n)
@@ -2004,8 +2009,8 @@ def _cloud_edge_pass(
     clean = valid & (rms <= _EDGE_CLEAN_RATIO * best[:, None])
     fits = clean & ~(np.abs(h) > tol)
     proud = np.zeros(m, dtype=bool)
-    for s in range(8):
-        o = (s + 4) % 8
+    for s in range(_CLOUD_SECTORS):
+        o = (s // 8) * 8 + (s % 8 + 4) % 8  # the opposite sector of the same width
         drop = np.einsum("ij,ij->i", nrm[:, s], cen[:, o] - cen[:, s])
         falls = empty[:, o] | (valid[:, o] & (drop < -tol[:, s]))
         proud |= clean[:, s] & (h[:, s] > tol[:, s]) & falls
@@ -2068,7 +2073,7 @@ def detect_points(
     height_radius: float | None = None,
     merge_distance: float = 0.0,
     spacing: float | None = None,
-    edge_tolerance: float | None = 3.0,
+    edge_tolerance: float | None = None,
     edge_radius: float | None = None,
 ) -> RefPointsResult:
     """Detect abnormal points in an unorganized cloud (MIEM, reference implementation).
