@@ -38,6 +38,8 @@ OUT = HERE / "results_unorganized.md"
 #: added), written by ``--save-profile`` run against that build.
 PROFILE_BEFORE = HERE / "results_unorganized_profile_before.json"
 DEFAULT_N = 1_000_000
+#: The cloud edge test as measured here (SPEC "Unorganized clouds: edge test"; off by default).
+EDGE_ON = {"edge_tolerance": 3.0}
 
 
 def scan_cloud(n: int = DEFAULT_N, seed: int = 1) -> np.ndarray:
@@ -208,6 +210,7 @@ def accuracy_lines() -> list[str]:
     from suite import KINDS
 
     presets = [None] if miem.DEFAULT_PRESET == "recommended" else [None, "recommended"]
+    presets.append(EDGE_ON)  # the edge test on top of the default
     lines = ["### Accuracy on held-out-style clouds", "",
              "The accuracy suite's synthetic and paper scenes (bench/accuracy/suite.py) as "
              "clouds: dropouts removed, x / y jittered uniformly by up to a quarter step, rows "
@@ -224,14 +227,16 @@ def accuracy_lines() -> list[str]:
         for preset in presets:
             per: dict[str, list] = {}
             for c in cl:
-                kw = {} if preset is None else {"preset": preset}
+                kw = ({} if preset is None else dict(preset) if isinstance(preset, dict)
+                      else {"preset": preset})
                 res = miem.detect(c.points, **kw)
                 per.setdefault(c.scene.spec.group, []).append(
                     confusion(res.labels == miem.ABNORMAL, c.truth))
             tot = {k: Counts.total(v) for k, v in per.items()}
             allc = Counts.total(tot.values())
             name = (f"default (preset {miem.DEFAULT_PRESET!r})" if preset is None
-                    else f"preset {preset!r}")
+                    else "default + " + ", ".join(f"{k}={v}" for k, v in preset.items())
+                    if isinstance(preset, dict) else f"preset {preset!r}")
             cells = [f"{tot[k].f1:.2f}" if k in tot else "-" for k in kinds]
             lines.append(f"| {split} | {name} | {allc.f1:.3f} | " + " | ".join(cells) + " |")
             if split == "test":
@@ -274,6 +279,9 @@ def run(n: int, repeats: int, accuracy: bool = True) -> str:
             lambda: miem.detect(pts, preset="recommended", num_threads=2))
     add("miem, 2 threads", f"detect(points), uneven density ({len(uneven):,} points)",
         lambda: miem.detect(uneven, num_threads=2))
+    t_e2 = add("miem, 2 threads", f"detect(points, edge_tolerance={EDGE_ON['edge_tolerance']}) "
+               "(the cloud edge test, not in the default)",
+               lambda: miem.detect(pts, num_threads=2, **EDGE_ON))
     parity = None
     t_on = t_os = t_or = None
     if o3d is not None:
@@ -332,6 +340,8 @@ def run(n: int, repeats: int, accuracy: bool = True) -> str:
         lines.append(f"| Open3D radius outlier removal / miem detect (2 threads) | "
                      f"{t_or / t_d2:.2f}x | |")
         lines.append(f"| normals parity: median abs(cos) miem vs Open3D | {parity:.9f} | ~1 |")
+    lines.append(f"| speed cost of the cloud edge test: detect with it / without (2 threads) | "
+                 f"{t_e2 / t_d2:.2f}x | |")
     for op, mem in (("estimate_normals", mem_n), ("detect", mem_d)):
         ratio = mem["growth"] / in_bytes
         lines.append(f"| peak memory growth, {op} (outputs included) | {mb(mem['growth'])} = "

@@ -461,67 +461,31 @@ class PointJudge {
     const int S = static_cast<int>(scales_.size());
     const std::size_t slots = static_cast<std::size_t>(K_) * 2 * S;
     js.best_m.assign(slots, -1);
-    int* __restrict bm = js.best_m.data();
+    const int* __restrict bm = js.best_m.data();
     const double* wx = s.wx.data();
     const double* wy = s.wy.data();
     const double* wz = s.wz.data();
     const double* sd2 = s.d2.data();
-    const std::uint32_t* sid = s.id.data();
-    // Scale s: the neighbour beyond (2s - 1) * min_step (SPEC "Unorganized clouds"): step_.
-    const int n_sel = static_cast<int>(s.n);
-    // Branch-free first: each neighbour's tangent-plane length and the (direction, side) cones
-    // it falls in, as bits 2k (g = +1) and 2k + 1 (g = -1) of hits[m]; which cone is
-    // unpredictable, so jumps on it would cost more than the arithmetic.
+    // Each neighbour's tangent-plane length and cones (cone_hits), then per slot the nearest
+    // neighbour beyond the scale's step, (2s - 1) * min_step (SPEC "Unorganized clouds").
     js.tlen.resize(s.n);
     js.hits.resize(s.n);
-    double* __restrict tl = js.tlen.data();
-    std::uint16_t* __restrict hits = js.hits.data();
-    const double nx = n.x(), ny = n.y(), nz = n.z();
-    for (int m = 0; m < n_sel; ++m) {
-      const double wn = wx[m] * nx + wy[m] * ny + wz[m] * nz;
-      const double tx = wx[m] - wn * nx, ty = wy[m] - wn * ny, tz = wz[m] - wn * nz;
-      const double tlen = std::sqrt(tx * tx + ty * ty + tz * tz);
-      const double lim = tlen * cos_half_;
-      unsigned h = 0;
-      for (int k = 0; k < K_; ++k) {
-        const double td = tx * d[k].x() + ty * d[k].y() + tz * d[k].z();
-        const bool pos = td >= lim;
-        const bool neg = !pos & (-td >= lim);
-        h |= (static_cast<unsigned>(pos) << (2 * k)) | (static_cast<unsigned>(neg) << (2 * k + 1));
-      }
-      tl[m] = tlen;
-      hits[m] = static_cast<std::uint16_t>(tlen > 0.0 ? h : 0u);
+    switch (K_) {  // the direction count as a constant: the cone loop unrolled
+      case 2: cone_hits<2>(s, n, d, js); break;
+      case 3: cone_hits<3>(s, n, d, js); break;
+      case 4: cone_hits<4>(s, n, d, js); break;
+      case 5: cone_hits<5>(s, n, d, js); break;
+      case 6: cone_hits<6>(s, n, d, js); break;
+      case 7: cone_hits<7>(s, n, d, js); break;
+      default: cone_hits<8>(s, n, d, js); break;
     }
-    // Per (direction, side, scale) slot: the nearest (then smallest index) neighbour, the
-    // updates done with masks (which neighbour is nearer is unpredictable). d2 >= 0, so its bit
-    // pattern orders as the value.
     js.best_key.assign(slots, ~std::uint64_t{0});
     js.best_id.assign(slots, ~std::uint32_t{0});
-    std::uint64_t* __restrict bkey = js.best_key.data();
-    std::uint32_t* __restrict bid = js.best_id.data();
-    for (int m = 0; m < n_sel; ++m) {
-      unsigned h = hits[m];
-      if (h == 0) continue;
-      const double tlen = tl[m];
-      std::uint64_t key;
-      std::memcpy(&key, &sd2[m], sizeof key);
-      const std::uint32_t id = sid[m];
-      while (h != 0) {
-        const int bit = __builtin_ctz(h);
-        h &= h - 1;
-        const int base = bit * S;  // slot (k, side) = bit: side 0 is g = +1, side 1 is g = -1
-        for (int si = 0; si < S; ++si) {
-          const int q = base + si;
-          const bool better = (tlen >= step_[si]) &
-                              ((key < bkey[q]) | ((key == bkey[q]) & (id < bid[q])));
-          const std::uint64_t m64 = 0 - static_cast<std::uint64_t>(better);
-          const std::uint32_t m32 = static_cast<std::uint32_t>(m64);
-          bkey[q] = (key & m64) | (bkey[q] & ~m64);
-          bid[q] = (id & m32) | (bid[q] & ~m32);
-          bm[q] = static_cast<int>((static_cast<std::uint32_t>(m) & m32) |
-                                   (static_cast<std::uint32_t>(bm[q]) & ~m32));
-        }
-      }
+    switch (S) {  // the scale count as a constant where it is small: the slot loop unrolled
+      case 1: nearest_slots<1>(s, js, S); break;
+      case 2: nearest_slots<2>(s, js, S); break;
+      case 3: nearest_slots<3>(s, js, S); break;
+      default: nearest_slots<0>(s, js, S); break;
     }
     int avail = 0, flagged = 0;
     std::uint8_t mask = 0;
@@ -554,6 +518,84 @@ class PointJudge {
   }
 
  private:
+  // Each selected neighbour's tangent-plane length and the (direction, side) cones it falls in,
+  // as bits 2k (g = +1) and 2k + 1 (g = -1) of hits[m] (branch-free: which cone is
+  // unpredictable), for K directions d[0..K).
+  template <int K>
+  void cone_hits(const Selection& s, const Eigen::Vector3d& n, const Eigen::Vector3d* d,
+                 JudgeScratch& js) const {
+    const double* __restrict wx = s.wx.data();
+    const double* __restrict wy = s.wy.data();
+    const double* __restrict wz = s.wz.data();
+    double* __restrict tl = js.tlen.data();
+    std::uint16_t* __restrict hits = js.hits.data();
+    const double nx = n.x(), ny = n.y(), nz = n.z(), cos_half = cos_half_;
+    double dx[K], dy[K], dz[K];
+    for (int k = 0; k < K; ++k) {
+      dx[k] = d[k].x();
+      dy[k] = d[k].y();
+      dz[k] = d[k].z();
+    }
+    const std::size_t n_sel = s.n;
+    for (std::size_t m = 0; m < n_sel; ++m) {
+      const double wn = wx[m] * nx + wy[m] * ny + wz[m] * nz;
+      const double tx = wx[m] - wn * nx, ty = wy[m] - wn * ny, tz = wz[m] - wn * nz;
+      const double tlen = std::sqrt(tx * tx + ty * ty + tz * tz);
+      const double lim = tlen * cos_half;
+      unsigned h = 0;
+      for (int k = 0; k < K; ++k) {
+        const double td = tx * dx[k] + ty * dy[k] + tz * dz[k];
+        const bool pos = td >= lim;
+        const bool neg = !pos & (-td >= lim);
+        h |= (static_cast<unsigned>(pos) << (2 * k)) | (static_cast<unsigned>(neg) << (2 * k + 1));
+      }
+      tl[m] = tlen;
+      hits[m] = static_cast<std::uint16_t>(tlen > 0.0 ? h : 0u);
+    }
+  }
+
+  // Per (direction, side, scale) slot: the nearest (then smallest index) neighbour of the
+  // slot's cone beyond the scale's step, into js.best_m (updated with masks: which neighbour
+  // is nearer is unpredictable). d2 >= 0, so its bit pattern orders as the value. SC: the
+  // scale count S as a constant, 0 when given at run time.
+  template <int SC>
+  void nearest_slots(const Selection& s, JudgeScratch& js, int S_run) const {
+    const int S = SC > 0 ? SC : S_run;
+    const double* __restrict tl = js.tlen.data();
+    const std::uint16_t* __restrict hits = js.hits.data();
+    const double* __restrict sd2 = s.d2.data();
+    const std::uint32_t* __restrict sid = s.id.data();
+    std::uint64_t* __restrict bkey = js.best_key.data();
+    std::uint32_t* __restrict bid = js.best_id.data();
+    int* __restrict bm = js.best_m.data();
+    const double* __restrict step = step_.data();
+    const int n_sel = static_cast<int>(s.n);
+    for (int m = 0; m < n_sel; ++m) {
+      unsigned h = hits[m];
+      if (h == 0) continue;
+      const double tlen = tl[m];
+      std::uint64_t key;
+      std::memcpy(&key, &sd2[m], sizeof key);
+      const std::uint32_t id = sid[m];
+      while (h != 0) {
+        const int bit = __builtin_ctz(h);
+        h &= h - 1;
+        const int base = bit * S;  // slot (k, side) = bit: side 0 is g = +1, side 1 is g = -1
+        for (int si = 0; si < S; ++si) {
+          const int q = base + si;
+          const bool better = (tlen >= step[si]) &
+                              ((key < bkey[q]) | ((key == bkey[q]) & (id < bid[q])));
+          const std::uint64_t m64 = 0 - static_cast<std::uint64_t>(better);
+          const std::uint32_t m32 = static_cast<std::uint32_t>(m64);
+          bkey[q] = (key & m64) | (bkey[q] & ~m64);
+          bid[q] = (id & m32) | (bid[q] & ~m32);
+          bm[q] = static_cast<int>((static_cast<std::uint32_t>(m) & m32) |
+                                   (static_cast<std::uint32_t>(bm[q]) & ~m32));
+        }
+      }
+    }
+  }
+
   double r2_, min_step_;
   int K_, min_dirs_;
   const std::vector<int>& scales_;
