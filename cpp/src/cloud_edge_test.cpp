@@ -15,6 +15,7 @@ constexpr int kSectors = 16;  // 8 quarter-disk and 8 half-disk sectors
 constexpr double kCleanRatio = 2.0;     // a clean sector: rms <= 2 x the best
 constexpr double kRmsFloor = 1e-9;      // of the tolerance, as the height test's
 constexpr double kSuspect = 1.5;        // candidates: surroundings rms above 1.5 x the median
+constexpr double kEmpty = 0.25;         // empty: fewer returns than a quarter of a full sector
 
 // NumPy's median of the finite values (the mean of the two middle ones for an even count);
 // +inf when there is none.
@@ -80,7 +81,7 @@ bool stands_proud(const Gather& sup, const Gather& rest, std::uint32_t i, const 
   double best = kInf;
   for (int s = 0; s < kSectors; ++s) {
     const double half = full[s / 8] / 2.0;
-    empty[s] = finite[s] < half;
+    empty[s] = finite[s] < kEmpty * full[s / 8];  // (a steep face keeps about half)
     valid[s] = sums[s].n >= std::max(3.0, half) &&
                plane_from_sums(sums[s], &lp[s]) == PlaneStatus::kOk;
     if (!valid[s]) continue;

@@ -1932,14 +1932,17 @@ def _cloud_height_pass(
 _CLOUD_EDGE_SUSPECT = 1.5
 #: Cloud edge test: 8 quarter-disk and 8 half-disk sectors.
 _CLOUD_SECTORS = 16
+#: Cloud edge test: a sector with fewer finite points than this fraction of a full one is empty
+#: (a steep face, sampled more sparsely in 3-D, keeps about half).
+_CLOUD_EMPTY = 0.25
 
 
 def _cloud_frames(
     tree: Any, pts: NDArray[np.float64], idx: NDArray[np.int64], radius: float
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
     """Tangent directions ``e1``, ``e2`` of the points ``idx`` from the plane of the finite
-    points within ``radius`` (the point included), with the tangent basis rule of the angle
-    test; ``ok`` False where that plane is impossible."""
+    points within ``radius`` (the point included; the edge test passes its sector radius), with
+    the tangent basis rule of the angle test; ``ok`` False where that plane is impossible."""
     m = idx.size
     e1 = np.full((m, 3), np.nan)
     e2 = np.full((m, 3), np.nan)
@@ -1993,7 +1996,7 @@ def _cloud_edge_pass(
     ok = ok.reshape(m, -1)
     half = full / 2.0
     valid = ok & (cnt >= np.maximum(3.0, half))  # at least half a full sector of support
-    empty = finite < half  # less than half a full sector of returns: the surface ends
+    empty = finite < _CLOUD_EMPTY * full  # hardly any returns: the surface ends
     nrm = np.full((n_groups, 3), np.nan)
     good = ok.reshape(-1)
     nrm[good] = _orient(evecs[good][:, :, 0])
@@ -2032,7 +2035,7 @@ def _cloud_edge_test(
     number of passes run."""
     todo = suspect & ((labels == NORMAL) | (labels == EDGE))
     cand_all = np.flatnonzero(todo)
-    e1, e2, ok = _cloud_frames(tree, pts, cand_all, radius)
+    e1, e2, ok = _cloud_frames(tree, pts, cand_all, r_edge)
     frame_of = np.full(pts.shape[0], -1, dtype=np.int64)
     frame_of[cand_all[ok]] = np.flatnonzero(ok)
     testable = frame_of >= 0
