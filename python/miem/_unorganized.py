@@ -315,7 +315,8 @@ def detect_points(
     ``cloud`` part (``radius``, default ``5 * spacing`` with ``spacing`` the median
     nearest-neighbour distance, :func:`point_spacing`; ``K``; ``min_step``; ``link``;
     ``heights``; ``height_tolerance``; ``edge_extent``; ``min_group``; ``height_radius``;
-    ``merge_distance``). A field of the ``grid`` part (``window``, ``max_gap``, the grid edge
+    ``merge_distance``; ``edge_tolerance`` and ``edge_radius``: the cloud edge test, off by
+    default, SPEC "Unorganized clouds: edge test"). A field of the ``grid`` part (``window``, ``max_gap``, the grid edge
     test, ...) is a ``ValueError`` naming it: clouds do not implement it.
 
     Parameters
