@@ -41,6 +41,15 @@ inline std::uint32_t key(double v) {  // float32 bit pattern of a non-negative v
   return u;
 }
 
+// (g(b) - g(a)).squaredNorm() from cell pointers (coordinates `ks` apart), in its order.
+template <typename T>
+inline double dist2_of(const T* a, const T* b, std::ptrdiff_t ks) {
+  const double dx = static_cast<double>(b[0]) - static_cast<double>(a[0]);
+  const double dy = static_cast<double>(b[ks]) - static_cast<double>(a[ks]);
+  const double dz = static_cast<double>(b[2 * ks]) - static_cast<double>(a[2 * ks]);
+  return dx * dx + dy * dy + dz * dz;
+}
+
 // The four quantities of the cells whose first cell is in rows [r0, r1): f(q, value). `fin`
 // (3 * cols bytes) holds the finite flags of three consecutive rows as a ring.
 template <typename T, typename F>
@@ -53,13 +62,8 @@ void visit(const GridView<T>& g, std::ptrdiff_t r0, std::ptrdiff_t r1, std::uint
     std::uint8_t* out = row(r);
     for (std::ptrdiff_t c = 0; c < W; ++c) out[c] = g.finite(r, c);
   };
-  // as (g(b) - g(a)).squaredNorm() and the second difference of z, from cell pointers
-  const auto dist2 = [ks](const T* a, const T* b) {
-    const double dx = static_cast<double>(b[0]) - static_cast<double>(a[0]);
-    const double dy = static_cast<double>(b[ks]) - static_cast<double>(a[ks]);
-    const double dz = static_cast<double>(b[2 * ks]) - static_cast<double>(a[2 * ks]);
-    return dx * dx + dy * dy + dz * dz;
-  };
+  // squared distances and second differences of z, from cell pointers
+  const auto dist2 = [ks](const T* a, const T* b) { return dist2_of(a, b, ks); };
   const auto second = [ks](const T* a, const T* b, const T* c) {
     return std::abs(static_cast<double>(a[2 * ks]) - 2.0 * static_cast<double>(b[2 * ks]) +
                     static_cast<double>(c[2 * ks]));
@@ -198,9 +202,10 @@ void key_medians(const GridView<T>& g, int nt, Counts& count, Mids& mids,
   }
 }
 
-// The middle values from a band around a sample's middle: the sample gives values a <= b with the middle ranks between them unless the sample is far off; one pass
-// counts the values below a and keeps those in [a, b] (a few per cent), where the ranks are
-// then selected. False (nothing decided) when a middle rank falls outside the band.
+// The middle values from a band around a sample's middle: the sample gives values a <= b with
+// the middle ranks between them unless it is far off; one pass counts the values below a and
+// keeps those in [a, b] (a few per cent), where the ranks are then selected. False (nothing
+// decided) when a middle rank falls outside the band.
 template <typename T>
 bool band_medians(const GridView<T>& g, int nt, Counts& count, Mids& mids,
                   std::vector<double>& scratch) {
@@ -214,12 +219,7 @@ bool band_medians(const GridView<T>& g, int nt, Counts& count, Mids& mids,
   const auto fin = [&g](std::ptrdiff_t r, std::ptrdiff_t c) { return g.finite(r, c); };
   const std::ptrdiff_t rs = g.row_stride, cs = g.col_stride, ks = g.coord_stride;
   const auto z = [&](const T* p) { return static_cast<double>(p[2 * ks]); };
-  const auto dist2 = [ks](const T* a, const T* b) {  // as visit's
-    const double dx = static_cast<double>(b[0]) - static_cast<double>(a[0]);
-    const double dy = static_cast<double>(b[ks]) - static_cast<double>(a[ks]);
-    const double dz = static_cast<double>(b[2 * ks]) - static_cast<double>(a[2 * ks]);
-    return dx * dx + dy * dy + dz * dz;
-  };
+  const auto dist2 = [ks](const T* a, const T* b) { return dist2_of(a, b, ks); };
   for (std::ptrdiff_t i = 0; i < H * W; i += k) {
     const std::ptrdiff_t r = i / W, c = i % W;
     if (!fin(r, c)) continue;
