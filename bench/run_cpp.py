@@ -141,8 +141,8 @@ def target_lines(rows: list[dict]) -> list[str]:
         f"height test with compact EDGE groups, edge test, heights, defects; `min_step` given "
         f"as a length, off here), lag {dflt['lag']} profiles, {dflt['profiles']:,} profiles: "
         f"{verdict(dflt)} (wall figures carry the other jobs' load). The edge test runs once "
-        f"per band of 64 profiles on a block of about four bands (docs/SPEC.md \"Streaming\"), "
-        f"so one push in 64 carries it: p99 and above are those pushes.",
+        f"per band of 128 profiles on a block of about 2.5 bands (docs/SPEC.md \"Streaming\"), "
+        f"so one push in 128 carries it: p99.9 and max are those pushes.",
         "",
     ]
     if stage[2] is not None:

@@ -180,7 +180,7 @@ def make_outline_scan(h: int, w: int, seed: int) -> np.ndarray:
 @pytest.mark.parametrize("kw", [{}, {"edge_window": 9, "max_iterations": 4},
                                 {"edge_tolerance": 2.5, "edge_window": 5, "window": 9}])
 def test_stream_runs_the_edge_test_as_batch(kw: dict) -> None:
-    """The edge test in the stream (lag + 63 + P r): labels, heights and defects equal batch
+    """The edge test in the stream (lag + 127 + P r): labels, heights and defects equal batch
     detection's on a scan whose outline carries burrs the edge test finds."""
     grid = make_outline_scan(420, 60, 3)
     p = miem.default_params("stream").replace(**kw)
@@ -190,7 +190,7 @@ def test_stream_runs_the_edge_test_as_batch(kw: dict) -> None:
     stream = ProfileStream(60, params=p)
     r = p.grid.edge_window // 2
     assert stream.lag == _core.stream_lag(p.replace(edge_tolerance=None)._core_grid(0, "stream")) \
-        + 63 + p.angle.max_iterations * r
+        + 127 + p.angle.max_iterations * r
     defects: list = []
     got, heights = stream_both(stream, grid, defects)
     np.testing.assert_array_equal(got, want.labels)
@@ -248,13 +248,13 @@ def test_extreme_height_tolerance_labels_equal_and_heights_up_to_orientation() -
 
 
 def test_lag_formula() -> None:
-    """L = P R + E + (P + 1) h with the height test, P R + h without, + 63 + P r with the edge
+    """L = P R + E + (P + 1) h with the height test, P R + h without, + 127 + P r with the edge
     test (docs/SPEC.md)."""
-    assert ProfileStream(10).lag == 10 * 3 + 12 + 11 * 10 + 63 + 10 * 7 == 285
+    assert ProfileStream(10).lag == 10 * 3 + 12 + 11 * 10 + 127 + 10 * 7 == 349
     assert ProfileStream(10, edge_tolerance=None).lag == 10 * 3 + 12 + 11 * 10 == 152
     assert ProfileStream(10, preset="paper").lag == 10 * 2 + 10
     assert ProfileStream(10, max_iterations=3, window=7, edge_extent=4,
-                         edge_window=9).lag == 3 * 3 + 4 + 4 * 3 + 63 + 3 * 4
+                         edge_window=9).lag == 3 * 3 + 4 + 4 * 3 + 127 + 3 * 4
     assert ProfileStream(10, height_tolerance=None, edge_tolerance=None,
                          window=9).lag == 10 * 3 + 4
 

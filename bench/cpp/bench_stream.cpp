@@ -5,7 +5,7 @@
 //   miem_bench_stream [--width 3200] [--profiles 100000] [--edge-profiles 3000] [--quick]
 //                     [--only INDEX]
 // Scenarios with the edge test push at most --edge-profiles profiles (the edge test runs on
-// blocks of about four tile bands once per band of 64 profiles: far slower per profile).
+// blocks of about 2.5 bands once per band of 128 profiles: far slower per profile).
 #include <algorithm>
 #include <chrono>
 #include <cmath>

@@ -226,7 +226,7 @@ DetectParams stream_default_params() {
 }
 
 namespace {
-// Rows of an edge block above its band of 64 (whole tile bands: at least 64 + (P - 1) r) and
+// Rows of an edge block above its band (whole tile bands of 64: at least 64 + (P - 1) r) and
 // below it (P r); stream_edges.cpp has the reasons.
 long long edge_top(const DetectParams& p) {
   const long long r = p.edge_window / 2, P = p.max_iterations;
@@ -243,7 +243,8 @@ long long stream_lag(const DetectParams& p) noexcept {
                           p.max_gap + (p.min_step >= 0.0 ? p.max_reach : 0);
   const long long P = p.max_iterations, h = p.window / 2;
   const long long base = P * reach + (p.height_test() ? p.edge_extent + (P + 1) * h : h);
-  return base + (p.edge_test() ? 63 + edge_bottom(p) : 0);
+  // the edge test: the last row of a band of 128 waits for P r rows below it
+  return base + (p.edge_test() ? 127 + edge_bottom(p) : 0);
 }
 
 Status check_stream_params(std::ptrdiff_t width, const DetectParams& p) noexcept {
@@ -298,7 +299,7 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   const long long back = std::max<long long>(
       {static_cast<long long>(lag_) + half_ + 1, static_cast<long long>(alag_) + 2LL * extent_,
        static_cast<long long>(alag_) + reach_,
-       edge_ ? static_cast<long long>(lagh_) + ebot_ + kEdgeTileRows + etop_ : 0LL});
+       edge_ ? static_cast<long long>(lagh_) + ebot_ + kEdgeBandRows + etop_ : 0LL});
   ring_ = static_cast<std::ptrdiff_t>(back) + 2;
   // Any ext_ + 1 consecutive rows form one GridView: a judgment's rows, a window, an edge block.
   ext_ = std::max<std::ptrdiff_t>({2 * reach_, 2 * half_, edge_ ? edge_block_rows() : 0});

@@ -1,6 +1,7 @@
 // The stream's edge test (docs/SPEC.md "Edge test", "Streaming"): batch detection's own edge
-// passes (edge_test.hpp) run on blocks of the ring, one tile band of 64 rows at a time, with
-// enough rows around the band that its cells come out bit for bit as on the whole grid:
+// passes (edge_test.hpp) run on blocks of the ring, one band of rows at a time, with
+// enough rows around the band (two tile bands, 128 rows) that its cells come out bit for bit
+// as on the whole grid:
 //  - below, max_iterations * r rows (r = edge_window / 2): after p passes a cell depends only
 //    on the cells within p r, so the false border at the block's end reaches none of the band;
 //  - above, whole tile bands back to at least 64 + (max_iterations - 1) r rows: the edge test's
@@ -39,8 +40,8 @@ void ProfileStream<T>::init_edges() {
 template <typename T>
 void ProfileStream<T>::edge_band(std::int64_t band) noexcept {
   const std::ptrdiff_t W = width_;
-  const std::int64_t R0 = band * kEdgeTileRows;
-  const std::int64_t R1 = std::min<std::int64_t>(pushed_, R0 + kEdgeTileRows);
+  const std::int64_t R0 = band * kEdgeBandRows;
+  const std::int64_t R1 = std::min<std::int64_t>(pushed_, R0 + kEdgeBandRows);
   const std::int64_t B = std::max<std::int64_t>(0, R0 - etop_);
   const std::int64_t E = std::min<std::int64_t>(pushed_, R1 + ebot_);
   const std::ptrdiff_t n = static_cast<std::ptrdiff_t>(E - B);

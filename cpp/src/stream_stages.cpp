@@ -104,10 +104,10 @@ void ProfileStream<T>::run_stages(bool to_end) noexcept {
       for (const std::int64_t lim = upto(A + E + p * h); next <= lim;) height_pass_row(next++, p);
     }
   }
-  if (edge_) {  // a band of 64 rows once the height passes are final through ebot_ rows below
+  if (edge_) {  // a band of 128 rows once the height passes are final through ebot_ rows below
     const std::int64_t ready = to_end ? last : last - lagh_;
-    while (next_band_ * kEdgeTileRows <= last &&
-           (to_end || (next_band_ + 1) * kEdgeTileRows + ebot_ - 1 <= ready)) {
+    while (next_band_ * kEdgeBandRows <= last &&
+           (to_end || (next_band_ + 1) * kEdgeBandRows + ebot_ - 1 <= ready)) {
       edge_band(next_band_++);
     }
   }

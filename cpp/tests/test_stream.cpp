@@ -271,7 +271,7 @@ TEST_P(StreamEqualsBatch, FloatProfiles) {
 INSTANTIATE_TEST_SUITE_P(Params, StreamEqualsBatch, ::testing::ValuesIn(param_sets()),
                          [](const auto& info) { return std::string(info.param.name); });
 
-// L = P R + E + (P + 1) h with the height test, P R + h without, + 63 + P r with the edge test
+// L = P R + E + (P + 1) h with the height test, P R + h without, + 127 + P r with the edge test
 // (docs/SPEC.md "Streaming").
 TEST(Stream, LagFormula) {
   miem::DetectParams p = miem::paper_params();
@@ -286,14 +286,14 @@ TEST(Stream, LagFormula) {
   p.min_step = 0.1;
   p.max_reach = 5;
   EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 10 * (1 + 1 + 5) + 10);
-  // The default: with the edge test (r = 15 / 2), 63 + P r more rows: 152 + 63 + 70.
-  EXPECT_EQ(miem::ProfileStream<>(16).lag(), 10 * 3 + 12 + 11 * 10 + 63 + 10 * 7);
-  EXPECT_EQ(miem::stream_lag(miem::stream_default_params()), 285);
+  // The default: with the edge test (r = 15 / 2), 127 + P r more rows: 152 + 127 + 70.
+  EXPECT_EQ(miem::ProfileStream<>(16).lag(), 10 * 3 + 12 + 11 * 10 + 127 + 10 * 7);
+  EXPECT_EQ(miem::stream_lag(miem::stream_default_params()), 349);
   p = miem::stream_default_params();
   p.max_iterations = 3;
   p.window = 7;
   p.edge_window = 9;
-  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 3 * 3 + 12 + 4 * 3 + 63 + 3 * 4);
+  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 3 * 3 + 12 + 4 * 3 + 127 + 3 * 4);
   p.edge_k = 0.0;  // the edge test off: P R + E + (P + 1) h
   EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 3 * 3 + 12 + 4 * 3);
 }

@@ -84,15 +84,15 @@ class ProfileStream:
     The lag (docs/SPEC.md "Streaming") is::
 
         L = P R + E + (P + 1) h     (height test on;  L = P R + h without it)
-          + 63 + P r                (with the edge test)
+          + 127 + P r               (with the edge test)
 
     with ``R = max(scales) + max_gap`` (``+ max_reach`` with ``min_step``) the rows one angle
     judgment reads, ``P = max_iterations``, ``E = edge_extent`` (the rows that decide whether an
     EDGE group is compact), ``h = window // 2`` and ``r = edge_window // 2`` (the edge test
-    runs on bands of 64 profiles, its tiles, with ``P r`` profiles after each): 10 * 3 + 12 +
-    11 * 10 + 63 + 10 * 7 = 285 profiles with the defaults, 10 * 2 + 10 = 30 with
+    runs on bands of 128 profiles, two of its tile bands, with ``P r`` profiles after each): 10 *
+    3 + 12 + 11 * 10 + 127 + 10 * 7 = 349 profiles with the defaults, 10 * 2 + 10 = 30 with
     ``preset="paper"``. A lower ``max_iterations``, ``edge_extent``, ``window`` or
-    ``edge_window`` shortens it; ``edge_tolerance=None`` takes 133 profiles off (and most of
+    ``edge_window`` shortens it; ``edge_tolerance=None`` takes 197 profiles off (and most of
     the time: bench/RESULTS.md).
 
     The parameters are a :class:`miem.DetectParams` as for :func:`miem.detect` (``params``, a
@@ -132,7 +132,7 @@ class ProfileStream:
     --------
     >>> import numpy as np, miem
     >>> stream = miem.ProfileStream(64)
-    >>> for r in range(400):
+    >>> for r in range(500):
     ...     profile = np.zeros((64, 3)); profile[:, 0] = np.arange(64) * 0.5; profile[:, 1] = r
     ...     if r == 10:
     ...         profile[30, 2] = 3.0                  # a burr tip
@@ -142,7 +142,7 @@ class ProfileStream:
     ...         print(done.row, hit, done.heights[hit])
     10 [30] [3.]
     >>> stream.lag, len(stream.flush())              # the last `lag` rows
-    (285, 285)
+    (349, 349)
     """
 
     def __init__(
@@ -173,7 +173,7 @@ class ProfileStream:
         self._dtype = dt
         a, gp = p.angle, p.grid
         r, P = gp.edge_window // 2, a.max_iterations
-        block = 0 if gp.edge_tolerance is None else 64 * (2 + ((P - 1) * r + 63) // 64) + P * r
+        block = 0 if gp.edge_tolerance is None else 64 * (3 + ((P - 1) * r + 63) // 64) + P * r
         _check_storage(w, dt, int(_core.stream_lag(core_params)), max(a.scales) + gp.max_gap
                        + (0 if gp.min_step is None else gp.max_reach), gp.window // 2, block)
         try:

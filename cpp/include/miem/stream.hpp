@@ -43,8 +43,8 @@ DetectParams stream_default_params();
 /// back final), with R = max(scales) + max_gap (+ max_reach with min_step), h = window / 2,
 /// P = max_iterations, E = edge_extent, r = edge_window / 2:
 ///     L = P R + E + (P + 1) h   with the height test,   L = P R + h   without,
-///       + 63 + P r              with the edge test (run on bands of 64 rows, its tiles).
-/// Defaults: 10 * 3 + 12 + 11 * 10 + 63 + 10 * 7 = 285. Assumes valid parameters.
+///       + 127 + P r             with the edge test (run on bands of 128 rows, two tile bands).
+/// Defaults: 10 * 3 + 12 + 11 * 10 + 127 + 10 * 7 = 349. Assumes valid parameters.
 long long stream_lag(const DetectParams& params) noexcept;
 
 /// Checks the parameters of a stream without throwing: params.check(), then what a stream does
@@ -66,21 +66,21 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 ///     rows on either side decide it);
 ///   - height pass 1 runs on row n - P R - E - h by running window sums (h = window / 2), pass
 ///     p on row n - P R - E - p h, only on the cells within h of a cell the pass before removed;
-///   - the edge test runs batch detection's edge passes on a block of rows per band of 64
-///     (its tiles) once the height passes have run P r rows below the band; the block starts
+///   - the edge test runs batch detection's edge passes on a block of rows per band of 128
+///     (two of its tile bands) once the height passes have run P r rows below the band; the block starts
 ///     on a tile boundary at least 64 + (P - 1) r rows above the band, so that the band's
 ///     results are those of the whole grid bit for bit (docs/SPEC.md "Streaming");
 ///   - heights are final h rows after the last height pass (and the edge test).
-/// So row i is final once row i + L has arrived, L = stream_lag(params) (285 profiles with
+/// So row i is final once row i + L has arrived, L = stream_lag(params) (349 profiles with
 /// the defaults, 152 without the edge test; 20 + 10 with preset "paper"). Each cell keeps the pass that removed it, so a
 /// judgment at pass p sees exactly the cells of pass p - 1 even where rows around it have run
 /// pass p already. A lower max_iterations (most scans settle in 2-3 passes) or edge_extent
 /// shortens the lag, and equals batch detection with those parameters.
 ///
 /// Memory: the last L + h + 2 rows (about L + 2 h; with the edge test, back to the start of
-/// the next edge block: 406 rows at the defaults) are kept in a ring, plus max(2 R, 2 h, an
-/// edge block: 262 rows at the defaults) rows that repeat its first rows, so that the rows
-/// around any row form one strided GridView: about 70 MB for double profiles of 3200 points
+/// the next edge block: 470 rows at the defaults) are kept in a ring, plus max(2 R, 2 h, an
+/// edge block: 326 rows at the defaults) rows that repeat its first rows, so that the rows
+/// around any row form one strided GridView: about 85 MB for double profiles of 3200 points
 /// with the defaults (20 MB without the edge test), plus the cells of the open defects (a pool reserved for 16 rows' worth of cells,
 /// which grows, once, only for more). Defects come with the rows (StreamRow::defects) once
 /// final; flags and angles are not reported. (Batch detection also refuses a grid of fewer
@@ -166,8 +166,11 @@ class ProfileStream {
     return GridView<T>{xyz_.data() + slot(row) * width_, 1, width_, width_, 1, phys_ * width_};
   }
   // The edge test (stream_edges.cpp).
-  static constexpr std::int64_t kEdgeTileRows = 64;  // SPEC "Edge test": tiles of 64 rows
-  std::ptrdiff_t edge_block_rows() const noexcept { return etop_ + kEdgeTileRows + ebot_; }
+  // A band: the rows whose edge test one block gives, two tile bands (SPEC "Edge test": tiles of
+  // 64 rows): fewer blocks per row than one tile band (2.5 instead of 4 at the defaults), and
+  // one push in 128 carries a block.
+  static constexpr std::int64_t kEdgeBandRows = 128;
+  std::ptrdiff_t edge_block_rows() const noexcept { return etop_ + kEdgeBandRows + ebot_; }
   void init_edges();
   void edge_band(std::int64_t band) noexcept;
   // Defects (stream_defects.cpp).
