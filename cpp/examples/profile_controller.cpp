@@ -168,7 +168,8 @@ int main(int argc, char** argv) {
     return 2;
   }
 
-  // The stream's default: the whole recommended detector (angle and height tests, heights).
+  // The stream's default: the whole recommended detector (angle, height and edge tests,
+  // heights, defects), min_step given as a length (off here; auto_min_step() of a first scan).
   const miem::DetectParams params = miem::stream_default_params();
   std::optional<miem::ProfileStream<float>> stream;
   const miem::Status made = miem::nothrow::make_stream(width, params, &stream);
