@@ -22,6 +22,15 @@ def _scan(h=300, w=300, seed=0):
     return g
 
 
+def _default_signals() -> None:
+    """In the child: SIGINT and SIGTERM as a terminal delivers them. A process started in the
+    background by a non-interactive shell, or by a test run whose SIGINT is ignored, inherits
+    SIG_IGN, and Python then installs no Ctrl-C handler (the signal is ignored, as it should
+    be there): the test is about the handled case."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_signal_leaves_no_temporary_files(tmp_path, sig):
     scans = []
@@ -34,7 +43,8 @@ def test_signal_leaves_no_temporary_files(tmp_path, sig):
         out = tmp_path / f"out{k}"
         proc = subprocess.Popen(
             [sys.executable, "-m", "miem", "detect", *map(str, scans), "-q", "--format", "xyz",
-             "--out-dir", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+             "--out-dir", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+            preexec_fn=_default_signals)
         time.sleep(delay)
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=60)
