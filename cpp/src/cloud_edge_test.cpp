@@ -6,13 +6,13 @@
 #include <cmath>
 
 #include "cloud_stages.hpp"
+#include "edge_verdict.hpp"
 
 namespace miem::cloud {
 
 namespace {
 
 constexpr int kSectors = 16;  // 8 quarter-disk and 8 half-disk sectors
-constexpr double kCleanRatio = 2.0;     // a clean sector: rms <= 2 x the best
 constexpr double kRmsFloor = 1e-9;      // of the tolerance, as the height test's
 constexpr double kSuspect = 1.5;        // candidates: surroundings rms above 1.5 x the median
 constexpr double kEmpty = 0.25;         // empty: fewer returns than a quarter of a full sector
@@ -92,18 +92,19 @@ bool stands_proud(const Gather& sup, const Gather& rest, std::uint32_t i, const 
     tol[s] = std::max(e.k * rms[s], kRmsFloor * std::sqrt((ev(1) + ev(2)) / n));
     best = std::min(best, rms[s]);
   }
-  bool clean[kSectors];
+  detail::EdgeSide sd[kSectors];  // centroids relative to P (the planes' means)
   for (int s = 0; s < kSectors; ++s) {
-    clean[s] = valid[s] && rms[s] <= kCleanRatio * best;
-    if (clean[s] && !(std::abs(h[s]) > tol[s])) return false;  // P fits a clean sector
+    sd[s].valid = valid[s];
+    sd[s].empty = empty[s];
+    if (!valid[s]) continue;
+    sd[s].h = h[s];
+    sd[s].rms = rms[s];
+    sd[s].tol = tol[s];
+    sd[s].normal = lp[s].normal;
+    sd[s].centroid = lp[s].mean;
   }
-  for (int s = 0; s < kSectors; ++s) {
-    if (!clean[s] || !(h[s] > tol[s])) continue;
-    const int o = (s / 8) * 8 + (s % 8 + 4) % 8;  // the opposite sector of the same width
-    if (empty[o]) return true;  // an outline: the surface ends beyond P
-    if (valid[o] && lp[s].normal.dot(lp[o].mean - lp[s].mean) < -tol[s]) return true;  // convex
-  }
-  return false;
+  // the opposite sector of the same width
+  return detail::edge_abnormal(sd, best, [](int s) { return (s / 8) * 8 + (s % 8 + 4) % 8; });
 }
 
 }  // namespace

@@ -12,6 +12,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include "edge_verdict.hpp"
 #include "judge.hpp"
 #include "miem/organized.hpp"
 #include "miem/plane.hpp"
@@ -23,23 +24,18 @@ namespace miem::detail {
 namespace {
 
 constexpr int kM = 11;  // n, x, y, z, xx, xy, xz, yy, yz, zz (support), INVALID count
-constexpr double kCleanRatio = 2.0;
 constexpr double kRankTol = 1e-12;
 constexpr double kRoundOff = 1e-9;  // tolerance floor: times sqrt((l1 + l2) / n), as the height test
 // (row_lo, row_hi, col_lo, col_hi) in units: -2 = -r, -1 = -1, 1 = 1, 2 = r.
 constexpr int kSides[8][4] = {{-2, 2, -2, -1}, {-2, 2, 1, 2},  {-2, -1, -2, 2}, {1, 2, -2, 2},
                               {-2, -1, -2, -1}, {-2, -1, 1, 2}, {1, 2, -2, -1}, {1, 2, 1, 2}};
-constexpr int kOpposite[4][2] = {{0, 1}, {2, 3}, {4, 7}, {5, 6}};
+constexpr int kOpposite[8] = {1, 0, 3, 2, 7, 6, 5, 4};  // left/right, up/down, diagonals
 
 inline std::ptrdiff_t offset(int code, std::ptrdiff_t r) {
   return code == -2 ? -r : (code == 2 ? r : code);
 }
 
-struct Side {
-  bool valid = false, empty = false;
-  double h = 0.0, rms = 0.0, tol = 0.0;  // tol: max(k rms, the round-off floor)
-  Eigen::Vector3d normal, centroid;
-};
+using Side = EdgeSide;
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
 #define MIEM_EDGE_CLONES __attribute__((target_clones("avx2", "default")))
@@ -315,7 +311,7 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
                 mark[i] = 0;
                 continue;
               }
-              const bool clean = F1[kChunk + j] <= kCleanRatio * std::sqrt(low1[j]);  // <= 2 best
+              const bool clean = F1[kChunk + j] <= kEdgeCleanRatio * std::sqrt(low1[j]);  // <= 2 best
               if (!redo1[j] && valid1[j] && clean && !(std::abs(F1[j]) > F1[2 * kChunk + j])) {
                 mark[i] = 0;
                 continue;
@@ -379,23 +375,7 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
               x.normal = Eigen::Vector3d(F[3 * kCap + e], F[4 * kCap + e], F[5 * kCap + e]);
               best = std::min(best, x.rms);
             }
-            bool fits = false, proud = false;
-            for (int s = 0; s < 8; ++s) {
-              const Side& x = sd[s];
-              if (x.valid && x.rms <= kCleanRatio * best && !(std::abs(x.h) > x.tol)) fits = true;
-            }
-            if (fits) continue;
-            for (const auto& pair : kOpposite) {
-              for (int flip = 0; flip < 2; ++flip) {
-                const Side& x = sd[pair[flip]];
-                const Side& y = sd[pair[1 - flip]];
-                if (!x.valid || !(x.rms <= kCleanRatio * best) || !(x.h > x.tol)) continue;
-                const bool falls =
-                    y.empty || (y.valid && dot3(x.normal, y.centroid - x.centroid) < -x.tol);
-                if (falls) proud = true;
-              }
-            }
-            mark[i] = proud ? 1 : 0;
+            mark[i] = edge_abnormal(sd, best, [](int s) { return kOpposite[s]; }) ? 1 : 0;
           }
         }
       }

@@ -1,0 +1,42 @@
+// Steps 4-6 of the edge test (docs/SPEC.md "Edge test"), shared by grids (one-sided sub-windows)
+// and clouds (tangent-plane sectors, "Unorganized clouds: edge test"): from the planes of a
+// point's one-sided neighbourhoods, is it ABNORMAL?
+#pragma once
+
+#include <cmath>
+
+#include <Eigen/Core>
+
+#include "judge.hpp"
+
+namespace miem::detail {
+
+/// A clean side: its rms is at most this times the smallest rms of the valid sides.
+constexpr double kEdgeCleanRatio = 2.0;
+
+/// One one-sided neighbourhood of a point P: its plane (valid), or no return there (empty).
+struct EdgeSide {
+  bool valid = false, empty = false;
+  double h = 0.0, rms = 0.0, tol = 0.0;  // h = u . (P - centroid); tol = max(k rms, floor)
+  Eigen::Vector3d normal, centroid;      // centroid in any frame shared by the sides
+};
+
+/// SPEC "Edge test" steps 4-6: P fits no clean side and stands proud of one whose opposite
+/// side (`opposite(s)`) is empty or falls away below its plane. `best`: the smallest rms of
+/// the valid sides.
+template <int N, typename Opposite>
+inline bool edge_abnormal(const EdgeSide (&sd)[N], double best, Opposite opposite) {
+  for (int s = 0; s < N; ++s) {
+    const EdgeSide& x = sd[s];
+    if (x.valid && x.rms <= kEdgeCleanRatio * best && !(std::abs(x.h) > x.tol)) return false;
+  }
+  for (int s = 0; s < N; ++s) {
+    const EdgeSide& x = sd[s];
+    if (!x.valid || !(x.rms <= kEdgeCleanRatio * best) || !(x.h > x.tol)) continue;
+    const EdgeSide& y = sd[opposite(s)];
+    if (y.empty || (y.valid && dot3(x.normal, y.centroid - x.centroid) < -x.tol)) return true;
+  }
+  return false;
+}
+
+}  // namespace miem::detail
