@@ -107,16 +107,19 @@ MIEM_CLONES void kernel_line(std::ptrdiff_t n, const Side& A, const Side& B,
 
 // With min_step, the neighbour search of SPEC.md for one side of one (direction, scale), one
 // step at a time for every lane of a block (the lanes that have ended keep their state). State
-// per lane: st 0 searching, 1 found (u = the offset, uu = |u|^2), 2 none, 4 slow (the scalar
-// judge decides: a candidate within a relative 1e-12 of s * min_step, where the spec's square
-// root decides, or a search deeper than the row ring); gaps; ext, the last step read.
+// per lane, one word: bits 0-2 the outcome (0 searching, 1 found: u = the offset, 2 none, 4
+// slow: the scalar judge decides: a candidate within a relative 1e-12 of s * min_step, where
+// the spec's square root decides, or a search deeper than the row ring), bits 3-15 the gaps
+// met, bits 16- the step where the search ended.
 struct SideSearch {
-  double ux[kBlock], uy[kBlock], uz[kBlock], uu[kBlock];
-  std::int64_t st[kBlock], gaps[kBlock];
+  double ux[kBlock], uy[kBlock], uz[kBlock];
+  std::int64_t st[kBlock];
 };
+constexpr std::int64_t kGapShift = 3, kGapMask = 0x1FFF, kEndShift = 16;
 
-// One step of the search for n lanes: the candidates' rows x, y, z, ok (shifted so that index c
-// is the candidate of cell c). Far: |q - P|^2 > hi; near: < lo. Returns whether a lane searches on.
+// One step of the search for lanes [c0, c0 + n): the candidates' rows x, y, z, ok (shifted so
+// that index c is the candidate of cell c). Far: |q - P|^2 > hi; near: < lo. Returns whether a
+// lane searches on.
 MIEM_CLONES std::int64_t search_step(std::ptrdiff_t c0, std::ptrdiff_t n,
                                      const double* __restrict x,
                                      const double* __restrict y, const double* __restrict z,
@@ -124,52 +127,59 @@ MIEM_CLONES std::int64_t search_step(std::ptrdiff_t c0, std::ptrdiff_t n,
                                      const double* __restrict px, const double* __restrict py,
                                      const double* __restrict pz, double lo, double hi,
                                      std::int64_t max_gap, std::int64_t step,
-                                     SideSearch& __restrict sr, std::int64_t* __restrict ext) {
+                                     SideSearch& __restrict sr) {
   double *__restrict ux = sr.ux, *__restrict uy = sr.uy, *__restrict uz = sr.uz;
-  double* __restrict uu = sr.uu;
-  std::int64_t *__restrict st = sr.st, *__restrict gaps = sr.gaps;
+  std::int64_t* __restrict st = sr.st;
+  const std::int64_t end = step << kEndShift;
   std::int64_t any = 0;
   for (std::ptrdiff_t c = c0; c < c0 + n; ++c) {
     const std::int64_t s0 = st[c];
-    const std::int64_t act = s0 == 0, o = ok[c];
+    const std::int64_t act = ((s0 | (s0 >> 1) | (s0 >> 2)) & 1) ^ 1, o = ok[c];
     const double dx = x[c] - px[c], dy = y[c] - py[c], dz = z[c] - pz[c];
     const double dd = (dx * dx + dy * dy) + dz * dz;
-    const std::int64_t g = gaps[c] + (act & (o ^ 1));
+    const std::int64_t miss = act & (o ^ 1);
+    const std::int64_t g = ((s0 >> kGapShift) & kGapMask) + miss;
     const std::int64_t far = dd > hi, near = dd < lo;
     const std::int64_t f = act & o & far;
-    const std::int64_t none = act & (o ^ 1) & (g > max_gap);
+    const std::int64_t none = miss & (g > max_gap);
     const std::int64_t slow = act & o & (far ^ 1) & (near ^ 1);
-    const std::int64_t s1 = s0 | f | (none << 1) | (slow << 2);
+    const std::int64_t done = f | none | slow;
+    const std::int64_t s1 = s0 + (miss << kGapShift) + (f | (none << 1) | (slow << 2)) +
+                            (-done & end);
     st[c] = s1;
     ux[c] = f ? dx : ux[c];
     uy[c] = f ? dy : uy[c];
     uz[c] = f ? dz : uz[c];
-    uu[c] = f ? dd : uu[c];
-    gaps[c] = g;
-    ext[c] = act ? (ext[c] > step ? ext[c] : step) : ext[c];
-    any |= s1 == 0;
+    any |= act & (done ^ 1);
   }
   return any;
 }
 
 // The verdict of one (direction, scale) from the two sides' searches (SideSearch), as
-// kernel_line. A side still searching (`open` 4: beyond the ring; 2: the spec's last step
-// passed) ends slow / none; a slow side makes the cell slow unless the other side has none.
-// (Bit tests only: 64-bit compares do not vectorise everywhere.)
+// kernel_line. A side still searching at step `stop` (`open` 4: beyond the ring; 2: the
+// spec's last step passed) ends slow / none; a slow side makes the cell slow unless the other
+// side has none. ext: raised to the last step each side read. (Bit tests only: 64-bit
+// compares do not vectorise everywhere.)
 MIEM_CLONES void fold_searches(std::ptrdiff_t n, const SideSearch& A, const SideSearch& B,
-                               std::int64_t open, double cos0, double c2, std::int64_t bit,
-                               double* __restrict buv, double* __restrict bprod,
-                               std::int64_t* __restrict bits) {
+                               std::int64_t open, std::int64_t stop, double cos0, double c2,
+                               std::int64_t bit, double* __restrict buv,
+                               double* __restrict bprod, std::int64_t* __restrict bits,
+                               std::int64_t* __restrict ext) {
   const double *__restrict ax = A.ux, *__restrict ay = A.uy, *__restrict az = A.uz;
   const double *__restrict bx = B.ux, *__restrict by = B.uy, *__restrict bz = B.uz;
-  const double *__restrict au = A.uu, *__restrict bu = B.uu;
   const std::int64_t *__restrict ast = A.st, *__restrict bst = B.st;
   for (std::ptrdiff_t c = 0; c < n; ++c) {
     const std::int64_t sa0 = ast[c], sb0 = bst[c];
-    const std::int64_t sa = sa0 | (-(((sa0 | (sa0 >> 1) | (sa0 >> 2)) & 1) ^ 1) & open);
-    const std::int64_t sb = sb0 | (-(((sb0 | (sb0 >> 1) | (sb0 >> 2)) & 1) ^ 1) & open);
-    const double ux = ax[c], uy = ay[c], uz = az[c], uu = au[c];
-    const double vx = bx[c], vy = by[c], vz = bz[c], vv = bu[c];
+    const std::int64_t oa = -(((sa0 | (sa0 >> 1) | (sa0 >> 2)) & 1) ^ 1);  // still searching
+    const std::int64_t ob = -(((sb0 | (sb0 >> 1) | (sb0 >> 2)) & 1) ^ 1);
+    const std::int64_t sa = sa0 | (oa & open), sb = sb0 | (ob & open);
+    const std::int64_t ea = (oa & stop) | (~oa & (sa0 >> kEndShift));
+    const std::int64_t eb = (ob & stop) | (~ob & (sb0 >> kEndShift));
+    const std::int64_t e0 = ext[c], e1 = ea > eb ? ea : eb;
+    ext[c] = e0 > e1 ? e0 : e1;
+    const double ux = ax[c], uy = ay[c], uz = az[c];
+    const double vx = bx[c], vy = by[c], vz = bz[c];
+    const double uu = (ux * ux + uy * uy) + uz * uz, vv = (vx * vx + vy * vy) + vz * vz;
     const std::int64_t fa = sa & 1, fb = sb & 1, la = (sa >> 2) & 1, lb = (sb >> 2) & 1;
     const std::int64_t na = (sa >> 1) & 1, nb = (sb >> 1) & 1;
     MIEM_FOLD(c, ux, uy, uz, uu, vx, vy, vz, vv, fa & fb);
@@ -291,24 +301,22 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
               const int sgn = sd == 0 ? -1 : 1;
               SideSearch& sr = sides[sd];
               std::fill(sr.st, sr.st + nb, 0);
-              std::fill(sr.gaps, sr.gaps + nb, 0);
               std::fill(sr.ux, sr.ux + nb, 0.0);
               std::fill(sr.uy, sr.uy + nb, 0.0);
               std::fill(sr.uz, sr.uz + nb, 0.0);
-              std::fill(sr.uu, sr.uu + nb, 0.0);
               // chunks of kChunk lanes: a chunk ends with its own longest search
               for (std::ptrdiff_t c0 = 0; c0 < nb; c0 += kChunk) {
                 const std::ptrdiff_t nc = std::min(kChunk, nb - c0);
                 for (std::ptrdiff_t step = s; step <= stop; ++step) {
                   const double* x = at_x(sgn, step);
                   if (!search_step(c0, nc, x, x + S, x + 2 * S, at_ok(sgn, step), qx, qy, qz,
-                                   lo, hi, gap, step, sr, ext))
+                                   lo, hi, gap, step, sr))
                     break;
                 }
               }
             }
-            fold_searches(nb, sides[0], sides[1], last <= depth ? 2 : 4, cos0, c2, bit,
-                          buv + b0, bprod + b0, bits + b0);
+            fold_searches(nb, sides[0], sides[1], last <= depth ? 2 : 4, stop, cos0, c2, bit,
+                          buv + b0, bprod + b0, bits + b0, ext);
           }
           // isolation: a usable cell among steps 1 .. 1 + max_gap (those within the ring; a
           // cell without one goes to the scalar judge)
