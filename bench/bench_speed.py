@@ -369,6 +369,11 @@ def fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, base_bd, m
              "seconds. Default preset = `\"recommended\"` (theta0 90, scales (1, 2), min_step "
              "'auto', window 21, height test 4.5 rms, edge_extent 12, edge test 4 rms in 15-cell "
              "windows), heights at every point, defects.")
+    if max(meta["load0"], meta.get("load1", 0.0)) > (os.cpu_count() or 1):
+        L[-1] += (" **The load exceeded the core count during this run: the wall-time and "
+                  "2-thread figures (and the wall-time comparison with Open3D / PCL) measure "
+                  "the other jobs as much as miem; the 1-thread CPU-time columns and the "
+                  "same-run before/after ratios are the ones to read.**")
     L += ["", f"### miem's default against Open3D and PCL, the same {meta['lead_side']}x"
           f"{meta['lead_side']} scan", "",
           "| method | time | Mpoints/s | points flagged / removed |", "|---|---:|---:|---:|"]
