@@ -136,6 +136,66 @@ MIEM_EDGE_CLONES void rect_sums(int m, std::ptrdiff_t plane, std::ptrdiff_t cap,
   }
 }
 
+// SPEC "Edge test" step 6, fins: is candidate (rr, cc) thin material standing proud of the
+// ground (NORMAL or EDGE cells at the start of the pass) on both sides along one of the four
+// directions, taller than those two lowest ground cells (within r cells) are apart, at least
+// two cells wide at half its height (any cell with a return, ABNORMAL ones too) and going on both ways along the perpendicular direction?
+// The formulas are miem.reference._fins'.
+template <typename T>
+bool is_fin(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
+            std::ptrdiff_t cc, std::ptrdiff_t r) {
+  constexpr int kDirs[4][2] = {{1, 0}, {0, 1}, {1, 1}, {1, -1}};
+  const std::ptrdiff_t H = g.rows, W = g.cols;
+  const auto ground = [&](std::ptrdiff_t a, std::ptrdiff_t b) {
+    return a >= 0 && a < H && b >= 0 && b < W &&
+           (labels[a * W + b] == kNormal || labels[a * W + b] == kEdge);
+  };
+  const auto zat = [&](std::ptrdiff_t a, std::ptrdiff_t b) {
+    return static_cast<double>(g.data[a * g.row_stride + b * g.col_stride + 2 * g.coord_stride]);
+  };
+  const double zp = zat(rr, cc);
+  for (const auto& d : kDirs) {
+    double zlow[2];
+    std::ptrdiff_t jlow[2] = {0, 0};
+    bool any = true;
+    for (int side = 0; side < 2 && any; ++side) {
+      const std::ptrdiff_t sg = side == 0 ? -1 : 1;
+      double zmin = std::numeric_limits<double>::infinity();
+      for (std::ptrdiff_t j = 1; j <= r; ++j) {  // outward: among equal minima the nearest
+        const std::ptrdiff_t a = rr + sg * j * d[0], b = cc + sg * j * d[1];
+        if (!ground(a, b)) continue;
+        const double zq = zat(a, b);
+        if (zq < zmin) zmin = zq, jlow[side] = sg * j;
+      }
+      any = zmin < zp;  // else the height is not positive
+      zlow[side] = zmin;
+    }
+    if (!any) continue;
+    const double base = std::max(zlow[0], zlow[1]), height = zp - base;
+    const Eigen::Vector3d qa = g(rr + jlow[0] * d[0], cc + jlow[0] * d[1]);
+    const Eigen::Vector3d qb = g(rr + jlow[1] * d[0], cc + jlow[1] * d[1]);
+    const double dx = qa.x() - qb.x(), dy = qa.y() - qb.y();
+    if (!(height > 0.0) || !(height * height > dx * dx + dy * dy)) continue;
+    const double half = base + 0.5 * height;
+    const auto above = [&](std::ptrdiff_t a, std::ptrdiff_t b) {  // material (not INVALID)
+      return a >= 0 && a < H && b >= 0 && b < W && labels[a * W + b] != kInvalid &&
+             zat(a, b) > half;
+    };
+    if (!above(rr - d[0], cc - d[1]) && !above(rr + d[0], cc + d[1])) continue;  // wide
+    // long: above half height along the perpendicular direction, both ways within r
+    const std::ptrdiff_t er = (d[0] == 0 || d[1] == 0) ? d[1] : d[0];
+    const std::ptrdiff_t ec = (d[0] == 0 || d[1] == 0) ? d[0] : -d[1];
+    bool along = true;
+    for (std::ptrdiff_t sg = -1; sg <= 1 && along; sg += 2) {
+      bool up = false;
+      for (std::ptrdiff_t j = 1; j <= r && !up; ++j) up = above(rr + sg * j * er, cc + sg * j * ec);
+      along = up;
+    }
+    if (along) return true;
+  }
+  return false;
+}
+
 // The passes on `g`. Each kTileRows x kTileCols tile of the grid (fixed in grid coordinates, as
 // the window fits' tiles) gets its own integral images over the tile and the r cells around it,
 // relative to the tile's first finite cell (row-major). So a cell's sums depend on nothing
@@ -240,7 +300,12 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
           int m = 0;
           for (; cc < C1 && m < kChunk; ++cc) {
             const std::ptrdiff_t i = rr * W + cc;
-            if (todo[i] && (labels[i] == kNormal || labels[i] == kEdge)) cols[m++] = cc;
+            if (!todo[i] || (labels[i] != kNormal && labels[i] != kEdge)) continue;
+            if (is_fin(g, labels, rr, cc, r)) {
+              mark[i] = 1;
+              continue;
+            }
+            cols[m++] = cc;
           }
           if (m == 0) continue;
           for (int j = 0; j < m; ++j) {

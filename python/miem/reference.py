@@ -1073,6 +1073,69 @@ def _side_fits(
 _EDGE_TILE = (64, 128)
 
 
+#: Fin directions (SPEC "Edge test" step 6): along columns, along rows, both diagonals.
+_FIN_DIRECTIONS = ((1, 0), (0, 1), (1, 1), (1, -1))
+
+
+def _fins(
+    grid: NDArray[np.float64],
+    labels: NDArray[np.uint8],
+    cells: NDArray[np.bool_],
+    r: int,
+) -> NDArray[np.bool_]:
+    """The cells of ``cells`` that are *fins* (SPEC "Edge test" step 6): thin material standing
+    proud of the ground on both sides along a direction, taller than that ground is apart."""
+    hh, ww = labels.shape
+    ground = (labels == NORMAL) | (labels == EDGE)
+    z = np.where(ground, grid[..., 2], np.inf)
+    zm = np.where(labels != INVALID, grid[..., 2], -np.inf)  # material: any cell with a return
+    xy = grid[..., :2]
+    out = np.zeros_like(cells)
+    rr, cc = np.nonzero(cells)
+    zp = grid[rr, cc, 2]
+
+    def at(a: NDArray[np.float64], r1: NDArray[np.int64], c1: NDArray[np.int64],
+           fill: float) -> NDArray[np.float64]:
+        inside = (r1 >= 0) & (r1 < hh) & (c1 >= 0) & (c1 < ww)
+        shape = (rr.size,) + a.shape[2:]
+        v = np.full(shape, fill)
+        v[inside] = a[r1[inside], c1[inside]]
+        return v
+
+    for dr, dc in _FIN_DIRECTIONS:
+        lows = []
+        for sg in (-1, 1):
+            zmin = np.full(rr.size, np.inf)
+            pmin = np.full((rr.size, 2), np.nan)
+            for j in range(1, r + 1):  # outward: among equal minima the nearest one
+                r1, c1 = rr + sg * j * dr, cc + sg * j * dc
+                zj = at(z, r1, c1, np.inf)
+                lower = zj < zmin
+                zmin = np.where(lower, zj, zmin)
+                pmin = np.where(lower[:, None], at(xy, r1, c1, np.nan), pmin)
+            lows.append((zmin, pmin))
+        (za, pa), (zb, pb) = lows
+        base = np.maximum(za, zb)
+        height = zp - base
+        dx, dy = pa[:, 0] - pb[:, 0], pa[:, 1] - pb[:, 1]
+        with np.errstate(invalid="ignore"):  # no ground on a side: base = inf
+            half = base + 0.5 * height
+        wide = np.zeros(rr.size, dtype=bool)  # a neighbour along d above half height
+        for sg in (-1, 1):
+            wide |= at(zm, rr + sg * dr, cc + sg * dc, -np.inf) > half
+        long = np.ones(rr.size, dtype=bool)  # and along the fin's line, both ways within r
+        er, ec = (dc, dr) if dr == 0 or dc == 0 else (dr, -dc)  # the perpendicular direction
+        for sg in (-1, 1):
+            up = np.zeros(rr.size, dtype=bool)
+            for j in range(1, r + 1):
+                up |= at(zm, rr + sg * j * er, cc + sg * j * ec, -np.inf) > half
+            long &= up
+        fin = np.isfinite(base) & (height > 0.0) & (height * height > dx * dx + dy * dy)
+        fin &= wide & long
+        out[rr[fin], cc[fin]] = True
+    return out
+
+
 def _edge_pass(
     grid: NDArray[np.float64],
     labels: NDArray[np.uint8],
@@ -1100,7 +1163,7 @@ def _edge_pass(
             lab = labels[e0:e1, f0:f1]
             part = _edge_verdicts(grid[e0:e1, f0:f1], lab, sel, r, k, origin)
             out[e0:e1, f0:f1] |= part
-    return out
+    return out | _fins(grid, labels, cells, r)
 
 
 def _edge_verdicts(
