@@ -300,12 +300,7 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
           int m = 0;
           for (; cc < C1 && m < kChunk; ++cc) {
             const std::ptrdiff_t i = rr * W + cc;
-            if (!todo[i] || (labels[i] != kNormal && labels[i] != kEdge)) continue;
-            if (is_fin(g, labels, rr, cc, r)) {
-              mark[i] = 1;
-              continue;
-            }
-            cols[m++] = cc;
+            if (todo[i] && (labels[i] == kNormal || labels[i] == kEdge)) cols[m++] = cc;
           }
           if (m == 0) continue;
           for (int j = 0; j < m; ++j) {
@@ -373,7 +368,7 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
             for (int j = 0; j < m; ++j) {
               const std::ptrdiff_t i = rr * W + cols[j];
               if (!use1[j]) {  // no side with support: none valid, none to stand proud of
-                mark[i] = 0;
+                mark[i] = is_fin(g, labels, rr, cols[j], r) ? 1 : 0;
                 continue;
               }
               const bool clean = F1[kChunk + j] <= kEdgeCleanRatio * std::sqrt(low1[j]);  // <= 2 best
@@ -440,7 +435,17 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
               x.normal = Eigen::Vector3d(F[3 * kCap + e], F[4 * kCap + e], F[5 * kCap + e]);
               best = std::min(best, x.rms);
             }
-            mark[i] = edge_abnormal(sd, best, [](int s) { return kOpposite[s]; }) ? 1 : 0;
+            bool abnormal = edge_abnormal(sd, best, [](int s) { return kOpposite[s]; });
+            if (!abnormal && is_fin(g, labels, rr, cols[j], r)) {  // a fin that fits no clean side
+              abnormal = true;
+              for (const Side& x : sd) {
+                if (x.valid && x.rms <= kEdgeCleanRatio * best && !(std::abs(x.h) > x.tol)) {
+                  abnormal = false;
+                  break;
+                }
+              }
+            }
+            mark[i] = abnormal ? 1 : 0;
           }
         }
       }

@@ -1163,7 +1163,7 @@ def _edge_pass(
             lab = labels[e0:e1, f0:f1]
             part = _edge_verdicts(grid[e0:e1, f0:f1], lab, sel, r, k, origin)
             out[e0:e1, f0:f1] |= part
-    return out | _fins(grid, labels, cells, r)
+    return out
 
 
 def _edge_verdicts(
@@ -1189,7 +1189,8 @@ def _edge_verdicts(
         for x, y in ((a, b), (b, a)):
             falls = empty[y] | (valid[y] & (_dot3(nrm[x], cen[y] - cen[x]) < -tol[x]))
             proud |= clean[x] & (h[x] > tol[x]) & falls
-    out[cells] = ~fits.any(axis=0) & proud
+    fin = _fins(grid, labels, cells, r)[cells]  # (SPEC step 6: reach r, inside the tile's frame)
+    out[cells] = ~fits.any(axis=0) & (proud | fin)
     return out
 
 
