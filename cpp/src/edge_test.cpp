@@ -25,6 +25,7 @@ namespace {
 
 constexpr int kM = 11;  // n, x, y, z, xx, xy, xz, yy, yz, zz (support), INVALID count
 constexpr double kRankTol = 1e-12;
+constexpr double kLineTol = 1e-6;  // support on a line in (x, y): det <= this * trace^2
 constexpr double kRoundOff = 1e-9;  // tolerance floor: times sqrt((l1 + l2) / n), as the height test
 // (row_lo, row_hi, col_lo, col_hi) in units: -2 = -r, -1 = -1, 1 = 1, 2 = r.
 constexpr int kSides[8][4] = {{-2, 2, -2, -1}, {-2, 2, 1, 2},  {-2, -1, -2, 2}, {1, 2, -2, 2},
@@ -55,14 +56,17 @@ MIEM_EDGE_CLONES void side_moments(std::ptrdiff_t m, std::ptrdiff_t cap, double 
   for (std::ptrdiff_t e = 0; e < m; ++e) {
     const double n = mm[e], nn = n < 1.0 ? 1.0 : n;  // std::max(n, 1.0)
     emptyb[e] = mm[10 * cap + e] >= n_min;
-    useb[e] = n >= n_min;
     nnb[e] = nn;
     const double cx = mm[cap + e] / nn, cy = mm[2 * cap + e] / nn, cz = mm[3 * cap + e] / nn;
     ceb[e] = cx, ceb[cap + e] = cy, ceb[2 * cap + e] = cz;
-    Mb[e] = mm[4 * cap + e] - nn * cx * cx;            // M(0, 0)
-    Mb[cap + e] = mm[7 * cap + e] - nn * cy * cy;      // M(1, 1)
+    const double a = mm[4 * cap + e] - nn * cx * cx, b = mm[7 * cap + e] - nn * cy * cy;
+    const double d = mm[5 * cap + e] - nn * cx * cy;
+    // support on a line in (x, y): no plane (SPEC step 3)
+    useb[e] = (n >= n_min) & (a * b - d * d > kLineTol * ((a + b) * (a + b)));
+    Mb[e] = a;                                         // M(0, 0)
+    Mb[cap + e] = b;                                   // M(1, 1)
     Mb[2 * cap + e] = mm[9 * cap + e] - nn * cz * cz;  // M(2, 2)
-    Mb[3 * cap + e] = mm[5 * cap + e] - nn * cx * cy;  // M(0, 1)
+    Mb[3 * cap + e] = d;                               // M(0, 1)
     Mb[4 * cap + e] = mm[8 * cap + e] - nn * cy * cz;  // M(1, 2)
     Mb[5 * cap + e] = mm[6 * cap + e] - nn * cx * cz;  // M(0, 2)
   }

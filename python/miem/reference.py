@@ -1002,6 +1002,9 @@ def _edge_sides(r: int) -> tuple[tuple[int, int, int, int], ...]:
 #: A sub-window is *clean* when its rms is at most this times the smallest rms of the cell's
 #: sub-windows (a sub-window straddling a feature line has a far larger rms).
 _EDGE_CLEAN_RATIO = 2.0
+#: A sub-window's support is on a line in (x, y) when the determinant of its (x, y) scatter is
+#: at most this times its trace squared (SPEC "Edge test" step 3).
+_EDGE_LINE_TOL = 1e-6
 #: Opposite sub-windows (indices into :func:`_edge_sides`).
 _EDGE_OPPOSITE = ((0, 1), (2, 3), (4, 7), (5, 6))
 
@@ -1055,6 +1058,10 @@ def _side_fits(
                 cov[:, a, b] = cov[:, b, a] = m[:, idx] - nn * cen[:, a] * cen[:, b]
                 idx += 1
         # (idx == 10: the INVALID count)
+        # support on a line in (x, y) (one row or column of cells): no plane (its normal would
+        # be horizontal and its smallest eigenvalue round-off)
+        a, b, d = cov[:, 0, 0], cov[:, 1, 1], cov[:, 0, 1]
+        ok &= a * b - d * d > _EDGE_LINE_TOL * ((a + b) * (a + b))
         cov[~ok] = np.eye(3)
         evals, evecs = np.linalg.eigh(cov)
         ok &= (evals[:, 2] > 0.0) & ~(evals[:, 1] <= _EIGEN_RANK_TOL * evals[:, 2])
