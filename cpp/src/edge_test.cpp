@@ -143,8 +143,10 @@ MIEM_EDGE_CLONES void rect_sums(int m, std::ptrdiff_t plane, std::ptrdiff_t cap,
 // SPEC "Edge test" step 6, fins: is candidate (rr, cc) thin material standing proud of the
 // ground (NORMAL or EDGE cells at the start of the pass) on both sides along one of the four
 // directions, taller than those two lowest ground cells (within r cells) are apart, at least
-// two cells wide at half its height (any cell with a return, ABNORMAL ones too) and going on both ways along the perpendicular direction?
-// The formulas are miem.reference._fins'.
+// two cells wide at half its height and going on both ways along the perpendicular direction
+// (material: any cell with a return, ABNORMAL ones too)? The formulas are
+// miem.reference._fins'. Called only for cells that fit no clean side (a fin that fits one
+// stays as it is), so flat surface, which the shortcut below settles, never pays for it.
 template <typename T>
 bool is_fin(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
             std::ptrdiff_t cc, std::ptrdiff_t r) {
@@ -371,7 +373,7 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
             side_planes(m, kChunk, k, use1, ok1, E1, nn1, ce1, P1, valid1, F1);
             for (int j = 0; j < m; ++j) {
               const std::ptrdiff_t i = rr * W + cols[j];
-              if (!use1[j]) {  // no side with support: none valid, none to stand proud of
+              if (!use1[j]) {  // no side with support: none to fit or stand proud of; a fin?
                 mark[i] = is_fin(g, labels, rr, cols[j], r) ? 1 : 0;
                 continue;
               }
