@@ -532,8 +532,10 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
             const std::ptrdiff_t cc = c + sgn * step * kDirCol[k];
             if (rr < 0 || rr >= H || cc < 0 || cc >= W) break;
             const std::ptrdiff_t q = rr * W + cc;
-            // usable and not yet a candidate (bit 1 marks those), and reads this far
-            if (usable[q] == 1 && (!reach || reach[4 * q + k] >= step)) {
+            // usable and not yet a candidate (bit 1 marks those), and reads this far (255:
+            // at least that far, so any step)
+            const std::ptrdiff_t need = std::min<std::ptrdiff_t>(step, 255);
+            if (usable[q] == 1 && (!reach || reach[4 * q + k] >= need)) {
               usable[q] = 3;
               ws.candidates.push_back(q);
             }
