@@ -356,7 +356,8 @@ def fmt_min_step(rows: list[dict]) -> list[str]:
             up = f"{b['run'] / a['run']:.2f}x" if (label == "now" and b is not None) else ""
             L.append(f"| {r['scene']} | {a.get('min_step', -1):.3f} mm | {label} | "
                      + " | ".join(f"{s[k] * 1e3:.0f}" for k in STAGES + ("run",))
-                     + f" | {r['n'] / s['run'] / 1e6:.1f} | {up} | {same if label == 'now' else ''} |")
+                     + f" | {r['n'] / s['run'] / 1e6:.1f} | {up} | "
+                     + f"{same if label == 'now' else ''} |")
     return L
 
 

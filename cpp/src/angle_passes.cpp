@@ -16,15 +16,16 @@ namespace miem::detail {
 
 namespace {
 
-// Pass 1 row kernel. Where the neighbour search of SPEC.md ends at its first or second cell
-// (the candidate at s cells is usable, or it is not and the one at s + 1 is: one dropout, the
-// max_gap = 1 default), whole rows are judged with straight-line loops over structure-of-arrays
+// Pass 1 row kernel. Whole rows are judged with straight-line loops over structure-of-arrays
 // copies of the rows, which the compiler vectorizes (an AVX2 clone is picked at run time where
-// the CPU has it). Rows carry smax + 1 padding columns of unusable cells on each side and rows
-// beyond the grid read an all-unusable row, so the grid's border needs no special case. Cells
-// whose search goes further (max_gap > 1 with two unusable cells in a row, a min_step candidate
-// not clearly far enough, no usable cell within the isolation reach) fall back to the scalar
-// judge.
+// the CPU has it). Without min_step the neighbour search of SPEC.md ends at its first or second
+// cell (the candidate at s cells is usable, or it is not and the one at s + 1 is: one dropout,
+// the max_gap = 1 default); with min_step it runs step by step for all lanes of a block to a
+// depth of up to 16 steps. Rows carry `depth` padding columns of unusable cells on each side and
+// rows beyond the grid read an all-unusable row, so the grid's border needs no special case.
+// Cells whose search goes further (max_gap > 1 with two unusable cells in a row without
+// min_step, deeper than the ring with it, a min_step candidate within a relative 1e-12 of the
+// bound, no usable cell within the isolation reach) fall back to the scalar judge.
 constexpr std::ptrdiff_t kBlock = 256;  // columns per block of the row kernel
 constexpr std::ptrdiff_t kChunk = 32;   // lanes per min_step search
 constexpr int kPop4[16] = {0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4};
@@ -532,8 +533,10 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
             const std::ptrdiff_t cc = c + sgn * step * kDirCol[k];
             if (rr < 0 || rr >= H || cc < 0 || cc >= W) break;
             const std::ptrdiff_t q = rr * W + cc;
-            // usable and not yet a candidate (bit 1 marks those), and reads this far
-            if (usable[q] == 1 && (!reach || reach[4 * q + k] >= step)) {
+            // usable and not yet a candidate (bit 1 marks those), and reads this far (255:
+            // at least that far, so any step)
+            const std::ptrdiff_t need = std::min<std::ptrdiff_t>(step, 255);
+            if (usable[q] == 1 && (!reach || reach[4 * q + k] >= need)) {
               usable[q] = 3;
               ws.candidates.push_back(q);
             }
