@@ -180,17 +180,17 @@ def make_outline_scan(h: int, w: int, seed: int) -> np.ndarray:
 @pytest.mark.parametrize("kw", [{}, {"edge_window": 9, "max_iterations": 4},
                                 {"edge_tolerance": 2.5, "edge_window": 5, "window": 9}])
 def test_stream_runs_the_edge_test_as_batch(kw: dict) -> None:
-    """The edge test in the stream (lag + 127 + P r): labels, heights and defects equal batch
-    detection's on a scan whose outline carries burrs the edge test finds."""
+    """The edge test in the stream (lag max(H + r, h) + (P - 1) r + h): labels, heights and
+    defects equal batch detection's on a scan whose outline carries burrs the edge test finds."""
     grid = make_outline_scan(420, 60, 3)
     p = miem.default_params("stream").replace(**kw)
     want = miem.detect(grid, params=p)
     without = miem.detect(grid, params=p, edge_tolerance=None)
     assert (want.labels == miem.ABNORMAL).sum() > (without.labels == miem.ABNORMAL).sum()
     stream = ProfileStream(60, params=p)
-    r = p.grid.edge_window // 2
-    assert stream.lag == _core.stream_lag(p.replace(edge_tolerance=None)._core_grid(0, "stream")) \
-        + 127 + p.angle.max_iterations * r
+    r, P, h = p.grid.edge_window // 2, p.angle.max_iterations, p.grid.window // 2
+    lag_h = _core.stream_lag(p.replace(edge_tolerance=None)._core_grid(0, "stream")) - h
+    assert stream.lag == max(lag_h + r, h) + (P - 1) * r + h
     defects: list = []
     got, heights = stream_both(stream, grid, defects)
     np.testing.assert_array_equal(got, want.labels)
@@ -248,13 +248,13 @@ def test_extreme_height_tolerance_labels_equal_and_heights_up_to_orientation() -
 
 
 def test_lag_formula() -> None:
-    """L = P R + E + (P + 1) h with the height test, P R + h without, + 127 + P r with the edge
-    test (docs/SPEC.md)."""
-    assert ProfileStream(10).lag == 10 * 3 + 12 + 11 * 10 + 127 + 10 * 7 == 349
+    """L = P R + E + (P + 1) h with the height test, P R + h without; with the edge test
+    max(H + r, h) + (P - 1) r + h, H = P R + E + P h (docs/SPEC.md)."""
+    assert ProfileStream(10).lag == (10 * 3 + 12 + 10 * 10 + 7) + 9 * 7 + 10 == 222
     assert ProfileStream(10, edge_tolerance=None).lag == 10 * 3 + 12 + 11 * 10 == 152
     assert ProfileStream(10, preset="paper").lag == 10 * 2 + 10
     assert ProfileStream(10, max_iterations=3, window=7, edge_extent=4,
-                         edge_window=9).lag == 3 * 3 + 4 + 4 * 3 + 127 + 3 * 4
+                         edge_window=9).lag == (3 * 3 + 4 + 3 * 3 + 4) + 2 * 4 + 3
     assert ProfileStream(10, height_tolerance=None, edge_tolerance=None,
                          window=9).lag == 10 * 3 + 4
 

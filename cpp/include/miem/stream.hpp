@@ -165,14 +165,14 @@ class ProfileStream {
   GridView<T> row_view(std::int64_t row) const noexcept {
     return GridView<T>{xyz_.data() + slot(row) * width_, 1, width_, width_, 1, phys_ * width_};
   }
-  // The edge test (stream_edges.cpp).
-  // A band: the rows whose edge test one block gives, two tile bands (SPEC "Edge test": tiles of
-  // 64 rows): fewer blocks per row than one tile band (2.5 instead of 4 at the defaults), and
-  // one push in 128 carries a block.
-  static constexpr std::int64_t kEdgeBandRows = 128;
-  std::ptrdiff_t edge_block_rows() const noexcept { return etop_ + kEdgeBandRows + ebot_; }
+  // The edge test (stream_edges.cpp): each pass row by row.
   void init_edges();
-  void edge_band(std::int64_t band) noexcept;
+  void reset_edges() noexcept;
+  void edge_push_row(std::int64_t row) noexcept;
+  void run_edges(bool to_end) noexcept;
+  void edge_row(std::int64_t row, int pass) noexcept;
+  void edge_labels(std::int64_t row, int pass, std::ptrdiff_t c0, std::ptrdiff_t c1,
+                   std::uint8_t* out) const noexcept;
   // Defects (stream_defects.cpp).
   void init_defects();
   void reset_defects() noexcept;
@@ -196,7 +196,6 @@ class ProfileStream {
   bool htest_ = false;  // the height test is on
   bool edge_ = false;   // the edge test is on
   int lagh_ = 0;        // rows behind the newest at which the height passes' labels are final
-  int etop_ = 0, ebot_ = 0;  // rows of an edge block above and below its band
   bool sums_ = false;   // height pass 1 / heights run by running window sums (kAll or the test)
   std::ptrdiff_t ring_ = 0;  // rows kept: the longest look-back + 2
   std::ptrdiff_t ext_ = 0;   // max(2R, 2h)
@@ -243,12 +242,21 @@ class ProfileStream {
   std::vector<std::uint8_t> region_cls_;  // region_fits: one row's classes
 
   // Edge test (stream_edges.cpp).
-  std::vector<std::uint8_t> eold_;    // ring_ rows: 0, or 1 + the label the edge test changed
-  std::vector<std::uint8_t> eblock_;  // one block's labels
-  std::vector<double> escratch_;      // the edge test's sums
-  std::vector<std::uint8_t> eflags_;  // the edge test's candidates and marks
-  std::int64_t next_band_ = 0;
-
+  std::vector<std::uint8_t> eold_;   // ring_ rows: 0, or 1 + the label the edge test changed
+  std::vector<std::uint8_t> epass_;  // ring_ rows: the edge pass that removed the cell, 0 none
+  std::vector<std::uint8_t> etodo_;  // ring_ rows: bit (p & 1) = judge at edge pass p >= 2
+  std::vector<std::uint8_t> etodo_row_;  // ring_ rows: same bits, "the row has any"
+  // Per (pass, tile column): a ring of ek_ integral-image rows of edge_test.hpp's layout
+  // (kEdgeMoments planes of ek_ rows of estride_) and the column sums; the band it was built
+  // for and the next grid row to add.
+  std::ptrdiff_t etiles_ = 0, ek_ = 0, estride_ = 0, eper_ = 0, ebands_ = 0;
+  std::vector<double> eimg_;
+  std::vector<std::int64_t> eimg_band_, eimg_next_;
+  std::vector<std::int64_t> enext_;      // [p]: next row of edge pass p (1..passes_)
+  std::vector<double> eorg_;             // per (band mod ebands_, tile column): the origin
+  std::vector<std::uint8_t> eorg_ok_;    // ... found
+  std::vector<std::ptrdiff_t> eorg_missing_;  // per band slot: tiles without an origin yet
+  std::vector<std::uint8_t> eones_, elab_img_, elab_row_, emark_, etd_;  // one row each
   // Defects (stream_defects.cpp): open groups as union-find slots over the cells of the last
   // row handed back; their cells in a pool of singly linked members.
   struct DefectSlot {
