@@ -43,9 +43,11 @@ void ProfileStream<T>::init_edges() {
   epass_.assign(static_cast<std::size_t>(ring_ * W), 0);
   etodo_.assign(static_cast<std::size_t>(ring_ * W), 0);
   etodo_row_.assign(static_cast<std::size_t>(ring_), 0);
-  eimg_.assign(static_cast<std::size_t>(passes_ * etiles_ * eper_), 0.0);
-  eimg_band_.assign(static_cast<std::size_t>(passes_ * etiles_), -1);
-  eimg_next_.assign(static_cast<std::size_t>(passes_ * etiles_), 0);
+  // pass 1 has two sets (even and odd bands: the next band's images are built alongside)
+  const std::ptrdiff_t sets = static_cast<std::ptrdiff_t>(passes_) + 1;
+  eimg_.assign(static_cast<std::size_t>(sets * etiles_ * eper_), 0.0);
+  eimg_band_.assign(static_cast<std::size_t>(sets * etiles_), -1);
+  eimg_next_.assign(static_cast<std::size_t>(sets * etiles_), 0);
   enext_.assign(static_cast<std::size_t>(passes_) + 1, 0);
   ebands_ = ring_ / kTR + 3;
   eorg_.assign(static_cast<std::size_t>(ebands_ * etiles_ * 3), 0.0);
@@ -108,6 +110,37 @@ void ProfileStream<T>::edge_labels(std::int64_t row, int pass, std::ptrdiff_t c0
   }
 }
 
+// The integral images of edge pass `pass`, tile column t, band `band`, with the image rows through
+// `upto` (the sums over the grid rows before it): started at the tile's first image row when
+// the set holds another band, then one grid row at a time.
+template <typename T>
+const double* ProfileStream<T>::edge_images(int pass, std::ptrdiff_t t, std::int64_t band,
+                                            std::int64_t upto) noexcept {
+  const std::ptrdiff_t W = width_, r = params_.edge_window / 2;
+  const std::ptrdiff_t C0 = t * kTC, C1 = std::min(W, C0 + kTC);
+  const std::ptrdiff_t f0 = std::max<std::ptrdiff_t>(0, C0 - r), f1 = std::min(W, C1 + r);
+  const std::ptrdiff_t EC = f1 - f0, L = estride_, plane = ek_ * L;
+  const std::int64_t e0 = std::max<std::int64_t>(0, band * kTR - r);
+  const std::ptrdiff_t id = (pass == 1 ? (band & 1) : pass) * etiles_ + t;
+  double* img = eimg_.data() + id * eper_;
+  double* col = img + kQ * plane;
+  const double* org = eorg_.data() + ((band % ebands_) * etiles_ + t) * 3;
+  const Eigen::Vector3d o(org[0], org[1], org[2]);
+  std::int64_t& next = eimg_next_[static_cast<std::size_t>(id)];
+  if (eimg_band_[static_cast<std::size_t>(id)] != band) {  // the tile's first image row
+    eimg_band_[static_cast<std::size_t>(id)] = band;
+    std::fill(col, col + kQ * EC, 0.0);
+    for (int q = 0; q < kQ; ++q) std::fill(img + q * plane, img + q * plane + EC + 1, 0.0);
+    next = e0;
+  }
+  for (; next < upto; ++next) {  // add grid row `next`: image row next + 1
+    edge_labels(next, pass, f0, f1, elab_img_.data());
+    detail::edge_image_row(row_view(next), 0, elab_img_.data(), f0, f1, o, col, EC,
+                           img + ((next + 1 - e0) % ek_) * L, plane);
+  }
+  return img;
+}
+
 // Edge pass `pass` on `row`: tile by tile, the images brought down to the row's judgment
 // (started at the tile's first image row when the pass first needs them), the verdicts, then
 // the removals.
@@ -138,30 +171,25 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
       any = todo[c] && (lab[c] == kNormal || lab[c] == kEdge);
     }
     if (!any) continue;
-    const std::ptrdiff_t f0 = std::max<std::ptrdiff_t>(0, C0 - r), f1 = std::min(W, C1 + r);
-    const std::ptrdiff_t EC = f1 - f0, L = estride_, plane = ek_ * L;
-    const std::ptrdiff_t id = (pass - 1) * etiles_ + t;
-    double* img = eimg_.data() + id * eper_;
-    double* col = img + kQ * plane;
+    const double* img = edge_images(pass, t, band, upto);
+    const std::ptrdiff_t f0 = std::max<std::ptrdiff_t>(0, C0 - r);
     const double* org = eorg_.data() + (b * etiles_ + t) * 3;
     const Eigen::Vector3d o(org[0], org[1], org[2]);
-    std::int64_t& next = eimg_next_[static_cast<std::size_t>(id)];
-    if (eimg_band_[static_cast<std::size_t>(id)] != band) {  // the tile's first image row
-      eimg_band_[static_cast<std::size_t>(id)] = band;
-      std::fill(col, col + kQ * EC, 0.0);
-      for (int q = 0; q < kQ; ++q) std::fill(img + q * plane, img + q * plane + EC + 1, 0.0);
-      next = e0;
-    }
-    for (; next < upto; ++next) {  // add grid row `next`: image row next + 1
-      edge_labels(next, pass, f0, f1, elab_img_.data());
-      detail::edge_image_row(row_view(next), 0, elab_img_.data(), f0, f1, o, col, EC,
-                             img + ((next + 1 - e0) % ek_) * L, plane);
-    }
     std::fill(mark + C0, mark + C1, std::uint8_t{0});
-    const detail::EdgeImages im{img, plane, L, e0, ek_, f0};
+    const detail::EdgeImages im{img, ek_ * estride_, estride_, e0, ek_, f0};
     detail::edge_judge_row(row_view(row), 0, row, H, C0, C1, im, o, r, params_.edge_k, lab,
                            todo, mark);
     for (std::ptrdiff_t c = C0; c < C1 && !any_mark; ++c) any_mark = mark[c] != 0;
+  }
+  // Pass 1 builds the next band's images alongside over the r rows before it (its first image
+  // row is r rows above the band), one row per push instead of 2 r + 1 at its first row; its
+  // origins are known once a finite cell of the tile is in (else the tile has no candidate).
+  const std::int64_t R0n = R0 + kTR, e0n = R0n - r;
+  if (pass == 1 && upto > e0n && R0n < H) {
+    const std::ptrdiff_t bn = static_cast<std::ptrdiff_t>((band + 1) % ebands_);
+    for (std::ptrdiff_t t = 0; t < etiles_; ++t) {
+      if (eorg_ok_[static_cast<std::size_t>(bn * etiles_ + t)]) edge_images(1, t, band + 1, upto);
+    }
   }
   if (pass > 1) {
     std::uint8_t* et = etodo_.data() + s * W;

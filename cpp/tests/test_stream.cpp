@@ -167,7 +167,7 @@ std::vector<Named> param_sets() {
   std::vector<Named> v;
   miem::DetectParams p = miem::paper_params();
   v.push_back({"paper", p});
-  v.push_back({"stream_default", miem::stream_default_params(), 260, 70});  // lag 349: at flush
+  v.push_back({"stream_default", miem::stream_default_params(), 260, 70});  // lag 222
   p = miem::stream_default_params();
   p.height_mode = miem::HeightMode::kAbnormal;
   v.push_back({"stream_default_abnormal_heights", p, 260, 70});
