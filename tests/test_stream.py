@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import miem
 import numpy as np
 import pytest
@@ -196,6 +198,29 @@ def test_stream_runs_the_edge_test_as_batch(kw: dict) -> None:
     np.testing.assert_array_equal(got, want.labels)
     assert_heights_equal(heights, want.height)
     assert_same_defects(defects, want.defects, want.labels)
+
+
+REAL_SCAN = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "second_source.pcd"
+
+
+@pytest.mark.skipif(not REAL_SCAN.exists(), reason="no shared/data/real")
+def test_stream_equals_batch_on_the_real_profiler_scan() -> None:
+    """The real burred profiler scan (426 profiles of 724 points: six edge-test tiles across,
+    dropouts, an outline): the default stream, and with min_step resolved on it, equals batch
+    detection; the edge test changes its labels."""
+    import miem.io as mio
+
+    grid = np.asarray(mio.grid_from_scanlines(np.asarray(mio.read(REAL_SCAN).points)))
+    assert grid.shape[1] > 5 * 128
+    p = miem.default_params("stream")
+    step = miem.detect(grid).params["min_step"]
+    for kw in ({}, {"min_step": step}):
+        want = miem.detect(grid, params=p, **kw)
+        without = miem.detect(grid, params=p, edge_tolerance=None, **kw)
+        assert (want.labels != without.labels).sum() > 100
+        got, heights = stream_both(ProfileStream(grid.shape[1], params=p, **kw), grid)
+        np.testing.assert_array_equal(got, want.labels)
+        assert_heights_equal(heights, want.height, atol=1e-8)  # coordinates of ~100 mm
 
 
 def test_stream_runs_the_whole_default_detector() -> None:
