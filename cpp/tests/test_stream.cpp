@@ -451,6 +451,33 @@ TEST(Stream, PushAfterFlushAndReset) {
   EXPECT_EQ(first.size(), static_cast<std::size_t>(H * W));
 }
 
+// A stream reset in the middle of a part (edge passes, their images and candidates part way
+// through) then run on another part equals batch detection on that part.
+TEST(Stream, ResetMidStreamWithTheEdgeTest) {
+  const std::ptrdiff_t H = 300, W = 150;
+  const miem::DetectParams p = miem::stream_default_params();
+  const std::vector<double> other = make_outline_scan(H, W, 8), g = make_outline_scan(H, W, 9);
+  miem::ProfileStream<> s(W, p);
+  miem::StreamRow row;
+  auto pushed = [](const miem::Status& st) {
+    return st.code == StatusCode::kOk || st.code == StatusCode::kEmptyProfile;  // NaN rows
+  };
+  for (std::ptrdiff_t r = 0; r < 277; ++r) ASSERT_TRUE(pushed(s.push(other.data() + r * W * 3, W, &row)));
+  s.reset();
+  std::vector<std::uint8_t> got;
+  for (std::ptrdiff_t r = 0; r < H; ++r) {
+    ASSERT_TRUE(pushed(s.push(g.data() + r * W * 3, W, &row)));
+    if (row.ready()) got.insert(got.end(), row.labels, row.labels + W);
+  }
+  while (s.flush(&row)) got.insert(got.end(), row.labels, row.labels + W);
+  const auto view = miem::GridView<double>::dense(g.data(), H, W);
+  miem::DetectParams off = p;
+  off.edge_k = 0.0;
+  const std::vector<std::uint8_t> want = miem::detect_organized(view, p).labels;
+  EXPECT_NE(want, miem::detect_organized(view, off).labels);  // the edge test has work
+  EXPECT_EQ(got, want);
+}
+
 TEST(Stream, StridedProfilesAreRead) {
   // x y z w records (point stride 4), as some sensor SDKs deliver them.
   const std::ptrdiff_t H = 45, W = 33;
