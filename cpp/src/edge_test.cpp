@@ -171,6 +171,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
   const std::ptrdiff_t W = g.cols, f0 = im.f0, plane = im.plane;
   const double n_min = static_cast<double>(std::max<std::ptrdiff_t>(3, (r * r) / 2));
   const double* const S = im.data;
+  const std::uint8_t* const lrow = lab + grow * W;  // the cell's row
   const auto srow = [&im](std::ptrdiff_t s) { return ((s - im.first) % im.rows) * im.stride; };
   // Up to kChunk candidate cells of the row at a time, all as SoA over their 8 sides
   // (entry e = side * m + cell): the sub-window sums (corner reads, vectorised over the
@@ -186,7 +187,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
   for (std::ptrdiff_t cc = C0; cc < C1;) {
     int m = 0;
     for (; cc < C1 && m < kChunk; ++cc) {
-      if (todo[cc] && (lab[cc] == kNormal || lab[cc] == kEdge)) cols[m++] = cc;
+      if (todo[cc] && (lrow[cc] == kNormal || lrow[cc] == kEdge)) cols[m++] = cc;
     }
     if (m == 0) continue;
     for (int j = 0; j < m; ++j) {
@@ -397,7 +398,7 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
       }
       const EdgeImages im{S, plane, L, e0, ER + 1, f0};
       for (std::ptrdiff_t rr = R0; rr < R1; ++rr) {
-        edge_judge_row(g, rr, rr, H, C0, C1, im, o, r, k, labels + rr * W, todo + rr * W,
+        edge_judge_row(g, rr, rr, H, C0, C1, im, o, r, k, labels, todo + rr * W,
                        mark + rr * W);
       }
     }

@@ -47,11 +47,14 @@ void edge_image_row(const GridView<T>& g, std::ptrdiff_t row, const std::uint8_t
                     std::ptrdiff_t col_plane, double* out, std::ptrdiff_t plane);
 
 /// One edge pass's verdicts (SPEC "Edge test") on grid row rr, columns C0 .. C1 - 1 of one
-/// tile: each cell c with todo[c] and a NORMAL or EDGE label lab[c] gets mark[c] = 1 when it
-/// becomes ABNORMAL, else 0 (other cells untouched). The cell's point is g(grow, c) (g.cols:
-/// the grid's width), H the grid's rows (its border), `im` the tile's images with the image
-/// rows max(0, rr - r) .. min(H, rr + r + 1) present, o its origin, r = window / 2.
-/// Batch edge_passes judges every row through this, and so does the stream.
+/// tile: each cell c with todo[c] and a NORMAL or EDGE label gets mark[c] = 1 when it becomes
+/// ABNORMAL, else 0 (other cells untouched). g holds at least the grid rows within r of rr
+/// (rows max(0, rr - r) .. min(H, rr + r + 1) - 1: a neighbourhood, or the whole grid), the
+/// cell's row being g's row `grow`; `lab` the labels at the start of the pass of g's cells
+/// (row-major, g.cols a row: the grid's width); todo and mark are rr's row. H: the grid's rows
+/// (its border); `im` the tile's images with the image rows max(0, rr - r) .. min(H, rr + r + 1)
+/// present, o its origin, r = window / 2. Batch edge_passes judges every row through this,
+/// and so does the stream (with a window of 2 r + 1 rows).
 template <typename T>
 void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr,
                     std::ptrdiff_t H, std::ptrdiff_t C0, std::ptrdiff_t C1,

@@ -291,8 +291,10 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
        static_cast<long long>(alag_) + reach_,
        edge_ ? static_cast<long long>(lag_) + 64 + params_.edge_window : 0LL});
   ring_ = static_cast<std::ptrdiff_t>(back) + 2;
-  // Any ext_ + 1 consecutive rows form one GridView: a judgment's rows, a window.
-  ext_ = std::max<std::ptrdiff_t>(2 * reach_, 2 * half_);
+  // Any ext_ + 1 consecutive rows form one GridView: a judgment's rows, a window, the rows an
+  // edge verdict reads.
+  ext_ = std::max<std::ptrdiff_t>(
+      {2 * reach_, 2 * half_, edge_ ? 2 * static_cast<std::ptrdiff_t>(params_.edge_window / 2) : 0});
   phys_ = ring_ + ext_;
   const double cells = static_cast<double>(phys_) * static_cast<double>(width_);
   if (cells * 3.0 * sizeof(T) > static_cast<double>(std::numeric_limits<std::ptrdiff_t>::max() / 4)) {

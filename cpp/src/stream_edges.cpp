@@ -55,7 +55,7 @@ void ProfileStream<T>::init_edges() {
   eorg_missing_.assign(static_cast<std::size_t>(ebands_), 0);
   eones_.assign(static_cast<std::size_t>(W), 1);
   elab_img_.assign(static_cast<std::size_t>(W), kInvalid);
-  elab_row_.assign(static_cast<std::size_t>(W), kInvalid);
+  elab_row_.assign(static_cast<std::size_t>((2 * r + 1) * W), kInvalid);
   emark_.assign(static_cast<std::size_t>(W), 0);
   etd_.assign(static_cast<std::size_t>(W), 0);
 }
@@ -160,9 +160,16 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
   const std::int64_t e0 = std::max<std::int64_t>(0, R0 - r);
   const std::ptrdiff_t b = static_cast<std::ptrdiff_t>(band % ebands_);
   const std::int64_t upto = std::min<std::int64_t>(H, row + r + 1);  // image rows through upto
-  std::uint8_t* lab = elab_row_.data();
+  // The rows within r as one grid (the ring repeats its first 2 r rows after its end) and
+  // their labels at the start of the pass, which the verdicts read
+  const std::int64_t a0 = std::max<std::int64_t>(0, row - r);
+  const std::ptrdiff_t grow = static_cast<std::ptrdiff_t>(row - a0);
+  const GridView<T> gw{xyz_.data() + slot(a0) * W, static_cast<std::ptrdiff_t>(upto - a0), W, W,
+                       1, phys_ * W};
+  std::uint8_t* const win = elab_row_.data();
+  for (std::int64_t a = a0; a < upto; ++a) edge_labels(a, pass, 0, W, win + (a - a0) * W);
+  const std::uint8_t* lab = win + grow * W;
   std::uint8_t* mark = emark_.data();
-  edge_labels(row, pass, 0, W, lab);
   bool any_mark = false;
   for (std::ptrdiff_t t = 0; t < etiles_; ++t) {
     const std::ptrdiff_t C0 = t * kTC, C1 = std::min(W, C0 + kTC);
@@ -177,8 +184,8 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
     const Eigen::Vector3d o(org[0], org[1], org[2]);
     std::fill(mark + C0, mark + C1, std::uint8_t{0});
     const detail::EdgeImages im{img, ek_ * estride_, estride_, e0, ek_, f0};
-    detail::edge_judge_row(row_view(row), 0, row, H, C0, C1, im, o, r, params_.edge_k, lab,
-                           todo, mark);
+    detail::edge_judge_row(gw, grow, row, H, C0, C1, im, o, r, params_.edge_k, win, todo,
+                           mark);
     for (std::ptrdiff_t c = C0; c < C1 && !any_mark; ++c) any_mark = mark[c] != 0;
   }
   // Pass 1 builds the next band's images alongside over the r rows before it (its first image
@@ -198,7 +205,7 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
   }
   if (!any_mark) return;
   const std::uint8_t nbit = static_cast<std::uint8_t>(1u << ((pass + 1) & 1));
-  const std::int64_t a0 = std::max<std::int64_t>(0, row - r), a1 = std::min<std::int64_t>(H - 1, row + r);
+  const std::int64_t a1 = std::min<std::int64_t>(H - 1, row + r);
   std::uint8_t* labs = labels_.data() + s * W;
   std::uint8_t* eo = eold_.data() + s * W;
   std::uint8_t* ep = epass_.data() + s * W;

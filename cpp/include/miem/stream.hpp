@@ -81,7 +81,8 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 ///
 /// Memory: the last L + h + 2 rows (about L + 2 h; with the edge test L + 64 + edge_window + 2:
 /// 303 rows at the defaults) are kept in a ring, plus max(2 R, 2 h) rows that repeat its first
-/// rows, so that the rows around any row form one strided GridView; with the edge test also
+/// rows (and 2 r with the edge test), so that the rows around any row form one strided
+/// GridView; with the edge test also
 /// (P + 1) ceil(width / 128) rings of integral images (11 x (2 r + 2) x (129 + 2 r) doubles and
 /// the column sums): about 95 MB for double profiles of 3200 points with the defaults (20 MB
 /// without the edge test), plus the cells of the open defects (a pool reserved for 16 rows'
@@ -203,7 +204,7 @@ class ProfileStream {
   int lagh_ = 0;        // rows behind the newest at which the height passes' labels are final
   bool sums_ = false;   // height pass 1 / heights run by running window sums (kAll or the test)
   std::ptrdiff_t ring_ = 0;  // rows kept: the longest look-back + 2
-  std::ptrdiff_t ext_ = 0;   // max(2R, 2h)
+  std::ptrdiff_t ext_ = 0;   // max(2R, 2h, 2r with the edge test)
   std::ptrdiff_t phys_ = 0;  // rows stored: ring_ + ext_, rows in slots [0, ext_) again at the
                              // end, so that any ext_ + 1 consecutive rows form one GridView
   int max_scale_ = 1;
