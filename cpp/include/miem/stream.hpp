@@ -81,10 +81,9 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 ///
 /// Memory: the last L + h + 2 rows (about L + 2 h; with the edge test L + 64 + edge_window + 2:
 /// 303 rows at the defaults) are kept in a ring, plus max(2 R, 2 h) rows that repeat its first
-/// rows (and 2 r with the edge test), so that the rows around any row form one strided
-/// GridView; with the edge test also
-/// (P + 1) ceil(width / 128) rings of integral images (11 x (2 r + 2) x (129 + 2 r) doubles and
-/// the column sums): about 95 MB for double profiles of 3200 points with the defaults (20 MB
+/// rows (2 r with the edge test if more), so that the rows around any row form one strided
+/// GridView; with the edge test also (P + 1) ceil(width / 128) rings of integral images
+/// (11 x (2 r + 2) x (129 + 2 r) doubles and the column sums): about 95 MB for double profiles of 3200 points with the defaults (20 MB
 /// without the edge test), plus the cells of the open defects (a pool reserved for 16 rows'
 /// worth of cells, which grows, once, only for more). Defects come with the rows (StreamRow::defects) once
 /// final; flags and angles are not reported. (Batch detection also refuses a grid of fewer
