@@ -188,8 +188,9 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
                            mark);
     for (std::ptrdiff_t c = C0; c < C1 && !any_mark; ++c) any_mark = mark[c] != 0;
   }
-  // Pass 1 builds the next band's images alongside over the r rows before it (its first image
-  // row is r rows above the band), one row per push instead of 2 r + 1 at its first row; its
+  // Pass 1 builds the next band's images alongside over the last 2 r rows before it (its first
+  // image row is r rows above the band, final once pass 1 is 2 r rows above it), one row per
+  // push instead of 2 r + 1 at its first row; its
   // origins are known once a finite cell of the tile is in (else the tile has no candidate).
   const std::int64_t R0n = R0 + kTR, e0n = R0n - r;
   if (pass == 1 && upto > e0n && R0n < H) {
