@@ -13,6 +13,9 @@ Sections, all measured in this one run:
 * Size sweep: organized grids 256^2 .. 4096^2 (1 and 2 threads) and ``fit_plane`` on 1e5 .. 1e7
   points against a NumPy read of the same array: how the cost grows.
 * Peak memory of ``detect`` in a fresh process against the input grid.
+* With min_step on: the default on a synthetic laser-profiler scan and on the real scan
+  ``second_source.pcd`` (when ``../shared`` is present), where ``min_step="auto"`` resolves to a
+  length; today's ``miem_bench_stages`` against the commit before the vectorised min_step search.
 * Where the time goes: each C++ stage timed alone (``miem_bench_stages``, CPU time, one thread),
   and the stage costs by configuration differences through the Python API (comparable across
   versions: angle test only; + heights at every point; + the height test).
@@ -236,8 +239,9 @@ def base_binary(commit: str, build: bool = True) -> Path | None:
 
 
 def run_stages(binary: Path, grid_file: Path, side: int, nt: int, repeats: int,
-               preset: str) -> dict:
-    out = subprocess.run([str(binary), str(grid_file), str(side), str(side), str(nt),
+               preset: str, cols: int | None = None) -> dict:
+    """miem_bench_stages on a side x side grid (side x cols with `cols`)."""
+    out = subprocess.run([str(binary), str(grid_file), str(side), str(cols or side), str(nt),
                           str(repeats), preset], capture_output=True, text=True, check=True).stdout
     row = json.loads(out)
     for k in STAGES:
@@ -273,7 +277,91 @@ def stage_times(build_dir: Path, side: int, repeats: int, build_bases: bool = Tr
     return rows, before
 
 
-def fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, base_bd, meta) -> str:
+def profiler_grid(h: int, w: int, seed: int = 0) -> np.ndarray:
+    """A laser-profiler-like grid where ``min_step="auto"`` resolves to a length (as on real
+    profiler scans): 0.05 mm along a profile, uneven profile spacing (0.1, 0.2, 1.0 mm
+    repeating), a tilted surface with a bump, 2 um noise, z quantised to 1 um, 200 spikes and
+    pits, 0.5% dropouts."""
+    rng = np.random.default_rng(seed)
+    dy = np.resize([0.1, 0.2, 1.0], h - 1)
+    y = np.concatenate([[0.0], np.cumsum(dy)])[:, None] * np.ones((1, w))
+    x = np.arange(w)[None, :] * 0.05 * np.ones((h, 1))
+    z = 0.1 * y + 0.4 * np.exp(-((x - 0.3 * x.max()) ** 2) / 50.0)
+    z = z + rng.normal(0.0, 0.002, (h, w))
+    grid = np.dstack([x, y, z])
+    flat = grid.reshape(-1, 3)
+    idx = rng.choice(h * w, size=min(200, h * w // 10), replace=False)
+    flat[idx, 2] += rng.choice([-1.0, 1.0], idx.size) * rng.uniform(0.5, 3.0, idx.size)
+    flat[:, 2] = np.round(flat[:, 2] * 1000.0) / 1000.0
+    flat[rng.random(h * w) < 0.005] = np.nan
+    return grid
+
+
+# The commit before the vectorised min_step search (issue 17, priority 1): its binary runs the
+# min_step scans in the same run as today's.
+MIN_STEP_BASE = ("67252b8", "before the vectorised min_step search")
+
+
+def min_step_times(build_dir: Path, side: int, repeats: int, build_bases: bool = True):
+    """The default on scans where min_step='auto' resolves to a length: the synthetic profiler
+    scan (side x side) and the real scan second_source.pcd when ../shared is present; today's
+    binary and MIN_STEP_BASE's, 1 thread, CPU time, in this one run."""
+    binary = build_stages(ROOT, build_dir)
+    if binary is None:
+        return []
+    scenes = [(f"synthetic profiler scan {side}x{side}", profiler_grid(side, side))]
+    sys.path.insert(0, str(HERE / "accuracy"))
+    try:
+        import real_truth as rt
+
+        if rt.available():
+            scenes.append(("real scan second_source.pcd (426x724)", rt.source_grid()))
+    except ImportError:
+        pass
+    old = base_binary(MIN_STEP_BASE[0], build_bases)
+    rows = []
+    for name, grid in scenes:
+        h, w = grid.shape[:2]
+        f = build_dir / "min_step_grid.f64"
+        np.ascontiguousarray(grid, dtype=np.float64).tofile(f)
+        now = run_stages(binary, f, h, 1, repeats, "recommended", cols=w)
+        before = (run_stages(old, f, h, 1, repeats, "recommended", cols=w)
+                  if old is not None else None)
+        f.unlink()
+        rows.append({"scene": name, "n": h * w, "now": now, "before": before})
+    return rows
+
+
+def fmt_min_step(rows: list[dict]) -> list[str]:
+    if not rows:
+        return []
+    L = ["", "### With min_step on (profiler scans)", "",
+         "On laser-profiler scans `min_step=\"auto\"` resolves to a length (uneven profile "
+         "spacing and z quantisation make the noise estimate exceed the spacing along a profile), "
+         "and every neighbour search must walk to the first cell at least `s * min_step` away. "
+         "The scan above never turns it on. Each stage timed alone (`miem_bench_stages`, 1 "
+         f"thread, CPU ms), today's build against {MIN_STEP_BASE[0]} "
+         f"({MIN_STEP_BASE[1]}) in this same run:", "",
+         "| scan | min_step | build | " + " | ".join(STAGES) + " | run() | Mpoints/s | "
+         "speed-up | same labels, flags, heights |",
+         "|---|---:|---|" + "---:|" * (len(STAGES) + 3) + "---|"]
+    for r in rows:
+        b, a = r["before"], r["now"]
+        same = "-"
+        if b is not None:
+            same = "yes" if all(b.get(k) == a.get(k) for k in ("checksum", "height_bits")) and (
+                "flags_checksum" not in b or b["flags_checksum"] == a["flags_checksum"]) else \
+                "**no**"
+        for label, s in (([(MIN_STEP_BASE[0], b)] if b is not None else []) + [("now", a)]):
+            up = f"{b['run'] / a['run']:.2f}x" if (label == "now" and b is not None) else ""
+            L.append(f"| {r['scene']} | {a.get('min_step', -1):.3f} mm | {label} | "
+                     + " | ".join(f"{s[k] * 1e3:.0f}" for k in STAGES + ("run",))
+                     + f" | {r['n'] / s['run'] / 1e6:.1f} | {up} | {same if label == 'now' else ''} |")
+    return L
+
+
+def fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, base_bd, meta,
+        min_step_rows=()) -> str:
     L = ["## Speed of the default detector (`python bench/bench_speed.py`)", ""]
     L.append(f"Written on {meta['date']}: miem {meta['miem']}, {meta['cpu']}, {os.cpu_count()} "
              f"cores, shared with other jobs (load average {meta['load0']:.1f} at the start, "
@@ -281,6 +369,11 @@ def fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, base_bd, m
              "seconds. Default preset = `\"recommended\"` (theta0 90, scales (1, 2), min_step "
              "'auto', window 21, height test 4.5 rms, edge_extent 12, edge test 4 rms in 15-cell "
              "windows), heights at every point, defects.")
+    if max(meta["load0"], meta.get("load1", 0.0)) > (os.cpu_count() or 1):
+        L[-1] += (" **The load exceeded the core count during this run: the wall-time and "
+                  "2-thread figures (and the wall-time comparison with Open3D / PCL) measure "
+                  "the other jobs as much as miem; the 1-thread CPU-time columns and the "
+                  "same-run before/after ratios are the ones to read.**")
     L += ["", f"### miem's default against Open3D and PCL, the same {meta['lead_side']}x"
           f"{meta['lead_side']} scan", "",
           "| method | time | Mpoints/s | points flagged / removed |", "|---|---:|---:|---:|"]
@@ -346,6 +439,7 @@ def fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, base_bd, m
                 L.append(f"| {label} | {b['preset']} | "
                          + " | ".join(f"{s[k] * 1e3:.0f}" for k in STAGES + ("run",))
                          + f" | {n / s['run'] / 1e6:.1f} | {up} |")
+    L += fmt_min_step(list(min_step_rows))
     L += ["", "By configuration differences through the Python API (CPU time, 1 thread, "
           f"{meta['bd_side']}x{meta['bd_side']}; the same measurement on the build before the "
           "speed work, where recorded):", "",
@@ -395,6 +489,7 @@ def main(argv=None) -> int:
     mem = memory(meta["mem_side"])
     # --quick uses only the earlier commits' binaries built before (building them takes minutes)
     stages, before = stage_times(args.build_dir, meta["stage_side"], reps, build_bases=not q)
+    min_step_rows = min_step_times(args.build_dir, meta["stage_side"], reps, build_bases=not q)
     now_bd = breakdown(bd_side, reps)
     base_bd = json.loads(BASELINE.read_text()) if BASELINE.exists() else None
     if base_bd and base_bd.get("side") != bd_side:
@@ -402,8 +497,9 @@ def main(argv=None) -> int:
     meta["load1"] = os.getloadavg()[0]
     RAW.write_text(json.dumps({"lead": rows_lead, "sweep": rows_sweep, "fit": rows_fit,
                                "memory": mem, "stages": stages, "before": before, "breakdown": now_bd,
-                               "meta": meta}, indent=1) + "\n")
-    OUT.write_text(fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, base_bd, meta))
+                               "min_step": min_step_rows, "meta": meta}, indent=1) + "\n")
+    OUT.write_text(fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, base_bd, meta,
+                       min_step_rows))
     print(OUT.read_text())
     return 0
 

@@ -132,12 +132,25 @@ def _edge_labels(g: np.ndarray) -> np.ndarray:
     return ref.edge_test(g, res.labels, window=11, tolerance=8.0, max_iterations=10)[0]
 
 
-@pytest.mark.parametrize("kind", ["step", "crease", "outline", "valley", "bead"])
+@pytest.mark.parametrize("kind", ["step", "crease", "outline", "valley", "bead", "strip", "rib",
+                                  "roof", "ledge"])
 def test_clean_features_stay_clean(kind: str) -> None:
     h, w = 40, 40
     cols = np.arange(w)[None, :].repeat(h, 0)
     z = _noise((h, w))
-    if kind == "step":
+    if kind == "strip":  # the paper's edge strip: one sample wide, 3 steps tall (a feature line)
+        z[:, 20] += 0.3
+    elif kind == "rib":  # a designed rib 2 mm tall, wider (12 cells) than the half-window (5)
+        z = z + 2.0 * ((cols >= 14) & (cols < 26))
+        g = _grid(z)  # the height passes flag its crest (a 21-cell window): the edge test adds none
+        base = ref.detect(g, preset="recommended").labels
+        np.testing.assert_array_equal(_edge_labels(g), base)
+        return
+    elif kind == "roof":  # a convex ridge, flanks of 40 degrees: less steep than 45, no fin
+        z = z - np.tan(np.radians(40)) * np.abs(cols - 20) * 0.1
+    elif kind == "ledge":  # a terrace 4 cells wide between two drops (a staircase going down)
+        z = z - 1.0 * (cols >= 18) - 1.0 * (cols >= 22)
+    elif kind == "step":
         z = z - 2.0 * (cols >= 20)
     elif kind == "crease":
         z = z - np.tan(np.radians(30)) * np.maximum(cols - 20, 0) * 0.1  # convex: falls away
@@ -172,6 +185,41 @@ def test_lip_before_the_feature_is_abnormal(kind: str) -> None:
     assert not (flagged & ~lip).any()
 
 
+def _fin_z(h: int = 40, w: int = 40, diagonal: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Sheet with a fin 1.5 mm tall and 4 cells (0.4 mm) wide standing on it, along the rows
+    (or along a diagonal); returns z and the fin mask."""
+    rows, cols = np.mgrid[0:h, 0:w]
+    fin = (np.abs(cols - rows) < 2) if diagonal else ((cols >= 18) & (cols < 22))
+    fin &= (rows >= 6) & (rows < h - 6)
+    return _noise((h, w)) + 1.5 * fin, fin
+
+
+@pytest.mark.parametrize("diagonal", [False, True])
+def test_fin_is_abnormal(diagonal: bool) -> None:
+    z, fin = _fin_z(diagonal=diagonal)
+    if not diagonal:  # a step down beyond it: ground at two levels
+        z = z - 1.0 * (np.arange(40)[None, :] >= 24)
+    g = _grid(z)
+    inner = fin.copy()  # a fin's two end cells of each line do not go on both ways
+    inner[[6, 33], :] = False
+    # the rule alone, on NORMAL labels, by hand: a fin cell has ground within r = 5 on both
+    # sides at most ~0.5 mm (0.7 diagonally) apart, 1.5 mm or more below it; off the fin no
+    # cell stands above ground on both sides
+    labels = np.zeros(fin.shape, np.uint8)
+    assert ref._fins(g, labels, fin, 5)[inner].all()
+    assert not ref._fins(g, labels, ~fin, 5).any()
+    # the edge test on NORMAL labels, the fin on flat sheet: the fin and nothing else (with the
+    # step its cells next to it fit sub-windows that straddle fin, ground and step: a cell that
+    # fits a clean sub-window stays as it is)
+    g = _grid(_fin_z(diagonal=diagonal)[0])
+    out = ref.edge_test(g, labels, window=11, tolerance=8.0, max_iterations=10)[0]
+    assert (out == ref.ABNORMAL)[inner].all()
+    assert not ((out == ref.ABNORMAL) & ~fin).any()
+    # the detector: every inner fin cell (the ends too when the height passes flag them), no other
+    flagged = _edge_labels(g) == ref.ABNORMAL
+    assert flagged[inner].all() and not (flagged & ~fin).any()
+
+
 # --------------------------------------------------------------------------------------------
 # the C++ edge test (opt-in: edge_tolerance / edge_window): core == reference on edge scenes
 # (float64 and float32, 1 and 2 threads), field checks, and the paths that cannot honour it
@@ -204,6 +252,10 @@ def _core_scenes() -> list:
         z[r0:r0 + 14, 19:21] += 0.1
     out.append(("tall lip", _grid(z)))
     out.append(("tall crop", np.ascontiguousarray(out[1][1].transpose(1, 0, 2))))
+    for diagonal in (False, True):  # fins (SPEC "Edge test" step 6), across tile borders
+        z, _ = _fin_z(140, 150, diagonal)
+        z[60:70, :] -= 0.8  # a lower terrace under part of it
+        out.append((f"fin {diagonal}", _grid(z)))
     return out
 
 

@@ -4,7 +4,7 @@
 // Usage: miem_bench_stages GRID.f64 ROWS COLS THREADS REPEATS [paper|recommended|recommended-no-edge]
 // GRID.f64 is ROWS x COLS x 3 doubles (numpy tofile). Prints one JSON object: the best time of
 // each stage over REPEATS runs (seconds; process CPU time with 1 thread, wall time with more),
-// the whole run() and the labels' checksum.
+// the whole run(), the min_step used (-1: off) and checksums of the labels, flags and heights.
 #include <algorithm>
 #include <chrono>
 #include <ctime>
@@ -65,7 +65,7 @@ int main(int argc, char** argv) {
   constexpr int kStages = 7;
   const char* names[kStages] = {"min_step_auto", "angle_passes", "height_test", "edge_test",
                                 "miem_plane",    "heights",      "defects"};
-  double best[kStages], best_run = 1e30;
+  double best[kStages], best_run = 1e30, min_step = -1.0;
   std::fill(best, best + kStages, 1e30);
   miem::detail::Workspace ws;
   miem::OrganizedDetector det(p);
@@ -78,6 +78,7 @@ int main(int argc, char** argv) {
       eff.min_step_auto = false;
     }
     t[1] = now();
+    min_step = eff.min_step;
     miem::detail::angle_passes(g, eff, out, ws);
     t[2] = now();
     const bool ht = eff.height_test();
@@ -99,10 +100,11 @@ int main(int argc, char** argv) {
     det.run(g, out);
     best_run = std::min(best_run, now() - t0);
   }
-  long long sum = 0;
+  long long sum = 0, fsum = 0;
   unsigned long long hsum = 0;  // the heights' bits: equal builds give equal heights
   for (std::size_t i = 0; i < N; ++i) {
     sum += labels[i] * static_cast<long long>(i % 7919);
+    fsum += flags[i] * static_cast<long long>(i % 7919);
     unsigned long long bits;
     std::memcpy(&bits, &height[i], sizeof bits);
     hsum = hsum * 1000003ULL + bits;
@@ -110,7 +112,8 @@ int main(int argc, char** argv) {
   std::printf("{\"rows\": %td, \"cols\": %td, \"threads\": %d, \"preset\": \"%s\", ", H, W, nt,
               preset.c_str());
   for (int k = 0; k < kStages; ++k) std::printf("\"%s\": %.6f, ", names[k], best[k]);
-  std::printf("\"run\": %.6f, \"clock\": \"%s\", \"checksum\": %lld, \"height_bits\": %llu}\n",
-              best_run, g_cpu_clock ? "cpu" : "wall", sum, hsum);
+  std::printf("\"run\": %.6f, \"clock\": \"%s\", \"min_step\": %.17g, \"checksum\": %lld, "
+              "\"flags_checksum\": %lld, \"height_bits\": %llu}\n",
+              best_run, g_cpu_clock ? "cpu" : "wall", min_step, sum, fsum, hsum);
   return 0;
 }

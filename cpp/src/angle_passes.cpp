@@ -25,6 +25,8 @@ namespace {
 // whose search goes further (max_gap > 1 with two unusable cells in a row, a min_step candidate
 // not clearly far enough, no usable cell within the isolation reach) fall back to the scalar
 // judge.
+constexpr std::ptrdiff_t kBlock = 256;  // columns per block of the row kernel
+constexpr std::ptrdiff_t kChunk = 32;   // lanes per min_step search
 constexpr int kPop4[16] = {0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4};
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
@@ -45,10 +47,9 @@ struct Side {
 };
 
 // The candidate a search returns when it ends at one of the two cells: the first usable one.
-// Writes the offset u from the centre, `any` (a usable cell among the two), `found` (u is the
-// search's answer) and `slow` (the search would go on: two unusable cells and max_gap > 1, or a
-// min_step candidate not clearly far enough).
-#define MIEM_PICK(P, c, ux, uy, uz, uu, found, slow, any)                                   \
+// Writes the offset u from the centre, `any` (a usable cell among the two, then u is the
+// search's answer) and `slow` (the search would go on: two unusable cells and max_gap > 1).
+#define MIEM_PICK(P, c, ux, uy, uz, uu, slow, any)                                          \
   do {                                                                                      \
     const std::int64_t o1 = P##o1[c], o2 = P##o2[c];                                        \
     const double x1 = P##x1[c], y1 = P##y1[c], z1 = P##z1[c];                               \
@@ -58,21 +59,30 @@ struct Side {
     uz = (o1 ? z1 : z2) - pz[c];                                                            \
     uu = (ux * ux + uy * uy) + uz * uz;                                                     \
     any = o1 | o2;                                                                          \
-    const std::int64_t far = uu > l2;                                                       \
-    found = any & far;                                                                      \
-    slow = ((any ^ 1) & gap2) | (any & (far ^ 1));                                          \
+    slow = (any ^ 1) & gap2;                                                                \
   } while (0)
 
-// One (direction, scale) over columns [0, n). The running best cos is kept as the pair
-// (uv, prod) = (u.v, |u|^2 |v|^2) and compared through uv |uv| / prod, which orders like
-// uv / sqrt(prod): no square root or division per candidate. Masks and bits are 64-bit lanes
-// like the doubles, so nothing is packed or unpacked. min_step: l2 = (s min_step)^2 (1 + 1e-12)
-// (else -1), a candidate must be clearly far enough, else the scalar judge searches on and
-// decides the borderline with the spec's norm. `near_bit`: set kNearBit where a side has a
-// usable cell (scale 1: the two candidates are the whole isolation reach of max_gap <= 1).
+// The verdict of one (direction, scale) from the offsets u, v of its two neighbours, folded
+// into the cell's running best (uv, prod) and its bits. The running best cos is kept as the
+// pair (uv, prod) = (u.v, |u|^2 |v|^2) and compared through uv |uv| / prod, which orders like
+// uv / sqrt(prod): no square root or division per candidate.
+#define MIEM_FOLD(c, ux, uy, uz, uu, vx, vy, vz, vv, found)                                 \
+  const double uv = (ux * vx + uy * vy) + uz * vz;                                          \
+  const double prod = uu * vv;                                                              \
+  const std::int64_t good = (found) & (uu != 0.0) & (vv != 0.0);                            \
+  const std::int64_t flagged = good & detail::cos_at_least(uv, prod, cos0, c2);             \
+  const double b_uv = buv[c], b_prod = bprod[c];                                            \
+  const std::int64_t better =                                                               \
+      good & (uv * std::fabs(uv) * b_prod > b_uv * std::fabs(b_uv) * prod);                 \
+  buv[c] = better ? uv : b_uv;                                                              \
+  bprod[c] = better ? prod : b_prod
+
+// One (direction, scale) without min_step over columns [0, n). Masks and bits are 64-bit lanes
+// like the doubles, so nothing is packed or unpacked. `near_bit`: set kNearBit where a side has
+// a usable cell (scale 1: the two candidates are the whole isolation reach of max_gap <= 1).
 MIEM_CLONES void kernel_line(std::ptrdiff_t n, const Side& A, const Side& B,
                              const double* __restrict px, const double* __restrict py,
-                             const double* __restrict pz, double cos0, double c2, double l2,
+                             const double* __restrict pz, double cos0, double c2,
                              std::int64_t gap2, std::int64_t bit, std::int64_t near_bit,
                              double* __restrict buv, double* __restrict bprod,
                              std::int64_t* __restrict bits) {
@@ -84,24 +94,100 @@ MIEM_CLONES void kernel_line(std::ptrdiff_t n, const Side& A, const Side& B,
   const std::int64_t *__restrict bo1 = B.ok1, *__restrict bo2 = B.ok2;
   for (std::ptrdiff_t c = 0; c < n; ++c) {
     double ux, uy, uz, uu, vx, vy, vz, vv;
-    std::int64_t fa, sa, aa, fb, sb, ab;
-    MIEM_PICK(a, c, ux, uy, uz, uu, fa, sa, aa);
-    MIEM_PICK(b, c, vx, vy, vz, vv, fb, sb, ab);
-    const double uv = (ux * vx + uy * vy) + uz * vz;
-    const double prod = uu * vv;
-    const std::int64_t good = fa & fb & (uu != 0.0) & (vv != 0.0);
-    const std::int64_t flagged = good & detail::cos_at_least(uv, prod, cos0, c2);
-    const double b_uv = buv[c], b_prod = bprod[c];
-    const std::int64_t better =
-        good & (uv * std::fabs(uv) * b_prod > b_uv * std::fabs(b_uv) * prod);
-    buv[c] = better ? uv : b_uv;
-    bprod[c] = better ? prod : b_prod;
+    std::int64_t sa, aa, sb, ab;
+    MIEM_PICK(a, c, ux, uy, uz, uu, sa, aa);
+    MIEM_PICK(b, c, vx, vy, vz, vv, sb, ab);
+    MIEM_FOLD(c, ux, uy, uz, uu, vx, vy, vz, vv, aa & ab);
     // 0/1 lanes to masks by negation (an int64 multiply has no AVX2 instruction)
     bits[c] |= (-good & bit) | (-flagged & (bit << kFlagShift)) | (-(sa | sb) & kSlowBit) |
                (-(aa | ab) & near_bit);
   }
 }
 #undef MIEM_PICK
+
+// With min_step, the neighbour search of SPEC.md for one side of one (direction, scale), one
+// step at a time for every lane of a block (the lanes that have ended keep their state). State
+// per lane, one word: bits 0-2 the outcome (0 searching, 1 found: u = the offset, 2 none, 4
+// slow: the scalar judge decides: a candidate within a relative 1e-12 of s * min_step, where
+// the spec's square root decides, or a search deeper than the row ring), bits 3-15 the gaps
+// met, bits 16- the step where the search ended.
+struct SideSearch {
+  double ux[kBlock], uy[kBlock], uz[kBlock];
+  std::int64_t st[kBlock];
+};
+constexpr std::int64_t kGapShift = 3, kGapMask = 0x1FFF, kEndShift = 16;
+
+// One step of the search for lanes [c0, c0 + n): the candidates' rows x, y, z, ok (shifted so
+// that index c is the candidate of cell c). Far: |q - P|^2 > hi; near: < lo. Returns whether a
+// lane searches on.
+MIEM_CLONES std::int64_t search_step(std::ptrdiff_t c0, std::ptrdiff_t n,
+                                     const double* __restrict x,
+                                     const double* __restrict y, const double* __restrict z,
+                                     const std::int64_t* __restrict ok,
+                                     const double* __restrict px, const double* __restrict py,
+                                     const double* __restrict pz, double lo, double hi,
+                                     std::int64_t max_gap, std::int64_t step,
+                                     SideSearch& __restrict sr) {
+  double *__restrict ux = sr.ux, *__restrict uy = sr.uy, *__restrict uz = sr.uz;
+  std::int64_t* __restrict st = sr.st;
+  const std::int64_t end = step << kEndShift;
+  std::int64_t any = 0;
+  for (std::ptrdiff_t c = c0; c < c0 + n; ++c) {
+    const std::int64_t s0 = st[c];
+    const std::int64_t act = ((s0 | (s0 >> 1) | (s0 >> 2)) & 1) ^ 1, o = ok[c];
+    const double dx = x[c] - px[c], dy = y[c] - py[c], dz = z[c] - pz[c];
+    const double dd = (dx * dx + dy * dy) + dz * dz;
+    const std::int64_t miss = act & (o ^ 1);
+    const std::int64_t g = ((s0 >> kGapShift) & kGapMask) + miss;
+    const std::int64_t far = dd > hi, near = dd < lo;
+    const std::int64_t f = act & o & far;
+    const std::int64_t none = miss & (g > max_gap);
+    const std::int64_t slow = act & o & (far ^ 1) & (near ^ 1);
+    const std::int64_t done = f | none | slow;
+    const std::int64_t s1 = s0 + (miss << kGapShift) + (f | (none << 1) | (slow << 2)) +
+                            (-done & end);
+    st[c] = s1;
+    ux[c] = f ? dx : ux[c];
+    uy[c] = f ? dy : uy[c];
+    uz[c] = f ? dz : uz[c];
+    any |= act & (done ^ 1);
+  }
+  return any;
+}
+
+// The verdict of one (direction, scale) from the two sides' searches (SideSearch), as
+// kernel_line. A side still searching at step `stop` (`open` 4: beyond the ring; 2: the
+// spec's last step passed) ends slow / none; a slow side makes the cell slow unless the other
+// side has none. ext: raised to the last step each side read. (Bit tests only: 64-bit
+// compares do not vectorise everywhere.)
+MIEM_CLONES void fold_searches(std::ptrdiff_t n, const SideSearch& A, const SideSearch& B,
+                               std::int64_t open, std::int64_t stop, double cos0, double c2,
+                               std::int64_t bit, double* __restrict buv,
+                               double* __restrict bprod, std::int64_t* __restrict bits,
+                               std::int64_t* __restrict ext) {
+  const double *__restrict ax = A.ux, *__restrict ay = A.uy, *__restrict az = A.uz;
+  const double *__restrict bx = B.ux, *__restrict by = B.uy, *__restrict bz = B.uz;
+  const std::int64_t *__restrict ast = A.st, *__restrict bst = B.st;
+  for (std::ptrdiff_t c = 0; c < n; ++c) {
+    const std::int64_t sa0 = ast[c], sb0 = bst[c];
+    const std::int64_t oa = -(((sa0 | (sa0 >> 1) | (sa0 >> 2)) & 1) ^ 1);  // still searching
+    const std::int64_t ob = -(((sb0 | (sb0 >> 1) | (sb0 >> 2)) & 1) ^ 1);
+    const std::int64_t sa = sa0 | (oa & open), sb = sb0 | (ob & open);
+    const std::int64_t ea = (oa & stop) | (~oa & (sa0 >> kEndShift));
+    const std::int64_t eb = (ob & stop) | (~ob & (sb0 >> kEndShift));
+    const std::int64_t e0 = ext[c], e1 = ea > eb ? ea : eb;
+    ext[c] = e0 > e1 ? e0 : e1;
+    const double ux = ax[c], uy = ay[c], uz = az[c];
+    const double vx = bx[c], vy = by[c], vz = bz[c];
+    const double uu = (ux * ux + uy * uy) + uz * uz, vv = (vx * vx + vy * vy) + vz * vz;
+    const std::int64_t fa = sa & 1, fb = sb & 1, la = (sa >> 2) & 1, lb = (sb >> 2) & 1;
+    const std::int64_t na = (sa >> 1) & 1, nb = (sb >> 1) & 1;
+    MIEM_FOLD(c, ux, uy, uz, uu, vx, vy, vz, vv, fa & fb);
+    const std::int64_t slow = (la | lb) & ((na | nb) ^ 1);
+    bits[c] |= (-good & bit) | (-flagged & (bit << kFlagShift)) | (-slow & kSlowBit);
+  }
+}
+#undef MIEM_FOLD
 
 // kNearBit where a usable cell lies 1 or 2 (with gap2: 1 .. 2) steps away along one of the
 // rays (when scale 1 is not among the scales).
@@ -149,18 +235,19 @@ void load_row(const GridView<T>& g, const std::uint8_t* usable, std::ptrdiff_t r
   }
 }
 
-// Judge rows [r_begin, r_end) of pass 1, keeping a ring of 2 (smax + 1) + 1 SoA rows (each grid
-// row is converted once) and one all-unusable row for the rows beyond the grid.
+// Judge rows [r_begin, r_end) of pass 1, keeping a ring of 2 depth + 1 SoA rows (each grid
+// row is converted once; depth = smax + 1, deeper with min_step) and one all-unusable row for
+// the rows beyond the grid. With min_step, `reach` (4 bytes per cell) receives the rays read.
 template <typename T, typename Judge>
 void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectParams& p,
-                int smax, std::ptrdiff_t r_begin, std::ptrdiff_t r_end, detail::RowScratch& sc,
+                int depth, std::ptrdiff_t r_begin, std::ptrdiff_t r_end, detail::RowScratch& sc,
                 const Judge& judge, std::uint8_t* labels, std::uint8_t* flags_out,
-                double* angle_out) {
-  const std::ptrdiff_t H = g.rows, W = g.cols, NR = 2 * (smax + 1) + 1;
-  const std::ptrdiff_t pad = smax + 1, S = W + 2 * pad;  // padded row length
+                double* angle_out, std::uint8_t* reach) {
+  const std::ptrdiff_t H = g.rows, W = g.cols, NR = 2 * depth + 1;
+  const std::ptrdiff_t pad = depth, S = W + 2 * pad;  // padded row length
   const double cos0 = std::cos(p.theta0_deg * detail::kDegToRad), c2 = cos0 * cos0;
   const std::int64_t gap2 = p.max_gap > 1;
-  const double l1 = p.min_step >= 0.0 ? p.min_step * p.min_step * (1.0 + 1e-12) : -1.0;
+  const bool deep = p.min_step >= 0.0;
   // slot k: x, y, z at sc.xyz + k * 3S (+ pad for column 0), ok at sc.ok + k * S; slot NR empty
   std::fill(sc.xyz.begin(), sc.xyz.end(), 0.0);
   std::fill(sc.ok.begin(), sc.ok.end(), 0);
@@ -176,6 +263,8 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
   const bool has_scale1 = std::find(p.scales.begin(), p.scales.end(), 1) != p.scales.end();
   double *buv = sc.best.data(), *bprod = sc.best.data() + S;
   std::int64_t* bits = sc.bits.data();
+  SideSearch sides[2];
+  std::int64_t ext[kBlock];
   for (std::ptrdiff_t r = r_begin; r < r_end; ++r) {
     if (r + pad < H) load_row(g, usable, r + pad, S, slot_x(r + pad), slot_ok(r + pad));
     std::fill(buv, buv + W, -2.0);
@@ -183,38 +272,89 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
     std::fill(bits, bits + W, 0);
     const double* px = slot_x(r);
     // Blocks of columns, every (direction, scale) per block: the block's rows stay in L1.
-    constexpr std::ptrdiff_t kBlock = 256;
     for (std::ptrdiff_t b0 = 0; b0 < W; b0 += kBlock) {
       const std::ptrdiff_t nb = std::min(W, b0 + kBlock) - b0;
+      const double *qx = px + b0, *qy = px + S + b0, *qz = px + 2 * S + b0;
       const std::int64_t* near_ok[16];
       int n_near = 0;
       for (int k = 0; k < 4; ++k) {
         const int dr = detail::kDirRow[k], dc = detail::kDirCol[k];
         const std::int64_t bit = std::int64_t{1} << k;
-        auto side = [&](int sgn, std::ptrdiff_t s) {
-          const std::ptrdiff_t s2 = p.max_gap > 0 ? s + 1 : s;  // max_gap 0: one candidate
-          const std::ptrdiff_t r1 = r + sgn * s * dr, r2 = r + sgn * s2 * dr;
-          const std::ptrdiff_t h1 = b0 + sgn * s * dc, h2 = b0 + sgn * s2 * dc;
-          const double* x1 = slot_x(r1) + h1;
-          const double* x2 = slot_x(r2) + h2;
-          const std::int64_t* o2 = p.max_gap > 0 ? slot_ok(r2) + h2 : slot_ok(r1) + h1;
-          return Side{x1, x1 + S, x1 + 2 * S, x2, x2 + S, x2 + 2 * S, slot_ok(r1) + h1, o2};
+        // the cells `step` steps away on side sgn, shifted to the block's first column
+        auto at_x = [&](int sgn, std::ptrdiff_t step) {
+          return slot_x(r + sgn * step * dr) + b0 + sgn * step * dc;
         };
+        auto at_ok = [&](int sgn, std::ptrdiff_t step) {
+          return slot_ok(r + sgn * step * dr) + b0 + sgn * step * dc;
+        };
+        if (deep) {
+          // SPEC's search step by step to its last step s + max_gap + max_reach, or to the
+          // ring's depth (lanes still searching there go to the scalar judge).
+          const std::int64_t gap = p.max_gap;
+          std::fill(ext, ext + nb, 1 + gap);
+          for (int s : p.scales) {
+            const double len = s * p.min_step, l2 = len * len;
+            const double lo = l2 * (1.0 - 1e-12), hi = l2 * (1.0 + 1e-12);
+            const std::ptrdiff_t last = s + gap + p.max_reach;
+            const std::ptrdiff_t stop = std::min<std::ptrdiff_t>(last, depth);
+            for (int sd = 0; sd < 2; ++sd) {
+              const int sgn = sd == 0 ? -1 : 1;
+              SideSearch& sr = sides[sd];
+              std::fill(sr.st, sr.st + nb, 0);
+              std::fill(sr.ux, sr.ux + nb, 0.0);
+              std::fill(sr.uy, sr.uy + nb, 0.0);
+              std::fill(sr.uz, sr.uz + nb, 0.0);
+              // chunks of kChunk lanes: a chunk ends with its own longest search
+              for (std::ptrdiff_t c0 = 0; c0 < nb; c0 += kChunk) {
+                const std::ptrdiff_t nc = std::min(kChunk, nb - c0);
+                for (std::ptrdiff_t step = s; step <= stop; ++step) {
+                  const double* x = at_x(sgn, step);
+                  if (!search_step(c0, nc, x, x + S, x + 2 * S, at_ok(sgn, step), qx, qy, qz,
+                                   lo, hi, gap, step, sr))
+                    break;
+                }
+              }
+            }
+            fold_searches(nb, sides[0], sides[1], last <= depth ? 2 : 4, stop, cos0, c2, bit,
+                          buv + b0, bprod + b0, bits + b0, ext);
+          }
+          // isolation: a usable cell among steps 1 .. 1 + max_gap (those within the ring; a
+          // cell without one goes to the scalar judge)
+          const std::ptrdiff_t iso = std::min<std::ptrdiff_t>(1 + gap, depth);
+          for (std::ptrdiff_t step = 1; step <= iso; ++step) {
+            for (int sgn = -1; sgn <= 1; sgn += 2) {
+              near_ok[n_near++] = at_ok(sgn, step);
+              if (n_near == 16) {
+                near_line(nb, near_ok, n_near, bits + b0);
+                n_near = 0;
+              }
+            }
+          }
+          std::uint8_t* rc = reach + (r * W + b0) * 4 + k;
+          for (std::ptrdiff_t c = 0; c < nb; ++c)
+            rc[4 * c] = static_cast<std::uint8_t>(std::min<std::int64_t>(ext[c], 255));
+          continue;
+        }
         for (int s : p.scales) {
-          const Side A = side(-1, s), B = side(+1, s);
-          const double l2 = l1 < 0.0 ? -1.0 : l1 * s * s;
-          kernel_line(nb, A, B, px + b0, px + S + b0, px + 2 * S + b0, cos0, c2, l2, gap2, bit,
-                      s == 1 ? kNearBit : 0, buv + b0, bprod + b0, bits + b0);
+          const std::ptrdiff_t s2 = p.max_gap > 0 ? s + 1 : s;  // max_gap 0: one candidate
+          const double *a1 = at_x(-1, s), *a2 = at_x(-1, s2);
+          const double *b1 = at_x(+1, s), *b2 = at_x(+1, s2);
+          const Side A{a1, a1 + S, a1 + 2 * S, a2, a2 + S, a2 + 2 * S, at_ok(-1, s),
+                       at_ok(-1, s2)};
+          const Side B{b1, b1 + S, b1 + 2 * S, b2, b2 + S, b2 + 2 * S, at_ok(+1, s),
+                       at_ok(+1, s2)};
+          kernel_line(nb, A, B, qx, qy, qz, cos0, c2, gap2, bit, s == 1 ? kNearBit : 0,
+                      buv + b0, bprod + b0, bits + b0);
         }
         if (!has_scale1) {
-          const Side A = side(-1, 1), B = side(+1, 1);
-          near_ok[n_near++] = A.ok1;
-          near_ok[n_near++] = A.ok2;
-          near_ok[n_near++] = B.ok1;
-          near_ok[n_near++] = B.ok2;
+          const std::ptrdiff_t s2 = p.max_gap > 0 ? 2 : 1;
+          near_ok[n_near++] = at_ok(-1, 1);
+          near_ok[n_near++] = at_ok(-1, s2);
+          near_ok[n_near++] = at_ok(+1, 1);
+          near_ok[n_near++] = at_ok(+1, s2);
         }
       }
-      if (!has_scale1) near_line(nb, near_ok, n_near, bits + b0);
+      if (n_near > 0) near_line(nb, near_ok, n_near, bits + b0);
     }
     double* angle_row = angle_out ? angle_out + r * W : nullptr;
     const std::int64_t* centre_ok = slot_ok(r);
@@ -226,7 +366,7 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
       if ((b & kSlowBit) || !(b & kNearBit)) {
         std::uint8_t fl;
         double an;
-        labels[i] = judge.judge(r, c, &fl, &an);
+        labels[i] = judge.judge(r, c, &fl, &an, reach ? reach + 4 * i : nullptr);
         if (flags_out) flags_out[i] = fl;
         if (angle_row) angle_row[c] = an;
         continue;
@@ -272,19 +412,38 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
   }
 
   const int smax = *std::max_element(p.scales.begin(), p.scales.end());
-  // The row kernel keeps 2 smax + 4 padded, converted rows per thread (32 bytes per cell each):
-  // on a long thin grid (1 x 10^7) that is gigabytes, so it runs only while its scratch stays
-  // within 8 bytes per grid cell (at least 1 MiB), with no more threads than rows; beyond, the
-  // scalar judge (same labels, SPEC) reads the grid in place (README "Guarantees").
+  const bool has_min_step = p.min_step >= 0.0;
+  // The row kernel keeps 2 depth + 2 padded, converted rows per thread (32 bytes per cell each;
+  // depth = smax + 1, with min_step up to kDeep steps so that the search for a neighbour far
+  // enough runs in the kernel): on a long thin grid (1 x 10^7) that is gigabytes, so it runs
+  // only while its scratch stays within 8 bytes per grid cell (at least 1 MiB), with no more
+  // threads than rows (with min_step, at the shallow depth when the deep one does not fit);
+  // beyond, the scalar judge (same labels, SPEC) reads the grid in place (README "Guarantees").
+  constexpr int kDeep = 16;
   const int ntk = static_cast<int>(std::min<std::ptrdiff_t>(nt, H));
-  const std::ptrdiff_t padded = W + 2 * (smax + 1);
-  const double kernel_bytes = static_cast<double>(ntk) * static_cast<double>(padded) *
-                              (32.0 * (2 * smax + 4) + 24.0);
-  const bool row_kernel =
-      smax <= 64 && kernel_bytes <= std::max(double(1 << 20), 8.0 * static_cast<double>(N));
+  auto kernel_fits = [&](int depth) {
+    const double padded = static_cast<double>(W + 2 * depth);
+    const double bytes = ntk * padded * (32.0 * (2 * depth + 2) + 24.0);
+    return smax <= 64 && bytes <= std::max(double(1 << 20), 8.0 * static_cast<double>(N));
+  };
+  int depth = smax + 1;
+  if (has_min_step) {
+    const std::ptrdiff_t full = std::ptrdiff_t{smax} + p.max_gap + p.max_reach;
+    const int deep = static_cast<int>(std::min<std::ptrdiff_t>(full, std::max(kDeep, depth)));
+    if (kernel_fits(deep)) depth = deep;
+  }
+  const bool row_kernel = kernel_fits(depth);
+  const std::ptrdiff_t padded = W + 2 * depth;
   if (row_kernel) {
     if (ws.rows.size() < static_cast<std::size_t>(ntk)) ws.rows.resize(ntk);
-    for (int t = 0; t < ntk; ++t) ws.rows[t].resize(2 * smax + 4, padded);
+    for (int t = 0; t < ntk; ++t) ws.rows[t].resize(2 * depth + 2, padded);
+  }
+  // With min_step: the rays each cell's verdict read (4 bytes per cell), so that a later pass
+  // re-judges only the cells whose verdict a removal can change.
+  std::uint8_t* reach = nullptr;
+  if (has_min_step) {
+    ws.reach.resize(4 * static_cast<std::size_t>(N));
+    reach = ws.reach.data();
   }
   // Pass 1 over every finite cell (row kernel; the scalar judge for min_step and fallbacks).
   auto pass1 = [&](double* angle_out) {
@@ -298,8 +457,8 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
 #endif
         // Contiguous row blocks, one per thread: each row is converted once per block.
         const std::ptrdiff_t r0 = H * tid / ntk, r1 = H * (tid + 1) / ntk;
-        pass1_rows(g, usable, p, smax, r0, r1, ws.rows[tid], judge, labels, out.flags,
-                   angle_out);
+        pass1_rows(g, usable, p, depth, r0, r1, ws.rows[tid], judge, labels, out.flags,
+                   angle_out, reach);
       }
     } else {
 #pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
@@ -309,7 +468,7 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
           if (!usable[i]) continue;
           std::uint8_t fl = 0;
           double an = kNaN;
-          labels[i] = judge.judge(r, c, &fl, &an);
+          labels[i] = judge.judge(r, c, &fl, &an, reach ? reach + 4 * i : nullptr);
           if (out.flags) out.flags[i] = fl;
           if (angle_out) angle_out[i] = an;
         }
@@ -347,7 +506,7 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
   auto judge_cell = [&](std::ptrdiff_t i) {
     std::uint8_t fl = 0;
     double an = kNaN;
-    labels[i] = judge.judge(i / W, i % W, &fl, &an);
+    labels[i] = judge.judge(i / W, i % W, &fl, &an, reach ? reach + 4 * i : nullptr);
     if (out.flags) out.flags[i] = fl;
     if (out.angle_deg) out.angle_deg[i] = an;
   };
@@ -357,9 +516,10 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
     if (labels[i] == kAbnormal) ws.fresh.push_back(i);
   int iterations = 1;
 
-  // Later passes: only cells whose rays meet a newly removed cell.
-  const std::ptrdiff_t reach = static_cast<std::ptrdiff_t>(smax) + p.max_gap +
-                               (p.min_step >= 0.0 ? p.max_reach : 0);
+  // Later passes: only cells whose rays meet a newly removed cell; with min_step, only within
+  // the steps their verdict read (`reach`), the other verdicts cannot change.
+  const std::ptrdiff_t ray_reach = static_cast<std::ptrdiff_t>(smax) + p.max_gap +
+                                   (has_min_step ? p.max_reach : 0);
   while (!ws.fresh.empty() && iterations < p.max_iterations) {
     for (std::int64_t i : ws.fresh) usable[i] = 0;
     ws.candidates.clear();
@@ -367,12 +527,13 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
       const std::ptrdiff_t r = i / W, c = i % W;
       for (int k = 0; k < 4; ++k) {
         for (int sgn = -1; sgn <= 1; sgn += 2) {
-          for (std::ptrdiff_t step = 1; step <= reach; ++step) {
+          for (std::ptrdiff_t step = 1; step <= ray_reach; ++step) {
             const std::ptrdiff_t rr = r + sgn * step * kDirRow[k];
             const std::ptrdiff_t cc = c + sgn * step * kDirCol[k];
             if (rr < 0 || rr >= H || cc < 0 || cc >= W) break;
             const std::ptrdiff_t q = rr * W + cc;
-            if (usable[q] == 1) {  // usable and not yet a candidate (bit 1 marks those)
+            // usable and not yet a candidate (bit 1 marks those), and reads this far
+            if (usable[q] == 1 && (!reach || reach[4 * q + k] >= step)) {
               usable[q] = 3;
               ws.candidates.push_back(q);
             }

@@ -91,6 +91,77 @@ void visit(const GridView<T>& g, std::ptrdiff_t r0, std::ptrdiff_t r1, std::uint
   }
 }
 
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+#define MIEM_MS_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define MIEM_MS_CLONES
+#endif
+
+// One grid row as structure-of-arrays doubles (x, y, z, finite as 1 / 0), for the band pass.
+template <typename T>
+void load_soa(const GridView<T>& g, std::ptrdiff_t r, double* __restrict x, double* __restrict y,
+              double* __restrict z, double* __restrict f) {
+  const std::ptrdiff_t W = g.cols, cs = g.col_stride, ks = g.coord_stride;
+  const T* p = g.data + r * g.row_stride;
+  for (std::ptrdiff_t c = 0; c < W; ++c) {
+    const T* q = p + c * cs;
+    // x - x is 0 for finite x and NaN for inf/NaN (GridView::finite's test, in T)
+    const T t = (q[0] - q[0]) + (q[ks] - q[ks]) + (q[2 * ks] - q[2 * ks]);
+    x[c] = static_cast<double>(q[0]);
+    y[c] = static_cast<double>(q[ks]);
+    z[c] = static_cast<double>(q[2 * ks]);
+    f[c] = t == T(0) ? 1.0 : 0.0;
+  }
+}
+
+// The four quantities of visit() whose first cell is in row 0 (SoA rows 0, 1, 2; row 1 / 2
+// null beyond the grid), -1 where a quantity has no value (its cells are not all finite): q0
+// (columns 0 .. W-2), q1 (0 .. W-3), q2 and q3 (0 .. W-1). The same expressions as visit().
+MIEM_MS_CLONES void row_quantities(std::ptrdiff_t W, const double* __restrict x0,
+                                   const double* __restrict y0, const double* __restrict z0,
+                                   const double* __restrict f0, const double* __restrict x1,
+                                   const double* __restrict y1, const double* __restrict z1,
+                                   const double* __restrict f1, const double* __restrict z2,
+                                   const double* __restrict f2, double* __restrict q0,
+                                   double* __restrict q1, double* __restrict q2,
+                                   double* __restrict q3) {
+  for (std::ptrdiff_t c = 0; c + 1 < W; ++c) {
+    const double dx = x0[c + 1] - x0[c], dy = y0[c + 1] - y0[c], dz = z0[c + 1] - z0[c];
+    const double v = dx * dx + dy * dy + dz * dz;
+    q0[c] = (f0[c] * f0[c + 1]) != 0.0 ? v : -1.0;
+  }
+  for (std::ptrdiff_t c = 0; c + 2 < W; ++c) {
+    const double v = std::fabs(z0[c] - 2.0 * z0[c + 1] + z0[c + 2]);
+    q1[c] = (f0[c] * f0[c + 1] * f0[c + 2]) != 0.0 ? v : -1.0;
+  }
+  if (x1 == nullptr) return;
+  for (std::ptrdiff_t c = 0; c < W; ++c) {
+    const double dx = x1[c] - x0[c], dy = y1[c] - y0[c], dz = z1[c] - z0[c];
+    const double v = dx * dx + dy * dy + dz * dz;
+    q2[c] = (f0[c] * f1[c]) != 0.0 ? v : -1.0;
+  }
+  if (z2 == nullptr) return;
+  for (std::ptrdiff_t c = 0; c < W; ++c) {
+    const double v = std::fabs(z0[c] - 2.0 * z1[c] + z2[c]);
+    q3[c] = (f0[c] * f1[c] * f2[c]) != 0.0 ? v : -1.0;
+  }
+}
+
+// Over n values (-1: none): how many, how many below a, how many in [a, b].
+MIEM_MS_CLONES void tally_band(std::ptrdiff_t n, const double* __restrict v, double a, double b,
+                               std::int64_t* __restrict out3) {
+  std::int64_t total = 0, below = 0, in = 0;
+  for (std::ptrdiff_t c = 0; c < n; ++c) {
+    const double x = v[c];
+    total += x >= 0.0;
+    below += (x >= 0.0) & (x < a);
+    in += (x >= a) & (x <= b);
+  }
+  out3[0] += total;
+  out3[1] += below;
+  out3[2] += in;
+}
+
 // A middle rank being selected: quantity q, its rank among q's values, the key bits known.
 struct Pick {
   int q = 0;
@@ -250,16 +321,59 @@ bool band_medians(const GridView<T>& g, int nt, Counts& count, Mids& mids,
   }
   std::vector<std::array<std::size_t, 2 * kQ>> tally(static_cast<std::size_t>(nt));
   std::vector<std::array<std::vector<double>, kQ>> in(static_cast<std::size_t>(nt));
-  std::vector<std::uint8_t> rings(static_cast<std::size_t>(3 * W * nt));
+  // per thread: a ring of 3 SoA rows (x, y, z, finite) and the 4 quantities of a row
+  const std::size_t per = static_cast<std::size_t>(16 * W);
+  std::vector<double> rows(per * static_cast<std::size_t>(nt));
 #pragma omp parallel for schedule(static, 1) num_threads(nt) if (nt > 1)
   for (int t = 0; t < nt; ++t) {
-    std::array<std::size_t, 2 * kQ> c{};  // totals, then the counts below a
+    std::int64_t c3[kQ][3] = {};  // totals, below a, in [a, b]
     auto& keep = in[t];
-    visit(g, H * t / nt, H * (t + 1) / nt, rings.data() + 3 * W * t, [&](int q, double v) {
-      ++c[q];
-      c[kQ + q] += v < a[q];
-      if ((v >= a[q]) & (v <= b[q])) keep[q].push_back(v);
-    });
+    double* base = rows.data() + per * t;
+    const auto slot = [&](std::ptrdiff_t r) { return base + (r % 3) * 4 * W; };
+    double* qv = base + 12 * W;  // q0 .. q3, W apart
+    const std::ptrdiff_t r0 = H * t / nt, r1 = H * (t + 1) / nt;
+    for (std::ptrdiff_t r = r0; r < std::min(H, r0 + 2); ++r) {
+      double* sl = slot(r);
+      load_soa(g, r, sl, sl + W, sl + 2 * W, sl + 3 * W);
+    }
+    for (std::ptrdiff_t r = r0; r < r1; ++r) {
+      if (r + 2 < H) {
+        double* sl = slot(r + 2);
+        load_soa(g, r + 2, sl, sl + W, sl + 2 * W, sl + 3 * W);
+      }
+      const double* a0 = slot(r);
+      const double* a1 = r + 1 < H ? slot(r + 1) : nullptr;
+      const double* a2 = r + 2 < H ? slot(r + 2) : nullptr;
+      row_quantities(W, a0, a0 + W, a0 + 2 * W, a0 + 3 * W, a1, a1 ? a1 + W : nullptr,
+                     a1 ? a1 + 2 * W : nullptr, a1 ? a1 + 3 * W : nullptr,
+                     a2 ? a2 + 2 * W : nullptr, a2 ? a2 + 3 * W : nullptr, qv, qv + W,
+                     qv + 2 * W, qv + 3 * W);
+      const std::ptrdiff_t n[kQ] = {W - 1, W - 2, a1 ? W : 0, a2 ? W : 0};
+      for (int q = 0; q < kQ; ++q) {
+        if (n[q] <= 0) continue;
+        const double* v = qv + q * W;
+        const std::int64_t before = c3[q][2];
+        tally_band(n[q], v, a[q], b[q], c3[q]);
+        const std::int64_t m = c3[q][2] - before;
+        if (m == 0) continue;
+        // the values in the band, in column order (branch-free: one spare slot at the end)
+        std::vector<double>& kq = keep[q];
+        const std::size_t k0 = kq.size();
+        kq.resize(k0 + static_cast<std::size_t>(m) + 1);
+        double* out = kq.data() + k0;
+        std::ptrdiff_t k = 0;
+        for (std::ptrdiff_t c = 0; c < n[q]; ++c) {
+          out[k] = v[c];
+          k += (v[c] >= a[q]) & (v[c] <= b[q]);
+        }
+        kq.resize(k0 + static_cast<std::size_t>(m));
+      }
+    }
+    std::array<std::size_t, 2 * kQ> c{};
+    for (int q = 0; q < kQ; ++q) {
+      c[q] = static_cast<std::size_t>(c3[q][0]);
+      c[kQ + q] = static_cast<std::size_t>(c3[q][1]);
+    }
     tally[t] = c;
   }
   count = Counts{};

@@ -25,6 +25,7 @@ namespace {
 
 constexpr int kM = kEdgeMoments;
 constexpr double kRankTol = 1e-12;
+constexpr double kLineTol = 1e-6;  // support on a line in (x, y): det <= this * trace^2
 constexpr double kRoundOff = 1e-9;  // tolerance floor: times sqrt((l1 + l2) / n), as the height test
 // (row_lo, row_hi, col_lo, col_hi) in units: -2 = -r, -1 = -1, 1 = 1, 2 = r.
 constexpr int kSides[8][4] = {{-2, 2, -2, -1}, {-2, 2, 1, 2},  {-2, -1, -2, 2}, {1, 2, -2, 2},
@@ -55,14 +56,17 @@ MIEM_EDGE_CLONES void side_moments(std::ptrdiff_t m, std::ptrdiff_t cap, double 
   for (std::ptrdiff_t e = 0; e < m; ++e) {
     const double n = mm[e], nn = n < 1.0 ? 1.0 : n;  // std::max(n, 1.0)
     emptyb[e] = mm[10 * cap + e] >= n_min;
-    useb[e] = n >= n_min;
     nnb[e] = nn;
     const double cx = mm[cap + e] / nn, cy = mm[2 * cap + e] / nn, cz = mm[3 * cap + e] / nn;
     ceb[e] = cx, ceb[cap + e] = cy, ceb[2 * cap + e] = cz;
-    Mb[e] = mm[4 * cap + e] - nn * cx * cx;            // M(0, 0)
-    Mb[cap + e] = mm[7 * cap + e] - nn * cy * cy;      // M(1, 1)
+    const double a = mm[4 * cap + e] - nn * cx * cx, b = mm[7 * cap + e] - nn * cy * cy;
+    const double d = mm[5 * cap + e] - nn * cx * cy;
+    // support on a line in (x, y): no plane (SPEC step 3)
+    useb[e] = (n >= n_min) & (a * b - d * d > kLineTol * ((a + b) * (a + b)));
+    Mb[e] = a;                                         // M(0, 0)
+    Mb[cap + e] = b;                                   // M(1, 1)
     Mb[2 * cap + e] = mm[9 * cap + e] - nn * cz * cz;  // M(2, 2)
-    Mb[3 * cap + e] = mm[5 * cap + e] - nn * cx * cy;  // M(0, 1)
+    Mb[3 * cap + e] = d;                               // M(0, 1)
     Mb[4 * cap + e] = mm[8 * cap + e] - nn * cy * cz;  // M(1, 2)
     Mb[5 * cap + e] = mm[6 * cap + e] - nn * cx * cz;  // M(0, 2)
   }
@@ -134,6 +138,68 @@ MIEM_EDGE_CLONES void rect_sums(int m, std::ptrdiff_t plane, std::ptrdiff_t cap,
     double* __restrict oq = out + q * cap;
     for (int j = 0; j < m; ++j) oq[j] = aq[j] - bq[j] - cq[j] + dq[j];
   }
+}
+
+// SPEC "Edge test" step 6, fins: is candidate (rr, cc) thin material standing proud of the
+// ground (NORMAL or EDGE cells at the start of the pass) on both sides along one of the four
+// directions, taller than those two lowest ground cells (within r cells) are apart, at least
+// two cells wide at half its height and going on both ways along the perpendicular direction
+// (material: any cell with a return, ABNORMAL ones too)? The formulas are
+// miem.reference._fins'. Called only for cells that fit no clean side (a fin that fits one
+// stays as it is), so flat surface, which the shortcut below settles, never pays for it.
+template <typename T>
+bool is_fin(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
+            std::ptrdiff_t cc, std::ptrdiff_t r) {
+  constexpr int kDirs[4][2] = {{1, 0}, {0, 1}, {1, 1}, {1, -1}};
+  const std::ptrdiff_t H = g.rows, W = g.cols;
+  const auto ground = [&](std::ptrdiff_t a, std::ptrdiff_t b) {
+    return a >= 0 && a < H && b >= 0 && b < W &&
+           (labels[a * W + b] == kNormal || labels[a * W + b] == kEdge);
+  };
+  const auto zat = [&](std::ptrdiff_t a, std::ptrdiff_t b) {
+    return static_cast<double>(g.data[a * g.row_stride + b * g.col_stride + 2 * g.coord_stride]);
+  };
+  const double zp = zat(rr, cc);
+  for (const auto& d : kDirs) {
+    double zlow[2];
+    std::ptrdiff_t jlow[2] = {0, 0};
+    bool any = true;
+    for (int side = 0; side < 2 && any; ++side) {
+      const std::ptrdiff_t sg = side == 0 ? -1 : 1;
+      double zmin = std::numeric_limits<double>::infinity();
+      for (std::ptrdiff_t j = 1; j <= r; ++j) {  // outward: among equal minima the nearest
+        const std::ptrdiff_t a = rr + sg * j * d[0], b = cc + sg * j * d[1];
+        if (!ground(a, b)) continue;
+        const double zq = zat(a, b);
+        if (zq < zmin) zmin = zq, jlow[side] = sg * j;
+      }
+      any = zmin < zp;  // else the height is not positive
+      zlow[side] = zmin;
+    }
+    if (!any) continue;
+    const double base = std::max(zlow[0], zlow[1]), height = zp - base;
+    const Eigen::Vector3d qa = g(rr + jlow[0] * d[0], cc + jlow[0] * d[1]);
+    const Eigen::Vector3d qb = g(rr + jlow[1] * d[0], cc + jlow[1] * d[1]);
+    const double dx = qa.x() - qb.x(), dy = qa.y() - qb.y();
+    if (!(height > 0.0) || !(height * height > dx * dx + dy * dy)) continue;
+    const double half = base + 0.5 * height;
+    const auto above = [&](std::ptrdiff_t a, std::ptrdiff_t b) {  // material (not INVALID)
+      return a >= 0 && a < H && b >= 0 && b < W && labels[a * W + b] != kInvalid &&
+             zat(a, b) > half;
+    };
+    if (!above(rr - d[0], cc - d[1]) && !above(rr + d[0], cc + d[1])) continue;  // wide
+    // long: above half height along the perpendicular direction, both ways within r
+    const std::ptrdiff_t er = (d[0] == 0 || d[1] == 0) ? d[1] : d[0];
+    const std::ptrdiff_t ec = (d[0] == 0 || d[1] == 0) ? d[0] : -d[1];
+    bool along = true;
+    for (std::ptrdiff_t sg = -1; sg <= 1 && along; sg += 2) {
+      bool up = false;
+      for (std::ptrdiff_t j = 1; j <= r && !up; ++j) up = above(rr + sg * j * er, cc + sg * j * ec);
+      along = up;
+    }
+    if (along) return true;
+  }
+  return false;
 }
 
 }  // namespace
@@ -254,8 +320,8 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       side_planes(m, kChunk, k, use1, ok1, E1, nn1, ce1, P1, valid1, F1);
       for (int j = 0; j < m; ++j) {
         const std::ptrdiff_t i = cols[j];
-        if (!use1[j]) {  // no side with support: none valid, none to stand proud of
-          mark[i] = 0;
+        if (!use1[j]) {  // no side with support: none to fit or stand proud of; a fin?
+          mark[i] = is_fin(g, lab, grow, cols[j], r) ? 1 : 0;
           continue;
         }
         const bool clean = F1[kChunk + j] <= kEdgeCleanRatio * std::sqrt(low1[j]);  // <= 2 best
@@ -322,7 +388,17 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
         x.normal = Eigen::Vector3d(F[3 * kCap + e], F[4 * kCap + e], F[5 * kCap + e]);
         best = std::min(best, x.rms);
       }
-      mark[i] = edge_abnormal(sd, best, [](int s) { return kOpposite[s]; }) ? 1 : 0;
+      bool abnormal = edge_abnormal(sd, best, [](int s) { return kOpposite[s]; });
+      if (!abnormal && is_fin(g, lab, grow, cols[j], r)) {  // a fin that fits no clean side
+        abnormal = true;
+        for (const Side& x : sd) {
+          if (x.valid && x.rms <= kEdgeCleanRatio * best && !(std::abs(x.h) > x.tol)) {
+            abnormal = false;
+            break;
+          }
+        }
+      }
+      mark[i] = abnormal ? 1 : 0;
     }
   }
 }

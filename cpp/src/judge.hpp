@@ -51,8 +51,12 @@ class CellJudge {
         min_step_(p.min_step) {}
 
   // Writes flags and smallest angle; returns the label of a finite, not yet abnormal cell.
-  std::uint8_t judge(std::ptrdiff_t r, std::ptrdiff_t c, std::uint8_t* flags,
-                     double* angle_deg) const {
+  // With `reach` (4 bytes), also the farthest step along each direction (either side) whose
+  // usable bit the verdict read, at least 1 + max_gap (capped at 255): a later pass need
+  // re-judge the cell only when a cell that near on one of its rays is removed. Not written for
+  // an isolated (ABNORMAL) cell.
+  std::uint8_t judge(std::ptrdiff_t r, std::ptrdiff_t c, std::uint8_t* flags, double* angle_deg,
+                     std::uint8_t* reach = nullptr) const {
     if (isolated(r, c)) {
       *flags = 0;
       *angle_deg = kNaN;
@@ -64,9 +68,11 @@ class CellJudge {
     double best_cos = -2.0;
     for (int k = 0; k < 4; ++k) {
       bool dir_avail = false, dir_flag = false;
+      std::ptrdiff_t ext = 1 + static_cast<std::ptrdiff_t>(p_.max_gap);
       for (int s : p_.scales) {
         Eigen::Vector3d a, b;
-        if (!neighbour(r, c, P, -1, k, s, &a) || !neighbour(r, c, P, +1, k, s, &b)) continue;
+        const bool has_a = neighbour(r, c, P, -1, k, s, &a, &ext);
+        if (!has_a || !neighbour(r, c, P, +1, k, s, &b, &ext)) continue;
         const Eigen::Vector3d u = a - P, v = b - P;
         const double uu = dot3(u, u), vv = dot3(v, v);
         if (uu == 0.0 || vv == 0.0) continue;
@@ -77,6 +83,7 @@ class CellJudge {
         if (cs >= cos0_) dir_flag = true;
         if (cs > best_cos) best_cos = cs;
       }
+      if (reach) reach[k] = static_cast<std::uint8_t>(std::min<std::ptrdiff_t>(ext, 255));
       avail += dir_avail;
       if (dir_flag) {
         ++flagged;
@@ -107,8 +114,9 @@ class CellJudge {
     return true;
   }
 
+  // The SPEC neighbour search; raises *ext to the last step whose usable bit it read.
   bool neighbour(std::ptrdiff_t r, std::ptrdiff_t c, const Eigen::Vector3d& P, int sgn, int k,
-                 int s, Eigen::Vector3d* out) const {
+                 int s, Eigen::Vector3d* out, std::ptrdiff_t* ext) const {
     const std::ptrdiff_t dr = sgn * kDirRow[k], dc = sgn * kDirCol[k];
     const std::ptrdiff_t last = static_cast<std::ptrdiff_t>(s) + p_.max_gap + p_.max_reach;
     const double min_len = has_min_step_ ? s * min_step_ : 0.0;
@@ -117,6 +125,7 @@ class CellJudge {
       if (has_min_step_ && step > last) return false;
       const std::ptrdiff_t rr = r + step * dr, cc = c + step * dc;
       if (rr < 0 || rr >= rows_ || cc < 0 || cc >= cols_) return false;
+      if (step > *ext) *ext = step;
       if (!usable(rr, cc)) {
         if (++gaps > p_.max_gap) return false;
         continue;

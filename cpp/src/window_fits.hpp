@@ -45,11 +45,16 @@ inline constexpr int kMoments = 11;  // n, x, y, z, xx, xy, xz, yy, yz, zz, line
 /// Smallest eigenpair and height for m cells from their window sums (SoA, `cap` apart:
 /// S + k * cap is moment k; Q + k * cap is coordinate k of the cell, relative to the same
 /// origin). Writes fits to F (height, l0, l1, l2 at F + k * cap) and ok / redo flags; redo marks
-/// the rare cells whose Newton iteration needs more steps (solved again by the scalar routine).
-MIEM_FIT_CLONES inline void solve_fits(std::ptrdiff_t m, std::ptrdiff_t cap,
-                                       const double* __restrict S, const double* __restrict Q,
-                                       double* __restrict F, std::uint8_t* __restrict ok,
-                                       std::uint8_t* __restrict redo) {
+/// the rare cells whose Newton iteration needs more steps (solved again by solve_fits_exact).
+/// kExact: fit_from_sums's arithmetic bit for bit (means and the normal by division, Newton
+/// until every lane has ended or 64 steps, as smallest_eigenpair), for those cells.
+template <bool kExact>
+inline __attribute__((always_inline)) void solve_fits_body(std::ptrdiff_t m, std::ptrdiff_t cap,
+                                                           const double* __restrict S,
+                                                           const double* __restrict Q,
+                                                           double* __restrict F,
+                                                           std::uint8_t* __restrict ok,
+                                                           std::uint8_t* __restrict redo) {
   const double* __restrict s0 = S;
   const double* __restrict s1 = S + cap;
   const double* __restrict s2 = S + 2 * cap;
@@ -78,8 +83,10 @@ MIEM_FIT_CLONES inline void solve_fits(std::ptrdiff_t m, std::ptrdiff_t cap,
     for (std::ptrdiff_t t = 0; t < nb_; ++t) {
       const std::ptrdiff_t i = b0 + t;
       const double n = s0[i];
-      const double inv_n = 1.0 / (n > 0.0 ? n : 1.0);
-      const double mx = s1[i] * inv_n, my = s2[i] * inv_n, mz = s3[i] * inv_n;
+      const double nn = n > 0.0 ? n : 1.0, inv_n = 1.0 / nn;
+      const double mx = kExact ? s1[i] / nn : s1[i] * inv_n;
+      const double my = kExact ? s2[i] / nn : s2[i] * inv_n;
+      const double mz = kExact ? s3[i] / nn : s3[i] * inv_n;
       MX[t] = mx, MY[t] = my, MZ[t] = mz;
       A[t] = s4[i] - n * mx * mx, D[t] = s5[i] - n * mx * my, Fm[t] = s6[i] - n * mx * mz;
       B[t] = s7[i] - n * my * my, E[t] = s8[i] - n * my * mz, C[t] = s9[i] - n * mz * mz;
@@ -87,7 +94,7 @@ MIEM_FIT_CLONES inline void solve_fits(std::ptrdiff_t m, std::ptrdiff_t cap,
       x[t] = 0.0;
       live[t] = tr[t] > 0.0 ? 1.0 : 0.0;
     }
-    for (int it = 0; it < 4; ++it) {
+    for (int it = 0; it < (kExact ? 64 : 4); ++it) {
       std::int64_t any = 0;
       for (std::ptrdiff_t t = 0; t < nb_; ++t) {
         newton_step(x[t], live[t], tr[t], c1[t], det[t]);
@@ -101,8 +108,13 @@ MIEM_FIT_CLONES inline void solve_fits(std::ptrdiff_t m, std::ptrdiff_t cap,
       double l1, hi, nx, ny, nz, nb;
       eigen_finish(A[t], B[t], C[t], D[t], E[t], Fm[t], tr[t], c1[t], x[t], l1, hi, nx, ny, nz,
                    nb);
-      const double inv_len = 1.0 / std::sqrt(nb > 0.0 ? nb : 1.0);
-      nx *= inv_len, ny *= inv_len, nz *= inv_len;
+      if (kExact) {
+        const double len = std::sqrt(nb > 0.0 ? nb : 1.0);
+        nx /= len, ny /= len, nz /= len;
+      } else {
+        const double inv_len = 1.0 / std::sqrt(nb > 0.0 ? nb : 1.0);
+        nx *= inv_len, ny *= inv_len, nz *= inv_len;
+      }
       const double sg = nz != 0.0 ? (nz > 0.0 ? 1.0 : -1.0)
                                   : (nx != 0.0 ? (nx > 0.0 ? 1.0 : -1.0) : (ny < 0.0 ? -1.0 : 1.0));
       const double h = sg * ((nx * (qx[i] - mx) + ny * (qy[i] - my)) + nz * (qz[i] - mz));
@@ -115,6 +127,21 @@ MIEM_FIT_CLONES inline void solve_fits(std::ptrdiff_t m, std::ptrdiff_t cap,
       redo[i] = static_cast<std::uint8_t>((live[t] != 0.0) & (n >= 3.0));
     }
   }
+}
+
+MIEM_FIT_CLONES inline void solve_fits(std::ptrdiff_t m, std::ptrdiff_t cap,
+                                       const double* __restrict S, const double* __restrict Q,
+                                       double* __restrict F, std::uint8_t* __restrict ok,
+                                       std::uint8_t* __restrict redo) {
+  solve_fits_body<false>(m, cap, S, Q, F, ok, redo);
+}
+
+MIEM_FIT_CLONES inline void solve_fits_exact(std::ptrdiff_t m, std::ptrdiff_t cap,
+                                             const double* __restrict S,
+                                             const double* __restrict Q, double* __restrict F,
+                                             std::uint8_t* __restrict ok,
+                                             std::uint8_t* __restrict redo) {
+  solve_fits_body<true>(m, cap, S, Q, F, ok, redo);
 }
 
 /// The same fit for one cell with the scalar routine (smallest_eigenpair, Newton until done).
@@ -270,23 +297,43 @@ void row_fits(const double* col, std::ptrdiff_t stride, std::ptrdiff_t half, std
     S[10 * cap + j] = std::round(S[10 * cap + j]);
   }
   solve_fits(ns, cap, S, Q, F, okf, redo);
+  // The cells whose Newton iteration has not ended in 4 steps (rough or strongly anisotropic
+  // windows, as a profiler's 0.05 x 1 mm cells make): again in vector code, kRedo at a time,
+  // with fit_from_sums's arithmetic (its results bit for bit).
+  {
+    constexpr std::ptrdiff_t kRedo = 32;
+    double S2[kMoments * kRedo], Q2[3 * kRedo], F2[4 * kRedo];
+    std::uint8_t ok2[kRedo], redo2[kRedo];
+    std::ptrdiff_t idx[kRedo], nr = 0;
+    auto flush = [&]() {
+      solve_fits_exact(nr, kRedo, S2, Q2, F2, ok2, redo2);
+      for (std::ptrdiff_t t = 0; t < nr; ++t) {
+        for (int k = 0; k < 4; ++k) F[k * cap + idx[t]] = F2[k * kRedo + t];
+        okf[idx[t]] = ok2[t];
+      }
+      nr = 0;
+    };
+    for (std::ptrdiff_t e = 0; e < ns; ++e) {
+      if (!redo[e]) continue;
+      for (int k = 0; k < kMoments; ++k) S2[k * kRedo + nr] = S[k * cap + e];
+      for (int k = 0; k < 3; ++k) Q2[k * kRedo + nr] = Q[k * cap + e];
+      idx[nr++] = e;
+      if (nr == kRedo) flush();
+    }
+    if (nr > 0) flush();
+  }
   std::ptrdiff_t k2 = 0;
   for (std::ptrdiff_t j = 0; j < ncols; ++j) {
     if (!wrow[j]) continue;
     const std::ptrdiff_t e = compact ? k2++ : j;
     WindowFit f;
-    if (redo[e]) {
-      double sums[kMoments];
-      for (int k = 0; k < kMoments; ++k) sums[k] = S[k * cap + e];
-      f = fit_from_sums(sums, Eigen::Vector3d(Q[e], Q[cap + e], Q[2 * cap + e]));
-    } else {
-      f.ok = okf[e] != 0;
-      f.n = S[e];
-      f.height = F[e];
-      f.l0 = F[cap + e];
-      f.l1 = F[2 * cap + e];
-      f.l2 = F[3 * cap + e];
-    }
+    f.ok = okf[e] != 0;
+    f.n = S[e];
+    f.height = F[e];
+    f.l0 = F[cap + e];
+    f.l1 = F[2 * cap + e];
+    f.l2 = F[3 * cap + e];
+    if (redo[e] && !f.ok) f.n = f.height = 0.0;  // fit_from_sums leaves them unset
     f.edges = S[10 * cap + e];
     visit(j, f);
   }

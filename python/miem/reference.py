@@ -1002,6 +1002,9 @@ def _edge_sides(r: int) -> tuple[tuple[int, int, int, int], ...]:
 #: A sub-window is *clean* when its rms is at most this times the smallest rms of the cell's
 #: sub-windows (a sub-window straddling a feature line has a far larger rms).
 _EDGE_CLEAN_RATIO = 2.0
+#: A sub-window's support is on a line in (x, y) when the determinant of its (x, y) scatter is
+#: at most this times its trace squared (SPEC "Edge test" step 3).
+_EDGE_LINE_TOL = 1e-6
 #: Opposite sub-windows (indices into :func:`_edge_sides`).
 _EDGE_OPPOSITE = ((0, 1), (2, 3), (4, 7), (5, 6))
 
@@ -1055,6 +1058,10 @@ def _side_fits(
                 cov[:, a, b] = cov[:, b, a] = m[:, idx] - nn * cen[:, a] * cen[:, b]
                 idx += 1
         # (idx == 10: the INVALID count)
+        # support on a line in (x, y) (one row or column of cells): no plane (its normal would
+        # be horizontal and its smallest eigenvalue round-off)
+        a, b, d = cov[:, 0, 0], cov[:, 1, 1], cov[:, 0, 1]
+        ok &= a * b - d * d > _EDGE_LINE_TOL * ((a + b) * (a + b))
         cov[~ok] = np.eye(3)
         evals, evecs = np.linalg.eigh(cov)
         ok &= (evals[:, 2] > 0.0) & ~(evals[:, 1] <= _EIGEN_RANK_TOL * evals[:, 2])
@@ -1071,6 +1078,69 @@ def _side_fits(
 
 #: The edge test's tiles (SPEC "Edge test" step 3): rows x columns, fixed in grid coordinates.
 _EDGE_TILE = (64, 128)
+
+
+#: Fin directions (SPEC "Edge test" step 6): along columns, along rows, both diagonals.
+_FIN_DIRECTIONS = ((1, 0), (0, 1), (1, 1), (1, -1))
+
+
+def _fins(
+    grid: NDArray[np.float64],
+    labels: NDArray[np.uint8],
+    cells: NDArray[np.bool_],
+    r: int,
+) -> NDArray[np.bool_]:
+    """The cells of ``cells`` that are *fins* (SPEC "Edge test" step 6): thin material standing
+    proud of the ground on both sides along a direction, taller than that ground is apart."""
+    hh, ww = labels.shape
+    ground = (labels == NORMAL) | (labels == EDGE)
+    z = np.where(ground, grid[..., 2], np.inf)
+    zm = np.where(labels != INVALID, grid[..., 2], -np.inf)  # material: any cell with a return
+    xy = grid[..., :2]
+    out = np.zeros_like(cells)
+    rr, cc = np.nonzero(cells)
+    zp = grid[rr, cc, 2]
+
+    def at(a: NDArray[np.float64], r1: NDArray[np.int64], c1: NDArray[np.int64],
+           fill: float) -> NDArray[np.float64]:
+        inside = (r1 >= 0) & (r1 < hh) & (c1 >= 0) & (c1 < ww)
+        shape = (rr.size,) + a.shape[2:]
+        v = np.full(shape, fill)
+        v[inside] = a[r1[inside], c1[inside]]
+        return v
+
+    for dr, dc in _FIN_DIRECTIONS:
+        lows = []
+        for sg in (-1, 1):
+            zmin = np.full(rr.size, np.inf)
+            pmin = np.full((rr.size, 2), np.nan)
+            for j in range(1, r + 1):  # outward: among equal minima the nearest one
+                r1, c1 = rr + sg * j * dr, cc + sg * j * dc
+                zj = at(z, r1, c1, np.inf)
+                lower = zj < zmin
+                zmin = np.where(lower, zj, zmin)
+                pmin = np.where(lower[:, None], at(xy, r1, c1, np.nan), pmin)
+            lows.append((zmin, pmin))
+        (za, pa), (zb, pb) = lows
+        base = np.maximum(za, zb)
+        height = zp - base
+        dx, dy = pa[:, 0] - pb[:, 0], pa[:, 1] - pb[:, 1]
+        with np.errstate(invalid="ignore"):  # no ground on a side: base = inf
+            half = base + 0.5 * height
+        wide = np.zeros(rr.size, dtype=bool)  # a neighbour along d above half height
+        for sg in (-1, 1):
+            wide |= at(zm, rr + sg * dr, cc + sg * dc, -np.inf) > half
+        long = np.ones(rr.size, dtype=bool)  # and along the fin's line, both ways within r
+        er, ec = (dc, dr) if dr == 0 or dc == 0 else (dr, -dc)  # the perpendicular direction
+        for sg in (-1, 1):
+            up = np.zeros(rr.size, dtype=bool)
+            for j in range(1, r + 1):
+                up |= at(zm, rr + sg * j * er, cc + sg * j * ec, -np.inf) > half
+            long &= up
+        fin = np.isfinite(base) & (height > 0.0) & (height * height > dx * dx + dy * dy)
+        fin &= wide & long
+        out[rr[fin], cc[fin]] = True
+    return out
 
 
 def _edge_pass(
@@ -1126,7 +1196,8 @@ def _edge_verdicts(
         for x, y in ((a, b), (b, a)):
             falls = empty[y] | (valid[y] & (_dot3(nrm[x], cen[y] - cen[x]) < -tol[x]))
             proud |= clean[x] & (h[x] > tol[x]) & falls
-    out[cells] = ~fits.any(axis=0) & proud
+    fin = _fins(grid, labels, cells, r)[cells]  # (SPEC step 6: reach r, inside the tile's frame)
+    out[cells] = ~fits.any(axis=0) & (proud | fin)
     return out
 
 

@@ -41,6 +41,7 @@ struct FitScratch {
 /// The work buffers of one detector, kept between runs (same-size runs do not allocate).
 struct Workspace {
   std::vector<std::uint8_t> usable;  ///< angle passes: bit 0 usable, bit 1 candidate; bit 2 seen
+  std::vector<std::uint8_t> reach;   ///< angle passes with min_step: 4 per cell, rays read
   std::vector<std::uint8_t> cls;     ///< window sums: kInPlane (NORMAL) / kLine (feature line)
   std::vector<std::uint8_t> hmask;   ///< height stages: compact, want, fresh, mark bits
   std::vector<std::int64_t> fresh, candidates, queue;
