@@ -223,6 +223,27 @@ def test_stream_equals_batch_on_the_real_profiler_scan() -> None:
         assert_heights_equal(heights, want.height, atol=1e-8)  # coordinates of ~100 mm
 
 
+def test_stream_finds_fins_as_batch() -> None:
+    """The edge test's fins (SPEC "Edge test" step 6: thin material standing above ground on
+    both sides; the rule reads the cells within r of the judged one) across the stream's tile
+    borders: a fin along the profiles over rows 40-250 (tile bands at 64, 128, 192) straddling
+    the tile column border at 128, and a diagonal one; the stream equals batch, which flags them."""
+    h, w = 300, 200
+    rng = np.random.default_rng(4)
+    rows, cols = np.mgrid[0:h, 0:w]
+    fin = (cols >= 126) & (cols < 130) & (rows >= 40) & (rows < 250)
+    fin |= (np.abs(cols - 30 - (rows - 150)) < 2) & (rows >= 150) & (rows < 260)
+    grid = np.stack([cols * 0.1, rows * 0.1, rng.normal(0.0, 0.002, (h, w)) + 1.5 * fin], -1)
+    p = miem.default_params("stream")
+    want = miem.detect(grid, params=p)
+    without = miem.detect(grid, params=p, edge_tolerance=None)
+    flagged = want.labels == miem.ABNORMAL
+    assert flagged[fin].mean() > 0.9 and (flagged & ~(without.labels == miem.ABNORMAL))[fin].any()
+    got, heights = stream_both(ProfileStream(w, params=p), grid)
+    np.testing.assert_array_equal(got, want.labels)
+    assert_heights_equal(heights, want.height)
+
+
 def test_stream_runs_the_whole_default_detector() -> None:
     """The default stream is the default batch detector but for min_step "auto": the height
     test finds what the angle test alone does not, over several passes, with compact EDGE
