@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import miem
 import numpy as np
 import pytest
@@ -180,22 +182,66 @@ def make_outline_scan(h: int, w: int, seed: int) -> np.ndarray:
 @pytest.mark.parametrize("kw", [{}, {"edge_window": 9, "max_iterations": 4},
                                 {"edge_tolerance": 2.5, "edge_window": 5, "window": 9}])
 def test_stream_runs_the_edge_test_as_batch(kw: dict) -> None:
-    """The edge test in the stream (lag + 127 + P r): labels, heights and defects equal batch
-    detection's on a scan whose outline carries burrs the edge test finds."""
+    """The edge test in the stream (lag max(H + r, h) + (P - 1) r + h): labels, heights and
+    defects equal batch detection's on a scan whose outline carries burrs the edge test finds."""
     grid = make_outline_scan(420, 60, 3)
     p = miem.default_params("stream").replace(**kw)
     want = miem.detect(grid, params=p)
     without = miem.detect(grid, params=p, edge_tolerance=None)
     assert (want.labels == miem.ABNORMAL).sum() > (without.labels == miem.ABNORMAL).sum()
     stream = ProfileStream(60, params=p)
-    r = p.grid.edge_window // 2
-    assert stream.lag == _core.stream_lag(p.replace(edge_tolerance=None)._core_grid(0, "stream")) \
-        + 127 + p.angle.max_iterations * r
+    r, P, h = p.grid.edge_window // 2, p.angle.max_iterations, p.grid.window // 2
+    lag_h = _core.stream_lag(p.replace(edge_tolerance=None)._core_grid(0, "stream")) - h
+    assert stream.lag == max(lag_h + r, h) + (P - 1) * r + h
     defects: list = []
     got, heights = stream_both(stream, grid, defects)
     np.testing.assert_array_equal(got, want.labels)
     assert_heights_equal(heights, want.height)
     assert_same_defects(defects, want.defects, want.labels)
+
+
+REAL_SCAN = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "second_source.pcd"
+
+
+@pytest.mark.skipif(not REAL_SCAN.exists(), reason="no shared/data/real")
+def test_stream_equals_batch_on_the_real_profiler_scan() -> None:
+    """The real burred profiler scan (426 profiles of 724 points: six edge-test tiles across,
+    dropouts, an outline): the default stream, and with min_step resolved on it, equals batch
+    detection; the edge test changes its labels."""
+    import miem.io as mio
+
+    grid = np.asarray(mio.grid_from_scanlines(np.asarray(mio.read(REAL_SCAN).points)))
+    assert grid.shape[1] > 5 * 128
+    p = miem.default_params("stream")
+    step = miem.detect(grid).params["min_step"]
+    for kw in ({}, {"min_step": step}):
+        want = miem.detect(grid, params=p, **kw)
+        without = miem.detect(grid, params=p, edge_tolerance=None, **kw)
+        assert (want.labels != without.labels).sum() > 100
+        got, heights = stream_both(ProfileStream(grid.shape[1], params=p, **kw), grid)
+        np.testing.assert_array_equal(got, want.labels)
+        assert_heights_equal(heights, want.height, atol=1e-8)  # coordinates of ~100 mm
+
+
+def test_stream_finds_fins_as_batch() -> None:
+    """The edge test's fins (SPEC "Edge test" step 6: thin material standing above ground on
+    both sides; the rule reads the cells within r of the judged one) across the stream's tile
+    borders: a fin along the profiles over rows 40-250 (tile bands at 64, 128, 192) straddling
+    the tile column border at 128, and a diagonal one; the stream equals batch, which flags them."""
+    h, w = 300, 200
+    rng = np.random.default_rng(4)
+    rows, cols = np.mgrid[0:h, 0:w]
+    fin = (cols >= 126) & (cols < 130) & (rows >= 40) & (rows < 250)
+    fin |= (np.abs(cols - 30 - (rows - 150)) < 2) & (rows >= 150) & (rows < 260)
+    grid = np.stack([cols * 0.1, rows * 0.1, rng.normal(0.0, 0.002, (h, w)) + 1.5 * fin], -1)
+    p = miem.default_params("stream")
+    want = miem.detect(grid, params=p)
+    without = miem.detect(grid, params=p, edge_tolerance=None)
+    flagged = want.labels == miem.ABNORMAL
+    assert flagged[fin].mean() > 0.9 and (flagged & ~(without.labels == miem.ABNORMAL))[fin].any()
+    got, heights = stream_both(ProfileStream(w, params=p), grid)
+    np.testing.assert_array_equal(got, want.labels)
+    assert_heights_equal(heights, want.height)
 
 
 def test_stream_runs_the_whole_default_detector() -> None:
@@ -248,13 +294,13 @@ def test_extreme_height_tolerance_labels_equal_and_heights_up_to_orientation() -
 
 
 def test_lag_formula() -> None:
-    """L = P R + E + (P + 1) h with the height test, P R + h without, + 127 + P r with the edge
-    test (docs/SPEC.md)."""
-    assert ProfileStream(10).lag == 10 * 3 + 12 + 11 * 10 + 127 + 10 * 7 == 349
+    """L = P R + E + (P + 1) h with the height test, P R + h without; with the edge test
+    max(H + r, h) + (P - 1) r + h, H = P R + E + P h (docs/SPEC.md)."""
+    assert ProfileStream(10).lag == (10 * 3 + 12 + 10 * 10 + 7) + 9 * 7 + 10 == 222
     assert ProfileStream(10, edge_tolerance=None).lag == 10 * 3 + 12 + 11 * 10 == 152
     assert ProfileStream(10, preset="paper").lag == 10 * 2 + 10
     assert ProfileStream(10, max_iterations=3, window=7, edge_extent=4,
-                         edge_window=9).lag == 3 * 3 + 4 + 4 * 3 + 127 + 3 * 4
+                         edge_window=9).lag == (3 * 3 + 4 + 3 * 3 + 4) + 2 * 4 + 3
     assert ProfileStream(10, height_tolerance=None, edge_tolerance=None,
                          window=9).lag == 10 * 3 + 4
 

@@ -23,7 +23,7 @@ namespace miem::detail {
 
 namespace {
 
-constexpr int kM = 11;  // n, x, y, z, xx, xy, xz, yy, yz, zz (support), INVALID count
+constexpr int kM = kEdgeMoments;
 constexpr double kRankTol = 1e-12;
 constexpr double kLineTol = 1e-6;  // support on a line in (x, y): det <= this * trace^2
 constexpr double kRoundOff = 1e-9;  // tolerance floor: times sqrt((l1 + l2) / n), as the height test
@@ -202,6 +202,209 @@ bool is_fin(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
   return false;
 }
 
+}  // namespace
+
+template <typename T>
+void edge_image_row(const GridView<T>& g, std::ptrdiff_t row, const std::uint8_t* lab,
+                    std::ptrdiff_t f0, std::ptrdiff_t f1, const Eigen::Vector3d& o, double* col,
+                    std::ptrdiff_t col_plane, double* out, std::ptrdiff_t plane) {
+  for (int q = 0; q < kM; ++q) out[q * plane] = 0.0;
+  for (std::ptrdiff_t cc = f0; cc < f1; ++cc) {
+    const std::uint8_t l = lab[cc];
+    double t[kM] = {0.0};
+    if (l == kNormal) {
+      const Eigen::Vector3d p = g(row, cc) - o;
+      t[0] = 1.0;
+      t[1] = p.x(), t[2] = p.y(), t[3] = p.z();
+      t[4] = p.x() * p.x(), t[5] = p.x() * p.y(), t[6] = p.x() * p.z();
+      t[7] = p.y() * p.y(), t[8] = p.y() * p.z(), t[9] = p.z() * p.z();
+    }
+    t[10] = l == kInvalid ? 1.0 : 0.0;
+    const std::ptrdiff_t x = cc - f0;
+    for (int q = 0; q < kM; ++q) {
+      double& cs = col[q * col_plane + x];
+      cs += t[q];
+      out[q * plane + x + 1] = out[q * plane + x] + cs;
+    }
+  }
+}
+
+template <typename T>
+void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr,
+                    std::ptrdiff_t H, std::ptrdiff_t C0, std::ptrdiff_t C1,
+                    const EdgeImages& im, const Eigen::Vector3d& o, std::ptrdiff_t r, double k,
+                    const std::uint8_t* lab, const std::uint8_t* todo, std::uint8_t* mark) {
+  const std::ptrdiff_t W = g.cols, f0 = im.f0, plane = im.plane;
+  const double n_min = static_cast<double>(std::max<std::ptrdiff_t>(3, (r * r) / 2));
+  const double* const S = im.data;
+  const std::uint8_t* const lrow = lab + grow * W;  // the cell's row
+  const auto srow = [&im](std::ptrdiff_t s) { return ((s - im.first) % im.rows) * im.stride; };
+  // Up to kChunk candidate cells of the row at a time, all as SoA over their 8 sides
+  // (entry e = side * m + cell): the sub-window sums (corner reads, vectorised over the
+  // cells when they are consecutive and away from the grid border), then moments,
+  // eigenpairs and planes in vectorised loops; each cell is judged from those.
+  constexpr int kChunk = 16, kCap = 8 * kChunk;
+  double mm[kM * kCap], Mb[6 * kCap], Eb[6 * kCap], nnb[kCap], ceb[3 * kCap];
+  double F[6 * kCap], P[3 * kCap];  // F: h, rms, tol, oriented normal; P: the cells
+  std::uint8_t okb[kCap], redob[kCap], useb[kCap], emptyb[kCap], validb[kCap];
+  double lowb[kCap];
+  std::ptrdiff_t cols[kChunk];
+  int keep[kChunk];
+  for (std::ptrdiff_t cc = C0; cc < C1;) {
+    int m = 0;
+    for (; cc < C1 && m < kChunk; ++cc) {
+      if (todo[cc] && (lrow[cc] == kNormal || lrow[cc] == kEdge)) cols[m++] = cc;
+    }
+    if (m == 0) continue;
+    for (int j = 0; j < m; ++j) {
+      const Eigen::Vector3d pt = g(grow, cols[j]) - o;
+      for (int s = 0; s < 8; ++s) {
+        const int e = s * m + j;
+        P[e] = pt.x(), P[kCap + e] = pt.y(), P[2 * kCap + e] = pt.z();
+      }
+    }
+    const bool run = cols[m - 1] - cols[0] == m - 1 && rr - r >= 0 && rr + r + 1 <= H &&
+                     cols[0] - r >= 0 && cols[m - 1] + r + 1 <= W;
+    for (int s = 0; s < 8; ++s) {
+      const std::ptrdiff_t r0 = std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][0], r), 0, H);
+      const std::ptrdiff_t r1 =
+          std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][1], r) + 1, 0, H);
+      const std::ptrdiff_t top = srow(r0), bottom = srow(r1);
+      if (run) {  // consecutive cells, no clipping: contiguous corners
+        const std::ptrdiff_t x0 = cols[0] + offset(kSides[s][2], r) - f0;
+        const std::ptrdiff_t x1 = cols[0] + offset(kSides[s][3], r) + 1 - f0;
+        rect_sums(m, plane, kCap, S + bottom + x1, S + top + x1, S + bottom + x0,
+                  S + top + x0, mm + s * m);
+        continue;
+      }
+      for (int j = 0; j < m; ++j) {
+        const std::ptrdiff_t c = cols[j];
+        const std::ptrdiff_t x0 =
+            std::clamp<std::ptrdiff_t>(c + offset(kSides[s][2], r), 0, W) - f0;
+        const std::ptrdiff_t x1 =
+            std::clamp<std::ptrdiff_t>(c + offset(kSides[s][3], r) + 1, 0, W) - f0;
+        const int e = s * m + j;
+        for (int q = 0; q < kM; ++q) {
+          const double* Sq = S + q * plane;
+          mm[q * kCap + e] = Sq[bottom + x1] - Sq[top + x1] - Sq[bottom + x0] + Sq[top + x0];
+        }
+      }
+    }
+    side_moments(8 * m, kCap, n_min, mm, nnb, ceb, Mb, useb, emptyb);
+    // Shortcut (exact): a cell that fits a clean side cannot become ABNORMAL (step 6).
+    // Solve only the side s* with the smallest rms lower bound: when its rms is within
+    // kCleanRatio of the smallest bound it is clean whatever the other sides give, and
+    // when the cell fits it the verdict is "no" without the other seven solves. The
+    // others (and cells without a supported side: no valid side, "no") go on below.
+    side_bounds(8 * m, kCap, Mb, nnb, useb, lowb);
+    int nf = 0;
+    {
+      double M1[6 * kChunk], E1[6 * kChunk], nn1[kChunk], ce1[3 * kChunk], P1[3 * kChunk];
+      double F1[6 * kChunk], low1[kChunk];
+      std::uint8_t use1[kChunk], ok1[kChunk], redo1[kChunk], valid1[kChunk];
+      for (int j = 0; j < m; ++j) {
+        int sb = 0;
+        for (int s = 1; s < 8; ++s)
+          if (lowb[s * m + j] < lowb[sb * m + j]) sb = s;
+        const int e = sb * m + j;
+        low1[j] = lowb[e];
+        use1[j] = useb[e];
+        nn1[j] = nnb[e];
+        for (int q = 0; q < 6; ++q) M1[q * kChunk + j] = Mb[q * kCap + e];
+        for (int q = 0; q < 3; ++q) {
+          ce1[q * kChunk + j] = ceb[q * kCap + e];
+          P1[q * kChunk + j] = P[q * kCap + e];
+        }
+      }
+      smallest_eigenpairs_long(m, kChunk, M1, E1, ok1, redo1);
+      side_planes(m, kChunk, k, use1, ok1, E1, nn1, ce1, P1, valid1, F1);
+      for (int j = 0; j < m; ++j) {
+        const std::ptrdiff_t i = cols[j];
+        if (!use1[j]) {  // no side with support: none to fit or stand proud of; a fin?
+          mark[i] = is_fin(g, lab, grow, cols[j], r) ? 1 : 0;
+          continue;
+        }
+        const bool clean = F1[kChunk + j] <= kEdgeCleanRatio * std::sqrt(low1[j]);  // <= 2 best
+        if (!redo1[j] && valid1[j] && clean && !(std::abs(F1[j]) > F1[2 * kChunk + j])) {
+          mark[i] = 0;
+          continue;
+        }
+        keep[nf] = j;
+        cols[nf++] = cols[j];
+      }
+    }
+    // the cells left to the front, entry s * m + keep[f] to s * nf + f (in this order no
+    // entry is overwritten before it is moved: s * nf + f <= s * m + keep[f])
+    if (nf != m) {
+      for (int s = 0; s < 8; ++s) {
+        for (int f = 0; f < nf; ++f) {
+          const int from = s * m + keep[f], to = s * nf + f;
+          if (from == to) continue;
+          for (int q = 0; q < 6; ++q) Mb[q * kCap + to] = Mb[q * kCap + from];
+          for (int q = 0; q < 3; ++q) {
+            ceb[q * kCap + to] = ceb[q * kCap + from];
+            P[q * kCap + to] = P[q * kCap + from];
+          }
+          nnb[to] = nnb[from], useb[to] = useb[from], emptyb[to] = emptyb[from];
+        }
+      }
+    }
+    m = nf;
+    if (m == 0) continue;
+    const int ms = 8 * m;
+    smallest_eigenpairs_long(ms, kCap, Mb, Eb, okb, redob);
+    side_planes(ms, kCap, k, useb, okb, Eb, nnb, ceb, P, validb, F);
+    for (int e = 0; e < ms; ++e) {
+      if (!redob[e] || !useb[e]) continue;  // Newton needs more steps: the scalar routine
+      Eigen::Matrix3d M;
+      M(0, 0) = Mb[e];
+      M(1, 1) = Mb[kCap + e];
+      M(2, 2) = Mb[2 * kCap + e];
+      M(0, 1) = M(1, 0) = Mb[3 * kCap + e];
+      M(1, 2) = M(2, 1) = Mb[4 * kCap + e];
+      M(0, 2) = M(2, 0) = Mb[5 * kCap + e];
+      double l0 = 0.0, l1 = 0.0, l2 = 0.0;
+      Eigen::Vector3d nv = Eigen::Vector3d::Zero();
+      const bool solved = smallest_eigenpair(M, &l0, &l1, &l2, &nv);
+      side_plane(true, solved, l0, l1, l2, nv.x(), nv.y(), nv.z(), nnb[e], ceb[e],
+                 ceb[kCap + e], ceb[2 * kCap + e], P[e], P[kCap + e], P[2 * kCap + e], k,
+                 validb[e], F[e], F[kCap + e], F[2 * kCap + e], F[3 * kCap + e],
+                 F[4 * kCap + e], F[5 * kCap + e]);
+    }
+    for (int j = 0; j < m; ++j) {
+      const std::ptrdiff_t i = cols[j];
+      Side sd[8];
+      double best = std::numeric_limits<double>::infinity();
+      for (int s = 0; s < 8; ++s) {
+        const int e = s * m + j;
+        Side& x = sd[s];
+        x.empty = emptyb[e] != 0;
+        x.centroid = Eigen::Vector3d(ceb[e], ceb[kCap + e], ceb[2 * kCap + e]);
+        x.valid = validb[e] != 0;
+        if (!x.valid) continue;
+        x.h = F[e];
+        x.rms = F[kCap + e];
+        x.tol = F[2 * kCap + e];
+        x.normal = Eigen::Vector3d(F[3 * kCap + e], F[4 * kCap + e], F[5 * kCap + e]);
+        best = std::min(best, x.rms);
+      }
+      bool abnormal = edge_abnormal(sd, best, [](int s) { return kOpposite[s]; });
+      if (!abnormal && is_fin(g, lab, grow, cols[j], r)) {  // a fin that fits no clean side
+        abnormal = true;
+        for (const Side& x : sd) {
+          if (x.valid && x.rms <= kEdgeCleanRatio * best && !(std::abs(x.h) > x.tol)) {
+            abnormal = false;
+            break;
+          }
+        }
+      }
+      mark[i] = abnormal ? 1 : 0;
+    }
+  }
+}
+
+namespace {
+
 // The passes on `g`. Each kTileRows x kTileCols tile of the grid (fixed in grid coordinates, as
 // the window fits' tiles) gets its own integral images over the tile and the r cells around it,
 // relative to the tile's first finite cell (row-major). So a cell's sums depend on nothing
@@ -212,9 +415,8 @@ template <typename T>
 int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
                int max_iterations, int num_threads, std::vector<double>& scratch,
                std::vector<std::uint8_t>& flags) {
-  constexpr std::ptrdiff_t kTileRows = 64, kTileCols = 128;
+  constexpr std::ptrdiff_t kTileRows = kEdgeTileRows, kTileCols = kEdgeTileCols;
   const std::ptrdiff_t H = g.rows, W = g.cols, N = H * W, r = window / 2;
-  const double n_min = static_cast<double>(std::max<std::ptrdiff_t>(3, (r * r) / 2));
   const std::ptrdiff_t ER = std::min(H, kTileRows + 2 * r), EC = std::min(W, kTileCols + 2 * r);
   // integral images as kM planes (one per moment) of ER + 1 rows of L = EC + 1 columns
   const std::ptrdiff_t L = EC + 1, plane = (ER + 1) * L;
@@ -268,192 +470,12 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
       std::fill(col, col + kM * EC, 0.0);
       for (int q = 0; q < kM; ++q) std::fill(S + q * plane, S + q * plane + ew + 1, 0.0);
       for (std::ptrdiff_t rr = e0; rr < e1; ++rr) {
-        double* out = S + (rr - e0 + 1) * L;  // row rr - e0 + 1 of plane 0
-        for (int q = 0; q < kM; ++q) out[q * plane] = 0.0;
-        for (std::ptrdiff_t cc = f0; cc < f1; ++cc) {
-          const std::uint8_t l = labels[rr * W + cc];
-          double t[kM] = {0.0};
-          if (l == kNormal) {
-            const Eigen::Vector3d p = g(rr, cc) - o;
-            t[0] = 1.0;
-            t[1] = p.x(), t[2] = p.y(), t[3] = p.z();
-            t[4] = p.x() * p.x(), t[5] = p.x() * p.y(), t[6] = p.x() * p.z();
-            t[7] = p.y() * p.y(), t[8] = p.y() * p.z(), t[9] = p.z() * p.z();
-          }
-          t[10] = l == kInvalid ? 1.0 : 0.0;
-          const std::ptrdiff_t x = cc - f0;
-          for (int q = 0; q < kM; ++q) {
-            double& cs = col[q * EC + x];
-            cs += t[q];
-            out[q * plane + x + 1] = out[q * plane + x] + cs;
-          }
-        }
+        edge_image_row(g, rr, labels + rr * W, f0, f1, o, col, EC, S + (rr - e0 + 1) * L, plane);
       }
-      const auto srow = [L, e0](std::ptrdiff_t s) { return (s - e0) * L; };  // row offset
+      const EdgeImages im{S, plane, L, e0, ER + 1, f0};
       for (std::ptrdiff_t rr = R0; rr < R1; ++rr) {
-        // Up to kChunk candidate cells of the row at a time, all as SoA over their 8 sides
-        // (entry e = side * m + cell): the sub-window sums (corner reads, vectorised over the
-        // cells when they are consecutive and away from the grid border), then moments,
-        // eigenpairs and planes in vectorised loops; each cell is judged from those.
-        constexpr int kChunk = 16, kCap = 8 * kChunk;
-        double mm[kM * kCap], Mb[6 * kCap], Eb[6 * kCap], nnb[kCap], ceb[3 * kCap];
-        double F[6 * kCap], P[3 * kCap];  // F: h, rms, tol, oriented normal; P: the cells
-        std::uint8_t okb[kCap], redob[kCap], useb[kCap], emptyb[kCap], validb[kCap];
-        double lowb[kCap];
-        std::ptrdiff_t cols[kChunk];
-        int keep[kChunk];
-        for (std::ptrdiff_t cc = C0; cc < C1;) {
-          int m = 0;
-          for (; cc < C1 && m < kChunk; ++cc) {
-            const std::ptrdiff_t i = rr * W + cc;
-            if (todo[i] && (labels[i] == kNormal || labels[i] == kEdge)) cols[m++] = cc;
-          }
-          if (m == 0) continue;
-          for (int j = 0; j < m; ++j) {
-            const Eigen::Vector3d pt = g(rr, cols[j]) - o;
-            for (int s = 0; s < 8; ++s) {
-              const int e = s * m + j;
-              P[e] = pt.x(), P[kCap + e] = pt.y(), P[2 * kCap + e] = pt.z();
-            }
-          }
-          const bool run = cols[m - 1] - cols[0] == m - 1 && rr - r >= 0 && rr + r + 1 <= H &&
-                           cols[0] - r >= 0 && cols[m - 1] + r + 1 <= W;
-          for (int s = 0; s < 8; ++s) {
-            const std::ptrdiff_t r0 = std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][0], r), 0, H);
-            const std::ptrdiff_t r1 =
-                std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][1], r) + 1, 0, H);
-            const std::ptrdiff_t top = srow(r0), bottom = srow(r1);
-            if (run) {  // consecutive cells, no clipping: contiguous corners
-              const std::ptrdiff_t x0 = cols[0] + offset(kSides[s][2], r) - f0;
-              const std::ptrdiff_t x1 = cols[0] + offset(kSides[s][3], r) + 1 - f0;
-              rect_sums(m, plane, kCap, S + bottom + x1, S + top + x1, S + bottom + x0,
-                        S + top + x0, mm + s * m);
-              continue;
-            }
-            for (int j = 0; j < m; ++j) {
-              const std::ptrdiff_t c = cols[j];
-              const std::ptrdiff_t x0 =
-                  std::clamp<std::ptrdiff_t>(c + offset(kSides[s][2], r), 0, W) - f0;
-              const std::ptrdiff_t x1 =
-                  std::clamp<std::ptrdiff_t>(c + offset(kSides[s][3], r) + 1, 0, W) - f0;
-              const int e = s * m + j;
-              for (int q = 0; q < kM; ++q) {
-                const double* Sq = S + q * plane;
-                mm[q * kCap + e] = Sq[bottom + x1] - Sq[top + x1] - Sq[bottom + x0] + Sq[top + x0];
-              }
-            }
-          }
-          side_moments(8 * m, kCap, n_min, mm, nnb, ceb, Mb, useb, emptyb);
-          // Shortcut (exact): a cell that fits a clean side cannot become ABNORMAL (step 6).
-          // Solve only the side s* with the smallest rms lower bound: when its rms is within
-          // kCleanRatio of the smallest bound it is clean whatever the other sides give, and
-          // when the cell fits it the verdict is "no" without the other seven solves. The
-          // others (and cells without a supported side: no valid side, "no") go on below.
-          side_bounds(8 * m, kCap, Mb, nnb, useb, lowb);
-          int nf = 0;
-          {
-            double M1[6 * kChunk], E1[6 * kChunk], nn1[kChunk], ce1[3 * kChunk], P1[3 * kChunk];
-            double F1[6 * kChunk], low1[kChunk];
-            std::uint8_t use1[kChunk], ok1[kChunk], redo1[kChunk], valid1[kChunk];
-            for (int j = 0; j < m; ++j) {
-              int sb = 0;
-              for (int s = 1; s < 8; ++s)
-                if (lowb[s * m + j] < lowb[sb * m + j]) sb = s;
-              const int e = sb * m + j;
-              low1[j] = lowb[e];
-              use1[j] = useb[e];
-              nn1[j] = nnb[e];
-              for (int q = 0; q < 6; ++q) M1[q * kChunk + j] = Mb[q * kCap + e];
-              for (int q = 0; q < 3; ++q) {
-                ce1[q * kChunk + j] = ceb[q * kCap + e];
-                P1[q * kChunk + j] = P[q * kCap + e];
-              }
-            }
-            smallest_eigenpairs_long(m, kChunk, M1, E1, ok1, redo1);
-            side_planes(m, kChunk, k, use1, ok1, E1, nn1, ce1, P1, valid1, F1);
-            for (int j = 0; j < m; ++j) {
-              const std::ptrdiff_t i = rr * W + cols[j];
-              if (!use1[j]) {  // no side with support: none to fit or stand proud of; a fin?
-                mark[i] = is_fin(g, labels, rr, cols[j], r) ? 1 : 0;
-                continue;
-              }
-              const bool clean = F1[kChunk + j] <= kEdgeCleanRatio * std::sqrt(low1[j]);  // <= 2 best
-              if (!redo1[j] && valid1[j] && clean && !(std::abs(F1[j]) > F1[2 * kChunk + j])) {
-                mark[i] = 0;
-                continue;
-              }
-              keep[nf] = j;
-              cols[nf++] = cols[j];
-            }
-          }
-          // the cells left to the front, entry s * m + keep[f] to s * nf + f (in this order no
-          // entry is overwritten before it is moved: s * nf + f <= s * m + keep[f])
-          if (nf != m) {
-            for (int s = 0; s < 8; ++s) {
-              for (int f = 0; f < nf; ++f) {
-                const int from = s * m + keep[f], to = s * nf + f;
-                if (from == to) continue;
-                for (int q = 0; q < 6; ++q) Mb[q * kCap + to] = Mb[q * kCap + from];
-                for (int q = 0; q < 3; ++q) {
-                  ceb[q * kCap + to] = ceb[q * kCap + from];
-                  P[q * kCap + to] = P[q * kCap + from];
-                }
-                nnb[to] = nnb[from], useb[to] = useb[from], emptyb[to] = emptyb[from];
-              }
-            }
-          }
-          m = nf;
-          if (m == 0) continue;
-          const int ms = 8 * m;
-          smallest_eigenpairs_long(ms, kCap, Mb, Eb, okb, redob);
-          side_planes(ms, kCap, k, useb, okb, Eb, nnb, ceb, P, validb, F);
-          for (int e = 0; e < ms; ++e) {
-            if (!redob[e] || !useb[e]) continue;  // Newton needs more steps: the scalar routine
-            Eigen::Matrix3d M;
-            M(0, 0) = Mb[e];
-            M(1, 1) = Mb[kCap + e];
-            M(2, 2) = Mb[2 * kCap + e];
-            M(0, 1) = M(1, 0) = Mb[3 * kCap + e];
-            M(1, 2) = M(2, 1) = Mb[4 * kCap + e];
-            M(0, 2) = M(2, 0) = Mb[5 * kCap + e];
-            double l0 = 0.0, l1 = 0.0, l2 = 0.0;
-            Eigen::Vector3d nv = Eigen::Vector3d::Zero();
-            const bool solved = smallest_eigenpair(M, &l0, &l1, &l2, &nv);
-            side_plane(true, solved, l0, l1, l2, nv.x(), nv.y(), nv.z(), nnb[e], ceb[e],
-                       ceb[kCap + e], ceb[2 * kCap + e], P[e], P[kCap + e], P[2 * kCap + e], k,
-                       validb[e], F[e], F[kCap + e], F[2 * kCap + e], F[3 * kCap + e],
-                       F[4 * kCap + e], F[5 * kCap + e]);
-          }
-          for (int j = 0; j < m; ++j) {
-            const std::ptrdiff_t i = rr * W + cols[j];
-            Side sd[8];
-            double best = std::numeric_limits<double>::infinity();
-            for (int s = 0; s < 8; ++s) {
-              const int e = s * m + j;
-              Side& x = sd[s];
-              x.empty = emptyb[e] != 0;
-              x.centroid = Eigen::Vector3d(ceb[e], ceb[kCap + e], ceb[2 * kCap + e]);
-              x.valid = validb[e] != 0;
-              if (!x.valid) continue;
-              x.h = F[e];
-              x.rms = F[kCap + e];
-              x.tol = F[2 * kCap + e];
-              x.normal = Eigen::Vector3d(F[3 * kCap + e], F[4 * kCap + e], F[5 * kCap + e]);
-              best = std::min(best, x.rms);
-            }
-            bool abnormal = edge_abnormal(sd, best, [](int s) { return kOpposite[s]; });
-            if (!abnormal && is_fin(g, labels, rr, cols[j], r)) {  // a fin that fits no clean side
-              abnormal = true;
-              for (const Side& x : sd) {
-                if (x.valid && x.rms <= kEdgeCleanRatio * best && !(std::abs(x.h) > x.tol)) {
-                  abnormal = false;
-                  break;
-                }
-              }
-            }
-            mark[i] = abnormal ? 1 : 0;
-          }
-        }
+        edge_judge_row(g, rr, rr, H, C0, C1, im, o, r, k, labels, todo + rr * W,
+                       mark + rr * W);
       }
     }
     std::ptrdiff_t added = 0;
@@ -490,5 +512,18 @@ template int edge_passes<float>(const GridView<float>&, std::uint8_t*, int, doub
                                 std::vector<double>&, std::vector<std::uint8_t>&);
 template int edge_passes<double>(const GridView<double>&, std::uint8_t*, int, double, int, int,
                                  std::vector<double>&, std::vector<std::uint8_t>&);
+
+#define MIEM_EDGE_ROWS(T)                                                                     \
+  template void edge_image_row<T>(const GridView<T>&, std::ptrdiff_t, const std::uint8_t*,      \
+                                  std::ptrdiff_t, std::ptrdiff_t, const Eigen::Vector3d&,       \
+                                  double*, std::ptrdiff_t, double*, std::ptrdiff_t);            \
+  template void edge_judge_row<T>(const GridView<T>&, std::ptrdiff_t, std::ptrdiff_t,            \
+                                  std::ptrdiff_t, std::ptrdiff_t, std::ptrdiff_t,               \
+                                  const EdgeImages&, const Eigen::Vector3d&, std::ptrdiff_t,    \
+                                  double, const std::uint8_t*, const std::uint8_t*,             \
+                                  std::uint8_t*);
+MIEM_EDGE_ROWS(float)
+MIEM_EDGE_ROWS(double)
+#undef MIEM_EDGE_ROWS
 
 }  // namespace miem::detail

@@ -5,6 +5,8 @@
 #include <cstdint>
 #include <vector>
 
+#include <Eigen/Core>
+
 #include "miem/views.hpp"
 
 namespace miem::detail {
@@ -18,5 +20,45 @@ template <typename T>
 int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
                 int max_iterations, int num_threads, std::vector<double>& scratch,
                 std::vector<std::uint8_t>& flags);
+
+/// The edge test's integral images hold, per cell, these moments: n, x, y, z, xx, xy, xz, yy,
+/// yz, zz of the support (NORMAL cells, relative to the tile's origin) and the INVALID count.
+constexpr int kEdgeMoments = 11;
+/// The tiles of the integral images (rows, columns), fixed in grid coordinates from (0, 0).
+/// A tile's images cover its rows and r = window / 2 rows and columns around it; its origin is
+/// its first finite cell (row-major).
+constexpr std::ptrdiff_t kEdgeTileRows = 64, kEdgeTileCols = 128;
+
+/// A tile's integral images as edge_judge_row reads them: moment q of image row s, column x at
+/// data[q * plane + ((s - first) % rows) * stride + x]. Image row s holds the sums over grid
+/// rows first .. s - 1 (first = max(0, R0 - r) for the tile from grid row R0), column x those
+/// over grid columns f0 .. f0 + x - 1 (f0 = max(0, C0 - r)). `rows` < the image's rows: a ring.
+struct EdgeImages {
+  const double* data = nullptr;
+  std::ptrdiff_t plane = 0, stride = 0, first = 0, rows = 1, f0 = 0;
+};
+
+/// Adds cell row `row` of g (labels `lab`, indexed by grid column) over grid columns f0 .. f1 - 1
+/// to a tile's column sums (moment q of column f0 + x at col[q * col_plane + x]) and writes the
+/// next image row: moment q at out[q * plane], 0 then x + 1 for column f0 + x. o: the origin.
+template <typename T>
+void edge_image_row(const GridView<T>& g, std::ptrdiff_t row, const std::uint8_t* lab,
+                    std::ptrdiff_t f0, std::ptrdiff_t f1, const Eigen::Vector3d& o, double* col,
+                    std::ptrdiff_t col_plane, double* out, std::ptrdiff_t plane);
+
+/// One edge pass's verdicts (SPEC "Edge test") on grid row rr, columns C0 .. C1 - 1 of one
+/// tile: each cell c with todo[c] and a NORMAL or EDGE label gets mark[c] = 1 when it becomes
+/// ABNORMAL, else 0 (other cells untouched). g holds at least the grid rows within r of rr
+/// (rows max(0, rr - r) .. min(H, rr + r + 1) - 1: a neighbourhood, or the whole grid), the
+/// cell's row being g's row `grow`; `lab` the labels at the start of the pass of g's cells
+/// (row-major, g.cols a row: the grid's width); todo and mark are rr's row. H: the grid's rows
+/// (its border); `im` the tile's images with the image rows max(0, rr - r) .. min(H, rr + r + 1)
+/// present, o its origin, r = window / 2. Batch edge_passes judges every row through this,
+/// and so does the stream (with a window of 2 r + 1 rows).
+template <typename T>
+void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr,
+                    std::ptrdiff_t H, std::ptrdiff_t C0, std::ptrdiff_t C1,
+                    const EdgeImages& im, const Eigen::Vector3d& o, std::ptrdiff_t r, double k,
+                    const std::uint8_t* lab, const std::uint8_t* todo, std::uint8_t* mark);
 
 }  // namespace miem::detail

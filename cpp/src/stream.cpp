@@ -225,26 +225,18 @@ DetectParams stream_default_params() {
   return p;
 }
 
-namespace {
-// Rows of an edge block above its band (whole tile bands of 64: at least 64 + (P - 1) r) and
-// below it (P r); stream_edges.cpp has the reasons.
-long long edge_top(const DetectParams& p) {
-  const long long r = p.edge_window / 2, P = p.max_iterations;
-  return 64 * (1 + (((P - 1) * r + 63) / 64));
-}
-long long edge_bottom(const DetectParams& p) {
-  return static_cast<long long>(p.max_iterations) * (p.edge_window / 2);
-}
-}  // namespace
-
 long long stream_lag(const DetectParams& p) noexcept {
   const long long reach = static_cast<long long>(
                               *std::max_element(p.scales.begin(), p.scales.end())) +
                           p.max_gap + (p.min_step >= 0.0 ? p.max_reach : 0);
   const long long P = p.max_iterations, h = p.window / 2;
-  const long long base = P * reach + (p.height_test() ? p.edge_extent + (P + 1) * h : h);
-  // the edge test: the last row of a band of 128 waits for P r rows below it
-  return base + (p.edge_test() ? 127 + edge_bottom(p) : 0);
+  // rows behind the newest at which the height passes' labels are final
+  const long long lagh = P * reach + (p.height_test() ? p.edge_extent + P * h : 0);
+  if (!p.edge_test()) return lagh + h;
+  // edge pass 1 runs r rows behind the height passes, once the rows within h are in (its
+  // removals mark the heights there stale); pass p r rows behind pass p - 1
+  const long long r = p.edge_window / 2;
+  return std::max(lagh + r, h) + (P - 1) * r + h;
 }
 
 Status check_stream_params(std::ptrdiff_t width, const DetectParams& p) noexcept {
@@ -290,19 +282,19 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   sums_ = htest_ || params_.height_mode == HeightMode::kAll;
   lag_ = static_cast<int>(stream_lag(params_));
   lagh_ = alag_ + (htest_ ? extent_ + passes_ * half_ : 0);
-  etop_ = edge_ ? static_cast<int>(edge_top(params_)) : 0;
-  ebot_ = edge_ ? static_cast<int>(edge_bottom(params_)) : 0;
   // The longest look-back of a stage at push n: heights read row n - L - h, height pass 1
   // drops row n - L - h - 1 from its sums (without the height test), the EDGE grouping reads
-  // row n - A - 2E, the angle passes row n - A - R, an edge block starts etop_ rows above a
-  // band of 64 whose last row is n - lagh_ - ebot_.
+  // row n - A - 2E, the angle passes row n - A - R, the last edge pass builds its images from
+  // r rows above the tile (of 64 rows) of a row after n - L + h.
   const long long back = std::max<long long>(
       {static_cast<long long>(lag_) + half_ + 1, static_cast<long long>(alag_) + 2LL * extent_,
        static_cast<long long>(alag_) + reach_,
-       edge_ ? static_cast<long long>(lagh_) + ebot_ + kEdgeBandRows + etop_ : 0LL});
+       edge_ ? static_cast<long long>(lag_) + 64 + params_.edge_window : 0LL});
   ring_ = static_cast<std::ptrdiff_t>(back) + 2;
-  // Any ext_ + 1 consecutive rows form one GridView: a judgment's rows, a window, an edge block.
-  ext_ = std::max<std::ptrdiff_t>({2 * reach_, 2 * half_, edge_ ? edge_block_rows() : 0});
+  // Any ext_ + 1 consecutive rows form one GridView: a judgment's rows, a window, the rows an
+  // edge verdict reads.
+  ext_ = std::max<std::ptrdiff_t>(
+      {2 * reach_, 2 * half_, edge_ ? 2 * static_cast<std::ptrdiff_t>(params_.edge_window / 2) : 0});
   phys_ = ring_ + ext_;
   const double cells = static_cast<double>(phys_) * static_cast<double>(width_);
   if (cells * 3.0 * sizeof(T) > static_cast<double>(std::numeric_limits<std::ptrdiff_t>::max() / 4)) {
@@ -387,7 +379,7 @@ Status ProfileStream<T>::push(const PointsView<T>& profile, StreamRow* out) noex
   std::memset(hm_.data() + s * W, 0, static_cast<std::size_t>(W));
   std::memset(hs_.data() + s * W, 0xff, static_cast<std::size_t>(W));
   hrow_[s] = 0;
-  if (edge_) std::memset(eold_.data() + s * W, 0, static_cast<std::size_t>(W));
+  if (edge_) edge_push_row(row);
   pushed_ = row + 1;
 
   // The wavefront: pass p on row - p R (its rows within R have all run pass p - 1).

@@ -1,17 +1,21 @@
-// The stream's edge test (docs/SPEC.md "Edge test", "Streaming"): batch detection's own edge
-// passes (edge_test.hpp) run on blocks of the ring, one band of rows at a time, with
-// enough rows around the band (two tile bands, 128 rows) that its cells come out bit for bit
-// as on the whole grid:
-//  - below, max_iterations * r rows (r = edge_window / 2): after p passes a cell depends only
-//    on the cells within p r, so the false border at the block's end reaches none of the band;
-//  - above, whole tile bands back to at least 64 + (max_iterations - 1) r rows: the edge test's
-//    sums are per 64 x 128 tile from the grid's first row (integral images over the tile and r
-//    rows before it), so the block must start on a tile boundary; its first band then has other
-//    sums (no r rows before it) and may differ anywhere, and that reaches (max_iterations - 1) r
-//    rows further in the later passes.
-// Each band is run once the height-test labels are final through its last row below; its
-// removals then go into the labels, and the heights whose window lost a NORMAL cell are
-// fitted again at the end (as batch heights() does).
+// The stream's edge test (docs/SPEC.md "Edge test", "Streaming"), row by row with batch
+// detection's own per-row routines (edge_test.hpp: edge_image_row builds a tile's integral
+// images one row at a time, edge_judge_row gives a row's verdicts), so its cells come out bit
+// for bit as batch edge_passes on the whole grid:
+//  - pass p runs on a row once pass p - 1 is final r rows below it (r = edge_window / 2), pass 1
+//    once the height passes are final r rows below it and the rows within h = window / 2 are
+//    pushed (a removal marks the heights within h stale);
+//  - a tile's origin (its first finite cell, row-major) is found as rows are pushed; a pass
+//    needs a tile's images only at a candidate, a finite cell, so the origin is known by then;
+//  - per pass and tile column, the tile's integral images are kept as a ring of the 2 r + 2 image
+//    rows a judgment reads, and built from the tile's first image row (r rows above the tile)
+//    when the pass first has a candidate in the tile: the same sums, in the same order, as
+//    batch's images over the whole tile;
+//  - each cell keeps the pass that removed it (epass_), so a judgment at pass p sees exactly
+//    the labels after pass p - 1, and a removal at pass p marks the cells within r for pass
+//    p + 1 (batch's todo).
+// Removals go into the labels at once; the heights whose window lost a NORMAL cell are fitted
+// again at the end (as batch heights() does).
 #include <algorithm>
 #include <cstring>
 
@@ -22,60 +26,236 @@ namespace miem {
 
 namespace {
 constexpr std::uint8_t kEdgeRemoved = 254;  // hs_: removed by the edge test
+constexpr std::ptrdiff_t kTR = detail::kEdgeTileRows, kTC = detail::kEdgeTileCols;
+constexpr int kQ = detail::kEdgeMoments;
 }  // namespace
 
 template <typename T>
 void ProfileStream<T>::init_edges() {
   if (!edge_) return;
-  const std::size_t W = static_cast<std::size_t>(width_);
-  eold_.assign(static_cast<std::size_t>(ring_) * W, 0);
-  eblock_.assign(static_cast<std::size_t>(edge_block_rows()) * W, kInvalid);
-  // One run on a block without candidates (all INVALID) sizes the edge test's buffers for
-  // every later block.
-  const GridView<T> g{xyz_.data(), edge_block_rows(), width_, width_, 1, phys_ * width_};
-  detail::edge_passes(g, eblock_.data(), params_.edge_window, params_.edge_k, passes_, 1,
-                      escratch_, eflags_);
+  const std::ptrdiff_t W = width_, r = params_.edge_window / 2;
+  etiles_ = (W + kTC - 1) / kTC;
+  const std::ptrdiff_t EC = std::min(W, kTC + 2 * r);
+  ek_ = 2 * r + 2;
+  estride_ = EC + 1;
+  eper_ = kQ * ek_ * estride_ + kQ * EC;  // image ring + column sums of one (pass, tile column)
+  eold_.assign(static_cast<std::size_t>(ring_ * W), 0);
+  epass_.assign(static_cast<std::size_t>(ring_ * W), 0);
+  etodo_.assign(static_cast<std::size_t>(ring_ * W), 0);
+  etodo_row_.assign(static_cast<std::size_t>(ring_), 0);
+  // pass 1 has two sets (even and odd bands: the next band's images are built alongside)
+  const std::ptrdiff_t sets = static_cast<std::ptrdiff_t>(passes_) + 1;
+  eimg_.assign(static_cast<std::size_t>(sets * etiles_ * eper_), 0.0);
+  eimg_band_.assign(static_cast<std::size_t>(sets * etiles_), -1);
+  eimg_next_.assign(static_cast<std::size_t>(sets * etiles_), 0);
+  enext_.assign(static_cast<std::size_t>(passes_) + 1, 0);
+  ebands_ = ring_ / kTR + 3;
+  eorg_.assign(static_cast<std::size_t>(ebands_ * etiles_ * 3), 0.0);
+  eorg_ok_.assign(static_cast<std::size_t>(ebands_ * etiles_), 0);
+  eorg_missing_.assign(static_cast<std::size_t>(ebands_), 0);
+  eones_.assign(static_cast<std::size_t>(W), 1);
+  elab_img_.assign(static_cast<std::size_t>(W), kInvalid);
+  elab_row_.assign(static_cast<std::size_t>((2 * r + 1) * W), kInvalid);
+  emark_.assign(static_cast<std::size_t>(W), 0);
+  etd_.assign(static_cast<std::size_t>(W), 0);
 }
 
 template <typename T>
-void ProfileStream<T>::edge_band(std::int64_t band) noexcept {
-  const std::ptrdiff_t W = width_;
-  const std::int64_t R0 = band * kEdgeBandRows;
-  const std::int64_t R1 = std::min<std::int64_t>(pushed_, R0 + kEdgeBandRows);
-  const std::int64_t B = std::max<std::int64_t>(0, R0 - etop_);
-  const std::int64_t E = std::min<std::int64_t>(pushed_, R1 + ebot_);
-  const std::ptrdiff_t n = static_cast<std::ptrdiff_t>(E - B);
-  // The edge test reads the labels of the height passes: undo the earlier bands' removals.
-  for (std::int64_t rr = B; rr < E; ++rr) {
-    const std::uint8_t* lab = labels_.data() + slot(rr) * W;
-    const std::uint8_t* eo = eold_.data() + slot(rr) * W;
-    std::uint8_t* out = eblock_.data() + (rr - B) * W;
-    for (std::ptrdiff_t c = 0; c < W; ++c) out[c] = eo[c] ? static_cast<std::uint8_t>(eo[c] - 1) : lab[c];
+void ProfileStream<T>::reset_edges() noexcept {
+  if (!edge_) return;
+  std::fill(eimg_band_.begin(), eimg_band_.end(), -1);
+  std::fill(enext_.begin(), enext_.end(), 0);
+}
+
+// At push: the tile origins of the row's band (the first finite cell of each tile, row-major).
+template <typename T>
+void ProfileStream<T>::edge_push_row(std::int64_t row) noexcept {
+  const std::ptrdiff_t W = width_, s = slot(row) * W;
+  const std::ptrdiff_t b = static_cast<std::ptrdiff_t>((row / kTR) % ebands_);
+  std::uint8_t* ok = eorg_ok_.data() + b * etiles_;
+  if (row % kTR == 0) {
+    std::fill(ok, ok + etiles_, std::uint8_t{0});
+    eorg_missing_[static_cast<std::size_t>(b)] = etiles_;
   }
-  // Rows B .. E - 1 are consecutive in memory (the ring's extension holds a whole block).
-  const GridView<T> g{xyz_.data() + slot(B) * W, n, W, W, 1, phys_ * W};
-  detail::edge_passes(g, eblock_.data(), params_.edge_window, params_.edge_k, passes_, 1,
-                      escratch_, eflags_);
-  for (std::int64_t rr = R0; rr < R1; ++rr) {
-    std::uint8_t* lab = labels_.data() + slot(rr) * W;
-    std::uint8_t* eo = eold_.data() + slot(rr) * W;
-    std::uint8_t* hs = hs_.data() + slot(rr) * W;
-    const std::uint8_t* got = eblock_.data() + (rr - B) * W;
-    for (std::ptrdiff_t c = 0; c < W; ++c) {
-      if (got[c] != kAbnormal || lab[c] == kAbnormal) continue;
-      const std::uint8_t before = lab[c];
-      lab[c] = kAbnormal;
-      eo[c] = static_cast<std::uint8_t>(before + 1);
-      hs[c] = kEdgeRemoved;  // out of the final window classes
-      // a NORMAL cell left the windows around it: their heights are fitted again at the end
-      if (before == kNormal) mark_stale(rr, c);
+  std::memset(eold_.data() + s, 0, static_cast<std::size_t>(W));
+  std::memset(epass_.data() + s, 0, static_cast<std::size_t>(W));
+  std::memset(etodo_.data() + s, 0, static_cast<std::size_t>(W));
+  etodo_row_[static_cast<std::size_t>(slot(row))] = 0;
+  if (eorg_missing_[static_cast<std::size_t>(b)] == 0) return;
+  const GridView<T> g = row_view(row);
+  for (std::ptrdiff_t t = 0; t < etiles_; ++t) {
+    if (ok[t]) continue;
+    for (std::ptrdiff_t c = t * kTC; c < std::min(W, (t + 1) * kTC); ++c) {
+      if (!g.finite(0, c)) continue;
+      const Eigen::Vector3d o = g(0, c);
+      double* org = eorg_.data() + (b * etiles_ + t) * 3;
+      org[0] = o.x(), org[1] = o.y(), org[2] = o.z();
+      ok[t] = 1;
+      --eorg_missing_[static_cast<std::size_t>(b)];
+      break;
     }
   }
 }
 
-#define MIEM_STREAM_EDGES(T)                              \
-  template void ProfileStream<T>::init_edges();          \
-  template void ProfileStream<T>::edge_band(std::int64_t) noexcept;
+// The labels edge pass `pass` reads (those after pass - 1) of `row`, columns c0 .. c1 - 1.
+template <typename T>
+void ProfileStream<T>::edge_labels(std::int64_t row, int pass, std::ptrdiff_t c0,
+                                   std::ptrdiff_t c1, std::uint8_t* out) const noexcept {
+  const std::ptrdiff_t s = slot(row) * width_;
+  const std::uint8_t* lab = labels_.data() + s;
+  const std::uint8_t* ep = epass_.data() + s;
+  const std::uint8_t* eo = eold_.data() + s;
+  for (std::ptrdiff_t c = c0; c < c1; ++c) {
+    out[c] = ep[c] >= pass ? static_cast<std::uint8_t>(eo[c] - 1) : lab[c];
+  }
+}
+
+// The integral images of edge pass `pass`, tile column t, band `band`, with the image rows through
+// `upto` (the sums over the grid rows before it): started at the tile's first image row when
+// the set holds another band, then one grid row at a time.
+template <typename T>
+const double* ProfileStream<T>::edge_images(int pass, std::ptrdiff_t t, std::int64_t band,
+                                            std::int64_t upto) noexcept {
+  const std::ptrdiff_t W = width_, r = params_.edge_window / 2;
+  const std::ptrdiff_t C0 = t * kTC, C1 = std::min(W, C0 + kTC);
+  const std::ptrdiff_t f0 = std::max<std::ptrdiff_t>(0, C0 - r), f1 = std::min(W, C1 + r);
+  const std::ptrdiff_t EC = f1 - f0, L = estride_, plane = ek_ * L;
+  const std::int64_t e0 = std::max<std::int64_t>(0, band * kTR - r);
+  const std::ptrdiff_t id = (pass == 1 ? (band & 1) : pass) * etiles_ + t;
+  double* img = eimg_.data() + id * eper_;
+  double* col = img + kQ * plane;
+  const double* org = eorg_.data() + ((band % ebands_) * etiles_ + t) * 3;
+  const Eigen::Vector3d o(org[0], org[1], org[2]);
+  std::int64_t& next = eimg_next_[static_cast<std::size_t>(id)];
+  if (eimg_band_[static_cast<std::size_t>(id)] != band) {  // the tile's first image row
+    eimg_band_[static_cast<std::size_t>(id)] = band;
+    std::fill(col, col + kQ * EC, 0.0);
+    for (int q = 0; q < kQ; ++q) std::fill(img + q * plane, img + q * plane + EC + 1, 0.0);
+    next = e0;
+  }
+  for (; next < upto; ++next) {  // add grid row `next`: image row next + 1
+    edge_labels(next, pass, f0, f1, elab_img_.data());
+    detail::edge_image_row(row_view(next), 0, elab_img_.data(), f0, f1, o, col, EC,
+                           img + ((next + 1 - e0) % ek_) * L, plane);
+  }
+  return img;
+}
+
+// Edge pass `pass` on `row`: tile by tile, the images brought down to the row's judgment
+// (started at the tile's first image row when the pass first needs them), the verdicts, then
+// the removals.
+template <typename T>
+void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
+  const std::ptrdiff_t W = width_, s = slot(row), r = params_.edge_window / 2;
+  const std::uint8_t bit = static_cast<std::uint8_t>(1u << (pass & 1));
+  const std::uint8_t* todo = eones_.data();
+  if (pass > 1) {
+    if (!(etodo_row_[static_cast<std::size_t>(s)] & bit)) return;
+    const std::uint8_t* et = etodo_.data() + s * W;
+    for (std::ptrdiff_t c = 0; c < W; ++c) etd_[static_cast<std::size_t>(c)] = (et[c] & bit) != 0;
+    todo = etd_.data();
+  }
+  const std::int64_t H = pushed_;
+  const std::int64_t band = row / kTR, R0 = band * kTR;
+  const std::int64_t e0 = std::max<std::int64_t>(0, R0 - r);
+  const std::ptrdiff_t b = static_cast<std::ptrdiff_t>(band % ebands_);
+  const std::int64_t upto = std::min<std::int64_t>(H, row + r + 1);  // image rows through upto
+  // The rows within r as one grid (the ring repeats its first 2 r rows after its end) and
+  // their labels at the start of the pass, which the verdicts read
+  const std::int64_t a0 = std::max<std::int64_t>(0, row - r);
+  const std::ptrdiff_t grow = static_cast<std::ptrdiff_t>(row - a0);
+  const GridView<T> gw{xyz_.data() + slot(a0) * W, static_cast<std::ptrdiff_t>(upto - a0), W, W,
+                       1, phys_ * W};
+  std::uint8_t* const win = elab_row_.data();
+  for (std::int64_t a = a0; a < upto; ++a) edge_labels(a, pass, 0, W, win + (a - a0) * W);
+  const std::uint8_t* lab = win + grow * W;
+  std::uint8_t* mark = emark_.data();
+  bool any_mark = false;
+  for (std::ptrdiff_t t = 0; t < etiles_; ++t) {
+    const std::ptrdiff_t C0 = t * kTC, C1 = std::min(W, C0 + kTC);
+    bool any = false;
+    for (std::ptrdiff_t c = C0; c < C1 && !any; ++c) {
+      any = todo[c] && (lab[c] == kNormal || lab[c] == kEdge);
+    }
+    if (!any) continue;
+    const double* img = edge_images(pass, t, band, upto);
+    const std::ptrdiff_t f0 = std::max<std::ptrdiff_t>(0, C0 - r);
+    const double* org = eorg_.data() + (b * etiles_ + t) * 3;
+    const Eigen::Vector3d o(org[0], org[1], org[2]);
+    std::fill(mark + C0, mark + C1, std::uint8_t{0});
+    const detail::EdgeImages im{img, ek_ * estride_, estride_, e0, ek_, f0};
+    detail::edge_judge_row(gw, grow, row, H, C0, C1, im, o, r, params_.edge_k, win, todo,
+                           mark);
+    for (std::ptrdiff_t c = C0; c < C1 && !any_mark; ++c) any_mark = mark[c] != 0;
+  }
+  // Pass 1 builds the next band's images alongside over the last 2 r rows before it (its first
+  // image row is r rows above the band, final once pass 1 is 2 r rows above it), one row per
+  // push instead of 2 r + 1 at its first row; its
+  // origins are known once a finite cell of the tile is in (else the tile has no candidate).
+  const std::int64_t R0n = R0 + kTR, e0n = R0n - r;
+  if (pass == 1 && upto > e0n && R0n < H) {
+    const std::ptrdiff_t bn = static_cast<std::ptrdiff_t>((band + 1) % ebands_);
+    for (std::ptrdiff_t t = 0; t < etiles_; ++t) {
+      if (eorg_ok_[static_cast<std::size_t>(bn * etiles_ + t)]) edge_images(1, t, band + 1, upto);
+    }
+  }
+  if (pass > 1) {
+    std::uint8_t* et = etodo_.data() + s * W;
+    for (std::ptrdiff_t c = 0; c < W; ++c) et[c] &= static_cast<std::uint8_t>(~bit);
+    etodo_row_[static_cast<std::size_t>(s)] &= static_cast<std::uint8_t>(~bit);
+  }
+  if (!any_mark) return;
+  const std::uint8_t nbit = static_cast<std::uint8_t>(1u << ((pass + 1) & 1));
+  const std::int64_t a1 = std::min<std::int64_t>(H - 1, row + r);
+  std::uint8_t* labs = labels_.data() + s * W;
+  std::uint8_t* eo = eold_.data() + s * W;
+  std::uint8_t* ep = epass_.data() + s * W;
+  std::uint8_t* hs = hs_.data() + s * W;
+  for (std::ptrdiff_t c = 0; c < W; ++c) {
+    // mark is only written in tiles with a candidate: read it there only
+    if (!(todo[c] && (lab[c] == kNormal || lab[c] == kEdge)) || !mark[c]) continue;
+    const std::uint8_t before = labs[c];
+    labs[c] = kAbnormal;
+    eo[c] = static_cast<std::uint8_t>(before + 1);
+    ep[c] = static_cast<std::uint8_t>(pass);
+    hs[c] = kEdgeRemoved;  // out of the final window classes
+    // a NORMAL cell left the windows around it: their heights are fitted again at the end
+    if (before == kNormal) mark_stale(row, c);
+    if (pass < passes_) {  // the cells within r are judged again at the next pass
+      const std::ptrdiff_t b0 = std::max<std::ptrdiff_t>(0, c - r), b1 = std::min(W - 1, c + r);
+      for (std::int64_t a = a0; a <= a1; ++a) {
+        std::uint8_t* et = etodo_.data() + slot(a) * W;
+        for (std::ptrdiff_t x = b0; x <= b1; ++x) et[x] |= nbit;
+        etodo_row_[static_cast<std::size_t>(slot(a))] |= nbit;
+      }
+    }
+  }
+}
+
+// Runs the edge passes as far as their inputs are final (all rows at the end of the stream).
+template <typename T>
+void ProfileStream<T>::run_edges(bool to_end) noexcept {
+  const std::int64_t last = pushed_ - 1, r = params_.edge_window / 2;
+  const std::int64_t ready = to_end ? last : last - lagh_;  // height-final through this row
+  for (std::int64_t& y = enext_[1]; y <= last; ++y) {
+    if (!to_end) {
+      // the height passes final r rows below; the rows within h pushed (a removal marks
+      // their heights stale)
+      if (y + r > ready || y + half_ > last) break;
+    }
+    edge_row(y, 1);
+  }
+  for (int p = 2; p <= passes_; ++p) {
+    const std::int64_t lim = to_end ? last : enext_[static_cast<std::size_t>(p - 1)] - 1 - r;
+    for (std::int64_t& y = enext_[static_cast<std::size_t>(p)]; y <= lim; ++y) edge_row(y, p);
+  }
+}
+
+#define MIEM_STREAM_EDGES(T)                                                                 \
+  template void ProfileStream<T>::init_edges();                                             \
+  template void ProfileStream<T>::reset_edges() noexcept;                                   \
+  template void ProfileStream<T>::edge_push_row(std::int64_t) noexcept;                     \
+  template void ProfileStream<T>::run_edges(bool) noexcept;
 MIEM_STREAM_EDGES(float)
 MIEM_STREAM_EDGES(double)
 #undef MIEM_STREAM_EDGES

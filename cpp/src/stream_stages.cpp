@@ -75,7 +75,7 @@ void ProfileStream<T>::init_stages() {
 template <typename T>
 void ProfileStream<T>::reset_stages() noexcept {
   next_final_ = next_compact_ = next_out_ = 0;
-  next_band_ = 0;
+  reset_edges();
   std::fill(next_pass_.begin(), next_pass_.end(), 0);
   std::fill(cs_.begin(), cs_.end(), 0.0);
   std::fill(has_origin_.begin(), has_origin_.end(), 0);
@@ -104,13 +104,7 @@ void ProfileStream<T>::run_stages(bool to_end) noexcept {
       for (const std::int64_t lim = upto(A + E + p * h); next <= lim;) height_pass_row(next++, p);
     }
   }
-  if (edge_) {  // a band of 128 rows once the height passes are final through ebot_ rows below
-    const std::int64_t ready = to_end ? last : last - lagh_;
-    while (next_band_ * kEdgeBandRows <= last &&
-           (to_end || (next_band_ + 1) * kEdgeBandRows + ebot_ - 1 <= ready)) {
-      edge_band(next_band_++);
-    }
-  }
+  if (edge_) run_edges(to_end);
   for (const std::int64_t lim = upto(lag_); next_out_ <= lim;) final_row(next_out_++);
 }
 

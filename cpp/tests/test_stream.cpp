@@ -125,6 +125,7 @@ struct Named {
   miem::DetectParams params;
   std::ptrdiff_t rows = 90, cols = 70;
   bool outline = false;  // make_outline_scan: the edge test has work
+  bool late_origin = false;  // dropouts over the first rows of some edge-test tiles
 };
 
 // make_scan with the last third of every profile missing (the part ends: an outline) and lips
@@ -166,7 +167,7 @@ std::vector<Named> param_sets() {
   std::vector<Named> v;
   miem::DetectParams p = miem::paper_params();
   v.push_back({"paper", p});
-  v.push_back({"stream_default", miem::stream_default_params(), 260, 70});  // lag 349: at flush
+  v.push_back({"stream_default", miem::stream_default_params(), 260, 70});  // lag 222
   p = miem::stream_default_params();
   p.height_mode = miem::HeightMode::kAbnormal;
   v.push_back({"stream_default_abnormal_heights", p, 260, 70});
@@ -200,6 +201,13 @@ std::vector<Named> param_sets() {
   p.edge_k = 3.0;
   p.edge_window = 11;
   v.push_back({"paper_edge", p, 300, 60, true});
+  // Several edge-test tiles across (128 columns each, the last one partial and empty), the
+  // outline 4 columns into the third tile: sub-windows read the tile's images r columns left.
+  v.push_back({"edge_wide_tiles", miem::stream_default_params(), 300, 392, true});
+  // A short lag (H + r < h): tiles whose origin (first finite cell) lies deep in their band.
+  p.max_iterations = 2;
+  v.push_back({"edge_late_origin", p, 330, 300, true, true});
+
   p = miem::paper_params();
   p.window = 9;
   v.push_back({"paper_window9", p});
@@ -247,6 +255,17 @@ std::vector<double> scan_for(const Named& n, std::uint64_t seed) {
   if (!n.outline) return miem::test::make_scan(n.rows, n.cols, seed);
   // The scan must give the edge test work: it changes batch labels.
   std::vector<double> g = make_outline_scan(n.rows, n.cols, seed);
+  if (n.late_origin) {  // the first finite cell of a tile 37 rows (or 60) into its band
+    auto drop = [&](std::ptrdiff_t r0, std::ptrdiff_t r1, std::ptrdiff_t c0, std::ptrdiff_t c1) {
+      for (std::ptrdiff_t r = r0; r < r1; ++r) {
+        for (std::ptrdiff_t c = c0; c < std::min(c1, n.cols); ++c) {
+          for (int k = 0; k < 3; ++k) g[static_cast<std::size_t>((r * n.cols + c) * 3 + k)] = NAN;
+        }
+      }
+    };
+    drop(64, 101, 128, 256);
+    drop(192, 252, 0, 128);
+  }
   miem::DetectParams off = n.params;
   off.edge_k = 0.0;
   const auto view = miem::GridView<double>::dense(g.data(), n.rows, n.cols);
@@ -271,8 +290,10 @@ TEST_P(StreamEqualsBatch, FloatProfiles) {
 INSTANTIATE_TEST_SUITE_P(Params, StreamEqualsBatch, ::testing::ValuesIn(param_sets()),
                          [](const auto& info) { return std::string(info.param.name); });
 
-// L = P R + E + (P + 1) h with the height test, P R + h without, + 127 + P r with the edge test
-// (docs/SPEC.md "Streaming").
+// L = P R + E + (P + 1) h with the height test, P R + h without; with the edge test
+// L = max(H + r, h) + (P - 1) r + h, H = P R + E + P h (P R without the height test): edge
+// pass 1 runs r rows behind the height passes (and h rows behind the newest), pass p r rows
+// behind pass p - 1 (docs/SPEC.md "Streaming").
 TEST(Stream, LagFormula) {
   miem::DetectParams p = miem::paper_params();
   EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 20 + 10);  // 10 * (1 + 1) + 21 / 2
@@ -286,14 +307,21 @@ TEST(Stream, LagFormula) {
   p.min_step = 0.1;
   p.max_reach = 5;
   EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 10 * (1 + 1 + 5) + 10);
-  // The default: with the edge test (r = 15 / 2), 127 + P r more rows: 152 + 127 + 70.
-  EXPECT_EQ(miem::ProfileStream<>(16).lag(), 10 * 3 + 12 + 11 * 10 + 127 + 10 * 7);
-  EXPECT_EQ(miem::stream_lag(miem::stream_default_params()), 349);
+  // The default: with the edge test (r = 15 / 2): 142 + 7 + 9 * 7 + 10.
+  EXPECT_EQ(miem::ProfileStream<>(16).lag(), (10 * 3 + 12 + 10 * 10 + 7) + 9 * 7 + 10);
+  EXPECT_EQ(miem::stream_lag(miem::stream_default_params()), 222);
   p = miem::stream_default_params();
   p.max_iterations = 3;
   p.window = 7;
   p.edge_window = 9;
-  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 3 * 3 + 12 + 4 * 3 + 127 + 3 * 4);
+  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), (3 * 3 + 12 + 3 * 3 + 4) + 2 * 4 + 3);
+  miem::DetectParams q = miem::paper_params();  // the edge test without the height test
+  q.edge_k = 3.0;
+  q.max_iterations = 40;  // H + r = 40 * 2 + 7
+  EXPECT_EQ(miem::ProfileStream<>(16, q).lag(), 87 + 39 * 7 + 10);
+  q.max_iterations = 1;
+  q.edge_window = 3;  // H + r = 2 + 1 < h = 10: the rows within h of a removal must be in
+  EXPECT_EQ(miem::ProfileStream<>(16, q).lag(), 10 + 0 + 10);
   p.edge_k = 0.0;  // the edge test off: P R + E + (P + 1) h
   EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 3 * 3 + 12 + 4 * 3);
 }
@@ -421,6 +449,33 @@ TEST(Stream, PushAfterFlushAndReset) {
   }
   EXPECT_EQ(first, second);
   EXPECT_EQ(first.size(), static_cast<std::size_t>(H * W));
+}
+
+// A stream reset in the middle of a part (edge passes, their images and candidates part way
+// through) then run on another part equals batch detection on that part.
+TEST(Stream, ResetMidStreamWithTheEdgeTest) {
+  const std::ptrdiff_t H = 300, W = 150;
+  const miem::DetectParams p = miem::stream_default_params();
+  const std::vector<double> other = make_outline_scan(H, W, 8), g = make_outline_scan(H, W, 9);
+  miem::ProfileStream<> s(W, p);
+  miem::StreamRow row;
+  auto pushed = [](const miem::Status& st) {
+    return st.code == StatusCode::kOk || st.code == StatusCode::kEmptyProfile;  // NaN rows
+  };
+  for (std::ptrdiff_t r = 0; r < 277; ++r) ASSERT_TRUE(pushed(s.push(other.data() + r * W * 3, W, &row)));
+  s.reset();
+  std::vector<std::uint8_t> got;
+  for (std::ptrdiff_t r = 0; r < H; ++r) {
+    ASSERT_TRUE(pushed(s.push(g.data() + r * W * 3, W, &row)));
+    if (row.ready()) got.insert(got.end(), row.labels, row.labels + W);
+  }
+  while (s.flush(&row)) got.insert(got.end(), row.labels, row.labels + W);
+  const auto view = miem::GridView<double>::dense(g.data(), H, W);
+  miem::DetectParams off = p;
+  off.edge_k = 0.0;
+  const std::vector<std::uint8_t> want = miem::detect_organized(view, p).labels;
+  EXPECT_NE(want, miem::detect_organized(view, off).labels);  // the edge test has work
+  EXPECT_EQ(got, want);
 }
 
 TEST(Stream, StridedProfilesAreRead) {

@@ -26,13 +26,18 @@ _EMPTY_PROFILE = 6
 
 
 def _check_storage(width: int, dtype: np.dtype, lag: int, reach: int, half: int,
-                   edge_block: int = 0) -> None:
+                   edge: tuple[int, int] | None = None) -> None:
     """ValueError naming `width` when the stream's buffers (about ``lag + 2 h + 2`` profiles of
-    coordinates, state, labels and heights, plus two edge blocks with the edge test, README
-    "Guarantees") exceed half of the machine's memory, so that a typo never gets the process
-    killed for memory."""
-    rows = lag + half + 3 + max(2 * reach, 2 * half) + 2 * edge_block
-    need = width * rows * (3 * dtype.itemsize + 14)
+    coordinates, state, labels and heights; with the edge test, ``edge = (P, r)``, ``lag + 64 +
+    2 r + 3`` profiles and the edge test's integral images, README "Guarantees") exceed half of
+    the machine's memory, so that a typo never gets the process killed for memory."""
+    rows = max(2 * reach, 2 * half) + (lag + half + 3 if edge is None
+                                        else max(lag + half + 3, lag + 64 + 2 * edge[1] + 3))
+    need = width * rows * (3 * dtype.itemsize + 17)
+    if edge is not None:  # (P + 1) rings of 2 r + 2 image rows of 11 moments per tile column
+        P, r = edge
+        cols = min(width, 128 + 2 * r)
+        need += 8 * 11 * (P + 1) * (-(-width // 128)) * ((2 * r + 2) * (cols + 1) + cols)
     try:
         limit = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") // 2
     except (AttributeError, ValueError, OSError):  # pragma: no cover - not POSIX
@@ -83,17 +88,17 @@ class ProfileStream:
     profile can change it; over a scan, the same set as :attr:`miem.DetectResult.defects`).
     The lag (docs/SPEC.md "Streaming") is::
 
-        L = P R + E + (P + 1) h     (height test on;  L = P R + h without it)
-          + 127 + P r               (with the edge test)
+        L = P R + E + (P + 1) h            (height test on;  L = P R + h without it)
+        L = max(H + r, h) + (P - 1) r + h  (with the edge test; H = P R + E + P h, or P R
+                                            without the height test)
 
     with ``R = max(scales) + max_gap`` (``+ max_reach`` with ``min_step``) the rows one angle
     judgment reads, ``P = max_iterations``, ``E = edge_extent`` (the rows that decide whether an
-    EDGE group is compact), ``h = window // 2`` and ``r = edge_window // 2`` (the edge test
-    runs on bands of 128 profiles, two of its tile bands, with ``P r`` profiles after each): 10 *
-    3 + 12 + 11 * 10 + 127 + 10 * 7 = 349 profiles with the defaults, 10 * 2 + 10 = 30 with
-    ``preset="paper"``. A lower ``max_iterations``, ``edge_extent``, ``window`` or
-    ``edge_window`` shortens it; ``edge_tolerance=None`` takes 197 profiles off (and most of
-    the time: bench/RESULTS.md).
+    EDGE group is compact), ``h = window // 2`` and ``r = edge_window // 2`` (each edge pass
+    runs row by row, ``r`` profiles behind the one before): (10 * 3 + 12 + 10 * 10 + 7) + 9 * 7
+    + 10 = 222 profiles with the defaults, 10 * 2 + 10 = 30 with ``preset="paper"``. A lower
+    ``max_iterations``, ``edge_extent``, ``window`` or ``edge_window`` shortens it;
+    ``edge_tolerance=None`` takes 70 profiles off (and most of the time: bench/RESULTS.md).
 
     The parameters are a :class:`miem.DetectParams` as for :func:`miem.detect` (``params``, a
     ``preset`` or keyword overrides; the default, :func:`miem.default_params` ``("stream")``, is
@@ -142,7 +147,7 @@ class ProfileStream:
     ...         print(done.row, hit, done.heights[hit])
     10 [30] [3.]
     >>> stream.lag, len(stream.flush())              # the last `lag` rows
-    (349, 349)
+    (222, 222)
     """
 
     def __init__(
@@ -172,10 +177,9 @@ class ProfileStream:
             raise ValueError(message)
         self._dtype = dt
         a, gp = p.angle, p.grid
-        r, P = gp.edge_window // 2, a.max_iterations
-        block = 0 if gp.edge_tolerance is None else 64 * (3 + ((P - 1) * r + 63) // 64) + P * r
+        edge = None if gp.edge_tolerance is None else (a.max_iterations, gp.edge_window // 2)
         _check_storage(w, dt, int(_core.stream_lag(core_params)), max(a.scales) + gp.max_gap
-                       + (0 if gp.min_step is None else gp.max_reach), gp.window // 2, block)
+                       + (0 if gp.min_step is None else gp.max_reach), gp.window // 2, edge)
         try:
             self._core = cls(w, core_params)
         except MemoryError:

@@ -42,9 +42,10 @@ DetectParams stream_default_params();
 /// The lag L of a stream with these parameters (profiles between pushing a row and getting it
 /// back final), with R = max(scales) + max_gap (+ max_reach with min_step), h = window / 2,
 /// P = max_iterations, E = edge_extent, r = edge_window / 2:
-///     L = P R + E + (P + 1) h   with the height test,   L = P R + h   without,
-///       + 127 + P r             with the edge test (run on bands of 128 rows, two tile bands).
-/// Defaults: 10 * 3 + 12 + 11 * 10 + 127 + 10 * 7 = 349. Assumes valid parameters.
+///     L = P R + E + (P + 1) h   with the height test,   L = P R + h   without;
+///     L = max(H + r, h) + (P - 1) r + h   with the edge test, H = P R + E + P h (P R without
+///         the height test): each edge pass runs row by row, r rows behind the one before.
+/// Defaults: (10 * 3 + 12 + 10 * 10 + 7) + 9 * 7 + 10 = 222. Assumes valid parameters.
 long long stream_lag(const DetectParams& params) noexcept;
 
 /// Checks the parameters of a stream without throwing: params.check(), then what a stream does
@@ -66,23 +67,25 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 ///     rows on either side decide it);
 ///   - height pass 1 runs on row n - P R - E - h by running window sums (h = window / 2), pass
 ///     p on row n - P R - E - p h, only on the cells within h of a cell the pass before removed;
-///   - the edge test runs batch detection's edge passes on a block of rows per band of 128
-///     (two of its tile bands) once the height passes have run P r rows below the band; the block starts
-///     on a tile boundary at least 64 + (P - 1) r rows above the band, so that the band's
-///     results are those of the whole grid bit for bit (docs/SPEC.md "Streaming");
-///   - heights are final h rows after the last height pass (and the edge test).
-/// So row i is final once row i + L has arrived, L = stream_lag(params) (349 profiles with
-/// the defaults, 152 without the edge test; 20 + 10 with preset "paper"). Each cell keeps the pass that removed it, so a
-/// judgment at pass p sees exactly the cells of pass p - 1 even where rows around it have run
+///   - edge pass 1 runs on row n - H - r (H: the rows after which the height passes' labels
+///     are final; and at most on row n - h, so that the heights its removals make stale are
+///     all in), pass p r rows behind pass p - 1, row by row with batch detection's own per-row
+///     routines on per-tile integral images kept as rings of 2 r + 2 rows: its verdicts are
+///     those of the whole grid bit for bit (docs/SPEC.md "Streaming");
+///   - heights are final h rows after the last height pass (and the last edge pass).
+/// So row i is final once row i + L has arrived, L = stream_lag(params) (222 profiles with
+/// the defaults, 152 without the edge test; 20 + 10 with preset "paper"). Each cell keeps the
+/// pass that removed it (angle, height, edge), so a judgment at pass p sees exactly the cells of pass p - 1 even where rows around it have run
 /// pass p already. A lower max_iterations (most scans settle in 2-3 passes) or edge_extent
 /// shortens the lag, and equals batch detection with those parameters.
 ///
-/// Memory: the last L + h + 2 rows (about L + 2 h; with the edge test, back to the start of
-/// the next edge block: 470 rows at the defaults) are kept in a ring, plus max(2 R, 2 h, an
-/// edge block: 326 rows at the defaults) rows that repeat its first rows, so that the rows
-/// around any row form one strided GridView: about 85 MB for double profiles of 3200 points
-/// with the defaults (20 MB without the edge test), plus the cells of the open defects (a pool reserved for 16 rows' worth of cells,
-/// which grows, once, only for more). Defects come with the rows (StreamRow::defects) once
+/// Memory: the last L + h + 2 rows (about L + 2 h; with the edge test L + 64 + edge_window + 2:
+/// 303 rows at the defaults) are kept in a ring, plus max(2 R, 2 h) rows that repeat its first
+/// rows (2 r with the edge test if more), so that the rows around any row form one strided
+/// GridView; with the edge test also (P + 1) ceil(width / 128) rings of integral images
+/// (11 x (2 r + 2) x (129 + 2 r) doubles and the column sums): about 95 MB for double profiles of 3200 points with the defaults (20 MB
+/// without the edge test), plus the cells of the open defects (a pool reserved for 16 rows'
+/// worth of cells, which grows, once, only for more). Defects come with the rows (StreamRow::defects) once
 /// final; flags and angles are not reported. (Batch detection also refuses a grid of fewer
 /// than 3 finite points; a stream simply labels what it gets.)
 ///
@@ -165,14 +168,16 @@ class ProfileStream {
   GridView<T> row_view(std::int64_t row) const noexcept {
     return GridView<T>{xyz_.data() + slot(row) * width_, 1, width_, width_, 1, phys_ * width_};
   }
-  // The edge test (stream_edges.cpp).
-  // A band: the rows whose edge test one block gives, two tile bands (SPEC "Edge test": tiles of
-  // 64 rows): fewer blocks per row than one tile band (2.5 instead of 4 at the defaults), and
-  // one push in 128 carries a block.
-  static constexpr std::int64_t kEdgeBandRows = 128;
-  std::ptrdiff_t edge_block_rows() const noexcept { return etop_ + kEdgeBandRows + ebot_; }
+  // The edge test (stream_edges.cpp): each pass row by row.
   void init_edges();
-  void edge_band(std::int64_t band) noexcept;
+  void reset_edges() noexcept;
+  void edge_push_row(std::int64_t row) noexcept;
+  void run_edges(bool to_end) noexcept;
+  void edge_row(std::int64_t row, int pass) noexcept;
+  const double* edge_images(int pass, std::ptrdiff_t tile, std::int64_t band,
+                            std::int64_t upto) noexcept;
+  void edge_labels(std::int64_t row, int pass, std::ptrdiff_t c0, std::ptrdiff_t c1,
+                   std::uint8_t* out) const noexcept;
   // Defects (stream_defects.cpp).
   void init_defects();
   void reset_defects() noexcept;
@@ -196,10 +201,9 @@ class ProfileStream {
   bool htest_ = false;  // the height test is on
   bool edge_ = false;   // the edge test is on
   int lagh_ = 0;        // rows behind the newest at which the height passes' labels are final
-  int etop_ = 0, ebot_ = 0;  // rows of an edge block above and below its band
   bool sums_ = false;   // height pass 1 / heights run by running window sums (kAll or the test)
   std::ptrdiff_t ring_ = 0;  // rows kept: the longest look-back + 2
-  std::ptrdiff_t ext_ = 0;   // max(2R, 2h)
+  std::ptrdiff_t ext_ = 0;   // max(2R, 2h, 2r with the edge test)
   std::ptrdiff_t phys_ = 0;  // rows stored: ring_ + ext_, rows in slots [0, ext_) again at the
                              // end, so that any ext_ + 1 consecutive rows form one GridView
   int max_scale_ = 1;
@@ -243,12 +247,21 @@ class ProfileStream {
   std::vector<std::uint8_t> region_cls_;  // region_fits: one row's classes
 
   // Edge test (stream_edges.cpp).
-  std::vector<std::uint8_t> eold_;    // ring_ rows: 0, or 1 + the label the edge test changed
-  std::vector<std::uint8_t> eblock_;  // one block's labels
-  std::vector<double> escratch_;      // the edge test's sums
-  std::vector<std::uint8_t> eflags_;  // the edge test's candidates and marks
-  std::int64_t next_band_ = 0;
-
+  std::vector<std::uint8_t> eold_;   // ring_ rows: 0, or 1 + the label the edge test changed
+  std::vector<std::uint8_t> epass_;  // ring_ rows: the edge pass that removed the cell, 0 none
+  std::vector<std::uint8_t> etodo_;  // ring_ rows: bit (p & 1) = judge at edge pass p >= 2
+  std::vector<std::uint8_t> etodo_row_;  // ring_ rows: same bits, "the row has any"
+  // Per (set, tile column): a ring of ek_ integral-image rows of edge_test.hpp's layout
+  // (kEdgeMoments planes of ek_ rows of estride_) and the column sums; the band it was built
+  // for and the next grid row to add. Sets: pass 1 even / odd bands, then pass p >= 2 at p.
+  std::ptrdiff_t etiles_ = 0, ek_ = 0, estride_ = 0, eper_ = 0, ebands_ = 0;
+  std::vector<double> eimg_;
+  std::vector<std::int64_t> eimg_band_, eimg_next_;
+  std::vector<std::int64_t> enext_;      // [p]: next row of edge pass p (1..passes_)
+  std::vector<double> eorg_;             // per (band mod ebands_, tile column): the origin
+  std::vector<std::uint8_t> eorg_ok_;    // ... found
+  std::vector<std::ptrdiff_t> eorg_missing_;  // per band slot: tiles without an origin yet
+  std::vector<std::uint8_t> eones_, elab_img_, elab_row_, emark_, etd_;  // one row each
   // Defects (stream_defects.cpp): open groups as union-find slots over the cells of the last
   // row handed back; their cells in a pool of singly linked members.
   struct DefectSlot {
