@@ -68,6 +68,9 @@ CASES = [
     {**RECOMMENDED, "height_tolerance": 0.12, "edge_extent": 4},
     {**RECOMMENDED, "min_group": 0, "height_radius": 2.0},
     {"theta0": 90.0, "scales": (1, 2, 3), "min_group": 12},
+    {**RECOMMENDED, "isolated_tolerance": 3.0},
+    {**RECOMMENDED, "isolated_tolerance": None},
+    {**RECOMMENDED, "height_tolerance": 0.12, "isolated_tolerance": 2.5},
 ]
 
 
@@ -127,6 +130,48 @@ def test_height_test_by_hand() -> None:
         assert fn(pts, theta0=90.0, radius=5.0, height_tolerance=0.31, **plain).labels[i] != A
 
 
+def _surroundings(pts: np.ndarray, i: int, radius: float) -> tuple[float, float, float]:
+    """|height| of point i over the plane of the points (radius, 2 radius] away (SVD), that
+    plane's rms, and the median |height| of the points (0, radius] away over it."""
+    d = np.linalg.norm(pts - pts[i], axis=1)
+    ring = pts[(d > radius) & (d <= 2 * radius)]
+    c = ring.mean(axis=0)
+    _, sv, vt = np.linalg.svd(ring - c, full_matrices=False)
+    n = vt[2]
+    rms = sv[2] / np.sqrt(len(ring))
+    inner = pts[(d > 0) & (d <= radius)]
+    return abs(float((pts[i] - c) @ n)), float(rms), float(np.median(np.abs((inner - c) @ n)))
+
+
+@pytest.mark.parametrize("inner_noise", [True, False])
+def test_isolated_point_rule_by_hand(inner_noise: bool) -> None:
+    # Flat lattice (spacing 1) with a +-0.01 checkerboard, one point at 0.055: 5 to 7 rms of
+    # its surroundings, beyond the angle test (174 deg) and the 7 rms rule. With its inner
+    # neighbours as rough as the rms (the checkerboard), the isolated-point rule (5 rms) finds it;
+    # with them exactly flat (a point alone on a patch whose surroundings are rougher: the
+    # median of their heights is ~0 < 0.5 rms) it abstains.
+    r, c = np.mgrid[0:31, 0:31]
+    z = 0.01 * np.where((r + c) % 2 == 0, 1.0, -1.0).ravel()
+    pts = np.column_stack([c.ravel(), r.ravel(), z]).astype(float)
+    i = 15 * 31 + 15
+    if not inner_noise:
+        near = np.linalg.norm(pts[:, :2] - pts[i, :2], axis=1) <= 5.0
+        pts[near, 2] = 0.0
+    pts[i, 2] = 0.055
+    h, rms, med = _surroundings(pts, i, 5.0)
+    assert 5.0 * rms < h < 7.0 * rms  # the case this test is about
+    assert (med >= 0.5 * rms) == inner_noise
+    plain = {"min_group": 0, "edge_extent": 0.0, "radius": 5.0, "theta0": 90.0}
+    for fn in (miem.detect_points, ref.detect_points):
+        off = fn(pts, isolated_tolerance=None, **plain)
+        assert not np.any(off.labels == A)
+        on = fn(pts, isolated_tolerance=5.0, **plain)
+        assert np.flatnonzero(on.labels == A).tolist() == ([i] if inner_noise else [])
+        assert on.params["isolated_tolerance"] == 5.0
+        # the rule needs |h| above k rms: with k above h / rms it abstains
+        assert not np.any(fn(pts, isolated_tolerance=h / rms + 0.01, **plain).labels == A)
+
+
 def test_permutation_rigid_motion_offset_float32() -> None:
     pts, _ = scene(2)
     base = miem.detect_points(pts, **RECOMMENDED)
@@ -161,7 +206,9 @@ def test_same_labels_for_any_thread_count() -> None:
     [({"min_group": 2}, "min_group"), ({"min_group": -1}, "min_group"),
      ({"edge_extent": -1.0}, "edge_extent"), ({"height_radius": 0.0}, "height_radius"),
      ({"height_tolerance": "x"}, "height_tolerance"), ({"height_tolerance": -1.0},
-                                                       "height_tolerance")],
+                                                       "height_tolerance"),
+     ({"isolated_tolerance": 0.0}, "isolated_tolerance"),
+     ({"isolated_tolerance": float("nan")}, "isolated_tolerance")],
 )
 def test_bad_parameters(kwargs: dict, name: str) -> None:
     pts, _ = scene(0)

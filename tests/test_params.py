@@ -123,7 +123,7 @@ OTHER = {
     "max_gap": 2, "min_step": 0.5, "max_reach": 5, "window": 9, "heights": "abnormal",
     "height_tolerance": 0.05, "edge_extent": 4, "radius": 1.2, "K": 6, "link": 0.9,
     "min_group": 5, "height_radius": 2.0, "merge_distance": 0.01, "spacing": 0.35,
-    "edge_tolerance": 8.0, "edge_window": 7, "edge_radius": 2.5,
+    "edge_tolerance": 8.0, "edge_window": 7, "edge_radius": 2.5, "isolated_tolerance": 2.0,
 }
 ALL_FIELDS = {name for path in miem.params.PATHS for name in miem.DetectParams.fields(path)}
 

@@ -17,7 +17,8 @@ from miem import reference as ref
 
 # The paper's angle test on clouds (theta0 75, scales (1,)); explicit arguments win.
 paper_detect_points = functools.partial(ref.detect_points, theta0=75.0, scales=(1,),
-                                        height_tolerance=None, edge_extent=0.0, min_group=0)
+                                        height_tolerance=None, edge_extent=0.0, min_group=0,
+                                        isolated_tolerance=None)
 
 N, A, E, INV = ref.NORMAL, ref.ABNORMAL, ref.EDGE, ref.INVALID
 
@@ -438,7 +439,8 @@ def test_defaults_recorded_on_known_lattice() -> None:
     pts = lattice(12, h, m=9)
     res = paper_detect_points(pts)
     off = {"min_group": 0, "edge_extent": 0.0, "height_tolerance": None,
-           "merge_distance": 0.0, "merged": 0, "edge_tolerance": None, "edge_radius": None}
+           "merge_distance": 0.0, "merged": 0, "edge_tolerance": None, "edge_radius": None,
+           "isolated_tolerance": None}
     assert res.params == {"spacing": h, "radius": 5 * h, "min_step": 0.5 * h, "link": 5 * h,
                           "K": 4, "height_radius": 10 * h, **off}
     assert isinstance(res.params["K"], int)

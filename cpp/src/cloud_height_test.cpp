@@ -65,6 +65,7 @@ inline bool too_far(const Gather& g, const Gather& lines, const Eigen::Vector3d&
   // the point's own bump).
   OffsetSums around, inner;
   ball_sums(g, p, r2, in2, s, &around, &inner);
+  const double inner_n = inner.n;
   LocalPlane lp;
   if (height != nullptr) {
     *height = plane_from_sums(around.plus(inner), &lp) == PlaneStatus::kOk
@@ -79,7 +80,33 @@ inline bool too_far(const Gather& g, const Gather& lines, const Eigen::Vector3d&
   const double rms = std::sqrt(std::max(ev(0), 0.0) / n);
   if (rms_out != nullptr) *rms_out = rms;
   if (t.abs > 0.0 && h > t.abs) return true;
-  return t.k > 0.0 && h > t.k * rms && h > 1e-9 * std::sqrt((ev(1) + ev(2)) / n);
+  if (!(t.k > 0.0)) return false;
+  // The common case first: below both multiples of the rms (the isolated-point rule needs the
+  // "<k>rms" tolerance: a length tolerance is the caller's own threshold).
+  if (!(h > std::min(t.k, t.iso_k > 0.0 ? t.iso_k : t.k) * rms)) return false;
+  if (!(h > 1e-9 * std::sqrt((ev(1) + ev(2)) / n))) return false;
+  if (h > t.k * rms) return true;
+  if (!(t.iso_k > 0.0 && h > t.iso_k * rms)) return false;
+  // The isolated-point rule: the NORMAL points q != p within t.inner (the inner positions
+  // ball_sums left in s.id; p itself is the one at distance 0) lie about the surroundings plane
+  // as loosely as its rms says: the median of their |heights| is at least kIsolatedMedian rms.
+  const std::size_t m_in = static_cast<std::size_t>(inner_n);
+  const double nx = lp.normal.x(), ny = lp.normal.y(), nz = lp.normal.z();
+  const double mx = lp.mean.x(), my = lp.mean.y(), mz = lp.mean.z();
+  double* __restrict hv = s.wx.data();  // free here: ball_sums does not use it
+  std::size_t m = 0;
+  for (std::size_t q = 0; q < m_in; ++q) {
+    const std::uint32_t k = s.id[q];
+    if (!(s.all_d2[k] > 0.0)) continue;
+    const double wx = g.x[k] - px, wy = g.y[k] - py, wz = g.z[k] - pz;
+    hv[m++] = std::abs(nx * (wx - mx) + ny * (wy - my) + nz * (wz - mz));
+  }
+  if (m < 3) return false;
+  const std::size_t mid = m / 2;
+  std::nth_element(hv, hv + mid, hv + m);
+  double med = hv[mid];
+  if (m % 2 == 0) med = (*std::max_element(hv, hv + mid) + med) / 2.0;
+  return med >= kIsolatedMedian * rms;
 }
 
 }  // namespace

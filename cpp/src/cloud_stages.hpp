@@ -23,10 +23,15 @@ std::vector<std::uint32_t> floating_points(const NeighborGrid<T>& grid, const Po
                                            const std::uint8_t* labels, std::uint16_t* counts,
                                            double radius, int min_group, int num_threads);
 
+/// The isolated-point rule of the height test: the median |height| of the point's inner NORMAL
+/// neighbours over the surroundings plane must be at least this multiple of the plane's rms.
+inline constexpr double kIsolatedMedian = 0.5;
+
 /// The height test's settings, resolved (lengths in the points' units).
 struct HeightTest {
   double abs = 0.0;            ///< > 0: |h| above this
   double k = 0.0;              ///< > 0: |h| above k * rms
+  double iso_k = 0.0;          ///< > 0: the isolated-point rule, |h| above iso_k * rms
   double radius = 0.0;         ///< height-plane radius
   double inner = 0.0;          ///< the plane is fitted to the NORMAL points beyond this
   double link = 0.0;           ///< EDGE grouping distance

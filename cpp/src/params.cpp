@@ -87,6 +87,9 @@ Status CloudParams::check() const noexcept {
   if (edge_radius && !(std::isfinite(*edge_radius) && *edge_radius > 0.0)) {
     return bad("edge_radius: must be finite and > 0");
   }
+  if (!(std::isfinite(isolated_k) && isolated_k >= 0.0)) {
+    return bad("isolated_k: must be finite and >= 0 (0 = off)");
+  }
   return kOkStatus;
 }
 
@@ -135,6 +138,7 @@ PointsDetectParams paper_points_params() {
   p.height_k = 0.0;
   p.edge_extent = 0.0;
   p.edge_k = 0.0;
+  p.isolated_k = 0.0;
   return p;
 }
 

@@ -317,6 +317,7 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
     HeightTest t;
     t.abs = p.height_abs;
     t.k = p.height_k;
+    t.iso_k = p.isolated_k;
     t.radius = hr;
     t.inner = radius;
     t.link = link;
@@ -539,7 +540,7 @@ PointsDetectSummary detect_points(const PointsView<T>& points, const PointsDetec
   for (std::ptrdiff_t i = 0; i < points.size; ++i) {
     const std::int64_t r = dup.rep[i];
     const std::int64_t k = r < 0 ? -1 : slot[r];
-    out.labels[i] = k < 0 ? kInvalid : labels[k];
+    out.labels[i] = k < 0 ? static_cast<std::uint8_t>(kInvalid) : labels[k];
     if (out.flags) out.flags[i] = k < 0 ? 0 : flags[k];
     if (out.angle_deg) out.angle_deg[i] = k < 0 ? kNaN : angle[k];
     if (out.height) out.height[i] = k < 0 ? kNaN : height[k];

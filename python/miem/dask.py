@@ -617,7 +617,7 @@ _POINT_FILL = {"labels": int(miem.INVALID), "flags": 0, "angle": np.nan, "height
 #: Cloud parameters whose reach points_halo knows; any other parameter that is on is refused.
 _POINT_KNOWN = {"preset", "theta0", "scales", "min_step", "min_directions", "max_iterations",
                 "radius", "K", "link", "spacing", "heights", "height_tolerance", "edge_extent",
-                "min_group", "height_radius", "merge_distance", "merged"}
+                "min_group", "height_radius", "merge_distance", "merged", "isolated_tolerance"}
 
 
 def _probe_points(kwargs: dict) -> tuple:

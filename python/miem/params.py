@@ -246,6 +246,10 @@ class CloudParams:
     edge_radius: Optional[float] = _f(
         None, "length", "with the edge test: radius of its sectors; None: height_radius",
         "LENGTH")
+    isolated_tolerance: Optional[float] = _f(
+        5.0, "k x rms", "with the height test: a point alone farther than k times the rms of "
+        "its surroundings plane, whose neighbours within radius lie about that plane as loosely "
+        "as the rms says (a low spike or pit one point wide), becomes ABNORMAL; None: off", "K")
 
 
 _PART_TYPES = {"angle": AngleParams, "grid": GridParams, "cloud": CloudParams}
@@ -450,6 +454,8 @@ class DetectParams:
                                                                   c.edge_tolerance)
         p.edge_radius = (None if c.edge_radius is None
                          else _positive("edge_radius", c.edge_radius))
+        p.isolated_k = (0.0 if c.isolated_tolerance is None
+                        else _positive("isolated_tolerance", c.isolated_tolerance))
         p.num_threads = num_threads
         _raise_unless_ok(p.check())
         return p
@@ -491,7 +497,8 @@ PRESETS: Dict[str, DetectParams] = {
         angle=AngleParams(theta0=75.0, scales=(1,)),
         grid=GridParams(min_step=None, height_tolerance=None, edge_extent=0,
                         edge_tolerance=None),
-        cloud=CloudParams(height_tolerance=None, edge_extent=0.0, min_group=0),
+        cloud=CloudParams(height_tolerance=None, edge_extent=0.0, min_group=0,
+                          isolated_tolerance=None),
     ),
     "recommended": DetectParams(),
 }
@@ -499,7 +506,8 @@ PRESETS: Dict[str, DetectParams] = {
 #: The cloud-only values of each preset that differ between presets (a view of PRESETS).
 CLOUD_PRESETS: Dict[str, Dict[str, Any]] = {
     name: {k: getattr(p.cloud, k)
-           for k in ("height_tolerance", "edge_extent", "min_group", "edge_tolerance")}
+           for k in ("height_tolerance", "edge_extent", "min_group", "edge_tolerance",
+                     "isolated_tolerance")}
     for name, p in PRESETS.items()
 }
 

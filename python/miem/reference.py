@@ -1967,13 +1967,15 @@ def _cloud_height_pass(
     line: NDArray[np.bool_],
     tolerance: tuple[str, float],
     stats: NDArray[np.float64] | None = None,
+    isolated: float | None = None,
 ) -> NDArray[np.bool_]:
     """One cloud height pass: the NORMAL and compact-EDGE points that become ABNORMAL (with
     ``stats``, also each point's surroundings rms where the test gave a verdict, NaN elsewhere).
 
     ``(hi, hj, hw)`` are the pairs within the height radius, each point paired with itself too;
     ``outer`` marks the pairs farther apart than ``radius`` (the plane is fitted to those: the
-    surroundings, not the point's own bump).
+    surroundings, not the point's own bump). ``isolated`` (a multiple of the rms, or None: off)
+    turns on the isolated-point rule (with the "<k>rms" tolerance only).
     """
     n_pts = normal.shape[0]
     tested = normal | compact
@@ -1992,12 +1994,43 @@ def _cloud_height_pass(
     rms = np.sqrt(np.maximum(evals[:, 0], 0.0) / n)
     if stats is not None:  # the surroundings' rms where the test gave a verdict (edge test)
         stats[:] = np.where(exists, rms, np.nan)
-    if mode == "abs":
-        return exists & (absh > value)
     floor = _HEIGHT_RMS_FLOOR * np.sqrt((evals[:, 1] + evals[:, 2]) / n)
-    return exists & (absh > value * rms) & (absh > floor)
+    if mode == "abs":
+        out = exists & (absh > value)
+    else:
+        out = exists & (absh > value * rms) & (absh > floor)
+    if isolated is None or mode == "abs":  # a length tolerance is the caller's own threshold
+        return out
+    # The isolated-point rule: |h| > isolated * rms, and the NORMAL points q != p within radius
+    # lie about the surroundings plane as loosely as its rms says (the median of their |heights|
+    # is at least _CLOUD_ISOLATED_MEDIAN * rms): p alone stands out of a smooth neighbourhood.
+    cand = exists & ~out & (absh > isolated * rms) & (absh > floor)
+    ins = cand[hi] & normal[hj] & ~outer & (hi != hj)
+    gi = hi[ins]
+    hq = np.abs(_dot3(nrm[gi], hw[ins] - cen[gi]))
+    med = _group_medians(gi, hq, n_pts)
+    return out | (cand & (med >= _CLOUD_ISOLATED_MEDIAN * rms))
 
 
+def _group_medians(
+    gi: NDArray[np.int64], v: NDArray[np.float64], n_groups: int
+) -> NDArray[np.float64]:
+    """NumPy's median of ``v`` per group ``gi`` (NaN for groups of fewer than 3 values)."""
+    out = np.full(n_groups, np.nan)
+    o = np.lexsort((v, gi))
+    gi, v = gi[o], v[o]
+    cnt = np.bincount(gi, minlength=n_groups)
+    start = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+    has = np.flatnonzero(cnt >= 3)
+    lo = start[has] + (cnt[has] - 1) // 2
+    hi = start[has] + cnt[has] // 2
+    out[has] = (v[lo] + v[hi]) / 2.0
+    return out
+
+
+#: Cloud height test, isolated-point rule: the median |height| of a point's inner NORMAL
+#: neighbours over its surroundings plane must be at least this multiple of the plane's rms.
+_CLOUD_ISOLATED_MEDIAN = 0.5
 #: Cloud edge test (SPEC "Unorganized clouds: edge test"): a point's surroundings rms in the
 #: first height pass above this multiple of the median makes it a candidate.
 _CLOUD_EDGE_SUSPECT = 1.5
@@ -2149,11 +2182,13 @@ def detect_points(
     spacing: float | None = None,
     edge_tolerance: float | None = None,
     edge_radius: float | None = None,
+    isolated_tolerance: float | None = 5.0,
 ) -> RefPointsResult:
     """Detect abnormal points in an unorganized cloud (MIEM, reference implementation).
 
     The defaults are the recommended preset's cloud values (SPEC "Parameters"); the paper's
-    method is ``theta0=75, scales=(1,), height_tolerance=None, edge_extent=0, min_group=0``.
+    method is ``theta0=75, scales=(1,), height_tolerance=None, edge_extent=0, min_group=0`` (the
+    isolated-point rule belongs to the height test).
 
     Parameters
     ----------
@@ -2204,6 +2239,9 @@ def detect_points(
         Edge test (SPEC "Unorganized clouds: edge test"): None (off) or ``k > 0``.
     edge_radius : float or None, optional
         Radius of the edge test's sectors; None means ``height_radius``. ``> 0``.
+    isolated_tolerance : float or None, optional
+        With the height test, the isolated-point rule (SPEC "Unorganized clouds: floating groups
+        and height test", step 3): None (off) or ``k > 0``, in multiples of the surroundings rms.
 
     Returns
     -------
@@ -2242,6 +2280,8 @@ def detect_points(
         "edge_tolerance", edge_tolerance, allow_zero=False)
     re_in = None if edge_radius is None else _check_length(
         "edge_radius", edge_radius, allow_zero=False)
+    iso_k = None if isolated_tolerance is None else _check_length(
+        "isolated_tolerance", isolated_tolerance, allow_zero=False)
 
     p, finite = _cloud_array(points)
     n_all = p.shape[0]
@@ -2317,7 +2357,7 @@ def detect_points(
                 compact = _cloud_compact_edges(pts, edge, lnk, extent * spacing)
                 new_abn = _cloud_height_pass(
                     hi, hj, hw, outer, labels == NORMAL, compact, edge & ~compact, tolerance,
-                    first_rms if it == 0 else None,
+                    first_rms if it == 0 else None, iso_k,
                 )
                 labels[new_abn] = ABNORMAL
                 abnormal |= new_abn
@@ -2380,6 +2420,7 @@ def detect_points(
                 "merge_distance": merge, "merged": int(dup_rows.size),
                 "edge_tolerance": edge_k,
                 "edge_radius": None if edge_k is None else re_used,
+                "isolated_tolerance": iso_k,
                 "height_tolerance": (
                     None if tolerance is None
                     else (tolerance[1] if tolerance[0] == "abs" else str(height_tolerance))

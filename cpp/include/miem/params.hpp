@@ -67,6 +67,9 @@ struct CloudParams {
   double height_abs = 0.0;         ///< length: > 0 height test, |height| above this is ABNORMAL
   double height_k = 7.0;           ///< multiple of the local rms: > 0 height test, |h| > k rms
   double edge_extent = 12.0;       ///< spacings: height test also on EDGE groups this compact
+  /// multiple of the surroundings rms: > 0 the height test's isolated-point rule (a point alone
+  /// above this, its inner neighbours as loose as the rms says, is ABNORMAL), 0 off
+  double isolated_k = 5.0;
   std::optional<double> height_radius;  ///< length: height-plane radius (> 0); default 2 * radius
   double merge_distance = 0.0;     ///< length: points this close (>= 0; 0: equal) are one point
   /// multiple of the sector rms: > 0 edge test (SPEC "Unorganized clouds: edge test"; not in the

@@ -90,6 +90,9 @@ void bind_params(py::module_& m) {
                      "length: the point spacing (> 0); None: median nearest-neighbour distance")
       .def_readwrite("edge_k", &miem::CloudParams::edge_k,
                      "multiple of the sector rms: edge test (needs the height test); 0: off")
+      .def_readwrite("isolated_k", &miem::CloudParams::isolated_k,
+                     "multiple of the surroundings rms: the height test's isolated-point rule; "
+                     "0: off")
       .def_readwrite("edge_radius", &miem::CloudParams::edge_radius,
                      "length: edge-test sector radius (> 0); None: height_radius")
       .def("check", [](const miem::CloudParams& p) { return status_tuple(p.check()); });
