@@ -146,6 +146,12 @@ def _miem_prepare(grid: np.ndarray, step: float, **params: Any) -> np.ndarray:
     return miem.detect(grid, preset="paper", heights="abnormal", **kwargs).labels == miem.ABNORMAL
 
 
+def _paper_prepare(grid: np.ndarray, step: float, **params: Any) -> np.ndarray:
+    # The paper's method exactly: no edge stage (the default's edge test and min_step="auto").
+    kwargs = miem_kwargs(params, step)
+    return miem.detect(grid, preset="paper", heights="abnormal", **kwargs).labels == miem.ABNORMAL
+
+
 def _miem_flag(state: np.ndarray, step: float) -> np.ndarray:
     return state
 
@@ -281,7 +287,7 @@ def _contenders() -> dict[str, Contender]:
     items = [
         Contender(
             "miem_paper", "miem, the paper's settings (theta0 75, scales (1,))",
-            _miem_prepare, _miem_flag, grid_method=True, fixed=paper,
+            _paper_prepare, _miem_flag, grid_method=True, fixed=paper,
         ),
         Contender(
             "miem", "miem, recommended settings (tuned)", _miem_prepare, _miem_flag,
