@@ -484,15 +484,20 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
       double* const col = S + kM * plane;  // moment q of column x at col[q * EC + x]
       const std::ptrdiff_t R0 = (tile / tiles_c) * kTileRows, R1 = std::min(H, R0 + kTileRows);
       const std::ptrdiff_t C0 = (tile % tiles_c) * kTileCols, C1 = std::min(W, C0 + kTileCols);
-      bool any = false;
+      // the last row and column with a candidate (after the first pass candidates are the
+      // windows around new ABNORMAL cells, often a corner of the tile)
+      std::ptrdiff_t rlast = -1, clast = -1;
       for (std::ptrdiff_t rr = R0; rr < R1; ++rr) {
         for (std::ptrdiff_t cc = C0; cc < C1; ++cc) {
           const std::ptrdiff_t i = rr * W + cc;
           mark[i] = 0;
-          any = any || (todo[i] && (labels[i] == kNormal || labels[i] == kEdge));
+          if (todo[i] && (labels[i] == kNormal || labels[i] == kEdge)) {
+            rlast = rr;
+            clast = std::max(clast, cc);
+          }
         }
       }
-      if (!any) continue;
+      if (rlast < 0) continue;
       // the tile's origin: its first finite cell (a candidate is finite, so there is one)
       Eigen::Vector3d o = Eigen::Vector3d::Zero();
       for (std::ptrdiff_t i = 0; i < (R1 - R0) * (C1 - C0); ++i) {
@@ -504,8 +509,12 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
       }
       // integral images over rows e0..e1, columns f0..f1: running sums down each column, then
       // along each row (NumPy's order); local row s holds the sums over rows e0 .. e0 + s - 1
-      const std::ptrdiff_t e0 = std::max<std::ptrdiff_t>(0, R0 - r), e1 = std::min(H, R1 + r);
-      const std::ptrdiff_t f0 = std::max<std::ptrdiff_t>(0, C0 - r), f1 = std::min(W, C1 + r);
+      // (only up to r past the last candidate row and column: the images there are never read;
+      // the sums start at e0, f0 whatever the candidates, so every image value read is the same)
+      const std::ptrdiff_t e0 = std::max<std::ptrdiff_t>(0, R0 - r);
+      const std::ptrdiff_t e1 = std::min(H, rlast + r + 1);
+      const std::ptrdiff_t f0 = std::max<std::ptrdiff_t>(0, C0 - r);
+      const std::ptrdiff_t f1 = std::min(W, clast + r + 1);
       const std::ptrdiff_t ew = f1 - f0;
       std::fill(col, col + kM * EC, 0.0);
       for (int q = 0; q < kM; ++q) std::fill(S + q * plane, S + q * plane + ew + 1, 0.0);
@@ -513,8 +522,8 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
         edge_image_row(g, rr, labels + rr * W, f0, f1, o, col, EC, S + (rr - e0 + 1) * L, plane);
       }
       const EdgeImages im{S, plane, L, e0, ER + 1, f0};
-      for (std::ptrdiff_t rr = R0; rr < R1; ++rr) {
-        edge_judge_row(g, rr, rr, H, C0, C1, im, o, r, k, labels, todo + rr * W,
+      for (std::ptrdiff_t rr = R0; rr <= rlast; ++rr) {
+        edge_judge_row(g, rr, rr, H, C0, clast + 1, im, o, r, k, labels, todo + rr * W,
                        mark + rr * W);
       }
     }
