@@ -274,8 +274,9 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
   const auto srow = [&im](std::ptrdiff_t s) { return ((s - im.first) % im.rows) * im.stride; };
   // Up to kChunk candidate cells of the row at a time, all as SoA over their 8 sides
   // (entry e = side * m + cell): the sub-window sums (corner reads, vectorised over the
-  // cells when they are consecutive and away from the grid border), then moments,
-  // eigenpairs and planes in vectorised loops; each cell is judged from those.
+  // cells, or over their span when they are not consecutive, away from the grid border),
+  // then bounds, moments, eigenpairs and planes in vectorised loops; each cell is judged
+  // from those.
   constexpr int kChunk = 16, kCap = 8 * kChunk;
   double mm[kM * kCap], Mb[6 * kCap], Eb[6 * kCap], nnb[kCap], ceb[3 * kCap];
   // F: h, rms, tol, oriented normal; P: the cells per side (filled for the full path only),
