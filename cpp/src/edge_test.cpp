@@ -44,9 +44,27 @@ using Side = EdgeSide;
 #define MIEM_EDGE_CLONES
 #endif
 
-// Sub-window moments (SoA, moment q at mm + q * cap) to what the planes need: nn = max(n, 1),
-// the centroid, the centred scatter (a, b, c, d, e, f as smallest_eigenpairs reads it), whether
-// the side has enough support (use) and whether it is empty (INVALID count). Vectorised.
+// One side's moments (n and the sums of moment q at mm[q * cap]) to what the planes need:
+// nn = max(n, 1), the centroid, the centred scatter (a, b, c, d, e, f as smallest_eigenpairs
+// reads it: M(0, 0), M(1, 1), M(2, 2), M(0, 1), M(1, 2), M(0, 2)) and whether the side has
+// enough support (use). Shared by side_moments and side_lows so that both give the same bits.
+inline __attribute__((always_inline)) void side_moment(const double* mm, std::ptrdiff_t cap,
+                                                       double n_min, double& nn, double& cx,
+                                                       double& cy, double& cz, double* M,
+                                                       bool& use) {
+  const double n = mm[0];
+  nn = n < 1.0 ? 1.0 : n;  // std::max(n, 1.0)
+  cx = mm[cap] / nn, cy = mm[2 * cap] / nn, cz = mm[3 * cap] / nn;
+  const double a = mm[4 * cap] - nn * cx * cx, b = mm[7 * cap] - nn * cy * cy;
+  const double d = mm[5 * cap] - nn * cx * cy;
+  // support on a line in (x, y): no plane (SPEC step 3)
+  use = (n >= n_min) & (a * b - d * d > kLineTol * ((a + b) * (a + b)));
+  M[0] = a, M[1] = b, M[2] = mm[9 * cap] - nn * cz * cz, M[3] = d;
+  M[4] = mm[8 * cap] - nn * cy * cz, M[5] = mm[6 * cap] - nn * cx * cz;
+}
+
+// Sub-window moments (SoA, moment q at mm + q * cap) to what the planes need (side_moment),
+// and whether the side is empty (INVALID count). Vectorised.
 MIEM_EDGE_CLONES void side_moments(std::ptrdiff_t m, std::ptrdiff_t cap, double n_min,
                                    const double* __restrict mm, double* __restrict nnb,
                                    double* __restrict ceb, double* __restrict Mb,
@@ -54,21 +72,14 @@ MIEM_EDGE_CLONES void side_moments(std::ptrdiff_t m, std::ptrdiff_t cap, double 
                                    std::uint8_t* __restrict emptyb) {
 #pragma GCC ivdep
   for (std::ptrdiff_t e = 0; e < m; ++e) {
-    const double n = mm[e], nn = n < 1.0 ? 1.0 : n;  // std::max(n, 1.0)
+    double nn, cx, cy, cz, M[6];
+    bool use;
+    side_moment(mm + e, cap, n_min, nn, cx, cy, cz, M, use);
     emptyb[e] = mm[10 * cap + e] >= n_min;
     nnb[e] = nn;
-    const double cx = mm[cap + e] / nn, cy = mm[2 * cap + e] / nn, cz = mm[3 * cap + e] / nn;
     ceb[e] = cx, ceb[cap + e] = cy, ceb[2 * cap + e] = cz;
-    const double a = mm[4 * cap + e] - nn * cx * cx, b = mm[7 * cap + e] - nn * cy * cy;
-    const double d = mm[5 * cap + e] - nn * cx * cy;
-    // support on a line in (x, y): no plane (SPEC step 3)
-    useb[e] = (n >= n_min) & (a * b - d * d > kLineTol * ((a + b) * (a + b)));
-    Mb[e] = a;                                         // M(0, 0)
-    Mb[cap + e] = b;                                   // M(1, 1)
-    Mb[2 * cap + e] = mm[9 * cap + e] - nn * cz * cz;  // M(2, 2)
-    Mb[3 * cap + e] = d;                               // M(0, 1)
-    Mb[4 * cap + e] = mm[8 * cap + e] - nn * cy * cz;  // M(1, 2)
-    Mb[5 * cap + e] = mm[6 * cap + e] - nn * cx * cz;  // M(0, 2)
+    useb[e] = use;
+    for (int q = 0; q < 6; ++q) Mb[q * cap + e] = M[q];
   }
 }
 
@@ -76,19 +87,21 @@ MIEM_EDGE_CLONES void side_moments(std::ptrdiff_t m, std::ptrdiff_t cap, double 
 // solver's Newton iteration starts at 0 with the step to det / c1 (q(0) = -det, q'(0) = c1, the
 // same expressions as eigen_lane) and then only rises, so its l0 >= fl(det / c1) bit for bit
 // (and l0 >= 0); division and sqrt round monotonically. Sides without support get +inf (never
-// valid). Vectorised.
-MIEM_EDGE_CLONES void side_bounds(std::ptrdiff_t m, std::ptrdiff_t cap,
-                                  const double* __restrict Mb, const double* __restrict nnb,
-                                  const std::uint8_t* __restrict useb, double* __restrict lowb) {
+// valid). Straight from the sub-window sums (side_moment), storing nothing else: most cells
+// solve one side only, whose moments side_moments gives afterwards. Vectorised.
+MIEM_EDGE_CLONES void side_lows(std::ptrdiff_t m, std::ptrdiff_t cap, double n_min,
+                                const double* __restrict mm, double* __restrict lowb) {
 #pragma GCC ivdep
   for (std::ptrdiff_t i = 0; i < m; ++i) {
-    const double a = Mb[i], b = Mb[cap + i], c = Mb[2 * cap + i];
-    const double d = Mb[3 * cap + i], e = Mb[4 * cap + i], f = Mb[5 * cap + i];
+    double nn, cx, cy, cz, M[6];
+    bool use;
+    side_moment(mm + i, cap, n_min, nn, cx, cy, cz, M, use);
+    const double a = M[0], b = M[1], c = M[2], d = M[3], e = M[4], f = M[5];
     const double tr = a + b + c;
     const double c1 = (a * b + b * c + a * c) - (d * d + e * e + f * f);
     const double det = a * b * c + 2.0 * d * e * f - a * e * e - b * f * f - c * d * d;
     const double x1 = (tr > 0.0 && c1 > 0.0 && det > 0.0) ? det / (c1 > 0.0 ? c1 : 1.0) : 0.0;
-    lowb[i] = useb[i] ? x1 / nnb[i] : std::numeric_limits<double>::infinity();
+    lowb[i] = use ? x1 / nn : std::numeric_limits<double>::infinity();
   }
 }
 
@@ -123,6 +136,26 @@ MIEM_EDGE_CLONES void side_planes(std::ptrdiff_t m, std::ptrdiff_t cap, double k
                Eb[4 * cap + e], Eb[5 * cap + e], nnb[e], ceb[e], ceb[cap + e], ceb[2 * cap + e],
                P[e], P[cap + e], P[2 * cap + e], k, validb[e], F[e], F[cap + e], F[2 * cap + e],
                F[3 * cap + e], F[4 * cap + e], F[5 * cap + e]);
+  }
+}
+
+// For each of m cells (SoA over the 8 sides, entry s * m + j): the side with the smallest
+// bound, the first among equal ones (as `if (low[s] < low[best]) best = s` in side order), and
+// that bound. Branch-free and vectorised over the cells: which side wins is data-dependent, so
+// a branch per side mispredicts.
+MIEM_EDGE_CLONES void best_sides(int m, const double* __restrict lowb,
+                                 std::int64_t* __restrict sb, double* __restrict low1) {
+#pragma GCC ivdep
+  for (int j = 0; j < m; ++j) {
+    double best = lowb[j];
+    std::int64_t b = 0;
+    for (std::int64_t s = 1; s < 8; ++s) {
+      const double v = lowb[s * m + j];
+      const bool lt = v < best;
+      best = lt ? v : best;
+      b = lt ? s : b;
+    }
+    low1[j] = best, sb[j] = b;
   }
 }
 
@@ -241,14 +274,19 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
   const auto srow = [&im](std::ptrdiff_t s) { return ((s - im.first) % im.rows) * im.stride; };
   // Up to kChunk candidate cells of the row at a time, all as SoA over their 8 sides
   // (entry e = side * m + cell): the sub-window sums (corner reads, vectorised over the
-  // cells when they are consecutive and away from the grid border), then moments,
-  // eigenpairs and planes in vectorised loops; each cell is judged from those.
+  // cells, or over their span when they are not consecutive, away from the grid border),
+  // then bounds, moments, eigenpairs and planes in vectorised loops; each cell is judged
+  // from those.
   constexpr int kChunk = 16, kCap = 8 * kChunk;
   double mm[kM * kCap], Mb[6 * kCap], Eb[6 * kCap], nnb[kCap], ceb[3 * kCap];
-  double F[6 * kCap], P[3 * kCap];  // F: h, rms, tol, oriented normal; P: the cells
+  // F: h, rms, tol, oriented normal; P: the cells per side (filled for the full path only),
+  // Pc: the cells (relative to the origin, q * kChunk + j)
+  double F[6 * kCap], P[3 * kCap], Pc[3 * kChunk];
   std::uint8_t okb[kCap], redob[kCap], useb[kCap], emptyb[kCap], validb[kCap];
   double lowb[kCap];
   std::ptrdiff_t cols[kChunk];
+  constexpr std::ptrdiff_t kSpan = 48;  // sums of up to kSpan columns for scattered cells
+  double spn[kM * kSpan];
   int keep[kChunk];
   for (std::ptrdiff_t cc = C0; cc < C1;) {
     int m = 0;
@@ -258,23 +296,33 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
     if (m == 0) continue;
     for (int j = 0; j < m; ++j) {
       const Eigen::Vector3d pt = g(grow, cols[j]) - o;
-      for (int s = 0; s < 8; ++s) {
-        const int e = s * m + j;
-        P[e] = pt.x(), P[kCap + e] = pt.y(), P[2 * kCap + e] = pt.z();
-      }
+      Pc[j] = pt.x(), Pc[kChunk + j] = pt.y(), Pc[2 * kChunk + j] = pt.z();
     }
-    const bool run = cols[m - 1] - cols[0] == m - 1 && rr - r >= 0 && rr + r + 1 <= H &&
-                     cols[0] - r >= 0 && cols[m - 1] + r + 1 <= W;
+    // no clipping: all corners inside the images; then the sums of the span cols[0] ..
+    // cols[m - 1] are contiguous (run: the cells are the span; else up to kSpan columns summed
+    // vectorised and the cells' columns picked out: the same bits as corner reads per cell)
+    const std::ptrdiff_t span = cols[m - 1] - cols[0] + 1;
+    const bool inside = rr - r >= 0 && rr + r + 1 <= H && cols[0] - r >= 0 &&
+                        cols[m - 1] + r + 1 <= W;
+    const bool run = inside && span == m, spanned = inside && span <= kSpan;
     for (int s = 0; s < 8; ++s) {
       const std::ptrdiff_t r0 = std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][0], r), 0, H);
       const std::ptrdiff_t r1 =
           std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][1], r) + 1, 0, H);
       const std::ptrdiff_t top = srow(r0), bottom = srow(r1);
-      if (run) {  // consecutive cells, no clipping: contiguous corners
+      if (run || spanned) {  // no clipping: contiguous corners
         const std::ptrdiff_t x0 = cols[0] + offset(kSides[s][2], r) - f0;
         const std::ptrdiff_t x1 = cols[0] + offset(kSides[s][3], r) + 1 - f0;
-        rect_sums(m, plane, kCap, S + bottom + x1, S + top + x1, S + bottom + x0,
-                  S + top + x0, mm + s * m);
+        if (run) {
+          rect_sums(m, plane, kCap, S + bottom + x1, S + top + x1, S + bottom + x0,
+                    S + top + x0, mm + s * m);
+          continue;
+        }
+        rect_sums(static_cast<int>(span), plane, kSpan, S + bottom + x1, S + top + x1,
+                  S + bottom + x0, S + top + x0, spn);
+        for (int q = 0; q < kM; ++q) {
+          for (int j = 0; j < m; ++j) mm[q * kCap + s * m + j] = spn[q * kSpan + cols[j] - cols[0]];
+        }
         continue;
       }
       for (int j = 0; j < m; ++j) {
@@ -290,34 +338,26 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
         }
       }
     }
-    side_moments(8 * m, kCap, n_min, mm, nnb, ceb, Mb, useb, emptyb);
     // Shortcut (exact): a cell that fits a clean side cannot become ABNORMAL (step 6).
     // Solve only the side s* with the smallest rms lower bound: when its rms is within
     // kCleanRatio of the smallest bound it is clean whatever the other sides give, and
     // when the cell fits it the verdict is "no" without the other seven solves. The
     // others (and cells without a supported side: no valid side, "no") go on below.
-    side_bounds(8 * m, kCap, Mb, nnb, useb, lowb);
+    side_lows(8 * m, kCap, n_min, mm, lowb);
     int nf = 0;
     {
-      double M1[6 * kChunk], E1[6 * kChunk], nn1[kChunk], ce1[3 * kChunk], P1[3 * kChunk];
+      double mm1[kM * kChunk], M1[6 * kChunk], E1[6 * kChunk], nn1[kChunk], ce1[3 * kChunk];
       double F1[6 * kChunk], low1[kChunk];
-      std::uint8_t use1[kChunk], ok1[kChunk], redo1[kChunk], valid1[kChunk];
+      std::uint8_t use1[kChunk], empty1[kChunk], ok1[kChunk], redo1[kChunk], valid1[kChunk];
+      std::int64_t sb[kChunk];
+      best_sides(m, lowb, sb, low1);
       for (int j = 0; j < m; ++j) {
-        int sb = 0;
-        for (int s = 1; s < 8; ++s)
-          if (lowb[s * m + j] < lowb[sb * m + j]) sb = s;
-        const int e = sb * m + j;
-        low1[j] = lowb[e];
-        use1[j] = useb[e];
-        nn1[j] = nnb[e];
-        for (int q = 0; q < 6; ++q) M1[q * kChunk + j] = Mb[q * kCap + e];
-        for (int q = 0; q < 3; ++q) {
-          ce1[q * kChunk + j] = ceb[q * kCap + e];
-          P1[q * kChunk + j] = P[q * kCap + e];
-        }
+        const int e = static_cast<int>(sb[j]) * m + j;
+        for (int q = 0; q < kM; ++q) mm1[q * kChunk + j] = mm[q * kCap + e];
       }
+      side_moments(m, kChunk, n_min, mm1, nn1, ce1, M1, use1, empty1);
       smallest_eigenpairs_long(m, kChunk, M1, E1, ok1, redo1);
-      side_planes(m, kChunk, k, use1, ok1, E1, nn1, ce1, P1, valid1, F1);
+      side_planes(m, kChunk, k, use1, ok1, E1, nn1, ce1, Pc, valid1, F1);
       for (int j = 0; j < m; ++j) {
         const std::ptrdiff_t i = cols[j];
         if (!use1[j]) {  // no side with support: none to fit or stand proud of; a fin?
@@ -340,18 +380,19 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
         for (int f = 0; f < nf; ++f) {
           const int from = s * m + keep[f], to = s * nf + f;
           if (from == to) continue;
-          for (int q = 0; q < 6; ++q) Mb[q * kCap + to] = Mb[q * kCap + from];
-          for (int q = 0; q < 3; ++q) {
-            ceb[q * kCap + to] = ceb[q * kCap + from];
-            P[q * kCap + to] = P[q * kCap + from];
-          }
-          nnb[to] = nnb[from], useb[to] = useb[from], emptyb[to] = emptyb[from];
+          for (int q = 0; q < kM; ++q) mm[q * kCap + to] = mm[q * kCap + from];
         }
       }
     }
     m = nf;
     if (m == 0) continue;
+    for (int s = 0; s < 8; ++s) {  // the kept cells' points, one per side
+      for (int f = 0; f < nf; ++f) {
+        for (int q = 0; q < 3; ++q) P[q * kCap + s * nf + f] = Pc[q * kChunk + keep[f]];
+      }
+    }
     const int ms = 8 * m;
+    side_moments(ms, kCap, n_min, mm, nnb, ceb, Mb, useb, emptyb);
     smallest_eigenpairs_long(ms, kCap, Mb, Eb, okb, redob);
     side_planes(ms, kCap, k, useb, okb, Eb, nnb, ceb, P, validb, F);
     for (int e = 0; e < ms; ++e) {
@@ -444,15 +485,20 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
       double* const col = S + kM * plane;  // moment q of column x at col[q * EC + x]
       const std::ptrdiff_t R0 = (tile / tiles_c) * kTileRows, R1 = std::min(H, R0 + kTileRows);
       const std::ptrdiff_t C0 = (tile % tiles_c) * kTileCols, C1 = std::min(W, C0 + kTileCols);
-      bool any = false;
+      // the last row and column with a candidate (after the first pass candidates are the
+      // windows around new ABNORMAL cells, often a corner of the tile)
+      std::ptrdiff_t rlast = -1, clast = -1;
       for (std::ptrdiff_t rr = R0; rr < R1; ++rr) {
         for (std::ptrdiff_t cc = C0; cc < C1; ++cc) {
           const std::ptrdiff_t i = rr * W + cc;
           mark[i] = 0;
-          any = any || (todo[i] && (labels[i] == kNormal || labels[i] == kEdge));
+          if (todo[i] && (labels[i] == kNormal || labels[i] == kEdge)) {
+            rlast = rr;
+            clast = std::max(clast, cc);
+          }
         }
       }
-      if (!any) continue;
+      if (rlast < 0) continue;
       // the tile's origin: its first finite cell (a candidate is finite, so there is one)
       Eigen::Vector3d o = Eigen::Vector3d::Zero();
       for (std::ptrdiff_t i = 0; i < (R1 - R0) * (C1 - C0); ++i) {
@@ -464,8 +510,12 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
       }
       // integral images over rows e0..e1, columns f0..f1: running sums down each column, then
       // along each row (NumPy's order); local row s holds the sums over rows e0 .. e0 + s - 1
-      const std::ptrdiff_t e0 = std::max<std::ptrdiff_t>(0, R0 - r), e1 = std::min(H, R1 + r);
-      const std::ptrdiff_t f0 = std::max<std::ptrdiff_t>(0, C0 - r), f1 = std::min(W, C1 + r);
+      // (only up to r past the last candidate row and column: the images there are never read;
+      // the sums start at e0, f0 whatever the candidates, so every image value read is the same)
+      const std::ptrdiff_t e0 = std::max<std::ptrdiff_t>(0, R0 - r);
+      const std::ptrdiff_t e1 = std::min(H, rlast + r + 1);
+      const std::ptrdiff_t f0 = std::max<std::ptrdiff_t>(0, C0 - r);
+      const std::ptrdiff_t f1 = std::min(W, clast + r + 1);
       const std::ptrdiff_t ew = f1 - f0;
       std::fill(col, col + kM * EC, 0.0);
       for (int q = 0; q < kM; ++q) std::fill(S + q * plane, S + q * plane + ew + 1, 0.0);
@@ -473,8 +523,8 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
         edge_image_row(g, rr, labels + rr * W, f0, f1, o, col, EC, S + (rr - e0 + 1) * L, plane);
       }
       const EdgeImages im{S, plane, L, e0, ER + 1, f0};
-      for (std::ptrdiff_t rr = R0; rr < R1; ++rr) {
-        edge_judge_row(g, rr, rr, H, C0, C1, im, o, r, k, labels, todo + rr * W,
+      for (std::ptrdiff_t rr = R0; rr <= rlast; ++rr) {
+        edge_judge_row(g, rr, rr, H, C0, clast + 1, im, o, r, k, labels, todo + rr * W,
                        mark + rr * W);
       }
     }
