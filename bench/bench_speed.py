@@ -198,12 +198,10 @@ STAGES = ("min_step_auto", "angle_passes", "height_test", "edge_test", "miem_pla
 # Earlier commits timed in the same run (C++ stages, 1 thread): (commit, what it is, preset the
 # old binary runs, preset the current binary runs for the same configuration).
 BASES = [
-    ("fbc6d8f", "start of this session (default before issue 10)", "recommended",
+    ("fbc6d8f", "the default before issue 10 (no edge test, no min_step 'auto')", "recommended",
      "recommended-no-edge"),
-    ("098b990", "issue 10 merged: today's default (min_step 'auto', edge test), before the "
-     "edge-test and heights work", "recommended", "recommended"),
-    ("eb54b71", "before the edge test's shortcut, the sort-free min_step medians and the "
-     "early-ending eigen solves", "recommended", "recommended"),
+    ("67252b8", "start of this session: before the min_step row kernel, the fin rule and the "
+     "edge test's branch-free judge", "recommended", "recommended"),
 ]
 
 
