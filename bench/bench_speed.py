@@ -297,7 +297,8 @@ def profiler_grid(h: int, w: int, seed: int = 0) -> np.ndarray:
 
 # The commit before the vectorised min_step search (issue 17, priority 1): its binary runs the
 # min_step scans in the same run as today's.
-MIN_STEP_BASE = ("67252b8", "before the vectorised min_step search")
+MIN_STEP_BASE = ("67252b8", "before the vectorised min_step search and the fin rule of SPEC "
+                 "'Edge test' step 6: labels differ where a fin is flagged")
 
 
 def min_step_times(build_dir: Path, side: int, repeats: int, build_bases: bool = True):
