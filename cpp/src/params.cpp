@@ -64,6 +64,9 @@ Status CloudParams::check() const noexcept {
     return bad("min_step: must be finite and >= 0");
   }
   if (link && !(std::isfinite(*link) && *link > 0.0)) return bad("link: must be finite and > 0");
+  if (height_mode != HeightMode::kAll && height_mode != HeightMode::kAbnormal) {
+    return bad("height_mode: must be kAll or kAbnormal");
+  }
   if (min_group < 0 || (min_group > 0 && min_group < 3)) {
     return bad("min_group: must be 0 (off) or an integer >= 3");
   }
@@ -108,9 +111,6 @@ Status PointsDetectParams::check() const noexcept {
   if (Status st = AngleParams::check(); !st.ok()) return st;
   if (Status st = CloudParams::check(); !st.ok()) return st;
   if (min_directions > num_directions) return bad("min_directions: must be 0 (all) or 1..K");
-  if (height_mode != HeightMode::kAll && height_mode != HeightMode::kAbnormal) {
-    return bad("heights: unknown mode");
-  }
   if (num_threads < 0) return bad("num_threads: must be >= 0");
   return kOkStatus;
 }
