@@ -92,3 +92,26 @@ def test_every_real_file_has_a_path(tmp_path: Path) -> None:
               "--out-dir", tmp_path,
               "--no-progress")
     assert res.returncode == 0, res.stderr
+
+
+def test_config_cloud_table_and_generated_cloud_options(files: dict, tmp_path: Path) -> None:
+    """A --config file's [cloud] table reaches the cloud detector (it was dropped), and every
+    cloud-only field is an option (here --min-group, --isolated-tolerance); grids refuse them
+    as options but simply do not read a file's cloud table."""
+    cfg = tmp_path / "cell.toml"
+    cfg.write_text("[cloud]\nradius = 2.0\nK = 6\n")
+    res = run("detect", files["shuffled"], "--out-dir", tmp_path, "--config", cfg,
+              "--min-group", "5", "--isolated-tolerance", "off", "--no-progress")
+    assert res.returncode == 0, res.stderr
+    doc = json.loads((tmp_path / "shuffled.defects.json").read_text())
+    pts = mio.read(files["shuffled"]).points
+    api = miem.detect(pts, radius=2.0, K=6, min_group=5, isolated_tolerance=None)
+    got = doc["parameters"]
+    assert (got["radius"], got["K"], got["min_group"], got["isolated_tolerance"]) == (
+        2.0, 6, 5, None)
+    assert [d["indices"] for d in doc["defects"]] == [d.indices.tolist() for d in api.defects]
+    res = run("detect", files["lines"], "--out-dir", tmp_path, "--config", cfg, "--no-progress")
+    assert res.returncode == 0, res.stderr  # a grid: the file's cloud table is not read
+    bad = run("detect", files["lines"], "--out-dir", tmp_path, "--min-group", "5",
+              "--no-progress")
+    assert bad.returncode == 1 and "--min-group apply to the cloud detector only" in bad.stderr

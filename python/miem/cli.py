@@ -428,6 +428,11 @@ def _detect_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     name = args.preset or next((n for n, p in PRESETS.items() if p == params), DEFAULT_PRESET)
     mine, base = params.flat("grid"), PRESETS[name].flat("grid")
     diff = {k: v for k, v in mine.items() if v != base[k]}
+    # The config file's cloud-only values that differ from the preset: for scans the cloud
+    # detector runs on (_cloud_kwargs; a file holds every part, so grids just do not read them).
+    cloud, cbase = params.cloud, PRESETS[name].cloud
+    args.config_cloud = {k: getattr(cloud, k) for k in _cloud_only_fields()
+                         if getattr(cloud, k) != getattr(cbase, k)}
     return {"preset": name, **diff, "num_threads": args.threads}
 
 
@@ -544,7 +549,7 @@ def _cloud_kwargs(loaded: _Loaded, kwargs: dict[str, Any], args: argparse.Namesp
     extra = {k: getattr(args, k, _UNSET) for k in _cloud_only_fields()}
     extra = {k: v for k, v in extra.items() if v is not _UNSET}
     if loaded.layout == "cloud":
-        return {**kwargs, **extra}
+        return {**kwargs, **getattr(args, "config_cloud", {}), **extra}
     if extra:
         opts = ", ".join(_option(k) for k in extra)
         raise _Failure(f"{path}: {opts} apply to the cloud detector only, and this scan is "

@@ -50,8 +50,8 @@ void bind_params(py::module_& m) {
   def_fields<miem::AngleParams>(angle);
   angle.def("check", [](const miem::AngleParams& p) { return status_tuple(p.check()); });
 
-  py::class_<miem::GridParams> grid(m, "GridParams",
-                                    "Organized grids only: search, heights, height and edge tests.");
+  py::class_<miem::GridParams> grid(
+      m, "GridParams", "Organized grids only: search, heights, height and edge tests.");
   grid.def(py::init<>());
   def_fields<miem::GridParams>(grid);
   grid.def("height_test", &miem::GridParams::height_test)
