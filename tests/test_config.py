@@ -195,7 +195,7 @@ ALLOWED = {
                 "spacing", "edge_extent", "height_tolerance", "min_step_auto", "theta0_auto",
                 "scales", "max_gap", "max_reach", "window", "max_iterations", "edge_window",
                 "theta0", "min_group", "merge_distance"},
-    "cli.py": {"theta0", "edge_extent", "height_tolerance"},
+    "cli.py": set(),
 }
 
 

@@ -69,13 +69,18 @@ _CORE_WHOLE = {"angle": _core.DetectParams, "grid": _core.DetectParams,
 # value checks of the user's spelling (types; the ranges are the core's check())
 
 
-def _int(name: str, value: object, minimum: int = -2**31 + 1, maximum: int = 2**31 - 1) -> int:
+def _int(name: str, value: object, minimum: Optional[int] = None, maximum: int = 2**31 - 1
+         ) -> int:
+    """An integer (a C++ int: 32 bits), at least ``minimum`` when given."""
     import numpy as np
 
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
         raise ValueError(f"{name}: expected an integer, got {value!r}")
     v = int(value)
-    if v < minimum:
+    if minimum is None:
+        if not -2**31 < v <= maximum:
+            raise ValueError(f"{name}: expected a 32-bit integer, got {v}")
+    elif v < minimum:
         raise ValueError(f"{name}: expected an integer >= {minimum}, got {v}")
     if v > maximum:
         raise ValueError(f"{name}: expected an integer in {minimum}..{maximum}, got {v}")
