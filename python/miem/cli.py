@@ -105,9 +105,10 @@ def _option(name: str) -> str:
     return "--" + name.lower().replace("_", "-")
 
 
-def _fmt_default(value: Any) -> str:
-    if value is None:
-        return "off"
+def _fmt_default(value: Any, help: str = "") -> str:
+    if value is None:  # None is "off", or a value derived from the scan as the help says
+        derived = re.search(r"None: ([^;]*)", help)
+        return derived.group(1) if derived else "off"
     if isinstance(value, (tuple, list)):
         return " ".join(str(v) for v in value)
     return f"{value:g}" if isinstance(value, float) else str(value)
@@ -185,7 +186,8 @@ def _add_detect_options(parser: argparse.ArgumentParser) -> None:
         kw: dict[str, Any] = {"nargs": "+"} if isinstance(meta["default"], tuple) else {}
         g.add_argument(_option(name), dest=name, type=_field_value,
                        metavar=meta["metavar"], default=_UNSET,
-                       help=f"{meta['help']}{unit} (default: {_fmt_default(meta['default'])})",
+                       help=f"{meta['help']}{unit} (default: "
+                            f"{_fmt_default(meta['default'], meta['help'])})",
                        **kw)
     g.add_argument("--threads", type=_positive_int, metavar="N",
                    help="worker threads (default: all cores); results do not depend on it")
@@ -230,7 +232,8 @@ def _add_cloud_options(parser: argparse.ArgumentParser) -> None:
         unit = f" [{meta['unit']}]" if meta["unit"] else ""
         c.add_argument(_option(name), dest=name, type=_field_value, metavar=meta["metavar"],
                        default=_UNSET,
-                       help=f"{meta['help']}{unit} (default: {_fmt_default(meta['default'])})")
+                       help=f"{meta['help']}{unit} (default: "
+                            f"{_fmt_default(meta['default'], meta['help'])})")
 
 
 def _add_common(parser: argparse.ArgumentParser) -> None:

@@ -3,7 +3,8 @@
 // measured configuration, docs/SPEC.md "Parameters"); paper_params() is the paper's method.
 // Each type lists its fields once, in visit_fields() (name, unit, help): the Python bindings,
 // miem.DetectParams, the command line, `miem config` and miem.dask are generated from it, so a
-// new field is its member, its visit_fields() entry, its check, SPEC and README.
+// new field is its member, its visit_fields() entry (cpp/src/params.cpp fails to compile when a
+// member has none), its check, SPEC and README.
 #pragma once
 
 #include <cstdint>
@@ -41,7 +42,7 @@ struct AngleParams {
 
   /// Calls v(FieldInfo, &AngleParams::member) for every field, in declaration order.
   template <class V>
-  static void visit_fields(V&& v) {
+  static constexpr void visit_fields(V&& v) {
     v(FieldInfo{"theta0_deg", "deg", "angle threshold in degrees: a direction is flagged when its "
                 "angle is at most theta0 (0 < theta0 < 180)"}, &AngleParams::theta0_deg);
     v(FieldInfo{"theta0_auto", "", "derive theta0 from the scan's own angles (grids only)"},
@@ -84,7 +85,7 @@ struct GridParams {
 
   /// Calls v(FieldInfo, &GridParams::member) for every field, in declaration order.
   template <class V>
-  static void visit_fields(V&& v) {
+  static constexpr void visit_fields(V&& v) {
     v(FieldInfo{"max_gap", "cells", "missing or removed cells that may be skipped to reach a "
                 "neighbour (>= 0)"}, &GridParams::max_gap);
     v(FieldInfo{"min_step", "length", "neighbours at least s * min_step away; < 0: off"},
@@ -142,7 +143,7 @@ struct CloudParams {
 
   /// Calls v(FieldInfo, &CloudParams::member) for every field, in declaration order.
   template <class V>
-  static void visit_fields(V&& v) {
+  static constexpr void visit_fields(V&& v) {
     v(FieldInfo{"radius", "length", "neighbourhood radius (> 0); None: 5 x the median point "
                 "spacing"}, &CloudParams::radius);
     v(FieldInfo{"num_directions", "directions", "K, the tangent-plane directions tested, 2-8"},
@@ -193,7 +194,7 @@ struct DetectParams : AngleParams, GridParams {
 
   /// The fields of this type itself (the bases list theirs).
   template <class V>
-  static void visit_fields(V&& v) {
+  static constexpr void visit_fields(V&& v) {
     v(FieldInfo{"num_threads", "threads", "0: all available; the labels never depend on it"},
       &DetectParams::num_threads);
   }
@@ -210,7 +211,7 @@ struct PointsDetectParams : AngleParams, CloudParams {
 
   /// The fields of this type itself (the bases list theirs).
   template <class V>
-  static void visit_fields(V&& v) {
+  static constexpr void visit_fields(V&& v) {
     v(FieldInfo{"num_threads", "threads", "0: all available; results never depend on it"},
       &PointsDetectParams::num_threads);
   }
