@@ -424,18 +424,21 @@ def _detect_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     if args.config is not None:
         params = load_config(args.config, base=params)
     given = {name: getattr(args, name) for name in _grid_fields()}
-    params = params.for_path("grid", **{k: (tuple(v) if isinstance(v, list) else v)
-                                        for k, v in given.items() if v is not _UNSET})
+    given = {k: (tuple(v) if isinstance(v, list) else v) for k, v in given.items()
+             if v is not _UNSET}
+    filed = params  # the preset and the file, before the options
+    params = params.for_path("grid", **given)
     params.check("grid")
     # As a preset plus the fields that differ from it, so that reports name the preset.
     name = args.preset or next((n for n, p in PRESETS.items() if p == params), DEFAULT_PRESET)
     mine, base = params.flat("grid"), PRESETS[name].flat("grid")
     diff = {k: v for k, v in mine.items() if v != base[k]}
-    # The config file's cloud-only values that differ from the preset: for scans the cloud
-    # detector runs on (_cloud_kwargs; a file holds every part, so grids just do not read them).
-    cloud, cbase = params.cloud, PRESETS[name].cloud
-    args.config_cloud = {k: getattr(cloud, k) for k in _cloud_only_fields()
-                         if getattr(cloud, k) != getattr(cbase, k)}
+    # For scans the cloud detector runs on (_cloud_kwargs): the file's angle and cloud values
+    # that differ from the preset (a file holds every part; grids read angle and grid), then
+    # the options given.
+    mine, base = filed.flat("cloud"), PRESETS[name].flat("cloud")
+    args.cloud_kwargs = {"preset": name, **{k: v for k, v in mine.items() if v != base[k]},
+                         **given, "num_threads": args.threads}
     return {"preset": name, **diff, "num_threads": args.threads}
 
 
@@ -547,12 +550,13 @@ def _say(args: argparse.Namespace, text: str) -> None:
 
 def _cloud_kwargs(loaded: _Loaded, kwargs: dict[str, Any], args: argparse.Namespace,
                   path: Path) -> dict[str, Any]:
-    """The detect arguments for the path the scan took: cloud-only options join for clouds and
-    are rejected for grids."""
+    """The detect arguments for the path the scan took: for clouds the preset, the config
+    file's angle and cloud values and the options (cloud-only ones included); for grids the
+    grid's, and cloud-only options are rejected."""
     extra = {k: getattr(args, k, _UNSET) for k in _cloud_only_fields()}
     extra = {k: v for k, v in extra.items() if v is not _UNSET}
     if loaded.layout == "cloud":
-        return {**kwargs, **getattr(args, "config_cloud", {}), **extra}
+        return {**getattr(args, "cloud_kwargs", kwargs), **extra}
     if extra:
         opts = ", ".join(_option(k) for k in extra)
         raise _Failure(f"{path}: {opts} apply to the cloud detector only, and this scan is "
