@@ -178,6 +178,7 @@ class _Spelled:
     to_core: Callable[[Any], Dict[str, Any]]
     from_core: Callable[[Dict[str, Any]], Any]
     extra: Tuple[Tuple[str, Any], ...] = ()  # more metadata (ProfileStream's "stream" values)
+    annotation: Any = Any  # the Python type, for signatures and help()
 
 
 def _theta0_to(v: Any) -> Dict[str, Any]:
@@ -263,7 +264,7 @@ def _off_is_zero(name: str, core: str, unit: str, help: str, metavar: str = "K")
         return {core: k}
 
     return _Spelled(name, (core,), unit, help, metavar, to_core,
-                    lambda c: c[core] if c[core] > 0 else None)
+                    lambda c: c[core] if c[core] > 0 else None, annotation=Optional[float])
 
 
 def _theta0() -> _Spelled:
@@ -272,7 +273,7 @@ def _theta0() -> _Spelled:
         "angle threshold: a direction is flagged when the interior angle at the point is at "
         "most theta0 (0 < theta0 < 180); 'auto' derives it from the scan's angle statistics "
         "(grids only)", "DEG", _theta0_to,
-        lambda c: "auto" if c["theta0_auto"] else c["theta0_deg"])
+        lambda c: "auto" if c["theta0_auto"] else c["theta0_deg"], annotation=Union[float, str])
 
 
 def _min_directions() -> _Spelled:
@@ -280,18 +281,20 @@ def _min_directions() -> _Spelled:
         "min_directions", ("min_directions",), "directions",
         "flagged directions needed for ABNORMAL, 1-4 (clouds: 1-K); None: all available "
         "directions", "N", _min_directions_to,
-        lambda c: None if c["min_directions"] == 0 else c["min_directions"])
+        lambda c: None if c["min_directions"] == 0 else c["min_directions"],
+        annotation=Optional[int])
 
 
 def _heights() -> _Spelled:
     return _Spelled("heights", ("height_mode",), "",
                     "which points get a height: 'all' finite points or only 'abnormal' ones "
-                    "(faster)", "{all,abnormal}", _heights_to, _heights_from)
+                    "(faster)", "{all,abnormal}", _heights_to, _heights_from, annotation=str)
 
 
 def _height_tolerance(help: str) -> _Spelled:
     return _Spelled("height_tolerance", ("height_abs", "height_k"), "length or k x rms", help,
-                    "LENGTH|Krms", _height_tolerance_to, _height_tolerance_from)
+                    "LENGTH|Krms", _height_tolerance_to, _height_tolerance_from,
+                    annotation=Union[None, float, str])
 
 
 #: The fields whose Python spelling differs from C++, per part (all other fields are plain).
@@ -305,7 +308,7 @@ _SPELLED: Dict[str, Tuple[_Spelled, ...]] = {
             "\"min_step='auto'\"; result.params holds the value used; ProfileStream needs a "
             "length); None: off", "LENGTH|auto", _grid_min_step_to, _grid_min_step_from,
             # ProfileStream: its default is None, and "auto" is the one value it refuses
-            (("stream", None), ("stream_refuses", "auto"))),
+            (("stream", None), ("stream_refuses", "auto")), Union[None, float, str]),
         _heights(),
         _height_tolerance(
             "height test (beyond the paper): a NORMAL point farther than this from its local "
@@ -319,7 +322,7 @@ _SPELLED: Dict[str, Tuple[_Spelled, ...]] = {
     "cloud": (
         _Spelled("K", ("num_directions",), "directions", "tangent-plane directions tested, 2-8",
                  "N", lambda v: {"num_directions": _int("K", v)},
-                 lambda c: c["num_directions"]),
+                 lambda c: c["num_directions"], annotation=int),
         _heights(),
         _height_tolerance(
             "height test: a NORMAL point farther than this from the plane of its surroundings "
@@ -352,6 +355,12 @@ class _Field:
     core: Tuple[str, ...]
     to_core: Callable[[Any], Dict[str, Any]]
     from_core: Callable[[Dict[str, Any]], Any]
+    annotation: Any = Any
+
+
+#: C++ default's Python type -> the field's annotation.
+_ANNOTATION = {bool: bool, int: int, float: float, list: Tuple[int, ...],
+               type(None): Optional[float]}
 
 
 def _plain(part: str, name: str) -> Tuple[Callable, Callable]:
@@ -372,11 +381,13 @@ def _part_table(part: str) -> Tuple[_Field, ...]:
         s = spelled.get(name)
         if s is None:
             to, back = _plain(part, name)
-            out.append((_Field(name, (name,), to, back), unit, help, None, ()))
+            kind = type(getattr(_CORE_WHOLE[part](), name))
+            out.append((_Field(name, (name,), to, back, _ANNOTATION[kind]), unit, help, None,
+                        ()))
         elif s.name not in seen:
             seen.add(s.name)
-            out.append((_Field(s.name, s.core, s.to_core, s.from_core), s.unit, s.help,
-                        s.metavar, s.extra))
+            out.append((_Field(s.name, s.core, s.to_core, s.from_core, s.annotation), s.unit,
+                        s.help, s.metavar, s.extra))
     missing = [s.name for s in _SPELLED[part] if s.name not in seen]
     if missing:
         raise TypeError(f"miem/params.py _SPELLED[{part!r}]: {missing} name no C++ field")
@@ -395,7 +406,7 @@ def _make_part(part: str, doc: str) -> type:
         default = f.from_core(_core_values(default_core, f.core))
         meta = {"unit": unit, "help": help, "metavar": metavar or _metavar(unit, default),
                 "core": f.core, **dict(extra)}
-        fields.append((f.name, Any, field(default=default, metadata=meta)))
+        fields.append((f.name, f.annotation, field(default=default, metadata=meta)))
         conv[f.name] = f
     tuples = tuple(f.name for f, *_ in table if isinstance(
         f.from_core(_core_values(default_core, f.core)), tuple))
