@@ -372,9 +372,10 @@ def _plain(part: str, name: str) -> Tuple[Callable, Callable]:
     return (lambda v: {name: to(name, v)}), (lambda c: back(c[name]))
 
 
-def _part_table(part: str) -> Tuple[_Field, ...]:
-    """The part's fields in C++ declaration order: a spelled field where its first C++ field
-    stands, every other C++ field as it is."""
+def _part_table(part: str) -> Tuple[Tuple[Any, ...], ...]:
+    """``(_Field, unit, help, metavar or None, extra metadata)`` of the part's fields in C++
+    declaration order: a spelled field where its first C++ field stands, every other C++ field
+    as it is."""
     spelled = {c: s for s in _SPELLED[part] for c in s.core}
     out, seen = [], set()
     for name, unit, help in _CORE_PART[part].fields():
