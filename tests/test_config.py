@@ -242,3 +242,20 @@ def test_a_new_cpp_field_becomes_a_python_field(monkeypatch) -> None:
     assert target.new_reach == 3
     with pytest.raises(ValueError, match="new_reach: expected an integer"):
         mp._to_core(Grid(new_reach=2.5), Core())
+
+
+@pytest.mark.parametrize("name", sorted({n for p in ("grid", "cloud")
+                                         for n in miem.DetectParams.fields(p)}))
+def test_every_option_reaches_detect(name: str) -> None:
+    """``miem detect --<field> VALUE`` hands the value to miem.detect on the path that reads it
+    (grids, and for cloud scans the cloud kwargs), parsed from its text."""
+    value = _other()[name]
+    text = [str(v) for v in value] if isinstance(value, tuple) else [str(value)]
+    args = cli._build_parser().parse_args(["detect", "scan.pcd", cli._option(name), *text])
+    kwargs = cli._detect_kwargs(args)
+    if name in miem.DetectParams.fields("grid"):
+        assert kwargs[name] == value, (name, kwargs)
+    points = cli._Loaded(None, np.zeros((3, 3)), None, "mm", "cloud")
+    cloud = cli._cloud_kwargs(points, kwargs, args, Path("scan.pcd"))
+    if name in miem.DetectParams.fields("cloud"):
+        assert cloud[name] == value, (name, cloud)
