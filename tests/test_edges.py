@@ -79,6 +79,26 @@ def test_score_mask_hand_counts() -> None:
         rt.score_mask(np.zeros((2, 2), bool), tr)
 
 
+def test_error_bands_hand_counts() -> None:
+    """edges.py's "where the error goes" table: misses (and their EDGE share) and false alarms
+    per band of profiles, counted by hand on a 25 x 3 truth with bands of 10 rows."""
+    import edges
+
+    cls = np.zeros((25, 3), dtype=np.uint8)  # CLEAN
+    cls[12, 0] = cls[13, 0] = cls[22, 1] = rt.BURR
+    cls[5, 0] = rt.DONTCARE
+    labels = np.full((25, 3), miem.NORMAL, dtype=np.uint8)
+    labels[12, 0] = miem.EDGE  # missed, EDGE
+    labels[22, 1] = miem.ABNORMAL  # found
+    labels[1, 1] = labels[2, 2] = labels[21, 0] = miem.ABNORMAL  # false alarms (bands 0, 0, 2)
+    labels[5, 0] = miem.ABNORMAL  # don't care: not a false alarm
+    tr = rt.RealTruth(np.zeros((25, 3, 3)), np.zeros((25, 3)), cls, [], np.zeros(0), 0.1,
+                      cls == rt.CLEAN)
+    rows = edges.error_bands({"recommended": (None, 0.0, 0.0, labels)}, tr, band=10, top=2)
+    assert "Missed BURR cells 2 (1 of them EDGE, the rest NORMAL); false alarms 3." in rows[2]
+    assert rows[-2:] == ["| 10-19 | 2 (1) | | 0-9 | 2 |", "| 0-9 | 0 (0) | | 20-24 | 1 |"]
+
+
 @pytest.mark.skipif(not rt.available(), reason="shared/data/real not present")
 def test_real_truth_registration_and_the_lip_layer() -> None:
     tr = rt.truth()
