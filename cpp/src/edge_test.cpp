@@ -235,6 +235,55 @@ bool is_fin(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
   return false;
 }
 
+// SPEC "Edge test" step 6, hanging cells: P (candidate (rr, cc), its 8 sides `sd`, `best` their
+// smallest rms) fits no clean side with a return and lies, below a clean side x whose opposite
+// is empty or clean with P above it and falls away, deeper below x's plane than the top's last
+// support cell towards x is away along that plane (steeper than 45 degrees), with ground beyond
+// P (within r, away from x) more than kHangShelf times as deep again along x's normal. The
+// formulas are miem.reference._hanging's.
+constexpr double kHangShelf = 2.0;
+constexpr int kHangDirs[8][2] = {{0, 1},  {0, -1}, {1, 0},  {-1, 0},
+                                 {1, 1},  {1, -1}, {-1, 1}, {-1, -1}};  // side -> towards P
+
+template <typename T>
+bool is_hanging(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
+                std::ptrdiff_t cc, std::ptrdiff_t r, const Side (&sd)[8], double best) {
+  const auto clean = [&](int s) { return sd[s].valid && sd[s].rms <= kEdgeCleanRatio * best; };
+  for (int s = 0; s < 8; ++s) {
+    if (!sd[s].empty && clean(s) && !(std::abs(sd[s].h) > sd[s].tol)) return false;
+  }
+  const std::ptrdiff_t H = g.rows, W = g.cols;
+  const auto label = [&](std::ptrdiff_t a, std::ptrdiff_t b) -> std::uint8_t {
+    if (a < 0 || a >= H || b < 0 || b >= W) return kInvalid;
+    return labels[a * W + b];
+  };
+  const Eigen::Vector3d p = g(rr, cc);
+  for (int s = 0; s < 8; ++s) {
+    const Side& x = sd[s];
+    const Side& y = sd[kOpposite[s]];
+    if (!clean(s) || !(x.h < -x.tol)) continue;
+    const bool drop = dot3(x.normal, y.centroid - x.centroid) < -x.tol;
+    if (!(y.empty || (clean(kOpposite[s]) && y.h > y.tol && drop))) continue;
+    const std::ptrdiff_t dr = kHangDirs[s][0], dc = kHangDirs[s][1];
+    const double depth = -x.h;
+    bool steep = false;
+    for (std::ptrdiff_t j = 1; j <= r; ++j) {  // the nearest support cell towards x
+      if (label(rr - j * dr, cc - j * dc) != kNormal) continue;
+      const Eigen::Vector3d v = g(rr - j * dr, cc - j * dc) - p;
+      const double along = dot3(v, x.normal);
+      steep = depth * depth > dot3(v, v) - along * along;
+      break;
+    }
+    if (!steep) continue;
+    for (std::ptrdiff_t j = 1; j <= r; ++j) {  // ground beyond P, deeper along x's normal
+      const std::uint8_t l = label(rr + j * dr, cc + j * dc);
+      if (l != kNormal && l != kEdge) continue;
+      if (dot3(g(rr + j * dr, cc + j * dc) - p, x.normal) < -kHangShelf * depth) return true;
+    }
+  }
+  return false;
+}
+
 }  // namespace
 
 template <typename T>
@@ -365,7 +414,8 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
           continue;
         }
         const bool clean = F1[kChunk + j] <= kEdgeCleanRatio * std::sqrt(low1[j]);  // <= 2 best
-        if (!redo1[j] && valid1[j] && clean && !(std::abs(F1[j]) > F1[2 * kChunk + j])) {
+        if (!redo1[j] && valid1[j] && clean && !empty1[j] &&  // (an empty side: hanging?)
+            !(std::abs(F1[j]) > F1[2 * kChunk + j])) {
           mark[i] = 0;
           continue;
         }
@@ -439,6 +489,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
           }
         }
       }
+      if (!abnormal) abnormal = is_hanging(g, lab, grow, cols[j], r, sd, best);
       mark[i] = abnormal ? 1 : 0;
     }
   }
