@@ -288,10 +288,60 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
   constexpr std::ptrdiff_t kSpan = 48;  // sums of up to kSpan columns for scattered cells
   double spn[kM * kSpan];
   int keep[kChunk];
+  // Band blocks (many candidates in a row, away from the grid border): the 8 sides of a cell
+  // are 5 rectangles slid along the row (kBandOf): rows -r..r (band 0), -r..-1 (1) and 1..r (2)
+  // over r columns, rows -r..-1 (3) and 1..r (4) over 2r + 1 columns; side s of cell c is band
+  // kBandOf[s] at position c - b0 (left, x0 = c - r) or c - b0 + r + 1 (right, x0 = c + 1).
+  // So the right side of c is the left side of c + r + 1: each rectangle's sums and bound are
+  // computed once per block (the same corner reads and formula, so the same bits) and picked
+  // out per cell. Moment q of band b at position i: band[(b * kM + q) * kBandPos + i].
+  constexpr std::ptrdiff_t kBandPos = 128, kBandCells = 64;
+  constexpr int kBandOf[8] = {0, 0, 3, 4, 1, 1, 2, 2};
+  constexpr bool kRight[8] = {false, true, false, false, false, true, false, true};
+  double band[5 * kM * kBandPos], bandlow[5 * kBandPos];
+  const bool rows_inside = rr - r >= 0 && rr + r + 1 <= H;
+  const std::ptrdiff_t bw = std::min(kBandCells, kBandPos - r - 1);  // a block's columns
+  std::ptrdiff_t bend = C0, b0 = 0;  // the block [.., bend); its first band cell b0
+  bool banded = false;
+  const auto candidate = [&](std::ptrdiff_t c) {
+    return todo[c] && (lrow[c] == kNormal || lrow[c] == kEdge);
+  };
   for (std::ptrdiff_t cc = C0; cc < C1;) {
+    if (cc >= bend) {  // a new block: banded when it saves rectangles
+      bend = std::min(C1, cc + std::max<std::ptrdiff_t>(bw, 1));
+      banded = false;
+      if (rows_inside && bw >= 16) {
+        std::ptrdiff_t n = 0, first = -1, last = -1;
+        for (std::ptrdiff_t c = cc; c < bend; ++c) {
+          if (!candidate(c)) continue;
+          ++n;
+          if (first < 0) first = c;
+          last = c;
+        }
+        const std::ptrdiff_t w = last - first + 1;
+        banded = n > 0 && first - r >= 0 && last + r + 1 <= W && 8 * n > 5 * w + 3 * (r + 1);
+        if (banded) {
+          b0 = first;
+          const std::ptrdiff_t rl[3] = {srow(rr - r), srow(rr), srow(rr + r + 1)};
+          const std::ptrdiff_t lines[5][2] = {{rl[0], rl[2]}, {rl[0], rl[1]},
+                                              {srow(rr + 1), rl[2]}, {rl[0], rl[1]},
+                                              {srow(rr + 1), rl[2]}};
+          const std::ptrdiff_t x0 = first - r - f0;
+          for (int b = 0; b < 5; ++b) {
+            const std::ptrdiff_t top = lines[b][0], bottom = lines[b][1];
+            const std::ptrdiff_t x1 = x0 + (b < 3 ? r : 2 * r + 1);
+            const int np = static_cast<int>(b < 3 ? w + r + 1 : w);
+            double* const out = band + b * kM * kBandPos;
+            rect_sums(np, plane, kBandPos, S + bottom + x1, S + top + x1, S + bottom + x0,
+                      S + top + x0, out);
+            side_lows(np, kBandPos, n_min, out, bandlow + b * kBandPos);
+          }
+        }
+      }
+    }
     int m = 0;
-    for (; cc < C1 && m < kChunk; ++cc) {
-      if (todo[cc] && (lrow[cc] == kNormal || lrow[cc] == kEdge)) cols[m++] = cc;
+    for (; cc < bend && m < kChunk; ++cc) {
+      if (candidate(cc)) cols[m++] = cc;
     }
     if (m == 0) continue;
     for (int j = 0; j < m; ++j) {
@@ -305,7 +355,9 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
     const bool inside = rr - r >= 0 && rr + r + 1 <= H && cols[0] - r >= 0 &&
                         cols[m - 1] + r + 1 <= W;
     const bool run = inside && span == m, spanned = inside && span <= kSpan;
-    for (int s = 0; s < 8; ++s) {
+    // a side's position in its band (banded chunks)
+    const auto bpos = [&](int s, std::ptrdiff_t c) { return c - b0 + (kRight[s] ? r + 1 : 0); };
+    for (int s = 0; s < 8 && !banded; ++s) {
       const std::ptrdiff_t r0 = std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][0], r), 0, H);
       const std::ptrdiff_t r1 =
           std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][1], r) + 1, 0, H);
@@ -343,7 +395,14 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
     // kCleanRatio of the smallest bound it is clean whatever the other sides give, and
     // when the cell fits it the verdict is "no" without the other seven solves. The
     // others (and cells without a supported side: no valid side, "no") go on below.
-    side_lows(8 * m, kCap, n_min, mm, lowb);
+    if (banded) {
+      for (int s = 0; s < 8; ++s) {
+        const double* const bl = bandlow + kBandOf[s] * kBandPos;
+        for (int j = 0; j < m; ++j) lowb[s * m + j] = bl[bpos(s, cols[j])];
+      }
+    } else {
+      side_lows(8 * m, kCap, n_min, mm, lowb);
+    }
     int nf = 0;
     {
       double mm1[kM * kChunk], M1[6 * kChunk], E1[6 * kChunk], nn1[kChunk], ce1[3 * kChunk];
@@ -352,6 +411,12 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       std::int64_t sb[kChunk];
       best_sides(m, lowb, sb, low1);
       for (int j = 0; j < m; ++j) {
+        if (banded) {
+          const int s = static_cast<int>(sb[j]);
+          const double* const bs = band + kBandOf[s] * kM * kBandPos + bpos(s, cols[j]);
+          for (int q = 0; q < kM; ++q) mm1[q * kChunk + j] = bs[q * kBandPos];
+          continue;
+        }
         const int e = static_cast<int>(sb[j]) * m + j;
         for (int q = 0; q < kM; ++q) mm1[q * kChunk + j] = mm[q * kCap + e];
       }
@@ -375,7 +440,15 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
     }
     // the cells left to the front, entry s * m + keep[f] to s * nf + f (in this order no
     // entry is overwritten before it is moved: s * nf + f <= s * m + keep[f])
-    if (nf != m) {
+    if (banded) {
+      for (int s = 0; s < 8; ++s) {
+        const double* const bs = band + kBandOf[s] * kM * kBandPos;
+        for (int f = 0; f < nf; ++f) {
+          const std::ptrdiff_t i = bpos(s, cols[f]);
+          for (int q = 0; q < kM; ++q) mm[q * kCap + s * nf + f] = bs[q * kBandPos + i];
+        }
+      }
+    } else if (nf != m) {
       for (int s = 0; s < 8; ++s) {
         for (int f = 0; f < nf; ++f) {
           const int from = s * m + keep[f], to = s * nf + f;
