@@ -39,7 +39,7 @@ inline std::ptrdiff_t offset(int code, std::ptrdiff_t r) {
 using Side = EdgeSide;
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define MIEM_EDGE_CLONES __attribute__((target_clones("avx2", "default")))
+#define MIEM_EDGE_CLONES __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
 #else
 #define MIEM_EDGE_CLONES
 #endif

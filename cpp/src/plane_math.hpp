@@ -52,7 +52,7 @@ inline bool smallest_eigenpair(const Eigen::Matrix3d& M, double* l0, double* l1,
 }
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define MIEM_EIG_CLONES __attribute__((target_clones("avx2", "default")))
+#define MIEM_EIG_CLONES __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
 #else
 #define MIEM_EIG_CLONES
 #endif
