@@ -68,17 +68,16 @@ inline __attribute__((always_inline)) void side_moment(const double* mm, std::pt
 MIEM_EDGE_CLONES void side_moments(std::ptrdiff_t m, std::ptrdiff_t cap, double n_min,
                                    const double* __restrict mm, double* __restrict nnb,
                                    double* __restrict ceb, double* __restrict Mb,
-                                   std::uint8_t* __restrict useb,
-                                   std::uint8_t* __restrict emptyb) {
+                                   double* __restrict useb, double* __restrict emptyb) {
 #pragma GCC ivdep
   for (std::ptrdiff_t e = 0; e < m; ++e) {
     double nn, cx, cy, cz, M[6];
     bool use;
     side_moment(mm + e, cap, n_min, nn, cx, cy, cz, M, use);
-    emptyb[e] = mm[10 * cap + e] >= n_min;
+    emptyb[e] = mm[10 * cap + e] >= n_min ? 1.0 : 0.0;
     nnb[e] = nn;
     ceb[e] = cx, ceb[cap + e] = cy, ceb[2 * cap + e] = cz;
-    useb[e] = use;
+    useb[e] = use ? 1.0 : 0.0;
     for (int q = 0; q < 6; ++q) Mb[q * cap + e] = M[q];
   }
 }
@@ -111,9 +110,9 @@ MIEM_EDGE_CLONES void side_lows(std::ptrdiff_t m, std::ptrdiff_t cap, double n_m
 inline __attribute__((always_inline)) void side_plane(
     bool use, bool solved, double l0, double l1, double l2, double nx, double ny, double nz,
     double nn, double cx, double cy, double cz, double px, double py, double pz, double k,
-    std::uint8_t& valid, double& h, double& rms, double& tol, double& ox, double& oy,
+    double& valid, double& h, double& rms, double& tol, double& ox, double& oy,
     double& oz) {
-  valid = use & solved & (l2 > 0.0) & !(l1 <= kRankTol * l2);
+  valid = use & solved & (l2 > 0.0) & !(l1 <= kRankTol * l2) ? 1.0 : 0.0;
   const double sg = nz != 0.0 ? (nz > 0.0 ? 1.0 : -1.0)
                               : (nx != 0.0 ? (nx > 0.0 ? 1.0 : -1.0) : (ny < 0.0 ? -1.0 : 1.0));
   ox = nx * sg, oy = ny * sg, oz = nz * sg;  // orient_normal
@@ -125,17 +124,17 @@ inline __attribute__((always_inline)) void side_plane(
 
 // side_plane for m sides (SoA; P: the cell of each side, relative to the origin). Vectorised.
 MIEM_EDGE_CLONES void side_planes(std::ptrdiff_t m, std::ptrdiff_t cap, double k,
-                                  const std::uint8_t* __restrict useb,
-                                  const std::uint8_t* __restrict okb,
+                                  const double* __restrict useb,
+                                  const double* __restrict okb,
                                   const double* __restrict Eb, const double* __restrict nnb,
                                   const double* __restrict ceb, const double* __restrict P,
-                                  std::uint8_t* __restrict validb, double* __restrict F) {
+                                  double* __restrict validb, double* __restrict F) {
 #pragma GCC ivdep
   for (std::ptrdiff_t e = 0; e < m; ++e) {
-    side_plane(useb[e] != 0, okb[e] != 0, Eb[e], Eb[cap + e], Eb[2 * cap + e], Eb[3 * cap + e],
-               Eb[4 * cap + e], Eb[5 * cap + e], nnb[e], ceb[e], ceb[cap + e], ceb[2 * cap + e],
-               P[e], P[cap + e], P[2 * cap + e], k, validb[e], F[e], F[cap + e], F[2 * cap + e],
-               F[3 * cap + e], F[4 * cap + e], F[5 * cap + e]);
+    side_plane(useb[e] != 0.0, okb[e] != 0.0, Eb[e], Eb[cap + e], Eb[2 * cap + e],
+               Eb[3 * cap + e], Eb[4 * cap + e], Eb[5 * cap + e], nnb[e], ceb[e], ceb[cap + e],
+               ceb[2 * cap + e], P[e], P[cap + e], P[2 * cap + e], k, validb[e], F[e],
+               F[cap + e], F[2 * cap + e], F[3 * cap + e], F[4 * cap + e], F[5 * cap + e]);
   }
 }
 
@@ -282,7 +281,9 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
   // F: h, rms, tol, oriented normal; P: the cells per side (filled for the full path only),
   // Pc: the cells (relative to the origin, q * kChunk + j)
   double F[6 * kCap], P[3 * kCap], Pc[3 * kChunk];
-  std::uint8_t okb[kCap], redob[kCap], useb[kCap], emptyb[kCap], validb[kCap];
+  // flags as doubles (1 or 0): 8-byte lanes throughout, so the vector loops run 8 (or 4) lanes
+  // at a time, not 32 (a byte store per lane made GCC pick 32 and run chunks of 16 scalar)
+  double okb[kCap], redob[kCap], useb[kCap], emptyb[kCap], validb[kCap];
   double lowb[kCap];
   std::ptrdiff_t cols[kChunk];
   constexpr std::ptrdiff_t kSpan = 48;  // sums of up to kSpan columns for scattered cells
@@ -407,7 +408,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
     {
       double mm1[kM * kChunk], M1[6 * kChunk], E1[6 * kChunk], nn1[kChunk], ce1[3 * kChunk];
       double F1[6 * kChunk], low1[kChunk];
-      std::uint8_t use1[kChunk], empty1[kChunk], ok1[kChunk], redo1[kChunk], valid1[kChunk];
+      double use1[kChunk], empty1[kChunk], ok1[kChunk], redo1[kChunk], valid1[kChunk];
       std::int64_t sb[kChunk];
       best_sides(m, lowb, sb, low1);
       for (int j = 0; j < m; ++j) {
