@@ -265,7 +265,8 @@ template <typename T>
 void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr,
                     std::ptrdiff_t H, std::ptrdiff_t C0, std::ptrdiff_t C1,
                     const EdgeImages& im, const Eigen::Vector3d& o, std::ptrdiff_t r, double k,
-                    const std::uint8_t* lab, const std::uint8_t* todo, std::uint8_t* mark) {
+                    const std::uint8_t* lab, const std::uint8_t* todo, std::uint8_t* mark,
+                    const EdgeBandCache* cache) {
   const std::ptrdiff_t W = g.cols, f0 = im.f0, plane = im.plane;
   const double n_min = static_cast<double>(std::max<std::ptrdiff_t>(3, (r * r) / 2));
   const double* const S = im.data;
@@ -296,10 +297,24 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
   // So the right side of c is the left side of c + r + 1: each rectangle's sums and bound are
   // computed once per block (the same corner reads and formula, so the same bits) and picked
   // out per cell. Moment q of band b at position i: band[(b * kM + q) * kBandPos + i].
-  constexpr std::ptrdiff_t kBandPos = 128, kBandCells = 64;
+  constexpr std::ptrdiff_t kBandPos = kEdgeBandPos, kBandCells = kEdgeBandCells;
   constexpr int kBandOf[8] = {0, 0, 3, 4, 1, 1, 2, 2};
   constexpr bool kRight[8] = {false, true, false, false, false, true, false, true};
   double band[5 * kM * kBandPos], bandlow[5 * kBandPos];
+  double* bandp[5];  // band b's sums and bounds: here, or in the caller's cache
+  double* lowp[5];
+  // With a cache: bands 2 and 4 (rows 1..r below) of row rr are bands 1 and 3 (rows -r..-1
+  // above) of row rr + r + 1, the same corner reads of the same images: kept in a ring of r + 2
+  // rows (per block of the tile row) and reused there. Slot: tag (row, b0, cells), then bands
+  // 2 and 4 as (kM moments + bounds) x kBandPos.
+  constexpr std::ptrdiff_t kSlot = kEdgeCacheSlot;
+  const std::ptrdiff_t nblk = (C1 - C0 + kBandCells - 1) / kBandCells;
+  const bool cached = cache != nullptr && cache->data != nullptr &&
+                      cache->slots >= (r + 2) * nblk;
+  const auto slot = [&](std::ptrdiff_t row, std::ptrdiff_t blk) {
+    const std::ptrdiff_t k = ((row % (r + 2)) + (r + 2)) % (r + 2);
+    return cache->data + (k * nblk + blk) * kSlot;
+  };
   const bool rows_inside = rr - r >= 0 && rr + r + 1 <= H;
   const std::ptrdiff_t bw = std::min(kBandCells, kBandPos - r - 1);  // a block's columns
   std::ptrdiff_t bend = C0, b0 = 0;  // the block [.., bend); its first band cell b0
@@ -329,13 +344,35 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
                                               {srow(rr + 1), rl[2]}};
           const std::ptrdiff_t x0 = first - r - f0;
           for (int b = 0; b < 5; ++b) {
+            bandp[b] = band + b * kM * kBandPos;
+            lowp[b] = bandlow + b * kBandPos;
+          }
+          bool reuse = false;
+          if (cached && bw == kBandCells) {
+            const std::ptrdiff_t blk = (cc - C0) / kBandCells;
+            double* const nw = slot(rr, blk);
+            const double* const od = slot(rr - r - 1, blk);
+            reuse = od[0] == static_cast<double>(rr - r - 1) &&
+                    od[1] == static_cast<double>(first) && od[2] >= static_cast<double>(w);
+            if (reuse) {
+              bandp[1] = const_cast<double*>(od) + 8;
+              lowp[1] = bandp[1] + kM * kBandPos;
+              bandp[3] = lowp[1] + kBandPos;
+              lowp[3] = bandp[3] + kM * kBandPos;
+            }
+            bandp[2] = nw + 8, lowp[2] = bandp[2] + kM * kBandPos;
+            bandp[4] = lowp[2] + kBandPos, lowp[4] = bandp[4] + kM * kBandPos;
+            nw[0] = static_cast<double>(rr), nw[1] = static_cast<double>(first);
+            nw[2] = static_cast<double>(w);
+          }
+          for (int b = 0; b < 5; ++b) {
+            if (reuse && (b == 1 || b == 3)) continue;
             const std::ptrdiff_t top = lines[b][0], bottom = lines[b][1];
             const std::ptrdiff_t x1 = x0 + (b < 3 ? r : 2 * r + 1);
             const int np = static_cast<int>(b < 3 ? w + r + 1 : w);
-            double* const out = band + b * kM * kBandPos;
             rect_sums(np, plane, kBandPos, S + bottom + x1, S + top + x1, S + bottom + x0,
-                      S + top + x0, out);
-            side_lows(np, kBandPos, n_min, out, bandlow + b * kBandPos);
+                      S + top + x0, bandp[b]);
+            side_lows(np, kBandPos, n_min, bandp[b], lowp[b]);
           }
         }
       }
@@ -398,7 +435,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
     // others (and cells without a supported side: no valid side, "no") go on below.
     if (banded) {
       for (int s = 0; s < 8; ++s) {
-        const double* const bl = bandlow + kBandOf[s] * kBandPos;
+        const double* const bl = lowp[kBandOf[s]];
         for (int j = 0; j < m; ++j) lowb[s * m + j] = bl[bpos(s, cols[j])];
       }
     } else {
@@ -414,7 +451,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       for (int j = 0; j < m; ++j) {
         if (banded) {
           const int s = static_cast<int>(sb[j]);
-          const double* const bs = band + kBandOf[s] * kM * kBandPos + bpos(s, cols[j]);
+          const double* const bs = bandp[kBandOf[s]] + bpos(s, cols[j]);
           for (int q = 0; q < kM; ++q) mm1[q * kChunk + j] = bs[q * kBandPos];
           continue;
         }
@@ -443,7 +480,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
     // entry is overwritten before it is moved: s * nf + f <= s * m + keep[f])
     if (banded) {
       for (int s = 0; s < 8; ++s) {
-        const double* const bs = band + kBandOf[s] * kM * kBandPos;
+        const double* const bs = bandp[kBandOf[s]];
         for (int f = 0; f < nf; ++f) {
           const std::ptrdiff_t i = bpos(s, cols[f]);
           for (int q = 0; q < kM; ++q) mm[q * kCap + s * nf + f] = bs[q * kBandPos + i];
@@ -535,7 +572,11 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
   const std::ptrdiff_t ER = std::min(H, kTileRows + 2 * r), EC = std::min(W, kTileCols + 2 * r);
   // integral images as kM planes (one per moment) of ER + 1 rows of L = EC + 1 columns
   const std::ptrdiff_t L = EC + 1, plane = (ER + 1) * L;
-  const std::ptrdiff_t per = kM * plane + kM * EC;  // a thread's images + column sums
+  // the band cache of edge_judge_row (ordinary window sizes only: it grows with r)
+  const std::ptrdiff_t cache_slots =
+      r <= 15 ? (r + 2) * ((kTileCols + kEdgeBandCells - 1) / kEdgeBandCells) : 0;
+  // a thread's images + column sums + band cache
+  const std::ptrdiff_t per = kM * plane + kM * EC + cache_slots * kEdgeCacheSlot;
   const std::ptrdiff_t tiles_r = (H + kTileRows - 1) / kTileRows;
   const std::ptrdiff_t tiles_c = (W + kTileCols - 1) / kTileCols;
   const int nt = std::max(1, std::min<int>(thread_count(num_threads, N),
@@ -557,6 +598,7 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
       double* const S = scratch.data();
 #endif
       double* const col = S + kM * plane;  // moment q of column x at col[q * EC + x]
+      const EdgeBandCache cache{col + kM * EC, cache_slots};
       const std::ptrdiff_t R0 = (tile / tiles_c) * kTileRows, R1 = std::min(H, R0 + kTileRows);
       const std::ptrdiff_t C0 = (tile % tiles_c) * kTileCols, C1 = std::min(W, C0 + kTileCols);
       // the last row and column with a candidate (after the first pass candidates are the
@@ -597,9 +639,10 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
         edge_image_row(g, rr, labels + rr * W, f0, f1, o, col, EC, S + (rr - e0 + 1) * L, plane);
       }
       const EdgeImages im{S, plane, L, e0, ER + 1, f0};
+      cache.clear();
       for (std::ptrdiff_t rr = R0; rr <= rlast; ++rr) {
         edge_judge_row(g, rr, rr, H, C0, clast + 1, im, o, r, k, labels, todo + rr * W,
-                       mark + rr * W);
+                       mark + rr * W, &cache);
       }
     }
     std::ptrdiff_t added = 0;
@@ -645,7 +688,7 @@ template int edge_passes<double>(const GridView<double>&, std::uint8_t*, int, do
                                   std::ptrdiff_t, std::ptrdiff_t, std::ptrdiff_t,               \
                                   const EdgeImages&, const Eigen::Vector3d&, std::ptrdiff_t,    \
                                   double, const std::uint8_t*, const std::uint8_t*,             \
-                                  std::uint8_t*);
+                                  std::uint8_t*, const EdgeBandCache*);
 MIEM_EDGE_ROWS(float)
 MIEM_EDGE_ROWS(double)
 #undef MIEM_EDGE_ROWS
