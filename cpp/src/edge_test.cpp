@@ -351,11 +351,11 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
           if (cached && bw == kBandCells) {
             const std::ptrdiff_t blk = (cc - C0) / kBandCells;
             double* const nw = slot(rr, blk);
-            const double* const od = slot(rr - r - 1, blk);
+            double* const od = slot(rr - r - 1, blk);  // row rr - r - 1's (if it is there)
             reuse = od[0] == static_cast<double>(rr - r - 1) &&
                     od[1] == static_cast<double>(first) && od[2] >= static_cast<double>(w);
             if (reuse) {
-              bandp[1] = const_cast<double*>(od) + 8;
+              bandp[1] = od + 8;
               lowp[1] = bandp[1] + kM * kBandPos;
               bandp[3] = lowp[1] + kBandPos;
               lowp[3] = bandp[3] + kM * kBandPos;
