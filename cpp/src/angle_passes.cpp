@@ -31,7 +31,7 @@ constexpr std::ptrdiff_t kChunk = 32;   // lanes per min_step search
 constexpr int kPop4[16] = {0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4};
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define MIEM_CLONES __attribute__((target_clones("avx2", "default")))
+#define MIEM_CLONES __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
 #else
 #define MIEM_CLONES
 #endif

@@ -23,7 +23,7 @@
 #include "plane_math.hpp"
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define MIEM_FIT_CLONES __attribute__((target_clones("avx2", "default")))
+#define MIEM_FIT_CLONES __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
 #else
 #define MIEM_FIT_CLONES
 #endif
