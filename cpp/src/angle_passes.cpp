@@ -17,12 +17,13 @@ namespace miem::detail {
 namespace {
 
 // Pass 1 row kernel. Whole rows are judged with straight-line loops over structure-of-arrays
-// copies of the rows, which the compiler vectorizes (an AVX2 clone is picked at run time where
-// the CPU has it). Without min_step the neighbour search of SPEC.md ends at its first or second
-// cell (the candidate at s cells is usable, or it is not and the one at s + 1 is: one dropout,
-// the max_gap = 1 default); with min_step it runs step by step for all lanes of a block to a
-// depth of up to 16 steps. Rows carry `depth` padding columns of unusable cells on each side and
-// rows beyond the grid read an all-unusable row, so the grid's border needs no special case.
+// copies of the rows, which the compiler vectorizes (AVX-512 and AVX2 clones are picked at run
+// time where the CPU has them). Without min_step the neighbour search of SPEC.md ends at its
+// first or second cell (the candidate at s cells is usable, or it is not and the one at s + 1
+// is: one dropout, the max_gap = 1 default); with min_step it runs step by step for all lanes
+// of a block to a depth of up to 16 steps. Rows carry `depth` padding columns of unusable cells
+// on each side and rows beyond the grid read an all-unusable row, so the grid's border needs no
+// special case.
 // Cells whose search goes further (max_gap > 1 with two unusable cells in a row without
 // min_step, deeper than the ring with it, a min_step candidate within a relative 1e-12 of the
 // bound, no usable cell within the isolation reach) fall back to the scalar judge.
@@ -104,6 +105,7 @@ MIEM_CLONES void kernel_line(std::ptrdiff_t n, const Side& A, const Side& B,
                (-(aa | ab) & near_bit);
   }
 }
+
 #undef MIEM_PICK
 
 // With min_step, the neighbour search of SPEC.md for one side of one (direction, scale), one
