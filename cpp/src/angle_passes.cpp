@@ -105,7 +105,6 @@ MIEM_CLONES void kernel_line(std::ptrdiff_t n, const Side& A, const Side& B,
                (-(aa | ab) & near_bit);
   }
 }
-
 #undef MIEM_PICK
 
 // With min_step, the neighbour search of SPEC.md for one side of one (direction, scale), one
