@@ -394,25 +394,6 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
   ws.usable.resize(static_cast<std::size_t>(N));
   std::uint8_t* usable = ws.usable.data();
 
-  // Pass 0: finiteness.
-  std::ptrdiff_t n_finite = 0;
-#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1) reduction(+ : n_finite)
-  for (std::ptrdiff_t r = 0; r < H; ++r) {
-    for (std::ptrdiff_t c = 0; c < W; ++c) {
-      const std::ptrdiff_t i = r * W + c;
-      const bool fin = g.finite(r, c);
-      usable[i] = fin;
-      labels[i] = fin ? kNormal : kInvalid;
-      n_finite += fin;
-      if (out.flags) out.flags[i] = 0;
-      if (out.angle_deg) out.angle_deg[i] = kNaN;
-    }
-  }
-  if (n_finite < 3) {
-    throw std::invalid_argument("grid: fewer than 3 finite points (found " +
-                                std::to_string(n_finite) + ")");
-  }
-
   const int smax = *std::max_element(p.scales.begin(), p.scales.end());
   const bool has_min_step = p.min_step >= 0.0;
   // The row kernel keeps 2 depth + 2 padded, converted rows per thread (32 bytes per cell each;
@@ -440,6 +421,26 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
     if (ws.rows.size() < static_cast<std::size_t>(ntk)) ws.rows.resize(ntk);
     for (int t = 0; t < ntk; ++t) ws.rows[t].resize(2 * depth + 2, padded);
   }
+  // Pass 0: finiteness. (The row kernel writes every cell's angle, NaN where there is none.)
+  const bool angle_nan = out.angle_deg != nullptr && !row_kernel;
+  std::ptrdiff_t n_finite = 0;
+#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1) reduction(+ : n_finite)
+  for (std::ptrdiff_t r = 0; r < H; ++r) {
+    for (std::ptrdiff_t c = 0; c < W; ++c) {
+      const std::ptrdiff_t i = r * W + c;
+      const bool fin = g.finite(r, c);
+      usable[i] = fin;
+      labels[i] = fin ? kNormal : kInvalid;
+      n_finite += fin;
+      if (out.flags) out.flags[i] = 0;
+      if (angle_nan) out.angle_deg[i] = kNaN;
+    }
+  }
+  if (n_finite < 3) {
+    throw std::invalid_argument("grid: fewer than 3 finite points (found " +
+                                std::to_string(n_finite) + ")");
+  }
+
   // With min_step: the rays each cell's verdict read (4 bytes per cell), so that a later pass
   // re-judges only the cells whose verdict a removal can change.
   std::uint8_t* reach = nullptr;
