@@ -308,17 +308,10 @@ def test_on_by_default_on_grids_off_where_not_implemented() -> None:
     # the paper's method has neither
     p = _core.paper_params()
     assert p.edge_k == 0.0 and not p.min_step_auto
-    # the stream's default has the edge test and leaves min_step="auto" out (C++ and Python),
-    # which it refuses when asked (it needs the whole scan)
+    # the stream's default has both (C++ and Python; tests/test_stream.py: stream == batch)
     s = _core.stream_default_params()
-    assert s.edge_k == _core.DetectParams().edge_k > 0 and not s.min_step_auto
-    assert miem.ProfileStream(10).params.grid.min_step is None
-    with pytest.raises(ValueError, match="min_step"):
-        miem.ProfileStream(10, min_step="auto")
-    p = _core.stream_default_params()
-    p.min_step_auto = True
-    with pytest.raises(ValueError, match="min_step_auto"):
-        _core.ProfileStream64(10, p)
+    assert s.edge_k == _core.DetectParams().edge_k > 0 and s.min_step_auto
+    assert miem.ProfileStream(10).params.grid.min_step == "auto"
 
 
 @pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf"), "8", True])

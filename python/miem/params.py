@@ -134,16 +134,13 @@ def _raise_unless_ok(status: Tuple[int, str]) -> None:
         raise ValueError(message)
 
 
-def _f(default: Any, unit: str, help: str, metavar: str, stream: Any = dataclasses.MISSING,
-       stream_refuses: Any = dataclasses.MISSING) -> Any:
+def _f(default: Any, unit: str, help: str, metavar: str,
+       stream: Any = dataclasses.MISSING) -> Any:
     """A field with its unit, help text and command-line metavar; ``stream``: the only value
-    ProfileStream accepts (a grid field it does not implement yet), or with ``stream_refuses``:
-    the stream's default, and the one value the stream refuses."""
+    ProfileStream accepts (a grid field it does not implement yet)."""
     meta: Dict[str, Any] = {"unit": unit, "help": help, "metavar": metavar}
     if stream is not dataclasses.MISSING:
         meta["stream"] = stream
-    if stream_refuses is not dataclasses.MISSING:
-        meta["stream_refuses"] = stream_refuses
     return field(default=default, metadata=meta)
 
 
@@ -178,8 +175,8 @@ class GridParams:
     min_step: Union[None, float, str] = _f(
         "auto", "length", "minimum neighbour distance in the scan's units, so that every "
         "direction sees the same physical scale; 'auto': from the scan's spacing and profile "
-        "noise (SPEC \"min_step='auto'\"; result.params holds the value used; ProfileStream "
-        "needs a length); None: off", "LENGTH|auto", stream=None, stream_refuses="auto")
+        "noise over the first 256 rows with data (SPEC \"min_step='auto'\"; result.params "
+        "holds the value used); None: off", "LENGTH|auto")
     max_reach: int = _f(
         32, "cells", "with min_step: how many cells beyond scale + max_gap the neighbour search "
         "may go", "CELLS")
@@ -363,15 +360,7 @@ class DetectParams:
                 if "stream" not in meta:
                     continue
                 value = getattr(self.grid, name)
-                if "stream_refuses" in meta:
-                    if value == meta["stream_refuses"]:
-                        raise ValueError(
-                            f"{name}={value!r}: ProfileStream cannot resolve it (it takes "
-                            f"medians over the whole scan, which a stream never sees); give a "
-                            f"length or None: the value miem.detect(first_scan).params"
-                            f"[{name!r}] resolves on a first scan of the part (C++: "
-                            f"miem::auto_min_step)")
-                elif value != meta["stream"]:
+                if value != meta["stream"]:
                     bad.append((f"{name}={value!r}", f"{name}={meta['stream']!r}"))
         if bad:
             raise ValueError(
@@ -516,11 +505,9 @@ DEFAULT_PRESET = "recommended"
 
 
 def default_params(path: str = "grid") -> DetectParams:
-    """The default parameters of a detector: the default preset, except that ``"stream"``
-    has ``min_step=None`` instead of ``"auto"``, which needs the whole scan (give the length
-    that ``miem.detect(first_scan).params["min_step"]`` resolves on a first scan of the part).
-    The stream runs the rest of the default detector: the angle test, the height test with
-    compact EDGE groups, the edge test, heights and defects."""
+    """The default parameters of a detector: the default preset (for ``"stream"`` too: the
+    stream runs the whole default detector, ``min_step="auto"`` included, SPEC "Streaming"),
+    with the fields a path does not implement set to the one value it accepts."""
     _parts(path)
     base = PRESETS[DEFAULT_PRESET]
     if path != "stream":

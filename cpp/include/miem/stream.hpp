@@ -112,8 +112,13 @@ class ProfileStream {
   std::ptrdiff_t width() const noexcept { return width_; }
   /// The lag L: push n hands back row n - L (stream_lag(params())).
   int lag() const noexcept { return lag_; }
-  /// The reach R of one judgment, in rows.
+  /// The reach R of one judgment, in rows (with min_step "auto": as if it were on).
   int reach() const noexcept { return reach_; }
+  /// The min_step the stream judges with (scan units; -1: off). With min_step_auto: -1 until
+  /// decided (min_step_decided()), then the value batch detection resolves on the rows pushed.
+  double min_step() const noexcept { return min_step_; }
+  /// False while min_step "auto" waits for its rows (SPEC "min_step='auto'"), else true.
+  bool min_step_decided() const noexcept { return !ms_wait_; }
   /// The parameters.
   const DetectParams& params() const noexcept { return params_; }
   /// Profiles accepted since construction or reset.
@@ -147,6 +152,9 @@ class ProfileStream {
   std::ptrdiff_t slot(std::int64_t row) const noexcept {
     return static_cast<std::ptrdiff_t>(row % ring_);
   }
+  void use_min_step(double min_step) noexcept;
+  void decide_min_step(std::int64_t last) noexcept;
+  void advance(std::int64_t row) noexcept;
   void run_pass(std::int64_t row, int pass) noexcept;
   void pass1_fast(std::int64_t row) noexcept;
   std::uint8_t exact_label(std::int64_t row, std::ptrdiff_t col, std::uint32_t bits) const noexcept;
@@ -207,7 +215,20 @@ class ProfileStream {
   std::ptrdiff_t phys_ = 0;  // rows stored: ring_ + ext_, rows in slots [0, ext_) again at the
                              // end, so that any ext_ + 1 consecutive rows form one GridView
   int max_scale_ = 1;
-  bool fast_ = false;  // pass 1 may use the vectorised kernel
+  bool fast_ok_ = false;  // the scales allow pass 1's vectorised kernel (without min_step)
+  bool fast_ = false;     // pass 1 may use the vectorised kernel
+  // min_step "auto" (SPEC "min_step='auto'"): decided once the kAutoMinStepRows rows from the
+  // first row with a finite cell are in; the stages wait for it (the rows are kept).
+  bool ms_auto_ = false;         // params_.min_step_auto
+  bool ms_wait_ = false;         // not decided yet
+  std::int64_t ms_first_ = -1;   // the first row with a finite cell (-1: none yet)
+  double min_step_ = -1.0;       // the min_step in use (-1: off)
+  int mark_reach_ = 0;           // R of one judgment with that min_step
+  DetectParams jparams_;         // params_ with min_step resolved: the judges'
+  std::vector<const T*> ms_rows_;       // the rows it reads
+  std::vector<std::uint32_t> ms_hist_;  // its histograms
+  std::vector<std::uint8_t> ms_fin_;    // its finite flags (3 rows)
+  std::vector<double> nan_row_;         // heights of a row handed back while waiting
   double cos0_ = 0.0;
 
   std::vector<T> xyz_;               // 3 planes (x, y, z) of phys_ rows of width_
