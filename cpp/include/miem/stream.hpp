@@ -33,23 +33,23 @@ struct StreamRow {
   bool ready() const noexcept { return index >= 0; }
 };
 
-/// The default parameters of a stream: the default preset (DetectParams{}: angle test, height
-/// test with compact EDGE groups, edge test, heights) without min_step_auto, which
-/// check_stream_params rejects (a stream cannot see the whole scan: give min_step as a length,
-/// auto_min_step() of a first scan of the part; then stream == batch with that min_step).
+/// The default parameters of a stream: the default preset, DetectParams{} (angle test, height
+/// test with compact EDGE groups, edge test, min_step "auto", heights).
 DetectParams stream_default_params();
 
 /// The lag L of a stream with these parameters (profiles between pushing a row and getting it
-/// back final), with R = max(scales) + max_gap (+ max_reach with min_step), h = window / 2,
-/// P = max_iterations, E = edge_extent, r = edge_window / 2:
+/// back final), with R = max(scales) + max_gap (+ max_reach with min_step, given or "auto"),
+/// h = window / 2, P = max_iterations, E = edge_extent, r = edge_window / 2:
 ///     L = P R + E + (P + 1) h   with the height test,   L = P R + h   without;
 ///     L = max(H + r, h) + (P - 1) r + h   with the edge test, H = P R + E + P h (P R without
-///         the height test): each edge pass runs row by row, r rows behind the one before.
-/// Defaults: (10 * 3 + 12 + 10 * 10 + 7) + 9 * 7 + 10 = 222. Assumes valid parameters.
+///         the height test): each edge pass runs row by row, r rows behind the one before;
+///     L = max(L, 256)   with min_step_auto (the rows it is decided from must be in).
+/// Defaults: (10 * 35 + 12 + 10 * 10 + 7) + 9 * 7 + 10 = 542 (222 with min_step off).
+/// Assumes valid parameters.
 long long stream_lag(const DetectParams& params) noexcept;
 
 /// Checks the parameters of a stream without throwing: params.check(), then what a stream does
-/// not implement (theta0_auto, min_step_auto), width >= 1,
+/// not implement (theta0_auto), width >= 1,
 /// max_iterations <= 254 (the per-cell pass counter is one byte) and a lag below 2^20 profiles.
 Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noexcept;
 
@@ -73,18 +73,24 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 ///     routines on per-tile integral images kept as rings of 2 r + 2 rows: its verdicts are
 ///     those of the whole grid bit for bit (docs/SPEC.md "Streaming");
 ///   - heights are final h rows after the last height pass (and the last edge pass).
-/// So row i is final once row i + L has arrived, L = stream_lag(params) (222 profiles with
-/// the defaults, 152 without the edge test; 20 + 10 with preset "paper"). Each cell keeps the
+///   - with min_step "auto" (SPEC "min_step='auto'": the 256 rows from the first row with a
+///     finite cell), the stages wait from that row on until the 256 rows are in; that push
+///     decides the value (exact medians, no allocation) and runs the waiting pushes' stages
+///     (the one long push of a part: about 50 ms for profiles of 3200 points).
+/// So row i is final once row i + L has arrived, L = stream_lag(params) (542 profiles with
+/// the defaults, 222 with min_step off, 472 without the edge test; 20 + 10 with preset
+/// "paper"). Each cell keeps the
 /// pass that removed it (angle, height, edge), so a judgment at pass p sees exactly the cells of pass p - 1 even where rows around it have run
 /// pass p already. A lower max_iterations (most scans settle in 2-3 passes) or edge_extent
 /// shortens the lag, and equals batch detection with those parameters.
 ///
-/// Memory: the last L + h + 2 rows (about L + 2 h; with the edge test L + 64 + edge_window + 2:
-/// 303 rows at the defaults) are kept in a ring, plus max(2 R, 2 h) rows that repeat its first
-/// rows (2 r with the edge test if more), so that the rows around any row form one strided
-/// GridView; with the edge test also (P + 1) ceil(width / 128) rings of integral images
-/// (11 x (2 r + 2) x (129 + 2 r) doubles and the column sums): about 95 MB for double profiles of 3200 points with the defaults (20 MB
-/// without the edge test), plus the cells of the open defects (a pool reserved for 16 rows'
+/// Memory: the last L + h + 2 rows (about L + 2 h; with the edge test L + 64 + edge_window + 2;
+/// 256 more with min_step "auto": 879 rows at the defaults) are kept in a ring, plus
+/// max(2 R, 2 h) rows that repeat its first rows (2 r with the edge test if more), so that the
+/// rows around any row form one strided GridView; with the edge test also (P + 1)
+/// ceil(width / 128) rings of integral images (11 x (2 r + 2) x (129 + 2 r) doubles and the
+/// column sums): about 172 MB for double profiles of 3200 points with the defaults (96 MB with
+/// min_step off, 92 MB without the edge test), plus the cells of the open defects (a pool reserved for 16 rows'
 /// worth of cells, which grows, once, only for more). Defects come with the rows (StreamRow::defects) once
 /// final; flags and angles are not reported. (Batch detection also refuses a grid of fewer
 /// than 3 finite points; a stream simply labels what it gets.)
