@@ -496,38 +496,38 @@ double auto_min_step_rows(const T* const* rows, std::ptrdiff_t H, std::ptrdiff_t
   Counts count{};
   for (int q = 0; q < kQ; ++q)
     for (std::size_t b = 0; b < kB; ++b) count[q] += hist[q * kB + b];
-  // the picks: ranks (n - 1) / 2 and n / 2 of each quantity, their prefixes so far
-  int pq[2 * kQ];
-  std::size_t prank[2 * kQ];
+  // the picks: ranks (n - 1) / 2 and n / 2 of quantity q are picks 2 q and 2 q + 1 (none
+  // when q has no value: its prefix can match no pattern), their prefixes so far
+  std::size_t prank[2 * kQ] = {};
   std::uint64_t pre[2 * kQ];
-  int np = 0;
+  std::fill(pre, pre + 2 * kQ, ~std::uint64_t{0});
   for (int q = 0; q < kQ; ++q) {
     if (count[q] == 0) continue;
     for (int k = 0; k < 2; ++k) {
       std::size_t rank = k == 0 ? (count[q] - 1) / 2 : count[q] / 2;
-      pq[np] = q;
-      pre[np] = static_cast<std::uint64_t>(bin_of(hist + q * kB, rank)) << 48;
-      prank[np] = rank;
-      ++np;
+      pre[2 * q + k] = static_cast<std::uint64_t>(bin_of(hist + q * kB, rank)) << 48;
+      prank[2 * q + k] = rank;
     }
   }
   for (int round = 1; round < 4; ++round) {
     const int shift = 48 - 16 * round;  // the bits found this round: [shift, shift + 16)
     const std::uint64_t known = ~std::uint64_t{0} << (shift + 16);
-    std::fill(hist, hist + static_cast<std::size_t>(np) * kB, 0u);
+    std::fill(hist, hist + 2 * kQ * kB, 0u);
     run([&](int q, double v) {
-      const std::uint64_t k = bits64(v);
-      for (int s = 0; s < np; ++s)
-        if (pq[s] == q && (k & known) == pre[s]) ++hist[s * kB + ((k >> shift) & 0xFFFF)];
+      const std::uint64_t k = bits64(v), top = k & known, digit = (k >> shift) & 0xFFFF;
+      hist[(2 * q) * kB + digit] += top == pre[2 * q];
+      hist[(2 * q + 1) * kB + digit] += top == pre[2 * q + 1];
     });
-    for (int s = 0; s < np; ++s)
-      pre[s] |= static_cast<std::uint64_t>(bin_of(hist + s * kB, prank[s])) << shift;
+    for (int s = 0; s < 2 * kQ; ++s)
+      if (count[s / 2] > 0)
+        pre[s] |= static_cast<std::uint64_t>(bin_of(hist + s * kB, prank[s])) << shift;
   }
   Mids mids{};
-  for (int s = 0; s < np; ++s) {
+  for (int s = 0; s < 2 * kQ; ++s) {
+    if (count[s / 2] == 0) continue;
     double v;
     std::memcpy(&v, &pre[s], sizeof v);
-    mids[pq[s]][s % 2] = v;  // picks come in pairs per quantity: rank (n - 1) / 2, then n / 2
+    mids[s / 2][s % 2] = v;
   }
   return from_medians(count, mids);
 }
