@@ -64,7 +64,7 @@ _DTYPES = {"labels": np.uint8, "flags": np.uint8, "angle": np.float64, "height":
 
 
 def _resolve_min_step(grid: "da.Array", args: tuple, kwargs: dict, params: dict) -> tuple:
-    """min_step="auto" resolved over the whole grid (:func:`auto_min_step`) and given to every
+    """min_step="auto" resolved first (:func:`auto_min_step`: its 256 rows) and given to every
     block as the length (or None) it resolves to; params record it as auto."""
     if not params.get("min_step_auto"):
         return kwargs, params
@@ -92,7 +92,7 @@ _TILE = (64, 128)
 _GRID_KNOWN = {"preset", "theta0", "theta0_auto", "scales", "max_gap", "min_step",
                "min_directions", "max_iterations", "window", "height_tolerance", "edge_extent",
                "max_reach", "heights",
-               # resolved over the whole grid first (auto_min_step), then a min_step length
+               # resolved first (auto_min_step: its 256 rows), then a min_step length
                "min_step_auto",
                "edge_tolerance", "edge_window"}
 
