@@ -109,7 +109,8 @@ void ProfileStream<T>::edge_labels(std::int64_t row, int pass, std::ptrdiff_t c0
   const std::uint8_t p = static_cast<std::uint8_t>(pass);
   for (std::ptrdiff_t c = c0; c < c1; ++c) {  // branch-free, so that it vectorises
     const std::uint8_t keep = static_cast<std::uint8_t>(-(ep[c] >= p));  // 0xff: the old label
-    o[c] = static_cast<std::uint8_t>((lab[c] & ~keep) | (static_cast<std::uint8_t>(eo[c] - 1) & keep));
+    const std::uint8_t old = static_cast<std::uint8_t>(eo[c] - 1);
+    o[c] = static_cast<std::uint8_t>((lab[c] & ~keep) | (old & keep));
   }
 }
 

@@ -1237,7 +1237,8 @@ AUTO_MIN_STEP_ROWS = 256
 def _auto_min_step(g: NDArray[np.float64], finite: NDArray[np.bool_]) -> float | None:
     """SPEC "min_step='auto'" (reference): over the first AUTO_MIN_STEP_ROWS rows from the first
     row with a finite cell, per grid axis, the median distance of finite neighbour pairs and
-    the robust z noise ``1.4826 median|z[i-1] - 2 z[i] + z[i+1]| / sqrt(6)`` of finite triples; ``4 * max(noise)`` when above ``min(spacing)``, else None."""
+    the robust z noise ``1.4826 median|z[i-1] - 2 z[i] + z[i+1]| / sqrt(6)`` of finite triples;
+    ``4 * max(noise)`` when above ``min(spacing)``, else None."""
     rows = np.flatnonzero(finite.any(axis=1))
     if rows.size == 0:
         return None

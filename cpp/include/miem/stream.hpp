@@ -90,10 +90,11 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 /// rows around any row form one strided GridView; with the edge test also (P + 1)
 /// ceil(width / 128) rings of integral images (11 x (2 r + 2) x (129 + 2 r) doubles and the
 /// column sums): about 172 MB for double profiles of 3200 points with the defaults (96 MB with
-/// min_step off, 92 MB without the edge test), plus the cells of the open defects (a pool reserved for 16 rows'
-/// worth of cells, which grows, once, only for more). Defects come with the rows (StreamRow::defects) once
-/// final; flags and angles are not reported. (Batch detection also refuses a grid of fewer
-/// than 3 finite points; a stream simply labels what it gets.)
+/// min_step off, 92 MB without the edge test), plus the cells of the open defects (a pool
+/// reserved for 16 rows' worth of cells, which grows, once, only for more). Defects come with
+/// the rows (StreamRow::defects) once final; flags and angles are not reported. (Batch
+/// detection also refuses a grid of fewer than 3 finite points; a stream simply labels what it
+/// gets.)
 ///
 /// Speed: pass 1 runs a vectorised filter over the whole row (SSE2, or AVX2 where the CPU has
 /// it) and judges exactly only the few cells that might be flagged; cells next to a dropout go
