@@ -7,7 +7,6 @@ from pathlib import Path
 import miem
 import numpy as np
 import pytest
-from miem import _core
 from miem.stream import ProfileStream, StreamRow
 
 
