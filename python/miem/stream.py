@@ -103,8 +103,8 @@ class ProfileStream:
     decided on the 256 profiles from the first one with a finite point (docs/SPEC.md
     "min_step='auto'"), the value :func:`miem.detect` resolves on the same rows: the stream
     waits for them, and the push that completes them does their work (the one long push of a
-    part, about 50 ms at 3200 points). A lower ``max_iterations``, ``edge_extent``, ``window``
-    or ``edge_window``, or a ``min_step`` length or None, shortens the lag;
+    part, about 33 ms of CPU at 3200 points). A lower ``max_iterations``, ``edge_extent``,
+    ``window`` or ``edge_window``, or a ``min_step`` length or None, shortens the lag;
     ``edge_tolerance=None`` takes 70 profiles off (and most of the time: bench/RESULTS.md).
 
     The parameters are a :class:`miem.DetectParams` as for :func:`miem.detect` (``params``, a
