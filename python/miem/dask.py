@@ -88,13 +88,12 @@ def _probe_params(args: tuple, kwargs: dict) -> dict:
 _TILE = (64, 128)
 
 
-#: Grid parameters whose reach grid_halo knows; any other parameter that is on is refused.
-_GRID_KNOWN = {"preset", "theta0", "theta0_auto", "scales", "max_gap", "min_step",
-               "min_directions", "max_iterations", "window", "height_tolerance", "edge_extent",
-               "max_reach", "heights",
-               # resolved first (auto_min_step: its 256 rows), then a min_step length
-               "min_step_auto",
-               "edge_tolerance", "edge_window"}
+#: Grid parameters whose reach grid_halo knows: every field organized detection reads
+#: (generated from miem.DetectParams, hence from the C++ field table), what it derives
+#: (theta0_auto; min_step_auto: min_step is resolved first on its 256 rows, auto_min_step)
+#: and the preset's name. A new grid field is known here at once: a field that reaches farther
+#: than grid_halo's formula must widen it (tests/test_config.py runs every field on blocks).
+_GRID_KNOWN = {"preset", "theta0_auto", "min_step_auto", *miem.DetectParams.fields("grid")}
 
 
 def grid_halo(params: dict, strict: bool = False) -> int:
@@ -622,10 +621,12 @@ _POINT_FILL = {"labels": int(miem.INVALID), "flags": 0, "angle": np.nan, "height
                "degenerate": False}
 
 
-#: Cloud parameters whose reach points_halo knows; any other parameter that is on is refused.
-_POINT_KNOWN = {"preset", "theta0", "scales", "min_step", "min_directions", "max_iterations",
-                "radius", "K", "link", "spacing", "heights", "height_tolerance", "edge_extent",
-                "min_group", "height_radius", "merge_distance", "merged", "isolated_tolerance"}
+#: Cloud fields whose reach points_halo does not cover (refused when on): the cloud edge test.
+_POINT_UNCOVERED = {"edge_tolerance", "edge_radius"}
+#: Cloud parameters whose reach points_halo knows: every field cloud detection reads (generated
+#: from miem.DetectParams) but _POINT_UNCOVERED, what it records (merged) and the preset's name;
+#: any other parameter that is on is refused.
+_POINT_KNOWN = {"preset", "merged", *miem.DetectParams.fields("cloud")} - _POINT_UNCOVERED
 
 
 def _probe_points(kwargs: dict) -> tuple:
