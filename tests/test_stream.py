@@ -198,9 +198,10 @@ def test_stream_runs_min_step_auto_as_batch(preset: str, rows: int, lead: int) -
     if rows > lead + 256:
         assert hand_min_step(grid[lead:]) != pytest.approx(step, rel=1e-3)
     stream = ProfileStream(70, params=p)
-    assert stream.lag >= 256
+    assert stream.lag >= 256 and stream.min_step is None  # not decided yet
     defects: list = []
     got, heights = stream_both(stream, grid, defects)
+    assert stream.min_step == step  # the value batch resolved
     np.testing.assert_array_equal(got, want.labels)
     assert_heights_equal(heights, want.height)
     assert_same_defects(defects, want.defects, want.labels)

@@ -203,6 +203,13 @@ class ProfileStream:
         return int(self._core.lag)
 
     @property
+    def min_step(self) -> Optional[float]:
+        """The min_step the stream judges with (scan units), None when off; with
+        ``min_step="auto"`` None until the 256 profiles from the first one with a finite point
+        are in (or the flush), then the value :func:`miem.detect` resolves on those rows."""
+        return self._core.min_step
+
+    @property
     def dtype(self) -> np.dtype:
         """Storage dtype of the coordinates."""
         return self._dtype
