@@ -371,17 +371,10 @@ def test_on_by_default_on_grids_off_where_not_implemented() -> None:
     # the paper's method has neither
     p = _core.paper_params()
     assert p.edge_k == 0.0 and not p.min_step_auto
-    # the stream's default has the edge test and leaves min_step="auto" out (C++ and Python),
-    # which it refuses when asked (it needs the whole scan)
+    # the stream's default has both (C++ and Python; tests/test_stream.py: stream == batch)
     s = _core.stream_default_params()
-    assert s.edge_k == _core.DetectParams().edge_k > 0 and not s.min_step_auto
-    assert miem.ProfileStream(10).params.grid.min_step is None
-    with pytest.raises(ValueError, match="min_step"):
-        miem.ProfileStream(10, min_step="auto")
-    p = _core.stream_default_params()
-    p.min_step_auto = True
-    with pytest.raises(ValueError, match="min_step_auto"):
-        _core.ProfileStream64(10, p)
+    assert s.edge_k == _core.DetectParams().edge_k > 0 and s.min_step_auto
+    assert miem.ProfileStream(10).params.grid.min_step == "auto"
 
 
 @pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf"), "8", True])
@@ -593,6 +586,47 @@ def test_auto_min_step_core_equals_reference_on_random_grids() -> None:
     assert want is not None
     for nt in (1, 2):
         assert miem.detect(g, num_threads=nt).params["min_step"] == want
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_auto_min_step_reads_256_rows_from_the_first_with_data(dtype: type) -> None:
+    """SPEC "min_step='auto'": the medians are those of the 256 rows from the first row with a
+    finite cell (rows of dropouts before it, one inside); the noise doubles after them, so the
+    whole grid's medians differ. Core (1 and 2 threads) == reference == NumPy by hand."""
+    rng = np.random.default_rng(17)
+    h, w, lead = 600, 45, 50
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    y = np.cumsum(rng.choice([0.1, 0.2, 0.5], h))[:, None] + 0 * xx
+    sd = np.where(np.arange(h) < lead + 256, 0.05, 0.1)[:, None]
+    z = np.round(0.01 * xx + rng.normal(0.0, 1.0, (h, 1)) * sd + rng.normal(0, 0.002, (h, w)), 3)
+    g = np.dstack([xx * 0.05, y, z]).astype(dtype)
+    g[:lead] = np.nan
+    g[lead + 100] = np.nan
+    g[rng.random((h, w)) < 0.03] = np.nan
+    g64 = g.astype(np.float64)
+
+    def by_hand(a: np.ndarray) -> float:
+        spacing, noise = [], []
+        for b in (a, a.transpose(1, 0, 2)):
+            f = np.isfinite(b).all(axis=-1)
+            pair = f[:, :-1] & f[:, 1:]
+            spacing.append(np.median(np.linalg.norm(b[:, 1:] - b[:, :-1], axis=-1)[pair]))
+            tri = f[:, :-2] & f[:, 1:-1] & f[:, 2:]
+            d2 = np.abs(b[:, :-2, 2] - 2 * b[:, 1:-1, 2] + b[:, 2:, 2])[tri]
+            noise.append(1.4826 * np.median(d2) / np.sqrt(6.0))
+        assert 4 * max(noise) > min(spacing)
+        return 4 * max(noise)
+
+    want = ref._auto_min_step(g64, np.isfinite(g64).all(axis=-1))
+    assert want == pytest.approx(by_hand(g64[lead:lead + 256]), rel=1e-12)
+    assert by_hand(g64[lead:]) > 1.2 * want  # the whole grid would give another value
+    for nt in (1, 2):
+        assert miem.detect(g, num_threads=nt).params["min_step"] == want
+    # fewer than 256 rows after the first with data: all of them
+    short = g[: lead + 120]
+    s64 = short.astype(np.float64)
+    assert miem.detect(short).params["min_step"] == ref._auto_min_step(
+        s64, np.isfinite(s64).all(axis=-1)) == pytest.approx(by_hand(s64[lead:]), rel=1e-12)
 
 
 def test_cpp_min_step_auto_and_a_length_is_an_error() -> None:

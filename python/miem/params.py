@@ -304,11 +304,10 @@ _SPELLED: Dict[str, Tuple[_Spelled, ...]] = {
         _Spelled(
             "min_step", ("min_step", "min_step_auto"), "length",
             "minimum neighbour distance in the scan's units, so that every direction sees the "
-            "same physical scale; 'auto': from the scan's spacing and profile noise (SPEC "
-            "\"min_step='auto'\"; result.params holds the value used; ProfileStream needs a "
-            "length); None: off", "LENGTH|auto", _grid_min_step_to, _grid_min_step_from,
-            # ProfileStream: its default is None, and "auto" is the one value it refuses
-            (("stream", None), ("stream_refuses", "auto")), Union[None, float, str]),
+            "same physical scale; 'auto': from the scan's spacing and profile noise over the "
+            "first 256 rows with data (SPEC \"min_step='auto'\"; result.params holds the value "
+            "used); None: off", "LENGTH|auto", _grid_min_step_to, _grid_min_step_from,
+            (), Union[None, float, str]),
         _heights(),
         _height_tolerance(
             "height test (beyond the paper): a NORMAL point farther than this from its local "
@@ -581,15 +580,7 @@ class DetectParams:
                 if "stream" not in meta:
                     continue
                 value = getattr(self.grid, name)
-                if "stream_refuses" in meta:
-                    if value == meta["stream_refuses"]:
-                        raise ValueError(
-                            f"{name}={value!r}: ProfileStream cannot resolve it (it takes "
-                            f"medians over the whole scan, which a stream never sees); give a "
-                            f"length or None: the value miem.detect(first_scan).params"
-                            f"[{name!r}] resolves on a first scan of the part (C++: "
-                            f"miem::auto_min_step)")
-                elif value != meta["stream"]:
+                if value != meta["stream"]:
                     bad.append((f"{name}={value!r}", f"{name}={meta['stream']!r}"))
         if bad:
             raise ValueError(
@@ -659,11 +650,9 @@ DEFAULT_PRESET = "recommended"
 
 
 def default_params(path: str = "grid") -> DetectParams:
-    """The default parameters of a detector: the default preset, except that ``"stream"``
-    has ``min_step=None`` instead of ``"auto"``, which needs the whole scan (give the length
-    that ``miem.detect(first_scan).params["min_step"]`` resolves on a first scan of the part).
-    The stream runs the rest of the default detector: the angle test, the height test with
-    compact EDGE groups, the edge test, heights and defects."""
+    """The default parameters of a detector: the default preset (for ``"stream"`` too: the
+    stream runs the whole default detector, ``min_step="auto"`` included, SPEC "Streaming"),
+    with the fields a path does not implement set to the one value it accepts."""
     _parts(path)
     base = PRESETS[DEFAULT_PRESET]
     if path != "stream":

@@ -1304,10 +1304,21 @@ def edge_test(
     return labels, passes
 
 
+#: min_step="auto" reads this many rows from the grid's first row with a finite cell
+#: (SPEC "min_step='auto'"), so that a stream can decide it and batch need not read the scan.
+AUTO_MIN_STEP_ROWS = 256
+
+
 def _auto_min_step(g: NDArray[np.float64], finite: NDArray[np.bool_]) -> float | None:
-    """SPEC "min_step='auto'" (reference): per grid axis, the median distance of finite
-    neighbour pairs and the robust z noise ``1.4826 median|z[i-1] - 2 z[i] + z[i+1]| / sqrt(6)``
-    of finite triples; ``4 * max(noise)`` when above ``min(spacing)``, else None."""
+    """SPEC "min_step='auto'" (reference): over the first AUTO_MIN_STEP_ROWS rows from the first
+    row with a finite cell, per grid axis, the median distance of finite neighbour pairs and
+    the robust z noise ``1.4826 median|z[i-1] - 2 z[i] + z[i+1]| / sqrt(6)`` of finite triples;
+    ``4 * max(noise)`` when above ``min(spacing)``, else None."""
+    rows = np.flatnonzero(finite.any(axis=1))
+    if rows.size == 0:
+        return None
+    first = int(rows[0])  # the first AUTO_MIN_STEP_ROWS rows from the first with a finite cell
+    g, finite = g[first:first + AUTO_MIN_STEP_ROWS], finite[first:first + AUTO_MIN_STEP_ROWS]
     spacing, noise = [], []
     for gg, ff in ((g, finite), (g.transpose(1, 0, 2), finite.T)):
         dist, d2 = [], []
