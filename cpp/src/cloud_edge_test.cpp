@@ -32,6 +32,58 @@ double finite_median(const double* v, std::ptrdiff_t n) {
   return m;
 }
 
+// SPEC "Unorganized clouds: edge test" step 4 (the grid's steps 4-5, edge_verdict.hpp, plus the
+// level and top rules): P fits no clean sector and stands proud of a clean sector `a` whose
+// opposite (the sector of the same width turned by 180 degrees) falls away below a's plane, or
+// is empty while neither of its neighbours (the same width, turned by +-45 degrees) is a clean
+// sector at a's level (a bead or ridge on a surface that goes on past P, whose opposite sector
+// only the scan's border empties, is not a lip before an outline), and no valid sector's
+// centroid lies above P along a's normal (P is the top of what it stands on: a point on a
+// fillet or a slope whose rising side the scan's border hides is not a lip). Centroids are
+// relative to P.
+bool cloud_edge_abnormal(const detail::EdgeSide (&sd)[kSectors], double best) {
+  const double clean = detail::kEdgeCleanRatio * best;
+  for (const detail::EdgeSide& x : sd) {
+    if (x.valid && x.rms <= clean && !(std::abs(x.h) > x.tol)) return false;
+  }
+  auto turned = [](int s, int by) { return (s / 8) * 8 + (s % 8 + 8 + by) % 8; };
+  for (int s = 0; s < kSectors; ++s) {
+    const detail::EdgeSide& x = sd[s];
+    if (!x.valid || !(x.rms <= clean) || !(x.h > x.tol)) continue;
+    const int o = turned(s, 4);
+    const detail::EdgeSide& y = sd[o];
+    bool outline = y.empty;
+    for (int by : {-1, 1}) {
+      const detail::EdgeSide& c = sd[turned(o, by)];
+      if (c.valid && c.rms <= clean &&
+          !(std::abs(detail::dot3(x.normal, c.centroid - x.centroid)) > x.tol)) {
+        outline = false;
+      }
+    }
+    if (!(outline || (y.valid && detail::dot3(x.normal, y.centroid - x.centroid) < -x.tol))) {
+      continue;
+    }
+    bool top = true;
+    for (const detail::EdgeSide& z : sd) {
+      if (z.valid && detail::dot3(x.normal, z.centroid) > 0.0) top = false;
+    }
+    if (top) return true;
+  }
+  return false;
+}
+
+// The octant of a tangent offset (a, b) != 0 (SPEC step 3): the 45-degree wedge [45 o, 45 o + 45)
+// degrees from e1 towards e2 that holds it, by exact comparisons (a point on a boundary belongs
+// to the wedge that starts there).
+inline int octant(double a, double b) {
+  if (b > 0.0 || (b == 0.0 && a > 0.0)) {  // [0, 180)
+    if (a > 0.0) return b < a ? 0 : 1;
+    return b > -a ? 2 : 3;
+  }
+  if (a < 0.0) return -b < -a ? 4 : 5;  // [180, 270)
+  return a < -b ? 6 : 7;                // [270, 360)
+}
+
 // Tangent directions of a candidate.
 struct Frame {
   Eigen::Vector3d e1, e2;
@@ -53,9 +105,7 @@ bool stands_proud(const Gather& sup, const Gather& rest, std::uint32_t i, const 
       const double b = wx * f.e2.x() + wy * f.e2.y() + wz * f.e2.z();
       const double rho = std::sqrt(a * a + b * b);
       if (!(rho > 0.0 && rho >= e.gap)) continue;
-      double theta = std::atan2(b, a);
-      if (theta < 0.0) theta += 2.0 * kPi;
-      const int o = std::min(static_cast<int>(theta / (kPi / 4.0)), 7);
+      const int o = octant(a, b);
       fin[o] += 1.0;
       if (support) oct[o].add(wx, wy, wz);
     }
@@ -70,7 +120,7 @@ bool stands_proud(const Gather& sup, const Gather& rest, std::uint32_t i, const 
   for (int s = 0; s < 8; ++s) {
     finite[s] = fin[s] + fin[(s + 1) % 8];
     sums[s] = oct[s].plus(oct[(s + 1) % 8]);
-    finite[8 + s] = finite[s] + finite[(s + 2) % 8];
+    finite[8 + s] = finite[s] + fin[(s + 2) % 8] + fin[(s + 3) % 8];
     sums[8 + s] = sums[s].plus(oct[(s + 2) % 8].plus(oct[(s + 3) % 8]));
     full[0] = std::max(full[0], finite[s]);
   }
@@ -103,8 +153,7 @@ bool stands_proud(const Gather& sup, const Gather& rest, std::uint32_t i, const 
     sd[s].normal = lp[s].normal;
     sd[s].centroid = lp[s].mean;
   }
-  // the opposite sector of the same width
-  return detail::edge_abnormal(sd, best, [](int s) { return (s / 8) * 8 + (s % 8 + 4) % 8; });
+  return cloud_edge_abnormal(sd, best);
 }
 
 }  // namespace

@@ -630,6 +630,12 @@ def _probe_points(kwargs: dict) -> tuple:
     lengths = ("radius", "min_step", "link", "height_radius")
     derived = any(k in a and a[k] != b[k] for k in lengths)
     compact = a.get("height_tolerance") is not None and a.get("edge_extent", 0) > 0
+    if a.get("edge_tolerance") is not None:
+        raise ValueError(
+            "edge_tolerance: miem.dask cannot run the cloud edge test (on by default: its "
+            "candidates are the points whose surroundings rms exceeds 1.5 x a median over the "
+            "whole cloud, which blocks do not see); pass edge_tolerance=None, and the blocks "
+            "then equal miem.detect(points, edge_tolerance=None)")
     _refuse_unknown(a, _POINT_KNOWN)
     return a, (derived or compact) and kwargs.get("spacing") is None
 

@@ -239,15 +239,16 @@ class CloudParams:
         None, "length", "the cloud's point spacing, the unit of the defaults and of edge_extent; "
         "None: the median nearest-neighbour distance", "LENGTH")
     edge_tolerance: Optional[float] = _f(
-        None, "k x rms", "edge test (SPEC 'Unorganized clouds: edge test', after the height "
+        4.0, "k x rms", "edge test (SPEC 'Unorganized clouds: edge test', after the height "
         "test): a point standing proud of a feature line or the cloud's outline "
-        "by more than k times the rms of a one-sided sector's plane becomes ABNORMAL (3 was "
-        "measured on the held-out-style clouds; not in the default); None: off", "K")
+        "by more than k times the rms of a one-sided sector's plane becomes ABNORMAL (4: "
+        "chosen on the held-out-style clouds' tune split); None: off", "K")
     edge_radius: Optional[float] = _f(
         None, "length", "with the edge test: radius of its sectors; None: height_radius",
         "LENGTH")
     isolated_tolerance: Optional[float] = _f(
-        5.0, "k x rms", "with the height test: a point alone farther than k times the rms of "
+        5.0, "k x rms", "with the height test (either tolerance): a point alone farther than "
+        "k times the rms of "
         "its surroundings plane, whose neighbours within radius lie about that plane as loosely "
         "as the rms says (a low spike or pit one point wide), becomes ABNORMAL; None: off", "K")
 
@@ -498,7 +499,7 @@ PRESETS: Dict[str, DetectParams] = {
         grid=GridParams(min_step=None, height_tolerance=None, edge_extent=0,
                         edge_tolerance=None),
         cloud=CloudParams(height_tolerance=None, edge_extent=0.0, min_group=0,
-                          isolated_tolerance=None),
+                          isolated_tolerance=None, edge_tolerance=None),
     ),
     "recommended": DetectParams(),
 }
