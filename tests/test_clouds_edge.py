@@ -109,7 +109,7 @@ def _sector_verdict(pts: np.ndarray, normal: np.ndarray, i: int, r_edge: float,
     best = min(p[2] for p in planes if p is not None)
     clean = [p is not None and p[2] <= 2 * best for p in planes]
     fits = any(c and abs(p[0] @ p[1]) <= k * p[2] for c, p in zip(clean, planes))
-    empty = f < 0.25 * full
+    empty = f < 0.35 * full  # SPEC step 3
     turned = [[(s // 8) * 8 + (s % 8 + 8 + by) % 8 for s in range(16)] for by in range(8)]
     proud = [s for s in range(16) if clean[s] and -planes[s][0] @ planes[s][1] > k * planes[s][2]
              and empty[turned[4][s]]]

@@ -15,7 +15,7 @@ namespace {
 constexpr int kSectors = 16;  // 8 quarter-disk and 8 half-disk sectors
 constexpr double kRmsFloor = 1e-9;      // of the tolerance, as the height test's
 constexpr double kSuspect = 1.5;        // candidates: surroundings rms above 1.5 x the median
-constexpr double kEmpty = 0.25;         // empty: fewer returns than a quarter of a full sector
+constexpr double kEmpty = 0.35;  // empty: fewer returns than 0.35 of a full sector (tune split)
 
 // NumPy's median of the finite values (the mean of the two middle ones for an even count);
 // +inf when there is none.

@@ -2037,8 +2037,9 @@ _CLOUD_EDGE_SUSPECT = 1.5
 #: Cloud edge test: 8 quarter-disk and 8 half-disk sectors.
 _CLOUD_SECTORS = 16
 #: Cloud edge test: a sector with fewer finite points than this fraction of a full one is empty
-#: (a steep face, sampled more sparsely in 3-D, keeps about half).
-_CLOUD_EMPTY = 0.25
+#: (a steep face, sampled more sparsely in 3-D, keeps about half; 0.35 chosen on the tune split
+#: of the held-out-style clouds: 0.25 missed burrs hanging past wall tops).
+_CLOUD_EMPTY = 0.35
 
 
 def _cloud_frames(
