@@ -4,6 +4,8 @@
 // the edge radius of a point the pass before made ABNORMAL.
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 
 #include "cloud_stages.hpp"
 #include "edge_verdict.hpp"
@@ -17,19 +19,50 @@ constexpr double kRmsFloor = 1e-9;      // of the tolerance, as the height test'
 constexpr double kSuspect = 1.5;        // candidates: surroundings rms above 1.5 x the median
 constexpr double kEmpty = 0.35;  // empty: fewer returns than 0.35 of a full sector (tune split)
 
-// NumPy's median of the finite values (the mean of the two middle ones for an even count);
-// +inf when there is none.
-double finite_median(const double* v, std::ptrdiff_t n) {
-  std::vector<double> f;
-  for (std::ptrdiff_t i = 0; i < n; ++i) {
-    if (std::isfinite(v[i])) f.push_back(v[i]);
+// The bit pattern of x >= 0 (-0 read as +0): patterns of such values sort as the values do.
+inline std::uint64_t sort_key(double x) {
+  std::uint64_t b;
+  std::memcpy(&b, &x, sizeof b);
+  return b >> 63 ? 0 : b;
+}
+
+// The k-th smallest (0-based) of the finite values of v (k < their count), all >= 0: the top 16
+// bits of their sort keys, then the next 16, are fixed from histograms, and only the values
+// that share those 32 bits are copied (no copy of all N values: peak memory).
+double kth_finite(const double* v, std::ptrdiff_t n, std::ptrdiff_t k) {
+  std::vector<std::uint32_t> hist(std::size_t{1} << 16);
+  std::uint64_t prefix = 0;
+  for (int shift : {48, 32}) {
+    std::fill(hist.begin(), hist.end(), 0u);
+    const std::uint64_t above = shift == 48 ? 0 : (prefix >> (shift + 16));
+    for (std::ptrdiff_t i = 0; i < n; ++i) {
+      if (!std::isfinite(v[i])) continue;
+      const std::uint64_t b = sort_key(v[i]);
+      if (shift != 48 && (b >> (shift + 16)) != above) continue;
+      ++hist[(b >> shift) & 0xffffu];
+    }
+    std::size_t d = 0;
+    while (k >= static_cast<std::ptrdiff_t>(hist[d])) k -= hist[d++];
+    prefix |= static_cast<std::uint64_t>(d) << shift;
   }
-  if (f.empty()) return kInf;
-  const std::size_t mid = f.size() / 2;
-  std::nth_element(f.begin(), f.begin() + mid, f.end());
-  double m = f[mid];
-  if (f.size() % 2 == 0) m = (*std::max_element(f.begin(), f.begin() + mid) + m) / 2.0;
-  return m;
+  std::vector<double> w;
+  for (std::ptrdiff_t i = 0; i < n; ++i) {
+    if (std::isfinite(v[i]) && (sort_key(v[i]) >> 32) == (prefix >> 32)) w.push_back(v[i]);
+  }
+  std::nth_element(w.begin(), w.begin() + k, w.end());
+  return w[static_cast<std::size_t>(k)];
+}
+
+// NumPy's median of the finite values (>= 0; the mean of the two middle ones for an even
+// count); +inf when there is none.
+double finite_median(const double* v, std::ptrdiff_t n) {
+  std::ptrdiff_t m = 0;
+  for (std::ptrdiff_t i = 0; i < n; ++i) m += std::isfinite(v[i]) ? 1 : 0;
+  if (m == 0) return kInf;
+  const std::ptrdiff_t mid = m / 2;
+  double med = kth_finite(v, n, mid);
+  if (m % 2 == 0) med = (kth_finite(v, n, mid - 1) + med) / 2.0;
+  return med;
 }
 
 // SPEC "Unorganized clouds: edge test" step 4 (the grid's steps 4-5, edge_verdict.hpp, plus the
@@ -160,18 +193,22 @@ bool stands_proud(const Gather& sup, const Gather& rest, std::uint32_t i, const 
 
 template <typename T>
 int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
-                      std::uint8_t* labels, const double* first_rms, const CloudEdgeTest& e,
-                      std::vector<JudgeScratch>& scratch, int num_threads,
-                      std::vector<std::uint32_t>* unnormal) {
+                      std::uint8_t* labels, std::vector<double>* first_rms,
+                      const CloudEdgeTest& e, std::vector<JudgeScratch>& scratch,
+                      int num_threads, std::vector<std::uint32_t>* unnormal) {
   const std::ptrdiff_t N = points.size;
   const int nt = static_cast<int>(scratch.size());
-  const double thr = kSuspect * finite_median(first_rms, N);
-  std::vector<std::uint32_t> cand;
-  for (std::ptrdiff_t i = 0; i < N; ++i) {
-    if ((labels[i] == kNormal || labels[i] == kEdge) &&
-        (!std::isfinite(first_rms[i]) || first_rms[i] > thr)) {
-      cand.push_back(static_cast<std::uint32_t>(i));
+  std::vector<std::uint32_t> cand;  // ascending
+  {
+    const double* rms = first_rms->data();
+    const double thr = kSuspect * finite_median(rms, N);
+    for (std::ptrdiff_t i = 0; i < N; ++i) {
+      if ((labels[i] == kNormal || labels[i] == kEdge) &&
+          (!std::isfinite(rms[i]) || rms[i] > thr)) {
+        cand.push_back(static_cast<std::uint32_t>(i));
+      }
     }
+    std::vector<double>().swap(*first_rms);  // free N doubles before the frames (peak memory)
   }
   // Frames: the plane of the finite points within radius, the point included (as the normals).
   const std::ptrdiff_t nc = static_cast<std::ptrdiff_t>(cand.size());
@@ -194,10 +231,6 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
       framed[c] = 1;
     }
   }
-  std::vector<std::int32_t> slot(static_cast<std::size_t>(N), -1);  // candidate position
-  for (std::ptrdiff_t c = 0; c < nc; ++c) {
-    if (framed[c]) slot[cand[c]] = static_cast<std::int32_t>(c);
-  }
   std::vector<std::uint32_t> todo;
   for (std::ptrdiff_t c = 0; c < nc; ++c) {
     if (framed[c]) todo.push_back(static_cast<std::uint32_t>(c));
@@ -206,7 +239,7 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
   std::vector<std::uint8_t> class_sorted(static_cast<std::size_t>(grid.num_indexed()));
   const std::uint8_t* cs = class_sorted.data();
   auto class_of = [cs](std::uint32_t k, std::uint32_t) { return cs[k]; };
-  std::vector<std::uint8_t> verdict, mark(static_cast<std::size_t>(N), 0);
+  std::vector<std::uint8_t> verdict, mark(cand.size(), 0);  // mark: per candidate
   std::vector<std::uint32_t> fresh;
   int passes = 0;
   while (passes < e.max_iterations) {
@@ -239,24 +272,27 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
     todo.clear();
     for (std::uint32_t u : fresh) {
       grid.for_each_in_radius(points[u], e.r_edge, [&](std::ptrdiff_t j, double) {
-        if (slot[j] >= 0 && !mark[j]) {
-          mark[j] = 1;
-          todo.push_back(static_cast<std::uint32_t>(slot[j]));
+        const auto it = std::lower_bound(cand.begin(), cand.end(), static_cast<std::uint32_t>(j));
+        if (it == cand.end() || *it != static_cast<std::uint32_t>(j)) return;
+        const std::size_t c = static_cast<std::size_t>(it - cand.begin());
+        if (framed[c] && !mark[c]) {
+          mark[c] = 1;
+          todo.push_back(static_cast<std::uint32_t>(c));
         }
       });
     }
-    for (std::uint32_t c : todo) mark[cand[c]] = 0;
+    for (std::uint32_t c : todo) mark[c] = 0;
     std::sort(todo.begin(), todo.end());
   }
   return passes;
 }
 
 template int cloud_edge_passes<float>(const NeighborGrid<float>&, const PointsView<float>&,
-                                      std::uint8_t*, const double*, const CloudEdgeTest&,
+                                      std::uint8_t*, std::vector<double>*, const CloudEdgeTest&,
                                       std::vector<JudgeScratch>&, int,
                                       std::vector<std::uint32_t>*);
 template int cloud_edge_passes<double>(const NeighborGrid<double>&, const PointsView<double>&,
-                                       std::uint8_t*, const double*, const CloudEdgeTest&,
+                                       std::uint8_t*, std::vector<double>*, const CloudEdgeTest&,
                                        std::vector<JudgeScratch>&, int,
                                        std::vector<std::uint32_t>*);
 
