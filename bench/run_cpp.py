@@ -153,10 +153,14 @@ def target_lines(rows: list[dict]) -> list[str]:
 
     out = [
         f"Default preset (`stream_default_params()`: the recommended detector, angle test, "
-        f"height test with compact EDGE groups, edge test, heights, defects; `min_step` given "
-        f"as a length, off here), lag {dflt['lag']} profiles, {dflt['profiles']:,} profiles: "
+        f"height test with compact EDGE groups, edge test, `min_step=\"auto\"` (decided by the "
+        f"stream on its first 256 profiles: {dflt.get('min_step', -1):g} here, i.e. "
+        f"{'off' if dflt.get('min_step', -1) < 0 else 'on'}), heights, defects), "
+        f"lag {dflt['lag']} profiles, {dflt['profiles']:,} profiles: "
         f"{verdict(dflt)} (wall figures carry the other jobs' load). Each edge pass runs row "
-        f"by row, one row per push (docs/SPEC.md \"Streaming\"): no push carries a block.",
+        f"by row, one row per push (docs/SPEC.md \"Streaming\"): no push carries a block but "
+        f"the one that decides min_step (the max column: it runs the 256 waiting profiles' "
+        f"stages).",
         "",
     ]
     if stage[2] is not None:

@@ -92,3 +92,31 @@ def test_every_real_file_has_a_path(tmp_path: Path) -> None:
               "--out-dir", tmp_path,
               "--no-progress")
     assert res.returncode == 0, res.stderr
+
+
+def test_config_cloud_table_and_generated_cloud_options(files: dict, tmp_path: Path) -> None:
+    """A --config file's [cloud] table reaches the cloud detector (it was dropped), and every
+    cloud-only field is an option (here --min-group, --isolated-tolerance); grids refuse them
+    as options but simply do not read a file's cloud table."""
+    cfg = tmp_path / "cell.toml"
+    cfg.write_text('theta0 = 95.0\n[grid]\nwindow = 15\n[cloud]\nradius = 2.0\nK = 6\n'
+                   'height_tolerance = "6rms"\n')
+    res = run("detect", files["shuffled"], "--out-dir", tmp_path, "--config", cfg,
+              "--min-group", "5", "--isolated-tolerance", "off", "--no-progress")
+    assert res.returncode == 0, res.stderr
+    doc = json.loads((tmp_path / "shuffled.defects.json").read_text())
+    pts = mio.read(files["shuffled"]).points
+    api = miem.detect(pts, theta0=95.0, radius=2.0, K=6, height_tolerance="6rms", min_group=5,
+                      isolated_tolerance=None)
+    got = doc["parameters"]
+    assert (got["theta0"], got["radius"], got["K"], got["height_tolerance"], got["min_group"],
+            got["isolated_tolerance"]) == (95.0, 2.0, 6, "6rms", 5, None)
+    assert [d["indices"] for d in doc["defects"]] == [d.indices.tolist() for d in api.defects]
+    # a grid reads the file's angle and grid tables (the cloud table is not its)
+    res = run("detect", files["lines"], "--out-dir", tmp_path, "--config", cfg, "--no-progress")
+    assert res.returncode == 0, res.stderr
+    got = json.loads((tmp_path / "lines.defects.json").read_text())["parameters"]
+    assert (got["theta0"], got["window"], got["height_tolerance"]) == (95.0, 15, "4.5rms")
+    bad = run("detect", files["lines"], "--out-dir", tmp_path, "--min-group", "5",
+              "--no-progress")
+    assert bad.returncode == 1 and "--min-group apply to the cloud detector only" in bad.stderr

@@ -377,7 +377,8 @@ def test_cloud_default_preset_without_lengths(client) -> None:
 
 
 def _spec_min_step(g: np.ndarray):
-    """min_step='auto' straight from docs/SPEC.md, with NumPy medians on the whole grid."""
+    """min_step="auto" straight from docs/SPEC.md, with NumPy medians over all rows of `g` (the
+    sample rows when `g` has fewer than 256 rows from its first with data)."""
     fin = np.isfinite(g).all(axis=-1)
     spacing = noise = None
     for dr, dc in ((0, 1), (1, 0)):
@@ -421,3 +422,21 @@ def test_min_step_auto_medians_from_blocks(chunks) -> None:
         np.testing.assert_array_equal(labels, miem.detect(grid, edge_tolerance=None).labels)
     flat = np.dstack([xx, yy, 0 * xx])  # no noise: off
     assert mdask.auto_min_step(da.from_array(flat, chunks=(30, 30, 3))) is None
+
+
+def test_min_step_auto_reads_the_256_rows_from_the_first_with_data() -> None:
+    """SPEC: the 256 rows from the first row with a finite cell, found over the blocks (rows of
+    dropouts first, in another block); the noise doubles after them."""
+    rng = np.random.default_rng(9)
+    yy, xx = np.mgrid[0:420, 0:31].astype(np.float64)
+    sd = np.where(np.arange(420) < 40 + 256, 0.04, 0.08)[:, None]
+    g = np.dstack([xx * 0.05, yy * 0.1, np.round(rng.normal(0, 1, (420, 1)) * sd, 3) + 0 * xx])
+    g[:40] = np.nan
+    want = _spec_min_step(g[40:296])
+    assert want is not None and want != _spec_min_step(g[40:])
+    with dask.config.set(scheduler="sync"):
+        got = mdask.auto_min_step(da.from_array(g, chunks=(37, 17, 3)))
+    assert got == miem.detect(g).params["min_step"]
+    assert got == pytest.approx(want, rel=1e-12)
+    assert mdask.auto_min_step(da.from_array(np.full((50, 8, 3), np.nan), chunks=(20, 8, 3))) \
+        is None

@@ -79,6 +79,26 @@ def test_score_mask_hand_counts() -> None:
         rt.score_mask(np.zeros((2, 2), bool), tr)
 
 
+def test_error_bands_hand_counts() -> None:
+    """edges.py's "where the error goes" table: misses (and their EDGE share) and false alarms
+    per band of profiles, counted by hand on a 25 x 3 truth with bands of 10 rows."""
+    import edges
+
+    cls = np.zeros((25, 3), dtype=np.uint8)  # CLEAN
+    cls[12, 0] = cls[13, 0] = cls[22, 1] = rt.BURR
+    cls[5, 0] = rt.DONTCARE
+    labels = np.full((25, 3), miem.NORMAL, dtype=np.uint8)
+    labels[12, 0] = miem.EDGE  # missed, EDGE
+    labels[22, 1] = miem.ABNORMAL  # found
+    labels[1, 1] = labels[2, 2] = labels[21, 0] = miem.ABNORMAL  # false alarms (bands 0, 0, 2)
+    labels[5, 0] = miem.ABNORMAL  # don't care: not a false alarm
+    tr = rt.RealTruth(np.zeros((25, 3, 3)), np.zeros((25, 3)), cls, [], np.zeros(0), 0.1,
+                      cls == rt.CLEAN)
+    rows = edges.error_bands({"recommended": (None, 0.0, 0.0, labels)}, tr, band=10, top=2)
+    assert "Missed BURR cells 2 (1 of them EDGE, the rest NORMAL); false alarms 3." in rows[2]
+    assert rows[-2:] == ["| 10-19 | 2 (1) | | 0-9 | 2 |", "| 0-9 | 0 (0) | | 20-24 | 1 |"]
+
+
 @pytest.mark.skipif(not rt.available(), reason="shared/data/real not present")
 def test_real_truth_registration_and_the_lip_layer() -> None:
     tr = rt.truth()
@@ -133,7 +153,7 @@ def _edge_labels(g: np.ndarray) -> np.ndarray:
 
 
 @pytest.mark.parametrize("kind", ["step", "crease", "outline", "valley", "bead", "strip", "rib",
-                                  "roof", "ledge"])
+                                  "roof", "ledge", "chamfer", "round"])
 def test_clean_features_stay_clean(kind: str) -> None:
     h, w = 40, 40
     cols = np.arange(w)[None, :].repeat(h, 0)
@@ -150,6 +170,13 @@ def test_clean_features_stay_clean(kind: str) -> None:
         z = z - np.tan(np.radians(40)) * np.abs(cols - 20) * 0.1
     elif kind == "ledge":  # a terrace 4 cells wide between two drops (a staircase going down)
         z = z - 1.0 * (cols >= 18) - 1.0 * (cols >= 22)
+    elif kind == "chamfer":  # a 40-degree chamfer 3 cells wide, then a wall 2 mm down: below
+        # the top's plane, above the floor's, but less steep than 45 degrees (not hanging)
+        x = np.clip(cols - 19, 0, 3) * 0.1
+        z = z - np.tan(np.radians(40)) * x - 2.0 * (cols >= 23)
+    elif kind == "round":  # a rounded edge (radius 0.5 mm, a quarter circle), then 2 mm down
+        x = np.clip(cols - 19, 0, 4) * 0.1
+        z = z - (0.5 - np.sqrt(0.25 - x * x)) - 2.0 * (cols >= 24)
     elif kind == "step":
         z = z - 2.0 * (cols >= 20)
     elif kind == "crease":
@@ -220,6 +247,39 @@ def test_fin_is_abnormal(diagonal: bool) -> None:
     assert flagged[inner].all() and not (flagged & ~fin).any()
 
 
+def _hanging_z(h: int = 40, w: int = 40) -> tuple[np.ndarray, np.ndarray]:
+    """Sheet ending in a wall 2 mm down at column 20, with a burr hanging beyond it: column 20
+    of rows 12-27 at 0.5 mm below the top (a shelf between top and floor); returns z and the
+    burr mask."""
+    cols = np.arange(w)[None, :].repeat(h, 0)
+    z = _noise((h, w)) - 2.0 * (cols >= 20)
+    burr = np.zeros((h, w), bool)
+    burr[12:28, 20] = True
+    z[burr] = _noise((h, w), seed=4)[burr] - 0.5
+    return z, burr
+
+
+def test_hanging_burr_is_abnormal() -> None:
+    """A burr hanging 0.5 mm below the top beyond a wall 2 mm tall (SPEC "Edge test" step 6):
+    below the top's plane (whose last support cell is 1-2 cells = 0.1-0.2 mm away: steeper than
+    45 degrees), above the floor's (the sub-window beyond it holds only floor: clean), and the
+    floor lies 1.5 mm further down (more than twice 0.5). The edge test on NORMAL labels flags
+    the burr and nothing else; so does the detector. The same shelf 1 mm down (a staircase of
+    two equal steps) is not hanging; the chamfer and the rounded edge before a wall are in
+    test_clean_features_stay_clean."""
+    z, burr = _hanging_z()
+    g = _grid(z)
+    labels = np.zeros(burr.shape, np.uint8)
+    out = ref.edge_test(g, labels, window=11, tolerance=8.0, max_iterations=10)[0]
+    assert (out == ref.ABNORMAL)[burr].all()
+    assert not ((out == ref.ABNORMAL) & ~burr).any()
+    flagged = _edge_labels(g) == ref.ABNORMAL
+    assert flagged[burr].all() and not (flagged & ~burr).any()
+    z[burr] -= 0.5  # 1 mm below the top, 1 mm above the floor: a ledge
+    out = ref.edge_test(_grid(z), labels, window=11, tolerance=8.0, max_iterations=10)[0]
+    assert not (out == ref.ABNORMAL).any()
+
+
 # --------------------------------------------------------------------------------------------
 # the C++ edge test (opt-in: edge_tolerance / edge_window): core == reference on edge scenes
 # (float64 and float32, 1 and 2 threads), field checks, and the paths that cannot honour it
@@ -256,6 +316,9 @@ def _core_scenes() -> list:
         z, _ = _fin_z(140, 150, diagonal)
         z[60:70, :] -= 0.8  # a lower terrace under part of it
         out.append((f"fin {diagonal}", _grid(z)))
+    z, _ = _hanging_z(140, 150)  # a burr hanging beyond a wall (step 6), across tile borders
+    z[60:70, :20] += 0.3
+    out.append(("hanging", _grid(z)))
     return out
 
 
@@ -308,17 +371,10 @@ def test_on_by_default_on_grids_off_where_not_implemented() -> None:
     # the paper's method has neither
     p = _core.paper_params()
     assert p.edge_k == 0.0 and not p.min_step_auto
-    # the stream's default has the edge test and leaves min_step="auto" out (C++ and Python),
-    # which it refuses when asked (it needs the whole scan)
+    # the stream's default has both (C++ and Python; tests/test_stream.py: stream == batch)
     s = _core.stream_default_params()
-    assert s.edge_k == _core.DetectParams().edge_k > 0 and not s.min_step_auto
-    assert miem.ProfileStream(10).params.grid.min_step is None
-    with pytest.raises(ValueError, match="min_step"):
-        miem.ProfileStream(10, min_step="auto")
-    p = _core.stream_default_params()
-    p.min_step_auto = True
-    with pytest.raises(ValueError, match="min_step_auto"):
-        _core.ProfileStream64(10, p)
+    assert s.edge_k == _core.DetectParams().edge_k > 0 and s.min_step_auto
+    assert miem.ProfileStream(10).params.grid.min_step == "auto"
 
 
 @pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf"), "8", True])
@@ -530,6 +586,47 @@ def test_auto_min_step_core_equals_reference_on_random_grids() -> None:
     assert want is not None
     for nt in (1, 2):
         assert miem.detect(g, num_threads=nt).params["min_step"] == want
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_auto_min_step_reads_256_rows_from_the_first_with_data(dtype: type) -> None:
+    """SPEC "min_step='auto'": the medians are those of the 256 rows from the first row with a
+    finite cell (rows of dropouts before it, one inside); the noise doubles after them, so the
+    whole grid's medians differ. Core (1 and 2 threads) == reference == NumPy by hand."""
+    rng = np.random.default_rng(17)
+    h, w, lead = 600, 45, 50
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    y = np.cumsum(rng.choice([0.1, 0.2, 0.5], h))[:, None] + 0 * xx
+    sd = np.where(np.arange(h) < lead + 256, 0.05, 0.1)[:, None]
+    z = np.round(0.01 * xx + rng.normal(0.0, 1.0, (h, 1)) * sd + rng.normal(0, 0.002, (h, w)), 3)
+    g = np.dstack([xx * 0.05, y, z]).astype(dtype)
+    g[:lead] = np.nan
+    g[lead + 100] = np.nan
+    g[rng.random((h, w)) < 0.03] = np.nan
+    g64 = g.astype(np.float64)
+
+    def by_hand(a: np.ndarray) -> float:
+        spacing, noise = [], []
+        for b in (a, a.transpose(1, 0, 2)):
+            f = np.isfinite(b).all(axis=-1)
+            pair = f[:, :-1] & f[:, 1:]
+            spacing.append(np.median(np.linalg.norm(b[:, 1:] - b[:, :-1], axis=-1)[pair]))
+            tri = f[:, :-2] & f[:, 1:-1] & f[:, 2:]
+            d2 = np.abs(b[:, :-2, 2] - 2 * b[:, 1:-1, 2] + b[:, 2:, 2])[tri]
+            noise.append(1.4826 * np.median(d2) / np.sqrt(6.0))
+        assert 4 * max(noise) > min(spacing)
+        return 4 * max(noise)
+
+    want = ref._auto_min_step(g64, np.isfinite(g64).all(axis=-1))
+    assert want == pytest.approx(by_hand(g64[lead:lead + 256]), rel=1e-12)
+    assert by_hand(g64[lead:]) > 1.2 * want  # the whole grid would give another value
+    for nt in (1, 2):
+        assert miem.detect(g, num_threads=nt).params["min_step"] == want
+    # fewer than 256 rows after the first with data: all of them
+    short = g[: lead + 120]
+    s64 = short.astype(np.float64)
+    assert miem.detect(short).params["min_step"] == ref._auto_min_step(
+        s64, np.isfinite(s64).all(axis=-1)) == pytest.approx(by_hand(s64[lead:]), rel=1e-12)
 
 
 def test_cpp_min_step_auto_and_a_length_is_an_error() -> None:

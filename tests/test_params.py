@@ -54,18 +54,19 @@ def test_default_is_the_recommended_preset_on_every_path() -> None:
     np.testing.assert_array_equal(miem.detect(pts).labels,
                                   miem.detect(pts, preset="recommended").labels)
     assert miem.detect(pts).params["height_tolerance"] == "7rms"
-    # the stream: the recommended detector, height and edge tests included, but for
-    # min_step="auto", which needs the whole scan (in C++ too)
+    # the stream: the recommended detector, height and edge tests and min_step="auto"
+    # included (in C++ too)
     d = miem.default_params("stream")
     assert d.grid.height_tolerance == "4.5rms" and d.grid.edge_extent == 12
-    assert d.grid.edge_tolerance == 4.0 and d.grid.min_step is None
-    assert d.replace(min_step="auto").grid == miem.PRESETS["recommended"].grid
+    assert d.grid.edge_tolerance == 4.0 and d.grid.min_step == "auto"
+    assert d == miem.PRESETS["recommended"]
     assert miem.ProfileStream(8).params == d
     cs, cd = core.stream_default_params(), core.DetectParams()
     for name in ("theta0_deg", "scales", "height_k", "height_abs", "edge_extent", "window",
-                 "max_iterations", "max_gap", "edge_k", "edge_window"):
+                 "max_iterations", "max_gap", "edge_k", "edge_window", "min_step_auto",
+                 "min_step", "max_reach"):
         assert getattr(cs, name) == getattr(cd, name), name
-    assert (cs.min_step_auto, cd.min_step_auto, cs.min_step) == (False, True, -1.0)
+    assert (cs.min_step_auto, cs.min_step) == (True, -1.0)
 
 
 def test_presets_are_the_accuracy_benchmark_and_the_reference() -> None:
@@ -230,15 +231,15 @@ def test_clouds_run_the_preset_s_cloud_values_and_refuse_grid_fields() -> None:
 
 
 def test_stream_refuses_what_it_does_not_implement() -> None:
-    for kw, name in (({"theta0": "auto"}, "theta0"), ({"min_step": "auto"}, "min_step"),
-                     ({"radius": 1.0}, "radius")):
+    for kw, name in (({"theta0": "auto"}, "theta0"), ({"radius": 1.0}, "radius")):
         with pytest.raises(ValueError, match=name):
             miem.ProfileStream(16, **kw)
-    with pytest.raises(ValueError, match=r"params\['min_step'\]"):  # says how to get a length
-        miem.ProfileStream(16, preset="recommended")
-    # the height test, its compact EDGE groups, heights and the edge test are honoured now
+    # the height test, its compact EDGE groups, heights, the edge test and min_step="auto"
+    # (SPEC: the first 256 rows with data) are honoured now
+    assert miem.ProfileStream(16, preset="recommended").params == miem.PRESETS["recommended"]
     for kw in ({"height_tolerance": "4rms"}, {"edge_extent": 5}, {"window": 9},
-               {"heights": "abnormal"}, {"edge_tolerance": 3.0}, {"edge_window": 7}):
+               {"heights": "abnormal"}, {"edge_tolerance": 3.0}, {"edge_window": 7},
+               {"min_step": "auto"}):
         (name, value), = kw.items()
         assert getattr(miem.ProfileStream(16, **kw).params.grid, name) == value
     # theta0_auto on the C++ side (the old silent drift: batch EDGE where the stream said NORMAL)
@@ -251,8 +252,7 @@ def test_stream_refuses_what_it_does_not_implement() -> None:
     p = core.stream_default_params()
     p.min_step_auto = True
     p.min_step = -1.0
-    code, msg = core.check_stream_params(16, p)
-    assert code == 1 and msg.startswith("min_step_auto") and "auto_min_step" in msg
+    assert core.check_stream_params(16, p)[0] == 0
 
 
 @pytest.mark.parametrize("preset", [None, "paper"])

@@ -7,7 +7,6 @@ from pathlib import Path
 import miem
 import numpy as np
 import pytest
-from miem import _core
 from miem.stream import ProfileStream, StreamRow
 
 
@@ -142,26 +141,72 @@ STAGE_VARIANTS = [
 ]
 
 
-def stream_preset(name: str) -> miem.DetectParams:
-    """A preset as the stream runs it: min_step="auto" (refused: it needs the whole scan)
-    becomes None."""
-    return miem.PRESETS[name].replace(min_step=None)
-
-
 @pytest.mark.parametrize("preset", sorted(miem.PRESETS))
 @pytest.mark.parametrize("variant", range(len(STAGE_VARIANTS)))
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_stream_equals_detect_full_detector(preset: str, variant: int, dtype) -> None:
     grid = make_full_scan(160, 70, 11 + variant).astype(dtype)
     kw = STAGE_VARIANTS[variant]
-    want = miem.detect(grid, params=stream_preset(preset), **kw)
-    stream = ProfileStream(70, params=stream_preset(preset), dtype=dtype, **kw)
+    want = miem.detect(grid, params=miem.PRESETS[preset], **kw)
+    stream = ProfileStream(70, params=miem.PRESETS[preset], dtype=dtype, **kw)
     defects: list = []
     got, heights = stream_both(stream, grid, defects)
     np.testing.assert_array_equal(got, want.labels)
     assert_heights_equal(heights, want.height)
     assert (want.labels == miem.ABNORMAL).sum() > 0
     assert_same_defects(defects, want.defects, want.labels)
+
+
+def hand_min_step(g: np.ndarray) -> float:
+    """SPEC "min_step='auto'" over all rows of `g` by hand (NumPy medians): 4 max(sigma) where
+    sigma = 1.4826 median|second difference of z| / sqrt(6) along and across (it exceeds the
+    spacing on the scans below)."""
+    noise = []
+    for a in (g, g.transpose(1, 0, 2)):
+        f = np.isfinite(a).all(axis=-1)
+        tri = f[:, :-2] & f[:, 1:-1] & f[:, 2:]
+        noise.append(1.4826 * np.median(np.abs(a[:, :-2, 2] - 2 * a[:, 1:-1, 2] + a[:, 2:, 2])[tri])
+                     / np.sqrt(6.0))
+    return 4.0 * max(noise)
+
+
+def jittered(grid: np.ndarray, sd: float, lead: int, seed: int) -> np.ndarray:
+    """Whole profiles offset in z (sd `sd`: a profiler's profile-to-profile jitter, which turns
+    min_step "auto" on) and `lead` profiles of dropouts first (the scanner before the part)."""
+    g = grid.copy()
+    g[..., 2] += np.random.default_rng(seed).normal(0.0, sd, (g.shape[0], 1))
+    g[:lead] = np.nan
+    return g
+
+
+@pytest.mark.parametrize("preset", sorted(miem.PRESETS))
+@pytest.mark.parametrize("rows, lead", [(700, 0), (650, 300), (200, 12)])
+def test_stream_runs_min_step_auto_as_batch(preset: str, rows: int, lead: int) -> None:
+    """min_step="auto" (SPEC: the first 256 rows from the first row with a finite cell) in the
+    stream, under every preset: decided at push lead + 255 (the stages then catch up), after
+    rows of dropouts handed back while it waits, or at the flush (fewer than 256 rows); labels,
+    heights and defects equal batch's, and the value differs from the whole grid's (the noise
+    changes after the rows it reads)."""
+    grid = jittered(make_full_scan(rows, 70, 31), 0.1, lead, 5)
+    grid[lead + 256:, :, 2] += np.random.default_rng(6).normal(0.0, 0.1, (max(rows - lead - 256,
+                                                                              0), 1))
+    p = miem.PRESETS[preset].replace(min_step="auto")
+    want = miem.detect(grid, params=p)
+    step = want.params["min_step"]
+    assert isinstance(step, float) and step > 0
+    assert step == pytest.approx(hand_min_step(grid[lead:lead + 256]), rel=1e-12)
+    if rows > lead + 256:
+        assert hand_min_step(grid[lead:]) != pytest.approx(step, rel=1e-3)
+    stream = ProfileStream(70, params=p)
+    assert stream.lag >= 256 and stream.min_step is None  # not decided yet
+    defects: list = []
+    got, heights = stream_both(stream, grid, defects)
+    assert stream.min_step == step  # the value batch resolved
+    np.testing.assert_array_equal(got, want.labels)
+    assert_heights_equal(heights, want.height)
+    assert_same_defects(defects, want.defects, want.labels)
+    # with that value given as a length, batch gives the same labels (the rule is the value)
+    np.testing.assert_array_equal(miem.detect(grid, params=p, min_step=step).labels, want.labels)
 
 
 def make_outline_scan(h: int, w: int, seed: int) -> np.ndarray:
@@ -191,8 +236,9 @@ def test_stream_runs_the_edge_test_as_batch(kw: dict) -> None:
     assert (want.labels == miem.ABNORMAL).sum() > (without.labels == miem.ABNORMAL).sum()
     stream = ProfileStream(60, params=p)
     r, P, h = p.grid.edge_window // 2, p.angle.max_iterations, p.grid.window // 2
-    lag_h = _core.stream_lag(p.replace(edge_tolerance=None)._core_grid(0, "stream")) - h
-    assert stream.lag == max(lag_h + r, h) + (P - 1) * r + h
+    R = max(p.angle.scales) + p.grid.max_gap + p.grid.max_reach  # min_step "auto"
+    lag_h = P * R + p.grid.edge_extent + P * h
+    assert stream.lag == max(max(lag_h + r, h) + (P - 1) * r + h, 256)
     defects: list = []
     got, heights = stream_both(stream, grid, defects)
     np.testing.assert_array_equal(got, want.labels)
@@ -245,11 +291,11 @@ def test_stream_finds_fins_as_batch() -> None:
 
 
 def test_stream_runs_the_whole_default_detector() -> None:
-    """The default stream is the default batch detector but for min_step "auto": the height
+    """The default stream is the default batch detector (min_step "auto" included): the height
     test finds what the angle test alone does not, over several passes, with compact EDGE
     groups; the stream agrees."""
     grid = make_full_scan(300, 120, 5)
-    base = stream_preset("recommended")
+    base = miem.PRESETS["recommended"]
     full = miem.detect(grid, params=base)
     angle_only = miem.detect(grid, params=base, height_tolerance=None)
     one_pass = miem.detect(grid, params=base, max_iterations=1)
@@ -263,23 +309,22 @@ def test_stream_runs_the_whole_default_detector() -> None:
     assert_heights_equal(heights, full.height)
 
 
-def test_min_step_auto_resolved_on_a_first_scan_then_given_to_the_stream() -> None:
-    """min_step="auto" needs the whole scan: the stream takes the value batch detection resolved
-    on a first scan of the part (``result.params["min_step"]``), and then equals batch with it."""
+def test_min_step_resolved_on_a_first_scan_then_given_to_the_stream() -> None:
+    """min_step given as a length (e.g. the value "auto" resolved on a first scan of the part,
+    ``result.params["min_step"]``): the stream equals batch with it, with a shorter lag."""
     first, grid = make_full_scan(200, 80, 21), make_full_scan(200, 80, 22)
     rng = np.random.default_rng(0)  # profile noise comparable to the spacing: "auto" turns on
     first[..., 2] += rng.normal(0.0, 0.1, first.shape[:2])
     grid[..., 2] += rng.normal(0.0, 0.1, grid.shape[:2])
     step = miem.detect(first).params["min_step"]
     assert isinstance(step, float) and step > 0
-    want = miem.detect(grid, params=stream_preset("recommended"), min_step=step)
-    got, heights = stream_both(ProfileStream(80, min_step=step), grid)
+    want = miem.detect(grid, min_step=step)
+    stream = ProfileStream(80, min_step=step)
+    assert stream.lag == ProfileStream(80).lag  # R has max_reach either way
+    got, heights = stream_both(stream, grid)
     np.testing.assert_array_equal(got, want.labels)
     assert_heights_equal(heights, want.height)
-    # the resolved value is what "auto" runs with on that scan
-    auto = miem.detect(first, params=stream_preset("recommended"), min_step="auto")
-    np.testing.assert_array_equal(
-        auto.labels, miem.detect(first, params=stream_preset("recommended"), min_step=step).labels)
+    assert ProfileStream(80, min_step=None).lag < stream.lag
 
 
 def test_extreme_height_tolerance_labels_equal_and_heights_up_to_orientation() -> None:
@@ -287,7 +332,7 @@ def test_extreme_height_tolerance_labels_equal_and_heights_up_to_orientation() -
     line of NORMAL points have an ill-posed orientation (SPEC "Height"), where batch and stream
     may differ in the sign, and the values by the rounding such a window amplifies."""
     grid = make_full_scan(120, 90, 1)
-    want = miem.detect(grid, params=stream_preset("recommended"), height_tolerance=0.03)
+    want = miem.detect(grid, height_tolerance=0.03)
     got, heights = stream_both(ProfileStream(90, height_tolerance=0.03), grid)
     np.testing.assert_array_equal(got, want.labels)
     assert_heights_equal(heights, want.height, signed=False, atol=1e-6)
@@ -296,13 +341,19 @@ def test_extreme_height_tolerance_labels_equal_and_heights_up_to_orientation() -
 def test_lag_formula() -> None:
     """L = P R + E + (P + 1) h with the height test, P R + h without; with the edge test
     max(H + r, h) + (P - 1) r + h, H = P R + E + P h (docs/SPEC.md)."""
-    assert ProfileStream(10).lag == (10 * 3 + 12 + 10 * 10 + 7) + 9 * 7 + 10 == 222
-    assert ProfileStream(10, edge_tolerance=None).lag == 10 * 3 + 12 + 11 * 10 == 152
+    # the default: min_step "auto", so R = 1 + 2 (scales, max_gap) + 32 (max_reach)
+    assert ProfileStream(10).lag == (10 * 35 + 12 + 10 * 10 + 7) + 9 * 7 + 10 == 542
+    assert ProfileStream(10, edge_tolerance=None).lag == 10 * 35 + 12 + 11 * 10 == 472
+    assert ProfileStream(10, min_step=None).lag == (10 * 3 + 12 + 10 * 10 + 7) + 9 * 7 + 10
     assert ProfileStream(10, preset="paper").lag == 10 * 2 + 10
-    assert ProfileStream(10, max_iterations=3, window=7, edge_extent=4,
+    assert ProfileStream(10, min_step=None, max_iterations=3, window=7, edge_extent=4,
                          edge_window=9).lag == (3 * 3 + 4 + 3 * 3 + 4) + 2 * 4 + 3
-    assert ProfileStream(10, height_tolerance=None, edge_tolerance=None,
+    assert ProfileStream(10, min_step=None, height_tolerance=None, edge_tolerance=None,
                          window=9).lag == 10 * 3 + 4
+    # min_step "auto": at least the 256 rows it reads
+    assert ProfileStream(10, max_iterations=3, window=7, edge_extent=4, edge_window=9).lag == \
+        max((3 * 35 + 4 + 3 * 3 + 4) + 2 * 4 + 3, 256) == 256
+    assert ProfileStream(10, preset="paper", min_step="auto").lag == max(10 * 34 + 10, 256)
 
 
 @pytest.mark.parametrize(
@@ -376,7 +427,7 @@ def test_bad_input_raises_and_leaves_the_stream_unchanged() -> None:
      ({"min_directions": 5}, "min_directions"), ({"max_iterations": 255}, "max_iterations"),
      ({"max_reach": 0}, "max_reach"), ({"dtype": np.int32}, "dtype"),
      ({"theta0": "auto"}, "theta0"), ({"edge_tolerance": -3.0}, "edge_tolerance"),
-     ({"min_step": "auto"}, "min_step"), ({"preset": "recommended"}, "min_step"),
+     ({"min_step": "often"}, "min_step"),
      ({"edge_window": 4}, "edge_window"),
      ({"window": 4}, "window"), ({"edge_extent": -1}, "edge_extent")],
 )

@@ -220,8 +220,36 @@ def write(syn: dict, rl: dict | None, seconds: float, old: dict) -> None:
                 f"| {name} | {_f(s.recall)} | {_f(s.precision)} | {_f(s.f1)} | "
                 f"{s.regions_found}/{s.regions} | {s.regions_tall_found}/{s.regions_tall} | "
                 f"{100 * edge_share:.2f} % | {dt:.2f} |")
-        lines += ["", f"![real scan burrs](plots/{PLOT.name})"]
+        lines += ["", f"![real scan burrs](plots/{PLOT.name})", "", *error_bands(rl, tr)]
     RESULTS.write_text("\n".join(lines) + "\n")
+
+
+def error_bands(rl: dict, tr: rt.RealTruth, band: int = 10, top: int = 6) -> list[str]:
+    """Where the recommended settings' error goes on the real scan: missed BURR cells (by the
+    label they got) and false alarms (ABNORMAL on CLEAN cells) per band of ``band`` profiles,
+    the ``top`` bands of each."""
+    labels = rl["recommended"][3]
+    flagged = labels == miem.ABNORMAL
+    miss = (tr.classes == rt.BURR) & ~flagged
+    fa = (tr.classes == rt.CLEAN) & flagged
+    n_band = -(-labels.shape[0] // band)
+
+    def per_band(mask: np.ndarray) -> np.ndarray:
+        return np.add.reduceat(mask.sum(axis=1), np.arange(0, labels.shape[0], band))[:n_band]
+
+    m_all, m_edge, f_all = per_band(miss), per_band(miss & (labels == miem.EDGE)), per_band(fa)
+    rows = ["### Where the error goes (recommended, real scan)", "",
+            f"Missed BURR cells {int(miss.sum())} ({int((miss & (labels == miem.EDGE)).sum())} "
+            f"of them EDGE, the rest NORMAL); false alarms {int(fa.sum())}. The {top} bands of "
+            f"{band} profiles with the most of each:", "",
+            "| profiles | missed (EDGE) | | profiles | false alarms |", "|---|---|---|---|---|"]
+    order_m = np.argsort(-m_all, kind="stable")[:top]
+    order_f = np.argsort(-f_all, kind="stable")[:top]
+    last = labels.shape[0] - 1
+    for i, j in zip(order_m, order_f):
+        rows.append(f"| {i * band}-{min(i * band + band - 1, last)} | {m_all[i]} ({m_edge[i]}) "
+                    f"| | {j * band}-{min(j * band + band - 1, last)} | {f_all[j]} |")
+    return rows
 
 
 def tune() -> dict:

@@ -154,12 +154,12 @@ void run(const Scenario& sc, std::ptrdiff_t W, std::ptrdiff_t n_profiles, std::p
               "\"mean_us\": %.3f, \"p50_us\": %.3f, \"p99_us\": %.3f, \"p999_us\": %.3f, "
               "\"max_us\": %.3f, \"cpu_p50_us\": %.3f, \"cpu_p99_us\": %.3f, "
               "\"cpu_p999_us\": %.3f, \"cpu_max_us\": %.3f, \"abnormal\": %lld, \"edge\": %lld, "
-              "\"bad_status\": %lld}",
+              "\"bad_status\": %lld, \"min_step\": %.6g}",
               first ? "" : ",\n", sc.name, sizeof(T) == 4 ? "float32" : "float64", W, n_profiles,
               stream.lag(), 1e6 / mean,
               static_cast<double>(n_profiles) / std::max(1e-9, cpu_s - staging_cpu), mean, q(0.5),
               q(0.99), q(0.999), s.back(), qc(0.5), qc(0.99), qc(0.999), sc_.back(), abnormal,
-              edge, statuses);
+              edge, statuses, stream.min_step());
   std::fflush(stdout);
 }
 
@@ -188,8 +188,7 @@ int main(int argc, char** argv) {
   if (quick) n_edge = std::min<std::ptrdiff_t>(n_edge, 600);
   std::vector<Scenario> scenarios;
   // The stream's default: the default preset (angle test, height test with compact EDGE
-  // groups, edge test, heights, defects) with min_step given as a length (off here): the
-  // one field a stream cannot resolve itself.
+  // groups, edge test, min_step "auto", heights, defects).
   const miem::DetectParams p = miem::stream_default_params();
   scenarios.push_back({"default preset, 0.1% dropouts", p, 0.001, false});
   scenarios.push_back({"default preset, 1% dropouts", p, 0.01, false});

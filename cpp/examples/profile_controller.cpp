@@ -169,7 +169,7 @@ int main(int argc, char** argv) {
   }
 
   // The stream's default: the whole recommended detector (angle, height and edge tests,
-  // heights, defects), min_step given as a length (off here; auto_min_step() of a first scan).
+  // min_step "auto", heights, defects).
   const miem::DetectParams params = miem::stream_default_params();
   std::optional<miem::ProfileStream<float>> stream;
   const miem::Status made = miem::nothrow::make_stream(width, params, &stream);

@@ -17,12 +17,13 @@ namespace miem::detail {
 namespace {
 
 // Pass 1 row kernel. Whole rows are judged with straight-line loops over structure-of-arrays
-// copies of the rows, which the compiler vectorizes (an AVX2 clone is picked at run time where
-// the CPU has it). Without min_step the neighbour search of SPEC.md ends at its first or second
-// cell (the candidate at s cells is usable, or it is not and the one at s + 1 is: one dropout,
-// the max_gap = 1 default); with min_step it runs step by step for all lanes of a block to a
-// depth of up to 16 steps. Rows carry `depth` padding columns of unusable cells on each side and
-// rows beyond the grid read an all-unusable row, so the grid's border needs no special case.
+// copies of the rows, which the compiler vectorizes (AVX-512 and AVX2 clones are picked at run
+// time where the CPU has them). Without min_step the neighbour search of SPEC.md ends at its
+// first or second cell (the candidate at s cells is usable, or it is not and the one at s + 1
+// is: one dropout, the max_gap = 1 default); with min_step it runs step by step for all lanes
+// of a block to a depth of up to 16 steps. Rows carry `depth` padding columns of unusable cells
+// on each side and rows beyond the grid read an all-unusable row, so the grid's border needs no
+// special case.
 // Cells whose search goes further (max_gap > 1 with two unusable cells in a row without
 // min_step, deeper than the ring with it, a min_step candidate within a relative 1e-12 of the
 // bound, no usable cell within the isolation reach) fall back to the scalar judge.
@@ -31,7 +32,7 @@ constexpr std::ptrdiff_t kChunk = 32;   // lanes per min_step search
 constexpr int kPop4[16] = {0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4};
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define MIEM_CLONES __attribute__((target_clones("avx2", "default")))
+#define MIEM_CLONES __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
 #else
 #define MIEM_CLONES
 #endif
@@ -393,25 +394,6 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
   ws.usable.resize(static_cast<std::size_t>(N));
   std::uint8_t* usable = ws.usable.data();
 
-  // Pass 0: finiteness.
-  std::ptrdiff_t n_finite = 0;
-#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1) reduction(+ : n_finite)
-  for (std::ptrdiff_t r = 0; r < H; ++r) {
-    for (std::ptrdiff_t c = 0; c < W; ++c) {
-      const std::ptrdiff_t i = r * W + c;
-      const bool fin = g.finite(r, c);
-      usable[i] = fin;
-      labels[i] = fin ? kNormal : kInvalid;
-      n_finite += fin;
-      if (out.flags) out.flags[i] = 0;
-      if (out.angle_deg) out.angle_deg[i] = kNaN;
-    }
-  }
-  if (n_finite < 3) {
-    throw std::invalid_argument("grid: fewer than 3 finite points (found " +
-                                std::to_string(n_finite) + ")");
-  }
-
   const int smax = *std::max_element(p.scales.begin(), p.scales.end());
   const bool has_min_step = p.min_step >= 0.0;
   // The row kernel keeps 2 depth + 2 padded, converted rows per thread (32 bytes per cell each;
@@ -439,6 +421,26 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
     if (ws.rows.size() < static_cast<std::size_t>(ntk)) ws.rows.resize(ntk);
     for (int t = 0; t < ntk; ++t) ws.rows[t].resize(2 * depth + 2, padded);
   }
+  // Pass 0: finiteness. (The row kernel writes every cell's angle, NaN where there is none.)
+  const bool angle_nan = out.angle_deg != nullptr && !row_kernel;
+  std::ptrdiff_t n_finite = 0;
+#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1) reduction(+ : n_finite)
+  for (std::ptrdiff_t r = 0; r < H; ++r) {
+    for (std::ptrdiff_t c = 0; c < W; ++c) {
+      const std::ptrdiff_t i = r * W + c;
+      const bool fin = g.finite(r, c);
+      usable[i] = fin;
+      labels[i] = fin ? kNormal : kInvalid;
+      n_finite += fin;
+      if (out.flags) out.flags[i] = 0;
+      if (angle_nan) out.angle_deg[i] = kNaN;
+    }
+  }
+  if (n_finite < 3) {
+    throw std::invalid_argument("grid: fewer than 3 finite points (found " +
+                                std::to_string(n_finite) + ")");
+  }
+
   // With min_step: the rays each cell's verdict read (4 bytes per cell), so that a later pass
   // re-judges only the cells whose verdict a removal can change.
   std::uint8_t* reach = nullptr;

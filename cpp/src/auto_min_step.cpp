@@ -1,5 +1,6 @@
-// min_step = "auto" (docs/SPEC.md "min_step='auto'"): per grid axis (along a profile, across
-// profiles) the median distance of finite neighbour pairs and the robust z noise
+// min_step = "auto" (docs/SPEC.md "min_step='auto'"): over the first kAutoMinStepRows rows from the
+// grid's first row with a finite cell, per grid axis (along a profile, across profiles) the
+// median distance of finite neighbour pairs and the robust z noise
 // 1.4826 median|z[i-1] - 2 z[i] + z[i+1]| / sqrt(6) of finite triples; min_step is
 // 4 * max(noise) when that exceeds min(spacing), else off (-1).
 //
@@ -15,7 +16,8 @@
 // then selected. Distances are selected by their squares (sqrt is monotone: the middle
 // distances are the square roots of the middle squares). Rows are split between threads;
 // counts add up and the kept values are the same set, so the value is the same for any thread
-// count.
+// count. auto_min_step_rows (the stream's, which may not allocate) selects the same middle
+// values by radix selection over the doubles' 64-bit patterns, 16 bits a round.
 #include "auto_min_step.hpp"
 
 #include <algorithm>
@@ -50,17 +52,21 @@ inline double dist2_of(const T* a, const T* b, std::ptrdiff_t ks) {
   return dx * dx + dy * dy + dz * dz;
 }
 
-// The four quantities of the cells whose first cell is in rows [r0, r1): f(q, value). `fin`
-// (3 * cols bytes) holds the finite flags of three consecutive rows as a ring.
-template <typename T, typename F>
-void visit(const GridView<T>& g, std::ptrdiff_t r0, std::ptrdiff_t r1, std::uint8_t* fin,
-           F&& f) {
-  const std::ptrdiff_t H = g.rows, W = g.cols, rs = g.row_stride, cs = g.col_stride;
-  const std::ptrdiff_t ks = g.coord_stride;
+// The four quantities of the cells whose first cell is in rows [r0, r1) of H rows of W cells:
+// f(q, value). `rowp(r)` is row r's first cell (cells cs apart, coordinates ks apart); `fin`
+// (3 * W bytes) holds the finite flags of three consecutive rows as a ring.
+template <typename T, typename RowP, typename F>
+void visit_rows(RowP&& rowp, std::ptrdiff_t H, std::ptrdiff_t W, std::ptrdiff_t cs,
+                std::ptrdiff_t ks, std::ptrdiff_t r0, std::ptrdiff_t r1, std::uint8_t* fin,
+                F&& f) {
   const auto row = [&](std::ptrdiff_t r) { return fin + (r % 3) * W; };
   const auto flags = [&](std::ptrdiff_t r) {
     std::uint8_t* out = row(r);
-    for (std::ptrdiff_t c = 0; c < W; ++c) out[c] = g.finite(r, c);
+    const T* p = rowp(r);
+    for (std::ptrdiff_t c = 0; c < W; ++c) {
+      const T* q = p + c * cs;  // GridView::finite's test
+      out[c] = (q[0] - q[0]) + (q[ks] - q[ks]) + (q[2 * ks] - q[2 * ks]) == T(0);
+    }
   };
   // squared distances and second differences of z, from cell pointers
   const auto dist2 = [ks](const T* a, const T* b) { return dist2_of(a, b, ks); };
@@ -72,7 +78,7 @@ void visit(const GridView<T>& g, std::ptrdiff_t r0, std::ptrdiff_t r1, std::uint
   for (std::ptrdiff_t r = r0; r < r1; ++r) {
     if (r + 2 < H) flags(r + 2);
     const std::uint8_t* f0 = row(r);
-    const T* p0 = g.data + r * rs;
+    const T* p0 = rowp(r);
     for (std::ptrdiff_t c = 0; c + 1 < W; ++c) {
       if (!(f0[c] & f0[c + 1])) continue;
       const T* a = p0 + c * cs;
@@ -82,13 +88,24 @@ void visit(const GridView<T>& g, std::ptrdiff_t r0, std::ptrdiff_t r1, std::uint
     if (r + 1 >= H) continue;
     const std::uint8_t* f1 = row(r + 1);
     const std::uint8_t* f2 = r + 2 < H ? row(r + 2) : nullptr;
+    const T* p1 = rowp(r + 1);
+    const T* p2 = f2 ? rowp(r + 2) : nullptr;
     for (std::ptrdiff_t c = 0; c < W; ++c) {
       if (!(f0[c] & f1[c])) continue;
       const T* a = p0 + c * cs;
-      f(2, dist2(a, a + rs));
-      if (f2 && f2[c]) f(3, second(a, a + rs, a + 2 * rs));
+      const T* b = p1 + c * cs;
+      f(2, dist2(a, b));
+      if (f2 && f2[c]) f(3, second(a, b, p2 + c * cs));
     }
   }
+}
+
+template <typename T, typename F>
+void visit(const GridView<T>& g, std::ptrdiff_t r0, std::ptrdiff_t r1, std::uint8_t* fin,
+           F&& f) {
+  const std::ptrdiff_t rs = g.row_stride;
+  visit_rows<T>([&g, rs](std::ptrdiff_t r) { return g.data + r * rs; }, g.rows, g.cols,
+                g.col_stride, g.coord_stride, r0, r1, fin, std::forward<F>(f));
 }
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
@@ -399,17 +416,8 @@ bool band_medians(const GridView<T>& g, int nt, Counts& count, Mids& mids,
   return true;
 }
 
-}  // namespace
-
-template <typename T>
-double auto_min_step(const GridView<T>& g, std::vector<double>& scratch, int num_threads) {
-  const std::ptrdiff_t H = g.rows, W = g.cols;
-  if (H < 1 || W < 1) return -1.0;
-  const int nt = std::max(1, std::min<int>(thread_count(num_threads, H * W),
-                                           static_cast<int>(H)));
-  Counts count{};
-  Mids mids{};
-  if (!band_medians(g, nt, count, mids, scratch)) key_medians(g, nt, count, mids, scratch);
+// min_step from the four medians' middle values (squared distances, |second differences|).
+double from_medians(const Counts& count, const Mids& mids) {
   std::array<double, kQ> med{};
   for (int q = 0; q < kQ; ++q) {
     if (count[q] == 0) continue;
@@ -432,6 +440,108 @@ double auto_min_step(const GridView<T>& g, std::vector<double>& scratch, int num
   return m > spacing ? m : -1.0;
 }
 
+inline std::uint64_t bits64(double v) {  // non-negative doubles order like their patterns
+  std::uint64_t u;
+  std::memcpy(&u, &v, sizeof u);
+  return u;
+}
+
+}  // namespace
+
+template <typename T>
+std::ptrdiff_t first_finite_row(const GridView<T>& g) {
+  for (std::ptrdiff_t r = 0; r < g.rows; ++r)
+    for (std::ptrdiff_t c = 0; c < g.cols; ++c)
+      if (g.finite(r, c)) return r;
+  return g.rows;
+}
+
+template <typename T>
+GridView<T> min_step_rows(const GridView<T>& g) {
+  const std::ptrdiff_t f = first_finite_row(g);
+  GridView<T> s = g;
+  s.data = g.data + f * g.row_stride;
+  s.rows = std::min<std::ptrdiff_t>(kAutoMinStepRows, g.rows - f);
+  return s;
+}
+
+template <typename T>
+double auto_min_step(const GridView<T>& grid, std::vector<double>& scratch, int num_threads) {
+  const GridView<T> g = min_step_rows(grid);
+  const std::ptrdiff_t H = g.rows, W = g.cols;
+  if (H < 1 || W < 1) return -1.0;
+  const int nt = std::max(1, std::min<int>(thread_count(num_threads, H * W),
+                                           static_cast<int>(H)));
+  Counts count{};
+  Mids mids{};
+  if (!band_medians(g, nt, count, mids, scratch)) key_medians(g, nt, count, mids, scratch);
+  return from_medians(count, mids);
+}
+
+// The exact medians by radix selection over the doubles' 64-bit patterns, 16 bits a round
+// (4 passes over the rows, the histograms in `work`): no allocation.
+template <typename T>
+double auto_min_step_rows(const T* const* rows, std::ptrdiff_t H, std::ptrdiff_t W,
+                          std::ptrdiff_t coord_stride, std::uint32_t* hist,
+                          std::uint8_t* fin) noexcept {
+  if (H < 1 || W < 1) return -1.0;
+  const auto rowp = [rows](std::ptrdiff_t r) { return rows[r]; };
+  const auto run = [&](auto&& f) {
+    visit_rows<T>(rowp, H, W, std::ptrdiff_t{1}, coord_stride, 0, H, fin, f);
+  };
+  constexpr std::size_t kB = std::size_t{1} << 16;
+  // round 0: the high 16 bits of each quantity's values
+  std::fill(hist, hist + kQ * kB, 0u);
+  run([hist](int q, double v) { ++hist[q * kB + (bits64(v) >> 48)]; });
+  Counts count{};
+  for (int q = 0; q < kQ; ++q)
+    for (std::size_t b = 0; b < kB; ++b) count[q] += hist[q * kB + b];
+  // the picks: ranks (n - 1) / 2 and n / 2 of quantity q are picks 2 q and 2 q + 1 (none
+  // when q has no value: its prefix can match no pattern), their prefixes so far
+  std::size_t prank[2 * kQ] = {};
+  std::uint64_t pre[2 * kQ];
+  std::fill(pre, pre + 2 * kQ, ~std::uint64_t{0});
+  for (int q = 0; q < kQ; ++q) {
+    if (count[q] == 0) continue;
+    for (int k = 0; k < 2; ++k) {
+      std::size_t rank = k == 0 ? (count[q] - 1) / 2 : count[q] / 2;
+      pre[2 * q + k] = static_cast<std::uint64_t>(bin_of(hist + q * kB, rank)) << 48;
+      prank[2 * q + k] = rank;
+    }
+  }
+  for (int round = 1; round < 4; ++round) {
+    const int shift = 48 - 16 * round;  // the bits found this round: [shift, shift + 16)
+    const std::uint64_t known = ~std::uint64_t{0} << (shift + 16);
+    std::fill(hist, hist + 2 * kQ * kB, 0u);
+    run([&](int q, double v) {
+      const std::uint64_t k = bits64(v), top = k & known, digit = (k >> shift) & 0xFFFF;
+      hist[(2 * q) * kB + digit] += top == pre[2 * q];
+      hist[(2 * q + 1) * kB + digit] += top == pre[2 * q + 1];
+    });
+    for (int s = 0; s < 2 * kQ; ++s)
+      if (count[s / 2] > 0)
+        pre[s] |= static_cast<std::uint64_t>(bin_of(hist + s * kB, prank[s])) << shift;
+  }
+  Mids mids{};
+  for (int s = 0; s < 2 * kQ; ++s) {
+    if (count[s / 2] == 0) continue;
+    double v;
+    std::memcpy(&v, &pre[s], sizeof v);
+    mids[s / 2][s % 2] = v;
+  }
+  return from_medians(count, mids);
+}
+
+template std::ptrdiff_t first_finite_row<float>(const GridView<float>&);
+template std::ptrdiff_t first_finite_row<double>(const GridView<double>&);
+template GridView<float> min_step_rows<float>(const GridView<float>&);
+template GridView<double> min_step_rows<double>(const GridView<double>&);
+template double auto_min_step_rows<float>(const float* const*, std::ptrdiff_t, std::ptrdiff_t,
+                                          std::ptrdiff_t, std::uint32_t*,
+                                          std::uint8_t*) noexcept;
+template double auto_min_step_rows<double>(const double* const*, std::ptrdiff_t,
+                                           std::ptrdiff_t, std::ptrdiff_t, std::uint32_t*,
+                                           std::uint8_t*) noexcept;
 template double auto_min_step<float>(const GridView<float>&, std::vector<double>&, int);
 template double auto_min_step<double>(const GridView<double>&, std::vector<double>&, int);
 

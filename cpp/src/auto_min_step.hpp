@@ -2,6 +2,8 @@
 // profile noise does not read as feature lines. Internal form with a reusable buffer.
 #pragma once
 
+#include <cstddef>
+#include <cstdint>
 #include <vector>
 
 #include "miem/views.hpp"
@@ -13,5 +15,29 @@ namespace miem::detail {
 /// depend on `num_threads` (0: all available).
 template <typename T>
 double auto_min_step(const GridView<T>& g, std::vector<double>& scratch, int num_threads = 1);
+
+/// The rows min_step="auto" reads: the first kAutoMinStepRows rows from the first row that has
+/// a finite cell (fewer at the grid's end; none when no cell is finite). SPEC "min_step='auto'".
+constexpr std::ptrdiff_t kAutoMinStepRows = 256;
+
+/// The first row of `g` with a finite cell (g.rows when none).
+template <typename T>
+std::ptrdiff_t first_finite_row(const GridView<T>& g);
+
+/// The rows of `g` that min_step="auto" reads (see kAutoMinStepRows).
+template <typename T>
+GridView<T> min_step_rows(const GridView<T>& g);
+
+/// Histogram counters auto_min_step_rows needs (8 x 2^16).
+constexpr std::size_t kMinStepHist = std::size_t{8} << 16;
+
+/// auto_min_step over `H` rows of `W` dense cells (row r at rows[r], coordinates
+/// `coord_stride` apart), which must already be the rows min_step_rows selects, without
+/// allocating (the streaming detector's form): exact medians by radix selection, so the same
+/// value as auto_min_step. `hist`: kMinStepHist counters; `fin`: 3 W bytes.
+template <typename T>
+double auto_min_step_rows(const T* const* rows, std::ptrdiff_t H, std::ptrdiff_t W,
+                          std::ptrdiff_t coord_stride, std::uint32_t* hist,
+                          std::uint8_t* fin) noexcept;
 
 }  // namespace miem::detail

@@ -39,7 +39,7 @@ inline std::ptrdiff_t offset(int code, std::ptrdiff_t r) {
 using Side = EdgeSide;
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define MIEM_EDGE_CLONES __attribute__((target_clones("avx2", "default")))
+#define MIEM_EDGE_CLONES __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
 #else
 #define MIEM_EDGE_CLONES
 #endif
@@ -68,17 +68,16 @@ inline __attribute__((always_inline)) void side_moment(const double* mm, std::pt
 MIEM_EDGE_CLONES void side_moments(std::ptrdiff_t m, std::ptrdiff_t cap, double n_min,
                                    const double* __restrict mm, double* __restrict nnb,
                                    double* __restrict ceb, double* __restrict Mb,
-                                   std::uint8_t* __restrict useb,
-                                   std::uint8_t* __restrict emptyb) {
+                                   double* __restrict useb, double* __restrict emptyb) {
 #pragma GCC ivdep
   for (std::ptrdiff_t e = 0; e < m; ++e) {
     double nn, cx, cy, cz, M[6];
     bool use;
     side_moment(mm + e, cap, n_min, nn, cx, cy, cz, M, use);
-    emptyb[e] = mm[10 * cap + e] >= n_min;
+    emptyb[e] = mm[10 * cap + e] >= n_min ? 1.0 : 0.0;
     nnb[e] = nn;
     ceb[e] = cx, ceb[cap + e] = cy, ceb[2 * cap + e] = cz;
-    useb[e] = use;
+    useb[e] = use ? 1.0 : 0.0;
     for (int q = 0; q < 6; ++q) Mb[q * cap + e] = M[q];
   }
 }
@@ -111,9 +110,9 @@ MIEM_EDGE_CLONES void side_lows(std::ptrdiff_t m, std::ptrdiff_t cap, double n_m
 inline __attribute__((always_inline)) void side_plane(
     bool use, bool solved, double l0, double l1, double l2, double nx, double ny, double nz,
     double nn, double cx, double cy, double cz, double px, double py, double pz, double k,
-    std::uint8_t& valid, double& h, double& rms, double& tol, double& ox, double& oy,
+    double& valid, double& h, double& rms, double& tol, double& ox, double& oy,
     double& oz) {
-  valid = use & solved & (l2 > 0.0) & !(l1 <= kRankTol * l2);
+  valid = use & solved & (l2 > 0.0) & !(l1 <= kRankTol * l2) ? 1.0 : 0.0;
   const double sg = nz != 0.0 ? (nz > 0.0 ? 1.0 : -1.0)
                               : (nx != 0.0 ? (nx > 0.0 ? 1.0 : -1.0) : (ny < 0.0 ? -1.0 : 1.0));
   ox = nx * sg, oy = ny * sg, oz = nz * sg;  // orient_normal
@@ -125,17 +124,17 @@ inline __attribute__((always_inline)) void side_plane(
 
 // side_plane for m sides (SoA; P: the cell of each side, relative to the origin). Vectorised.
 MIEM_EDGE_CLONES void side_planes(std::ptrdiff_t m, std::ptrdiff_t cap, double k,
-                                  const std::uint8_t* __restrict useb,
-                                  const std::uint8_t* __restrict okb,
+                                  const double* __restrict useb,
+                                  const double* __restrict okb,
                                   const double* __restrict Eb, const double* __restrict nnb,
                                   const double* __restrict ceb, const double* __restrict P,
-                                  std::uint8_t* __restrict validb, double* __restrict F) {
+                                  double* __restrict validb, double* __restrict F) {
 #pragma GCC ivdep
   for (std::ptrdiff_t e = 0; e < m; ++e) {
-    side_plane(useb[e] != 0, okb[e] != 0, Eb[e], Eb[cap + e], Eb[2 * cap + e], Eb[3 * cap + e],
-               Eb[4 * cap + e], Eb[5 * cap + e], nnb[e], ceb[e], ceb[cap + e], ceb[2 * cap + e],
-               P[e], P[cap + e], P[2 * cap + e], k, validb[e], F[e], F[cap + e], F[2 * cap + e],
-               F[3 * cap + e], F[4 * cap + e], F[5 * cap + e]);
+    side_plane(useb[e] != 0.0, okb[e] != 0.0, Eb[e], Eb[cap + e], Eb[2 * cap + e],
+               Eb[3 * cap + e], Eb[4 * cap + e], Eb[5 * cap + e], nnb[e], ceb[e], ceb[cap + e],
+               ceb[2 * cap + e], P[e], P[cap + e], P[2 * cap + e], k, validb[e], F[e],
+               F[cap + e], F[2 * cap + e], F[3 * cap + e], F[4 * cap + e], F[5 * cap + e]);
   }
 }
 
@@ -235,6 +234,55 @@ bool is_fin(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
   return false;
 }
 
+// SPEC "Edge test" step 6, hanging cells: P (candidate (rr, cc), its 8 sides `sd`, `best` their
+// smallest rms) fits no clean side with a return and lies, below a clean side x whose opposite
+// is empty or clean with P above it and falls away, deeper below x's plane than the top's last
+// support cell towards x is away along that plane (steeper than 45 degrees), with ground beyond
+// P (within r, away from x) more than kHangShelf times as deep again along x's normal. The
+// formulas are miem.reference._hanging's.
+constexpr double kHangShelf = 2.0;
+constexpr int kHangDirs[8][2] = {{0, 1},  {0, -1}, {1, 0},  {-1, 0},
+                                 {1, 1},  {1, -1}, {-1, 1}, {-1, -1}};  // side -> towards P
+
+template <typename T>
+bool is_hanging(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
+                std::ptrdiff_t cc, std::ptrdiff_t r, const Side (&sd)[8], double best) {
+  const auto clean = [&](int s) { return sd[s].valid && sd[s].rms <= kEdgeCleanRatio * best; };
+  for (int s = 0; s < 8; ++s) {
+    if (!sd[s].empty && clean(s) && !(std::abs(sd[s].h) > sd[s].tol)) return false;
+  }
+  const std::ptrdiff_t H = g.rows, W = g.cols;
+  const auto label = [&](std::ptrdiff_t a, std::ptrdiff_t b) -> std::uint8_t {
+    if (a < 0 || a >= H || b < 0 || b >= W) return kInvalid;
+    return labels[a * W + b];
+  };
+  const Eigen::Vector3d p = g(rr, cc);
+  for (int s = 0; s < 8; ++s) {
+    const Side& x = sd[s];
+    const Side& y = sd[kOpposite[s]];
+    if (!clean(s) || !(x.h < -x.tol)) continue;
+    const bool drop = dot3(x.normal, y.centroid - x.centroid) < -x.tol;
+    if (!(y.empty || (clean(kOpposite[s]) && y.h > y.tol && drop))) continue;
+    const std::ptrdiff_t dr = kHangDirs[s][0], dc = kHangDirs[s][1];
+    const double depth = -x.h;
+    bool steep = false;
+    for (std::ptrdiff_t j = 1; j <= r; ++j) {  // the nearest support cell towards x
+      if (label(rr - j * dr, cc - j * dc) != kNormal) continue;
+      const Eigen::Vector3d v = g(rr - j * dr, cc - j * dc) - p;
+      const double along = dot3(v, x.normal);
+      steep = depth * depth > dot3(v, v) - along * along;
+      break;
+    }
+    if (!steep) continue;
+    for (std::ptrdiff_t j = 1; j <= r; ++j) {  // ground beyond P, deeper along x's normal
+      const std::uint8_t l = label(rr + j * dr, cc + j * dc);
+      if (l != kNormal && l != kEdge) continue;
+      if (dot3(g(rr + j * dr, cc + j * dc) - p, x.normal) < -kHangShelf * depth) return true;
+    }
+  }
+  return false;
+}
+
 }  // namespace
 
 template <typename T>
@@ -266,7 +314,8 @@ template <typename T>
 void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr,
                     std::ptrdiff_t H, std::ptrdiff_t C0, std::ptrdiff_t C1,
                     const EdgeImages& im, const Eigen::Vector3d& o, std::ptrdiff_t r, double k,
-                    const std::uint8_t* lab, const std::uint8_t* todo, std::uint8_t* mark) {
+                    const std::uint8_t* lab, const std::uint8_t* todo, std::uint8_t* mark,
+                    const EdgeBandCache* cache) {
   const std::ptrdiff_t W = g.cols, f0 = im.f0, plane = im.plane;
   const double n_min = static_cast<double>(std::max<std::ptrdiff_t>(3, (r * r) / 2));
   const double* const S = im.data;
@@ -282,16 +331,104 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
   // F: h, rms, tol, oriented normal; P: the cells per side (filled for the full path only),
   // Pc: the cells (relative to the origin, q * kChunk + j)
   double F[6 * kCap], P[3 * kCap], Pc[3 * kChunk];
-  std::uint8_t okb[kCap], redob[kCap], useb[kCap], emptyb[kCap], validb[kCap];
+  // flags as doubles (1 or 0): 8-byte lanes throughout, so the vector loops run 8 (or 4) lanes
+  // at a time, not 32 (a byte store per lane made GCC pick 32 and run chunks of 16 scalar)
+  double okb[kCap], redob[kCap], useb[kCap], emptyb[kCap], validb[kCap];
   double lowb[kCap];
   std::ptrdiff_t cols[kChunk];
   constexpr std::ptrdiff_t kSpan = 48;  // sums of up to kSpan columns for scattered cells
   double spn[kM * kSpan];
   int keep[kChunk];
+  // Band blocks (many candidates in a row, away from the grid border): the 8 sides of a cell
+  // are 5 rectangles slid along the row (kBandOf): rows -r..r (band 0), -r..-1 (1) and 1..r (2)
+  // over r columns, rows -r..-1 (3) and 1..r (4) over 2r + 1 columns; side s of cell c is band
+  // kBandOf[s] at position c - b0 (left, x0 = c - r) or c - b0 + r + 1 (right, x0 = c + 1).
+  // So the right side of c is the left side of c + r + 1: each rectangle's sums and bound are
+  // computed once per block (the same corner reads and formula, so the same bits) and picked
+  // out per cell. Moment q of band b at position i: band[(b * kM + q) * kBandPos + i].
+  constexpr std::ptrdiff_t kBandPos = kEdgeBandPos, kBandCells = kEdgeBandCells;
+  constexpr int kBandOf[8] = {0, 0, 3, 4, 1, 1, 2, 2};
+  constexpr bool kRight[8] = {false, true, false, false, false, true, false, true};
+  double band[5 * kM * kBandPos], bandlow[5 * kBandPos];
+  double* bandp[5];  // band b's sums and bounds: here, or in the caller's cache
+  double* lowp[5];
+  // With a cache: bands 2 and 4 (rows 1..r below) of row rr are bands 1 and 3 (rows -r..-1
+  // above) of row rr + r + 1, the same corner reads of the same images: kept in a ring of r + 2
+  // rows (per block of the tile row) and reused there. Slot: tag (row, b0, cells), then bands
+  // 2 and 4 as (kM moments + bounds) x kBandPos.
+  constexpr std::ptrdiff_t kSlot = kEdgeCacheSlot;
+  const std::ptrdiff_t nblk = (C1 - C0 + kBandCells - 1) / kBandCells;
+  const bool cached = cache != nullptr && cache->data != nullptr &&
+                      cache->slots >= (r + 2) * nblk;
+  const auto slot = [&](std::ptrdiff_t row, std::ptrdiff_t blk) {
+    const std::ptrdiff_t k = ((row % (r + 2)) + (r + 2)) % (r + 2);
+    return cache->data + (k * nblk + blk) * kSlot;
+  };
+  const bool rows_inside = rr - r >= 0 && rr + r + 1 <= H;
+  const std::ptrdiff_t bw = std::min(kBandCells, kBandPos - r - 1);  // a block's columns
+  std::ptrdiff_t bend = C0, b0 = 0;  // the block [.., bend); its first band cell b0
+  bool banded = false;
+  const auto candidate = [&](std::ptrdiff_t c) {
+    return todo[c] && (lrow[c] == kNormal || lrow[c] == kEdge);
+  };
   for (std::ptrdiff_t cc = C0; cc < C1;) {
+    if (cc >= bend) {  // a new block: banded when it saves rectangles
+      bend = std::min(C1, cc + std::max<std::ptrdiff_t>(bw, 1));
+      banded = false;
+      if (rows_inside && bw >= 16) {
+        std::ptrdiff_t n = 0, first = -1, last = -1;
+        for (std::ptrdiff_t c = cc; c < bend; ++c) {
+          if (!candidate(c)) continue;
+          ++n;
+          if (first < 0) first = c;
+          last = c;
+        }
+        const std::ptrdiff_t w = last - first + 1;
+        banded = n > 0 && first - r >= 0 && last + r + 1 <= W && 8 * n > 5 * w + 3 * (r + 1);
+        if (banded) {
+          b0 = first;
+          const std::ptrdiff_t rl[3] = {srow(rr - r), srow(rr), srow(rr + r + 1)};
+          const std::ptrdiff_t lines[5][2] = {{rl[0], rl[2]}, {rl[0], rl[1]},
+                                              {srow(rr + 1), rl[2]}, {rl[0], rl[1]},
+                                              {srow(rr + 1), rl[2]}};
+          const std::ptrdiff_t x0 = first - r - f0;
+          for (int b = 0; b < 5; ++b) {
+            bandp[b] = band + b * kM * kBandPos;
+            lowp[b] = bandlow + b * kBandPos;
+          }
+          bool reuse = false;
+          if (cached && bw == kBandCells) {
+            const std::ptrdiff_t blk = (cc - C0) / kBandCells;
+            double* const nw = slot(rr, blk);
+            double* const od = slot(rr - r - 1, blk);  // row rr - r - 1's (if it is there)
+            reuse = od[0] == static_cast<double>(rr - r - 1) &&
+                    od[1] == static_cast<double>(first) && od[2] >= static_cast<double>(w);
+            if (reuse) {
+              bandp[1] = od + 8;
+              lowp[1] = bandp[1] + kM * kBandPos;
+              bandp[3] = lowp[1] + kBandPos;
+              lowp[3] = bandp[3] + kM * kBandPos;
+            }
+            bandp[2] = nw + 8, lowp[2] = bandp[2] + kM * kBandPos;
+            bandp[4] = lowp[2] + kBandPos, lowp[4] = bandp[4] + kM * kBandPos;
+            nw[0] = static_cast<double>(rr), nw[1] = static_cast<double>(first);
+            nw[2] = static_cast<double>(w);
+          }
+          for (int b = 0; b < 5; ++b) {
+            if (reuse && (b == 1 || b == 3)) continue;
+            const std::ptrdiff_t top = lines[b][0], bottom = lines[b][1];
+            const std::ptrdiff_t x1 = x0 + (b < 3 ? r : 2 * r + 1);
+            const int np = static_cast<int>(b < 3 ? w + r + 1 : w);
+            rect_sums(np, plane, kBandPos, S + bottom + x1, S + top + x1, S + bottom + x0,
+                      S + top + x0, bandp[b]);
+            side_lows(np, kBandPos, n_min, bandp[b], lowp[b]);
+          }
+        }
+      }
+    }
     int m = 0;
-    for (; cc < C1 && m < kChunk; ++cc) {
-      if (todo[cc] && (lrow[cc] == kNormal || lrow[cc] == kEdge)) cols[m++] = cc;
+    for (; cc < bend && m < kChunk; ++cc) {
+      if (candidate(cc)) cols[m++] = cc;
     }
     if (m == 0) continue;
     for (int j = 0; j < m; ++j) {
@@ -305,7 +442,9 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
     const bool inside = rr - r >= 0 && rr + r + 1 <= H && cols[0] - r >= 0 &&
                         cols[m - 1] + r + 1 <= W;
     const bool run = inside && span == m, spanned = inside && span <= kSpan;
-    for (int s = 0; s < 8; ++s) {
+    // a side's position in its band (banded chunks)
+    const auto bpos = [&](int s, std::ptrdiff_t c) { return c - b0 + (kRight[s] ? r + 1 : 0); };
+    for (int s = 0; s < 8 && !banded; ++s) {
       const std::ptrdiff_t r0 = std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][0], r), 0, H);
       const std::ptrdiff_t r1 =
           std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][1], r) + 1, 0, H);
@@ -343,15 +482,28 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
     // kCleanRatio of the smallest bound it is clean whatever the other sides give, and
     // when the cell fits it the verdict is "no" without the other seven solves. The
     // others (and cells without a supported side: no valid side, "no") go on below.
-    side_lows(8 * m, kCap, n_min, mm, lowb);
+    if (banded) {
+      for (int s = 0; s < 8; ++s) {
+        const double* const bl = lowp[kBandOf[s]];
+        for (int j = 0; j < m; ++j) lowb[s * m + j] = bl[bpos(s, cols[j])];
+      }
+    } else {
+      side_lows(8 * m, kCap, n_min, mm, lowb);
+    }
     int nf = 0;
     {
       double mm1[kM * kChunk], M1[6 * kChunk], E1[6 * kChunk], nn1[kChunk], ce1[3 * kChunk];
       double F1[6 * kChunk], low1[kChunk];
-      std::uint8_t use1[kChunk], empty1[kChunk], ok1[kChunk], redo1[kChunk], valid1[kChunk];
+      double use1[kChunk], empty1[kChunk], ok1[kChunk], redo1[kChunk], valid1[kChunk];
       std::int64_t sb[kChunk];
       best_sides(m, lowb, sb, low1);
       for (int j = 0; j < m; ++j) {
+        if (banded) {
+          const int s = static_cast<int>(sb[j]);
+          const double* const bs = bandp[kBandOf[s]] + bpos(s, cols[j]);
+          for (int q = 0; q < kM; ++q) mm1[q * kChunk + j] = bs[q * kBandPos];
+          continue;
+        }
         const int e = static_cast<int>(sb[j]) * m + j;
         for (int q = 0; q < kM; ++q) mm1[q * kChunk + j] = mm[q * kCap + e];
       }
@@ -365,7 +517,8 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
           continue;
         }
         const bool clean = F1[kChunk + j] <= kEdgeCleanRatio * std::sqrt(low1[j]);  // <= 2 best
-        if (!redo1[j] && valid1[j] && clean && !(std::abs(F1[j]) > F1[2 * kChunk + j])) {
+        if (!redo1[j] && valid1[j] && clean && !empty1[j] &&  // (an empty side: hanging?)
+            !(std::abs(F1[j]) > F1[2 * kChunk + j])) {
           mark[i] = 0;
           continue;
         }
@@ -375,7 +528,15 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
     }
     // the cells left to the front, entry s * m + keep[f] to s * nf + f (in this order no
     // entry is overwritten before it is moved: s * nf + f <= s * m + keep[f])
-    if (nf != m) {
+    if (banded) {
+      for (int s = 0; s < 8; ++s) {
+        const double* const bs = bandp[kBandOf[s]];
+        for (int f = 0; f < nf; ++f) {
+          const std::ptrdiff_t i = bpos(s, cols[f]);
+          for (int q = 0; q < kM; ++q) mm[q * kCap + s * nf + f] = bs[q * kBandPos + i];
+        }
+      }
+    } else if (nf != m) {
       for (int s = 0; s < 8; ++s) {
         for (int f = 0; f < nf; ++f) {
           const int from = s * m + keep[f], to = s * nf + f;
@@ -439,6 +600,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
           }
         }
       }
+      if (!abnormal) abnormal = is_hanging(g, lab, grow, cols[j], r, sd, best);
       mark[i] = abnormal ? 1 : 0;
     }
   }
@@ -461,7 +623,11 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
   const std::ptrdiff_t ER = std::min(H, kTileRows + 2 * r), EC = std::min(W, kTileCols + 2 * r);
   // integral images as kM planes (one per moment) of ER + 1 rows of L = EC + 1 columns
   const std::ptrdiff_t L = EC + 1, plane = (ER + 1) * L;
-  const std::ptrdiff_t per = kM * plane + kM * EC;  // a thread's images + column sums
+  // the band cache of edge_judge_row (ordinary window sizes only: it grows with r)
+  const std::ptrdiff_t cache_slots =
+      r <= 15 ? (r + 2) * ((kTileCols + kEdgeBandCells - 1) / kEdgeBandCells) : 0;
+  // a thread's images + column sums + band cache
+  const std::ptrdiff_t per = kM * plane + kM * EC + cache_slots * kEdgeCacheSlot;
   const std::ptrdiff_t tiles_r = (H + kTileRows - 1) / kTileRows;
   const std::ptrdiff_t tiles_c = (W + kTileCols - 1) / kTileCols;
   const int nt = std::max(1, std::min<int>(thread_count(num_threads, N),
@@ -483,6 +649,7 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
       double* const S = scratch.data();
 #endif
       double* const col = S + kM * plane;  // moment q of column x at col[q * EC + x]
+      const EdgeBandCache cache{col + kM * EC, cache_slots};
       const std::ptrdiff_t R0 = (tile / tiles_c) * kTileRows, R1 = std::min(H, R0 + kTileRows);
       const std::ptrdiff_t C0 = (tile % tiles_c) * kTileCols, C1 = std::min(W, C0 + kTileCols);
       // the last row and column with a candidate (after the first pass candidates are the
@@ -523,9 +690,10 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
         edge_image_row(g, rr, labels + rr * W, f0, f1, o, col, EC, S + (rr - e0 + 1) * L, plane);
       }
       const EdgeImages im{S, plane, L, e0, ER + 1, f0};
+      cache.clear();
       for (std::ptrdiff_t rr = R0; rr <= rlast; ++rr) {
         edge_judge_row(g, rr, rr, H, C0, clast + 1, im, o, r, k, labels, todo + rr * W,
-                       mark + rr * W);
+                       mark + rr * W, &cache);
       }
     }
     std::ptrdiff_t added = 0;
@@ -571,7 +739,7 @@ template int edge_passes<double>(const GridView<double>&, std::uint8_t*, int, do
                                   std::ptrdiff_t, std::ptrdiff_t, std::ptrdiff_t,               \
                                   const EdgeImages&, const Eigen::Vector3d&, std::ptrdiff_t,    \
                                   double, const std::uint8_t*, const std::uint8_t*,             \
-                                  std::uint8_t*);
+                                  std::uint8_t*, const EdgeBandCache*);
 MIEM_EDGE_ROWS(float)
 MIEM_EDGE_ROWS(double)
 #undef MIEM_EDGE_ROWS

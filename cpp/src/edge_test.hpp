@@ -46,6 +46,21 @@ void edge_image_row(const GridView<T>& g, std::ptrdiff_t row, const std::uint8_t
                     std::ptrdiff_t f0, std::ptrdiff_t f1, const Eigen::Vector3d& o, double* col,
                     std::ptrdiff_t col_plane, double* out, std::ptrdiff_t plane);
 
+/// Band sums a row's verdicts leave for row + r + 1's (edge_judge_row): `slots` slots of
+/// kEdgeCacheSlot doubles at `data`. A caller that gives one gives at least (r + 2) *
+/// ceil((C1 - C0) / kEdgeBandCells) slots and clears it (clear()) whenever the images change
+/// (another tile or pass); with fewer slots it is not used. Its values are the same bits the
+/// verdicts would compute.
+constexpr std::ptrdiff_t kEdgeBandPos = 128, kEdgeBandCells = 64;
+constexpr std::ptrdiff_t kEdgeCacheSlot = 8 + 2 * (kEdgeMoments + 1) * kEdgeBandPos;
+struct EdgeBandCache {
+  double* data = nullptr;
+  std::ptrdiff_t slots = 0;
+  void clear() const {
+    for (std::ptrdiff_t i = 0; i < slots; ++i) data[i * kEdgeCacheSlot] = -1.0;
+  }
+};
+
 /// One edge pass's verdicts (SPEC "Edge test") on grid row rr, columns C0 .. C1 - 1 of one
 /// tile: each cell c with todo[c] and a NORMAL or EDGE label gets mark[c] = 1 when it becomes
 /// ABNORMAL, else 0 (other cells untouched). g holds at least the grid rows within r of rr
@@ -59,6 +74,7 @@ template <typename T>
 void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr,
                     std::ptrdiff_t H, std::ptrdiff_t C0, std::ptrdiff_t C1,
                     const EdgeImages& im, const Eigen::Vector3d& o, std::ptrdiff_t r, double k,
-                    const std::uint8_t* lab, const std::uint8_t* todo, std::uint8_t* mark);
+                    const std::uint8_t* lab, const std::uint8_t* todo, std::uint8_t* mark,
+                    const EdgeBandCache* cache = nullptr);
 
 }  // namespace miem::detail

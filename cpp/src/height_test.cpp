@@ -11,6 +11,7 @@
 //   within window / 2 of a cell the pass before removed; the others would repeat their verdict.
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 
 #include "parallel.hpp"
 #include "stages.hpp"
@@ -25,7 +26,11 @@ void mark_compact_edges(const std::uint8_t* labels, std::ptrdiff_t H, std::ptrdi
                         int extent, std::uint8_t* hm, std::vector<std::int64_t>& queue) {
   const std::ptrdiff_t N = H * W;
   for (std::ptrdiff_t start = 0; start < N; ++start) {
-    if (labels[start] != kEdge || (hm[start] & kHSeen)) continue;
+    // the next EDGE cell (memchr: vectorised search)
+    const void* next = std::memchr(labels + start, kEdge, static_cast<std::size_t>(N - start));
+    if (next == nullptr) break;
+    start = static_cast<const std::uint8_t*>(next) - labels;
+    if (hm[start] & kHSeen) continue;
     queue.clear();
     queue.push_back(start);
     hm[start] |= kHSeen;
@@ -47,6 +52,39 @@ void mark_compact_edges(const std::uint8_t* labels, std::ptrdiff_t H, std::ptrdi
     }
     if (std::max(r1 - r0, c1 - c0) + 1 <= extent) {
       for (std::int64_t i : queue) hm[i] |= kHCompact;
+    }
+  }
+}
+
+// The height passes' verdict (height_far) on a whole row segment of wanted cells wrow[j] from
+// row_solve's fits (RowFits, not compact): kHFresh, kHMark where too far, and the height when
+// `height` is not null. Straight-line code (vectorised); the same comparisons as height_far.
+MIEM_FIT_CLONES void height_row(std::ptrdiff_t n, const std::uint8_t* __restrict wrow,
+                                const double* __restrict S, const double* __restrict F,
+                                const std::uint8_t* __restrict okf, std::ptrdiff_t cap,
+                                double height_abs, double height_k, double* __restrict height,
+                                std::uint8_t* __restrict hm) {
+  const double* __restrict fh = F;
+  const double* __restrict f0 = F + cap;
+  const double* __restrict f1 = F + 2 * cap;
+  const double* __restrict f2 = F + 3 * cap;
+  const double* __restrict sl = S + 10 * cap;
+  const bool abs_on = height_abs > 0.0, k_on = height_k > 0.0;
+  for (std::ptrdiff_t j = 0; j < n; ++j) {
+    const bool w = wrow[j] != 0, ok = okf[j] != 0;
+    const double ah = std::abs(fh[j]);
+    const double h2n = ah * ah * S[j];
+    const bool far = ok & !(sl[j] > 0.0) &
+                     ((abs_on & (ah > height_abs)) |
+                      (k_on & (h2n > height_k * height_k * std::max(f0[j], 0.0)) &
+                       (h2n > 1e-12 * (f1[j] + f2[j]))));
+    const std::uint8_t b = static_cast<std::uint8_t>(hm[j] | kHFresh | (far ? kHMark : 0));
+    hm[j] = w ? b : hm[j];
+  }
+  if (height != nullptr) {
+    for (std::ptrdiff_t j = 0; j < n; ++j) {
+      const double h = okf[j] != 0 ? fh[j] : kNaN;
+      height[j] = wrow[j] != 0 ? h : height[j];
     }
   }
 }
@@ -73,28 +111,46 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
   }
   int passes = 0;
   for (int hp = 0; hp < p.max_iterations; ++hp) {
-    window_fits(
+    auto visit = [&](std::ptrdiff_t i, const WindowFit& f) {
+      if (height) height[i] = f.ok ? f.height : kNaN;
+      std::uint8_t b = static_cast<std::uint8_t>(hm[i] | kHFresh);
+      if (height_far(f, p)) b |= kHMark;
+      hm[i] = b;
+    };
+    window_fits_rows(
         g, cls, p.window, p.num_threads, ws.fits,
-        [hm](std::ptrdiff_t i) { return (hm[i] & kHWant) != 0; },
-        [&](std::ptrdiff_t i, const WindowFit& f) {
-          if (height) height[i] = f.ok ? f.height : kNaN;
-          std::uint8_t b = static_cast<std::uint8_t>(hm[i] | kHFresh);
-          if (height_far(f, p)) b |= kHMark;
-          hm[i] = b;
+        [hm](std::ptrdiff_t i) { return (hm[i] & kHWant) != 0; }, visit,
+        [&](std::ptrdiff_t i0, std::ptrdiff_t ncols, const std::uint8_t* wrow, const RowFits& rf) {
+          if (!rf.compact) {
+            height_row(ncols, wrow, rf.S, rf.F, rf.okf, rf.cap, p.height_abs, p.height_k,
+                       height ? height + i0 : nullptr, hm + i0);
+            return;
+          }
+          std::ptrdiff_t e = 0;
+          for (std::ptrdiff_t j = 0; j < ncols; ++j)
+            if (wrow[j]) visit(i0 + j, rf.fit(e++));
         });
     ++passes;
+    // Apply the pass: clear kHWant, turn the marked cells ABNORMAL. Blocks of 64 cells in
+    // straight-line (vectorised) code; the few blocks with a marked cell list it in ws.fresh.
     ws.fresh.clear();
-    for (std::ptrdiff_t i = 0; i < N; ++i) {
-      std::uint8_t b = hm[i];
-      if (!(b & (kHWant | kHMark))) continue;
-      b &= static_cast<std::uint8_t>(~kHWant);
-      if (b & kHMark) {
+    constexpr std::ptrdiff_t kSpan = 64;
+    for (std::ptrdiff_t i0 = 0; i0 < N; i0 += kSpan) {
+      const std::ptrdiff_t i1 = std::min(N, i0 + kSpan);
+      unsigned marked = 0;
+      for (std::ptrdiff_t i = i0; i < i1; ++i) {
+        const std::uint8_t b = hm[i];
+        marked |= b & kHMark;
+        hm[i] = static_cast<std::uint8_t>(b & ~kHWant);
+      }
+      if (marked == 0) continue;
+      for (std::ptrdiff_t i = i0; i < i1; ++i) {
+        if (!(hm[i] & kHMark)) continue;
         labels[i] = kAbnormal;
         cls[i] = 0;
-        b = 0;
+        hm[i] = 0;
         ws.fresh.push_back(i);
       }
-      hm[i] = b;
     }
     if (ws.fresh.empty()) break;
     // The windows that changed: re-fit their candidates at the next pass; heights there are stale.

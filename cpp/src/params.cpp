@@ -3,13 +3,57 @@
 #include "miem/params.hpp"
 
 #include <cmath>
+#include <cstddef>
 #include <stdexcept>
+#include <utility>
 
 namespace miem {
 
 namespace {
 constexpr Status bad(const char* msg) { return Status{StatusCode::kInvalidParameter, msg}; }
 constexpr Status kOkStatus{};
+
+// Every member is listed in visit_fields(), checked at compile time: the number of members of
+// an aggregate is the most initializers T{...} accepts (each copy-initialized from Any), and
+// visit_fields() counts its entries. A member added without its entry fails the build here.
+struct Any {
+  template <class T>
+  constexpr operator T() const noexcept {
+    return T{};
+  }
+};
+
+template <class T, class... A>
+constexpr auto braces(int) -> decltype(T{std::declval<A>()...}, true) {
+  return true;
+}
+template <class T, class... A>
+constexpr bool braces(...) {
+  return false;
+}
+
+template <class T, class... A>
+constexpr std::size_t member_count() {
+  if constexpr (braces<T, A..., Any>(0)) {
+    return member_count<T, A..., Any>();
+  } else {
+    return sizeof...(A);
+  }
+}
+
+template <class T>
+constexpr std::size_t listed_count() {
+  std::size_t n = 0;
+  T::visit_fields([&n](const FieldInfo&, auto) { ++n; });
+  return n;
+}
+
+static_assert(member_count<AngleParams>() == listed_count<AngleParams>(),
+              "AngleParams: a member is missing from visit_fields()");
+static_assert(member_count<GridParams>() == listed_count<GridParams>(),
+              "GridParams: a member is missing from visit_fields()");
+static_assert(member_count<CloudParams>() == listed_count<CloudParams>(),
+              "CloudParams: a member is missing from visit_fields()");
 }  // namespace
 
 void throw_if_error(const Status& st) {
@@ -64,6 +108,9 @@ Status CloudParams::check() const noexcept {
     return bad("min_step: must be finite and >= 0");
   }
   if (link && !(std::isfinite(*link) && *link > 0.0)) return bad("link: must be finite and > 0");
+  if (height_mode != HeightMode::kAll && height_mode != HeightMode::kAbnormal) {
+    return bad("height_mode: must be kAll or kAbnormal");
+  }
   if (min_group < 0 || (min_group > 0 && min_group < 3)) {
     return bad("min_group: must be 0 (off) or an integer >= 3");
   }
@@ -108,9 +155,6 @@ Status PointsDetectParams::check() const noexcept {
   if (Status st = AngleParams::check(); !st.ok()) return st;
   if (Status st = CloudParams::check(); !st.ok()) return st;
   if (min_directions > num_directions) return bad("min_directions: must be 0 (all) or 1..K");
-  if (height_mode != HeightMode::kAll && height_mode != HeightMode::kAbnormal) {
-    return bad("heights: unknown mode");
-  }
   if (num_threads < 0) return bad("num_threads: must be >= 0");
   return kOkStatus;
 }

@@ -52,7 +52,7 @@ inline bool smallest_eigenpair(const Eigen::Matrix3d& M, double* l0, double* l1,
 }
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define MIEM_EIG_CLONES __attribute__((target_clones("avx2", "default")))
+#define MIEM_EIG_CLONES __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
 #else
 #define MIEM_EIG_CLONES
 #endif
@@ -166,11 +166,13 @@ MIEM_EIG_CLONES inline void smallest_eigenpairs(std::ptrdiff_t m, std::ptrdiff_t
 /// has ended (steps of an ended lane change nothing, so the bits are those of the fixed steps):
 /// the edge test's sub-windows of rough or curved surfaces (l0 nearer l1) rarely end within 4
 /// (on the real scan almost never), within 8 nearly always; flat ones end within 3 or 4.
+/// ok and redo as 1.0 / 0.0 (doubles: a byte per lane would make the vectoriser take 32 lanes
+/// at a time, and the edge test's blocks of 16 would run scalar).
 MIEM_EIG_CLONES inline void smallest_eigenpairs_long(std::ptrdiff_t m, std::ptrdiff_t cap,
                                                      const double* __restrict M,
                                                      double* __restrict out,
-                                                     std::uint8_t* __restrict ok,
-                                                     std::uint8_t* __restrict redo) {
+                                                     double* __restrict ok,
+                                                     double* __restrict redo) {
   constexpr std::ptrdiff_t kB = 128;
   for (std::ptrdiff_t b0 = 0; b0 < m; b0 += kB) {
     const std::ptrdiff_t n = std::min(kB, m - b0);
@@ -206,8 +208,8 @@ MIEM_EIG_CLONES inline void smallest_eigenpairs_long(std::ptrdiff_t m, std::ptrd
       o3[i] = bx0 / len;
       o4[i] = bx1 / len;
       o5[i] = bx2 / len;
-      ok[b0 + i] = static_cast<std::uint8_t>((tr[i] > 0.0) & (nb > 0.0));
-      redo[b0 + i] = static_cast<std::uint8_t>(live[i] != 0.0);
+      ok[b0 + i] = (tr[i] > 0.0) & (nb > 0.0) ? 1.0 : 0.0;
+      redo[b0 + i] = live[i] != 0.0 ? 1.0 : 0.0;
     }
   }
 }

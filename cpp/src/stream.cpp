@@ -17,6 +17,7 @@
 #include <immintrin.h>
 #endif
 
+#include "auto_min_step.hpp"
 #include "judge.hpp"
 
 namespace miem {
@@ -219,24 +220,30 @@ std::ptrdiff_t mark_finite(const T* x, const T* y, const T* z, std::ptrdiff_t W,
 
 }  // namespace
 
-DetectParams stream_default_params() {
-  DetectParams p;
-  p.min_step_auto = false;  // a stream cannot see the whole scan: give min_step as a length
-  return p;
+DetectParams stream_default_params() { return DetectParams{}; }
+
+namespace {
+// R: the rows one judgment reads (+ max_reach with min_step, given or "auto").
+long long stream_reach(const DetectParams& p) {
+  return static_cast<long long>(*std::max_element(p.scales.begin(), p.scales.end())) +
+         p.max_gap + (p.min_step >= 0.0 || p.min_step_auto ? p.max_reach : 0);
 }
+}  // namespace
 
 long long stream_lag(const DetectParams& p) noexcept {
-  const long long reach = static_cast<long long>(
-                              *std::max_element(p.scales.begin(), p.scales.end())) +
-                          p.max_gap + (p.min_step >= 0.0 ? p.max_reach : 0);
+  const long long reach = stream_reach(p);
   const long long P = p.max_iterations, h = p.window / 2;
   // rows behind the newest at which the height passes' labels are final
   const long long lagh = P * reach + (p.height_test() ? p.edge_extent + P * h : 0);
-  if (!p.edge_test()) return lagh + h;
-  // edge pass 1 runs r rows behind the height passes, once the rows within h are in (its
-  // removals mark the heights there stale); pass p r rows behind pass p - 1
-  const long long r = p.edge_window / 2;
-  return std::max(lagh + r, h) + (P - 1) * r + h;
+  long long lag = lagh + h;
+  if (p.edge_test()) {
+    // edge pass 1 runs r rows behind the height passes, once the rows within h are in (its
+    // removals mark the heights there stale); pass p r rows behind pass p - 1
+    const long long r = p.edge_window / 2;
+    lag = std::max(lagh + r, h) + (P - 1) * r + h;
+  }
+  // min_step "auto": nothing runs before the rows it reads are in
+  return p.min_step_auto ? std::max<long long>(lag, detail::kAutoMinStepRows) : lag;
 }
 
 Status check_stream_params(std::ptrdiff_t width, const DetectParams& p) noexcept {
@@ -246,17 +253,9 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& p) noexcept
     return bad("theta0_auto: not implemented by ProfileStream (theta0 'auto' is the median of "
                "the whole scan's angles, which a stream never sees); give theta0 in degrees");
   }
-  if (p.min_step_auto) {
-    return bad("min_step_auto: a stream cannot see the whole scan (min_step 'auto' takes "
-               "medians over all of it); set it to false and give min_step as a length: "
-               "miem::auto_min_step(first_scan) on a first scan of the part (-1: off)");
-  }
   if (width < 1) return bad("width: must be at least 1 point per profile");
   if (p.max_iterations > 254) return bad("max_iterations: a stream supports at most 254 passes");
-  const long long reach = static_cast<long long>(
-                              *std::max_element(p.scales.begin(), p.scales.end())) +
-                          p.max_gap + (p.min_step >= 0.0 ? p.max_reach : 0);
-  if (reach > (1 << 20)) return bad("scales, max_gap, max_reach: reach too long");
+  if (stream_reach(p) > (1 << 20)) return bad("scales, max_gap, max_reach: reach too long");
   if (stream_lag(p) + p.window > (1 << 20)) {
     return bad("window, edge_extent, max_iterations: the stream's lag would exceed 2^20 profiles");
   }
@@ -269,10 +268,9 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   throw_if_error(check_stream_params(width_, params_));
   max_scale_ = *std::max_element(params_.scales.begin(), params_.scales.end());
   const int min_scale = *std::min_element(params_.scales.begin(), params_.scales.end());
-  const bool min_step = params_.min_step >= 0.0;
-  const long long reach = static_cast<long long>(max_scale_) + params_.max_gap +
-                          (min_step ? params_.max_reach : 0);
-  reach_ = static_cast<int>(reach);
+  ms_auto_ = params_.min_step_auto;
+  ms_wait_ = ms_auto_;
+  reach_ = static_cast<int>(stream_reach(params_));
   passes_ = params_.max_iterations;
   alag_ = passes_ * reach_;
   htest_ = params_.height_test();
@@ -290,7 +288,8 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
       {static_cast<long long>(lag_) + half_ + 1, static_cast<long long>(alag_) + 2LL * extent_,
        static_cast<long long>(alag_) + reach_,
        edge_ ? static_cast<long long>(lag_) + 64 + params_.edge_window : 0LL});
-  ring_ = static_cast<std::ptrdiff_t>(back) + 2;
+  // min_step "auto": the stages wait for the kAutoMinStepRows rows it reads (all kept)
+  ring_ = static_cast<std::ptrdiff_t>(back) + 2 + (ms_auto_ ? detail::kAutoMinStepRows : 0);
   // Any ext_ + 1 consecutive rows form one GridView: a judgment's rows, a window, the rows an
   // edge verdict reads.
   ext_ = std::max<std::ptrdiff_t>(
@@ -303,7 +302,10 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   cos0_ = std::cos(params_.theta0_deg * detail::kDegToRad);
   // The kernel needs the scale-s cells to stand for the neighbours (no min_step), some of them
   // inside the isolation reach (so "not isolated" is implied), and one bit per (direction, scale).
-  fast_ = !min_step && min_scale <= 1 + params_.max_gap && params_.scales.size() <= 7;
+  fast_ok_ = min_scale <= 1 + params_.max_gap && params_.scales.size() <= 7;
+  jparams_ = params_;
+  jparams_.min_step_auto = false;
+  use_min_step(ms_auto_ ? -1.0 : params_.min_step);
 
   const std::size_t n2 = static_cast<std::size_t>(phys_ * width_);
   const std::size_t n1 = static_cast<std::size_t>(ring_ * width_);
@@ -314,9 +316,58 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   row_cand_.assign(static_cast<std::size_t>(ring_), 0);
   level_.assign(static_cast<std::size_t>(ring_), 0);
   bits_.assign(static_cast<std::size_t>(width_), 0);
+  if (ms_auto_) {
+    ms_rows_.assign(static_cast<std::size_t>(detail::kAutoMinStepRows), nullptr);
+    ms_hist_.assign(detail::kMinStepHist, 0u);
+    ms_fin_.assign(static_cast<std::size_t>(3 * width_), 0);
+    nan_row_.assign(static_cast<std::size_t>(width_), detail::kNaN);
+  }
   init_stages();
   init_edges();
   init_defects();
+}
+
+// The min_step the judges use (-1: off): pass 1's vectorised filter needs none, and a removal
+// marks the cells within the reach of one judgment with that min_step.
+template <typename T>
+void ProfileStream<T>::use_min_step(double min_step) noexcept {
+  min_step_ = min_step;
+  jparams_.min_step = min_step;
+  fast_ = fast_ok_ && min_step < 0.0;
+  mark_reach_ = max_scale_ + params_.max_gap + (min_step >= 0.0 ? params_.max_reach : 0);
+}
+
+// min_step "auto" decided on the rows pushed from the first with a finite cell (SPEC
+// "min_step='auto'"), then the stages run on the rows they waited for through `last`, push by
+// push as they would have run.
+template <typename T>
+void ProfileStream<T>::decide_min_step(std::int64_t last) noexcept {
+  const std::int64_t first = ms_first_;
+  const std::int64_t n = std::min<std::int64_t>(pushed_ - first, detail::kAutoMinStepRows);
+  for (std::int64_t i = 0; i < n; ++i)
+    ms_rows_[static_cast<std::size_t>(i)] = xyz_.data() + slot(first + i) * width_;
+  use_min_step(detail::auto_min_step_rows<T>(ms_rows_.data(), static_cast<std::ptrdiff_t>(n),
+                                             width_, phys_ * width_, ms_hist_.data(),
+                                             ms_fin_.data()));
+  ms_wait_ = false;
+  const std::int64_t pushed = pushed_;
+  for (std::int64_t row = first; row <= last; ++row) {
+    pushed_ = row + 1;
+    advance(row);
+  }
+  pushed_ = pushed;
+}
+
+// The stages of push `row`: pass p on row - p R (its rows within R have all run pass p - 1),
+// then the stages after the angle passes.
+template <typename T>
+void ProfileStream<T>::advance(std::int64_t row) noexcept {
+  for (int p = 1; p <= passes_; ++p) {
+    const std::int64_t j = row - static_cast<std::int64_t>(p) * reach_;
+    if (j < 0) break;
+    run_pass(j, p);
+  }
+  run_stages(false);
 }
 
 template <typename T>
@@ -324,6 +375,9 @@ void ProfileStream<T>::reset() noexcept {
   pushed_ = 0;
   emitted_ = 0;
   finished_ = false;
+  ms_first_ = -1;
+  ms_wait_ = ms_auto_;
+  if (ms_auto_) use_min_step(-1.0);
   reset_stages();
   reset_defects();
 }
@@ -381,15 +435,33 @@ Status ProfileStream<T>::push(const PointsView<T>& profile, StreamRow* out) noex
   hrow_[s] = 0;
   if (edge_) edge_push_row(row);
   pushed_ = row + 1;
-
-  // The wavefront: pass p on row - p R (its rows within R have all run pass p - 1).
-  for (int p = 1; p <= passes_; ++p) {
-    const std::int64_t j = row - static_cast<std::int64_t>(p) * reach_;
-    if (j < 0) break;
-    run_pass(j, p);
-  }
-  run_stages(false);
   const std::int64_t done = row - lag_;
+
+  // min_step "auto": from the first row with a finite cell the stages wait until the rows the
+  // value is taken from are in (before it every row is empty: no stage result depends on it).
+  if (ms_wait_ && ms_first_ < 0 && n_finite > 0) ms_first_ = row;
+  if (ms_wait_ && ms_first_ >= 0) {
+    if (row - ms_first_ + 1 < detail::kAutoMinStepRows) {
+      // a row handed back now lies before the first finite row (lag >= kAutoMinStepRows):
+      // a row of dropouts, INVALID since its push, no height, no defect
+      if (done >= 0) {
+        defect_row(done);
+        out->index = done;
+        out->labels = labels_.data() + slot(done) * W;
+        out->height = nan_row_.data();
+        out->defects = done_.data();
+        out->n_defects = n_done_;
+        emitted_ = done + 1;
+      }
+      return n_finite == 0 ? Status{StatusCode::kEmptyProfile,
+                                    "profile: no finite point (pushed as a row of dropouts, "
+                                    "labels INVALID)"}
+                           : Status{};
+    }
+    decide_min_step(row - 1);  // the rows before this one catch up; this push as usual
+  }
+
+  advance(row);
   if (done >= 0) {
     defect_row(done);
     out->index = done;
@@ -412,6 +484,7 @@ bool ProfileStream<T>::flush(StreamRow* out) noexcept {
   *out = StreamRow{};
   if (!finished_) {
     finished_ = true;
+    if (ms_wait_ && ms_first_ >= 0) decide_min_step(pushed_ - 1);  // fewer rows than it reads
     // The end of the stream is now the grid border: finish every pass on the last rows, pass by
     // pass over all of them (each row's neighbours then have run the pass before).
     const std::int64_t first = std::max<std::int64_t>(0, pushed_ - alag_);
@@ -444,7 +517,7 @@ void ProfileStream<T>::remove(std::int64_t row, std::ptrdiff_t col, int pass) no
   const std::uint8_t bit = static_cast<std::uint8_t>(1u << ((pass + 1) & 1));
   for (int k = 0; k < 4; ++k) {
     for (int sgn = -1; sgn <= 1; sgn += 2) {
-      for (std::ptrdiff_t step = 1; step <= reach_; ++step) {
+      for (std::ptrdiff_t step = 1; step <= mark_reach_; ++step) {
         const std::int64_t rr = row + sgn * step * kDirRow[k];
         const std::ptrdiff_t cc = col + sgn * step * kDirCol[k];
         if (rr < 0 || rr >= pushed_ || cc < 0 || cc >= W) break;
@@ -468,7 +541,7 @@ void ProfileStream<T>::run_pass(std::int64_t row, int pass) noexcept {
   const GridView<T> grid{xyz_.data() + s0 * W, static_cast<std::ptrdiff_t>(last - first + 1), W,
                          W, 1, phys_ * W};
   const detail::CellJudge<T, UsableAtPass, true> judge(
-      grid, state_.data() + s0 * W, params_, UsableAtPass{static_cast<std::uint8_t>(pass)});
+      grid, state_.data() + s0 * W, jparams_, UsableAtPass{static_cast<std::uint8_t>(pass)});
   const std::ptrdiff_t s = slot(row), r = static_cast<std::ptrdiff_t>(row - first);
   const std::uint8_t* st = state_.data() + s * W;
   std::uint8_t* lab = labels_.data() + s * W;

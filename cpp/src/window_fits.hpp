@@ -5,7 +5,8 @@
 // to one of its own points (far-from-origin scans lose no precision) as running column sums over
 // the window's rows, updated by one row in and one row out per row (O(1) per cell), and box sums
 // along the row from their prefix sums. The smallest eigenpair of each wanted cell's scatter is
-// solved for a whole row at once in straight-line code (vectorised; AVX2 where the CPU has it).
+// solved for a whole row at once in straight-line code (vectorised; AVX-512 or AVX2 clones
+// where the CPU has them).
 // Tiles are independent and each cell is computed by exactly one tile, so the result does not
 // depend on the thread count.
 #pragma once
@@ -23,7 +24,7 @@
 #include "plane_math.hpp"
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define MIEM_FIT_CLONES __attribute__((target_clones("avx2", "default")))
+#define MIEM_FIT_CLONES __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
 #else
 #define MIEM_FIT_CLONES
 #endif
@@ -170,58 +171,86 @@ inline WindowFit fit_from_sums(const double* s, const Eigen::Vector3d& q) {
   return fit;
 }
 
-// Adds sign * (1, x, y, z, xx, xy, xz, yy, yz, zz) of the kInPlane cells and sign * 1 of the
-// kLine cells of one row, n cells given as SoA coordinates relative to the tile's origin (px,
-// py, pz), to the SoA column sums cs (moment k at cs + k * stride). Branch-free: it vectorises.
-MIEM_FIT_CLONES inline void add_row_moments(const std::uint8_t* __restrict cl, std::ptrdiff_t n,
-                                            const double* __restrict px,
-                                            const double* __restrict py,
-                                            const double* __restrict pz, double sign,
-                                            double* __restrict cs, std::ptrdiff_t stride) {
+// The 11 column sums as separate restrict parameters: pointers into one array (moment k at
+// cs + k * stride) would need run-time overlap checks between every pair, more than the
+// vectoriser makes, and the loops would run scalar (GCC 12 does not take local restrict
+// pointers derived from one parameter as disjoint).
+#define MIEM_SUM_PARAMS                                                                         \
+  double *__restrict c0, double *__restrict c1, double *__restrict c2, double *__restrict c3, \
+      double *__restrict c4, double *__restrict c5, double *__restrict c6,                    \
+      double *__restrict c7, double *__restrict c8, double *__restrict c9,                    \
+      double *__restrict c10
+#define MIEM_SUM_ARGS(cs, stride)                                                          \
+  cs, cs + stride, cs + 2 * stride, cs + 3 * stride, cs + 4 * stride, cs + 5 * stride,     \
+      cs + 6 * stride, cs + 7 * stride, cs + 8 * stride, cs + 9 * stride, cs + 10 * stride
+
+MIEM_FIT_CLONES inline void add_row_sums(const std::uint8_t* __restrict cl, std::ptrdiff_t n,
+                                         const double* __restrict px,
+                                         const double* __restrict py,
+                                         const double* __restrict pz, double sign,
+                                         MIEM_SUM_PARAMS) {
   for (std::ptrdiff_t j = 0; j < n; ++j) {
     const bool in = (cl[j] & kInPlane) != 0;
     const double w = in ? sign : 0.0;
     const double x = in ? px[j] : 0.0, y = in ? py[j] : 0.0, z = in ? pz[j] : 0.0;
-    cs[j] += w;
-    cs[stride + j] += w * x;
-    cs[2 * stride + j] += w * y;
-    cs[3 * stride + j] += w * z;
-    cs[4 * stride + j] += w * (x * x);
-    cs[5 * stride + j] += w * (x * y);
-    cs[6 * stride + j] += w * (x * z);
-    cs[7 * stride + j] += w * (y * y);
-    cs[8 * stride + j] += w * (y * z);
-    cs[9 * stride + j] += w * (z * z);
-    cs[10 * stride + j] += (cl[j] & kLine) ? sign : 0.0;
+    c0[j] += w;
+    c1[j] += w * x;
+    c2[j] += w * y;
+    c3[j] += w * z;
+    c4[j] += w * (x * x);
+    c5[j] += w * (x * y);
+    c6[j] += w * (x * z);
+    c7[j] += w * (y * y);
+    c8[j] += w * (y * z);
+    c9[j] += w * (z * z);
+    c10[j] += (cl[j] & kLine) ? sign : 0.0;
   }
 }
 
-// The window slides down one row: adds the moments of row a (class bytes ca, SoA coordinates
-// ax, ay, az) and subtracts those of row b, in one pass over the column sums (as two
-// add_row_moments calls, but each column sum read and written once).
-MIEM_FIT_CLONES inline void move_row_moments(
+MIEM_FIT_CLONES inline void move_row_sums(
     const std::uint8_t* __restrict ca, const double* __restrict ax, const double* __restrict ay,
     const double* __restrict az, const std::uint8_t* __restrict cb, const double* __restrict bx,
     const double* __restrict by, const double* __restrict bz, std::ptrdiff_t n,
-    double* __restrict cs, std::ptrdiff_t stride) {
+    MIEM_SUM_PARAMS) {
   for (std::ptrdiff_t j = 0; j < n; ++j) {
     const bool ia = (ca[j] & kInPlane) != 0, ib = (cb[j] & kInPlane) != 0;
     const double wa = ia ? 1.0 : 0.0, wb = ib ? 1.0 : 0.0;
     const double xa = ia ? ax[j] : 0.0, ya = ia ? ay[j] : 0.0, za = ia ? az[j] : 0.0;
     const double xb = ib ? bx[j] : 0.0, yb = ib ? by[j] : 0.0, zb = ib ? bz[j] : 0.0;
-    cs[j] += wa - wb;
-    cs[stride + j] += xa - xb;
-    cs[2 * stride + j] += ya - yb;
-    cs[3 * stride + j] += za - zb;
-    cs[4 * stride + j] += xa * xa - xb * xb;
-    cs[5 * stride + j] += xa * ya - xb * yb;
-    cs[6 * stride + j] += xa * za - xb * zb;
-    cs[7 * stride + j] += ya * ya - yb * yb;
-    cs[8 * stride + j] += ya * za - yb * zb;
-    cs[9 * stride + j] += za * za - zb * zb;
-    cs[10 * stride + j] += ((ca[j] & kLine) ? 1.0 : 0.0) - ((cb[j] & kLine) ? 1.0 : 0.0);
+    c0[j] += wa - wb;
+    c1[j] += xa - xb;
+    c2[j] += ya - yb;
+    c3[j] += za - zb;
+    c4[j] += xa * xa - xb * xb;
+    c5[j] += xa * ya - xb * yb;
+    c6[j] += xa * za - xb * zb;
+    c7[j] += ya * ya - yb * yb;
+    c8[j] += ya * za - yb * zb;
+    c9[j] += za * za - zb * zb;
+    c10[j] += ((ca[j] & kLine) ? 1.0 : 0.0) - ((cb[j] & kLine) ? 1.0 : 0.0);
   }
 }
+
+// Adds sign * (1, x, y, z, xx, xy, xz, yy, yz, zz) of the kInPlane cells and sign * 1 of the
+// kLine cells of one row, n cells given as SoA coordinates relative to the tile's origin (px,
+// py, pz), to the SoA column sums cs (moment k at cs + k * stride). Branch-free: it vectorises.
+inline void add_row_moments(const std::uint8_t* cl, std::ptrdiff_t n, const double* px,
+                            const double* py, const double* pz, double sign, double* cs,
+                            std::ptrdiff_t stride) {
+  add_row_sums(cl, n, px, py, pz, sign, MIEM_SUM_ARGS(cs, stride));
+}
+
+// The window slides down one row: adds the moments of row a (class bytes ca, SoA coordinates
+// ax, ay, az) and subtracts those of row b, in one pass over the column sums (as two
+// add_row_moments calls, but each column sum read and written once).
+inline void move_row_moments(const std::uint8_t* ca, const double* ax, const double* ay,
+                             const double* az, const std::uint8_t* cb, const double* bx,
+                             const double* by, const double* bz, std::ptrdiff_t n, double* cs,
+                             std::ptrdiff_t stride) {
+  move_row_sums(ca, ax, ay, az, cb, bx, by, bz, n, MIEM_SUM_ARGS(cs, stride));
+}
+#undef MIEM_SUM_ARGS
+#undef MIEM_SUM_PARAMS
 
 // Row r, columns [c0, c0 + n), as SoA coordinates relative to (ox, oy, oz).
 template <typename T>
@@ -268,16 +297,42 @@ MIEM_FIT_CLONES inline void box_sums(const double* __restrict col, std::ptrdiff_
   }
 }
 
+/// What row_solve leaves for one row segment: the fit of entry e (e = j, the segment's column,
+/// or with `compact` the e-th wanted cell) is okf[e], n = S[e], height, l0, l1, l2 at F + k * cap
+/// + e and the feature-line cells at S + 10 * cap + e (redo[e]: solved by solve_fits_exact).
+struct RowFits {
+  const double* S;
+  const double* F;
+  const std::uint8_t* okf;
+  const std::uint8_t* redo;
+  std::ptrdiff_t cap;
+  bool compact;
+
+  WindowFit fit(std::ptrdiff_t e) const {
+    WindowFit f;
+    f.ok = okf[e] != 0;
+    f.n = S[e];
+    f.height = F[e];
+    f.l0 = F[cap + e];
+    f.l1 = F[2 * cap + e];
+    f.l2 = F[3 * cap + e];
+    if (redo[e] && !f.ok) f.n = f.height = 0.0;  // fit_from_sums leaves them unset
+    f.edges = S[10 * cap + e];
+    return f;
+  }
+};
+
 /// The window fits of the wanted cells of one row segment of `ncols` cells from the column sums
 /// of the window's rows: `col` + k * stride + j is moment k of the segment's column j, with
 /// `half` + 1 valid (or zero-padded) columns on either side. wrow[j]: fit cell j (m of them);
 /// Q (3 x cap, SoA): the cells relative to the sums' origin, overwritten. S (kMoments x cap),
 /// F (4 x cap), ok and redo (cap each) are scratch. Calls visit(j, fit) in ascending j.
-/// Shared by the batch window sweep below and the stream's running sums.
-template <typename Visit>
-void row_fits(const double* col, std::ptrdiff_t stride, std::ptrdiff_t half, std::ptrdiff_t ncols,
-              std::ptrdiff_t cap, const std::uint8_t* wrow, std::ptrdiff_t m, double* S,
-              double* Q, double* F, std::uint8_t* okf, std::uint8_t* redo, Visit visit) {
+/// Shared by the batch window sweep below and the stream's running sums. row_solve: the same
+/// fits left in the scratch (RowFits) for a caller that reads a whole row at once.
+inline RowFits row_solve(const double* col, std::ptrdiff_t stride, std::ptrdiff_t half,
+                         std::ptrdiff_t ncols, std::ptrdiff_t cap, const std::uint8_t* wrow,
+                         std::ptrdiff_t m, double* S, double* Q, double* F, std::uint8_t* okf,
+                         std::uint8_t* redo) {
   // Box sums along the row: 11 running sums, one column in and one out per cell. The column
   // differences first (a loop that vectorises), then the running sums over them.
   box_sums(col, stride, half, ncols, cap, S);
@@ -322,20 +377,18 @@ void row_fits(const double* col, std::ptrdiff_t stride, std::ptrdiff_t half, std
     }
     if (nr > 0) flush();
   }
+  return RowFits{S, F, okf, redo, cap, compact};
+}
+
+template <typename Visit>
+void row_fits(const double* col, std::ptrdiff_t stride, std::ptrdiff_t half, std::ptrdiff_t ncols,
+              std::ptrdiff_t cap, const std::uint8_t* wrow, std::ptrdiff_t m, double* S,
+              double* Q, double* F, std::uint8_t* okf, std::uint8_t* redo, Visit visit) {
+  const RowFits rf = row_solve(col, stride, half, ncols, cap, wrow, m, S, Q, F, okf, redo);
   std::ptrdiff_t k2 = 0;
   for (std::ptrdiff_t j = 0; j < ncols; ++j) {
     if (!wrow[j]) continue;
-    const std::ptrdiff_t e = compact ? k2++ : j;
-    WindowFit f;
-    f.ok = okf[e] != 0;
-    f.n = S[e];
-    f.height = F[e];
-    f.l0 = F[cap + e];
-    f.l1 = F[2 * cap + e];
-    f.l2 = F[3 * cap + e];
-    if (redo[e] && !f.ok) f.n = f.height = 0.0;  // fit_from_sums leaves them unset
-    f.edges = S[10 * cap + e];
-    visit(j, f);
+    visit(j, rf.fit(rf.compact ? k2++ : j));
   }
 }
 
@@ -373,12 +426,13 @@ WindowFit direct_fit(const GridView<T>& g, const std::uint8_t* cls, std::ptrdiff
   return f;
 }
 
-/// Calls visit(i, fit) (i = r * cols + c) for every cell with want(i), where cls[i] gives the
-/// class of each cell (kInPlane, kLine or 0). A tile without wanted cells costs one scan of its
-/// want bytes. `fit.edges` is exact only where fit.ok (a tile without a NORMAL cell reports 0). `scratch` is grown to one buffer per thread (sized by the grid, not the tile).
-template <typename T, typename Want, typename Visit>
-void window_fits(const GridView<T>& g, const std::uint8_t* cls, int window, int num_threads,
-                 std::vector<FitScratch>& scratch, Want want, Visit visit) {
+/// window_fits (below) with the rows swept by the sums handed over whole: visit_row(i0, ncols,
+/// wrow, rf) for the wanted cells i0 + j (wrow[j]) of one row segment, their fits in `rf`
+/// (RowFits); visit(i, fit) for the cells fitted one by one (direct fits, no plane).
+template <typename T, typename Want, typename Visit, typename VisitRow>
+void window_fits_rows(const GridView<T>& g, const std::uint8_t* cls, int window, int num_threads,
+                      std::vector<FitScratch>& scratch, Want want, Visit visit,
+                      VisitRow visit_row) {
   constexpr std::ptrdiff_t kBand = 64, kStrip = 128, kDirect = 24;
   const std::ptrdiff_t H = g.rows, W = g.cols, half = window / 2;
   const std::ptrdiff_t tiles_r = (H + kBand - 1) / kBand, tiles_c = (W + kStrip - 1) / kStrip;
@@ -404,9 +458,13 @@ void window_fits(const GridView<T>& g, const std::uint8_t* cls, int window, int 
     if (sc.flags.size() < static_cast<std::size_t>(3 * cap)) sc.flags.resize(3 * cap);
     const std::ptrdiff_t tr0 = (t / tiles_c) * kBand, tc0 = (t % tiles_c) * kStrip;
     const std::ptrdiff_t tr1 = std::min(H, tr0 + kBand), tc1 = std::min(W, tc0 + kStrip);
-    std::ptrdiff_t n_wanted = 0;
-    for (std::ptrdiff_t r = tr0; r < tr1; ++r)
-      for (std::ptrdiff_t c = tc0; c < tc1; ++c) n_wanted += want(r * W + c) ? 1 : 0;
+    std::ptrdiff_t n_wanted = 0, last = tr0;  // last: the tile's last row with a wanted cell
+    for (std::ptrdiff_t r = tr0; r < tr1; ++r) {
+      std::ptrdiff_t m = 0;
+      for (std::ptrdiff_t c = tc0; c < tc1; ++c) m += want(r * W + c) ? 1 : 0;
+      n_wanted += m;
+      if (m > 0) last = r;
+    }
     if (n_wanted == 0) continue;
     if (n_wanted <= kDirect) {  // a few cells: their windows directly, cheaper than the sums
       for (std::ptrdiff_t r = tr0; r < tr1; ++r)
@@ -461,7 +519,8 @@ void window_fits(const GridView<T>& g, const std::uint8_t* cls, int window, int 
     for (std::ptrdiff_t rr = std::max<std::ptrdiff_t>(0, tr0 - half);
          rr <= std::min(H - 1, tr0 + half); ++rr)
       add_row(rr, 1.0);
-    for (std::ptrdiff_t r = tr0; r < tr1; ++r) {
+    // Rows after the last wanted one are not swept (a later pass wants a few cells only).
+    for (std::ptrdiff_t r = tr0; r <= last; ++r) {
       if (r > tr0) {
         const std::ptrdiff_t ra = r + half, rb = r - half - 1;  // row in, row out
         if (ra < H && rb >= 0) {
@@ -489,10 +548,29 @@ void window_fits(const GridView<T>& g, const std::uint8_t* cls, int window, int 
         std::copy(x + span, x + span + ncols, Q + cap);
         std::copy(x + 2 * span, x + 2 * span + ncols, Q + 2 * cap);
       }
-      row_fits(cs + pad + (tc0 - C0), stride, half, ncols, cap, wrow, m, S, Q, F, okf, redo,
-               [&](std::ptrdiff_t j, const WindowFit& f) { visit(r * W + tc0 + j, f); });
+      const RowFits rf =
+          row_solve(cs + pad + (tc0 - C0), stride, half, ncols, cap, wrow, m, S, Q, F, okf, redo);
+      visit_row(r * W + tc0, ncols, static_cast<const std::uint8_t*>(wrow), rf);
     }
   }
+}
+
+/// Calls visit(i, fit) (i = r * cols + c) for every cell with want(i), where cls[i] gives the
+/// class of each cell (kInPlane, kLine or 0). A tile without wanted cells costs one scan of its
+/// want bytes. `fit.edges` is exact only where fit.ok (a tile without a NORMAL cell reports 0).
+/// `scratch` is grown to one buffer per thread (sized by the grid, not the tile).
+template <typename T, typename Want, typename Visit>
+void window_fits(const GridView<T>& g, const std::uint8_t* cls, int window, int num_threads,
+                 std::vector<FitScratch>& scratch, Want want, Visit visit) {
+  window_fits_rows(g, cls, window, num_threads, scratch, want, visit,
+                   [&](std::ptrdiff_t i0, std::ptrdiff_t ncols, const std::uint8_t* wrow,
+                       const RowFits& rf) {
+                     std::ptrdiff_t k2 = 0;
+                     for (std::ptrdiff_t j = 0; j < ncols; ++j) {
+                       if (!wrow[j]) continue;
+                       visit(i0 + j, rf.fit(rf.compact ? k2++ : j));
+                     }
+                   });
 }
 
 }  // namespace miem::detail

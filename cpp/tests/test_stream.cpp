@@ -126,6 +126,8 @@ struct Named {
   std::ptrdiff_t rows = 90, cols = 70;
   bool outline = false;  // make_outline_scan: the edge test has work
   bool late_origin = false;  // dropouts over the first rows of some edge-test tiles
+  double jitter = 0.0;       // z offset of whole profiles (sd): min_step "auto" turns on
+  std::ptrdiff_t lead = 0;   // profiles of dropouts first (the scanner before the part)
 };
 
 // make_scan with the last third of every profile missing (the part ends: an outline) and lips
@@ -172,8 +174,24 @@ std::vector<Named> param_sets() {
   p.height_mode = miem::HeightMode::kAbnormal;
   v.push_back({"stream_default_abnormal_heights", p, 260, 70});
   p = miem::stream_default_params();
-  p.min_step = 0.3;  // min_step given as a length (what min_step_auto would resolve)
+  p.min_step_auto = false;
+  p.min_step = 0.3;  // min_step given as a length
   v.push_back({"stream_default_min_step", p, 260, 70});
+  // min_step "auto" (the default) on profiles whose jitter turns it on: decided at push 255
+  // (the rows before run then), after 300 profiles of dropouts (rows handed back while it
+  // waits), at the flush (fewer than 256 rows), with the edge test, and where 256 rows bound
+  // the lag.
+  const miem::DetectParams d = miem::stream_default_params();
+  v.push_back({"default_auto_on", d, 700, 50, false, false, 0.1});
+  v.push_back({"default_auto_lead", d, 900, 40, false, false, 0.1, 300});
+  v.push_back({"default_auto_short", d, 180, 50, false, false, 0.1, 20});
+  v.push_back({"default_auto_outline", d, 700, 60, true, false, 0.1});
+  p = miem::paper_params();
+  p.min_step_auto = true;
+  v.push_back({"paper_auto", p, 420, 50, false, false, 0.1, 3});
+  p.max_iterations = 1;
+  p.max_reach = 4;  // lag max(1 * (1 + 1 + 4) + 10, 256)
+  v.push_back({"paper_auto_short_lag", p, 600, 40, false, false, 0.1, 30});
   p = miem::stream_default_params();
   p.max_iterations = 3;
   p.window = 7;
@@ -251,8 +269,34 @@ std::vector<Named> param_sets() {
 
 class StreamEqualsBatch : public ::testing::TestWithParam<Named> {};
 
+// Profile jitter and leading dropouts (Named::jitter, lead); min_step "auto" must then be on.
+void jitter_and_lead(const Named& n, std::uint64_t seed, std::vector<double>& g) {
+  if (n.jitter <= 0.0 && n.lead == 0) return;
+  std::uint64_t s = seed * 0x9E3779B97F4A7C15u + 7;
+  auto uni = [&]() {
+    s = s * 6364136223846793005u + 1442695040888963407u;
+    return static_cast<double>(s >> 11) * 0x1.0p-53;
+  };
+  for (std::ptrdiff_t r = 0; r < n.rows; ++r) {
+    const double off = n.jitter * 1.7320508075688772 * (2.0 * uni() - 1.0);  // sd n.jitter
+    for (std::ptrdiff_t c = 0; c < n.cols; ++c) {
+      double* q = &g[static_cast<std::size_t>((r * n.cols + c) * 3)];
+      if (r < n.lead) q[0] = q[1] = q[2] = NAN;
+      q[2] += off;
+    }
+  }
+  if (n.jitter > 0.0 && n.params.min_step_auto) {
+    const auto view = miem::GridView<double>::dense(g.data(), n.rows, n.cols);
+    EXPECT_GT(miem::auto_min_step(view), 0.0) << "the jitter must turn min_step on";
+  }
+}
+
 std::vector<double> scan_for(const Named& n, std::uint64_t seed) {
-  if (!n.outline) return miem::test::make_scan(n.rows, n.cols, seed);
+  if (!n.outline) {
+    std::vector<double> g = miem::test::make_scan(n.rows, n.cols, seed);
+    jitter_and_lead(n, seed, g);
+    return g;
+  }
   // The scan must give the edge test work: it changes batch labels.
   std::vector<double> g = make_outline_scan(n.rows, n.cols, seed);
   if (n.late_origin) {  // the first finite cell of a tile 37 rows (or 60) into its band
@@ -266,6 +310,7 @@ std::vector<double> scan_for(const Named& n, std::uint64_t seed) {
     drop(64, 101, 128, 256);
     drop(192, 252, 0, 128);
   }
+  jitter_and_lead(n, seed, g);
   miem::DetectParams off = n.params;
   off.edge_k = 0.0;
   const auto view = miem::GridView<double>::dense(g.data(), n.rows, n.cols);
@@ -307,14 +352,22 @@ TEST(Stream, LagFormula) {
   p.min_step = 0.1;
   p.max_reach = 5;
   EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 10 * (1 + 1 + 5) + 10);
-  // The default: with the edge test (r = 15 / 2): 142 + 7 + 9 * 7 + 10.
-  EXPECT_EQ(miem::ProfileStream<>(16).lag(), (10 * 3 + 12 + 10 * 10 + 7) + 9 * 7 + 10);
-  EXPECT_EQ(miem::stream_lag(miem::stream_default_params()), 222);
+  // The default: with the edge test (r = 15 / 2) and min_step "auto" (R = 1 + 2 + 32: its
+  // value is not known before 256 rows are in): 482 + 7 + 9 * 7 + 10.
+  EXPECT_EQ(miem::ProfileStream<>(16).lag(), (10 * 35 + 12 + 10 * 10 + 7) + 9 * 7 + 10);
+  EXPECT_EQ(miem::stream_lag(miem::stream_default_params()), 542);
   p = miem::stream_default_params();
+  p.min_step_auto = false;  // min_step off: R = 3
+  EXPECT_EQ(miem::stream_lag(p), (10 * 3 + 12 + 10 * 10 + 7) + 9 * 7 + 10);
   p.max_iterations = 3;
   p.window = 7;
   p.edge_window = 9;
   EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), (3 * 3 + 12 + 3 * 3 + 4) + 2 * 4 + 3);
+  p.min_step_auto = true;  // max(L, 256): nothing runs before the 256 rows min_step reads
+  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 256);
+  p.max_reach = 200;
+  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), (3 * 203 + 12 + 3 * 3 + 4) + 2 * 4 + 3);
+  p.min_step_auto = false;
   miem::DetectParams q = miem::paper_params();  // the edge test without the height test
   q.edge_k = 3.0;
   q.max_iterations = 40;  // H + r = 40 * 2 + 7
@@ -529,7 +582,6 @@ TEST(Stream, RejectsFieldsItDoesNotHonour) {
   };
   const Case cases[] = {
       {"theta0_auto", [](miem::DetectParams& p) { p.theta0_auto = true; }},
-      {"min_step_auto", [](miem::DetectParams& p) { p.min_step_auto = true; }},
   };
   for (const Case& c : cases) {
     miem::DetectParams p = miem::stream_default_params();
@@ -547,8 +599,8 @@ TEST(Stream, RejectsFieldsItDoesNotHonour) {
       EXPECT_STREQ(e.what(), st.message);
     }
   }
-  // The stream's default is the default preset, height and edge tests included, without
-  // min_step_auto (refused above).
+  // The stream's default is the default preset, height and edge tests and min_step "auto"
+  // included.
   std::optional<miem::ProfileStream<double>> s;
   EXPECT_TRUE(miem::nothrow::make_stream(10, miem::stream_default_params(), &s).ok());
   const miem::DetectParams d = miem::stream_default_params();
@@ -563,7 +615,9 @@ TEST(Stream, RejectsFieldsItDoesNotHonour) {
   EXPECT_EQ(d.edge_k, r.edge_k);
   EXPECT_GT(d.edge_k, 0.0);
   EXPECT_EQ(d.edge_window, r.edge_window);
-  EXPECT_FALSE(d.min_step_auto);
+  EXPECT_TRUE(d.min_step_auto);
+  EXPECT_EQ(d.min_step_auto, r.min_step_auto);
+  EXPECT_EQ(d.max_reach, r.max_reach);
   EXPECT_LT(d.min_step, 0.0);
   EXPECT_EQ(miem::ProfileStream<>(10).params().height_k, r.height_k);
 }

@@ -93,9 +93,22 @@ def _grid_fields() -> dict[str, dict[str, Any]]:
     return DetectParams.fields("grid")
 
 
-def _fmt_default(value: Any) -> str:
-    if value is None:
-        return "off"
+def _cloud_only_fields() -> dict[str, dict[str, Any]]:
+    from .params import DetectParams
+
+    grid = _grid_fields()
+    return {k: v for k, v in DetectParams.fields("cloud").items() if k not in grid}
+
+
+def _option(name: str) -> str:
+    """A field's option: --edge-extent for edge_extent, --k for K."""
+    return "--" + name.lower().replace("_", "-")
+
+
+def _fmt_default(value: Any, help: str = "") -> str:
+    if value is None:  # None is "off", or a value derived from the scan as the help says
+        derived = re.search(r"None: ([^;]*)", help)
+        return derived.group(1) if derived else "off"
     if isinstance(value, (tuple, list)):
         return " ".join(str(v) for v in value)
     return f"{value:g}" if isinstance(value, float) else str(value)
@@ -171,9 +184,10 @@ def _add_detect_options(parser: argparse.ArgumentParser) -> None:
     for name, meta in _grid_fields().items():
         unit = f" [{meta['unit']}]" if meta["unit"] else ""
         kw: dict[str, Any] = {"nargs": "+"} if isinstance(meta["default"], tuple) else {}
-        g.add_argument(f"--{name.replace('_', '-')}", dest=name, type=_field_value,
+        g.add_argument(_option(name), dest=name, type=_field_value,
                        metavar=meta["metavar"], default=_UNSET,
-                       help=f"{meta['help']}{unit} (default: {_fmt_default(meta['default'])})",
+                       help=f"{meta['help']}{unit} (default: "
+                            f"{_fmt_default(meta['default'], meta['help'])})",
                        **kw)
     g.add_argument("--threads", type=_positive_int, metavar="N",
                    help="worker threads (default: all cores); results do not depend on it")
@@ -202,17 +216,24 @@ def _add_detect_options(parser: argparse.ArgumentParser) -> None:
                         "its scan-line order, 'cloud' runs the cloud detector on the points as "
                         "they are; 'auto' (default) rebuilds when the points are in scan-line "
                         "order and runs the cloud detector otherwise, and says which it took")
-    s.add_argument("--radius", type=_finite_float, metavar="LENGTH",
-                   help="cloud detector: neighbourhood radius in the scan's units "
-                        "(default: 5 x the median point spacing)")
-    s.add_argument("--k", type=_positive_int, metavar="N", dest="K",
-                   help="cloud detector: number of tangent-plane directions, 2-8 (default: 4)")
-    s.add_argument("--merge-distance", type=_finite_float, metavar="LENGTH",
-                   help="cloud detector: points this close are one point, labelled alike "
-                        "(default: 0, exact duplicates)")
     s.add_argument("--duplicates", choices=["error", "first", "last"], default="error",
                    help="two points in one grid cell: fail, or keep the first/last "
                         "(default: error)")
+    _add_cloud_options(parser)
+
+
+def _add_cloud_options(parser: argparse.ArgumentParser) -> None:
+    c = parser.add_argument_group(
+        "cloud detector parameters",
+        "Generated from the cloud part of miem.DetectParams: its fields that organized "
+        "detection does not have (the shared ones are the detection options above). They apply "
+        "to scans the cloud detector runs on (see --layout) and are refused for grids.")
+    for name, meta in _cloud_only_fields().items():
+        unit = f" [{meta['unit']}]" if meta["unit"] else ""
+        c.add_argument(_option(name), dest=name, type=_field_value, metavar=meta["metavar"],
+                       default=_UNSET,
+                       help=f"{meta['help']}{unit} (default: "
+                            f"{_fmt_default(meta['default'], meta['help'])})")
 
 
 def _add_common(parser: argparse.ArgumentParser) -> None:
@@ -403,13 +424,21 @@ def _detect_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     if args.config is not None:
         params = load_config(args.config, base=params)
     given = {name: getattr(args, name) for name in _grid_fields()}
-    params = params.for_path("grid", **{k: (tuple(v) if isinstance(v, list) else v)
-                                        for k, v in given.items() if v is not _UNSET})
+    given = {k: (tuple(v) if isinstance(v, list) else v) for k, v in given.items()
+             if v is not _UNSET}
+    filed = params  # the preset and the file, before the options
+    params = params.for_path("grid", **given)
     params.check("grid")
     # As a preset plus the fields that differ from it, so that reports name the preset.
     name = args.preset or next((n for n, p in PRESETS.items() if p == params), DEFAULT_PRESET)
     mine, base = params.flat("grid"), PRESETS[name].flat("grid")
     diff = {k: v for k, v in mine.items() if v != base[k]}
+    # For scans the cloud detector runs on (_cloud_kwargs): the file's angle and cloud values
+    # that differ from the preset (a file holds every part; grids read angle and grid), then
+    # the options given.
+    mine, base = filed.flat("cloud"), PRESETS[name].flat("cloud")
+    args.cloud_kwargs = {"preset": name, **{k: v for k, v in mine.items() if v != base[k]},
+                         **given, "num_threads": args.threads}
     return {"preset": name, **diff, "num_threads": args.threads}
 
 
@@ -420,7 +449,7 @@ def _kwargs_or_exit(args: argparse.Namespace) -> dict[str, Any] | None:
         msg = str(exc)
         name = msg.split(":", 1)[0]
         if name in _grid_fields():  # name the option the user typed
-            msg = f"--{name.replace('_', '-')}{msg[len(name):]}"
+            msg = f"{_option(name)}{msg[len(name):]}"
         print(f"miem: error: bad detection parameter: {msg}", file=sys.stderr)
         return None
 
@@ -441,8 +470,12 @@ class _Loaded:
         return "cloud" if self.layout == "cloud" else "x".join(map(str, self.grid.shape[:2]))
 
 
-# Options that are lengths in the scan's unit (checked against the scan's size).
-_LENGTH_OPTIONS = ("min_step", "height_tolerance", "line_step", "line_tol", "radius", "link")
+def _length_options() -> tuple[str, ...]:
+    """Options that are lengths in the scan's unit (checked against the scan's size): the
+    fields whose unit is a length, and the scan-line options."""
+    fields = {**_grid_fields(), **_cloud_only_fields()}
+    return tuple(k for k, m in fields.items() if m["unit"].startswith("length")) + (
+        "line_step", "line_tol")
 
 
 def _units(path: Path, grid: np.ndarray, args: argparse.Namespace) -> str:
@@ -457,7 +490,7 @@ def _units(path: Path, grid: np.ndarray, args: argparse.Namespace) -> str:
             args.units.lower() != guess.unit:
         print(f"miem: warning: {path.name} {guess.reason}: that looks like {guess.unit}, "
               f"not the --units {args.units} given", file=sys.stderr)
-    for name in _LENGTH_OPTIONS:
+    for name in _length_options():
         value = getattr(args, name, None)
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             text = length_warning(f"--{name.replace('_', '-')}", float(value), guess)
@@ -517,14 +550,15 @@ def _say(args: argparse.Namespace, text: str) -> None:
 
 def _cloud_kwargs(loaded: _Loaded, kwargs: dict[str, Any], args: argparse.Namespace,
                   path: Path) -> dict[str, Any]:
-    """The detect arguments for the path the scan took: cloud-only options join for clouds and
-    are rejected for grids."""
-    extra = {k: getattr(args, k, None) for k in ("radius", "K", "merge_distance")}
-    extra = {k: v for k, v in extra.items() if v is not None}
+    """The detect arguments for the path the scan took: for clouds the preset, the config
+    file's angle and cloud values and the options (cloud-only ones included); for grids the
+    grid's, and cloud-only options are rejected."""
+    extra = {k: getattr(args, k, _UNSET) for k in _cloud_only_fields()}
+    extra = {k: v for k, v in extra.items() if v is not _UNSET}
     if loaded.layout == "cloud":
-        return {**kwargs, **extra}
+        return {**getattr(args, "cloud_kwargs", kwargs), **extra}
     if extra:
-        opts = ", ".join("--" + k.lower().replace("_", "-") for k in extra)
+        opts = ", ".join(_option(k) for k in extra)
         raise _Failure(f"{path}: {opts} apply to the cloud detector only, and this scan is "
                        f"a {loaded.shape_text} grid; drop them or pass --layout cloud")
     return kwargs

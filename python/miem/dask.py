@@ -64,7 +64,7 @@ _DTYPES = {"labels": np.uint8, "flags": np.uint8, "angle": np.float64, "height":
 
 
 def _resolve_min_step(grid: "da.Array", args: tuple, kwargs: dict, params: dict) -> tuple:
-    """min_step="auto" resolved over the whole grid (:func:`auto_min_step`) and given to every
+    """min_step="auto" resolved first (:func:`auto_min_step`: its 256 rows) and given to every
     block as the length (or None) it resolves to; params record it as auto."""
     if not params.get("min_step_auto"):
         return kwargs, params
@@ -88,13 +88,12 @@ def _probe_params(args: tuple, kwargs: dict) -> dict:
 _TILE = (64, 128)
 
 
-#: Grid parameters whose reach grid_halo knows; any other parameter that is on is refused.
-_GRID_KNOWN = {"preset", "theta0", "theta0_auto", "scales", "max_gap", "min_step",
-               "min_directions", "max_iterations", "window", "height_tolerance", "edge_extent",
-               "max_reach", "heights",
-               # resolved over the whole grid first (auto_min_step), then a min_step length
-               "min_step_auto",
-               "edge_tolerance", "edge_window"}
+#: Grid parameters whose reach grid_halo knows: every field organized detection reads
+#: (generated from miem.DetectParams, hence from the C++ field table), what it derives
+#: (theta0_auto; min_step_auto: min_step is resolved first on its 256 rows, auto_min_step)
+#: and the preset's name. A new grid field is known here at once: a field that reaches farther
+#: than grid_halo's formula must widen it (tests/test_config.py runs every field on blocks).
+_GRID_KNOWN = {"preset", "theta0_auto", "min_step_auto", *miem.DetectParams.fields("grid")}
 
 
 def grid_halo(params: dict, strict: bool = False) -> int:
@@ -568,10 +567,11 @@ def auto_theta0(grid: Any, kwargs: Optional[dict] = None, params: Optional[dict]
 
 
 def auto_min_step(grid: Any, **compute_kwargs: Any) -> Optional[float]:
-    """min_step="auto" of ``miem.detect`` over a whole Dask-held grid, exactly as miem.detect
-    derives it (docs/SPEC.md "min_step='auto'"): four medians over every block's neighbour
-    pairs and triples, each block read with two more rows and columns, by radix selection in
-    four rounds over the scan (nothing is gathered or held between rounds).
+    """min_step="auto" of ``miem.detect`` on a Dask-held grid, exactly as miem.detect derives it
+    (docs/SPEC.md "min_step='auto'": the first 256 rows from the first row with a finite cell):
+    that row is found over the blocks, then four medians over the neighbour pairs and triples
+    of the blocks of those rows, each block read with two more rows and columns, by radix
+    selection in four rounds (nothing is gathered or held between rounds).
 
     Returns
     -------
@@ -580,7 +580,14 @@ def auto_min_step(grid: Any, **compute_kwargs: Any) -> Optional[float]:
     """
     from . import _dask_select as sel
 
+    from .reference import AUTO_MIN_STEP_ROWS
+
     grid = _as_grid(grid)
+    rows = da.isfinite(grid).all(axis=-1).any(axis=1)
+    hit = np.flatnonzero(np.asarray(dask.compute(rows, **compute_kwargs)[0]))
+    if hit.size == 0:
+        return None
+    grid = grid[int(hit[0]):int(hit[0]) + AUTO_MIN_STEP_ROWS]
     H, W = grid.shape[:2]
     blocks = [(grid[r0:min(H, r1 + 2), c0:min(W, c1 + 2)], (r1 - r0, c1 - c0))
               for r0, r1, c0, c1 in _homes(grid)]
@@ -614,10 +621,12 @@ _POINT_FILL = {"labels": int(miem.INVALID), "flags": 0, "angle": np.nan, "height
                "degenerate": False}
 
 
-#: Cloud parameters whose reach points_halo knows; any other parameter that is on is refused.
-_POINT_KNOWN = {"preset", "theta0", "scales", "min_step", "min_directions", "max_iterations",
-                "radius", "K", "link", "spacing", "heights", "height_tolerance", "edge_extent",
-                "min_group", "height_radius", "merge_distance", "merged", "isolated_tolerance"}
+#: Cloud fields whose reach points_halo does not cover (refused when on): the cloud edge test.
+_POINT_UNCOVERED = {"edge_tolerance", "edge_radius"}
+#: Cloud parameters whose reach points_halo knows: every field cloud detection reads (generated
+#: from miem.DetectParams) but _POINT_UNCOVERED, what it records (merged) and the preset's name;
+#: any other parameter that is on is refused.
+_POINT_KNOWN = {"preset", "merged", *miem.DetectParams.fields("cloud")} - _POINT_UNCOVERED
 
 
 def _probe_points(kwargs: dict) -> tuple:

@@ -1,16 +1,27 @@
 """The detector configuration, defined once per scope: fields, defaults, units, help, presets.
 
-:class:`DetectParams` mirrors the C++ parameter types of ``cpp/include/miem/params.hpp`` in the
-user's spelling (``theta0="auto"``, ``height_tolerance="4.5rms"``, ``None`` for "off"), one
-part per scope: ``angle`` (:class:`AngleParams`, the angle test shared by every detector),
-``grid`` (:class:`GridParams`, organized grids: batch and stream) and ``cloud``
-(:class:`CloudParams`, unorganized clouds). Each field carries its default, unit and help text;
-a detector reads ``angle`` and its own part, and a keyword override names a field of those parts
+:class:`DetectParams` is the C++ parameter types of ``cpp/include/miem/params.hpp`` in the
+user's spelling, one part per scope: ``angle`` (:class:`AngleParams`, the angle test shared by
+every detector), ``grid`` (:class:`GridParams`, organized grids: batch and stream) and ``cloud``
+(:class:`CloudParams`, unorganized clouds). The parts are **generated** from the C++ types'
+field tables (``visit_fields``, bound as ``miem._core.GridParams.fields()`` etc.): every C++
+field is a field here with the C++ default, unit and help, converted to the core generically and
+checked by the C++ ``check()`` (whose message starts with the field's name). The presets are the
+C++ presets (``paper_params()``, ``paper_points_params()``; the defaults are default-constructed
+C++ parameters). Only the fields whose Python spelling differs from C++ are written out here
+(``_SPELLED``): ``theta0`` (degrees or ``"auto"``: ``theta0_deg`` + ``theta0_auto``),
+``min_directions`` (None for all: 0), grid ``min_step`` (a length, ``"auto"`` or None:
+``min_step`` + ``min_step_auto``), ``heights`` (``"all"`` / ``"abnormal"``: ``height_mode``),
+``height_tolerance`` (a length or ``"<k>rms"``: ``height_abs`` + ``height_k``),
+``edge_tolerance`` and ``isolated_tolerance`` (None for off: ``edge_k`` / ``isolated_k`` 0) and
+cloud ``K`` (``num_directions``).
+
+A detector reads ``angle`` and its own part, and a keyword override names a field of those parts
 (``miem.detect(grid, window=15)``, ``miem.detect(points, radius=2.0)``); a field of another part
 is refused with a ValueError naming it. ``ProfileStream`` refuses ``min_step="auto"`` (it
 needs the whole scan; give the length a first scan resolves).
-The command line's detection options, ``--config`` files and ``miem config`` are generated from
-these fields.
+The command line's detection options, ``--config`` files, ``miem config`` and ``miem.dask``'s
+known fields are generated from these fields.
 """
 
 from __future__ import annotations
@@ -22,7 +33,7 @@ import numbers
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, Mapping, Optional, Tuple, Union
+from typing import Any, Callable, Dict, Mapping, Optional, Tuple, Union
 
 from . import _core
 
@@ -47,19 +58,29 @@ PATHS = ("grid", "stream", "cloud")
 _PARTS = {"grid": ("angle", "grid"), "stream": ("angle", "grid"), "cloud": ("angle", "cloud")}
 _WHAT = {"grid": "organized grids (H, W, 3)", "stream": "ProfileStream",
          "cloud": "unorganized clouds (N, 3)"}
+#: The bound C++ type of each part (its ``fields()`` are the part's fields), and the combined
+#: C++ type a detector converts the parts to (its default-constructed value gives the defaults).
+_CORE_PART = {"angle": _core.AngleParams, "grid": _core.GridParams, "cloud": _core.CloudParams}
+_CORE_WHOLE = {"angle": _core.DetectParams, "grid": _core.DetectParams,
+               "cloud": _core.PointsDetectParams}
 
 
 # ---------------------------------------------------------------------------------------------
-# value checks (the user's spelling; ranges are the core's check())
+# value checks of the user's spelling (types; the ranges are the core's check())
 
 
-def _int(name: str, value: object, minimum: int, maximum: int = 2**30) -> int:
+def _int(name: str, value: object, minimum: Optional[int] = None, maximum: int = 2**31 - 1
+         ) -> int:
+    """An integer (a C++ int: 32 bits), at least ``minimum`` when given."""
     import numpy as np
 
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
-        raise ValueError(f"{name}: expected an integer >= {minimum}, got {value!r}")
+        raise ValueError(f"{name}: expected an integer, got {value!r}")
     v = int(value)
-    if v < minimum:
+    if minimum is None:
+        if not -2**31 < v <= maximum:
+            raise ValueError(f"{name}: expected a 32-bit integer, got {v}")
+    elif v < minimum:
         raise ValueError(f"{name}: expected an integer >= {minimum}, got {v}")
     if v > maximum:
         raise ValueError(f"{name}: expected an integer in {minimum}..{maximum}, got {v}")
@@ -84,48 +105,33 @@ def _positive(name: str, value: object) -> float:
     return v
 
 
-def _scales_tuple(value: object) -> Tuple[int, ...]:
+def _ints(name: str, value: object) -> Tuple[int, ...]:
+    """A non-empty tuple of integers (a C++ std::vector<int> field) from a sequence or one int."""
     import numpy as np
 
     if isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_)):
         value = (value,)
     if isinstance(value, (str, bytes)):
-        raise ValueError(f"scales: expected integers >= 1, got {value!r}")
+        raise ValueError(f"{name}: expected integers, got {value!r}")
     try:
-        out = tuple(_int("scales", s, 1) for s in value)  # type: ignore[union-attr]
+        out = tuple(_int(name, s) for s in value)  # type: ignore[union-attr]
     except TypeError:
-        raise ValueError(f"scales: expected integers >= 1, got {value!r}") from None
+        raise ValueError(f"{name}: expected integers, got {value!r}") from None
     if not out:
-        raise ValueError("scales: must contain at least one scale")
+        raise ValueError(f"{name}: must not be empty")
     return out
 
 
-def _height_mode(value: object) -> Any:
-    if value == "all":
-        return _core.HeightMode.ALL
-    if value == "abnormal":
-        return _core.HeightMode.ABNORMAL
-    raise ValueError(f"heights: expected 'all' or 'abnormal', got {value!r}")
+def _bool(name: str, value: object) -> bool:
+    import numpy as np
+
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name}: expected True or False, got {value!r}")
+    return bool(value)
 
 
-_RMS = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*rms\s*$")
-
-
-def _height_tolerance(value: object) -> Tuple[float, float]:
-    """(absolute, k_rms) from None, a length or a '<k>rms' string; 0 means off."""
-    if value is None:
-        return 0.0, 0.0
-    if isinstance(value, str):
-        m = _RMS.match(value)
-        if not m or not float(m.group(1)) > 0 or not math.isfinite(float(m.group(1))):
-            raise ValueError(
-                f"height_tolerance: expected a length > 0, '<k>rms' with k > 0 (e.g. '4rms') "
-                f"or None, got {value!r}")
-        return 0.0, float(m.group(1))
-    v = _real("height_tolerance", value)
-    if not v > 0:
-        raise ValueError(f"height_tolerance: expected a length > 0, got {v}")
-    return v, 0.0
+def _optional_real(name: str, value: object) -> Optional[float]:
+    return None if value is None else _real(name, value)
 
 
 def _raise_unless_ok(status: Tuple[int, str]) -> None:
@@ -134,126 +140,325 @@ def _raise_unless_ok(status: Tuple[int, str]) -> None:
         raise ValueError(message)
 
 
-def _f(default: Any, unit: str, help: str, metavar: str, stream: Any = dataclasses.MISSING,
-       stream_refuses: Any = dataclasses.MISSING) -> Any:
-    """A field with its unit, help text and command-line metavar; ``stream``: the only value
-    ProfileStream accepts (a grid field it does not implement yet), or with ``stream_refuses``:
-    the stream's default, and the one value the stream refuses."""
-    meta: Dict[str, Any] = {"unit": unit, "help": help, "metavar": metavar}
-    if stream is not dataclasses.MISSING:
-        meta["stream"] = stream
-    if stream_refuses is not dataclasses.MISSING:
-        meta["stream_refuses"] = stream_refuses
-    return field(default=default, metadata=meta)
+# ---------------------------------------------------------------------------------------------
+# plain fields: the C++ field as it is (its C++ type, read from the default, picks the conversion)
+
+#: C++ default's Python type -> (to the core, from the core). std::optional<double> is None by
+#: default (all optional fields are lengths whose default the detector derives).
+_PLAIN: Dict[type, Tuple[Callable[[str, Any], Any], Callable[[Any], Any]]] = {
+    bool: (_bool, bool),
+    int: (_int, int),
+    float: (_real, float),
+    list: (lambda n, v: list(_ints(n, v)), tuple),  # std::vector<int>
+    type(None): (_optional_real, lambda v: v),      # std::optional<double>
+}
+
+
+def _metavar(unit: str, default: Any) -> str:
+    if isinstance(default, tuple):
+        return "N"
+    return {"length": "LENGTH", "cells": "CELLS", "spacings": "SPACINGS"}.get(unit, "N")
+
+
+# ---------------------------------------------------------------------------------------------
+# spelled fields: the only fields whose Python form differs from the C++ field(s) they stand for
 
 
 @dataclass(frozen=True)
-class AngleParams:
-    """The angle test and its iteration, shared by grids, the stream and clouds."""
+class _Spelled:
+    """A Python field standing for C++ fields ``core`` of its part: ``to_core(value)`` -> the
+    C++ values by name (ValueError naming ``name`` when the value is not of its form),
+    ``from_core(values by C++ name)`` -> the Python value (gives the default and the presets)."""
 
-    theta0: Union[float, str] = _f(
-        90.0, "deg", "angle threshold: a direction is flagged when the interior angle at the "
-        "point is at most theta0 (0 < theta0 < 180); 'auto' derives it from the scan's angle "
-        "statistics (grids only)", "DEG")
-    scales: Tuple[int, ...] = _f(
-        (1, 2), "cells", "neighbour distances: (1, 2) also finds defects two points wide (on "
-        "clouds: the s-th point along a direction)", "N")
-    min_directions: Optional[int] = _f(
-        None, "directions", "flagged directions needed for ABNORMAL, 1-4 (clouds: 1-K); None: "
-        "all available directions", "N")
-    max_iterations: int = _f(
-        10, "passes", "maximum detection passes; each pass removes the points found and judges "
-        "the rest again (and at most as many height passes)", "N")
+    name: str
+    core: Tuple[str, ...]
+    unit: str
+    help: str
+    metavar: str
+    to_core: Callable[[Any], Dict[str, Any]]
+    from_core: Callable[[Dict[str, Any]], Any]
+    extra: Tuple[Tuple[str, Any], ...] = ()  # more metadata (ProfileStream's "stream" values)
+    annotation: Any = Any  # the Python type, for signatures and help()
 
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "scales", _scales_tuple(self.scales))
+
+def _theta0_to(v: Any) -> Dict[str, Any]:
+    if isinstance(v, str):
+        if v != "auto":
+            raise ValueError(f"theta0: expected degrees or 'auto', got {v!r}")
+        return {"theta0_auto": True, "theta0_deg": 90.0}
+    return {"theta0_auto": False, "theta0_deg": _real("theta0", v)}
+
+
+def _min_directions_to(v: Any) -> Dict[str, Any]:
+    return {"min_directions": 0 if v is None else _int("min_directions", v, 1)}
+
+
+def _grid_min_step_to(v: Any) -> Dict[str, Any]:
+    if isinstance(v, str):
+        if v != "auto":
+            raise ValueError(f"min_step: expected a length >= 0, 'auto' or None, got {v!r}")
+        return {"min_step_auto": True, "min_step": -1.0}
+    if v is None:
+        return {"min_step_auto": False, "min_step": -1.0}
+    m = _real("min_step", v)
+    if m < 0:
+        raise ValueError(f"min_step: expected a length >= 0, 'auto' or None, got {m}")
+    return {"min_step_auto": False, "min_step": m}
+
+
+def _grid_min_step_from(c: Dict[str, Any]) -> Any:
+    return "auto" if c["min_step_auto"] else (None if c["min_step"] < 0 else c["min_step"])
+
+
+_HEIGHT_MODES = {"all": _core.HeightMode.ALL, "abnormal": _core.HeightMode.ABNORMAL}
+
+
+def _heights_to(v: Any) -> Dict[str, Any]:
+    if not isinstance(v, str) or v not in _HEIGHT_MODES:
+        raise ValueError(f"heights: expected 'all' or 'abnormal', got {v!r}")
+    return {"height_mode": _HEIGHT_MODES[v]}
+
+
+def _heights_from(c: Dict[str, Any]) -> str:
+    return next(k for k, m in _HEIGHT_MODES.items() if m == c["height_mode"])
+
+
+_RMS = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*rms\s*$")
+
+
+def _height_tolerance_to(value: Any) -> Dict[str, Any]:
+    """(absolute, k_rms) from None, a length or a '<k>rms' string; 0 means off."""
+    if value is None:
+        return {"height_abs": 0.0, "height_k": 0.0}
+    if isinstance(value, str):
+        m = _RMS.match(value)
+        if not m or not float(m.group(1)) > 0 or not math.isfinite(float(m.group(1))):
+            raise ValueError(
+                f"height_tolerance: expected a length > 0, '<k>rms' with k > 0 (e.g. '4rms') "
+                f"or None, got {value!r}")
+        return {"height_abs": 0.0, "height_k": float(m.group(1))}
+    v = _real("height_tolerance", value)
+    if not v > 0:
+        raise ValueError(f"height_tolerance: expected a length > 0, got {v}")
+    return {"height_abs": v, "height_k": 0.0}
+
+
+def _height_tolerance_from(c: Dict[str, Any]) -> Any:
+    if c["height_abs"] > 0 and c["height_k"] > 0:
+        raise ValueError("height_tolerance: C++ sets both height_abs and height_k; Python "
+                         "spells one of them")
+    if c["height_abs"] > 0:
+        return c["height_abs"]
+    return f"{c['height_k']:g}rms" if c["height_k"] > 0 else None
+
+
+def _off_is_zero(name: str, core: str, unit: str, help: str, metavar: str = "K") -> _Spelled:
+    """A C++ multiple ``core`` that is off at 0, spelled ``name``: a number > 0, or None (off)."""
+
+    def to_core(v: Any) -> Dict[str, Any]:
+        if v is None:
+            return {core: 0.0}
+        k = _real(name, v)
+        if not k > 0.0:
+            raise ValueError(f"{name}: expected None (off) or a number > 0, got {k}")
+        return {core: k}
+
+    return _Spelled(name, (core,), unit, help, metavar, to_core,
+                    lambda c: c[core] if c[core] > 0 else None, annotation=Optional[float])
+
+
+def _theta0() -> _Spelled:
+    return _Spelled(
+        "theta0", ("theta0_deg", "theta0_auto"), "deg",
+        "angle threshold: a direction is flagged when the interior angle at the point is at "
+        "most theta0 (0 < theta0 < 180); 'auto' derives it from the scan's angle statistics "
+        "(grids only)", "DEG", _theta0_to,
+        lambda c: "auto" if c["theta0_auto"] else c["theta0_deg"], annotation=Union[float, str])
+
+
+def _min_directions() -> _Spelled:
+    return _Spelled(
+        "min_directions", ("min_directions",), "directions",
+        "flagged directions needed for ABNORMAL, 1-4 (clouds: 1-K); None: all available "
+        "directions", "N", _min_directions_to,
+        lambda c: None if c["min_directions"] == 0 else c["min_directions"],
+        annotation=Optional[int])
+
+
+def _heights() -> _Spelled:
+    return _Spelled("heights", ("height_mode",), "",
+                    "which points get a height: 'all' finite points or only 'abnormal' ones "
+                    "(faster)", "{all,abnormal}", _heights_to, _heights_from, annotation=str)
+
+
+def _height_tolerance(help: str) -> _Spelled:
+    return _Spelled("height_tolerance", ("height_abs", "height_k"), "length or k x rms", help,
+                    "LENGTH|Krms", _height_tolerance_to, _height_tolerance_from,
+                    annotation=Union[None, float, str])
+
+
+#: The fields whose Python spelling differs from C++, per part (all other fields are plain).
+_SPELLED: Dict[str, Tuple[_Spelled, ...]] = {
+    "angle": (_theta0(), _min_directions()),
+    "grid": (
+        _Spelled(
+            "min_step", ("min_step", "min_step_auto"), "length",
+            "minimum neighbour distance in the scan's units, so that every direction sees the "
+            "same physical scale; 'auto': from the scan's spacing and profile noise over the "
+            "first 256 rows with data (SPEC \"min_step='auto'\"; result.params holds the value "
+            "used); None: off", "LENGTH|auto", _grid_min_step_to, _grid_min_step_from,
+            (), Union[None, float, str]),
+        _heights(),
+        _height_tolerance(
+            "height test (beyond the paper): a NORMAL point farther than this from its local "
+            "plane becomes ABNORMAL; a length or '<k>rms' (k times the plane's rms); None: off"),
+        _off_is_zero(
+            "edge_tolerance", "edge_k", "k x rms",
+            "edge test (SPEC 'Edge test', beyond the paper, after the height test): a point "
+            "standing proud of a feature line or the scan's outline by more than k times the "
+            "rms of its one-sided sub-window plane becomes ABNORMAL; None: off"),
+    ),
+    "cloud": (
+        _Spelled("K", ("num_directions",), "directions", "tangent-plane directions tested, 2-8",
+                 "N", lambda v: {"num_directions": _int("K", v)},
+                 lambda c: c["num_directions"], annotation=int),
+        _heights(),
+        _height_tolerance(
+            "height test: a NORMAL point farther than this from the plane of its surroundings "
+            "(beyond radius, within height_radius) becomes ABNORMAL; a length or '<k>rms'; "
+            "None: off"),
+        _off_is_zero(
+            "edge_tolerance", "edge_k", "k x rms",
+            "edge test (SPEC 'Unorganized clouds: edge test', after the height test): a point "
+            "standing proud of a feature line or the cloud's outline by more than k times the "
+            "rms of a one-sided sector's plane becomes ABNORMAL (3 was measured on the "
+            "held-out-style clouds; not in the default); None: off"),
+        _off_is_zero(
+            "isolated_tolerance", "isolated_k", "k x rms",
+            "with the height test: a point alone farther than k times the rms of its "
+            "surroundings plane, whose neighbours within radius lie about that plane as loosely "
+            "as the rms says (a low spike or pit one point wide), becomes ABNORMAL; None: off"),
+    ),
+}
+
+
+# ---------------------------------------------------------------------------------------------
+# the parts, generated from the C++ field tables
 
 
 @dataclass(frozen=True)
-class GridParams:
-    """Organized grids only (batch detection and ProfileStream)."""
+class _Field:
+    """How one Python field converts: to the core (C++ values by name) and from it."""
 
-    max_gap: int = _f(
-        1, "cells", "missing or removed cells that may be skipped to reach a neighbour", "CELLS")
-    min_step: Union[None, float, str] = _f(
-        "auto", "length", "minimum neighbour distance in the scan's units, so that every "
-        "direction sees the same physical scale; 'auto': from the scan's spacing and profile "
-        "noise (SPEC \"min_step='auto'\"; result.params holds the value used; ProfileStream "
-        "needs a length); None: off", "LENGTH|auto", stream=None, stream_refuses="auto")
-    max_reach: int = _f(
-        32, "cells", "with min_step: how many cells beyond scale + max_gap the neighbour search "
-        "may go", "CELLS")
-    window: int = _f(
-        21, "cells", "side of the square (odd) whose NORMAL points give the local plane for "
-        "heights and the height test", "CELLS")
-    heights: str = _f(
-        "all", "", "which points get a height: 'all' finite points or only 'abnormal' ones "
-        "(faster)", "{all,abnormal}")
-    height_tolerance: Union[None, float, str] = _f(
-        "4.5rms", "length or k x rms", "height test (beyond the paper): a NORMAL point "
-        "farther than this from its local plane becomes ABNORMAL; a length or '<k>rms' (k times "
-        "the plane's rms); None: off", "LENGTH|Krms")
-    edge_extent: int = _f(
-        12, "cells", "with the height test: EDGE groups whose bounding box is at most this long "
-        "are compact (a defect's halo) and height-tested too; longer ones are feature lines",
-        "CELLS")
-    edge_tolerance: Optional[float] = _f(
-        4.0, "k x rms", "edge test (SPEC 'Edge test', beyond the paper, after the height test): "
-        "a point standing proud of a feature line or the scan's outline by more than k times "
-        "the rms of its one-sided sub-window plane becomes ABNORMAL; None: off", "K")
-    edge_window: int = _f(
-        15, "cells", "with the edge test: side of its one-sided sub-windows (odd >= 3)", "CELLS")
+    name: str
+    core: Tuple[str, ...]
+    to_core: Callable[[Any], Dict[str, Any]]
+    from_core: Callable[[Dict[str, Any]], Any]
+    annotation: Any = Any
 
 
-@dataclass(frozen=True)
-class CloudParams:
-    """Unorganized clouds only."""
+#: C++ default's Python type -> the field's annotation.
+_ANNOTATION = {bool: bool, int: int, float: float, list: Tuple[int, ...],
+               type(None): Optional[float]}
 
-    radius: Optional[float] = _f(
-        None, "length", "neighbourhood radius; None: 5 x the median point spacing", "LENGTH")
-    K: int = _f(4, "directions", "tangent-plane directions tested, 2-8", "N")
-    min_step: Optional[float] = _f(
-        None, "length", "shortest tangent-plane offset of a neighbour; None: 0.5 x the point "
-        "spacing", "LENGTH")
-    link: Optional[float] = _f(
-        None, "length", "ABNORMAL points this close belong to one defect; None: radius", "LENGTH")
-    heights: str = _f(
-        "all", "", "which points get a height: 'all' finite points or only 'abnormal' ones "
-        "(faster)", "{all,abnormal}")
-    height_tolerance: Union[None, float, str] = _f(
-        "7rms", "length or k x rms", "height test: a NORMAL point farther than this from the "
-        "plane of its surroundings (beyond radius, within height_radius) becomes ABNORMAL; a "
-        "length or '<k>rms'; None: off", "LENGTH|Krms")
-    edge_extent: float = _f(
-        12.0, "spacings", "with the height test: EDGE groups at most this many spacings across "
-        "are compact and height-tested too", "SPACINGS")
-    min_group: int = _f(
-        40, "points", "0 (off) or >= 3: groups of usable points (linked within radius) smaller "
-        "than this are ABNORMAL (floating clusters)", "N")
-    height_radius: Optional[float] = _f(
-        None, "length", "radius of the height planes; None: 2 x radius", "LENGTH")
-    merge_distance: float = _f(
-        0.0, "length", "duplicate points: rows this close (0: equal coordinates) are one point, "
-        "detected once and labelled alike", "LENGTH")
-    spacing: Optional[float] = _f(
-        None, "length", "the cloud's point spacing, the unit of the defaults and of edge_extent; "
-        "None: the median nearest-neighbour distance", "LENGTH")
-    edge_tolerance: Optional[float] = _f(
-        4.0, "k x rms", "edge test (SPEC 'Unorganized clouds: edge test', after the height "
-        "test): a point standing proud of a feature line or the cloud's outline "
-        "by more than k times the rms of a one-sided sector's plane becomes ABNORMAL (4: "
-        "chosen on the held-out-style clouds' tune split); None: off", "K")
-    edge_radius: Optional[float] = _f(
-        None, "length", "with the edge test: radius of its sectors; None: height_radius",
-        "LENGTH")
-    isolated_tolerance: Optional[float] = _f(
-        5.0, "k x rms", "with the height test (either tolerance): a point alone farther than "
-        "k times the rms of "
-        "its surroundings plane, whose neighbours within radius lie about that plane as loosely "
-        "as the rms says (a low spike or pit one point wide), becomes ABNORMAL; None: off", "K")
 
+def _plain(part: str, name: str) -> Tuple[Callable, Callable]:
+    default = getattr(_CORE_WHOLE[part](), name)
+    if type(default) not in _PLAIN:
+        raise TypeError(f"C++ field {name}: type {type(default).__name__} has no plain Python "
+                        "conversion; spell it in miem/params.py _SPELLED")
+    to, back = _PLAIN[type(default)]
+    return (lambda v: {name: to(name, v)}), (lambda c: back(c[name]))
+
+
+def _part_table(part: str) -> Tuple[Tuple[Any, ...], ...]:
+    """``(_Field, unit, help, metavar or None, extra metadata)`` of the part's fields in C++
+    declaration order: a spelled field where its first C++ field stands, every other C++ field
+    as it is."""
+    spelled = {c: s for s in _SPELLED[part] for c in s.core}
+    out, seen = [], set()
+    for name, unit, help in _CORE_PART[part].fields():
+        s = spelled.get(name)
+        if s is None:
+            to, back = _plain(part, name)
+            kind = type(getattr(_CORE_WHOLE[part](), name))
+            out.append((_Field(name, (name,), to, back, _ANNOTATION[kind]), unit, help, None,
+                        ()))
+        elif s.name not in seen:
+            seen.add(s.name)
+            out.append((_Field(s.name, s.core, s.to_core, s.from_core, s.annotation), s.unit,
+                        s.help, s.metavar, s.extra))
+    missing = [s.name for s in _SPELLED[part] if s.name not in seen]
+    if missing:
+        raise TypeError(f"miem/params.py _SPELLED[{part!r}]: {missing} name no C++ field")
+    return tuple(out)
+
+
+def _core_values(core: Any, names: Tuple[str, ...]) -> Dict[str, Any]:
+    return {n: getattr(core, n) for n in names}
+
+
+def _make_part(part: str, doc: str) -> type:
+    table = _part_table(part)
+    default_core = _CORE_WHOLE[part]()
+    fields, conv = [], {}
+    for f, unit, help, metavar, extra in table:
+        default = f.from_core(_core_values(default_core, f.core))
+        meta = {"unit": unit, "help": help, "metavar": metavar or _metavar(unit, default),
+                "core": f.core, **dict(extra)}
+        fields.append((f.name, f.annotation, field(default=default, metadata=meta)))
+        conv[f.name] = f
+    tuples = tuple(f.name for f, *_ in table if isinstance(
+        f.from_core(_core_values(default_core, f.core)), tuple))
+
+    def __post_init__(self: Any) -> None:  # sequences of integers as tuples, checked
+        for name in tuples:
+            object.__setattr__(self, name, _ints(name, getattr(self, name)))
+
+    lines = [doc, "", "Fields (generated from the C++ field table, with units):", ""]
+    for f, unit, help, *_ in table:
+        lines.append(f"- ``{f.name}``{f' [{unit}]' if unit else ''}: {help}")
+    cls = dataclasses.make_dataclass(
+        _CORE_PART[part].__name__, fields, frozen=True,
+        namespace={"__doc__": "\n".join(lines), "__post_init__": __post_init__,
+                   "_convert": conv})
+    cls.__module__ = __name__  # (make_dataclass's module= is Python 3.12+)
+    return cls
+
+
+AngleParams = _make_part("angle", "The angle test and its iteration, shared by grids, the "
+                                  "stream and clouds.")
+GridParams = _make_part("grid", "Organized grids only (batch detection and ProfileStream).")
+CloudParams = _make_part("cloud", "Unorganized clouds only.")
 
 _PART_TYPES = {"angle": AngleParams, "grid": GridParams, "cloud": CloudParams}
+
+
+def _to_core(part_obj: Any, core: Any) -> None:
+    """Sets the C++ fields of ``core`` that the part's fields stand for."""
+    for name, f in part_obj._convert.items():
+        for cname, value in f.to_core(getattr(part_obj, name)).items():
+            setattr(core, cname, value)
+
+
+def _part_from_core(part: str, core: Any) -> Any:
+    cls = _PART_TYPES[part]
+    return cls(**{name: f.from_core(_core_values(core, f.core))
+                  for name, f in cls._convert.items()})
+
+
+def _check(core: Any, parts: Tuple[str, ...]) -> None:
+    """The C++ check(); its message names the C++ field, which is renamed to the Python field
+    that stands for it (``edge_k`` -> ``edge_tolerance``)."""
+    code, message = core.check()
+    if code == 0:
+        return
+    head, sep, rest = message.partition(":")
+    for part in parts:
+        for name, f in _PART_TYPES[part]._convert.items():
+            if head in f.core and head != name:
+                message = f"{name} (C++ {head}){sep}{rest}"
+    raise ValueError(message)
 
 
 @dataclass(frozen=True)
@@ -268,16 +473,17 @@ class DetectParams:
     field. ``DetectParams.fields(path)`` lists the fields a detector reads, with unit and help.
     """
 
-    angle: AngleParams = field(default_factory=AngleParams)
-    grid: GridParams = field(default_factory=GridParams)
-    cloud: CloudParams = field(default_factory=CloudParams)
+    angle: AngleParams = field(default_factory=AngleParams)  # type: ignore[valid-type]
+    grid: GridParams = field(default_factory=GridParams)  # type: ignore[valid-type]
+    cloud: CloudParams = field(default_factory=CloudParams)  # type: ignore[valid-type]
 
     # -- fields ---------------------------------------------------------------------------
 
     @staticmethod
     def fields(path: str = "grid") -> Dict[str, Dict[str, Any]]:
-        """Field name -> ``{"default", "unit", "help", "metavar", "part", ...}`` for the fields
-        detector ``path`` reads (``angle`` and its own part)."""
+        """Field name -> ``{"default", "unit", "help", "metavar", "part", "core", ...}`` for
+        the fields detector ``path`` reads (``angle`` and its own part); ``core``: the C++
+        fields it stands for."""
         out: Dict[str, Dict[str, Any]] = {}
         for part in _parts(path):
             for f in dataclasses.fields(_PART_TYPES[part]):
@@ -341,8 +547,18 @@ class DetectParams:
     def to_dict(self) -> Dict[str, Dict[str, Any]]:
         """``{"angle": {...}, "grid": {...}, "cloud": {...}}``, JSON-ready."""
         out = {part: dataclasses.asdict(getattr(self, part)) for part in _PART_TYPES}
-        out["angle"]["scales"] = list(out["angle"]["scales"])
+        for values in out.values():
+            for k, v in values.items():
+                if isinstance(v, tuple):
+                    values[k] = list(v)
         return out
+
+    @classmethod
+    def _from_core(cls, grid: Any, cloud: Any) -> "DetectParams":
+        """The parameters that C++ ``grid`` (a DetectParams: angle and grid) and ``cloud`` (a
+        PointsDetectParams) spell."""
+        return cls(angle=_part_from_core("angle", grid), grid=_part_from_core("grid", grid),
+                   cloud=_part_from_core("cloud", cloud))
 
     # -- checks and conversion to the core ------------------------------------------------
 
@@ -364,101 +580,31 @@ class DetectParams:
                 if "stream" not in meta:
                     continue
                 value = getattr(self.grid, name)
-                if "stream_refuses" in meta:
-                    if value == meta["stream_refuses"]:
-                        raise ValueError(
-                            f"{name}={value!r}: ProfileStream cannot resolve it (it takes "
-                            f"medians over the whole scan, which a stream never sees); give a "
-                            f"length or None: the value miem.detect(first_scan).params"
-                            f"[{name!r}] resolves on a first scan of the part (C++: "
-                            f"miem::auto_min_step)")
-                elif value != meta["stream"]:
+                if value != meta["stream"]:
                     bad.append((f"{name}={value!r}", f"{name}={meta['stream']!r}"))
         if bad:
             raise ValueError(
                 f"{', '.join(b[0] for b in bad)}: not implemented for {_WHAT[path]} yet; the "
                 f"field would be ignored, so it is refused (use {', '.join(b[1] for b in bad)})")
 
-    def _core_angle(self, core: Any) -> None:
-        a = self.angle
-        if isinstance(a.theta0, str):
-            if a.theta0 != "auto":
-                raise ValueError(f"theta0: expected degrees or 'auto', got {a.theta0!r}")
-            core.theta0_auto = True
-            core.theta0_deg = 90.0
-        else:
-            core.theta0_deg = _real("theta0", a.theta0)
-        core.scales = list(a.scales)
-        md = a.min_directions
-        core.min_directions = 0 if md is None else _int("min_directions", md, 1)
-        core.max_iterations = _int("max_iterations", a.max_iterations, 1)
-
     def _core_grid(self, num_threads: int, path: str = "grid") -> Any:
         """The C++ ``miem::DetectParams`` for an organized grid (or a stream), checked."""
         self._reject_unhonoured(path)
-        g = self.grid
         p = _core.DetectParams()
-        self._core_angle(p)
-        p.max_gap = _int("max_gap", g.max_gap, 0)
-        p.min_step_auto = isinstance(g.min_step, str)
-        if p.min_step_auto and g.min_step != "auto":
-            raise ValueError(f"min_step: expected a length >= 0, 'auto' or None, got {g.min_step!r}")
-        p.min_step = -1.0 if g.min_step is None or p.min_step_auto else _length0("min_step",
-                                                                                  g.min_step)
-        p.max_reach = _int("max_reach", g.max_reach, 1)
-        p.window = _int("window", g.window, 3)
-        p.height_mode = _height_mode(g.heights)
-        p.height_abs, p.height_k = _height_tolerance(g.height_tolerance)
-        p.edge_extent = _int("edge_extent", g.edge_extent, 0)
-        if g.edge_tolerance is None:
-            p.edge_k = 0.0
-        else:
-            p.edge_k = _real("edge_tolerance", g.edge_tolerance)
-            if not p.edge_k > 0.0:
-                raise ValueError(
-                    f"edge_tolerance: expected None (off) or a number > 0, got {p.edge_k}")
-        p.edge_window = _int("edge_window", g.edge_window, 3)
-        if p.edge_window % 2 == 0:
-            raise ValueError(f"edge_window: expected an odd integer >= 3, got {p.edge_window}")
+        _to_core(self.angle, p)
+        _to_core(self.grid, p)
         p.num_threads = num_threads
-        _raise_unless_ok(p.check())
+        _check(p, ("angle", "grid"))
         return p
 
     def _core_cloud(self, num_threads: int) -> Any:
         """The C++ ``miem::PointsDetectParams`` for an unorganized cloud, checked."""
         self._reject_unhonoured("cloud")
-        c = self.cloud
         p = _core.PointsDetectParams()
-        self._core_angle(p)
-        p.num_directions = _int("K", c.K, 2, 8)
-        p.radius = None if c.radius is None else _positive("radius", c.radius)
-        p.link = None if c.link is None else _positive("link", c.link)
-        p.min_step = None if c.min_step is None else _length0("min_step", c.min_step)
-        if p.min_directions > p.num_directions:
-            raise ValueError(
-                f"min_directions: expected 1..K={p.num_directions} or None, got {p.min_directions}")
-        p.height_mode = _height_mode(c.heights)
-        p.height_abs, p.height_k = _height_tolerance(c.height_tolerance)
-        extent = _real("edge_extent", c.edge_extent)
-        if extent < 0:
-            raise ValueError(f"edge_extent: expected a number of spacings >= 0, got {extent}")
-        p.edge_extent = extent
-        group = _int("min_group", c.min_group, 0)
-        if 0 < group < 3:
-            raise ValueError(f"min_group: expected 0 (off) or an integer >= 3, got {group}")
-        p.min_group = group
-        p.height_radius = (None if c.height_radius is None
-                           else _positive("height_radius", c.height_radius))
-        p.merge_distance = _length0("merge_distance", c.merge_distance)
-        p.spacing = None if c.spacing is None else _positive("spacing", c.spacing)
-        p.edge_k = 0.0 if c.edge_tolerance is None else _positive("edge_tolerance",
-                                                                  c.edge_tolerance)
-        p.edge_radius = (None if c.edge_radius is None
-                         else _positive("edge_radius", c.edge_radius))
-        p.isolated_k = (0.0 if c.isolated_tolerance is None
-                        else _positive("isolated_tolerance", c.isolated_tolerance))
+        _to_core(self.angle, p)
+        _to_core(self.cloud, p)
         p.num_threads = num_threads
-        _raise_unless_ok(p.check())
+        _check(p, ("angle", "cloud"))
         return p
 
 
@@ -476,39 +622,26 @@ def _all_names() -> Tuple[str, ...]:
     return tuple(dict.fromkeys(n for part in _PART_TYPES for n in _names(part)))
 
 
-def _length0(name: str, value: object) -> float:
-    v = _real(name, value)
-    if v < 0:
-        raise ValueError(f"{name}: expected a length >= 0 or None, got {v}")
-    return v
-
-
 # ---------------------------------------------------------------------------------------------
 # presets and defaults
 
-#: Named parameter sets (parameter objects). ``"paper"`` is the paper's method exactly (on
-#: clouds too: no height test, no floating groups). ``"recommended"`` is the default: its grid
+#: Named parameter sets (parameter objects), the C++ presets: ``"paper"`` is the paper's method
+#: exactly (``paper_params()``, on clouds ``paper_points_params()``: no height test, no floating
+#: groups). ``"recommended"`` is the default (default-constructed C++ parameters): its grid
 #: values were chosen on the tuning split of the accuracy benchmark
 #: (``bench/accuracy/recommended.json``; ``min_step``, ``edge_tolerance`` and ``edge_window``
 #: by ``bench/accuracy/edges.py --tune``; test-split scores in ``bench/accuracy/RESULTS.md`` and
 #: ``results_edges.md``), its cloud values on the tuning split of the held-out-style cloud
 #: scenes (``bench/accuracy/clouds.py``).
 PRESETS: Dict[str, DetectParams] = {
-    "paper": DetectParams(
-        angle=AngleParams(theta0=75.0, scales=(1,)),
-        grid=GridParams(min_step=None, height_tolerance=None, edge_extent=0,
-                        edge_tolerance=None),
-        cloud=CloudParams(height_tolerance=None, edge_extent=0.0, min_group=0,
-                          isolated_tolerance=None, edge_tolerance=None),
-    ),
+    "paper": DetectParams._from_core(_core.paper_params(), _core.paper_points_params()),
     "recommended": DetectParams(),
 }
 
 #: The cloud-only values of each preset that differ between presets (a view of PRESETS).
 CLOUD_PRESETS: Dict[str, Dict[str, Any]] = {
-    name: {k: getattr(p.cloud, k)
-           for k in ("height_tolerance", "edge_extent", "min_group", "edge_tolerance",
-                     "isolated_tolerance")}
+    name: {k: v for k, v in dataclasses.asdict(p.cloud).items()
+           if len({dataclasses.asdict(q.cloud)[k] for q in PRESETS.values()}) > 1}
     for name, p in PRESETS.items()
 }
 
@@ -517,11 +650,9 @@ DEFAULT_PRESET = "recommended"
 
 
 def default_params(path: str = "grid") -> DetectParams:
-    """The default parameters of a detector: the default preset, except that ``"stream"``
-    has ``min_step=None`` instead of ``"auto"``, which needs the whole scan (give the length
-    that ``miem.detect(first_scan).params["min_step"]`` resolves on a first scan of the part).
-    The stream runs the rest of the default detector: the angle test, the height test with
-    compact EDGE groups, the edge test, heights and defects."""
+    """The default parameters of a detector: the default preset (for ``"stream"`` too: the
+    stream runs the whole default detector, ``min_step="auto"`` included, SPEC "Streaming"),
+    with the fields a path does not implement set to the one value it accepts."""
     _parts(path)
     base = PRESETS[DEFAULT_PRESET]
     if path != "stream":

@@ -1143,6 +1143,67 @@ def _fins(
     return out
 
 
+#: Hanging directions (SPEC "Edge test" step 6): per sub-window of :func:`_edge_sides`, the
+#: step (row, column) from the sub-window towards P and on beyond it.
+_HANG_DIRECTIONS = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (1, -1), (-1, 1), (-1, -1))
+#: A hanging cell's shelf: the surface beyond it lies more than this times as deep below P as
+#: P lies below the top (a staircase of two equal steps stays clean).
+_HANG_SHELF = 2.0
+
+
+def _hanging(
+    grid: NDArray[np.float64],
+    labels: NDArray[np.uint8],
+    cells: NDArray[np.bool_],
+    r: int,
+    below: NDArray[np.bool_],
+    h: NDArray[np.float64],
+    normals: NDArray[np.float64],
+) -> NDArray[np.bool_]:
+    """The cells of ``cells`` (row-major) that *hang* (SPEC "Edge test" step 6) below one of the
+    sub-windows marked in ``below`` (8, N): steeper than 45 degrees below the top's last support
+    cell towards that sub-window, and with the surface beyond them more than
+    ``_HANG_SHELF`` times as deep again."""
+    hh, ww = labels.shape
+    support = labels == NORMAL
+    ground = support | (labels == EDGE)
+    rr, cc = np.nonzero(cells)
+    p = grid[rr, cc]
+    out = np.zeros(rr.size, dtype=bool)
+
+    def inside(r1: NDArray[np.int64], c1: NDArray[np.int64]) -> NDArray[np.bool_]:
+        return (r1 >= 0) & (r1 < hh) & (c1 >= 0) & (c1 < ww)
+
+    for k, (dr, dc) in enumerate(_HANG_DIRECTIONS):
+        if not below[k].any():
+            continue
+        u = normals[k]
+        depth = -h[k]
+        v = np.full((rr.size, 3), np.nan)  # P to the nearest support cell towards the sub-window
+        found = np.zeros(rr.size, dtype=bool)
+        for j in range(1, r + 1):
+            r1, c1 = rr - j * dr, cc - j * dc
+            ok = inside(r1, c1)
+            hit = np.zeros(rr.size, dtype=bool)
+            hit[ok] = support[r1[ok], c1[ok]]
+            hit &= ~found
+            v[hit] = grid[r1[hit], c1[hit]] - p[hit]
+            found |= hit
+        along = _dot3(v, u)
+        steep = found & (depth * depth > _dot3(v, v) - along * along)
+        low = np.full(rr.size, np.inf)  # the deepest ground cell beyond P, along u
+        for j in range(1, r + 1):
+            r1, c1 = rr + j * dr, cc + j * dc
+            ok = inside(r1, c1)
+            hit = np.zeros(rr.size, dtype=bool)
+            hit[ok] = ground[r1[ok], c1[ok]]
+            hv = np.full(rr.size, np.inf)
+            hv[hit] = _dot3(grid[r1[hit], c1[hit]] - p[hit], u[hit])
+            low = np.minimum(low, hv)
+        out |= below[k] & steep & (low < -_HANG_SHELF * depth)
+    return out
+
+
 def _edge_pass(
     grid: NDArray[np.float64],
     labels: NDArray[np.uint8],
@@ -1192,12 +1253,26 @@ def _edge_verdicts(
     # P stands proud (outward, above the plane) of a clean side whose opposite side has no
     # support (an outline) or falls away below that plane (a convex edge, a wall top).
     proud = np.zeros(h.shape[1], dtype=bool)
+    # P below a clean side x whose opposite y has no return or is clean with P above it and
+    # falls away: P lies between a top and the lower surface beyond (a hanging candidate)
+    below = np.zeros_like(clean)
     for a, b in _EDGE_OPPOSITE:
         for x, y in ((a, b), (b, a)):
-            falls = empty[y] | (valid[y] & (_dot3(nrm[x], cen[y] - cen[x]) < -tol[x]))
+            drop = _dot3(nrm[x], cen[y] - cen[x]) < -tol[x]
+            falls = empty[y] | (valid[y] & drop)
             proud |= clean[x] & (h[x] > tol[x]) & falls
+            beyond = empty[y] | (clean[y] & (h[y] > tol[y]) & drop)
+            below[x] = clean[x] & (h[x] < -tol[x]) & beyond
     fin = _fins(grid, labels, cells, r)[cells]  # (SPEC step 6: reach r, inside the tile's frame)
     out[cells] = ~fits.any(axis=0) & (proud | fin)
+    # a hanging cell that fits no clean side with a return (an empty side's support is the last
+    # returns before a dropout, often the hanging material itself bridged to the floor beyond)
+    hang = ~(fits & ~empty).any(axis=0)
+    if hang.any():
+        sel = cells.copy()
+        sel[cells] = hang
+        hang[hang] = _hanging(grid, labels, sel, r, below[:, hang], h[:, hang], nrm[:, hang])
+        out[cells] |= hang
     return out
 
 
@@ -1229,10 +1304,21 @@ def edge_test(
     return labels, passes
 
 
+#: min_step="auto" reads this many rows from the grid's first row with a finite cell
+#: (SPEC "min_step='auto'"), so that a stream can decide it and batch need not read the scan.
+AUTO_MIN_STEP_ROWS = 256
+
+
 def _auto_min_step(g: NDArray[np.float64], finite: NDArray[np.bool_]) -> float | None:
-    """SPEC "min_step='auto'" (reference): per grid axis, the median distance of finite
-    neighbour pairs and the robust z noise ``1.4826 median|z[i-1] - 2 z[i] + z[i+1]| / sqrt(6)``
-    of finite triples; ``4 * max(noise)`` when above ``min(spacing)``, else None."""
+    """SPEC "min_step='auto'" (reference): over the first AUTO_MIN_STEP_ROWS rows from the first
+    row with a finite cell, per grid axis, the median distance of finite neighbour pairs and
+    the robust z noise ``1.4826 median|z[i-1] - 2 z[i] + z[i+1]| / sqrt(6)`` of finite triples;
+    ``4 * max(noise)`` when above ``min(spacing)``, else None."""
+    rows = np.flatnonzero(finite.any(axis=1))
+    if rows.size == 0:
+        return None
+    first = int(rows[0])  # the first AUTO_MIN_STEP_ROWS rows from the first with a finite cell
+    g, finite = g[first:first + AUTO_MIN_STEP_ROWS], finite[first:first + AUTO_MIN_STEP_ROWS]
     spacing, noise = [], []
     for gg, ff in ((g, finite), (g.transpose(1, 0, 2), finite.T)):
         dist, d2 = [], []

@@ -26,13 +26,14 @@ _EMPTY_PROFILE = 6
 
 
 def _check_storage(width: int, dtype: np.dtype, lag: int, reach: int, half: int,
-                   edge: tuple[int, int] | None = None) -> None:
+                   edge: tuple[int, int] | None = None, wait: int = 0) -> None:
     """ValueError naming `width` when the stream's buffers (about ``lag + 2 h + 2`` profiles of
-    coordinates, state, labels and heights; with the edge test, ``edge = (P, r)``, ``lag + 64 +
-    2 r + 3`` profiles and the edge test's integral images, README "Guarantees") exceed half of
-    the machine's memory, so that a typo never gets the process killed for memory."""
-    rows = max(2 * reach, 2 * half) + (lag + half + 3 if edge is None
-                                        else max(lag + half + 3, lag + 64 + 2 * edge[1] + 3))
+    coordinates, state, labels and heights, ``wait`` more for min_step="auto"; with the edge
+    test, ``edge = (P, r)``, ``lag + 64 + 2 r + 3`` profiles and the edge test's integral
+    images, README "Guarantees") exceed half of the machine's memory, so that a typo never gets
+    the process killed for memory."""
+    rows = wait + max(2 * reach, 2 * half) + (
+        lag + half + 3 if edge is None else max(lag + half + 3, lag + 64 + 2 * edge[1] + 3))
     need = width * rows * (3 * dtype.itemsize + 17)
     if edge is not None:  # (P + 1) rings of 2 r + 2 image rows of 11 moments per tile column
         P, r = edge
@@ -91,23 +92,25 @@ class ProfileStream:
         L = P R + E + (P + 1) h            (height test on;  L = P R + h without it)
         L = max(H + r, h) + (P - 1) r + h  (with the edge test; H = P R + E + P h, or P R
                                             without the height test)
+        L = max(L, 256)                    (with min_step="auto")
 
-    with ``R = max(scales) + max_gap`` (``+ max_reach`` with ``min_step``) the rows one angle
-    judgment reads, ``P = max_iterations``, ``E = edge_extent`` (the rows that decide whether an
-    EDGE group is compact), ``h = window // 2`` and ``r = edge_window // 2`` (each edge pass
-    runs row by row, ``r`` profiles behind the one before): (10 * 3 + 12 + 10 * 10 + 7) + 9 * 7
-    + 10 = 222 profiles with the defaults, 10 * 2 + 10 = 30 with ``preset="paper"``. A lower
-    ``max_iterations``, ``edge_extent``, ``window`` or ``edge_window`` shortens it;
+    with ``R = max(scales) + max_gap`` (``+ max_reach`` with ``min_step``, a length or
+    ``"auto"``) the rows one angle judgment reads, ``P = max_iterations``, ``E = edge_extent``
+    (the rows that decide whether an EDGE group is compact), ``h = window // 2`` and
+    ``r = edge_window // 2`` (each edge pass runs row by row, ``r`` profiles behind the one
+    before): (10 * 35 + 12 + 10 * 10 + 7) + 9 * 7 + 10 = 542 profiles with the defaults, 222
+    with ``min_step=None``, 10 * 2 + 10 = 30 with ``preset="paper"``. ``min_step="auto"`` is
+    decided on the 256 profiles from the first one with a finite point (docs/SPEC.md
+    "min_step='auto'"), the value :func:`miem.detect` resolves on the same rows: the stream
+    waits for them, and the push that completes them does their work (the one long push of a
+    part, about 33 ms of CPU at 3200 points). A lower ``max_iterations``, ``edge_extent``,
+    ``window`` or ``edge_window``, or a ``min_step`` length or None, shortens the lag;
     ``edge_tolerance=None`` takes 70 profiles off (and most of the time: bench/RESULTS.md).
 
     The parameters are a :class:`miem.DetectParams` as for :func:`miem.detect` (``params``, a
     ``preset`` or keyword overrides; the default, :func:`miem.default_params` ``("stream")``, is
-    the default preset with ``min_step=None``). The stream does not implement
-    ``theta0="auto"`` (the median of the whole scan's angles, which a stream never sees: give
-    degrees) nor ``min_step="auto"`` (it needs the whole scan: give the value
-    ``miem.detect(first_scan).params["min_step"]`` resolved on a first scan of the part; the
-    stream then equals batch detection with that value): they are a ValueError naming the
-    field, so ``preset="recommended"`` is refused for its ``min_step``.
+    the default preset). The stream does not implement ``theta0="auto"`` (the median of the
+    whole scan's angles, which a stream never sees: give degrees): a ValueError naming it.
 
     Parameters
     ----------
@@ -137,7 +140,7 @@ class ProfileStream:
     --------
     >>> import numpy as np, miem
     >>> stream = miem.ProfileStream(64)
-    >>> for r in range(500):
+    >>> for r in range(700):
     ...     profile = np.zeros((64, 3)); profile[:, 0] = np.arange(64) * 0.5; profile[:, 1] = r
     ...     if r == 10:
     ...         profile[30, 2] = 3.0                  # a burr tip
@@ -147,7 +150,7 @@ class ProfileStream:
     ...         print(done.row, hit, done.heights[hit])
     10 [30] [3.]
     >>> stream.lag, len(stream.flush())              # the last `lag` rows
-    (222, 222)
+    (542, 542)
     """
 
     def __init__(
@@ -179,7 +182,8 @@ class ProfileStream:
         a, gp = p.angle, p.grid
         edge = None if gp.edge_tolerance is None else (a.max_iterations, gp.edge_window // 2)
         _check_storage(w, dt, int(_core.stream_lag(core_params)), max(a.scales) + gp.max_gap
-                       + (0 if gp.min_step is None else gp.max_reach), gp.window // 2, edge)
+                       + (0 if gp.min_step is None else gp.max_reach), gp.window // 2, edge,
+                       256 if gp.min_step == "auto" else 0)
         try:
             self._core = cls(w, core_params)
         except MemoryError:
@@ -197,6 +201,13 @@ class ProfileStream:
     def lag(self) -> int:
         """Profiles between pushing a row and getting it back final (see the class)."""
         return int(self._core.lag)
+
+    @property
+    def min_step(self) -> Optional[float]:
+        """The min_step the stream judges with (scan units), None when off; with
+        ``min_step="auto"`` None until the 256 profiles from the first one with a finite point
+        are in (or the flush), then the value :func:`miem.detect` resolves on those rows."""
+        return self._core.min_step
 
     @property
     def dtype(self) -> np.dtype:

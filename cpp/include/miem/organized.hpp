@@ -127,10 +127,11 @@ class OrganizedDetector {
 };
 
 /// SPEC "min_step='auto'": the min_step that GridParams::min_step_auto gives on `grid` (scan
-/// units), or -1 when the grid's unit neighbours are far enough apart (off). Per grid axis, the
-/// median distance of finite neighbour pairs and the robust noise 1.4826 median|z[i-1] - 2 z[i]
-/// + z[i+1]| / sqrt(6) of finite triples; 4 * max(noise) when that exceeds min(spacing).
-/// Give a stream this value (computed on a first scan) as min_step.
+/// units), or -1 when the grid's unit neighbours are far enough apart (off). Over the 256 rows
+/// from the first row with a finite cell, per grid axis, the median distance of finite
+/// neighbour pairs and the robust noise 1.4826 median|z[i-1] - 2 z[i] + z[i+1]| / sqrt(6) of
+/// finite triples; 4 * max(noise) when that exceeds min(spacing). (ProfileStream decides it
+/// itself on the same rows.)
 template <typename T>
 double auto_min_step(const GridView<T>& grid);
 

@@ -1,6 +1,10 @@
 // Detection parameters, defined once per scope, each with one check(). The throwing API throws
 // the check's message, the no-throw API returns it. Defaults are the recommended preset (the best
 // measured configuration, docs/SPEC.md "Parameters"); paper_params() is the paper's method.
+// Each type lists its fields once, in visit_fields() (name, unit, help): the Python bindings,
+// miem.DetectParams, the command line, `miem config` and miem.dask are generated from it, so a
+// new field is its member, its visit_fields() entry (cpp/src/params.cpp fails to compile when a
+// member has none), its check, SPEC and README.
 #pragma once
 
 #include <cstdint>
@@ -17,6 +21,13 @@ enum class HeightMode : std::uint8_t {
   kAbnormal = 1,  ///< ABNORMAL cells only (direct window fits); others NaN. Much faster.
 };
 
+/// One field of a parameter type as its visit_fields() lists it (static strings).
+struct FieldInfo {
+  const char* name;  ///< the member's name (and the Python / command-line name of plain fields)
+  const char* unit;  ///< "deg", "cells", "length", "k x rms", ...; "" when it has none
+  const char* help;  ///< one sentence for users: what it does, its range, what "off" is
+};
+
 /// The angle test and its iteration: shared by organized batch detection, the profile stream
 /// and unorganized clouds.
 struct AngleParams {
@@ -28,6 +39,22 @@ struct AngleParams {
 
   /// theta0 (unless theta0_auto), scales, min_directions >= 0, max_iterations.
   Status check() const noexcept;
+
+  /// Calls v(FieldInfo, &AngleParams::member) for every field, in declaration order.
+  template <class V>
+  static constexpr void visit_fields(V&& v) {
+    v(FieldInfo{"theta0_deg", "deg", "angle threshold in degrees: a direction is flagged when its "
+                "angle is at most theta0 (0 < theta0 < 180)"}, &AngleParams::theta0_deg);
+    v(FieldInfo{"theta0_auto", "", "derive theta0 from the scan's own angles (grids only)"},
+      &AngleParams::theta0_auto);
+    v(FieldInfo{"scales", "cells", "neighbour distances: (1, 2) also finds defects two points "
+                "wide (on clouds: the s-th point along a direction)"}, &AngleParams::scales);
+    v(FieldInfo{"min_directions", "directions", "flagged directions needed for ABNORMAL, 1-4 "
+                "(clouds: 1-K); 0: all available directions"}, &AngleParams::min_directions);
+    v(FieldInfo{"max_iterations", "passes", "maximum detection passes; each pass removes the "
+                "points found and judges the rest again (and at most as many height passes)"},
+      &AngleParams::max_iterations);
+  }
 };
 
 /// Organized grids only (batch and stream): the neighbour search along the grid's four
@@ -55,6 +82,35 @@ struct GridParams {
   /// Every field's range (min_step finite and < 0 with min_step_auto, height_abs / height_k
   /// finite, edge_extent >= 0, edge_k finite >= 0, edge_window odd >= 3, ...).
   Status check() const noexcept;
+
+  /// Calls v(FieldInfo, &GridParams::member) for every field, in declaration order.
+  template <class V>
+  static constexpr void visit_fields(V&& v) {
+    v(FieldInfo{"max_gap", "cells", "missing or removed cells that may be skipped to reach a "
+                "neighbour (>= 0)"}, &GridParams::max_gap);
+    v(FieldInfo{"min_step", "length", "neighbours at least s * min_step away; < 0: off"},
+      &GridParams::min_step);
+    v(FieldInfo{"min_step_auto", "", "min_step from the grid's spacing and noise (SPEC "
+                "\"min_step='auto'\"); min_step must then be < 0"}, &GridParams::min_step_auto);
+    v(FieldInfo{"max_reach", "cells", "with min_step: how many cells beyond scale + max_gap the "
+                "neighbour search may go (>= 1)"}, &GridParams::max_reach);
+    v(FieldInfo{"window", "cells", "side of the square (odd >= 3) whose NORMAL points give the "
+                "local plane for heights and the height test"}, &GridParams::window);
+    v(FieldInfo{"height_mode", "", "which cells get a height: all finite cells or ABNORMAL "
+                "ones only (faster)"}, &GridParams::height_mode);
+    v(FieldInfo{"height_abs", "length", "height test: |height| above this is ABNORMAL; <= 0: "
+                "off"}, &GridParams::height_abs);
+    v(FieldInfo{"height_k", "k x rms", "height test: |height| above k times the window plane's "
+                "rms is ABNORMAL; <= 0: off"}, &GridParams::height_k);
+    v(FieldInfo{"edge_extent", "cells", "with the height test: EDGE groups whose bounding box is "
+                "at most this long are compact (a defect's halo) and height-tested too; longer "
+                "ones are feature lines (>= 0)"}, &GridParams::edge_extent);
+    v(FieldInfo{"edge_k", "k x rms", "edge test (SPEC 'Edge test'): a point proud of a feature "
+                "line or outline by more than k times its sub-window plane's rms is ABNORMAL; "
+                "0: off"}, &GridParams::edge_k);
+    v(FieldInfo{"edge_window", "cells", "with the edge test: side of its one-sided sub-windows "
+                "(odd >= 3)"}, &GridParams::edge_window);
+  }
 };
 
 /// Unorganized clouds only: the neighbourhood and the K tangent-plane directions.
@@ -63,6 +119,7 @@ struct CloudParams {
   int num_directions = 4;          ///< K tangent-plane directions, 2..8 (flags are 8 bits)
   std::optional<double> min_step;  ///< length: shortest tangent offset (>= 0); default 0.5 * spacing
   std::optional<double> link;      ///< length: defect linking distance (> 0); default radius
+  HeightMode height_mode = HeightMode::kAll;  ///< which points get a height
   int min_group = 40;              ///< points: 0 off; else >= 3, smaller floating groups ABNORMAL
   double height_abs = 0.0;         ///< length: > 0 height test, |height| above this is ABNORMAL
   double height_k = 7.0;           ///< multiple of the local rms: > 0 height test, |h| > k rms
@@ -80,9 +137,51 @@ struct CloudParams {
   /// default: the median nearest-neighbour distance of the distinct points (point_spacing).
   std::optional<double> spacing;
 
-  /// radius, num_directions, min_step, link, min_group, the height test, height_radius,
-  /// merge_distance, spacing.
+  /// radius, num_directions, min_step, link, height_mode, min_group, the height test,
+  /// height_radius, merge_distance, spacing, the edge test.
   Status check() const noexcept;
+
+  /// Calls v(FieldInfo, &CloudParams::member) for every field, in declaration order.
+  template <class V>
+  static constexpr void visit_fields(V&& v) {
+    v(FieldInfo{"radius", "length", "neighbourhood radius (> 0); None: 5 x the median point "
+                "spacing"}, &CloudParams::radius);
+    v(FieldInfo{"num_directions", "directions", "K, the tangent-plane directions tested, 2-8"},
+      &CloudParams::num_directions);
+    v(FieldInfo{"min_step", "length", "shortest tangent-plane offset of a neighbour (>= 0); "
+                "None: 0.5 x the point spacing"}, &CloudParams::min_step);
+    v(FieldInfo{"link", "length", "ABNORMAL points this close belong to one defect (> 0); None: "
+                "radius"}, &CloudParams::link);
+    v(FieldInfo{"height_mode", "", "which points get a height: all finite points or ABNORMAL "
+                "ones only (faster)"}, &CloudParams::height_mode);
+    v(FieldInfo{"min_group", "points", "0 (off) or >= 3: groups of usable points (linked within "
+                "radius) smaller than this are ABNORMAL (floating clusters)"},
+      &CloudParams::min_group);
+    v(FieldInfo{"height_abs", "length", "height test: |height| above this is ABNORMAL; <= 0: "
+                "off"}, &CloudParams::height_abs);
+    v(FieldInfo{"height_k", "k x rms", "height test: |height| above k times the local plane's "
+                "rms is ABNORMAL; <= 0: off"}, &CloudParams::height_k);
+    v(FieldInfo{"edge_extent", "spacings", "with the height test: EDGE groups at most this many "
+                "spacings across are compact and height-tested too (>= 0)"},
+      &CloudParams::edge_extent);
+    v(FieldInfo{"isolated_k", "k x rms", "with the height test: a point alone farther than k "
+                "times the rms of its surroundings plane, whose neighbours within radius lie "
+                "about that plane as loosely as the rms says (a low spike or pit one point "
+                "wide), is ABNORMAL; 0: off"}, &CloudParams::isolated_k);
+    v(FieldInfo{"height_radius", "length", "radius of the height planes (> 0); None: 2 x "
+                "radius"}, &CloudParams::height_radius);
+    v(FieldInfo{"merge_distance", "length", "duplicate points: rows this close (>= 0; 0: equal "
+                "coordinates) are one point, detected once and labelled alike"},
+      &CloudParams::merge_distance);
+    v(FieldInfo{"edge_k", "k x rms", "edge test (SPEC 'Unorganized clouds: edge test'): a point "
+                "proud of a feature line or outline by more than k times a one-sided sector's "
+                "plane rms is ABNORMAL; 0: off"}, &CloudParams::edge_k);
+    v(FieldInfo{"edge_radius", "length", "with the edge test: radius of its sectors (> 0); "
+                "None: height_radius"}, &CloudParams::edge_radius);
+    v(FieldInfo{"spacing", "length", "the cloud's point spacing (> 0), the unit of the defaults "
+                "and of edge_extent; None: the median nearest-neighbour distance"},
+      &CloudParams::spacing);
+  }
 };
 
 /// Parameters of organized detection (OrganizedDetector, detect_organized, ProfileStream).
@@ -92,17 +191,30 @@ struct DetectParams : AngleParams, GridParams {
 
   /// AngleParams::check, GridParams::check, min_directions <= 4, num_threads >= 0.
   Status check() const noexcept;
+
+  /// The fields of this type itself (the bases list theirs).
+  template <class V>
+  static constexpr void visit_fields(V&& v) {
+    v(FieldInfo{"num_threads", "threads", "0: all available; the labels never depend on it"},
+      &DetectParams::num_threads);
+  }
 };
 
 /// Parameters of unorganized detection (detect_points). Default-constructed: the recommended
 /// preset (angle test, floating groups, height test). theta0_auto is not implemented for
 /// clouds: check() rejects it.
 struct PointsDetectParams : AngleParams, CloudParams {
-  HeightMode height_mode = HeightMode::kAll;  ///< which points get a height
-  int num_threads = 0;                        ///< 0: all available; results never depend on it
+  int num_threads = 0;  ///< 0: all available; results never depend on it
 
   /// AngleParams::check, CloudParams::check, min_directions <= num_directions, no theta0_auto.
   Status check() const noexcept;
+
+  /// The fields of this type itself (the bases list theirs).
+  template <class V>
+  static constexpr void visit_fields(V&& v) {
+    v(FieldInfo{"num_threads", "threads", "0: all available; results never depend on it"},
+      &PointsDetectParams::num_threads);
+  }
 };
 
 /// The recommended preset (== DetectParams{}): won the accuracy benchmark (bench/accuracy).

@@ -33,23 +33,23 @@ struct StreamRow {
   bool ready() const noexcept { return index >= 0; }
 };
 
-/// The default parameters of a stream: the default preset (DetectParams{}: angle test, height
-/// test with compact EDGE groups, edge test, heights) without min_step_auto, which
-/// check_stream_params rejects (a stream cannot see the whole scan: give min_step as a length,
-/// auto_min_step() of a first scan of the part; then stream == batch with that min_step).
+/// The default parameters of a stream: the default preset, DetectParams{} (angle test, height
+/// test with compact EDGE groups, edge test, min_step "auto", heights).
 DetectParams stream_default_params();
 
 /// The lag L of a stream with these parameters (profiles between pushing a row and getting it
-/// back final), with R = max(scales) + max_gap (+ max_reach with min_step), h = window / 2,
-/// P = max_iterations, E = edge_extent, r = edge_window / 2:
+/// back final), with R = max(scales) + max_gap (+ max_reach with min_step, given or "auto"),
+/// h = window / 2, P = max_iterations, E = edge_extent, r = edge_window / 2:
 ///     L = P R + E + (P + 1) h   with the height test,   L = P R + h   without;
 ///     L = max(H + r, h) + (P - 1) r + h   with the edge test, H = P R + E + P h (P R without
-///         the height test): each edge pass runs row by row, r rows behind the one before.
-/// Defaults: (10 * 3 + 12 + 10 * 10 + 7) + 9 * 7 + 10 = 222. Assumes valid parameters.
+///         the height test): each edge pass runs row by row, r rows behind the one before;
+///     L = max(L, 256)   with min_step_auto (the rows it is decided from must be in).
+/// Defaults: (10 * 35 + 12 + 10 * 10 + 7) + 9 * 7 + 10 = 542 (222 with min_step off).
+/// Assumes valid parameters.
 long long stream_lag(const DetectParams& params) noexcept;
 
 /// Checks the parameters of a stream without throwing: params.check(), then what a stream does
-/// not implement (theta0_auto, min_step_auto), width >= 1,
+/// not implement (theta0_auto), width >= 1,
 /// max_iterations <= 254 (the per-cell pass counter is one byte) and a lag below 2^20 profiles.
 Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noexcept;
 
@@ -73,21 +73,28 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 ///     routines on per-tile integral images kept as rings of 2 r + 2 rows: its verdicts are
 ///     those of the whole grid bit for bit (docs/SPEC.md "Streaming");
 ///   - heights are final h rows after the last height pass (and the last edge pass).
-/// So row i is final once row i + L has arrived, L = stream_lag(params) (222 profiles with
-/// the defaults, 152 without the edge test; 20 + 10 with preset "paper"). Each cell keeps the
+///   - with min_step "auto" (SPEC "min_step='auto'": the 256 rows from the first row with a
+///     finite cell), the stages wait from that row on until the 256 rows are in; that push
+///     decides the value (exact medians, no allocation) and runs the waiting pushes' stages
+///     (the one long push of a part: about 33 ms of CPU for 3200 points).
+/// So row i is final once row i + L has arrived, L = stream_lag(params) (542 profiles with
+/// the defaults, 222 with min_step off, 472 without the edge test; 20 + 10 with preset
+/// "paper"). Each cell keeps the
 /// pass that removed it (angle, height, edge), so a judgment at pass p sees exactly the cells of pass p - 1 even where rows around it have run
 /// pass p already. A lower max_iterations (most scans settle in 2-3 passes) or edge_extent
 /// shortens the lag, and equals batch detection with those parameters.
 ///
-/// Memory: the last L + h + 2 rows (about L + 2 h; with the edge test L + 64 + edge_window + 2:
-/// 303 rows at the defaults) are kept in a ring, plus max(2 R, 2 h) rows that repeat its first
-/// rows (2 r with the edge test if more), so that the rows around any row form one strided
-/// GridView; with the edge test also (P + 1) ceil(width / 128) rings of integral images
-/// (11 x (2 r + 2) x (129 + 2 r) doubles and the column sums): about 95 MB for double profiles of 3200 points with the defaults (20 MB
-/// without the edge test), plus the cells of the open defects (a pool reserved for 16 rows'
-/// worth of cells, which grows, once, only for more). Defects come with the rows (StreamRow::defects) once
-/// final; flags and angles are not reported. (Batch detection also refuses a grid of fewer
-/// than 3 finite points; a stream simply labels what it gets.)
+/// Memory: the last L + h + 2 rows (about L + 2 h; with the edge test L + 64 + edge_window + 2;
+/// 256 more with min_step "auto": 879 rows at the defaults) are kept in a ring, plus
+/// max(2 R, 2 h) rows that repeat its first rows (2 r with the edge test if more), so that the
+/// rows around any row form one strided GridView; with the edge test also (P + 1)
+/// ceil(width / 128) rings of integral images (11 x (2 r + 2) x (129 + 2 r) doubles and the
+/// column sums): about 172 MB for double profiles of 3200 points with the defaults (96 MB with
+/// min_step off, 92 MB without the edge test), plus the cells of the open defects (a pool
+/// reserved for 16 rows' worth of cells, which grows, once, only for more). Defects come with
+/// the rows (StreamRow::defects) once final; flags and angles are not reported. (Batch
+/// detection also refuses a grid of fewer than 3 finite points; a stream simply labels what it
+/// gets.)
 ///
 /// Speed: pass 1 runs a vectorised filter over the whole row (SSE2, or AVX2 where the CPU has
 /// it) and judges exactly only the few cells that might be flagged; cells next to a dropout go
@@ -112,8 +119,13 @@ class ProfileStream {
   std::ptrdiff_t width() const noexcept { return width_; }
   /// The lag L: push n hands back row n - L (stream_lag(params())).
   int lag() const noexcept { return lag_; }
-  /// The reach R of one judgment, in rows.
+  /// The reach R of one judgment, in rows (with min_step "auto": as if it were on).
   int reach() const noexcept { return reach_; }
+  /// The min_step the stream judges with (scan units; -1: off). With min_step_auto: -1 until
+  /// decided (min_step_decided()), then the value batch detection resolves on the rows pushed.
+  double min_step() const noexcept { return min_step_; }
+  /// False while min_step "auto" waits for its rows (SPEC "min_step='auto'"), else true.
+  bool min_step_decided() const noexcept { return !ms_wait_; }
   /// The parameters.
   const DetectParams& params() const noexcept { return params_; }
   /// Profiles accepted since construction or reset.
@@ -147,6 +159,9 @@ class ProfileStream {
   std::ptrdiff_t slot(std::int64_t row) const noexcept {
     return static_cast<std::ptrdiff_t>(row % ring_);
   }
+  void use_min_step(double min_step) noexcept;
+  void decide_min_step(std::int64_t last) noexcept;
+  void advance(std::int64_t row) noexcept;
   void run_pass(std::int64_t row, int pass) noexcept;
   void pass1_fast(std::int64_t row) noexcept;
   std::uint8_t exact_label(std::int64_t row, std::ptrdiff_t col, std::uint32_t bits) const noexcept;
@@ -207,7 +222,20 @@ class ProfileStream {
   std::ptrdiff_t phys_ = 0;  // rows stored: ring_ + ext_, rows in slots [0, ext_) again at the
                              // end, so that any ext_ + 1 consecutive rows form one GridView
   int max_scale_ = 1;
-  bool fast_ = false;  // pass 1 may use the vectorised kernel
+  bool fast_ok_ = false;  // the scales allow pass 1's vectorised kernel (without min_step)
+  bool fast_ = false;     // pass 1 may use the vectorised kernel
+  // min_step "auto" (SPEC "min_step='auto'"): decided once the kAutoMinStepRows rows from the
+  // first row with a finite cell are in; the stages wait for it (the rows are kept).
+  bool ms_auto_ = false;         // params_.min_step_auto
+  bool ms_wait_ = false;         // not decided yet
+  std::int64_t ms_first_ = -1;   // the first row with a finite cell (-1: none yet)
+  double min_step_ = -1.0;       // the min_step in use (-1: off)
+  int mark_reach_ = 0;           // R of one judgment with that min_step
+  DetectParams jparams_;         // params_ with min_step resolved: the judges'
+  std::vector<const T*> ms_rows_;       // the rows it reads
+  std::vector<std::uint32_t> ms_hist_;  // its histograms
+  std::vector<std::uint8_t> ms_fin_;    // its finite flags (3 rows)
+  std::vector<double> nan_row_;         // heights of a row handed back while waiting
   double cos0_ = 0.0;
 
   std::vector<T> xyz_;               // 3 planes (x, y, z) of phys_ rows of width_

@@ -7,6 +7,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -67,6 +68,12 @@ class PyProfileStream {
   std::int64_t rows_pushed() const { return stream_.rows_pushed(); }
   std::int64_t rows_emitted() const { return stream_.rows_emitted(); }
   bool finished() const { return stream_.finished(); }
+  // The min_step in use: None while "auto" waits for its rows or when off.
+  std::optional<double> min_step() const {
+    if (!stream_.min_step_decided() || stream_.min_step() < 0.0) return std::nullopt;
+    return stream_.min_step();
+  }
+  bool min_step_decided() const { return stream_.min_step_decided(); }
 
  private:
   // A stream is one sequence of profiles: push/flush/reset from two threads at once would
@@ -125,7 +132,9 @@ void bind_one(py::module_& m, const char* name) {
       .def_property_readonly("reach", &PyProfileStream<T>::reach)
       .def_property_readonly("rows_pushed", &PyProfileStream<T>::rows_pushed)
       .def_property_readonly("rows_emitted", &PyProfileStream<T>::rows_emitted)
-      .def_property_readonly("finished", &PyProfileStream<T>::finished);
+      .def_property_readonly("finished", &PyProfileStream<T>::finished)
+      .def_property_readonly("min_step", &PyProfileStream<T>::min_step)
+      .def_property_readonly("min_step_decided", &PyProfileStream<T>::min_step_decided);
 }
 
 }  // namespace
