@@ -127,7 +127,11 @@ def test_height_test_by_hand() -> None:
         on = fn(pts, theta0=90.0, radius=5.0, height_tolerance=0.2, **plain)
         assert np.flatnonzero(on.labels == A).tolist() == [i]
         assert on.params["height_radius"] == 10.0
-        assert fn(pts, theta0=90.0, radius=5.0, height_tolerance=0.31, **plain).labels[i] != A
+        # the length alone (the isolated-point rule, honoured with a length too, would flag
+        # the point: its surroundings are exact, rms 0)
+        assert fn(pts, theta0=90.0, radius=5.0, height_tolerance=0.31, isolated_tolerance=None,
+                  **plain).labels[i] != A
+        assert fn(pts, theta0=90.0, radius=5.0, height_tolerance=0.31, **plain).labels[i] == A
 
 
 def _surroundings(pts: np.ndarray, i: int, radius: float) -> tuple[float, float, float]:
@@ -170,6 +174,12 @@ def test_isolated_point_rule_by_hand(inner_noise: bool) -> None:
         assert on.params["isolated_tolerance"] == 5.0
         # the rule needs |h| above k rms: with k above h / rms it abstains
         assert not np.any(fn(pts, isolated_tolerance=h / rms + 0.01, **plain).labels == A)
+        # with a length tolerance (here above |h|: that rule alone finds nothing) the
+        # isolated-point rule is honoured, not silently off
+        assert not np.any(fn(pts, height_tolerance=2.0 * h, isolated_tolerance=None,
+                             **plain).labels == A)
+        length = fn(pts, height_tolerance=2.0 * h, isolated_tolerance=5.0, **plain)
+        assert np.flatnonzero(length.labels == A).tolist() == ([i] if inner_noise else [])
 
 
 def test_permutation_rigid_motion_offset_float32() -> None:

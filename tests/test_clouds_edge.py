@@ -13,6 +13,7 @@ from miem import reference as ref
 
 A = miem.ABNORMAL
 ON = {"edge_tolerance": 3.0}
+DEFAULT_K = 4.0  # SPEC "Unorganized clouds: edge test": on by default
 
 
 def cut_scene(seed: int, n: int = 56, step: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
@@ -45,12 +46,145 @@ def _same(core: miem.DetectResult, oracle: ref.RefPointsResult) -> None:
         d.indices.tolist() for d in oracle.defects]
 
 
+def fillet_scene(seed: int, n: int = 50, step: float = 0.3) -> np.ndarray:
+    """A floor that rises into a 45-degree slope through a concave fillet (radius 2 mm), the
+    bend line running at 10 degrees to the scan's y axis into the scan's border (the scan is a
+    rectangle: nothing beyond it); x / y jittered, rows shuffled. No defect."""
+    rng = np.random.default_rng(seed)
+    r, c = np.mgrid[0:n, 0:n]
+    x, y = c.ravel() * step, r.ravel() * step
+    phi = np.radians(10.0)
+    d = (x - 0.5 * n * step) * np.cos(phi) + (y - 0.5 * n * step) * np.sin(phi)
+    rad = 2.0  # z = 0 for d < 0, a circle of radius rad up to 45 degrees, then the slope
+    d45 = rad * np.sin(np.radians(45.0))
+    arc = rad - np.sqrt(np.maximum(rad * rad - d * d, 0.0))
+    z45 = rad - np.sqrt(rad * rad - d45 * d45)
+    z = np.where(d < 0.0, 0.0, np.where(d < d45, arc, z45 + (d - d45)))
+    pts = np.column_stack([x, y, z + rng.normal(0.0, 0.005, x.size)])
+    pts[:, :2] += rng.uniform(-0.25 * step, 0.25 * step, (x.size, 2))
+    return np.ascontiguousarray(pts[rng.permutation(len(pts))])
+
+
+def test_concave_bend_at_the_scans_border_is_not_a_lip() -> None:
+    """At the scan's border the sector opposite the floor's is empty (the scan ends, not the
+    part), and a point on the fillet stands above the floor's plane; the top rule (a sector of
+    the slope lies above the point) keeps it, and the rest of the fillet, NORMAL."""
+    pts = fillet_scene(0)
+    for fn in (miem.detect_points, ref.detect_points):
+        res = fn(pts)
+        assert res.params["edge_tolerance"] == DEFAULT_K
+        assert not (res.labels == A).any(), np.flatnonzero(res.labels == A)
+
+
+def _sector_verdict(pts: np.ndarray, normal: np.ndarray, i: int, r_edge: float,
+                    gap: float, k: float) -> tuple[bool, list, list]:
+    """SPEC "Unorganized clouds: edge test" steps 2-4 for point i, computed here with SVDs:
+    whether it fits a clean sector, the clean sectors it stands proud of with an empty
+    opposite, and for each of those whether it is their top."""
+    w = pts - pts[i]
+    dist = np.linalg.norm(w, axis=1)
+    cen = w[dist <= r_edge].mean(axis=0)
+    _, _, vt = np.linalg.svd(w[dist <= r_edge] - cen)
+    n = vt[2] if vt[2, 2] > 0 else -vt[2]
+    e1 = vt[0] - (vt[0] @ n) * n
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    a, b = w @ e1, w @ e2
+    rho = np.hypot(a, b)
+    keep = (dist <= r_edge) & (np.arange(len(pts)) != i) & (rho > 0) & (rho >= gap)
+    octant = np.minimum((np.mod(np.arctan2(b, a), 2 * np.pi) / (np.pi / 4)).astype(int), 7)
+    sectors = [[s, (s + 1) % 8] for s in range(8)] + [[(s + j) % 8 for j in range(4)]
+                                                      for s in range(8)]
+    f = np.array([np.sum(keep & np.isin(octant, o)) for o in sectors], float)
+    full = np.array([f[:8].max()] * 8 + [f[8:].max()] * 8)
+    planes = []
+    for s, o in enumerate(sectors):
+        sel = keep & normal & np.isin(octant, o)
+        if sel.sum() < max(3.0, full[s] / 2.0):
+            planes.append(None)
+            continue
+        m = w[sel].mean(axis=0)
+        _, sv, vt = np.linalg.svd(w[sel] - m, full_matrices=False)
+        planes.append((vt[2] if vt[2, 2] > 0 else -vt[2], m, sv[2] / np.sqrt(sel.sum())))
+    best = min(p[2] for p in planes if p is not None)
+    clean = [p is not None and p[2] <= 2 * best for p in planes]
+    fits = any(c and abs(p[0] @ p[1]) <= k * p[2] for c, p in zip(clean, planes))
+    empty = f < 0.35 * full  # SPEC step 3
+    turned = [[(s // 8) * 8 + (s % 8 + 8 + by) % 8 for s in range(16)] for by in range(8)]
+    proud = [s for s in range(16) if clean[s] and -planes[s][0] @ planes[s][1] > k * planes[s][2]
+             and empty[turned[4][s]]]
+    top = [not any(p is not None and planes[s][0] @ p[1] > 0 for p in planes) for s in proud]
+    # the level rule: a clean neighbour of the empty opposite at the sector's level
+    level = [any(clean[c] and abs(planes[s][0] @ (planes[c][1] - planes[s][1]))
+                 <= k * planes[s][2] for c in (turned[3][s], turned[5][s])) for s in proud]
+    return fits, proud, top, level
+
+
+def test_top_rule_by_hand() -> None:
+    """Points of the fillet at the scan's border, judged here from the sectors: some fit no
+    clean sector and stand proud of a clean sector whose opposite is empty (the grid's steps
+    4-5 alone would flag them), but are the top of none of those (a sector of the slope lies
+    above them): NORMAL in the core and the reference."""
+    pts = fillet_scene(0)
+    pre = ref.detect_points(pts, edge_tolerance=None)  # the labels the edge test starts from
+    r_edge, gap = pre.params["height_radius"], pre.params["min_step"]
+    normal = pre.labels == miem.NORMAL
+    phi = np.radians(10.0)
+    d = (pts[:, 0] - 7.5) * np.cos(phi) + (pts[:, 1] - 7.5) * np.sin(phi)
+    border = np.flatnonzero((pts[:, 1] > pts[:, 1].max() - 0.6) & (d > 0.0) & (d < 1.5))
+    caught = []
+    for i in border:
+        fits, proud, top, _ = _sector_verdict(pts, normal, int(i), r_edge, gap, DEFAULT_K)
+        if not fits and proud:
+            caught.append(int(i))
+            assert not any(top)
+    assert caught  # the case this test is about
+    for fn in (miem.detect_points, ref.detect_points):
+        assert (fn(pts).labels[caught] == miem.NORMAL).all()
+
+
+def bead_scene(seed: int, n: int = 40, step: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+    """A tilted plane with a bead one column wide and 0.5 mm tall running across the whole
+    scan, into its border at both ends; x / y jittered, rows shuffled. Returns the points and
+    the bead mask."""
+    rng = np.random.default_rng(seed)
+    r, c = np.mgrid[0:n, 0:n]
+    x, y = c.ravel() * step, r.ravel() * step
+    bead = c.ravel() == n // 2
+    z = 0.02 * x + 0.01 * y + rng.normal(0.0, 0.005, x.size) + 0.5 * bead
+    pts = np.column_stack([x, y, z])
+    pts[:, :2] += rng.uniform(-0.25 * step, 0.25 * step, (x.size, 2))
+    order = rng.permutation(len(pts))
+    return np.ascontiguousarray(pts[order]), bead[order]
+
+
+def test_level_rule_by_hand() -> None:
+    """A bead point near the scan's border, judged here from the sectors: it fits no clean
+    sector and stands proud of clean sectors whose opposite is empty and of which it is the
+    top, but beside each empty opposite lies a clean sector at the proud sector's level (the
+    plane goes on past the bead; only the border empties the opposite): not an outline, so
+    the point stays as it was."""
+    pts, bead = bead_scene(0)
+    pre = ref.detect_points(pts, edge_tolerance=None)
+    r_edge, gap = pre.params["height_radius"], pre.params["min_step"]
+    normal = pre.labels == miem.NORMAL
+    caught = []
+    for i in np.flatnonzero(bead & (pre.labels != A)):
+        fits, proud, top, level = _sector_verdict(pts, normal, int(i), r_edge, gap, DEFAULT_K)
+        if not fits and any(top) and all(lv for t, lv in zip(top, level) if t):
+            caught.append(int(i))
+    assert caught  # the case this test is about
+    for fn in (miem.detect_points, ref.detect_points):
+        np.testing.assert_array_equal(fn(pts).labels[caught], pre.labels[caught])
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_burr_on_a_cut_outline_is_found(seed: int) -> None:
     pts, burr = cut_scene(seed)
-    off = miem.detect(pts)
+    off = miem.detect(pts, edge_tolerance=None)
     on = miem.detect(pts, **ON)
     assert off.params["edge_tolerance"] is None and on.params["edge_tolerance"] == 3.0
+    assert miem.detect(pts).params["edge_tolerance"] == DEFAULT_K
     found_off = np.mean(off.labels[burr] == A)
     found_on = np.mean(on.labels[burr] == A)
     assert found_on >= 0.8 and found_on > found_off + 0.3, (found_off, found_on)
@@ -66,6 +200,15 @@ def test_burr_on_a_cut_outline_is_found(seed: int) -> None:
 def test_core_matches_reference(seed: int, params: dict) -> None:
     pts, _ = cut_scene(seed, n=40)
     _same(miem.detect_points(pts, **params), ref.detect_points(pts, **params))
+
+
+@pytest.mark.parametrize("k", [DEFAULT_K, 2.0, 1.0])
+@pytest.mark.parametrize("scene", ["fillet", "bead"])
+def test_core_matches_reference_at_the_border(k: float, scene: str) -> None:
+    # low k: many sectors stand proud, so the top and level rules and the half-disk counts
+    # decide
+    pts = fillet_scene(1, n=36) if scene == "fillet" else bead_scene(0)[0]
+    _same(miem.detect_points(pts, edge_tolerance=k), ref.detect_points(pts, edge_tolerance=k))
 
 
 def test_invariances() -> None:

@@ -207,7 +207,7 @@ def test_cloud_fields_are_the_reference_s() -> None:
         np.testing.assert_array_equal(res.labels, oracle.labels)
     paper = miem.detect(pts, preset="paper")
     oracle = ref.detect_points(pts, theta0=75.0, scales=(1,), height_tolerance=None,
-                               edge_extent=0.0, min_group=0)
+                               edge_extent=0.0, min_group=0, edge_tolerance=None)
     np.testing.assert_array_equal(paper.labels, oracle.labels)
 
 

@@ -18,7 +18,7 @@ from miem import reference as ref
 # The paper's angle test on clouds (theta0 75, scales (1,)); explicit arguments win.
 paper_detect_points = functools.partial(ref.detect_points, theta0=75.0, scales=(1,),
                                         height_tolerance=None, edge_extent=0.0, min_group=0,
-                                        isolated_tolerance=None)
+                                        isolated_tolerance=None, edge_tolerance=None)
 
 N, A, E, INV = ref.NORMAL, ref.ABNORMAL, ref.EDGE, ref.INVALID
 

@@ -4,6 +4,8 @@
 // the edge radius of a point the pass before made ABNORMAL.
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 
 #include "cloud_stages.hpp"
 #include "edge_verdict.hpp"
@@ -15,21 +17,104 @@ namespace {
 constexpr int kSectors = 16;  // 8 quarter-disk and 8 half-disk sectors
 constexpr double kRmsFloor = 1e-9;      // of the tolerance, as the height test's
 constexpr double kSuspect = 1.5;        // candidates: surroundings rms above 1.5 x the median
-constexpr double kEmpty = 0.25;         // empty: fewer returns than a quarter of a full sector
+constexpr double kEmpty = 0.35;  // empty: fewer returns than 0.35 of a full sector (tune split)
 
-// NumPy's median of the finite values (the mean of the two middle ones for an even count);
-// +inf when there is none.
-double finite_median(const double* v, std::ptrdiff_t n) {
-  std::vector<double> f;
-  for (std::ptrdiff_t i = 0; i < n; ++i) {
-    if (std::isfinite(v[i])) f.push_back(v[i]);
+// The bit pattern of x >= 0 (-0 read as +0): patterns of such values sort as the values do.
+inline std::uint64_t sort_key(double x) {
+  std::uint64_t b;
+  std::memcpy(&b, &x, sizeof b);
+  return b >> 63 ? 0 : b;
+}
+
+// The k-th smallest (0-based) of the finite values of v (k < their count), all >= 0: the top 16
+// bits of their sort keys, then the next 16, are fixed from histograms, and only the values
+// that share those 32 bits are copied (no copy of all N values: peak memory).
+double kth_finite(const double* v, std::ptrdiff_t n, std::ptrdiff_t k) {
+  std::vector<std::uint32_t> hist(std::size_t{1} << 16);
+  std::uint64_t prefix = 0;
+  for (int shift : {48, 32}) {
+    std::fill(hist.begin(), hist.end(), 0u);
+    const std::uint64_t above = shift == 48 ? 0 : (prefix >> (shift + 16));
+    for (std::ptrdiff_t i = 0; i < n; ++i) {
+      if (!std::isfinite(v[i])) continue;
+      const std::uint64_t b = sort_key(v[i]);
+      if (shift != 48 && (b >> (shift + 16)) != above) continue;
+      ++hist[(b >> shift) & 0xffffu];
+    }
+    std::size_t d = 0;
+    while (k >= static_cast<std::ptrdiff_t>(hist[d])) k -= hist[d++];
+    prefix |= static_cast<std::uint64_t>(d) << shift;
   }
-  if (f.empty()) return kInf;
-  const std::size_t mid = f.size() / 2;
-  std::nth_element(f.begin(), f.begin() + mid, f.end());
-  double m = f[mid];
-  if (f.size() % 2 == 0) m = (*std::max_element(f.begin(), f.begin() + mid) + m) / 2.0;
-  return m;
+  std::vector<double> w;
+  for (std::ptrdiff_t i = 0; i < n; ++i) {
+    if (std::isfinite(v[i]) && (sort_key(v[i]) >> 32) == (prefix >> 32)) w.push_back(v[i]);
+  }
+  std::nth_element(w.begin(), w.begin() + k, w.end());
+  return w[static_cast<std::size_t>(k)];
+}
+
+// NumPy's median of the finite values (>= 0; the mean of the two middle ones for an even
+// count); +inf when there is none.
+double finite_median(const double* v, std::ptrdiff_t n) {
+  std::ptrdiff_t m = 0;
+  for (std::ptrdiff_t i = 0; i < n; ++i) m += std::isfinite(v[i]) ? 1 : 0;
+  if (m == 0) return kInf;
+  const std::ptrdiff_t mid = m / 2;
+  double med = kth_finite(v, n, mid);
+  if (m % 2 == 0) med = (kth_finite(v, n, mid - 1) + med) / 2.0;
+  return med;
+}
+
+// SPEC "Unorganized clouds: edge test" step 4 (the grid's steps 4-5, edge_verdict.hpp, plus the
+// level and top rules): P fits no clean sector and stands proud of a clean sector `a` whose
+// opposite (the sector of the same width turned by 180 degrees) falls away below a's plane, or
+// is empty while neither of its neighbours (the same width, turned by +-45 degrees) is a clean
+// sector at a's level (a bead or ridge on a surface that goes on past P, whose opposite sector
+// only the scan's border empties, is not a lip before an outline), and no valid sector's
+// centroid lies above P along a's normal (P is the top of what it stands on: a point on a
+// fillet or a slope whose rising side the scan's border hides is not a lip). Centroids are
+// relative to P.
+bool cloud_edge_abnormal(const detail::EdgeSide (&sd)[kSectors], double best) {
+  const double clean = detail::kEdgeCleanRatio * best;
+  for (const detail::EdgeSide& x : sd) {
+    if (x.valid && x.rms <= clean && !(std::abs(x.h) > x.tol)) return false;
+  }
+  auto turned = [](int s, int by) { return (s / 8) * 8 + (s % 8 + 8 + by) % 8; };
+  for (int s = 0; s < kSectors; ++s) {
+    const detail::EdgeSide& x = sd[s];
+    if (!x.valid || !(x.rms <= clean) || !(x.h > x.tol)) continue;
+    const int o = turned(s, 4);
+    const detail::EdgeSide& y = sd[o];
+    bool outline = y.empty;
+    for (int by : {-1, 1}) {
+      const detail::EdgeSide& c = sd[turned(o, by)];
+      if (c.valid && c.rms <= clean &&
+          !(std::abs(detail::dot3(x.normal, c.centroid - x.centroid)) > x.tol)) {
+        outline = false;
+      }
+    }
+    if (!(outline || (y.valid && detail::dot3(x.normal, y.centroid - x.centroid) < -x.tol))) {
+      continue;
+    }
+    bool top = true;
+    for (const detail::EdgeSide& z : sd) {
+      if (z.valid && detail::dot3(x.normal, z.centroid) > 0.0) top = false;
+    }
+    if (top) return true;
+  }
+  return false;
+}
+
+// The octant of a tangent offset (a, b) != 0 (SPEC step 3): the 45-degree wedge [45 o, 45 o + 45)
+// degrees from e1 towards e2 that holds it, by exact comparisons (a point on a boundary belongs
+// to the wedge that starts there).
+inline int octant(double a, double b) {
+  if (b > 0.0 || (b == 0.0 && a > 0.0)) {  // [0, 180)
+    if (a > 0.0) return b < a ? 0 : 1;
+    return b > -a ? 2 : 3;
+  }
+  if (a < 0.0) return -b < -a ? 4 : 5;  // [180, 270)
+  return a < -b ? 6 : 7;                // [270, 360)
 }
 
 // Tangent directions of a candidate.
@@ -53,9 +138,7 @@ bool stands_proud(const Gather& sup, const Gather& rest, std::uint32_t i, const 
       const double b = wx * f.e2.x() + wy * f.e2.y() + wz * f.e2.z();
       const double rho = std::sqrt(a * a + b * b);
       if (!(rho > 0.0 && rho >= e.gap)) continue;
-      double theta = std::atan2(b, a);
-      if (theta < 0.0) theta += 2.0 * kPi;
-      const int o = std::min(static_cast<int>(theta / (kPi / 4.0)), 7);
+      const int o = octant(a, b);
       fin[o] += 1.0;
       if (support) oct[o].add(wx, wy, wz);
     }
@@ -70,7 +153,7 @@ bool stands_proud(const Gather& sup, const Gather& rest, std::uint32_t i, const 
   for (int s = 0; s < 8; ++s) {
     finite[s] = fin[s] + fin[(s + 1) % 8];
     sums[s] = oct[s].plus(oct[(s + 1) % 8]);
-    finite[8 + s] = finite[s] + finite[(s + 2) % 8];
+    finite[8 + s] = finite[s] + fin[(s + 2) % 8] + fin[(s + 3) % 8];
     sums[8 + s] = sums[s].plus(oct[(s + 2) % 8].plus(oct[(s + 3) % 8]));
     full[0] = std::max(full[0], finite[s]);
   }
@@ -103,26 +186,29 @@ bool stands_proud(const Gather& sup, const Gather& rest, std::uint32_t i, const 
     sd[s].normal = lp[s].normal;
     sd[s].centroid = lp[s].mean;
   }
-  // the opposite sector of the same width
-  return detail::edge_abnormal(sd, best, [](int s) { return (s / 8) * 8 + (s % 8 + 4) % 8; });
+  return cloud_edge_abnormal(sd, best);
 }
 
 }  // namespace
 
 template <typename T>
 int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
-                      std::uint8_t* labels, const double* first_rms, const CloudEdgeTest& e,
-                      std::vector<JudgeScratch>& scratch, int num_threads,
-                      std::vector<std::uint32_t>* unnormal) {
+                      std::uint8_t* labels, std::vector<double>* first_rms,
+                      const CloudEdgeTest& e, std::vector<JudgeScratch>& scratch,
+                      int num_threads, std::vector<std::uint32_t>* unnormal) {
   const std::ptrdiff_t N = points.size;
   const int nt = static_cast<int>(scratch.size());
-  const double thr = kSuspect * finite_median(first_rms, N);
-  std::vector<std::uint32_t> cand;
-  for (std::ptrdiff_t i = 0; i < N; ++i) {
-    if ((labels[i] == kNormal || labels[i] == kEdge) &&
-        (!std::isfinite(first_rms[i]) || first_rms[i] > thr)) {
-      cand.push_back(static_cast<std::uint32_t>(i));
+  std::vector<std::uint32_t> cand;  // ascending
+  {
+    const double* rms = first_rms->data();
+    const double thr = kSuspect * finite_median(rms, N);
+    for (std::ptrdiff_t i = 0; i < N; ++i) {
+      if ((labels[i] == kNormal || labels[i] == kEdge) &&
+          (!std::isfinite(rms[i]) || rms[i] > thr)) {
+        cand.push_back(static_cast<std::uint32_t>(i));
+      }
     }
+    std::vector<double>().swap(*first_rms);  // free N doubles before the frames (peak memory)
   }
   // Frames: the plane of the finite points within radius, the point included (as the normals).
   const std::ptrdiff_t nc = static_cast<std::ptrdiff_t>(cand.size());
@@ -145,10 +231,6 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
       framed[c] = 1;
     }
   }
-  std::vector<std::int32_t> slot(static_cast<std::size_t>(N), -1);  // candidate position
-  for (std::ptrdiff_t c = 0; c < nc; ++c) {
-    if (framed[c]) slot[cand[c]] = static_cast<std::int32_t>(c);
-  }
   std::vector<std::uint32_t> todo;
   for (std::ptrdiff_t c = 0; c < nc; ++c) {
     if (framed[c]) todo.push_back(static_cast<std::uint32_t>(c));
@@ -157,7 +239,7 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
   std::vector<std::uint8_t> class_sorted(static_cast<std::size_t>(grid.num_indexed()));
   const std::uint8_t* cs = class_sorted.data();
   auto class_of = [cs](std::uint32_t k, std::uint32_t) { return cs[k]; };
-  std::vector<std::uint8_t> verdict, mark(static_cast<std::size_t>(N), 0);
+  std::vector<std::uint8_t> verdict, mark(cand.size(), 0);  // mark: per candidate
   std::vector<std::uint32_t> fresh;
   int passes = 0;
   while (passes < e.max_iterations) {
@@ -190,24 +272,27 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
     todo.clear();
     for (std::uint32_t u : fresh) {
       grid.for_each_in_radius(points[u], e.r_edge, [&](std::ptrdiff_t j, double) {
-        if (slot[j] >= 0 && !mark[j]) {
-          mark[j] = 1;
-          todo.push_back(static_cast<std::uint32_t>(slot[j]));
+        const auto it = std::lower_bound(cand.begin(), cand.end(), static_cast<std::uint32_t>(j));
+        if (it == cand.end() || *it != static_cast<std::uint32_t>(j)) return;
+        const std::size_t c = static_cast<std::size_t>(it - cand.begin());
+        if (framed[c] && !mark[c]) {
+          mark[c] = 1;
+          todo.push_back(static_cast<std::uint32_t>(c));
         }
       });
     }
-    for (std::uint32_t c : todo) mark[cand[c]] = 0;
+    for (std::uint32_t c : todo) mark[c] = 0;
     std::sort(todo.begin(), todo.end());
   }
   return passes;
 }
 
 template int cloud_edge_passes<float>(const NeighborGrid<float>&, const PointsView<float>&,
-                                      std::uint8_t*, const double*, const CloudEdgeTest&,
+                                      std::uint8_t*, std::vector<double>*, const CloudEdgeTest&,
                                       std::vector<JudgeScratch>&, int,
                                       std::vector<std::uint32_t>*);
 template int cloud_edge_passes<double>(const NeighborGrid<double>&, const PointsView<double>&,
-                                       std::uint8_t*, const double*, const CloudEdgeTest&,
+                                       std::uint8_t*, std::vector<double>*, const CloudEdgeTest&,
                                        std::vector<JudgeScratch>&, int,
                                        std::vector<std::uint32_t>*);
 

@@ -80,12 +80,13 @@ inline bool too_far(const Gather& g, const Gather& lines, const Eigen::Vector3d&
   const double rms = std::sqrt(std::max(ev(0), 0.0) / n);
   if (rms_out != nullptr) *rms_out = rms;
   if (t.abs > 0.0 && h > t.abs) return true;
-  if (!(t.k > 0.0)) return false;
-  // The common case first: below both multiples of the rms (the isolated-point rule needs the
-  // "<k>rms" tolerance: a length tolerance is the caller's own threshold).
-  if (!(h > std::min(t.k, t.iso_k > 0.0 ? t.iso_k : t.k) * rms)) return false;
+  if (!(t.k > 0.0) && !(t.iso_k > 0.0)) return false;
+  // The common case first: below every multiple of the rms in use (the isolated-point rule
+  // applies with a length tolerance too).
+  const double k_lo = !(t.k > 0.0) ? t.iso_k : t.iso_k > 0.0 ? std::min(t.k, t.iso_k) : t.k;
+  if (!(h > k_lo * rms)) return false;
   if (!(h > 1e-9 * std::sqrt((ev(1) + ev(2)) / n))) return false;
-  if (h > t.k * rms) return true;
+  if (t.k > 0.0 && h > t.k * rms) return true;
   if (!(t.iso_k > 0.0 && h > t.iso_k * rms)) return false;
   // The isolated-point rule: the NORMAL points q != p within t.inner (the inner positions
   // ball_sums left in s.id; p itself is the one at distance 0) lie about the surroundings plane

@@ -67,14 +67,14 @@ struct CloudEdgeTest {
 };
 
 /// Edge passes after the height passes: candidates are the NORMAL and EDGE points whose
-/// `first_rms` (height_passes' HeightTest::first_rms, NaN: no verdict) is NaN or above 1.5 x the
-/// median; one becomes ABNORMAL when it fits none of its clean sectors and stands proud of one
+/// `*first_rms` (height_passes' HeightTest::first_rms, NaN: no verdict; freed once the
+/// candidates are listed) is NaN or above 1.5 x the median; one becomes ABNORMAL when it fits none of its clean sectors and stands proud of one
 /// whose opposite is empty or falls away. NORMAL points made ABNORMAL are appended to
 /// `*unnormal` (when given). Returns the number of passes run.
 template <typename T>
 int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
-                      std::uint8_t* labels, const double* first_rms, const CloudEdgeTest& e,
-                      std::vector<JudgeScratch>& scratch, int num_threads,
-                      std::vector<std::uint32_t>* unnormal);
+                      std::uint8_t* labels, std::vector<double>* first_rms,
+                      const CloudEdgeTest& e, std::vector<JudgeScratch>& scratch,
+                      int num_threads, std::vector<std::uint32_t>* unnormal);
 
 }  // namespace miem::cloud

@@ -348,9 +348,8 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
     et.gap = min_step;
     et.max_iterations = p.max_iterations;
     std::vector<std::uint32_t> unnormal;
-    iterations += cloud_edge_passes(grid, points, labels, first_rms.data(), et, scratch,
+    iterations += cloud_edge_passes(grid, points, labels, &first_rms, et, scratch,
                                     p.num_threads, have.empty() ? nullptr : &unnormal);
-    std::vector<double>().swap(first_rms);
     for (std::uint32_t u : unnormal) {  // the NORMAL set within hr of these points changed
       grid.for_each_in_radius(points[u], hr, [&](std::ptrdiff_t j, double) { have[j] = 0; });
     }

@@ -639,7 +639,7 @@ def _probe_points(kwargs: dict) -> tuple:
     lengths = ("radius", "min_step", "link", "height_radius")
     derived = any(k in a and a[k] != b[k] for k in lengths)
     compact = a.get("height_tolerance") is not None and a.get("edge_extent", 0) > 0
-    _refuse_unknown(a, _POINT_KNOWN)
+    _refuse_unknown(a, _POINT_KNOWN | {"edge_tolerance", "edge_radius"})  # (detect_points)
     return a, (derived or compact) and kwargs.get("spacing") is None
 
 
@@ -999,6 +999,12 @@ def detect_points(points: Any, *, tile: Optional[float] = None, num_threads: Opt
     n = (int(np.floor((hi[0] - lo[0]) / tile)) + 1, int(np.floor((hi[1] - lo[1]) / tile)) + 1)
     if n[0] * n[1] > 1_000_000:
         raise ValueError(f"tile: {tile} makes {n[0]} x {n[1]} tiles; pass a larger tile")
+    if params.get("edge_tolerance") is not None:
+        raise ValueError(
+            "edge_tolerance: miem.dask cannot run the cloud edge test (on by default: its "
+            "candidates are the points whose surroundings rms exceeds 1.5 x a median over the "
+            "whole cloud, which blocks do not see); pass edge_tolerance=None, and the blocks "
+            "then equal miem.detect(points, edge_tolerance=None)")
     starts = np.cumsum((0,) + points.chunks[0])
     splits = [delayed(_split, pure=True)(c, int(s), lo, tile, n, pad)
               for c, s in zip(points.to_delayed().ravel(), starts)]
