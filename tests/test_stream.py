@@ -294,13 +294,13 @@ def test_extreme_height_tolerance_labels_equal_and_heights_up_to_orientation() -
 
 
 def test_lag_formula() -> None:
-    """L = P R + E + (P + 1) h with the height test, P R + h without; with the edge test
+    """L = P R + E + (P + 1) h with the height test (E = edge_extent + max_gap), P R + h without; with the edge test
     max(H + r, h) + (P - 1) r + h, H = P R + E + P h (docs/SPEC.md)."""
-    assert ProfileStream(10).lag == (10 * 3 + 12 + 10 * 10 + 7) + 9 * 7 + 10 == 222
-    assert ProfileStream(10, edge_tolerance=None).lag == 10 * 3 + 12 + 11 * 10 == 152
+    assert ProfileStream(10).lag == (10 * 3 + 12 + 1 + 10 * 10 + 7) + 9 * 7 + 10 == 223
+    assert ProfileStream(10, edge_tolerance=None).lag == 10 * 3 + 12 + 1 + 11 * 10 == 153
     assert ProfileStream(10, preset="paper").lag == 10 * 2 + 10
     assert ProfileStream(10, max_iterations=3, window=7, edge_extent=4,
-                         edge_window=9).lag == (3 * 3 + 4 + 3 * 3 + 4) + 2 * 4 + 3
+                         edge_window=9).lag == (3 * 3 + 4 + 1 + 3 * 3 + 4) + 2 * 4 + 3
     assert ProfileStream(10, height_tolerance=None, edge_tolerance=None,
                          window=9).lag == 10 * 3 + 4
 

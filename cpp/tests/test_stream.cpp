@@ -167,7 +167,7 @@ std::vector<Named> param_sets() {
   std::vector<Named> v;
   miem::DetectParams p = miem::paper_params();
   v.push_back({"paper", p});
-  v.push_back({"stream_default", miem::stream_default_params(), 260, 70});  // lag 222
+  v.push_back({"stream_default", miem::stream_default_params(), 260, 70});  // lag 223
   p = miem::stream_default_params();
   p.height_mode = miem::HeightMode::kAbnormal;
   v.push_back({"stream_default_abnormal_heights", p, 260, 70});
@@ -307,14 +307,15 @@ TEST(Stream, LagFormula) {
   p.min_step = 0.1;
   p.max_reach = 5;
   EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 10 * (1 + 1 + 5) + 10);
-  // The default: with the edge test (r = 15 / 2): 142 + 7 + 9 * 7 + 10.
-  EXPECT_EQ(miem::ProfileStream<>(16).lag(), (10 * 3 + 12 + 10 * 10 + 7) + 9 * 7 + 10);
-  EXPECT_EQ(miem::stream_lag(miem::stream_default_params()), 222);
+  // The default: with the edge test (r = 15 / 2): 143 + 7 + 9 * 7 + 10 (E = edge_extent 12
+  // + max_gap 1: EDGE groups link across a dropout).
+  EXPECT_EQ(miem::ProfileStream<>(16).lag(), (10 * 3 + 12 + 1 + 10 * 10 + 7) + 9 * 7 + 10);
+  EXPECT_EQ(miem::stream_lag(miem::stream_default_params()), 223);
   p = miem::stream_default_params();
   p.max_iterations = 3;
   p.window = 7;
   p.edge_window = 9;
-  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), (3 * 3 + 12 + 3 * 3 + 4) + 2 * 4 + 3);
+  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), (3 * 3 + 12 + 1 + 3 * 3 + 4) + 2 * 4 + 3);
   miem::DetectParams q = miem::paper_params();  // the edge test without the height test
   q.edge_k = 3.0;
   q.max_iterations = 40;  // H + r = 40 * 2 + 7
@@ -323,7 +324,7 @@ TEST(Stream, LagFormula) {
   q.edge_window = 3;  // H + r = 2 + 1 < h = 10: the rows within h of a removal must be in
   EXPECT_EQ(miem::ProfileStream<>(16, q).lag(), 10 + 0 + 10);
   p.edge_k = 0.0;  // the edge test off: P R + E + (P + 1) h
-  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 3 * 3 + 12 + 4 * 3);
+  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 3 * 3 + 12 + 1 + 4 * 3);
 }
 
 TEST(Stream, ThresholdGrazingAnglesMatchBatch) {

@@ -93,10 +93,10 @@ class ProfileStream:
                                             without the height test)
 
     with ``R = max(scales) + max_gap`` (``+ max_reach`` with ``min_step``) the rows one angle
-    judgment reads, ``P = max_iterations``, ``E = edge_extent`` (the rows that decide whether an
-    EDGE group is compact), ``h = window // 2`` and ``r = edge_window // 2`` (each edge pass
-    runs row by row, ``r`` profiles behind the one before): (10 * 3 + 12 + 10 * 10 + 7) + 9 * 7
-    + 10 = 222 profiles with the defaults, 10 * 2 + 10 = 30 with ``preset="paper"``. A lower
+    judgment reads, ``P = max_iterations``, ``E = edge_extent + max_gap`` (the rows that decide whether
+    an EDGE group is compact), ``h = window // 2`` and ``r = edge_window // 2`` (each edge pass
+    runs row by row, ``r`` profiles behind the one before): (10 * 3 + 13 + 10 * 10 + 7) + 9 * 7
+    + 10 = 223 profiles with the defaults, 10 * 2 + 10 = 30 with ``preset="paper"``. A lower
     ``max_iterations``, ``edge_extent``, ``window`` or ``edge_window`` shortens it;
     ``edge_tolerance=None`` takes 70 profiles off (and most of the time: bench/RESULTS.md).
 
@@ -147,7 +147,7 @@ class ProfileStream:
     ...         print(done.row, hit, done.heights[hit])
     10 [30] [3.]
     >>> stream.lag, len(stream.flush())              # the last `lag` rows
-    (222, 222)
+    (223, 223)
     """
 
     def __init__(

@@ -41,11 +41,11 @@ DetectParams stream_default_params();
 
 /// The lag L of a stream with these parameters (profiles between pushing a row and getting it
 /// back final), with R = max(scales) + max_gap (+ max_reach with min_step), h = window / 2,
-/// P = max_iterations, E = edge_extent, r = edge_window / 2:
+/// P = max_iterations, E = edge_extent + max_gap, r = edge_window / 2:
 ///     L = P R + E + (P + 1) h   with the height test,   L = P R + h   without;
 ///     L = max(H + r, h) + (P - 1) r + h   with the edge test, H = P R + E + P h (P R without
 ///         the height test): each edge pass runs row by row, r rows behind the one before.
-/// Defaults: (10 * 3 + 12 + 10 * 10 + 7) + 9 * 7 + 10 = 222. Assumes valid parameters.
+/// Defaults: (10 * 3 + 13 + 10 * 10 + 7) + 9 * 7 + 10 = 223. Assumes valid parameters.
 long long stream_lag(const DetectParams& params) noexcept;
 
 /// Checks the parameters of a stream without throwing: params.check(), then what a stream does
@@ -73,8 +73,8 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 ///     routines on per-tile integral images kept as rings of 2 r + 2 rows: its verdicts are
 ///     those of the whole grid bit for bit (docs/SPEC.md "Streaming");
 ///   - heights are final h rows after the last height pass (and the last edge pass).
-/// So row i is final once row i + L has arrived, L = stream_lag(params) (222 profiles with
-/// the defaults, 152 without the edge test; 20 + 10 with preset "paper"). Each cell keeps the
+/// So row i is final once row i + L has arrived, L = stream_lag(params) (223 profiles with
+/// the defaults, 153 without the edge test; 20 + 10 with preset "paper"). Each cell keeps the
 /// pass that removed it (angle, height, edge), so a judgment at pass p sees exactly the cells of pass p - 1 even where rows around it have run
 /// pass p already. A lower max_iterations (most scans settle in 2-3 passes) or edge_extent
 /// shortens the lag, and equals batch detection with those parameters.
@@ -198,6 +198,7 @@ class ProfileStream {
   int lag_ = 0;     // L (stream_lag)
   int half_ = 0;    // h = window / 2
   int extent_ = 0;  // E = edge_extent with the height test, else 0
+  int link_gap_ = 0;  // G = max_gap with the height test (EDGE groups link across G dropouts)
   bool htest_ = false;  // the height test is on
   bool edge_ = false;   // the edge test is on
   int lagh_ = 0;        // rows behind the newest at which the height passes' labels are final
