@@ -237,7 +237,7 @@ def test_stream_runs_the_edge_test_as_batch(kw: dict) -> None:
     stream = ProfileStream(60, params=p)
     r, P, h = p.grid.edge_window // 2, p.angle.max_iterations, p.grid.window // 2
     R = max(p.angle.scales) + p.grid.max_gap + p.grid.max_reach  # min_step "auto"
-    lag_h = P * R + p.grid.edge_extent + P * h
+    lag_h = P * R + p.grid.edge_extent + p.grid.max_gap + P * h
     assert stream.lag == max(max(lag_h + r, h) + (P - 1) * r + h, 256)
     defects: list = []
     got, heights = stream_both(stream, grid, defects)
@@ -339,15 +339,15 @@ def test_extreme_height_tolerance_labels_equal_and_heights_up_to_orientation() -
 
 
 def test_lag_formula() -> None:
-    """L = P R + E + (P + 1) h with the height test, P R + h without; with the edge test
+    """L = P R + E + (P + 1) h with the height test (E = edge_extent + max_gap), P R + h without; with the edge test
     max(H + r, h) + (P - 1) r + h, H = P R + E + P h (docs/SPEC.md)."""
     # the default: min_step "auto", so R = 1 + 2 (scales, max_gap) + 32 (max_reach)
-    assert ProfileStream(10).lag == (10 * 35 + 12 + 10 * 10 + 7) + 9 * 7 + 10 == 542
-    assert ProfileStream(10, edge_tolerance=None).lag == 10 * 35 + 12 + 11 * 10 == 472
-    assert ProfileStream(10, min_step=None).lag == (10 * 3 + 12 + 10 * 10 + 7) + 9 * 7 + 10
+    assert ProfileStream(10).lag == (10 * 35 + 12 + 1 + 10 * 10 + 7) + 9 * 7 + 10 == 543
+    assert ProfileStream(10, edge_tolerance=None).lag == 10 * 35 + 12 + 1 + 11 * 10 == 473
+    assert ProfileStream(10, min_step=None).lag == (10 * 3 + 12 + 1 + 10 * 10 + 7) + 9 * 7 + 10
     assert ProfileStream(10, preset="paper").lag == 10 * 2 + 10
     assert ProfileStream(10, min_step=None, max_iterations=3, window=7, edge_extent=4,
-                         edge_window=9).lag == (3 * 3 + 4 + 3 * 3 + 4) + 2 * 4 + 3
+                         edge_window=9).lag == (3 * 3 + 4 + 1 + 3 * 3 + 4) + 2 * 4 + 3
     assert ProfileStream(10, min_step=None, height_tolerance=None, edge_tolerance=None,
                          window=9).lag == 10 * 3 + 4
     # min_step "auto": at least the 256 rows it reads

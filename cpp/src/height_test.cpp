@@ -20,10 +20,25 @@ namespace miem::detail {
 
 namespace {
 
-// Marks with kHCompact the EDGE cells of 8-connected EDGE groups whose bounding box's longer
-// side is at most `extent` cells.
+// The EDGE cell linked to (r, c) along (dr, dc): the first cell at k = 1 .. 1 + gap steps that
+// is EDGE, with every cell before it INVALID (a dropout does not cut a feature line); -1 if none.
+std::ptrdiff_t edge_link(const std::uint8_t* labels, std::ptrdiff_t H, std::ptrdiff_t W,
+                         std::ptrdiff_t r, std::ptrdiff_t c, std::ptrdiff_t dr, std::ptrdiff_t dc,
+                         int gap) {
+  for (int k = 1; k <= 1 + gap; ++k) {
+    const std::ptrdiff_t rr = r + k * dr, cc = c + k * dc;
+    if (rr < 0 || rr >= H || cc < 0 || cc >= W) return -1;
+    const std::uint8_t l = labels[rr * W + cc];
+    if (l == kEdge) return rr * W + cc;
+    if (l != kInvalid) return -1;
+  }
+  return -1;
+}
+
+// Marks with kHCompact the EDGE cells of EDGE groups (8-neighbours, linked across at most `gap`
+// INVALID cells) whose bounding box's longer side is at most `extent` cells.
 void mark_compact_edges(const std::uint8_t* labels, std::ptrdiff_t H, std::ptrdiff_t W,
-                        int extent, std::uint8_t* hm, std::vector<std::int64_t>& queue) {
+                        int extent, int gap, std::uint8_t* hm, std::vector<std::int64_t>& queue) {
   const std::ptrdiff_t N = H * W;
   for (std::ptrdiff_t start = 0; start < N; ++start) {
     // the next EDGE cell (memchr: vectorised search)
@@ -40,10 +55,9 @@ void mark_compact_edges(const std::uint8_t* labels, std::ptrdiff_t H, std::ptrdi
       r0 = std::min(r0, r), r1 = std::max(r1, r), c0 = std::min(c0, c), c1 = std::max(c1, c);
       for (std::ptrdiff_t dr = -1; dr <= 1; ++dr) {
         for (std::ptrdiff_t dc = -1; dc <= 1; ++dc) {
-          const std::ptrdiff_t rr = r + dr, cc = c + dc;
-          if (rr < 0 || rr >= H || cc < 0 || cc >= W) continue;
-          const std::ptrdiff_t q = rr * W + cc;
-          if (labels[q] == kEdge && !(hm[q] & kHSeen)) {
+          if (dr == 0 && dc == 0) continue;
+          const std::ptrdiff_t q = edge_link(labels, H, W, r, c, dr, dc, gap);
+          if (q >= 0 && !(hm[q] & kHSeen)) {
             hm[q] |= kHSeen;
             queue.push_back(q);
           }
@@ -100,7 +114,7 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
   ws.cls.resize(static_cast<std::size_t>(N));
   std::uint8_t* hm = ws.hmask.data();
   std::uint8_t* cls = ws.cls.data();
-  mark_compact_edges(labels, H, W, p.edge_extent, hm, ws.queue);
+  mark_compact_edges(labels, H, W, p.edge_extent, p.max_gap, hm, ws.queue);
   const int nt = thread_count(p.num_threads, N);
 #pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
   for (std::ptrdiff_t i = 0; i < N; ++i) {

@@ -234,7 +234,9 @@ long long stream_lag(const DetectParams& p) noexcept {
   const long long reach = stream_reach(p);
   const long long P = p.max_iterations, h = p.window / 2;
   // rows behind the newest at which the height passes' labels are final
-  const long long lagh = P * reach + (p.height_test() ? p.edge_extent + P * h : 0);
+  // (an EDGE group links across max_gap dropouts: its compactness is seen E + max_gap rows on)
+  const long long lagh =
+      P * reach + (p.height_test() ? p.edge_extent + p.max_gap + P * h : 0);
   long long lag = lagh + h;
   if (p.edge_test()) {
     // edge pass 1 runs r rows behind the height passes, once the rows within h are in (its
@@ -277,15 +279,16 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   edge_ = params_.edge_test();
   half_ = params_.window / 2;
   extent_ = htest_ ? params_.edge_extent : 0;
+  link_gap_ = htest_ ? params_.max_gap : 0;
   sums_ = htest_ || params_.height_mode == HeightMode::kAll;
   lag_ = static_cast<int>(stream_lag(params_));
-  lagh_ = alag_ + (htest_ ? extent_ + passes_ * half_ : 0);
+  lagh_ = alag_ + (htest_ ? extent_ + link_gap_ + passes_ * half_ : 0);
   // The longest look-back of a stage at push n: heights read row n - L - h, height pass 1
   // drops row n - L - h - 1 from its sums (without the height test), the EDGE grouping reads
   // row n - A - 2E, the angle passes row n - A - R, the last edge pass builds its images from
   // r rows above the tile (of 64 rows) of a row after n - L + h.
   const long long back = std::max<long long>(
-      {static_cast<long long>(lag_) + half_ + 1, static_cast<long long>(alag_) + 2LL * extent_,
+      {static_cast<long long>(lag_) + half_ + 1, static_cast<long long>(alag_) + 2LL * (extent_ + link_gap_),
        static_cast<long long>(alag_) + reach_,
        edge_ ? static_cast<long long>(lag_) + 64 + params_.edge_window : 0LL});
   // min_step "auto": the stages wait for the kAutoMinStepRows rows it reads (all kept)

@@ -49,7 +49,7 @@ void ProfileStream<T>::init_stages() {
   hrow_.assign(static_cast<std::size_t>(ring_), 0);
   height_.assign(static_cast<std::size_t>(n1), detail::kNaN);
   next_pass_.assign(static_cast<std::size_t>(passes_) + 1, 0);
-  queue_.reserve(static_cast<std::size_t>((2 * extent_ + 1) * W));
+  queue_.reserve(static_cast<std::size_t>((2 * (extent_ + link_gap_) + 1) * W));
   const std::ptrdiff_t side = 2 * static_cast<std::ptrdiff_t>(half_) + 1;
   local_.assign(static_cast<std::size_t>(side * side), 0);
   const std::ptrdiff_t cap = std::min(W, kStrip);
@@ -89,7 +89,7 @@ template <typename T>
 void ProfileStream<T>::run_stages(bool to_end) noexcept {
   const std::int64_t last = pushed_ - 1;
   auto upto = [&](long long offset) { return to_end ? last : last - offset; };
-  const long long A = alag_, E = extent_, h = half_;
+  const long long A = alag_, E = extent_ + link_gap_, h = half_;
   for (const std::int64_t lim = upto(A); next_final_ <= lim;) angle_final_row(next_final_++);
   if (htest_) {
     for (const std::int64_t lim = upto(A + E); next_compact_ <= lim;) compact_row(next_compact_++);
@@ -127,8 +127,8 @@ template <typename T>
 void ProfileStream<T>::compact_row(std::int64_t row) noexcept {
   const std::ptrdiff_t W = width_;
   std::uint8_t* hm0 = hm_.data() + slot(row) * W;
-  const std::int64_t lo = std::max<std::int64_t>(0, row - extent_);
-  const std::int64_t hi = std::min<std::int64_t>(pushed_ - 1, row + extent_);
+  const std::int64_t lo = std::max<std::int64_t>(0, row - extent_ - link_gap_);
+  const std::int64_t hi = std::min<std::int64_t>(pushed_ - 1, row + extent_ + link_gap_);
   for (std::ptrdiff_t c = 0; extent_ > 0 && c < W; ++c) {
     if ((hm0[c] & (kSEdge | kSSeen)) != kSEdge) continue;
     queue_.clear();
@@ -141,18 +141,28 @@ void ProfileStream<T>::compact_row(std::int64_t row) noexcept {
       const std::int64_t r = queue_[head] / W;
       const std::ptrdiff_t cc = static_cast<std::ptrdiff_t>(queue_[head] % W);
       r0 = std::min(r0, r), r1 = std::max(r1, r), c0 = std::min(c0, cc), c1 = std::max(c1, cc);
-      for (std::int64_t rr = std::max(lo, r - 1); rr <= std::min(hi, r + 1); ++rr) {
-        std::uint8_t* hm = hm_.data() + slot(rr) * W;
-        for (std::ptrdiff_t q = std::max<std::ptrdiff_t>(0, cc - 1);
-             q <= std::min<std::ptrdiff_t>(W - 1, cc + 1); ++q) {
-          const std::uint8_t b = hm[q];
-          if (!(b & kSEdge)) continue;
-          if (b & kSSeen) {
-            long_group |= !(b & kSCompact);
-            continue;
+      for (std::int64_t dr = -1; dr <= 1; ++dr) {
+        for (std::ptrdiff_t dc = -1; dc <= 1; ++dc) {
+          if (dr == 0 && dc == 0) continue;
+          // the first cell along (dr, dc) within 1 + G steps that is EDGE, past INVALID cells only
+          for (int k = 1; k <= 1 + link_gap_; ++k) {
+            const std::int64_t rr = r + k * dr;
+            const std::ptrdiff_t q = cc + k * dc;
+            if (rr < lo || rr > hi || q < 0 || q >= W) break;
+            std::uint8_t* hm = hm_.data() + slot(rr) * W;
+            const std::uint8_t b = hm[q];
+            if (!(b & kSEdge)) {
+              if (labels_[static_cast<std::size_t>(slot(rr) * W + q)] == kInvalid) continue;
+              break;
+            }
+            if (b & kSSeen) {
+              long_group |= !(b & kSCompact);
+            } else {
+              hm[q] = static_cast<std::uint8_t>(b | kSSeen | kSCompact);
+              queue_.push_back(rr * W + q);
+            }
+            break;
           }
-          hm[q] = static_cast<std::uint8_t>(b | kSSeen | kSCompact);
-          queue_.push_back(rr * W + q);
         }
       }
     }

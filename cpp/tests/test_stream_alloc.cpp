@@ -40,7 +40,7 @@ namespace {
 
 template <typename T>
 void run_without_allocating(const miem::DetectParams& p) {
-  const std::ptrdiff_t H = 600, W = 200;  // edge passes while pushing (lag 222), 2 tile columns
+  const std::ptrdiff_t H = 600, W = 200;  // edge passes while pushing (lag 223), 2 tile columns
   const std::vector<double> g = miem::test::make_scan(H, W, 42);
   const std::vector<T> grid(g.begin(), g.end());
   const std::vector<T> nan_row(static_cast<std::size_t>(W * 3), std::numeric_limits<T>::quiet_NaN());

@@ -9,7 +9,7 @@ The halo (cells, in every direction) comes from the configuration, see :func:`gr
 
     R    = max(scales) + max_gap (+ max_reach when min_step is set)  # one angle pass reads R
     L    = max_iterations * R                                        # the angle passes
-         + max_iterations * (window // 2 + edge_extent)              # the height passes, if on
+         + max_iterations * (window // 2 + edge_extent + max_gap)    # the height passes, if on
     halo = L + window // 2                                           # the final heights
 
 A cell's label after ``p`` angle passes depends only on the cells within ``p R`` (a pass reads
@@ -126,7 +126,7 @@ def grid_halo(params: dict, strict: bool = False) -> int:
     half = params["window"] // 2
     lag = params["max_iterations"] * reach
     if params["height_tolerance"] is not None:
-        per_pass = half + params["edge_extent"]
+        per_pass = half + params["edge_extent"] + params["max_gap"]  # groups link across gaps
         if strict:
             per_pass = max(per_pass, max(_TILE) - 1 + half)
         lag += params["max_iterations"] * per_pass

@@ -934,11 +934,20 @@ def _box_count(mask: NDArray[np.bool_], window: int) -> NDArray[np.int64]:
     return (s[r1][:, c1] - s[r0][:, c1] - s[r1][:, c0] + s[r0][:, c0]).astype(np.int64)
 
 
-def _compact_edges(edge: NDArray[np.bool_], extent: int) -> NDArray[np.bool_]:
-    """EDGE cells of 8-connected EDGE groups whose bounding box's longer side is <= extent."""
+def _compact_edges(
+    edge: NDArray[np.bool_], extent: int, invalid: NDArray[np.bool_] | None = None, gap: int = 0
+) -> NDArray[np.bool_]:
+    """EDGE cells of EDGE groups whose bounding box's longer side is <= extent.
+
+    Two EDGE cells are linked when they are 8-neighbours, or ``k`` cells apart along one of the
+    8 directions (``2 <= k <= 1 + gap``) with every cell between them ``invalid`` (a dropout
+    does not cut a feature line; SPEC "height_tolerance" step 1).
+    """
     h, w = edge.shape
     out = np.zeros_like(edge)
     seen = np.zeros_like(edge)
+    reach = 1 + (gap if invalid is not None else 0)
+    offsets = [(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr, dc) != (0, 0)]
     for r0, c0 in zip(*np.nonzero(edge)):
         if seen[r0, c0]:
             continue
@@ -947,12 +956,18 @@ def _compact_edges(edge: NDArray[np.bool_], extent: int) -> NDArray[np.bool_]:
         while stack:
             r, c = stack.pop()
             members.append((r, c))
-            for dr in (-1, 0, 1):
-                for dc in (-1, 0, 1):
-                    rr, cc = r + dr, c + dc
-                    if 0 <= rr < h and 0 <= cc < w and edge[rr, cc] and not seen[rr, cc]:
-                        seen[rr, cc] = True
-                        stack.append((rr, cc))
+            for dr, dc in offsets:
+                for k in range(1, reach + 1):
+                    rr, cc = r + k * dr, c + k * dc
+                    if not (0 <= rr < h and 0 <= cc < w):
+                        break
+                    if edge[rr, cc]:
+                        if not seen[rr, cc]:
+                            seen[rr, cc] = True
+                            stack.append((rr, cc))
+                        break
+                    if invalid is None or not invalid[rr, cc]:
+                        break
         rows = [m[0] for m in members]
         cols = [m[1] for m in members]
         if max(max(rows) - min(rows), max(cols) - min(cols)) + 1 <= extent:
@@ -1547,7 +1562,7 @@ def detect(
             # of them, on top of the angle passes. Flags and angles are left as they are.
             for _ in range(iters):
                 passes += 1
-                compact = _compact_edges(labels == EDGE, extent)
+                compact = _compact_edges(labels == EDGE, extent, ~finite, gap)
                 new_abn = _height_pass(
                     g, labels == NORMAL, compact, (labels == EDGE) & ~compact, win, tolerance
                 )

@@ -95,16 +95,17 @@ class ProfileStream:
         L = max(L, 256)                    (with min_step="auto")
 
     with ``R = max(scales) + max_gap`` (``+ max_reach`` with ``min_step``, a length or
-    ``"auto"``) the rows one angle judgment reads, ``P = max_iterations``, ``E = edge_extent``
-    (the rows that decide whether an EDGE group is compact), ``h = window // 2`` and
-    ``r = edge_window // 2`` (each edge pass runs row by row, ``r`` profiles behind the one
-    before): (10 * 35 + 12 + 10 * 10 + 7) + 9 * 7 + 10 = 542 profiles with the defaults, 222
-    with ``min_step=None``, 10 * 2 + 10 = 30 with ``preset="paper"``. ``min_step="auto"`` is
-    decided on the 256 profiles from the first one with a finite point (docs/SPEC.md
-    "min_step='auto'"), the value :func:`miem.detect` resolves on the same rows: the stream
-    waits for them, and the push that completes them does their work (the one long push of a
-    part, about 33 ms of CPU at 3200 points). A lower ``max_iterations``, ``edge_extent``,
-    ``window`` or ``edge_window``, or a ``min_step`` length or None, shortens the lag;
+    ``"auto"``) the rows one angle judgment reads, ``P = max_iterations``,
+    ``E = edge_extent + max_gap`` (the rows that decide whether an EDGE group is compact),
+    ``h = window // 2`` and ``r = edge_window // 2`` (each edge pass runs row by row, ``r``
+    profiles behind the one before): (10 * 35 + 13 + 10 * 10 + 7) + 9 * 7 + 10 = 543 profiles
+    with the defaults, 223 with ``min_step=None``, 10 * 2 + 10 = 30 with ``preset="paper"``.
+    ``min_step="auto"`` is decided on the 256 profiles from the first one with a finite point
+    (docs/SPEC.md "min_step='auto'"), the value :func:`miem.detect` resolves on the same rows:
+    the stream waits for them, and the push that completes them does their work (the one long
+    push of a part, about 33 ms of CPU at 3200 points). A lower ``max_iterations``,
+    ``edge_extent``, ``window`` or ``edge_window``, or a ``min_step`` length or None, shortens
+    the lag;
     ``edge_tolerance=None`` takes 70 profiles off (and most of the time: bench/RESULTS.md).
 
     The parameters are a :class:`miem.DetectParams` as for :func:`miem.detect` (``params``, a
@@ -150,7 +151,7 @@ class ProfileStream:
     ...         print(done.row, hit, done.heights[hit])
     10 [30] [3.]
     >>> stream.lag, len(stream.flush())              # the last `lag` rows
-    (542, 542)
+    (543, 543)
     """
 
     def __init__(

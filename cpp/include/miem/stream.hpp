@@ -39,12 +39,12 @@ DetectParams stream_default_params();
 
 /// The lag L of a stream with these parameters (profiles between pushing a row and getting it
 /// back final), with R = max(scales) + max_gap (+ max_reach with min_step, given or "auto"),
-/// h = window / 2, P = max_iterations, E = edge_extent, r = edge_window / 2:
+/// h = window / 2, P = max_iterations, E = edge_extent + max_gap, r = edge_window / 2:
 ///     L = P R + E + (P + 1) h   with the height test,   L = P R + h   without;
 ///     L = max(H + r, h) + (P - 1) r + h   with the edge test, H = P R + E + P h (P R without
 ///         the height test): each edge pass runs row by row, r rows behind the one before;
 ///     L = max(L, 256)   with min_step_auto (the rows it is decided from must be in).
-/// Defaults: (10 * 35 + 12 + 10 * 10 + 7) + 9 * 7 + 10 = 542 (222 with min_step off).
+/// Defaults: (10 * 35 + 13 + 10 * 10 + 7) + 9 * 7 + 10 = 543 (223 with min_step off).
 /// Assumes valid parameters.
 long long stream_lag(const DetectParams& params) noexcept;
 
@@ -77,8 +77,8 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 ///     finite cell), the stages wait from that row on until the 256 rows are in; that push
 ///     decides the value (exact medians, no allocation) and runs the waiting pushes' stages
 ///     (the one long push of a part: about 33 ms of CPU for 3200 points).
-/// So row i is final once row i + L has arrived, L = stream_lag(params) (542 profiles with
-/// the defaults, 222 with min_step off, 472 without the edge test; 20 + 10 with preset
+/// So row i is final once row i + L has arrived, L = stream_lag(params) (543 profiles with
+/// the defaults, 223 with min_step off, 473 without the edge test; 20 + 10 with preset
 /// "paper"). Each cell keeps the
 /// pass that removed it (angle, height, edge), so a judgment at pass p sees exactly the cells of pass p - 1 even where rows around it have run
 /// pass p already. A lower max_iterations (most scans settle in 2-3 passes) or edge_extent
@@ -213,6 +213,7 @@ class ProfileStream {
   int lag_ = 0;     // L (stream_lag)
   int half_ = 0;    // h = window / 2
   int extent_ = 0;  // E = edge_extent with the height test, else 0
+  int link_gap_ = 0;  // G = max_gap with the height test (EDGE groups link across G dropouts)
   bool htest_ = false;  // the height test is on
   bool edge_ = false;   // the edge test is on
   int lagh_ = 0;        // rows behind the newest at which the height passes' labels are final
