@@ -250,7 +250,8 @@ class LasWriter:
     scalar fields.
 
     >>> pts = open_las("part.laz")
-    >>> res = miem.dask.detect_points(pts, radius=1.0, min_step=0.1)
+    >>> res = miem.dask.detect_points(pts, radius=1.0, min_step=0.1,
+    ...                              edge_tolerance=None)
     >>> out = LasWriter("part.laz", "part_labels.las")
     >>> da.store([res.labels, res.height], [out.labels, out.height], lock=False)
 
