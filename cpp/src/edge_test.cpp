@@ -184,10 +184,6 @@ bool is_fin(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
             std::ptrdiff_t cc, std::ptrdiff_t r) {
   constexpr int kDirs[4][2] = {{1, 0}, {0, 1}, {1, 1}, {1, -1}};
   const std::ptrdiff_t H = g.rows, W = g.cols;
-  const auto ground = [&](std::ptrdiff_t a, std::ptrdiff_t b) {
-    return a >= 0 && a < H && b >= 0 && b < W &&
-           (labels[a * W + b] == kNormal || labels[a * W + b] == kEdge);
-  };
   const auto zat = [&](std::ptrdiff_t a, std::ptrdiff_t b) {
     return static_cast<double>(g.data[a * g.row_stride + b * g.col_stride + 2 * g.coord_stride]);
   };
@@ -198,13 +194,25 @@ bool is_fin(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
     bool any = true;
     for (int side = 0; side < 2 && any; ++side) {
       const std::ptrdiff_t sg = side == 0 ? -1 : 1;
+      // Steps 1..jmax stay inside the grid (the ones beyond leave it for good); the scan is
+      // branch-free: every in-grid z is read, and only ground cells can take the minimum.
+      const std::ptrdiff_t sa = sg * d[0], sb = sg * d[1];
+      std::ptrdiff_t jmax = r;
+      if (sa != 0) jmax = std::min(jmax, sa > 0 ? H - 1 - rr : rr);
+      if (sb != 0) jmax = std::min(jmax, sb > 0 ? W - 1 - cc : cc);
+      const std::uint8_t* const lq = labels + rr * W + cc;
+      const T* const zq0 = g.data + rr * g.row_stride + cc * g.col_stride + 2 * g.coord_stride;
+      const std::ptrdiff_t ls = sa * W + sb, zs = sa * g.row_stride + sb * g.col_stride;
       double zmin = std::numeric_limits<double>::infinity();
-      for (std::ptrdiff_t j = 1; j <= r; ++j) {  // outward: among equal minima the nearest
-        const std::ptrdiff_t a = rr + sg * j * d[0], b = cc + sg * j * d[1];
-        if (!ground(a, b)) continue;
-        const double zq = zat(a, b);
-        if (zq < zmin) zmin = zq, jlow[side] = sg * j;
+      std::ptrdiff_t jl = 0;
+      for (std::ptrdiff_t j = 1; j <= jmax; ++j) {  // outward: among equal minima the nearest
+        const std::uint8_t lab = lq[j * ls];
+        const double zq = static_cast<double>(zq0[j * zs]);
+        const bool lt = ((lab == kNormal) | (lab == kEdge)) & (zq < zmin);
+        zmin = lt ? zq : zmin;
+        jl = lt ? j : jl;
       }
+      jlow[side] = sg * jl;
       any = zmin < zp;  // else the height is not positive
       zlow[side] = zmin;
     }

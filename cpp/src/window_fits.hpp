@@ -75,12 +75,14 @@ inline __attribute__((always_inline)) void solve_fits_body(std::ptrdiff_t m, std
   double* __restrict f2 = F + 3 * cap;
   // Blocks of kB cells: the centred scatters, then the Newton steps for the whole block until
   // every cell has ended (at most 4: the steps of an ended cell change nothing, so the bits are
-  // those of eigen_lane's fixed steps; flat windows end within 2 or 3), then the rest.
+  // those of eigen_lane's fixed steps; flat windows end within 2 or 3), then the rest. The
+  // flags are 1.0 / 0.0 doubles in the vector loop and bytes only after it: a byte store next to
+  // the doubles makes GCC take 32 or 64 lanes at a time, leaving short rows to scalar code.
   constexpr std::ptrdiff_t kB = 128;
   for (std::ptrdiff_t b0 = 0; b0 < m; b0 += kB) {
     const std::ptrdiff_t nb_ = std::min(kB, m - b0);
     double A[kB], B[kB], C[kB], D[kB], E[kB], Fm[kB], MX[kB], MY[kB], MZ[kB];
-    double tr[kB], c1[kB], det[kB], x[kB], live[kB];
+    double tr[kB], c1[kB], det[kB], x[kB], live[kB], okd[kB], redod[kB];
     for (std::ptrdiff_t t = 0; t < nb_; ++t) {
       const std::ptrdiff_t i = b0 + t;
       const double n = s0[i];
@@ -123,9 +125,13 @@ inline __attribute__((always_inline)) void solve_fits_body(std::ptrdiff_t m, std
       f0[i] = x[t];
       f1[i] = l1;
       f2[i] = hi;
-      ok[i] = static_cast<std::uint8_t>((n >= 3.0) & (tr[t] > 0.0) & (nb > 0.0) & (hi > 0.0) &
-                                        (l1 > 1e-12 * hi));
-      redo[i] = static_cast<std::uint8_t>((live[t] != 0.0) & (n >= 3.0));
+      okd[t] = (n >= 3.0) & (tr[t] > 0.0) & (nb > 0.0) & (hi > 0.0) & (l1 > 1e-12 * hi) ? 1.0
+                                                                                          : 0.0;
+      redod[t] = (live[t] != 0.0) & (n >= 3.0) ? 1.0 : 0.0;
+    }
+    for (std::ptrdiff_t t = 0; t < nb_; ++t) {
+      ok[b0 + t] = static_cast<std::uint8_t>(okd[t] != 0.0);
+      redo[b0 + t] = static_cast<std::uint8_t>(redod[t] != 0.0);
     }
   }
 }
