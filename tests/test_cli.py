@@ -65,7 +65,7 @@ def test_help_explains_every_option_with_default() -> None:
                          ("-o DIR", "current directory"), ("--line-step LENGTH", "estimated")):
         entry = "\n  " + opt  # the option's own help entry, not the usage line
         assert entry in out, opt
-        text = " ".join(out.split(entry, 1)[1].split()[:40])
+        text = " ".join(out.split(entry, 1)[1].split()[:60])
         assert default in text, (opt, text)
     assert "degrees" in out and "mm" in out
     for cmd in ("fit", "simulate", "plot"):
