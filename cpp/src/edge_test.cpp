@@ -382,6 +382,17 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
   for (std::ptrdiff_t cc = C0; cc < C1;) {
     if (cc >= bend) {  // a new block: banded when it saves rectangles
       bend = std::min(C1, cc + std::max<std::ptrdiff_t>(bw, 1));
+      // A band needs all of its cells' rectangles inside the grid (columns r .. W - r - 1):
+      // a block is cut where that span begins or ends, so only the r cells at each border,
+      // not a whole block of kBandCells, go through the general path. (Band blocks then start
+      // at the same columns in every row: the cache's slots and tags still match.)
+      if (rows_inside && bw >= 16) {
+        if (cc < r) {
+          bend = std::min(bend, r);
+        } else if (cc < W - r) {
+          bend = std::min(bend, W - r);
+        }
+      }
       banded = false;
       if (rows_inside && bw >= 16) {
         std::ptrdiff_t n = 0, first = -1, last = -1;
@@ -491,9 +502,14 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
     // when the cell fits it the verdict is "no" without the other seven solves. The
     // others (and cells without a supported side: no valid side, "no") go on below.
     if (banded) {
+      const bool consecutive = cols[m - 1] - cols[0] + 1 == m;
       for (int s = 0; s < 8; ++s) {
-        const double* const bl = lowp[kBandOf[s]];
-        for (int j = 0; j < m; ++j) lowb[s * m + j] = bl[bpos(s, cols[j])];
+        const double* const bl = lowp[kBandOf[s]] + bpos(s, cols[0]);  // cell j: cols[j] - cols[0]
+        if (consecutive) {
+          for (int j = 0; j < m; ++j) lowb[s * m + j] = bl[j];
+        } else {
+          for (int j = 0; j < m; ++j) lowb[s * m + j] = bl[cols[j] - cols[0]];
+        }
       }
     } else {
       side_lows(8 * m, kCap, n_min, mm, lowb);
