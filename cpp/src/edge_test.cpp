@@ -293,22 +293,47 @@ bool is_hanging(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t
 
 }  // namespace
 
+namespace {
+
+// Cell (row, cc)'s terms of the kM moments (label l): n, x, y, z, xx, xy, xz, yy, yz, zz of a
+// NORMAL cell relative to the origin o, and the INVALID count.
+template <typename T>
+inline void cell_moments(const GridView<T>& g, std::ptrdiff_t row, std::ptrdiff_t cc,
+                         std::uint8_t l, const Eigen::Vector3d& o, double (&t)[kM]) {
+  for (int q = 0; q < kM; ++q) t[q] = 0.0;
+  if (l == kNormal) {
+    const Eigen::Vector3d p = g(row, cc) - o;
+    t[0] = 1.0;
+    t[1] = p.x(), t[2] = p.y(), t[3] = p.z();
+    t[4] = p.x() * p.x(), t[5] = p.x() * p.y(), t[6] = p.x() * p.z();
+    t[7] = p.y() * p.y(), t[8] = p.y() * p.z(), t[9] = p.z() * p.z();
+  }
+  t[10] = l == kInvalid ? 1.0 : 0.0;
+}
+
+// edge_image_row's column sums only (the image row itself is not written): for the rows above
+// every image row a pass reads, whose sums the rows below still need.
+template <typename T>
+void edge_column_row(const GridView<T>& g, std::ptrdiff_t row, const std::uint8_t* lab,
+                     std::ptrdiff_t f0, std::ptrdiff_t f1, const Eigen::Vector3d& o, double* col,
+                     std::ptrdiff_t col_plane) {
+  for (std::ptrdiff_t cc = f0; cc < f1; ++cc) {
+    double t[kM];
+    cell_moments(g, row, cc, lab[cc], o, t);
+    for (int q = 0; q < kM; ++q) col[q * col_plane + cc - f0] += t[q];
+  }
+}
+
+}  // namespace
+
 template <typename T>
 void edge_image_row(const GridView<T>& g, std::ptrdiff_t row, const std::uint8_t* lab,
                     std::ptrdiff_t f0, std::ptrdiff_t f1, const Eigen::Vector3d& o, double* col,
                     std::ptrdiff_t col_plane, double* out, std::ptrdiff_t plane) {
   for (int q = 0; q < kM; ++q) out[q * plane] = 0.0;
   for (std::ptrdiff_t cc = f0; cc < f1; ++cc) {
-    const std::uint8_t l = lab[cc];
-    double t[kM] = {0.0};
-    if (l == kNormal) {
-      const Eigen::Vector3d p = g(row, cc) - o;
-      t[0] = 1.0;
-      t[1] = p.x(), t[2] = p.y(), t[3] = p.z();
-      t[4] = p.x() * p.x(), t[5] = p.x() * p.y(), t[6] = p.x() * p.z();
-      t[7] = p.y() * p.y(), t[8] = p.y() * p.z(), t[9] = p.z() * p.z();
-    }
-    t[10] = l == kInvalid ? 1.0 : 0.0;
+    double t[kM];
+    cell_moments(g, row, cc, lab[cc], o, t);
     const std::ptrdiff_t x = cc - f0;
     for (int q = 0; q < kM; ++q) {
       double& cs = col[q * col_plane + x];
@@ -678,12 +703,13 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
       const std::ptrdiff_t C0 = (tile % tiles_c) * kTileCols, C1 = std::min(W, C0 + kTileCols);
       // the last row and column with a candidate (after the first pass candidates are the
       // windows around new ABNORMAL cells, often a corner of the tile)
-      std::ptrdiff_t rlast = -1, clast = -1;
+      std::ptrdiff_t rfirst = -1, rlast = -1, clast = -1;
       for (std::ptrdiff_t rr = R0; rr < R1; ++rr) {
         for (std::ptrdiff_t cc = C0; cc < C1; ++cc) {
           const std::ptrdiff_t i = rr * W + cc;
           mark[i] = 0;
           if (todo[i] && (labels[i] == kNormal || labels[i] == kEdge)) {
+            if (rfirst < 0) rfirst = rr;
             rlast = rr;
             clast = std::max(clast, cc);
           }
@@ -710,12 +736,19 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
       const std::ptrdiff_t ew = f1 - f0;
       std::fill(col, col + kM * EC, 0.0);
       for (int q = 0; q < kM; ++q) std::fill(S + q * plane, S + q * plane + ew + 1, 0.0);
+      // A pass reads image rows rfirst - r and below only (rectangles of candidate rows from
+      // rfirst on, clipped at the grid's border): grid rows before rfirst - r - 1 (whose image
+      // rows are the ones before) add to the column sums alone.
       for (std::ptrdiff_t rr = e0; rr < e1; ++rr) {
+        if (rr < rfirst - r - 1) {
+          edge_column_row(g, rr, labels + rr * W, f0, f1, o, col, EC);
+          continue;
+        }
         edge_image_row(g, rr, labels + rr * W, f0, f1, o, col, EC, S + (rr - e0 + 1) * L, plane);
       }
       const EdgeImages im{S, plane, L, e0, ER + 1, f0};
       cache.clear();
-      for (std::ptrdiff_t rr = R0; rr <= rlast; ++rr) {
+      for (std::ptrdiff_t rr = rfirst; rr <= rlast; ++rr) {  // (rows without a candidate: none)
         edge_judge_row(g, rr, rr, H, C0, clast + 1, im, o, r, k, labels, todo + rr * W,
                        mark + rr * W, &cache);
       }
