@@ -216,7 +216,16 @@ def build_stages(src: Path, build_dir: Path) -> Path | None:
         if proc.returncode != 0:
             print(proc.stdout[-2000:], proc.stderr[-2000:], file=sys.stderr)
             return None
+    # the schedule probe (bench/cpp/schedule_probe.cpp; OpenMP builds only): optional
+    subprocess.run(["cmake", "--build", str(build_dir), "-j", "2", "--target",
+                    "miem_schedule_probe"], capture_output=True, text=True)
     return build_dir / "bench" / "miem_bench_stages"
+
+
+def schedule_probe(binary: Path) -> Path | None:
+    """libmiem_schedule_probe.so beside a miem_bench_stages binary, if it was built."""
+    so = binary.parent / "libmiem_schedule_probe.so"
+    return so if so.exists() else None
 
 
 def base_binary(commit: str, build: bool = True) -> Path | None:
@@ -238,9 +247,16 @@ def base_binary(commit: str, build: bool = True) -> Path | None:
 
 def run_stages(binary: Path, grid_file: Path, side: int, nt: int, repeats: int,
                preset: str, cols: int | None = None) -> dict:
-    """miem_bench_stages on a side x side grid (side x cols with `cols`)."""
+    """miem_bench_stages on a side x side grid (side x cols with `cols`); with more than one
+    thread under the schedule probe when it was built (the row's "schedule": CPU work and
+    critical path per stage)."""
+    env = dict(os.environ)
+    probe = schedule_probe(binary)
+    if nt > 1 and probe is not None:
+        env["LD_PRELOAD"] = str(probe)
     out = subprocess.run([str(binary), str(grid_file), str(side), str(cols or side), str(nt),
-                          str(repeats), preset], capture_output=True, text=True, check=True).stdout
+                          str(repeats), preset], capture_output=True, text=True, check=True,
+                         env=env).stdout
     row = json.loads(out)
     for k in STAGES:
         row.setdefault(k, 0.0)  # older binaries time fewer stages
@@ -417,14 +433,24 @@ def fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, base_bd, m
               f"Each stage of `OrganizedDetector::run` (cpp/src/stages.hpp, organized.cpp) timed "
               f"alone by `miem_bench_stages` on the {n_side}x{n_side} scan (C++, no Python; 1 "
               "thread: CPU time, 2 threads: wall time). `recommended` is today's default "
-              "(min_step 'auto', edge test); `recommended-no-edge` the default before issue 10.",
-              "", "| preset | threads | " + " | ".join(STAGES) + " | run() | Mpoints/s |",
-              "|---|---:|" + "---:|" * (len(STAGES) + 2)]
+              "(min_step 'auto', edge test); `recommended-no-edge` the default before issue 10. "
+              "run(): one detector reused (its workspace warm); fresh: a new detector and new "
+              "outputs per call, as `miem.detect` runs (the size sweep's way). *Schedule "
+              "allows*: the speed-up the thread schedule permits, CPU work / critical path of "
+              "run() (critical path = serial CPU + the busiest thread's CPU in each parallel "
+              "region, bench/cpp/schedule_probe.cpp; per-thread CPU time, so other processes "
+              "do not change it); below it the machine (memory, wake-ups, load).",
+              "", "| preset | threads | " + " | ".join(STAGES)
+              + " | run() | fresh | Mpoints/s | schedule allows |",
+              "|---|---:|" + "---:|" * (len(STAGES) + 4)]
         for s in stages:
             n = s["rows"] * s["cols"]
+            sch = s.get("schedule", {}).get("run")
+            allows = f"{sch['work'] / sch['critical']:.2f}x" if sch else "-"
+            fresh = f"{s['run_fresh'] * 1e3:.0f} ms" if "run_fresh" in s else "-"
             L.append(f"| {s['preset']} | {s['threads']} | "
                      + " | ".join(f"{s[k] * 1e3:.0f} ms" for k in STAGES + ("run",))
-                     + f" | {n / s['run'] / 1e6:.1f} |")
+                     + f" | {fresh} | {n / s['run'] / 1e6:.1f} | {allows} |")
     if before:
         n_side = meta["stage_side"]
         L += ["", f"Before and after, in this same run ({n_side}x{n_side}, 1 thread, CPU ms; "

@@ -514,9 +514,7 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
     if (out.angle_deg) out.angle_deg[i] = an;
   };
 
-  ws.fresh.clear();
-  for (std::ptrdiff_t i = 0; i < N; ++i)
-    if (labels[i] == kAbnormal) ws.fresh.push_back(i);
+  collect_indices(nt, N, ws.fresh, [labels](std::ptrdiff_t i) { return labels[i] == kAbnormal; });
   int iterations = 1;
 
   // Later passes: only cells whose rays meet a newly removed cell; with min_step, only within
@@ -547,8 +545,10 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
       }
     }
     const std::ptrdiff_t nc = static_cast<std::ptrdiff_t>(ws.candidates.size());
-    const int ntc = detail::thread_count(p.num_threads, nc, 4096);
-#pragma omp parallel for schedule(static) num_threads(ntc) if (ntc > 1)
+    // a verdict costs ~1 us (more with min_step): a few hundred are worth a second thread;
+    // candidates cluster around the removed cells, so they are dealt in small chunks
+    const int ntc = detail::thread_count(p.num_threads, nc, 256);
+#pragma omp parallel for schedule(dynamic, 32) num_threads(ntc) if (ntc > 1)
     for (std::ptrdiff_t j = 0; j < nc; ++j) judge_cell(ws.candidates[j]);
     ws.fresh.clear();
     for (std::int64_t q : ws.candidates) {

@@ -5,21 +5,26 @@
 
 #include "defects.hpp"
 #include "judge.hpp"
+#include "parallel.hpp"
 #include "stages.hpp"
 
 namespace miem::detail {
 
 template <typename T>
 std::vector<Defect> organized_defects(const GridView<T>& g, const std::uint8_t* labels,
-                                      const double* height, int window, Workspace& ws) {
+                                      const double* height, int window, Workspace& ws,
+                                      int num_threads) {
   const std::ptrdiff_t H = g.rows, W = g.cols, N = H * W;
   const int half = window / 2;
   // Bit 2 of ws.usable marks visited ABNORMAL cells (ABNORMAL cells are never usable).
   constexpr std::uint8_t kSeen = 4;
   std::uint8_t* usable = ws.usable.data();
   std::vector<Defect> defects;
-  for (std::ptrdiff_t start = 0; start < N; ++start) {
-    if (labels[start] != kAbnormal || (usable[start] & kSeen)) continue;
+  // the ABNORMAL cells in row-major order (a parallel scan), each group from its first one
+  collect_indices(thread_count(num_threads, N), N, ws.fresh,
+                  [labels](std::ptrdiff_t i) { return labels[i] == kAbnormal; });
+  for (const std::int64_t start : ws.fresh) {
+    if (usable[start] & kSeen) continue;
     ws.queue.clear();
     ws.queue.push_back(start);
     usable[start] |= kSeen;
@@ -62,9 +67,9 @@ std::vector<Defect> organized_defects(const GridView<T>& g, const std::uint8_t* 
 }
 
 template std::vector<Defect> organized_defects<float>(const GridView<float>&, const std::uint8_t*,
-                                                      const double*, int, Workspace&);
+                                                      const double*, int, Workspace&, int);
 template std::vector<Defect> organized_defects<double>(const GridView<double>&,
                                                        const std::uint8_t*, const double*, int,
-                                                       Workspace&);
+                                                       Workspace&, int);
 
 }  // namespace miem::detail

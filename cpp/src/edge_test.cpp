@@ -655,7 +655,7 @@ namespace {
 template <typename T>
 int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
                int max_iterations, int num_threads, std::vector<double>& scratch,
-               std::vector<std::uint8_t>& flags) {
+               CellBytes& flags) {
   constexpr std::ptrdiff_t kTileRows = kEdgeTileRows, kTileCols = kEdgeTileCols;
   const std::ptrdiff_t H = g.rows, W = g.cols, N = H * W, r = window / 2;
   const std::ptrdiff_t ER = std::min(H, kTileRows + 2 * r), EC = std::min(W, kTileCols + 2 * r);
@@ -675,7 +675,11 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
   if (flags.size() < static_cast<std::size_t>(2 * N)) flags.resize(static_cast<std::size_t>(2 * N));
   std::uint8_t* const todo = flags.data();
   std::uint8_t* const mark = todo + N;
-  for (std::ptrdiff_t i = 0; i < N; ++i) todo[i] = labels[i] == kNormal || labels[i] == kEdge;
+  const int ntn = thread_count(num_threads, N);  // the per-cell scans
+  parallel_ranges(ntn, N, 64, [&](int, std::ptrdiff_t i0, std::ptrdiff_t i1) {
+    for (std::ptrdiff_t i = i0; i < i1; ++i) todo[i] = labels[i] == kNormal || labels[i] == kEdge;
+  });
+  std::vector<std::int64_t> added;  // a pass's new ABNORMAL cells
   int passes = 0;
   for (int it = 0; it < max_iterations; ++it) {
     ++passes;
@@ -742,12 +746,13 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
                        mark + rr * W, &cache);
       }
     }
-    std::ptrdiff_t added = 0;
-    std::fill(todo, todo + N, std::uint8_t{0});
-    for (std::ptrdiff_t i = 0; i < N; ++i) {
-      if (!mark[i]) continue;
+    collect_indices(ntn, N, added, [&](std::ptrdiff_t i) {
+      todo[i] = 0;
+      if (!mark[i]) return false;
       labels[i] = kAbnormal;
-      ++added;
+      return true;
+    });
+    for (const std::int64_t i : added) {
       // only cells with a new ABNORMAL cell in their window can change at the next pass
       const std::ptrdiff_t rr = i / W, cc = i % W;
       for (std::ptrdiff_t a = std::max<std::ptrdiff_t>(0, rr - r); a <= std::min(H - 1, rr + r);
@@ -758,7 +763,7 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
         }
       }
     }
-    if (added == 0) break;
+    if (added.empty()) break;
   }
   return passes;
 }
@@ -768,14 +773,14 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
 template <typename T>
 int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
                 int max_iterations, int num_threads, std::vector<double>& scratch,
-                std::vector<std::uint8_t>& flags) {
+                CellBytes& flags) {
   return run_passes(g, labels, window, k, max_iterations, num_threads, scratch, flags);
 }
 
 template int edge_passes<float>(const GridView<float>&, std::uint8_t*, int, double, int, int,
-                                std::vector<double>&, std::vector<std::uint8_t>&);
+                                std::vector<double>&, CellBytes&);
 template int edge_passes<double>(const GridView<double>&, std::uint8_t*, int, double, int, int,
-                                 std::vector<double>&, std::vector<std::uint8_t>&);
+                                 std::vector<double>&, CellBytes&);
 
 #define MIEM_EDGE_ROWS(T)                                                                     \
   template void edge_image_row<T>(const GridView<T>&, std::ptrdiff_t, const std::uint8_t*,      \

@@ -7,6 +7,7 @@
 
 #include <Eigen/Core>
 
+#include "miem/organized.hpp"
 #include "miem/views.hpp"
 
 namespace miem::detail {
@@ -19,7 +20,7 @@ namespace miem::detail {
 template <typename T>
 int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
                 int max_iterations, int num_threads, std::vector<double>& scratch,
-                std::vector<std::uint8_t>& flags);
+                CellBytes& flags);
 
 /// The edge test's integral images hold, per cell, these moments: n, x, y, z, xx, xy, xz, yy,
 /// yz, zz of the support (NORMAL cells, relative to the tile's origin) and the INVALID count.

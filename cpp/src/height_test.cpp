@@ -110,12 +110,15 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
                 double* height, Workspace& ws) {
   const std::ptrdiff_t H = g.rows, W = g.cols, N = H * W;
   const std::ptrdiff_t half = p.window / 2;
-  ws.hmask.assign(static_cast<std::size_t>(N), 0);
+  ws.hmask.resize(static_cast<std::size_t>(N));
   ws.cls.resize(static_cast<std::size_t>(N));
   std::uint8_t* hm = ws.hmask.data();
   std::uint8_t* cls = ws.cls.data();
-  mark_compact_edges(labels, H, W, p.edge_extent, p.max_gap, hm, ws.queue);
   const int nt = thread_count(p.num_threads, N);
+  parallel_ranges(nt, N, 64, [hm](int, std::ptrdiff_t i0, std::ptrdiff_t i1) {
+    std::fill(hm + i0, hm + i1, std::uint8_t{0});
+  });
+  mark_compact_edges(labels, H, W, p.edge_extent, p.max_gap, hm, ws.queue);
 #pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
   for (std::ptrdiff_t i = 0; i < N; ++i) {
     const std::uint8_t l = labels[i];
@@ -124,6 +127,7 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
     if (l == kNormal || compact) hm[i] |= kHWant;  // pass 1 fits every candidate
   }
   int passes = 0;
+  std::vector<std::vector<std::int64_t>> parts;  // per thread: new ABNORMAL cells of a pass
   for (int hp = 0; hp < p.max_iterations; ++hp) {
     auto visit = [&](std::ptrdiff_t i, const WindowFit& f) {
       if (height) height[i] = f.ok ? f.height : kNaN;
@@ -147,25 +151,33 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
     ++passes;
     // Apply the pass: clear kHWant, turn the marked cells ABNORMAL. Blocks of 64 cells in
     // straight-line (vectorised) code; the few blocks with a marked cell list it in ws.fresh.
-    ws.fresh.clear();
+    // One range of whole blocks per thread, its new ABNORMAL cells joined in order.
     constexpr std::ptrdiff_t kSpan = 64;
-    for (std::ptrdiff_t i0 = 0; i0 < N; i0 += kSpan) {
-      const std::ptrdiff_t i1 = std::min(N, i0 + kSpan);
-      unsigned marked = 0;
-      for (std::ptrdiff_t i = i0; i < i1; ++i) {
-        const std::uint8_t b = hm[i];
-        marked |= b & kHMark;
-        hm[i] = static_cast<std::uint8_t>(b & ~kHWant);
+    parts.resize(static_cast<std::size_t>(std::max(1, nt)));
+    parallel_ranges(nt, N, kSpan, [&](int t, std::ptrdiff_t r0, std::ptrdiff_t r1) {
+      std::vector<std::int64_t>& part = parts[static_cast<std::size_t>(t)];
+      part.clear();
+      for (std::ptrdiff_t i0 = r0; i0 < r1; i0 += kSpan) {
+        const std::ptrdiff_t i1 = std::min(r1, i0 + kSpan);
+        unsigned marked = 0;
+        for (std::ptrdiff_t i = i0; i < i1; ++i) {
+          const std::uint8_t b = hm[i];
+          marked |= b & kHMark;
+          hm[i] = static_cast<std::uint8_t>(b & ~kHWant);
+        }
+        if (marked == 0) continue;
+        for (std::ptrdiff_t i = i0; i < i1; ++i) {
+          if (!(hm[i] & kHMark)) continue;
+          labels[i] = kAbnormal;
+          cls[i] = 0;
+          hm[i] = 0;
+          part.push_back(i);
+        }
       }
-      if (marked == 0) continue;
-      for (std::ptrdiff_t i = i0; i < i1; ++i) {
-        if (!(hm[i] & kHMark)) continue;
-        labels[i] = kAbnormal;
-        cls[i] = 0;
-        hm[i] = 0;
-        ws.fresh.push_back(i);
-      }
-    }
+    });
+    ws.fresh.clear();
+    for (const auto& part : parts) ws.fresh.insert(ws.fresh.end(), part.begin(), part.end());
+    for (auto& part : parts) part.clear();
     if (ws.fresh.empty()) break;
     // The windows that changed: re-fit their candidates at the next pass; heights there are stale.
     for (std::int64_t i : ws.fresh) {

@@ -39,8 +39,10 @@ void heights(const GridView<T>& g, const DetectParams& p, const std::uint8_t* la
     // ws.cls still holds the window classes the height test's fits used. A later stage (the edge
     // test) may have taken NORMAL cells out of the planes: the heights of every window holding
     // one are stale, the others stay exact.
-    for (std::ptrdiff_t i = 0; i < N; ++i) {
-      if (!(cls[i] & kInPlane) || labels[i] == kNormal) continue;
+    collect_indices(nt, N, ws.fresh, [cls, labels](std::ptrdiff_t i) {
+      return (cls[i] & kInPlane) && labels[i] != kNormal;
+    });
+    for (const std::int64_t i : ws.fresh) {
       const std::ptrdiff_t r = i / W, c = i % W;
       const std::ptrdiff_t c0 = std::max<std::ptrdiff_t>(0, c - half);
       const std::ptrdiff_t c1 = std::min<std::ptrdiff_t>(W - 1, c + half);

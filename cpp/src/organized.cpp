@@ -71,7 +71,7 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
   summary.plane = detail::miem_plane(g, labels, p.num_threads, ws_);
   // heights() re-fits the windows the edge test changed and reuses the height test's others
   detail::heights(g, p, labels, height, height_test, ws_);
-  summary.defects = detail::organized_defects(g, labels, height, p.window, ws_);
+  summary.defects = detail::organized_defects(g, labels, height, p.window, ws_, p.num_threads);
   return summary;
 }
 

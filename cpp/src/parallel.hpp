@@ -3,6 +3,8 @@
 
 #include <algorithm>
 #include <cstddef>
+#include <cstdint>
+#include <vector>
 
 #ifdef MIEM_HAVE_OPENMP
 #include <omp.h>
@@ -35,6 +37,50 @@ inline int thread_count(int requested, std::ptrdiff_t work, std::ptrdiff_t min_w
   (void)min_work;
   return 1;
 #endif
+}
+
+/// Calls f(part, i0, i1) on one contiguous range of [0, n) per thread of nt (part = 0, 1, ... in
+/// the ranges' order; boundaries multiples of `align`). For loops whose cells are independent:
+/// the result does not depend on nt.
+template <typename F>
+void parallel_ranges(int nt, std::ptrdiff_t n, std::ptrdiff_t align, F f) {
+#ifdef MIEM_HAVE_OPENMP
+  if (nt > 1 && n > align) {
+    const std::ptrdiff_t blocks = (n + align - 1) / align;
+#pragma omp parallel num_threads(nt)
+    {
+      const std::ptrdiff_t t = omp_get_thread_num(), T = omp_get_num_threads();
+      const std::ptrdiff_t i0 = std::min(n, blocks * t / T * align);
+      const std::ptrdiff_t i1 = std::min(n, blocks * (t + 1) / T * align);
+      if (i0 < i1) f(static_cast<int>(t), i0, i1);
+    }
+    return;
+  }
+#endif
+  (void)nt;
+  (void)align;
+  f(0, std::ptrdiff_t{0}, n);
+}
+
+/// The indices i of [0, n) with keep(i) (which may also update cell i), in increasing order,
+/// into `out` (cleared first): nt threads scan one range each and their lists are joined in
+/// order, so `out` does not depend on nt. For the stages' scans for new ABNORMAL cells or a
+/// pass's marks, which ran on one thread.
+template <typename Keep>
+void collect_indices(int nt, std::ptrdiff_t n, std::vector<std::int64_t>& out, Keep keep) {
+  out.clear();
+  if (nt <= 1) {
+    for (std::ptrdiff_t i = 0; i < n; ++i)
+      if (keep(i)) out.push_back(i);
+    return;
+  }
+  std::vector<std::vector<std::int64_t>> parts(static_cast<std::size_t>(nt));
+  parallel_ranges(nt, n, 64, [&](int t, std::ptrdiff_t i0, std::ptrdiff_t i1) {
+    std::vector<std::int64_t>& part = parts[static_cast<std::size_t>(t)];
+    for (std::ptrdiff_t i = i0; i < i1; ++i)
+      if (keep(i)) part.push_back(i);
+  });
+  for (const auto& part : parts) out.insert(out.end(), part.begin(), part.end());
 }
 
 }  // namespace miem::detail

@@ -74,9 +74,10 @@ void heights(const GridView<T>& g, const DetectParams& p, const std::uint8_t* la
              double* height, bool reuse, Workspace& ws);
 
 /// Defects: 8-connected ABNORMAL components in row-major order of their first cell, summarised
-/// and ordered (defects.hpp). Uses bit 2 of ws.usable as the visited mark.
+/// and ordered (defects.hpp). Uses bit 2 of ws.usable as the visited mark and ws.fresh.
 template <typename T>
 std::vector<Defect> organized_defects(const GridView<T>& g, const std::uint8_t* labels,
-                                      const double* height, int window, Workspace& ws);
+                                      const double* height, int window, Workspace& ws,
+                                      int num_threads = 1);
 
 }  // namespace miem::detail

@@ -124,6 +124,35 @@ TEST(Organized, ReusedDetectorGivesTheSameResult) {
   for (std::size_t i = 0; i < a.size(); ++i) EXPECT_EQ(a[i], e.labels[i]);
 }
 
+// The workspace is not cleared between runs (nor zeroed when it grows): a run after another
+// grid of the same size, with other dropouts and defects, gives a fresh detector's bits.
+TEST(Organized, DetectorReusedAfterAnotherGridGivesFreshBits) {
+  for (const char* name : {"edges", "dropouts", "min_step"}) {
+    const Expectation e = miem::test::read_expectation(data_path(name));
+    std::vector<double> other = e.grid;
+    for (std::size_t i = 0; i < other.size() / 3; ++i) {
+      if (i % 5 == 0) other[3 * i] = std::nan("");
+      if (i % 3 == 0) other[3 * i + 2] += 2.0;
+    }
+    const auto view = miem::GridView<double>::dense(e.grid.data(), e.rows, e.cols);
+    const miem::DetectResult fresh = miem::detect_organized(view, e.params);
+    miem::OrganizedDetector det(e.params);
+    const std::size_t n = e.grid.size() / 3;
+    std::vector<std::uint8_t> labels(n), flags(n);
+    std::vector<double> angle(n), height(n);
+    const miem::OrganizedOutput out{labels.data(), flags.data(), angle.data(), height.data()};
+    det.run(miem::GridView<double>::dense(other.data(), e.rows, e.cols), out);
+    det.run(view, out);
+    EXPECT_EQ(labels, fresh.labels) << name;
+    EXPECT_EQ(flags, fresh.flags) << name;
+    for (std::size_t i = 0; i < n; ++i) {
+      ASSERT_EQ(std::isnan(height[i]), std::isnan(fresh.height[i])) << name << " " << i;
+      if (!std::isnan(height[i])) ASSERT_EQ(height[i], fresh.height[i]) << name << " " << i;
+    }
+    for (std::size_t i = 0; i < n; ++i) ASSERT_EQ(labels[i], e.labels[i]) << name << " " << i;
+  }
+}
+
 TEST(Organized, ThrowsOnBadInput) {
   miem::DetectParams p;
   std::vector<double> g(4 * 4 * 3, std::nan(""));

@@ -5,7 +5,9 @@
 #include <cstdint>
 #include <limits>
 #include <optional>
+#include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -38,16 +40,40 @@ struct FitScratch {
   std::vector<std::uint8_t> flags;
 };
 
+/// An allocator whose resize() leaves new cells unwritten (default-initialised): the per-cell
+/// buffers below are first written by the stages' parallel loops, so a new detector's pages are
+/// touched by all its threads, not zeroed first by one (miem.detect builds one per call).
+template <typename T>
+struct UninitAllocator : std::allocator<T> {
+  template <typename U>
+  struct rebind {
+    using other = UninitAllocator<U>;
+  };
+  UninitAllocator() = default;
+  template <typename U>
+  UninitAllocator(const UninitAllocator<U>&) noexcept {}
+  template <typename U>
+  void construct(U* p) noexcept {
+    ::new (static_cast<void*>(p)) U;
+  }
+  template <typename U, typename... A>
+  void construct(U* p, A&&... a) {
+    ::new (static_cast<void*>(p)) U(std::forward<A>(a)...);
+  }
+};
+/// One byte per cell (or a few), not initialised by resize().
+using CellBytes = std::vector<std::uint8_t, UninitAllocator<std::uint8_t>>;
+
 /// The work buffers of one detector, kept between runs (same-size runs do not allocate).
 struct Workspace {
-  std::vector<std::uint8_t> usable;  ///< angle passes: bit 0 usable, bit 1 candidate; bit 2 seen
-  std::vector<std::uint8_t> reach;   ///< angle passes with min_step: 4 per cell, rays read
-  std::vector<std::uint8_t> cls;     ///< window sums: kInPlane (NORMAL) / kLine (feature line)
-  std::vector<std::uint8_t> hmask;   ///< height stages: compact, want, fresh, mark bits
+  CellBytes usable;  ///< angle passes: bit 0 usable, bit 1 candidate; bit 2 seen
+  CellBytes reach;   ///< angle passes with min_step: 4 per cell, rays read
+  CellBytes cls;     ///< window sums: kInPlane (NORMAL) / kLine (feature line)
+  CellBytes hmask;   ///< height stages: compact, want, fresh, mark bits
   std::vector<std::int64_t> fresh, candidates, queue;
   std::vector<double> height_scratch, survey;
   std::vector<double> edge_sums;     ///< edge test: integral images of the support moments
-  std::vector<std::uint8_t> edge_flags;  ///< edge test: candidates and marks of a pass
+  CellBytes edge_flags;  ///< edge test: candidates and marks of a pass
   std::vector<RowScratch> rows;      ///< per thread
   std::vector<FitScratch> fits;      ///< per thread
   std::vector<Moments> plane_rows;
