@@ -289,6 +289,9 @@ class ProfileStream {
   std::vector<std::int64_t> enext_;      // [p]: next row of edge pass p (1..passes_)
   std::vector<double> eorg_;             // per (band mod ebands_, tile column): the origin
   std::vector<std::uint8_t> eorg_ok_;    // ... found
+  std::ptrdiff_t ecache_slots_ = 0;      // pass 1's band cache: slots per tile column
+  std::vector<double> ecache_;           // ... the slots (edge_test.hpp EdgeBandCache)
+  std::vector<std::int64_t> ecache_band_;  // ... the band they hold, per tile column
   std::vector<std::ptrdiff_t> eorg_missing_;  // per band slot: tiles without an origin yet
   std::vector<std::uint8_t> eones_, elab_img_, elab_row_, emark_, etd_;  // one row each
   // Defects (stream_defects.cpp): open groups as union-find slots over the cells of the last
