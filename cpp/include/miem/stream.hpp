@@ -89,7 +89,8 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 /// max(2 R, 2 h) rows that repeat its first rows (2 r with the edge test if more), so that the
 /// rows around any row form one strided GridView; with the edge test also (P + 1)
 /// ceil(width / 128) rings of integral images (11 x (2 r + 2) x (129 + 2 r) doubles and the
-/// column sums): about 172 MB for double profiles of 3200 points with the defaults (96 MB with
+/// column sums) and, per tile column, pass 1's band cache (2 (r + 2) slots of 3080 doubles,
+/// 11 MB at 3200 points): about 183 MB for double profiles of 3200 points with the defaults (96 MB with
 /// min_step off, 92 MB without the edge test), plus the cells of the open defects (a pool
 /// reserved for 16 rows' worth of cells, which grows, once, only for more). Defects come with
 /// the rows (StreamRow::defects) once final; flags and angles are not reported. (Batch
