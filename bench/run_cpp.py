@@ -157,10 +157,13 @@ def target_lines(rows: list[dict]) -> list[str]:
         f"stream on its first 256 profiles: {dflt.get('min_step', -1):g} here, i.e. "
         f"{'off' if dflt.get('min_step', -1) < 0 else 'on'}), heights, defects), "
         f"lag {dflt['lag']} profiles, {dflt['profiles']:,} profiles: "
-        f"{verdict(dflt)} (wall figures carry the other jobs' load). Each edge pass runs row "
-        f"by row, one row per push (docs/SPEC.md \"Streaming\"): no push carries a block but "
-        f"the one that decides min_step (the max column: it runs the 256 waiting profiles' "
-        f"stages).",
+        f"{verdict(dflt)} (wall figures carry the other jobs' load). The profiles are "
+        f"measured in the steady state, after the part's first 2 lag + 8 profiles (every "
+        f"stage then runs on each push). Each edge pass runs row by row, one row per push "
+        f"(docs/SPEC.md \"Streaming\"): no push carries a block but the one of the part's "
+        f"start that decides min_step and runs the 256 waiting profiles' stages: "
+        f"{dflt.get('part_start_cpu_max_us', float('nan')) / 1000:.1f} ms of CPU time here "
+        f"(not in the columns above).",
         "",
     ]
     if stage[2] is not None:
