@@ -88,7 +88,8 @@ MIEM_FIT_CLONES void height_row(std::ptrdiff_t n, const std::uint8_t* __restrict
     const bool w = wrow[j] != 0, ok = okf[j] != 0;
     const double ah = std::abs(fh[j]);
     const double h2n = ah * ah * S[j];
-    const bool far = ok & !(sl[j] > 0.0) &
+    const bool compact = (hm[j] & kHCompact) != 0;
+    const bool far = ok & !((sl[j] > 0.0) & (abs_on | compact)) &  // height_abstains
                      ((abs_on & (ah > height_abs)) |
                       (k_on & (h2n > height_k * height_k * std::max(f0[j], 0.0)) &
                        (h2n > 1e-12 * (f1[j] + f2[j]))));
@@ -128,7 +129,7 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
     auto visit = [&](std::ptrdiff_t i, const WindowFit& f) {
       if (height) height[i] = f.ok ? f.height : kNaN;
       std::uint8_t b = static_cast<std::uint8_t>(hm[i] | kHFresh);
-      if (height_far(f, p)) b |= kHMark;
+      if (height_far(f, (b & kHCompact) != 0, p)) b |= kHMark;
       hm[i] = b;
     };
     window_fits_rows(

@@ -279,7 +279,7 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
                        const std::ptrdiff_t c = tc0 + j;
                        height[c] = f.ok ? f.height : detail::kNaN;
                        if (htest_ && (hm[c] & (kInPlane | kSCompact)) &&
-                           detail::height_far(f, params_)) {
+                           detail::height_far(f, (hm[c] & kSCompact) != 0, params_)) {
                          remove_height(row, c, 1);
                        }
                      });
@@ -333,7 +333,9 @@ void ProfileStream<T>::height_pass_row(std::int64_t row, int pass) noexcept {
   // Jacobi: every verdict of the row first (the removals below change later rows' windows only
   // through hs_, which this pass reads as ">= pass")
   region_fits(row, pass, [&](std::ptrdiff_t c, const detail::WindowFit& f) {
-    if (detail::height_far(f, params_)) remove_height(row, c, pass);
+    if (detail::height_far(f, (hm[c] & kSCompact) != 0, params_)) {
+      remove_height(row, c, pass);
+    }
   });
 }
 

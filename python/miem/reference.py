@@ -985,12 +985,15 @@ def _height_pass(
     tolerance: tuple[str, float],
 ) -> NDArray[np.bool_]:
     """One height pass (SPEC "height_tolerance"): the NORMAL and compact-EDGE cells that become
-    ABNORMAL. A cell with a feature-line EDGE cell in its window is not tested."""
+    ABNORMAL. A cell with a feature-line EDGE cell in its window is not tested when the
+    tolerance is absolute or the cell is compact-EDGE; in the rms form NORMAL cells are (the bend
+    the window straddles raises the rms)."""
     height, _, evals, count = _window_planes(grid, normal_mask, normal_mask | compact_mask,
                                              window)
     exists = (normal_mask | compact_mask) & np.isfinite(height)
-    exists &= _box_count(line_mask, window) == 0
     mode, value = tolerance
+    near_line = _box_count(line_mask, window) > 0
+    exists &= ~(near_line & (compact_mask if mode != "abs" else True))
     absh = np.abs(height)
     if mode == "abs":
         return exists & (absh > value)
