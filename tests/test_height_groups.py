@@ -90,3 +90,51 @@ def test_stream_equals_batch_on_the_cut_bead() -> None:
     rows = [r for prof in grid if (r := stream.push(prof)) is not None] + list(stream.flush())
     got = np.stack([r.labels for r in rows])
     np.testing.assert_array_equal(got, want.labels)
+
+
+def _bead_with_defect_scene() -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """A 1-sample bead 3 units tall (column 20) on a noisy plane, no dropout, with a 2-unit spike
+    on it at row 49 of 60: the angle passes take the spike (ABNORMAL), which leaves a 10-row
+    piece of the bead beyond it (rows 50-59)."""
+    h, w = 60, 40
+    rng = np.random.default_rng(3)
+    rows, cols = np.mgrid[0:h, 0:w]
+    z = 0.02 * cols + rng.normal(0.0, 0.01, (h, w))
+    z[:, 20] += 3.0
+    z[49, 20] += 2.0
+    bead = np.zeros((h, w), bool)
+    bead[:, 20] = True
+    return np.stack([cols * 1.0, rows * 1.0, z], -1), bead, (49, 20)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_defect_on_a_feature_line_does_not_cut_it(dtype) -> None:
+    grid, bead, spike = _bead_with_defect_scene()
+    grid = grid.astype(dtype)
+    core = miem.detect(grid, min_step=None)
+    want = ref.detect(grid, min_step=None)
+    np.testing.assert_array_equal(core.labels, want.labels)
+    # the angle passes take the spike; the piece beyond it is one feature line with the rest
+    angle = ref.detect(grid, min_step=None, height_tolerance=None, edge_tolerance=None).labels
+    assert angle[spike] == miem.ABNORMAL
+    edge, inv = angle == miem.EDGE, ~np.isfinite(grid).all(axis=-1)
+    piece = np.zeros_like(bead)
+    piece[50:, 20] = True
+    assert ref._compact_edges(edge, 12, inv, 1)[piece].all()  # dropouts only: a compact piece
+    assert not ref._compact_edges(edge, 12, inv | (angle == miem.ABNORMAL), 1).any()
+    # so the piece, 3 units above the plane beside it, stays EDGE (the rms height test runs next
+    # to feature lines: as a compact group it was flagged)
+    others = bead.copy()
+    others[spike] = False
+    assert core.labels[spike] == miem.ABNORMAL and (core.labels[others] == miem.EDGE).all()
+    assert np.count_nonzero(core.labels == miem.ABNORMAL) == 1
+
+
+def test_stream_equals_batch_on_the_bead_with_a_defect() -> None:
+    grid, _, spike = _bead_with_defect_scene()
+    p = miem.default_params("stream")
+    want = miem.detect(grid, params=p)
+    assert want.labels[spike] == miem.ABNORMAL
+    stream = ProfileStream(grid.shape[1], params=p)
+    rows = [r for prof in grid if (r := stream.push(prof)) is not None] + list(stream.flush())
+    np.testing.assert_array_equal(np.stack([r.labels for r in rows]), want.labels)

@@ -21,7 +21,8 @@ namespace miem::detail {
 namespace {
 
 // The EDGE cell linked to (r, c) along (dr, dc): the first cell at k = 1 .. 1 + gap steps that
-// is EDGE, with every cell before it INVALID (a dropout does not cut a feature line); -1 if none.
+// is EDGE, with every cell before it INVALID or ABNORMAL (labels after the angle passes: a dropout
+// or a defect on a feature line does not cut it); -1 if none.
 std::ptrdiff_t edge_link(const std::uint8_t* labels, std::ptrdiff_t H, std::ptrdiff_t W,
                          std::ptrdiff_t r, std::ptrdiff_t c, std::ptrdiff_t dr, std::ptrdiff_t dc,
                          int gap) {
@@ -30,7 +31,7 @@ std::ptrdiff_t edge_link(const std::uint8_t* labels, std::ptrdiff_t H, std::ptrd
     if (rr < 0 || rr >= H || cc < 0 || cc >= W) return -1;
     const std::uint8_t l = labels[rr * W + cc];
     if (l == kEdge) return rr * W + cc;
-    if (l != kInvalid) return -1;
+    if (l != kInvalid && l != kAbnormal) return -1;
   }
   return -1;
 }
@@ -88,7 +89,7 @@ MIEM_FIT_CLONES void height_row(std::ptrdiff_t n, const std::uint8_t* __restrict
     const bool w = wrow[j] != 0, ok = okf[j] != 0;
     const double ah = std::abs(fh[j]);
     const double h2n = ah * ah * S[j];
-    const bool far = ok & !(sl[j] > 0.0) &
+    const bool far = ok & !(abs_on & (sl[j] > 0.0)) &  // height_abstains
                      ((abs_on & (ah > height_abs)) |
                       (k_on & (h2n > height_k * height_k * std::max(f0[j], 0.0)) &
                        (h2n > 1e-12 * (f1[j] + f2[j]))));

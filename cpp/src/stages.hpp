@@ -28,10 +28,18 @@ template <typename T>
 int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput& out,
                  Workspace& ws);
 
-/// The height test's verdict on one cell from its window plane: too far from the plane (and no
-/// feature-line cell in the window). Shared by the batch and streaming detectors.
+/// SPEC "height_tolerance" step 3: the test abstains where a feature-line cell lies in the
+/// window (`edges` of them) and the tolerance is absolute (a fixed length cannot allow for the
+/// bend the window's plane straddles); in the rms form the straddled bend raises the rms, and the
+/// test runs. Shared by height_far and the batch row verdict.
+inline bool height_abstains(double edges, const DetectParams& p) {
+  return p.height_abs > 0.0 && edges > 0.0;
+}
+
+/// The height test's verdict on one cell from its window plane: too far from the plane (and the
+/// test does not abstain there). Shared by the batch and streaming detectors.
 inline bool height_far(const WindowFit& f, const DetectParams& p) {
-  if (!f.ok || f.edges > 0.0) return false;  // designed features nearby: no plane model
+  if (!f.ok || height_abstains(f.edges, p)) return false;  // designed features nearby
   const double ah = std::abs(f.height);
   if (p.height_abs > 0.0 && ah > p.height_abs) return true;
   // |h| > k rms and |h| > 1e-6 sqrt((l1 + l2) / n), rms = sqrt(max(l0, 0) / n), squared. The

@@ -144,7 +144,8 @@ void ProfileStream<T>::compact_row(std::int64_t row) noexcept {
       for (std::int64_t dr = -1; dr <= 1; ++dr) {
         for (std::ptrdiff_t dc = -1; dc <= 1; ++dc) {
           if (dr == 0 && dc == 0) continue;
-          // the first cell along (dr, dc) within 1 + G steps that is EDGE, past INVALID cells only
+          // the first cell along (dr, dc) within 1 + G steps that is EDGE, past INVALID cells and
+          // cells ABNORMAL after the angle passes only (neither NORMAL nor EDGE then)
           for (int k = 1; k <= 1 + link_gap_; ++k) {
             const std::int64_t rr = r + k * dr;
             const std::ptrdiff_t q = cc + k * dc;
@@ -152,7 +153,8 @@ void ProfileStream<T>::compact_row(std::int64_t row) noexcept {
             std::uint8_t* hm = hm_.data() + slot(rr) * W;
             const std::uint8_t b = hm[q];
             if (!(b & kSEdge)) {
-              if (labels_[static_cast<std::size_t>(slot(rr) * W + q)] == kInvalid) continue;
+              const std::uint8_t l = labels_[static_cast<std::size_t>(slot(rr) * W + q)];
+              if (l == kInvalid || (l == kAbnormal && !(b & kInPlane))) continue;
               break;
             }
             if (b & kSSeen) {

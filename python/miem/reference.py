@@ -940,8 +940,9 @@ def _compact_edges(
     """EDGE cells of EDGE groups whose bounding box's longer side is <= extent.
 
     Two EDGE cells are linked when they are 8-neighbours, or ``k`` cells apart along one of the
-    8 directions (``2 <= k <= 1 + gap``) with every cell between them ``invalid`` (a dropout
-    does not cut a feature line; SPEC "height_tolerance" step 1).
+    8 directions (``2 <= k <= 1 + gap``) with every cell between them ``invalid`` (the caller's
+    bridge cells: dropouts and the angle passes' ABNORMAL cells, which do not cut a feature
+    line; SPEC "height_tolerance" step 1).
     """
     h, w = edge.shape
     out = np.zeros_like(edge)
@@ -985,12 +986,14 @@ def _height_pass(
     tolerance: tuple[str, float],
 ) -> NDArray[np.bool_]:
     """One height pass (SPEC "height_tolerance"): the NORMAL and compact-EDGE cells that become
-    ABNORMAL. A cell with a feature-line EDGE cell in its window is not tested."""
+    ABNORMAL. With an absolute tolerance a cell with a feature-line EDGE cell in its window is
+    not tested (in the rms form the bend the window straddles raises the rms)."""
     height, _, evals, count = _window_planes(grid, normal_mask, normal_mask | compact_mask,
                                              window)
     exists = (normal_mask | compact_mask) & np.isfinite(height)
-    exists &= _box_count(line_mask, window) == 0
     mode, value = tolerance
+    if mode == "abs":
+        exists &= _box_count(line_mask, window) == 0
     absh = np.abs(height)
     if mode == "abs":
         return exists & (absh > value)
@@ -1560,9 +1563,11 @@ def detect(
         if tolerance is not None:
             # Height passes (Jacobi: the NORMAL set is fixed within a pass); at most `iters`
             # of them, on top of the angle passes. Flags and angles are left as they are.
+            # EDGE groups link across dropouts and the angle passes' ABNORMAL cells
+            bridge = ~finite | (labels == ABNORMAL)
             for _ in range(iters):
                 passes += 1
-                compact = _compact_edges(labels == EDGE, extent, ~finite, gap)
+                compact = _compact_edges(labels == EDGE, extent, bridge, gap)
                 new_abn = _height_pass(
                     g, labels == NORMAL, compact, (labels == EDGE) & ~compact, win, tolerance
                 )
