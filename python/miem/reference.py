@@ -1264,10 +1264,7 @@ def _edge_verdicts(
     best = np.min(np.where(valid, rms, np.inf), axis=0)
     clean = valid & (rms <= _EDGE_CLEAN_RATIO * best)
     tol = np.maximum(k * rms, _HEIGHT_RMS_FLOOR * spread)  # round-off floor, as the height test
-    # P fits a clean sector within the cleanest sector's tolerance (k best, floored as the
-    # sector's own): a clean sector of larger rms (e.g. one holding part of the burr run itself)
-    # does not lend P its wider tolerance.
-    fits = clean & ~(np.abs(h) > np.maximum(k * best[:, None], _HEIGHT_RMS_FLOOR * spread))
+    fits = clean & ~(np.abs(h) > tol)
     # P stands proud (outward, above the plane) of a clean side whose opposite side has no
     # support (an outline) or falls away below that plane (a convex edge, a wall top).
     proud = np.zeros(h.shape[1], dtype=bool)
