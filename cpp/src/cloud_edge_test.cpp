@@ -73,11 +73,17 @@ double finite_median(const double* v, std::ptrdiff_t n) {
 // only the scan's border empties, is not a lip before an outline), and no valid sector's
 // centroid lies above P along a's normal (P is the top of what it stands on: a point on a
 // fillet or a slope whose rising side the scan's border hides is not a lip). Centroids are
-// relative to P.
-bool cloud_edge_abnormal(const detail::EdgeSide (&sd)[kSectors], double best) {
+// relative to P. P fits a clean sector when |h| is within the cleanest sector's tolerance
+// (k best, floored as the sector's own `floor`): a clean sector of larger rms (up to 2 best,
+// e.g. one holding part of the burr run itself) does not lend P its wider tolerance.
+bool cloud_edge_abnormal(const detail::EdgeSide (&sd)[kSectors], const double (&floor)[kSectors],
+                         double best, double k) {
   const double clean = detail::kEdgeCleanRatio * best;
-  for (const detail::EdgeSide& x : sd) {
-    if (x.valid && x.rms <= clean && !(std::abs(x.h) > x.tol)) return false;
+  for (int s = 0; s < kSectors; ++s) {
+    const detail::EdgeSide& x = sd[s];
+    if (x.valid && x.rms <= clean && !(std::abs(x.h) > std::max(k * best, floor[s]))) {
+      return false;
+    }
   }
   auto turned = [](int s, int by) { return (s / 8) * 8 + (s % 8 + 8 + by) % 8; };
   for (int s = 0; s < kSectors; ++s) {
@@ -159,7 +165,7 @@ bool stands_proud(const Gather& sup, const Gather& rest, std::uint32_t i, const 
   }
   for (int s = 8; s < kSectors; ++s) full[1] = std::max(full[1], finite[s]);
   bool valid[kSectors], empty[kSectors];
-  double h[kSectors], rms[kSectors], tol[kSectors];
+  double h[kSectors], rms[kSectors], tol[kSectors], floor[kSectors] = {};
   LocalPlane lp[kSectors];
   double best = kInf;
   for (int s = 0; s < kSectors; ++s) {
@@ -172,7 +178,8 @@ bool stands_proud(const Gather& sup, const Gather& rest, std::uint32_t i, const 
     const Eigen::Vector3d& ev = lp[s].eigenvalues;
     h[s] = -lp[s].normal.dot(lp[s].mean);  // u . (P - centroid), centroid = P + mean
     rms[s] = std::sqrt(std::max(ev(0), 0.0) / n);
-    tol[s] = std::max(e.k * rms[s], kRmsFloor * std::sqrt((ev(1) + ev(2)) / n));
+    floor[s] = kRmsFloor * std::sqrt((ev(1) + ev(2)) / n);
+    tol[s] = std::max(e.k * rms[s], floor[s]);
     best = std::min(best, rms[s]);
   }
   detail::EdgeSide sd[kSectors];  // centroids relative to P (the planes' means)
@@ -186,7 +193,7 @@ bool stands_proud(const Gather& sup, const Gather& rest, std::uint32_t i, const 
     sd[s].normal = lp[s].normal;
     sd[s].centroid = lp[s].mean;
   }
-  return cloud_edge_abnormal(sd, best);
+  return cloud_edge_abnormal(sd, floor, best, e.k);
 }
 
 }  // namespace

@@ -2232,7 +2232,10 @@ def _cloud_edge_pass(
     tol = np.maximum(k * rms, _HEIGHT_RMS_FLOOR * spread)
     best = np.min(np.where(valid, rms, np.inf), axis=1)
     clean = valid & (rms <= _EDGE_CLEAN_RATIO * best[:, None])
-    fits = clean & ~(np.abs(h) > tol)
+    # P fits a clean sector within the cleanest sector's tolerance (k best, floored as the
+    # sector's own): a clean sector of larger rms (e.g. one holding part of the burr run itself)
+    # does not lend P its wider tolerance.
+    fits = clean & ~(np.abs(h) > np.maximum(k * best[:, None], _HEIGHT_RMS_FLOOR * spread))
     proud = np.zeros(m, dtype=bool)
     for s in range(_CLOUD_SECTORS):
         o = (s // 8) * 8 + (s % 8 + 4) % 8  # the opposite sector of the same width
