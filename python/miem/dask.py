@@ -1023,9 +1023,10 @@ def detect_points(points: Any, *, tile: Optional[float] = None, num_threads: Opt
     the cloud's x, y bounds, computed here (one pass over the points). Every preset runs
     completely, the default's cloud edge test included: its candidates compare each point's
     surroundings rms with their median over the whole cloud, so with the edge test and the
-    height test on, the tiles are first detected up to the height passes to survey those rms
-    (held as 8 bytes per point until the median is selected), and then detected with that
-    median: about 1.8x the work of one detection per tile (``edge_tolerance=None`` skips it).
+    height test on, the tiles are first detected up to the height passes (with the smaller
+    halo that needs, ``_survey_halo``) to survey those rms (held as 8 bytes per point until
+    the median is selected), and then detected with that median: about a third more CPU time
+    than without the edge test (``edge_tolerance=None`` skips both).
 
     Parameters
     ----------
