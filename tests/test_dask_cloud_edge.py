@@ -172,3 +172,30 @@ def test_survey_is_the_first_height_pass_rms() -> None:
     np.testing.assert_array_equal(own.labels, miem.detect(pts).labels)
     none = _cloud_part(pts, edge_rms_median=np.inf)
     assert ((none.labels == A) <= (own.labels == A)).all()
+
+
+def test_duplicates_count_once() -> None:
+    """Exact duplicate rows (merged, SPEC "Duplicate points") are surveyed once: the survey
+    gives NaN on the rows merged into another and the distinct cloud's rms (to rounding: its
+    rows lie in another order) on the others; the
+    tiles still equal the whole cloud."""
+    pts, _ = cut_cloud(120, seed=3)
+    rng = np.random.default_rng(3)
+    copied = rng.choice(len(pts), 2000, replace=False)
+    order = rng.permutation(len(pts) + len(copied))
+    both = np.concatenate([pts, pts[copied]])[order]
+    first = np.zeros(len(both), bool)  # the first row of each coordinate triple represents it
+    first[np.unique(both, axis=0, return_index=True)[1]] = True
+    rms = _cloud_part(both, survey=True)
+    assert np.isnan(rms[~first]).all()
+    at = np.argsort(order)  # where each row of pts, then each copy, went
+    rep = at[:len(pts)].copy()
+    rep[copied] = np.minimum(rep[copied], at[len(pts):])
+    np.testing.assert_allclose(rms[rep], _cloud_part(pts, survey=True), rtol=1e-9,
+                               equal_nan=True)
+    kw = _small("recommended")
+    want = miem.detect(both, **kw)
+    assert want.params["merged"] == 2000
+    with dask.config.set(scheduler="sync"):
+        _equal(mdask.detect_points(da.from_array(both, chunks=(3000, 3)), tile=12.0, **kw),
+               want)
