@@ -172,13 +172,13 @@ def test_survey_is_the_first_height_pass_rms() -> None:
     np.testing.assert_array_equal(own.labels, miem.detect(pts).labels)
     none = _cloud_part(pts, edge_rms_median=np.inf)
     assert ((none.labels == A) <= (own.labels == A)).all()
+    assert (none.labels != own.labels).any()  # the value given is the one used
 
 
 def test_duplicates_count_once() -> None:
     """Exact duplicate rows (merged, SPEC "Duplicate points") are surveyed once: the survey
     gives NaN on the rows merged into another and the distinct cloud's rms (to rounding: its
-    rows lie in another order) on the others; the
-    tiles still equal the whole cloud."""
+    rows lie in another order) on the others; the tiles still equal the whole cloud."""
     pts, _ = cut_cloud(120, seed=3)
     rng = np.random.default_rng(3)
     copied = rng.choice(len(pts), 2000, replace=False)
