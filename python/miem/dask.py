@@ -572,9 +572,10 @@ def auto_theta0(grid: Any, kwargs: Optional[dict] = None, params: Optional[dict]
 def auto_min_step(grid: Any, **compute_kwargs: Any) -> Optional[float]:
     """min_step="auto" of ``miem.detect`` on a Dask-held grid, exactly as miem.detect derives it
     (docs/SPEC.md "min_step='auto'": the first 256 rows from the first row with a finite cell):
-    that row is found over the blocks, then four medians over the neighbour pairs and triples
-    of the blocks of those rows, each block read with two more rows and columns, by radix
-    selection in four rounds (nothing is gathered or held between rounds).
+    that row is found over the blocks (row blocks read in order until one has a finite cell:
+    usually the first only), then four medians over the neighbour pairs and triples of the
+    blocks of those rows, each block read with two more rows and columns, by radix selection in
+    four rounds (the 256 rows are held on the workers between rounds, not read four times).
 
     Returns
     -------
@@ -586,11 +587,17 @@ def auto_min_step(grid: Any, **compute_kwargs: Any) -> Optional[float]:
     from .reference import AUTO_MIN_STEP_ROWS
 
     grid = _as_grid(grid)
-    rows = da.isfinite(grid).all(axis=-1).any(axis=1)
-    hit = np.flatnonzero(np.asarray(dask.compute(rows, **compute_kwargs)[0]))
-    if hit.size == 0:
+    first, start = None, 0
+    for h in grid.chunks[0]:  # in order: a scan seldom starts with a block of dropouts only
+        rows = da.isfinite(grid[start:start + h]).all(axis=-1).any(axis=1)
+        hit = np.flatnonzero(np.asarray(dask.compute(rows, **compute_kwargs)[0]))
+        if hit.size:
+            first = start + int(hit[0])
+            break
+        start += h
+    if first is None:
         return None
-    grid = grid[int(hit[0]):int(hit[0]) + AUTO_MIN_STEP_ROWS]
+    grid = grid[first:first + AUTO_MIN_STEP_ROWS].persist(**compute_kwargs)
     H, W = grid.shape[:2]
     blocks = [(grid[r0:min(H, r1 + 2), c0:min(W, c1 + 2)], (r1 - r0, c1 - c0))
               for r0, r1, c0, c1 in _homes(grid)]
