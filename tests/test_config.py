@@ -135,12 +135,11 @@ def test_every_field_is_an_option_a_config_line_and_a_spec_row() -> None:
     assert set(rows) == {(part, n) for part in PARTS for n in py_fields(part)}
 
 
-def test_dask_knows_every_field_but_the_cloud_edge_test() -> None:
+def test_dask_knows_every_field() -> None:
     import miem.dask as mdask
 
     assert set(miem.DetectParams.fields("grid")) <= mdask._GRID_KNOWN
-    assert set(miem.DetectParams.fields("cloud")) - mdask._POINT_KNOWN == {
-        "edge_tolerance", "edge_radius"}
+    assert set(miem.DetectParams.fields("cloud")) <= mdask._POINT_KNOWN
 
 
 @functools.lru_cache(maxsize=None)
@@ -197,7 +196,7 @@ def test_dask_blocks_equal_the_whole_grid_for_every_field(name: str) -> None:
 ALLOWED = {
     # the spellings (and the C++ fields they stand for) are the documented exceptions
     "params.py": SPELLED | {c for part in PARTS for s in mp._SPELLED[part] for c in s.core},
-    # points_halo does not cover the cloud edge test; the lengths a cloud's spacing derives
+    # what points_halo reads (the cloud edge test's too); the lengths a cloud's spacing derives
     "dask.py": {"edge_tolerance", "edge_radius", "radius", "min_step", "link", "height_radius",
                 "spacing", "edge_extent", "height_tolerance", "min_step_auto", "theta0_auto",
                 "scales", "max_gap", "max_reach", "window", "max_iterations", "edge_window",

@@ -305,8 +305,6 @@ def test_cloud_tiles_equal_whole_cloud(client, preset: str) -> None:
         kw["edge_extent"] = 3  # compact EDGE groups, in the whole cloud's spacings
     if cloud_cfg.get("min_group"):
         kw["min_group"] = 3  # groups of 40 would make the halo cover the whole test cloud
-    if cloud_cfg.get("edge_tolerance") is not None:
-        kw["edge_tolerance"] = None  # the cloud edge test is refused on tiles (below)
     want, res = check_points_equal(pts, 2000, **kw)
     assert res.params["tiles"] == (3, 3)
     if cloud_cfg.get("height_tolerance") is None:
@@ -362,13 +360,12 @@ def test_cloud_spacing_from_tiles_equals_the_whole_clouds(dtype) -> None:
 def test_cloud_default_preset_without_lengths(client) -> None:
     """A call on a cloud without lengths: the whole cloud's spacing (found from the tiles) sets
     radius, min_step, link, height_radius and the compact-EDGE span, as miem.detect on the
-    whole. The default's cloud edge test (candidates from a median over the whole cloud) is
-    refused by name; without it the blocks equal the whole cloud's detection."""
+    whole; the default's cloud edge test runs with the whole cloud's median (found from the
+    tiles too: tests/test_dask_cloud_edge.py)."""
     pts = cloud(90, seed=5)
-    with pytest.raises(ValueError, match="^edge_tolerance: miem.dask cannot run the cloud edge"):
-        mdask.detect_points(da.from_array(pts, chunks=(700, 3)))
-    want = miem.detect(pts, edge_tolerance=None)
-    res = mdask.detect_points(da.from_array(pts, chunks=(700, 3)), edge_tolerance=None)
+    want = miem.detect(pts)
+    assert want.params["edge_tolerance"] is not None
+    res = mdask.detect_points(da.from_array(pts, chunks=(700, 3)))
     assert res.params["spacing"] == want.params["spacing"]
     defects, labels, height = res.defects(res.labels, res.height)
     np.testing.assert_array_equal(labels, want.labels)

@@ -208,7 +208,8 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
   std::vector<std::uint32_t> cand;  // ascending
   {
     const double* rms = first_rms->data();
-    const double thr = kSuspect * finite_median(rms, N);
+    const double med = std::isnan(e.rms_median) ? finite_median(rms, N) : e.rms_median;
+    const double thr = kSuspect * med;
     for (std::ptrdiff_t i = 0; i < N; ++i) {
       if ((labels[i] == kNormal || labels[i] == kEdge) &&
           (!std::isfinite(rms[i]) || rms[i] > thr)) {

@@ -64,6 +64,9 @@ struct CloudEdgeTest {
   double r_edge = 0.0;   ///< sector radius
   double gap = 0.0;      ///< sector members lie at least this far from the point in the tangent plane
   int max_iterations = 1;
+  /// Not NaN: the median of the candidates' rms given by the caller (the whole cloud's, when
+  /// this run sees part of it: PointsDetectHooks); NaN: the median of `*first_rms`.
+  double rms_median = kNaN;
 };
 
 /// Edge passes after the height passes: candidates are the NORMAL and EDGE points whose

@@ -177,10 +177,12 @@ void estimate_normals(const PointsView<T>& points, double radius, const NormalsO
 
 namespace {
 
-// Detection on a cloud without duplicates (within merge_distance), its spacing known.
+// Detection on a cloud without duplicates (within merge_distance), its spacing known; `hooks`
+// (PointsDetectHooks) with `hooks.edge_rms` already for these points.
 template <typename T>
 PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDetectParams& p,
-                                    const PointsOutput& out, double spacing) {
+                                    const PointsOutput& out, double spacing,
+                                    const PointsDetectHooks& hooks) {
   const std::ptrdiff_t N = points.size;
 
   PointsDetectSummary summary;
@@ -312,7 +314,8 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
   // have[i]: height[i] is final (written by the height test's first pass and still valid).
   std::vector<std::uint8_t> have;
   // The edge test's candidates: the first height pass's surroundings rms (NaN: no verdict).
-  std::vector<double> first_rms(p.edge_k > 0.0 ? static_cast<std::size_t>(N) : 0, kNaN);
+  const bool survey = hooks.edge_rms != nullptr;  // (miem.dask) stop before the edge test
+  std::vector<double> first_rms(p.edge_k > 0.0 || survey ? static_cast<std::size_t>(N) : 0, kNaN);
   if (p.height_abs > 0.0 || p.height_k > 0.0) {
     HeightTest t;
     t.abs = p.height_abs;
@@ -330,7 +333,7 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
       t.have = have.data();
       t.unnormal = &unnormal;
     }
-    if (p.edge_k > 0.0) t.first_rms = first_rms.data();
+    if (!first_rms.empty()) t.first_rms = first_rms.data();
     iterations += height_passes(grid, points, labels, t, scratch, p.num_threads);
     for (std::uint32_t u : unnormal) {  // the NORMAL set within hr of these points changed
       grid.for_each_in_radius(points[u], hr, [&](std::ptrdiff_t j, double) { have[j] = 0; });
@@ -340,6 +343,11 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
     }
   }
   clock.lap("height test");
+  if (survey) {
+    std::copy(first_rms.begin(), first_rms.end(), hooks.edge_rms);
+    summary.iterations = iterations;
+    return summary;
+  }
   if (p.edge_k > 0.0) {  // the edge test
     CloudEdgeTest et;
     et.k = p.edge_k;
@@ -347,6 +355,7 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
     et.r_edge = summary.edge_radius;
     et.gap = min_step;
     et.max_iterations = p.max_iterations;
+    et.rms_median = hooks.edge_rms_median;
     std::vector<std::uint32_t> unnormal;
     iterations += cloud_edge_passes(grid, points, labels, &first_rms, et, scratch,
                                     p.num_threads, have.empty() ? nullptr : &unnormal);
@@ -494,7 +503,7 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
 
 template <typename T>
 PointsDetectSummary detect_points(const PointsView<T>& points, const PointsDetectParams& p,
-                                  const PointsOutput& out) {
+                                  const PointsOutput& out, const PointsDetectHooks& hooks) {
   validate(p);
   check_view(points);
   if (out.labels == nullptr) throw std::invalid_argument("out.labels: must not be null");
@@ -512,7 +521,7 @@ PointsDetectSummary detect_points(const PointsView<T>& points, const PointsDetec
     const double spacing = p.spacing ? *p.spacing : median_spacing(std::move(nn));  // frees nn
     std::vector<double>().swap(nn);  // (also when p.spacing is given): peak memory
     dup = Duplicates{};
-    return with_front(detect_distinct(points, p, out, spacing));
+    return with_front(detect_distinct(points, p, out, spacing, hooks));
   }
   // Detect on the distinct points (the representatives), then label every duplicate like the
   // point it duplicates (SPEC "Duplicate points").
@@ -532,8 +541,12 @@ PointsDetectSummary detect_points(const PointsView<T>& points, const PointsDetec
   const PointsOutput sub{labels.data(), out.flags ? flags.data() : nullptr,
                          out.angle_deg ? angle.data() : nullptr, height.data(),
                          out.degenerate ? degenerate.data() : nullptr};
+  std::vector<double> edge_rms(hooks.edge_rms ? m : 0);
+  PointsDetectHooks sub_hooks = hooks;
+  if (hooks.edge_rms) sub_hooks.edge_rms = edge_rms.data();
   PointsDetectSummary summary = detect_distinct(
-      view, p, sub, p.spacing ? *p.spacing : median_spacing(nearest_other(view, p.num_threads)));
+      view, p, sub, p.spacing ? *p.spacing : median_spacing(nearest_other(view, p.num_threads)),
+      sub_hooks);
   std::vector<std::int64_t> slot(static_cast<std::size_t>(points.size), -1);
   for (std::size_t k = 0; k < m; ++k) slot[dup.distinct[k]] = static_cast<std::int64_t>(k);
   for (std::ptrdiff_t i = 0; i < points.size; ++i) {
@@ -544,6 +557,7 @@ PointsDetectSummary detect_points(const PointsView<T>& points, const PointsDetec
     if (out.angle_deg) out.angle_deg[i] = k < 0 ? kNaN : angle[k];
     if (out.height) out.height[i] = k < 0 ? kNaN : height[k];
     if (out.degenerate) out.degenerate[i] = k < 0 ? 0 : degenerate[k];
+    if (hooks.edge_rms) hooks.edge_rms[i] = k < 0 || r != i ? kNaN : edge_rms[k];
   }
   // Defect members: every input row, duplicates included (fields from the distinct points).
   std::vector<std::vector<std::int64_t>> copies(m);
@@ -587,9 +601,11 @@ template void estimate_normals<float>(const PointsView<float>&, double, const No
 template void estimate_normals<double>(const PointsView<double>&, double, const NormalsOutput&,
                                        int);
 template PointsDetectSummary detect_points<float>(const PointsView<float>&,
-                                                  const PointsDetectParams&, const PointsOutput&);
+                                                  const PointsDetectParams&, const PointsOutput&,
+                                                  const PointsDetectHooks&);
 template PointsDetectSummary detect_points<double>(const PointsView<double>&,
-                                                   const PointsDetectParams&, const PointsOutput&);
+                                                   const PointsDetectParams&, const PointsOutput&,
+                                                   const PointsDetectHooks&);
 template PointsDetectResult detect_points<float>(const PointsView<float>&,
                                                  const PointsDetectParams&);
 template PointsDetectResult detect_points<double>(const PointsView<double>&,

@@ -371,14 +371,16 @@ def detect_points(
     return _detect_cloud(arr, p, name, _threads(num_threads))
 
 
-def _detect_cloud(arr: np.ndarray, p: DetectParams, name: str, nt: int) -> PointsDetectResult:
-    """detect_points on a checked (N, 3) float array with resolved parameters."""
+def _detect_cloud(arr: np.ndarray, p: DetectParams, name: str, nt: int,
+                  edge_rms_median: float = float("nan")) -> PointsDetectResult:
+    """detect_points on a checked (N, 3) float array with resolved parameters.
+    ``edge_rms_median``: internal (miem.dask, see :func:`_cloud_part`)."""
     if arr.shape[0] < 3:
         raise ValueError(f"points: need at least 3 points, got {arr.shape[0]}")
     core_params = p._core_cloud(nt)
     (labels, flags, angle, height, degenerate, plane_t, iterations, raw, spacing, radius_u,
      min_step_u, link_u, height_radius_u, merged, stages,
-     edge_radius_u) = _core.detect_points(arr, core_params)
+     edge_radius_u) = _core.detect_points(arr, core_params, edge_rms_median)
     defects = [
         Defect(
             id=int(i), indices=idx, cells=idx[:, None], count=int(idx.size), centroid=c,
@@ -399,3 +401,27 @@ def _detect_cloud(arr: np.ndarray, p: DetectParams, name: str, nt: int) -> Point
         iterations=int(iterations), defects=defects, params=params, degenerate=degenerate,
         stage_seconds={name: (wall, cpu) for name, wall, cpu in stages},
     )
+
+
+def _cloud_part(points: np.ndarray, edge_rms_median: Optional[float] = None, *,
+                survey: bool = False, params: Optional[DetectParams] = None,
+                preset: Optional[str] = None, num_threads: Optional[int] = None,
+                **overrides: Any) -> Union[PointsDetectResult, np.ndarray]:
+    """Internal hook for miem.dask, which detects a cloud in parts (docs/SPEC.md "Blocks");
+    not a parameter of miem.detect. The cloud edge test's candidates compare each point's
+    surroundings rms (the first height pass's) with their median over the whole cloud, which
+    a part does not see.
+
+    ``survey=True``: per row, that rms where the first height pass gave a verdict (NaN
+    elsewhere and for rows merged into another); the run stops after the height passes.
+    Otherwise :func:`detect_points` with the edge test's median replaced by
+    ``edge_rms_median`` (the whole cloud's, selected from the parts' surveys; +inf when no
+    point of the whole cloud had a verdict; None: the part's own)."""
+    arr = _points(points)
+    p, name = resolve_params(params, preset, overrides, "cloud")
+    if survey:
+        if arr.shape[0] < 3:
+            raise ValueError(f"points: need at least 3 points, got {arr.shape[0]}")
+        return _core.edge_rms_survey(arr, p._core_cloud(_threads(num_threads)))
+    return _detect_cloud(arr, p, name, _threads(num_threads),
+                         float("nan") if edge_rms_median is None else float(edge_rms_median))

@@ -250,8 +250,7 @@ class LasWriter:
     scalar fields.
 
     >>> pts = open_las("part.laz")
-    >>> res = miem.dask.detect_points(pts, radius=1.0, min_step=0.1,
-    ...                              edge_tolerance=None)
+    >>> res = miem.dask.detect_points(pts, radius=1.0, min_step=0.1)
     >>> out = LasWriter("part.laz", "part_labels.las")
     >>> da.store([res.labels, res.height], [out.labels, out.height], lock=False)
 

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstdint>
+#include <limits>
 #include <optional>
 #include <string>
 #include <utility>
@@ -85,12 +86,28 @@ struct PointsDetectResult {
   PointsDetectSummary summary;
 };
 
+/// Internal hooks of detect_points for a caller that holds the cloud in parts (miem.dask; docs/
+/// SPEC.md "Blocks"), not parameters: with the defaults a run is the plain detection. The cloud
+/// edge test's candidates compare each point's surroundings rms with a median over the whole
+/// cloud (SPEC "Unorganized clouds: edge test" step 1), which a part cannot see: the caller
+/// surveys the parts (`edge_rms`), selects the median over them and runs each part with it.
+struct PointsDetectHooks {
+  /// Not NaN (>= 0, +inf for none): the whole cloud's median of the edge test's candidate rms,
+  /// used instead of this run's own median. NaN: this run's own.
+  double edge_rms_median = std::numeric_limits<double>::quiet_NaN();
+  /// Not null (N values): a survey. The run stops after the height passes and writes, per row,
+  /// the first height pass's surroundings rms where it gave a verdict (the values that median is
+  /// over; NaN for other rows, rows merged into another and when the height test is off); the
+  /// other outputs then hold that intermediate state, the summary has no plane and no defects.
+  double* edge_rms = nullptr;
+};
+
 /// MIEM on an unorganized cloud, writing into `out`. Non-finite rows are INVALID. Throws
 /// std::invalid_argument on bad parameters, fewer than 3 finite points, spacing 0, or a null
-/// `out.labels`. Deterministic for any thread count.
+/// `out.labels`. Deterministic for any thread count. `hooks`: internal (PointsDetectHooks).
 template <typename T>
 PointsDetectSummary detect_points(const PointsView<T>& points, const PointsDetectParams& params,
-                                  const PointsOutput& out);
+                                  const PointsOutput& out, const PointsDetectHooks& hooks = {});
 
 /// One-call unorganized detection with owned outputs.
 template <typename T>

@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <optional>
 #include <stdexcept>
@@ -163,9 +164,13 @@ py::tuple estimate_normals(const py::array& points, double radius, int num_threa
   return py::make_tuple(normals, rms, count, valid);
 }
 
-py::tuple detect_points(const py::array& points, const miem::PointsDetectParams& p) {
+// edge_rms_median: miem::PointsDetectHooks::edge_rms_median (internal, miem.dask).
+py::tuple detect_points(const py::array& points, const miem::PointsDetectParams& p,
+                        double edge_rms_median) {
   require_points(points, "points");
   miem::validate(p);
+  miem::PointsDetectHooks hooks;
+  hooks.edge_rms_median = edge_rms_median;
 
   const py::ssize_t n = points.shape(0);
   py::array_t<std::uint8_t> labels(n), flags(n);
@@ -178,11 +183,11 @@ py::tuple detect_points(const py::array& points, const miem::PointsDetectParams&
   if (is_f32(points)) {
     const auto v = view_of<float>(points, "points");
     py::gil_scoped_release nogil;
-    s = miem::detect_points(v, p, out);
+    s = miem::detect_points(v, p, out, hooks);
   } else {
     const auto v = view_of<double>(points, "points");
     py::gil_scoped_release nogil;
-    s = miem::detect_points(v, p, out);
+    s = miem::detect_points(v, p, out, hooks);
   }
   py::list defects = defect_list(s.defects);
   py::object plane = plane_or_none(s.plane);
@@ -191,6 +196,30 @@ py::tuple detect_points(const py::array& points, const miem::PointsDetectParams&
   return py::make_tuple(labels, flags, angle, height, degenerate, plane, s.iterations, defects,
                         s.spacing, s.radius, s.min_step, s.link, s.height_radius, s.merged,
                         stages, s.edge_radius);
+}
+
+// The survey of miem::PointsDetectHooks::edge_rms (internal, miem.dask): per row, the first
+// height pass's surroundings rms where it gave a verdict, NaN elsewhere.
+py::array_t<double> edge_rms_survey(const py::array& points, const miem::PointsDetectParams& p) {
+  require_points(points, "points");
+  miem::validate(p);
+  const py::ssize_t n = points.shape(0);
+  py::array_t<double> rms(n);
+  std::vector<std::uint8_t> labels(static_cast<std::size_t>(n));
+  miem::PointsOutput out;
+  out.labels = labels.data();
+  miem::PointsDetectHooks hooks;
+  hooks.edge_rms = rms.mutable_data();
+  if (is_f32(points)) {
+    const auto v = view_of<float>(points, "points");
+    py::gil_scoped_release nogil;
+    miem::detect_points(v, p, out, hooks);
+  } else {
+    const auto v = view_of<double>(points, "points");
+    py::gil_scoped_release nogil;
+    miem::detect_points(v, p, out, hooks);
+  }
+  return rms;
 }
 
 }  // namespace
@@ -212,5 +241,7 @@ void bind_unorganized(py::module_& m) {
         py::arg("num_threads"));
   m.def("estimate_normals", &estimate_normals, py::arg("points"), py::arg("radius"),
         py::arg("num_threads"));
-  m.def("detect_points", &detect_points, py::arg("points"), py::arg("params"));
+  m.def("detect_points", &detect_points, py::arg("points"), py::arg("params"),
+        py::arg("edge_rms_median") = std::numeric_limits<double>::quiet_NaN());
+  m.def("edge_rms_survey", &edge_rms_survey, py::arg("points"), py::arg("params"));
 }
