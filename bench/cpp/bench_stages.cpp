@@ -4,7 +4,8 @@
 // Usage: miem_bench_stages GRID.f64 ROWS COLS THREADS REPEATS [paper|recommended|recommended-no-edge]
 // GRID.f64 is ROWS x COLS x 3 doubles (numpy tofile). Prints one JSON object: the best time of
 // each stage over REPEATS runs (seconds; process CPU time with 1 thread, wall time with more),
-// the whole run(), the min_step used (-1: off) and checksums of the labels, flags and heights.
+// the whole run(), the min_step used (-1: off) and checksums of the labels, flags, heights and
+// angles.
 #include <algorithm>
 #include <chrono>
 #include <ctime>
@@ -101,19 +102,21 @@ int main(int argc, char** argv) {
     best_run = std::min(best_run, now() - t0);
   }
   long long sum = 0, fsum = 0;
-  unsigned long long hsum = 0;  // the heights' bits: equal builds give equal heights
+  unsigned long long hsum = 0, asum = 0;  // the heights' and angles' bits
   for (std::size_t i = 0; i < N; ++i) {
     sum += labels[i] * static_cast<long long>(i % 7919);
     fsum += flags[i] * static_cast<long long>(i % 7919);
     unsigned long long bits;
     std::memcpy(&bits, &height[i], sizeof bits);
     hsum = hsum * 1000003ULL + bits;
+    std::memcpy(&bits, &angle[i], sizeof bits);
+    asum = asum * 1000003ULL + bits;
   }
   std::printf("{\"rows\": %td, \"cols\": %td, \"threads\": %d, \"preset\": \"%s\", ", H, W, nt,
               preset.c_str());
   for (int k = 0; k < kStages; ++k) std::printf("\"%s\": %.6f, ", names[k], best[k]);
   std::printf("\"run\": %.6f, \"clock\": \"%s\", \"min_step\": %.17g, \"checksum\": %lld, "
-              "\"flags_checksum\": %lld, \"height_bits\": %llu}\n",
-              best_run, g_cpu_clock ? "cpu" : "wall", min_step, sum, fsum, hsum);
+              "\"flags_checksum\": %lld, \"height_bits\": %llu, \"angle_bits\": %llu}\n",
+              best_run, g_cpu_clock ? "cpu" : "wall", min_step, sum, fsum, hsum, asum);
   return 0;
 }
