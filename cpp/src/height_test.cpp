@@ -13,6 +13,7 @@
 #include <cmath>
 #include <cstring>
 
+#include "edge_groups.hpp"
 #include "parallel.hpp"
 #include "stages.hpp"
 
@@ -20,25 +21,26 @@ namespace miem::detail {
 
 namespace {
 
-// The EDGE cell linked to (r, c) along (dr, dc): the first cell at k = 1 .. 1 + gap steps that
-// is EDGE, with every cell before it INVALID (a dropout does not cut a feature line); -1 if none.
-std::ptrdiff_t edge_link(const std::uint8_t* labels, std::ptrdiff_t H, std::ptrdiff_t W,
-                         std::ptrdiff_t r, std::ptrdiff_t c, std::ptrdiff_t dr, std::ptrdiff_t dc,
-                         int gap) {
-  for (int k = 1; k <= 1 + gap; ++k) {
-    const std::ptrdiff_t rr = r + k * dr, cc = c + k * dc;
-    if (rr < 0 || rr >= H || cc < 0 || cc >= W) return -1;
-    const std::uint8_t l = labels[rr * W + cc];
-    if (l == kEdge) return rr * W + cc;
-    if (l != kInvalid) return -1;
-  }
-  return -1;
-}
-
-// Marks with kHCompact the EDGE cells of EDGE groups (8-neighbours, linked across at most `gap`
-// INVALID cells) whose bounding box's longer side is at most `extent` cells.
+// Marks with kHCompact the EDGE cells of EDGE groups (edge_groups.hpp: linked across at most
+// `gap` INVALID cells) whose bounding box's longer side is at most `extent` cells.
 void mark_compact_edges(const std::uint8_t* labels, std::ptrdiff_t H, std::ptrdiff_t W,
                         int extent, int gap, std::uint8_t* hm, std::vector<std::int64_t>& queue) {
+  struct Cells {
+    const std::uint8_t* labels;
+    std::uint8_t* hm;
+    std::ptrdiff_t H, W;
+    EdgeLink link(std::int64_t r, std::ptrdiff_t c) const {
+      if (r < 0 || r >= H || c < 0 || c >= W) return EdgeLink::kStop;
+      const std::uint8_t l = labels[r * W + c];
+      return l == kEdge ? EdgeLink::kEdge : (l == kInvalid ? EdgeLink::kGap : EdgeLink::kStop);
+    }
+    bool claim(std::int64_t r, std::ptrdiff_t c) {
+      std::uint8_t& b = hm[r * W + c];
+      if (b & kHSeen) return false;
+      b |= kHSeen;
+      return true;
+    }
+  } cells{labels, hm, H, W};
   const std::ptrdiff_t N = H * W;
   for (std::ptrdiff_t start = 0; start < N; ++start) {
     // the next EDGE cell (memchr: vectorised search)
@@ -46,25 +48,7 @@ void mark_compact_edges(const std::uint8_t* labels, std::ptrdiff_t H, std::ptrdi
     if (next == nullptr) break;
     start = static_cast<const std::uint8_t*>(next) - labels;
     if (hm[start] & kHSeen) continue;
-    queue.clear();
-    queue.push_back(start);
-    hm[start] |= kHSeen;
-    std::ptrdiff_t r0 = start / W, r1 = r0, c0 = start % W, c1 = c0;
-    for (std::size_t head = 0; head < queue.size(); ++head) {
-      const std::ptrdiff_t i = queue[head], r = i / W, c = i % W;
-      r0 = std::min(r0, r), r1 = std::max(r1, r), c0 = std::min(c0, c), c1 = std::max(c1, c);
-      for (std::ptrdiff_t dr = -1; dr <= 1; ++dr) {
-        for (std::ptrdiff_t dc = -1; dc <= 1; ++dc) {
-          if (dr == 0 && dc == 0) continue;
-          const std::ptrdiff_t q = edge_link(labels, H, W, r, c, dr, dc, gap);
-          if (q >= 0 && !(hm[q] & kHSeen)) {
-            hm[q] |= kHSeen;
-            queue.push_back(q);
-          }
-        }
-      }
-    }
-    if (std::max(r1 - r0, c1 - c0) + 1 <= extent) {
+    if (walk_edge_group(cells, start / W, start % W, W, gap, queue).extent() <= extent) {
       for (std::int64_t i : queue) hm[i] |= kHCompact;
     }
   }
