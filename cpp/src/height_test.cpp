@@ -54,9 +54,9 @@ void mark_compact_edges(const std::uint8_t* labels, std::ptrdiff_t H, std::ptrdi
   }
 }
 
-// The height passes' verdict (height_far) on a whole row segment of wanted cells wrow[j] from
-// row_solve's fits (RowFits, not compact): kHFresh, kHMark where too far, and the height when
-// `height` is not null. Straight-line code (vectorised); the same comparisons as height_far.
+// The height passes' verdict (height_verdict) on a whole row segment of wanted cells wrow[j]
+// from row_solve's fits (RowFits, not compact): kHFresh, kHMark where too far, and the height
+// when `height` is not null. Straight-line code (vectorised).
 MIEM_FIT_CLONES void height_row(std::ptrdiff_t n, const std::uint8_t* __restrict wrow,
                                 const double* __restrict S, const double* __restrict F,
                                 const std::uint8_t* __restrict okf, std::ptrdiff_t cap,
@@ -67,15 +67,10 @@ MIEM_FIT_CLONES void height_row(std::ptrdiff_t n, const std::uint8_t* __restrict
   const double* __restrict f1 = F + 2 * cap;
   const double* __restrict f2 = F + 3 * cap;
   const double* __restrict sl = S + 10 * cap;
-  const bool abs_on = height_abs > 0.0, k_on = height_k > 0.0;
   for (std::ptrdiff_t j = 0; j < n; ++j) {
-    const bool w = wrow[j] != 0, ok = okf[j] != 0;
-    const double ah = std::abs(fh[j]);
-    const double h2n = ah * ah * S[j];
-    const bool far = ok & !(sl[j] > 0.0) &
-                     ((abs_on & (ah > height_abs)) |
-                      (k_on & (h2n > height_k * height_k * std::max(f0[j], 0.0)) &
-                       (h2n > 1e-12 * (f1[j] + f2[j]))));
+    const bool w = wrow[j] != 0;
+    const bool far = height_verdict(okf[j] != 0, sl[j], fh[j], S[j], f0[j], f1[j], f2[j],
+                                    height_abs, height_k);
     const std::uint8_t b = static_cast<std::uint8_t>(hm[j] | kHFresh | (far ? kHMark : 0));
     hm[j] = w ? b : hm[j];
   }
