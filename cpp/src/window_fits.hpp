@@ -75,7 +75,7 @@ inline __attribute__((always_inline)) void solve_fits_body(std::ptrdiff_t m, std
   double* __restrict f2 = F + 3 * cap;
   // Blocks of kB cells: the centred scatters, then the Newton steps for the whole block until
   // every cell has ended (at most 4: the steps of an ended cell change nothing, so the bits are
-  // those of eigen_lane's fixed steps; flat windows end within 2 or 3), then the rest. The
+  // those of 4 fixed steps; flat windows end within 2 or 3), then the rest. The
   // flags are 1.0 / 0.0 doubles in the vector loop and bytes only after it: a byte store next to
   // the doubles makes GCC take 32 or 64 lanes at a time, leaving short rows to scalar code.
   constexpr std::ptrdiff_t kB = 128;
