@@ -8,7 +8,7 @@
 // and new, uninitialised outputs per call, as miem.detect runs; detect_organized's outputs are
 // zeroed vectors besides), the
 // process CPU time of run() ("run_cpu"), the min_step used (-1: off) and checksums of the labels,
-// flags and heights.
+// flags, heights and angles.
 // With LD_PRELOAD=libmiem_schedule_probe.so (schedule_probe.cpp) it adds "schedule": per stage
 // and run, the CPU work, the critical path (serial CPU + the largest thread's CPU of each parallel
 // region), the master's CPU spent entering and leaving regions and the regions, per call:
@@ -151,13 +151,15 @@ int main(int argc, char** argv) {
   const bool fresh_same = fresh.labels == labels && fresh.flags == flags &&
                           std::memcmp(fresh.height.data(), height.data(), N * sizeof(double)) == 0;
   long long sum = 0, fsum = 0;
-  unsigned long long hsum = 0;  // the heights' bits: equal builds give equal heights
+  unsigned long long hsum = 0, asum = 0;  // the heights' and angles' bits
   for (std::size_t i = 0; i < N; ++i) {
     sum += labels[i] * static_cast<long long>(i % 7919);
     fsum += flags[i] * static_cast<long long>(i % 7919);
     unsigned long long bits;
     std::memcpy(&bits, &height[i], sizeof bits);
     hsum = hsum * 1000003ULL + bits;
+    std::memcpy(&bits, &angle[i], sizeof bits);
+    asum = asum * 1000003ULL + bits;
   }
   std::printf("{\"rows\": %td, \"cols\": %td, \"threads\": %d, \"preset\": \"%s\", ", H, W, nt,
               preset.c_str());
@@ -178,8 +180,8 @@ int main(int argc, char** argv) {
   }
   std::printf("\"run\": %.6f, \"run_fresh\": %.6f, \"run_cpu\": %.6f, \"clock\": \"%s\", "
               "\"min_step\": %.17g, \"checksum\": %lld, \"flags_checksum\": %lld, "
-              "\"height_bits\": %llu, \"fresh_same\": %s}\n",
+              "\"height_bits\": %llu, \"angle_bits\": %llu, \"fresh_same\": %s}\n",
               best_run, best_fresh, best_run_cpu, g_cpu_clock ? "cpu" : "wall", min_step, sum,
-              fsum, hsum, fresh_same ? "true" : "false");
+              fsum, hsum, asum, fresh_same ? "true" : "false");
   return 0;
 }

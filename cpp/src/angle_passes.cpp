@@ -29,7 +29,6 @@ namespace {
 // bound, no usable cell within the isolation reach) fall back to the scalar judge.
 constexpr std::ptrdiff_t kBlock = 256;  // columns per block of the row kernel
 constexpr std::ptrdiff_t kChunk = 32;   // lanes per min_step search
-constexpr int kPop4[16] = {0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4};
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
 #define MIEM_CLONES __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
@@ -216,6 +215,29 @@ MIEM_CLONES void angles_line(std::ptrdiff_t n, const double* __restrict buv,
   }
 }
 
+// The labels (and flags) of a row's usable cells (ok[c]) from the kernel's bits: ABNORMAL when at
+// least 2 directions are available and at least min(available, min_directions) (0: all) are
+// flagged, EDGE when some are, else NORMAL (SPEC "Detection"). Slow cells get a label here too;
+// the scalar judge overwrites it.
+MIEM_CLONES void label_line(std::ptrdiff_t n, const std::int64_t* __restrict bits,
+                            const std::int64_t* __restrict ok, int min_directions,
+                            std::uint8_t* __restrict labels, std::uint8_t* __restrict flags) {
+  const std::int64_t md = min_directions;
+  auto pop4 = [](std::int64_t x) { return (x & 1) + ((x >> 1) & 1) + ((x >> 2) & 1) + ((x >> 3) & 1); };
+  for (std::ptrdiff_t c = 0; c < n; ++c) {
+    const std::int64_t b = bits[c], flag = (b >> kFlagShift) & 15;
+    const std::int64_t a = pop4(b & 15), f = pop4(flag);
+    const std::int64_t need = md > 0 ? (a < md ? a : md) : a;
+    const std::uint8_t l = (a >= 2) & (f >= need) ? kAbnormal : (f > 0 ? kEdge : kNormal);
+    labels[c] = ok[c] ? l : labels[c];
+  }
+  if (flags == nullptr) return;
+  for (std::ptrdiff_t c = 0; c < n; ++c) {
+    const std::uint8_t flag = static_cast<std::uint8_t>((bits[c] >> kFlagShift) & 15);
+    flags[c] = ok[c] ? flag : flags[c];
+  }
+}
+
 // Copy row rr of the grid into structure-of-arrays slot buffers (x, y, z, ok: `stride` apart
 // for the coordinates, first grid column at index 0; the padding around it stays unusable).
 template <typename T>
@@ -361,23 +383,19 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
     double* angle_row = angle_out ? angle_out + r * W : nullptr;
     const std::int64_t* centre_ok = slot_ok(r);
     if (angle_row) angles_line(W, buv, bprod, centre_ok, angle_row);
+    // The kernel's verdicts for the whole row (vector code), then the scalar judge for the
+    // cells whose search the kernel could not finish.
+    label_line(W, bits, centre_ok, p.min_directions, labels + r * W,
+               flags_out ? flags_out + r * W : nullptr);
     for (std::ptrdiff_t c = 0; c < W; ++c) {
-      if (!centre_ok[c]) continue;
-      const std::ptrdiff_t i = r * W + c;
       const std::int64_t b = bits[c];
-      if ((b & kSlowBit) || !(b & kNearBit)) {
-        std::uint8_t fl;
-        double an;
-        labels[i] = judge.judge(r, c, &fl, &an, reach ? reach + 4 * i : nullptr);
-        if (flags_out) flags_out[i] = fl;
-        if (angle_row) angle_row[c] = an;
-        continue;
-      }
-      const std::uint8_t avail = b & 15, flag = (b >> kFlagShift) & 15;
-      const int a = kPop4[avail], f = kPop4[flag];
-      const int need = p.min_directions > 0 ? std::min(a, p.min_directions) : a;
-      labels[i] = (a >= 2 && f >= need) ? kAbnormal : (f > 0 ? kEdge : kNormal);
-      if (flags_out) flags_out[i] = flag;
+      if (!centre_ok[c] || !((b & kSlowBit) || !(b & kNearBit))) continue;
+      const std::ptrdiff_t i = r * W + c;
+      std::uint8_t fl;
+      double an;
+      labels[i] = judge.judge(r, c, &fl, &an, reach ? reach + 4 * i : nullptr);
+      if (flags_out) flags_out[i] = fl;
+      if (angle_row) angle_row[c] = an;
     }
   }
 }
@@ -426,15 +444,22 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
   std::ptrdiff_t n_finite = 0;
 #pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1) reduction(+ : n_finite)
   for (std::ptrdiff_t r = 0; r < H; ++r) {
-    for (std::ptrdiff_t c = 0; c < W; ++c) {
-      const std::ptrdiff_t i = r * W + c;
-      const bool fin = g.finite(r, c);
-      usable[i] = fin;
-      labels[i] = fin ? kNormal : kInvalid;
-      n_finite += fin;
-      if (out.flags) out.flags[i] = 0;
-      if (angle_nan) out.angle_deg[i] = kNaN;
+    const T* base = g.data + r * g.row_stride;
+    const std::ptrdiff_t cs = g.col_stride, ys = g.coord_stride, zs = 2 * g.coord_stride;
+    std::uint8_t* us = usable + r * W;
+    std::uint8_t* lb = labels + r * W;
+    std::ptrdiff_t nf = 0;
+    for (std::ptrdiff_t c = 0; c < W; ++c) {  // GridView::finite, as straight-line code
+      const T* q = base + c * cs;
+      const T s = (q[0] - q[0]) + (q[ys] - q[ys]) + (q[zs] - q[zs]);
+      const bool fin = s == T(0);
+      us[c] = fin;
+      lb[c] = fin ? kNormal : kInvalid;
+      nf += fin;
     }
+    n_finite += nf;
+    if (out.flags) std::fill(out.flags + r * W, out.flags + (r + 1) * W, std::uint8_t{0});
+    if (angle_nan) std::fill(out.angle_deg + r * W, out.angle_deg + (r + 1) * W, kNaN);
   }
   if (n_finite < 3) {
     throw std::invalid_argument("grid: fewer than 3 finite points (found " +

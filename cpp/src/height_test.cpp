@@ -13,6 +13,7 @@
 #include <cmath>
 #include <cstring>
 
+#include "edge_groups.hpp"
 #include "parallel.hpp"
 #include "stages.hpp"
 
@@ -20,26 +21,28 @@ namespace miem::detail {
 
 namespace {
 
-// The EDGE cell linked to (r, c) along (dr, dc): the first cell at k = 1 .. 1 + gap steps that
-// is EDGE, with every cell before it INVALID or ABNORMAL (labels after the angle passes: a dropout
-// or a defect on a feature line does not cut it); -1 if none.
-std::ptrdiff_t edge_link(const std::uint8_t* labels, std::ptrdiff_t H, std::ptrdiff_t W,
-                         std::ptrdiff_t r, std::ptrdiff_t c, std::ptrdiff_t dr, std::ptrdiff_t dc,
-                         int gap) {
-  for (int k = 1; k <= 1 + gap; ++k) {
-    const std::ptrdiff_t rr = r + k * dr, cc = c + k * dc;
-    if (rr < 0 || rr >= H || cc < 0 || cc >= W) return -1;
-    const std::uint8_t l = labels[rr * W + cc];
-    if (l == kEdge) return rr * W + cc;
-    if (l != kInvalid && l != kAbnormal) return -1;
-  }
-  return -1;
-}
-
-// Marks with kHCompact the EDGE cells of EDGE groups (8-neighbours, linked across at most `gap`
-// INVALID cells) whose bounding box's longer side is at most `extent` cells.
+// Marks with kHCompact the EDGE cells of EDGE groups (edge_groups.hpp: linked across at most
+// `gap` INVALID or ABNORMAL cells of the labels after the angle passes) whose bounding box's longer side is at most `extent` cells.
 void mark_compact_edges(const std::uint8_t* labels, std::ptrdiff_t H, std::ptrdiff_t W,
                         int extent, int gap, std::uint8_t* hm, std::vector<std::int64_t>& queue) {
+  struct Cells {
+    const std::uint8_t* labels;
+    std::uint8_t* hm;
+    std::ptrdiff_t H, W;
+    EdgeLink link(std::int64_t r, std::ptrdiff_t c) const {
+      if (r < 0 || r >= H || c < 0 || c >= W) return EdgeLink::kStop;
+      const std::uint8_t l = labels[r * W + c];
+      // a dropout, or a defect the angle passes found on the feature line, does not cut it
+      if (l == kEdge) return EdgeLink::kEdge;
+      return l == kInvalid || l == kAbnormal ? EdgeLink::kGap : EdgeLink::kStop;
+    }
+    bool claim(std::int64_t r, std::ptrdiff_t c) {
+      std::uint8_t& b = hm[r * W + c];
+      if (b & kHSeen) return false;
+      b |= kHSeen;
+      return true;
+    }
+  } cells{labels, hm, H, W};
   const std::ptrdiff_t N = H * W;
   for (std::ptrdiff_t start = 0; start < N; ++start) {
     // the next EDGE cell (memchr: vectorised search)
@@ -47,33 +50,15 @@ void mark_compact_edges(const std::uint8_t* labels, std::ptrdiff_t H, std::ptrdi
     if (next == nullptr) break;
     start = static_cast<const std::uint8_t*>(next) - labels;
     if (hm[start] & kHSeen) continue;
-    queue.clear();
-    queue.push_back(start);
-    hm[start] |= kHSeen;
-    std::ptrdiff_t r0 = start / W, r1 = r0, c0 = start % W, c1 = c0;
-    for (std::size_t head = 0; head < queue.size(); ++head) {
-      const std::ptrdiff_t i = queue[head], r = i / W, c = i % W;
-      r0 = std::min(r0, r), r1 = std::max(r1, r), c0 = std::min(c0, c), c1 = std::max(c1, c);
-      for (std::ptrdiff_t dr = -1; dr <= 1; ++dr) {
-        for (std::ptrdiff_t dc = -1; dc <= 1; ++dc) {
-          if (dr == 0 && dc == 0) continue;
-          const std::ptrdiff_t q = edge_link(labels, H, W, r, c, dr, dc, gap);
-          if (q >= 0 && !(hm[q] & kHSeen)) {
-            hm[q] |= kHSeen;
-            queue.push_back(q);
-          }
-        }
-      }
-    }
-    if (std::max(r1 - r0, c1 - c0) + 1 <= extent) {
+    if (walk_edge_group(cells, start / W, start % W, W, gap, queue).extent() <= extent) {
       for (std::int64_t i : queue) hm[i] |= kHCompact;
     }
   }
 }
 
-// The height passes' verdict (height_far) on a whole row segment of wanted cells wrow[j] from
-// row_solve's fits (RowFits, not compact): kHFresh, kHMark where too far, and the height when
-// `height` is not null. Straight-line code (vectorised); the same comparisons as height_far.
+// The height passes' verdict (height_verdict) on a whole row segment of wanted cells wrow[j]
+// from row_solve's fits (RowFits, not compact): kHFresh, kHMark where too far, and the height
+// when `height` is not null. Straight-line code (vectorised).
 MIEM_FIT_CLONES void height_row(std::ptrdiff_t n, const std::uint8_t* __restrict wrow,
                                 const double* __restrict S, const double* __restrict F,
                                 const std::uint8_t* __restrict okf, std::ptrdiff_t cap,
@@ -84,15 +69,10 @@ MIEM_FIT_CLONES void height_row(std::ptrdiff_t n, const std::uint8_t* __restrict
   const double* __restrict f1 = F + 2 * cap;
   const double* __restrict f2 = F + 3 * cap;
   const double* __restrict sl = S + 10 * cap;
-  const bool abs_on = height_abs > 0.0, k_on = height_k > 0.0;
   for (std::ptrdiff_t j = 0; j < n; ++j) {
-    const bool w = wrow[j] != 0, ok = okf[j] != 0;
-    const double ah = std::abs(fh[j]);
-    const double h2n = ah * ah * S[j];
-    const bool far = ok & !(abs_on & (sl[j] > 0.0)) &  // height_abstains
-                     ((abs_on & (ah > height_abs)) |
-                      (k_on & (h2n > height_k * height_k * std::max(f0[j], 0.0)) &
-                       (h2n > 1e-12 * (f1[j] + f2[j]))));
+    const bool w = wrow[j] != 0;
+    const bool far = height_verdict(okf[j] != 0, sl[j], fh[j], S[j], f0[j], f1[j], f2[j],
+                                    height_abs, height_k);
     const std::uint8_t b = static_cast<std::uint8_t>(hm[j] | kHFresh | (far ? kHMark : 0));
     hm[j] = w ? b : hm[j];
   }

@@ -68,10 +68,10 @@ inline __attribute__((always_inline)) void newton_step(double& x, double& live, 
   live = (-step <= 1e-17 * tr) ? 0.0 : go;
 }
 
-/// The arithmetic smallest_eigenpair does, for one matrix in straight-line code (vector loops
-/// inline it): l0 = x after at most 4 Newton steps (`live` still set: it has not ended), l1, l2
-/// = hi, tr, and the largest cross product (bx0, bx1, bx2) of two rows of M - l0 I with its
-/// squared norm nb (not yet normalised).
+// smallest_eigenpair's arithmetic for one matrix in straight-line code (vector loops inline it),
+// in three parts: eigen_start (the cubic's coefficients), newton_step (masked by `live`: the
+// steps of an ended lane change nothing), eigen_finish (l1, l2 and the eigenvector).
+// eigen_start: tr, c1, det of q(x) = x^3 - tr x^2 + c1 x - det.
 inline __attribute__((always_inline)) void eigen_start(double a, double b, double c, double d,
                                                         double e, double f, double& tr,
                                                         double& c1, double& det) {
@@ -107,63 +107,13 @@ inline __attribute__((always_inline)) void eigen_finish(double a, double b, doub
   nb = pu ? n01 : (pv ? n02 : n12);  // the largest of the three
 }
 
-/// The arithmetic smallest_eigenpair does, for one matrix in straight-line code (vector loops
-/// inline it): l0 = x after at most 4 Newton steps (`live` still set: it has not ended), l1, l2
-/// = hi, tr, and the largest cross product (bx0, bx1, bx2) of two rows of M - l0 I with its
-/// squared norm nb (not yet normalised).
-inline __attribute__((always_inline)) void eigen_lane(double a, double b, double c, double d,
-                                                       double e, double f, double& tr,
-                                                       double& x, double& live, double& l1,
-                                                       double& hi, double& bx0, double& bx1,
-                                                       double& bx2, double& nb) {
-  double c1, det;
-  eigen_start(a, b, c, d, e, f, tr, c1, det);
-  // Newton from 0 on q(x) = x^3 - tr x^2 + c1 x - det, fixed steps masked by `live`
-  x = 0.0;
-  live = tr > 0.0 ? 1.0 : 0.0;
-  newton_step(x, live, tr, c1, det);
-  newton_step(x, live, tr, c1, det);
-  newton_step(x, live, tr, c1, det);
-  newton_step(x, live, tr, c1, det);
-  eigen_finish(a, b, c, d, e, f, tr, c1, x, l1, hi, bx0, bx1, bx2, nb);
-}
-
 /// smallest_eigenpair for m matrices at once (SoA: entries a = M00, b = M11, c = M22, d = M01,
 /// e = M12, f = M02, `cap` apart in `M` in that order), in straight-line code that vectorises.
 /// Writes l0, l1, l2, nx, ny, nz (`cap` apart in `out`) and ok (smallest_eigenpair's return
-/// value). The iteration is smallest_eigenpair's with at most 4 steps: where it has not ended by
-/// then, redo is set and the caller runs smallest_eigenpair itself; elsewhere every output
-/// equals smallest_eigenpair's bit for bit.
-MIEM_EIG_CLONES inline void smallest_eigenpairs(std::ptrdiff_t m, std::ptrdiff_t cap,
-                                                const double* __restrict M,
-                                                double* __restrict out,
-                                                std::uint8_t* __restrict ok,
-                                                std::uint8_t* __restrict redo) {
-  const double *__restrict ma = M, *__restrict mb = M + cap, *__restrict mc = M + 2 * cap;
-  const double *__restrict md = M + 3 * cap, *__restrict me = M + 4 * cap;
-  const double* __restrict mf = M + 5 * cap;
-  double *__restrict o0 = out, *__restrict o1 = out + cap, *__restrict o2 = out + 2 * cap;
-  double *__restrict o3 = out + 3 * cap, *__restrict o4 = out + 4 * cap;
-  double* __restrict o5 = out + 5 * cap;
-#pragma GCC ivdep
-  for (std::ptrdiff_t i = 0; i < m; ++i) {  // (too many arrays for GCC's alias versioning)
-    const double a = ma[i], b = mb[i], c = mc[i], d = md[i], e = me[i], f = mf[i];
-    double tr, x, live, l1, hi, bx0, bx1, bx2, nb;
-    eigen_lane(a, b, c, d, e, f, tr, x, live, l1, hi, bx0, bx1, bx2, nb);
-    const double len = std::sqrt(nb > 0.0 ? nb : 1.0);
-    o0[i] = x;
-    o1[i] = l1;
-    o2[i] = hi;
-    o3[i] = bx0 / len;
-    o4[i] = bx1 / len;
-    o5[i] = bx2 / len;
-    ok[i] = static_cast<std::uint8_t>((tr > 0.0) & (nb > 0.0));
-    redo[i] = static_cast<std::uint8_t>(live != 0.0);
-  }
-}
-
-/// smallest_eigenpairs with up to 8 Newton steps, stopping once every lane of a block of 128
-/// has ended (steps of an ended lane change nothing, so the bits are those of the fixed steps):
+/// value). Up to 8 Newton steps, stopping once every lane of a block of 128 has ended (steps
+/// of an ended lane change nothing, so the bits are those of smallest_eigenpair's iteration):
+/// where a lane has not ended by then, redo is set and the caller runs smallest_eigenpair
+/// itself; elsewhere every output equals smallest_eigenpair's bit for bit.
 /// the edge test's sub-windows of rough or curved surfaces (l0 nearer l1) rarely end within 4
 /// (on the real scan almost never), within 8 nearly always; flat ones end within 3 or 4.
 /// ok and redo as 1.0 / 0.0 (doubles: a byte per lane would make the vectoriser take 32 lanes

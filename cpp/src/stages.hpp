@@ -28,27 +28,32 @@ template <typename T>
 int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput& out,
                  Workspace& ws);
 
-/// SPEC "height_tolerance" step 3: the test abstains where a feature-line cell lies in the
-/// window (`edges` of them) and the tolerance is absolute (a fixed length cannot allow for the
-/// bend the window's plane straddles); in the rms form the straddled bend raises the rms, and the
-/// test runs. Shared by height_far and the batch row verdict.
-inline bool height_abstains(double edges, const DetectParams& p) {
-  return p.height_abs > 0.0 && edges > 0.0;
-}
-
-/// The height test's verdict on one cell from its window plane: too far from the plane (and the
-/// test does not abstain there). Shared by the batch and streaming detectors.
-inline bool height_far(const WindowFit& f, const DetectParams& p) {
-  if (!f.ok || height_abstains(f.edges, p)) return false;  // designed features nearby
-  const double ah = std::abs(f.height);
-  if (p.height_abs > 0.0 && ah > p.height_abs) return true;
+/// The height test's verdict on one cell from its window plane (WindowFit's fields): too far
+/// from the plane, and the test does not abstain there. SPEC "height_tolerance" step 3: it
+/// abstains where a feature-line cell lies in the window (`edges` of them) and the tolerance is
+/// absolute (a fixed length cannot allow for the bend the window's plane straddles); in the rms
+/// form the straddled bend raises the rms, and the test runs. Branch-free, so that the batch's row loop (height_test.cpp) vectorises with it;
+/// the one verdict of the batch and streaming detectors.
+inline __attribute__((always_inline)) bool height_verdict(bool ok, double edges, double height,
+                                                          double n, double l0, double l1,
+                                                          double l2, double height_abs,
+                                                          double height_k) {
+  const double ah = std::abs(height);
   // |h| > k rms and |h| > 1e-6 sqrt((l1 + l2) / n), rms = sqrt(max(l0, 0) / n), squared. The
   // floor lies above the round-off of l0 from window sums (SPEC "height_tolerance"), so that a
   // noise-free surface's verdict is not decided by rounding, which differs between sums formed
   // in another order (the stream, other tiles).
-  const double h2n = ah * ah * f.n;
-  return p.height_k > 0.0 && h2n > p.height_k * p.height_k * std::max(f.l0, 0.0) &&
-         h2n > 1e-12 * (f.l1 + f.l2);
+  const double h2n = ah * ah * n;
+  return ok & !((height_abs > 0.0) & (edges > 0.0)) &
+         (((height_abs > 0.0) & (ah > height_abs)) |
+          ((height_k > 0.0) & (h2n > height_k * height_k * std::max(l0, 0.0)) &
+           (h2n > 1e-12 * (l1 + l2))));
+}
+
+/// height_verdict of one WindowFit.
+inline bool height_far(const WindowFit& f, const DetectParams& p) {
+  return height_verdict(f.ok, f.edges, f.height, f.n, f.l0, f.l1, f.l2, p.height_abs,
+                        p.height_k);
 }
 
 /// Bits of ws.hmask after height_test.

@@ -14,6 +14,7 @@
 #include <cmath>
 #include <cstring>
 
+#include "edge_groups.hpp"
 #include "miem/stream.hpp"
 #include "stages.hpp"
 #include "window_fits.hpp"
@@ -129,46 +130,38 @@ void ProfileStream<T>::compact_row(std::int64_t row) noexcept {
   std::uint8_t* hm0 = hm_.data() + slot(row) * W;
   const std::int64_t lo = std::max<std::int64_t>(0, row - extent_ - link_gap_);
   const std::int64_t hi = std::min<std::int64_t>(pushed_ - 1, row + extent_ + link_gap_);
+  // The rows lo..hi of the ring, EDGE by kSEdge; a claimed cell is tentatively compact, and a
+  // group that meets a cell of a group already found not compact is not compact either.
+  struct Cells {
+    ProfileStream& s;
+    std::int64_t lo, hi;
+    bool long_group = false;
+    detail::EdgeLink link(std::int64_t r, std::ptrdiff_t c) const {
+      if (r < lo || r > hi || c < 0 || c >= s.width_) return detail::EdgeLink::kStop;
+      const std::ptrdiff_t i = s.slot(r) * s.width_ + c;
+      const std::uint8_t b = s.hm_[static_cast<std::size_t>(i)];
+      if (b & kSEdge) return detail::EdgeLink::kEdge;
+      // past INVALID cells and cells ABNORMAL after the angle passes (neither NORMAL nor EDGE
+      // then: kInPlane unset), as the batch's labels before the height test
+      const std::uint8_t l = s.labels_[static_cast<std::size_t>(i)];
+      return l == kInvalid || (l == kAbnormal && !(b & kInPlane)) ? detail::EdgeLink::kGap
+                                                                   : detail::EdgeLink::kStop;
+    }
+    bool claim(std::int64_t r, std::ptrdiff_t c) {
+      std::uint8_t& b = s.hm_[static_cast<std::size_t>(s.slot(r) * s.width_ + c)];
+      if (b & kSSeen) {
+        long_group |= !(b & kSCompact);
+        return false;
+      }
+      b = static_cast<std::uint8_t>(b | kSSeen | kSCompact);
+      return true;
+    }
+  };
   for (std::ptrdiff_t c = 0; extent_ > 0 && c < W; ++c) {
     if ((hm0[c] & (kSEdge | kSSeen)) != kSEdge) continue;
-    queue_.clear();
-    queue_.push_back(row * W + c);
-    hm0[c] |= kSSeen | kSCompact;  // tentatively compact
-    std::int64_t r0 = row, r1 = row;
-    std::ptrdiff_t c0 = c, c1 = c;
-    bool long_group = false;  // meets a cell of a group already found not compact
-    for (std::size_t head = 0; head < queue_.size(); ++head) {
-      const std::int64_t r = queue_[head] / W;
-      const std::ptrdiff_t cc = static_cast<std::ptrdiff_t>(queue_[head] % W);
-      r0 = std::min(r0, r), r1 = std::max(r1, r), c0 = std::min(c0, cc), c1 = std::max(c1, cc);
-      for (std::int64_t dr = -1; dr <= 1; ++dr) {
-        for (std::ptrdiff_t dc = -1; dc <= 1; ++dc) {
-          if (dr == 0 && dc == 0) continue;
-          // the first cell along (dr, dc) within 1 + G steps that is EDGE, past INVALID cells and
-          // cells ABNORMAL after the angle passes only (neither NORMAL nor EDGE then)
-          for (int k = 1; k <= 1 + link_gap_; ++k) {
-            const std::int64_t rr = r + k * dr;
-            const std::ptrdiff_t q = cc + k * dc;
-            if (rr < lo || rr > hi || q < 0 || q >= W) break;
-            std::uint8_t* hm = hm_.data() + slot(rr) * W;
-            const std::uint8_t b = hm[q];
-            if (!(b & kSEdge)) {
-              const std::uint8_t l = labels_[static_cast<std::size_t>(slot(rr) * W + q)];
-              if (l == kInvalid || (l == kAbnormal && !(b & kInPlane))) continue;
-              break;
-            }
-            if (b & kSSeen) {
-              long_group |= !(b & kSCompact);
-            } else {
-              hm[q] = static_cast<std::uint8_t>(b | kSSeen | kSCompact);
-              queue_.push_back(rr * W + q);
-            }
-            break;
-          }
-        }
-      }
-    }
-    if (long_group || std::max<std::int64_t>(r1 - r0, c1 - c0) + 1 > extent_) {
+    Cells cells{*this, lo, hi};
+    const detail::EdgeGroupBox box = detail::walk_edge_group(cells, row, c, W, link_gap_, queue_);
+    if (cells.long_group || box.extent() > extent_) {
       for (const std::int64_t i : queue_) {
         hm_[static_cast<std::size_t>(slot(i / W) * W + i % W)] &=
             static_cast<std::uint8_t>(~kSCompact);

@@ -75,7 +75,7 @@ inline __attribute__((always_inline)) void solve_fits_body(std::ptrdiff_t m, std
   double* __restrict f2 = F + 3 * cap;
   // Blocks of kB cells: the centred scatters, then the Newton steps for the whole block until
   // every cell has ended (at most 4: the steps of an ended cell change nothing, so the bits are
-  // those of eigen_lane's fixed steps; flat windows end within 2 or 3), then the rest. The
+  // those of 4 fixed steps; flat windows end within 2 or 3), then the rest. The
   // flags are 1.0 / 0.0 doubles in the vector loop and bytes only after it: a byte store next to
   // the doubles makes GCC take 32 or 64 lanes at a time, leaving short rows to scalar code.
   constexpr std::ptrdiff_t kB = 128;
@@ -303,6 +303,16 @@ MIEM_FIT_CLONES inline void box_sums(const double* __restrict col, std::ptrdiff_
   }
 }
 
+/// The cell counts of n window sums (a: NORMAL cells, b: feature-line cells) rounded to whole
+/// numbers (sums of +-1, whole already; std::round in vector code).
+MIEM_FIT_CLONES inline void round_counts(std::ptrdiff_t n, double* __restrict a,
+                                         double* __restrict b) {
+  for (std::ptrdiff_t j = 0; j < n; ++j) {
+    a[j] = std::round(a[j]);
+    b[j] = std::round(b[j]);
+  }
+}
+
 /// What row_solve leaves for one row segment: the fit of entry e (e = j, the segment's column,
 /// or with `compact` the e-th wanted cell) is okf[e], n = S[e], height, l0, l1, l2 at F + k * cap
 /// + e and the feature-line cells at S + 10 * cap + e (redo[e]: solved by solve_fits_exact).
@@ -353,10 +363,7 @@ inline RowFits row_solve(const double* col, std::ptrdiff_t stride, std::ptrdiff_
     }
   }
   const std::ptrdiff_t ns = compact ? m : ncols;
-  for (std::ptrdiff_t j = 0; j < ns; ++j) {
-    S[j] = std::round(S[j]);
-    S[10 * cap + j] = std::round(S[10 * cap + j]);
-  }
+  round_counts(ns, S, S + 10 * cap);
   solve_fits(ns, cap, S, Q, F, okf, redo);
   // The cells whose Newton iteration has not ended in 4 steps (rough or strongly anisotropic
   // windows, as a profiler's 0.05 x 1 mm cells make): again in vector code, kRedo at a time,
