@@ -27,6 +27,9 @@ constexpr int kM = kEdgeMoments;
 constexpr double kRankTol = 1e-12;
 constexpr double kLineTol = 1e-6;  // support on a line in (x, y): det <= this * trace^2
 constexpr double kRoundOff = 1e-9;  // tolerance floor: times sqrt((l1 + l2) / n), as the height test
+// A side whose plane is steeper than 70 degrees (oriented normal's z below cos 70) is not valid
+// (SPEC step 3): it fits a sub-window narrow across a step, both levels at once.
+constexpr double kSteepCos = 0.3420201433256687;
 // (row_lo, row_hi, col_lo, col_hi) in units: -2 = -r, -1 = -1, 1 = 1, 2 = r.
 constexpr int kSides[8][4] = {{-2, 2, -2, -1}, {-2, 2, 1, 2},  {-2, -1, -2, 2}, {1, 2, -2, 2},
                               {-2, -1, -2, -1}, {-2, -1, 1, 2}, {1, 2, -2, -1}, {1, 2, 1, 2}};
@@ -112,10 +115,10 @@ inline __attribute__((always_inline)) void side_plane(
     double nn, double cx, double cy, double cz, double px, double py, double pz, double k,
     double& valid, double& h, double& rms, double& tol, double& ox, double& oy,
     double& oz) {
-  valid = use & solved & (l2 > 0.0) & !(l1 <= kRankTol * l2) ? 1.0 : 0.0;
   const double sg = nz != 0.0 ? (nz > 0.0 ? 1.0 : -1.0)
                               : (nx != 0.0 ? (nx > 0.0 ? 1.0 : -1.0) : (ny < 0.0 ? -1.0 : 1.0));
   ox = nx * sg, oy = ny * sg, oz = nz * sg;  // orient_normal
+  valid = use & solved & (l2 > 0.0) & !(l1 <= kRankTol * l2) & (oz >= kSteepCos) ? 1.0 : 0.0;
   h = ((px - cx) * ox + (py - cy) * oy) + (pz - cz) * oz;  // dot3(pt - centroid, normal)
   rms = std::sqrt((l0 < 0.0 ? 0.0 : l0) / nn);  // std::max(l0, 0.0)
   const double floor = kRoundOff * std::sqrt((l1 + l2) / nn), kr = k * rms;

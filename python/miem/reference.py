@@ -1020,6 +1020,10 @@ _EDGE_CLEAN_RATIO = 2.0
 #: A sub-window's support is on a line in (x, y) when the determinant of its (x, y) scatter is
 #: at most this times its trace squared (SPEC "Edge test" step 3).
 _EDGE_LINE_TOL = 1e-6
+#: A sub-window whose plane is steeper than 70 degrees (oriented normal ``u_z`` below this) is
+#: not valid (SPEC "Edge test" step 3): a scan from above does not resolve such a surface; the
+#: plane fits a sub-window that is narrow across a step, both levels at once.
+_EDGE_STEEP_COS = 0.3420201433256687  # cos(70 degrees)
 #: Opposite sub-windows (indices into :func:`_edge_sides`).
 _EDGE_OPPOSITE = ((0, 1), (2, 3), (4, 7), (5, 6))
 
@@ -1081,6 +1085,7 @@ def _side_fits(
         evals, evecs = np.linalg.eigh(cov)
         ok &= (evals[:, 2] > 0.0) & ~(evals[:, 1] <= _EIGEN_RANK_TOL * evals[:, 2])
         nrm = _orient(evecs[:, :, 0])
+        ok &= nrm[:, 2] >= _EDGE_STEEP_COS  # not steeper than 70 degrees
         hs[k] = np.where(ok, _dot3(pt - cen, nrm), np.nan)
         rms[k] = np.where(ok, np.sqrt(np.maximum(evals[:, 0], 0.0) / nn), np.nan)
         spread[k] = np.where(ok, np.sqrt((evals[:, 1] + evals[:, 2]) / nn), np.nan)
