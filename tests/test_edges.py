@@ -299,9 +299,9 @@ def _plane_normal_z(pts: np.ndarray) -> float:
     return float(abs(np.linalg.eigh(q.T @ q)[1][2, 0]))
 
 
-def test_steep_sub_window_is_not_valid() -> None:
-    """SPEC "Edge test" step 3: a sub-window whose plane is steeper than 70 degrees is not
-    valid. Must fire: at the middle profile of material hanging over a wall top, the left
+def test_steep_sub_window_is_never_clean() -> None:
+    """SPEC "Edge test" step 4: a sub-window whose plane is steeper than 70 degrees is never
+    clean (P is not tested against it). Must fire: at the middle profile of material hanging over a wall top, the left
     half-window (15 profiles x 7 points of 0.05 mm) holds top, burr and floor; its plane
     (NumPy, by hand) is within 20 degrees of vertical, and it "fits" the cell. Without the rule
     the cells stay as they are; with it every inner cell of that profile is ABNORMAL and no cell
@@ -317,8 +317,9 @@ def test_steep_sub_window_is_not_valid() -> None:
     assert _plane_normal_z(left) < np.cos(np.radians(70.0))
     cells = np.zeros(z.shape, bool)
     cells[r, c] = True
-    valid = ref._side_fits(g, labels == ref.NORMAL, labels == ref.INVALID, cells, 7, g[0, 0])[3]
-    assert not valid[0, 0] and not valid[1, 0]  # left and right: steep
+    fits = ref._side_fits(g, labels == ref.NORMAL, labels == ref.INVALID, cells, 7, g[0, 0])
+    steep = fits[3] & (fits[4][..., 2] < ref._EDGE_STEEP_COS)
+    assert steep[0, 0] and steep[1, 0]  # left and right
     out = ref.edge_test(g, labels, window=15, tolerance=4.0, max_iterations=10)[0]
     flagged = out == ref.ABNORMAL
     assert flagged[r, 7:53].all() and not (flagged & ~burr).any()
@@ -335,8 +336,11 @@ def test_steep_sub_window_is_not_valid() -> None:
         lab = np.zeros((40, 40), np.uint8)
         inner = np.zeros((40, 40), bool)
         inner[8:32, 8:32] = True
-        valid = ref._side_fits(g, lab == ref.NORMAL, lab == ref.INVALID, inner, 7, g[0, 0])[3]
-        assert (~valid).all() if steep else valid.all()
+        fits = ref._side_fits(g, lab == ref.NORMAL, lab == ref.INVALID, inner, 7, g[0, 0])
+        assert fits[3].all()
+        uz = fits[4][..., 2]  # cos of the tilt, by geometry
+        np.testing.assert_allclose(uz, np.cos(np.radians(deg)), atol=0.02)
+        assert (uz < ref._EDGE_STEEP_COS).all() if steep else (uz >= ref._EDGE_STEEP_COS).all()
         if not steep:
             out = ref.edge_test(g, lab, window=15, tolerance=4.0, max_iterations=10)[0]
             assert not (out == ref.ABNORMAL).any()

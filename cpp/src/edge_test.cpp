@@ -27,9 +27,6 @@ constexpr int kM = kEdgeMoments;
 constexpr double kRankTol = 1e-12;
 constexpr double kLineTol = 1e-6;  // support on a line in (x, y): det <= this * trace^2
 constexpr double kRoundOff = 1e-9;  // tolerance floor: times sqrt((l1 + l2) / n), as the height test
-// A side whose plane is steeper than 70 degrees (oriented normal's z below cos 70) is not valid
-// (SPEC step 3): it fits a sub-window narrow across a step, both levels at once.
-constexpr double kSteepCos = 0.3420201433256687;
 // (row_lo, row_hi, col_lo, col_hi) in units: -2 = -r, -1 = -1, 1 = 1, 2 = r.
 constexpr int kSides[8][4] = {{-2, 2, -2, -1}, {-2, 2, 1, 2},  {-2, -1, -2, 2}, {1, 2, -2, 2},
                               {-2, -1, -2, -1}, {-2, -1, 1, 2}, {1, 2, -2, -1}, {1, 2, 1, 2}};
@@ -118,7 +115,7 @@ inline __attribute__((always_inline)) void side_plane(
   const double sg = nz != 0.0 ? (nz > 0.0 ? 1.0 : -1.0)
                               : (nx != 0.0 ? (nx > 0.0 ? 1.0 : -1.0) : (ny < 0.0 ? -1.0 : 1.0));
   ox = nx * sg, oy = ny * sg, oz = nz * sg;  // orient_normal
-  valid = use & solved & (l2 > 0.0) & !(l1 <= kRankTol * l2) & (oz >= kSteepCos) ? 1.0 : 0.0;
+  valid = use & solved & (l2 > 0.0) & !(l1 <= kRankTol * l2) ? 1.0 : 0.0;
   h = ((px - cx) * ox + (py - cy) * oy) + (pz - cz) * oz;  // dot3(pt - centroid, normal)
   rms = std::sqrt((l0 < 0.0 ? 0.0 : l0) / nn);  // std::max(l0, 0.0)
   const double floor = kRoundOff * std::sqrt((l1 + l2) / nn), kr = k * rms;
@@ -258,7 +255,9 @@ constexpr int kHangDirs[8][2] = {{0, 1},  {0, -1}, {1, 0},  {-1, 0},
 template <typename T>
 bool is_hanging(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
                 std::ptrdiff_t cc, std::ptrdiff_t r, const Side (&sd)[8], double best) {
-  const auto clean = [&](int s) { return sd[s].valid && sd[s].rms <= kEdgeCleanRatio * best; };
+  const auto clean = [&](int s) {
+    return sd[s].valid && !sd[s].steep && sd[s].rms <= kEdgeCleanRatio * best;
+  };
   for (int s = 0; s < 8; ++s) {
     if (!sd[s].empty && clean(s) && !(std::abs(sd[s].h) > sd[s].tol)) return false;
   }
@@ -529,7 +528,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
         }
         const bool clean = F1[kChunk + j] <= kEdgeCleanRatio * std::sqrt(low1[j]);  // <= 2 best
         if (!redo1[j] && valid1[j] && clean && !empty1[j] &&  // (an empty side: hanging?)
-            !(std::abs(F1[j]) > F1[2 * kChunk + j])) {
+            !(F1[5 * kChunk + j] < kEdgeSteepCos) && !(std::abs(F1[j]) > F1[2 * kChunk + j])) {
           mark[i] = 0;
           continue;
         }
@@ -599,13 +598,15 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
         x.rms = F[kCap + e];
         x.tol = F[2 * kCap + e];
         x.normal = Eigen::Vector3d(F[3 * kCap + e], F[4 * kCap + e], F[5 * kCap + e]);
-        best = std::min(best, x.rms);
+        x.steep = x.normal.z() < kEdgeSteepCos;
+        if (!x.steep) best = std::min(best, x.rms);
       }
       bool abnormal = edge_abnormal(sd, best, [](int s) { return kOpposite[s]; });
       if (!abnormal && is_fin(g, lab, grow, cols[j], r)) {  // a fin that fits no clean side
         abnormal = true;
         for (const Side& x : sd) {
-          if (x.valid && x.rms <= kEdgeCleanRatio * best && !(std::abs(x.h) > x.tol)) {
+          if (x.valid && !x.steep && x.rms <= kEdgeCleanRatio * best &&
+              !(std::abs(x.h) > x.tol)) {
             abnormal = false;
             break;
           }
