@@ -112,10 +112,10 @@ inline __attribute__((always_inline)) void side_plane(
     double nn, double cx, double cy, double cz, double px, double py, double pz, double k,
     double& valid, double& h, double& rms, double& tol, double& ox, double& oy,
     double& oz) {
+  valid = use & solved & (l2 > 0.0) & !(l1 <= kRankTol * l2) ? 1.0 : 0.0;
   const double sg = nz != 0.0 ? (nz > 0.0 ? 1.0 : -1.0)
                               : (nx != 0.0 ? (nx > 0.0 ? 1.0 : -1.0) : (ny < 0.0 ? -1.0 : 1.0));
   ox = nx * sg, oy = ny * sg, oz = nz * sg;  // orient_normal
-  valid = use & solved & (l2 > 0.0) & !(l1 <= kRankTol * l2) ? 1.0 : 0.0;
   h = ((px - cx) * ox + (py - cy) * oy) + (pz - cz) * oz;  // dot3(pt - centroid, normal)
   rms = std::sqrt((l0 < 0.0 ? 0.0 : l0) / nn);  // std::max(l0, 0.0)
   const double floor = kRoundOff * std::sqrt((l1 + l2) / nn), kr = k * rms;
