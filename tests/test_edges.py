@@ -280,6 +280,72 @@ def test_hanging_burr_is_abnormal() -> None:
     assert not (out == ref.ABNORMAL).any()
 
 
+def _wall_burr_z(h: int = 50, w: int = 60, row: int = 20) -> tuple[np.ndarray, np.ndarray]:
+    """A wall top at ``row`` (floor 3 mm down) with material hanging over it, as on the real
+    scan's first wall: three profiles 0.5, 1.0 and 1.5 mm below the top, then two profiles
+    without a return; returns z and the burr mask (profiles 0.1 mm apart, points 0.05 mm)."""
+    rng = np.random.default_rng(3)
+    rows = np.arange(h)[:, None].repeat(w, 1)
+    z = rng.normal(0.0, 0.002, (h, w)) - 3.0 * (rows >= row)
+    burr = (rows >= row) & (rows < row + 3)
+    z[burr] = -0.5 * (rows[burr] - row + 1) + rng.normal(0.0, 0.002, int(burr.sum()))
+    z[row + 3:row + 5] = np.nan
+    return z, burr
+
+
+def _plane_normal_z(pts: np.ndarray) -> float:
+    """|u_z| of the eigen plane of ``pts`` (N, 3), by NumPy directly."""
+    q = pts - pts.mean(axis=0)
+    return float(abs(np.linalg.eigh(q.T @ q)[1][2, 0]))
+
+
+def test_steep_sub_window_is_never_clean() -> None:
+    """SPEC "Edge test" step 4: a sub-window whose plane is steeper than 70 degrees is never
+    clean (P is not tested against it). Must fire: at the middle profile of material hanging over a wall top, the left
+    half-window (15 profiles x 7 points of 0.05 mm) holds top, burr and floor; its plane
+    (NumPy, by hand) is within 20 degrees of vertical, and it "fits" the cell. Without the rule
+    the cells stay as they are; with it every inner cell of that profile is ABNORMAL and no cell
+    off the burr. Must not fire: designed faces tilted 60 degrees keep all 8 sub-windows valid
+    and nothing is flagged; at 75 degrees every sub-window is steep."""
+    z, burr = _wall_burr_z()
+    g = _grid(z)
+    g[..., 0] *= 0.5  # points 0.05 mm apart along the profile
+    labels = np.where(np.isfinite(z), ref.NORMAL, ref.INVALID).astype(np.uint8)
+    r, c = 21, 30
+    left = g[r - 7:r + 8, c - 7:c].reshape(-1, 3)
+    left = left[np.isfinite(left).all(axis=1)]
+    assert _plane_normal_z(left) < np.cos(np.radians(70.0))
+    cells = np.zeros(z.shape, bool)
+    cells[r, c] = True
+    fits = ref._side_fits(g, labels == ref.NORMAL, labels == ref.INVALID, cells, 7, g[0, 0])
+    steep = fits[3] & (fits[4][..., 2] < ref._EDGE_STEEP_COS)
+    assert steep[0, 0] and steep[1, 0]  # left and right
+    out = ref.edge_test(g, labels, window=15, tolerance=4.0, max_iterations=10)[0]
+    flagged = out == ref.ABNORMAL
+    assert flagged[r, 7:53].all() and not (flagged & ~burr).any()
+    saved = ref._EDGE_STEEP_COS
+    try:
+        ref._EDGE_STEEP_COS = -1.0  # the rule off
+        off = ref.edge_test(g, labels, window=15, tolerance=4.0, max_iterations=10)[0]
+    finally:
+        ref._EDGE_STEEP_COS = saved
+    assert (off[r, 7:53] != ref.ABNORMAL).sum() > 20
+    for deg, steep in ((60.0, False), (75.0, True)):
+        rows = np.arange(40)[:, None].repeat(40, 1)
+        g = _grid(_noise((40, 40)) - np.tan(np.radians(deg)) * rows * 0.1)
+        lab = np.zeros((40, 40), np.uint8)
+        inner = np.zeros((40, 40), bool)
+        inner[8:32, 8:32] = True
+        fits = ref._side_fits(g, lab == ref.NORMAL, lab == ref.INVALID, inner, 7, g[0, 0])
+        assert fits[3].all()
+        uz = fits[4][..., 2]  # cos of the tilt, by geometry
+        np.testing.assert_allclose(uz, np.cos(np.radians(deg)), atol=0.02)
+        assert (uz < ref._EDGE_STEEP_COS).all() if steep else (uz >= ref._EDGE_STEEP_COS).all()
+        if not steep:
+            out = ref.edge_test(g, lab, window=15, tolerance=4.0, max_iterations=10)[0]
+            assert not (out == ref.ABNORMAL).any()
+
+
 # --------------------------------------------------------------------------------------------
 # the C++ edge test (opt-in: edge_tolerance / edge_window): core == reference on edge scenes
 # (float64 and float32, 1 and 2 threads), field checks, and the paths that cannot honour it
@@ -319,6 +385,8 @@ def _core_scenes() -> list:
     z, _ = _hanging_z(140, 150)  # a burr hanging beyond a wall (step 6), across tile borders
     z[60:70, :20] += 0.3
     out.append(("hanging", _grid(z)))
+    z, _ = _wall_burr_z(140, 150, row=62)  # steep sub-windows (step 3), across tile borders
+    out.append(("steep", _grid(z)))
     return out
 
 

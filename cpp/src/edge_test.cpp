@@ -255,7 +255,9 @@ constexpr int kHangDirs[8][2] = {{0, 1},  {0, -1}, {1, 0},  {-1, 0},
 template <typename T>
 bool is_hanging(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
                 std::ptrdiff_t cc, std::ptrdiff_t r, const Side (&sd)[8], double best) {
-  const auto clean = [&](int s) { return sd[s].valid && sd[s].rms <= kEdgeCleanRatio * best; };
+  const auto clean = [&](int s) {
+    return sd[s].valid && !sd[s].steep && sd[s].rms <= kEdgeCleanRatio * best;
+  };
   for (int s = 0; s < 8; ++s) {
     if (!sd[s].empty && clean(s) && !(std::abs(sd[s].h) > sd[s].tol)) return false;
   }
@@ -556,7 +558,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
         }
         const bool clean = F1[kChunk + j] <= kEdgeCleanRatio * std::sqrt(low1[j]);  // <= 2 best
         if (!redo1[j] && valid1[j] && clean && !empty1[j] &&  // (an empty side: hanging?)
-            !(std::abs(F1[j]) > F1[2 * kChunk + j])) {
+            !(F1[5 * kChunk + j] < kEdgeSteepCos) && !(std::abs(F1[j]) > F1[2 * kChunk + j])) {
           mark[i] = 0;
           continue;
         }
@@ -626,13 +628,15 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
         x.rms = F[kCap + e];
         x.tol = F[2 * kCap + e];
         x.normal = Eigen::Vector3d(F[3 * kCap + e], F[4 * kCap + e], F[5 * kCap + e]);
-        best = std::min(best, x.rms);
+        x.steep = x.normal.z() < kEdgeSteepCos;
+        if (!x.steep) best = std::min(best, x.rms);
       }
       bool abnormal = edge_abnormal(sd, best, [](int s) { return kOpposite[s]; });
       if (!abnormal && is_fin(g, lab, grow, cols[j], r)) {  // a fin that fits no clean side
         abnormal = true;
         for (const Side& x : sd) {
-          if (x.valid && x.rms <= kEdgeCleanRatio * best && !(std::abs(x.h) > x.tol)) {
+          if (x.valid && !x.steep && x.rms <= kEdgeCleanRatio * best &&
+              !(std::abs(x.h) > x.tol)) {
             abnormal = false;
             break;
           }

@@ -13,10 +13,14 @@ namespace miem::detail {
 
 /// A clean side: its rms is at most this times the smallest rms of the valid sides.
 constexpr double kEdgeCleanRatio = 2.0;
+/// A grid side whose plane is steeper than 70 degrees (oriented normal's z below cos 70) is
+/// *steep* (SPEC "Edge test" step 4): never clean; as an opposite side its centroid counts.
+constexpr double kEdgeSteepCos = 0.3420201433256687;
 
 /// One one-sided neighbourhood of a point P: its plane (valid), or no return there (empty).
 struct EdgeSide {
   bool valid = false, empty = false;
+  bool steep = false;  // grids: a plane steeper than 70 degrees (never clean); clouds: unused
   double h = 0.0, rms = 0.0, tol = 0.0;  // h = u . (P - centroid); tol = max(k rms, floor)
   Eigen::Vector3d normal, centroid;      // centroid in any frame shared by the sides
 };
@@ -28,11 +32,13 @@ template <int N, typename Opposite>
 inline bool edge_abnormal(const EdgeSide (&sd)[N], double best, Opposite opposite) {
   for (int s = 0; s < N; ++s) {
     const EdgeSide& x = sd[s];
-    if (x.valid && x.rms <= kEdgeCleanRatio * best && !(std::abs(x.h) > x.tol)) return false;
+    if (x.valid && !x.steep && x.rms <= kEdgeCleanRatio * best && !(std::abs(x.h) > x.tol)) {
+      return false;
+    }
   }
   for (int s = 0; s < N; ++s) {
     const EdgeSide& x = sd[s];
-    if (!x.valid || !(x.rms <= kEdgeCleanRatio * best) || !(x.h > x.tol)) continue;
+    if (!x.valid || x.steep || !(x.rms <= kEdgeCleanRatio * best) || !(x.h > x.tol)) continue;
     const EdgeSide& y = sd[opposite(s)];
     if (y.empty || (y.valid && dot3(x.normal, y.centroid - x.centroid) < -x.tol)) return true;
   }

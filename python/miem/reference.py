@@ -1023,6 +1023,11 @@ _EDGE_CLEAN_RATIO = 2.0
 #: A sub-window's support is on a line in (x, y) when the determinant of its (x, y) scatter is
 #: at most this times its trace squared (SPEC "Edge test" step 3).
 _EDGE_LINE_TOL = 1e-6
+#: A valid sub-window whose plane is steeper than 70 degrees (oriented normal ``u_z`` below
+#: this) is *steep* (SPEC "Edge test" step 4): never clean, so P is not tested against it (a scan
+#: from above does not resolve such a surface: the plane fits a sub-window narrow across a
+#: step, both levels at once); as an opposite side its centroid still counts.
+_EDGE_STEEP_COS = 0.3420201433256687  # cos(70 degrees)
 #: Opposite sub-windows (indices into :func:`_edge_sides`).
 _EDGE_OPPOSITE = ((0, 1), (2, 3), (4, 7), (5, 6))
 
@@ -1264,8 +1269,9 @@ def _edge_verdicts(
     out = np.zeros_like(cells)
     h, rms, spread, valid, nrm, cen, empty = _side_fits(
         grid, labels == NORMAL, labels == INVALID, cells, r, origin)
-    best = np.min(np.where(valid, rms, np.inf), axis=0)
-    clean = valid & (rms <= _EDGE_CLEAN_RATIO * best)
+    level = valid & (nrm[..., 2] >= _EDGE_STEEP_COS)  # valid and not steep
+    best = np.min(np.where(level, rms, np.inf), axis=0)
+    clean = level & (rms <= _EDGE_CLEAN_RATIO * best)
     tol = np.maximum(k * rms, _HEIGHT_RMS_FLOOR * spread)  # round-off floor, as the height test
     fits = clean & ~(np.abs(h) > tol)
     # P stands proud (outward, above the plane) of a clean side whose opposite side has no
