@@ -45,7 +45,7 @@ using Side = EdgeSide;
 #endif
 
 // One side's moments (n and the sums of moment q at mm[q * cap]) to what the planes need:
-// nn = max(n, 1), the centroid, the centred scatter (a, b, c, d, e, f as smallest_eigenpairs
+// nn = max(n, 1), the centroid, the centred scatter (a, b, c, d, e, f as smallest_eigenpairs_long
 // reads it: M(0, 0), M(1, 1), M(2, 2), M(0, 1), M(1, 2), M(0, 2)) and whether the side has
 // enough support (use). Shared by side_moments and side_lows so that both give the same bits.
 inline __attribute__((always_inline)) void side_moment(const double* mm, std::ptrdiff_t cap,
