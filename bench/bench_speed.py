@@ -2,9 +2,8 @@
 
 Usage: ``python bench/bench_speed.py [--quick] [--build-dir DIR]`` writes
 ``bench/results_speed.md`` (``run_results.py`` puts it at the top of RESULTS.md) and
-``bench/results_speed.json``. ``--record-baseline FILE`` only measures the stage breakdown by
-configuration (below) with whatever ``miem`` the interpreter imports and writes it to FILE: run it
-with the interpreter of an older build to keep a "before" next to the "now".
+``bench/results_speed.json``. Every ratio in it is measured in this one run: earlier builds are
+rebuilt from their commits (``git archive``), never read from a file recorded on another machine.
 
 Sections, all measured in this one run:
 
@@ -42,7 +41,6 @@ from common import best_of, cpu_name, plane_points, scan_grid  # noqa: E402
 
 OUT = HERE / "results_speed.md"
 RAW = HERE / "results_speed.json"
-BASELINE = HERE / "results_speed_baseline.json"
 PRESET = "recommended"  # the default preset (issue 9)
 
 
@@ -376,7 +374,7 @@ def fmt_min_step(rows: list[dict]) -> list[str]:
     return L
 
 
-def fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, base_bd, meta,
+def fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, meta,
         min_step_rows=()) -> str:
     L = ["## Speed of the default detector (`python bench/bench_speed.py`)", ""]
     L.append(f"Written on {meta['date']}: miem {meta['miem']}, {meta['cpu']}, {os.cpu_count()} "
@@ -467,21 +465,16 @@ def fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, base_bd, m
                          + f" | {n / s['run'] / 1e6:.1f} | {up} |")
     L += fmt_min_step(list(min_step_rows))
     L += ["", "By configuration differences through the Python API (CPU time, 1 thread, "
-          f"{meta['bd_side']}x{meta['bd_side']}; the same measurement on the build before the "
-          "speed work, where recorded):", "",
+          f"{meta['bd_side']}x{meta['bd_side']}; the builds before are compared stage by stage "
+          "above):", "",
           "| build | angle test | + heights at every point | + height test | + edge test | "
           "full default | Mpoints/s |", "|---|---:|---:|---:|---:|---:|---:|"]
-    builds = ([("before: " + base_bd.get("label", "?"), base_bd)] if base_bd else [])
-    for label, bd in builds + [("now", now_bd)]:
+    for label, bd in [("now", now_bd)]:
         n = bd["side"] ** 2
         et = f"{bd['edge_test'] * 1e3:.0f} ms" if "edge_test" in bd else "- (none)"
         L.append(f"| {label} | {bd['angle'] * 1e3:.0f} ms | {bd['heights'] * 1e3:.0f} ms | "
                  f"{bd['height_test'] * 1e3:.0f} ms | {et} | {bd['full'] * 1e3:.0f} ms | "
                  f"{n / bd['full'] / 1e6:.1f} |")
-    if base_bd:
-        L.append("")
-        L.append(f"Speed-up of the full default: {base_bd['full'] / now_bd['full']:.1f}x "
-                 f"(baseline recorded {base_bd.get('date', '?')}).")
     return "\n".join(L) + "\n"
 
 
@@ -489,8 +482,6 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--build-dir", type=Path, default=ROOT / "build" / "bench")
-    ap.add_argument("--record-baseline", type=Path, default=None)
-    ap.add_argument("--label", default="")
     args = ap.parse_args(argv)
     import datetime as dt
 
@@ -498,12 +489,6 @@ def main(argv=None) -> int:
 
     q = args.quick
     bd_side = 512 if q else 2048
-    if args.record_baseline is not None:
-        bd = breakdown(bd_side, 2 if q else 3)
-        bd.update(label=args.label, date=dt.date.today().isoformat())
-        args.record_baseline.write_text(json.dumps(bd, indent=1) + "\n")
-        print(json.dumps(bd))
-        return 0
     load0 = os.getloadavg()[0]
     meta = {"date": dt.date.today().isoformat(), "miem": miem.__version__, "cpu": cpu_name(),
             "load0": load0, "lead_side": 512 if q else 1024, "mem_side": 512 if q else 2048,
@@ -517,14 +502,11 @@ def main(argv=None) -> int:
     stages, before = stage_times(args.build_dir, meta["stage_side"], reps, build_bases=not q)
     min_step_rows = min_step_times(args.build_dir, meta["stage_side"], reps, build_bases=not q)
     now_bd = breakdown(bd_side, reps)
-    base_bd = json.loads(BASELINE.read_text()) if BASELINE.exists() else None
-    if base_bd and base_bd.get("side") != bd_side:
-        base_bd = None
     meta["load1"] = os.getloadavg()[0]
     RAW.write_text(json.dumps({"lead": rows_lead, "sweep": rows_sweep, "fit": rows_fit,
                                "memory": mem, "stages": stages, "before": before, "breakdown": now_bd,
                                "min_step": min_step_rows, "meta": meta}, indent=1) + "\n")
-    OUT.write_text(fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, base_bd, meta,
+    OUT.write_text(fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, meta,
                        min_step_rows))
     print(OUT.read_text())
     return 0

@@ -95,8 +95,7 @@ def _defects_equal(got: list, want: list) -> None:
 
 def check_equal(grid: np.ndarray, chunks, **kw) -> list:
     """miem.dask on `grid` in `chunks` against miem.detect on the whole grid; returns the
-    defects (for the caller's own checks). miem.dask does not run the edge test yet: it is
-    left out of every preset here (its own default)."""
+    defects (for the caller's own checks). Both run the same parameters, edge test included."""
     want = miem.detect(grid, **{k: v for k, v in kw.items() if k != "strict"})
     res = mdask.detect(da.from_array(grid, chunks=chunks + (3,)), **kw)
     defects, labels, flags, angle, height = res.defects(res.labels, res.flags, res.angle,

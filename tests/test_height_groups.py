@@ -7,11 +7,16 @@ and flagged (the suite's pit_low strip scene: 3 designed-edge false alarms)."""
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import miem
 import miem.reference as ref
 import numpy as np
 import pytest
-from miem.stream import ProfileStream
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from stream_batch import assert_stream_equals_batch  # noqa: E402
 
 
 def _groups_compact(edge_cells, invalid_cells, shape, extent, gap) -> np.ndarray:
@@ -84,12 +89,7 @@ def test_bead_cut_by_dropouts_stays_edge(dtype) -> None:
 
 def test_stream_equals_batch_on_the_cut_bead() -> None:
     grid, _ = _bead_scene()
-    p = miem.default_params("stream")
-    want = miem.detect(grid, params=p)
-    stream = ProfileStream(grid.shape[1], params=p)
-    rows = [r for prof in grid if (r := stream.push(prof)) is not None] + list(stream.flush())
-    got = np.stack([r.labels for r in rows])
-    np.testing.assert_array_equal(got, want.labels)
+    assert_stream_equals_batch(grid, miem.default_params("stream"))
 
 
 def _bead_with_defect_scene() -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
@@ -132,9 +132,5 @@ def test_defect_on_a_feature_line_does_not_cut_it(dtype) -> None:
 
 def test_stream_equals_batch_on_the_bead_with_a_defect() -> None:
     grid, _, spike = _bead_with_defect_scene()
-    p = miem.default_params("stream")
-    want = miem.detect(grid, params=p)
+    want = assert_stream_equals_batch(grid, miem.default_params("stream"))
     assert want.labels[spike] == miem.ABNORMAL
-    stream = ProfileStream(grid.shape[1], params=p)
-    rows = [r for prof in grid if (r := stream.push(prof)) is not None] + list(stream.flush())
-    np.testing.assert_array_equal(np.stack([r.labels for r in rows]), want.labels)

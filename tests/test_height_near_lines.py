@@ -8,11 +8,16 @@ flanges), a clean bend is not."""
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import miem
 import miem.reference as ref
 import numpy as np
 import pytest
-from miem.stream import ProfileStream
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from stream_batch import assert_stream_equals_batch  # noqa: E402
 
 BEAD_COL, SPIKE, SPIKE_HEIGHT = 20, (30, 25), 0.3
 
@@ -91,9 +96,5 @@ def test_noisy_fold_stays_clean_next_to_its_feature_line(fold_deg) -> None:
 
 def test_stream_equals_batch_beside_the_feature_line() -> None:
     grid = _bead_with_spike()
-    p = miem.default_params("stream")
-    want = miem.detect(grid, params=p)
+    want = assert_stream_equals_batch(grid, miem.default_params("stream"))
     assert want.labels[SPIKE] == miem.ABNORMAL
-    stream = ProfileStream(grid.shape[1], params=p)
-    rows = [r for prof in grid if (r := stream.push(prof)) is not None] + list(stream.flush())
-    np.testing.assert_array_equal(np.stack([r.labels for r in rows]), want.labels)

@@ -593,6 +593,18 @@ PointsDetectResult detect_points(const PointsView<T>& points, const PointsDetect
   return res;
 }
 
+template <typename T>
+void edge_rms_survey(const PointsView<T>& points, const PointsDetectParams& params, double* rms) {
+  if (rms == nullptr) throw std::invalid_argument("rms: must not be null");
+  const std::ptrdiff_t n = std::max<std::ptrdiff_t>(0, points.size);
+  std::vector<std::uint8_t> labels(static_cast<std::size_t>(n));
+  PointsOutput out;
+  out.labels = labels.data();
+  PointsDetectHooks hooks;
+  hooks.edge_rms = rms;
+  detect_points(points, params, out, hooks);
+}
+
 template double point_spacing<float>(const PointsView<float>&, int);
 template void distinct_spacings<float>(const PointsView<float>&, double, double*, int);
 template void distinct_spacings<double>(const PointsView<double>&, double, double*, int);
@@ -606,6 +618,10 @@ template PointsDetectSummary detect_points<float>(const PointsView<float>&,
 template PointsDetectSummary detect_points<double>(const PointsView<double>&,
                                                    const PointsDetectParams&, const PointsOutput&,
                                                    const PointsDetectHooks&);
+template void edge_rms_survey<float>(const PointsView<float>&, const PointsDetectParams&,
+                                     double*);
+template void edge_rms_survey<double>(const PointsView<double>&, const PointsDetectParams&,
+                                      double*);
 template PointsDetectResult detect_points<float>(const PointsView<float>&,
                                                  const PointsDetectParams&);
 template PointsDetectResult detect_points<double>(const PointsView<double>&,

@@ -109,6 +109,12 @@ template <typename T>
 PointsDetectSummary detect_points(const PointsView<T>& points, const PointsDetectParams& params,
                                   const PointsOutput& out, const PointsDetectHooks& hooks = {});
 
+/// The survey behind PointsDetectHooks::edge_rms (internal, miem.dask): writes to `rms` (N
+/// values) per row the first height pass's surroundings rms where it gave a verdict, NaN
+/// elsewhere. Runs detect_points up to its height passes only.
+template <typename T>
+void edge_rms_survey(const PointsView<T>& points, const PointsDetectParams& params, double* rms);
+
 /// One-call unorganized detection with owned outputs.
 template <typename T>
 PointsDetectResult detect_points(const PointsView<T>& points, const PointsDetectParams& params);

@@ -78,6 +78,35 @@ miem::GridView<T> grid_view(const py::array& a) {
                            elem_stride<T>(a, 2, "grid")};
 }
 
+/// The bindings' one float32/float64 dispatch: checks the dtype, views the (N, 3) array `a` in
+/// place as a PointsView<float> or PointsView<double> and calls fn(view) with the GIL released.
+template <typename Fn>
+auto with_points(const py::array& a, const char* name, Fn&& fn) {
+  require_float(a, name);
+  if (is_f32(a)) {
+    const auto v = points_view<float>(a, name);
+    py::gil_scoped_release nogil;
+    return fn(v);
+  }
+  const auto v = points_view<double>(a, name);
+  py::gil_scoped_release nogil;
+  return fn(v);
+}
+
+/// The same for an (H, W, 3) grid (GridView).
+template <typename Fn>
+auto with_grid(const py::array& a, Fn&& fn) {
+  require_float(a, "grid");
+  if (is_f32(a)) {
+    const auto v = grid_view<float>(a);
+    py::gil_scoped_release nogil;
+    return fn(v);
+  }
+  const auto v = grid_view<double>(a);
+  py::gil_scoped_release nogil;
+  return fn(v);
+}
+
 inline py::array_t<double> vec3(const Eigen::Vector3d& v) {
   py::array_t<double> out(3);
   auto m = out.mutable_unchecked<1>();

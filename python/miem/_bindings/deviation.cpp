@@ -17,9 +17,9 @@ namespace py = pybind11;
 namespace {
 
 using miem::bindings::defect_list;
-using miem::bindings::is_f32;
 using miem::bindings::points_view;
 using miem::bindings::require_float;
+using miem::bindings::with_points;
 
 using F64 = py::array_t<double, py::array::c_style | py::array::forcecast>;
 
@@ -55,15 +55,9 @@ class PyReferenceSurface {
     const miem::DeviationOutput out{dev.mutable_data(), dist.mutable_data(),
                                     nearest.mutable_data(),
                                     reinterpret_cast<std::uint8_t*>(covered.mutable_data())};
-    if (is_f32(scan)) {
-      const auto v = points_view<float>(scan, "scan");
-      py::gil_scoped_release nogil;
+    with_points(scan, "scan", [&](const auto& v) {
       surface_->deviation(v, max_distance, max_lateral, out, num_threads);
-    } else {
-      const auto v = points_view<double>(scan, "scan");
-      py::gil_scoped_release nogil;
-      surface_->deviation(v, max_distance, max_lateral, out, num_threads);
-    }
+    });
     return py::make_tuple(dev, dist, nearest, covered);
   }
 
@@ -103,16 +97,9 @@ py::tuple label_deviation(const py::array& points, const F64& deviation,
   std::uint8_t* lp = labels.mutable_data();
   const double* dp = deviation.data();
   const auto* cp = reinterpret_cast<const std::uint8_t*>(covered.data());
-  std::vector<miem::Defect> defects;
-  if (is_f32(points)) {
-    const auto v = points_view<float>(points, "points");
-    py::gil_scoped_release nogil;
-    defects = miem::label_deviation(v, dp, cp, np, params, lp);
-  } else {
-    const auto v = points_view<double>(points, "points");
-    py::gil_scoped_release nogil;
-    defects = miem::label_deviation(v, dp, cp, np, params, lp);
-  }
+  const std::vector<miem::Defect> defects = with_points(points, "points", [&](const auto& v) {
+    return miem::label_deviation(v, dp, cp, np, params, lp);
+  });
   return py::make_tuple(labels, defect_list(defects));
 }
 

@@ -17,12 +17,11 @@ namespace py = pybind11;
 namespace {
 
 using miem::bindings::defect_list;
-using miem::bindings::grid_view;
-using miem::bindings::is_f32;
 using miem::bindings::plane_or_none;
 using miem::bindings::plane_tuple;
-using miem::bindings::points_view;
 using miem::bindings::require_float;
+using miem::bindings::with_grid;
+using miem::bindings::with_points;
 
 py::tuple fit_plane(const py::array& points, const std::string& method, int num_threads) {
   require_float(points, "points");
@@ -30,16 +29,9 @@ py::tuple fit_plane(const py::array& points, const std::string& method, int num_
     throw std::invalid_argument("method: must be 'eigen' or 'lstsq'");
   }
   const bool eig = method == "eigen";
-  miem::Plane p;
-  if (is_f32(points)) {
-    const auto v = points_view<float>(points, "points");
-    py::gil_scoped_release nogil;
-    p = eig ? miem::fit_plane_eigen(v, num_threads) : miem::fit_plane_lstsq(v, num_threads);
-  } else {
-    const auto v = points_view<double>(points, "points");
-    py::gil_scoped_release nogil;
-    p = eig ? miem::fit_plane_eigen(v, num_threads) : miem::fit_plane_lstsq(v, num_threads);
-  }
+  const miem::Plane p = with_points(points, "points", [&](const auto& v) {
+    return eig ? miem::fit_plane_eigen(v, num_threads) : miem::fit_plane_lstsq(v, num_threads);
+  });
   return plane_tuple(p);
 }
 
@@ -48,15 +40,9 @@ py::array_t<double> scan_line(const py::array& line, int step) {
   require_float(line, "line");
   py::array_t<double> out(line.ndim() == 2 ? line.shape(0) : 0);
   double* o = out.mutable_data();
-  if (is_f32(line)) {
-    const auto v = points_view<float>(line, "line");
-    py::gil_scoped_release nogil;
+  with_points(line, "line", [&](const auto& v) {
     kHeights ? miem::scan_line_heights(v, step, o) : miem::scan_line_angles(v, step, o);
-  } else {
-    const auto v = points_view<double>(line, "line");
-    py::gil_scoped_release nogil;
-    kHeights ? miem::scan_line_heights(v, step, o) : miem::scan_line_angles(v, step, o);
-  }
+  });
   return out;
 }
 
@@ -72,16 +58,7 @@ py::tuple detect_organized(const py::array& grid, const miem::DetectParams& p) {
   py::array_t<double> angle({H, W}), height({H, W});
   miem::OrganizedOutput out{labels.mutable_data(), flags.mutable_data(), angle.mutable_data(),
                             height.mutable_data()};
-  miem::DetectSummary s;
-  if (is_f32(grid)) {
-    const auto v = grid_view<float>(grid);
-    py::gil_scoped_release nogil;
-    s = det.run(v, out);
-  } else {
-    const auto v = grid_view<double>(grid);
-    py::gil_scoped_release nogil;
-    s = det.run(v, out);
-  }
+  const miem::DetectSummary s = with_grid(grid, [&](const auto& v) { return det.run(v, out); });
   py::list defects = defect_list(s.defects);
   py::object plane = plane_or_none(s.plane);
   return py::make_tuple(labels, flags, angle, height, plane, s.iterations, defects,

@@ -17,9 +17,8 @@ namespace py = pybind11;
 
 namespace {
 
-using miem::bindings::grid_view;
-using miem::bindings::is_f32;
 using miem::bindings::require_float;
+using miem::bindings::with_grid;
 
 miem::DefectKind kind_of(const std::string& s) {
   if (s == "protrusion") return miem::DefectKind::kProtrusion;
@@ -82,14 +81,9 @@ miem::TargetPlan plan(const py::array& grid, const py::array& labels, const py::
   }
   const std::vector<miem::Defect> defects = to_defects(defect_items);
   const miem::TransformsView tv{static_cast<const double*>(transforms.data()), transforms.shape(0)};
-  if (is_f32(grid)) {
-    const auto v = grid_view<float>(grid);
-    py::gil_scoped_release nogil;
+  return with_grid(grid, [&](const auto& v) {
     return miem::plan_targets(v, lab, hgt, defects, tv, params, roi);
-  }
-  const auto v = grid_view<double>(grid);
-  py::gil_scoped_release nogil;
-  return miem::plan_targets(v, lab, hgt, defects, tv, params, roi);
+  });
 }
 
 template <int N>

@@ -12,6 +12,8 @@
 #include <optional>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
+#include <utility>
 #include <vector>
 
 #include "common.hpp"
@@ -23,11 +25,10 @@ namespace py = pybind11;
 namespace {
 
 using miem::bindings::defect_list;
-using miem::bindings::is_f32;
 using miem::bindings::plane_or_none;
-using miem::bindings::points_view;
 using miem::bindings::require_float;
 using miem::bindings::to_array;
+using miem::bindings::with_points;
 
 void require_points(const py::array& a, const char* name) {
   require_float(a, name);
@@ -36,25 +37,19 @@ void require_points(const py::array& a, const char* name) {
   }
 }
 
-template <typename T>
-miem::PointsView<T> view_of(const py::array& a, const char* name) {
-  return points_view<T>(a, name);
-}
-
 // A grid over a float32 or float64 array that it keeps alive.
 class PyNeighborGrid {
  public:
   PyNeighborGrid(py::array points, double cell_size, int num_threads) : points_(points) {
-    require_points(points_, "points");
-    if (is_f32(points_)) {
-      const auto v = view_of<float>(points_, "points");
-      py::gil_scoped_release nogil;
-      f32_ = std::make_unique<miem::NeighborGrid<float>>(v, cell_size, num_threads);
-    } else {
-      const auto v = view_of<double>(points_, "points");
-      py::gil_scoped_release nogil;
-      f64_ = std::make_unique<miem::NeighborGrid<double>>(v, cell_size, num_threads);
-    }
+    with_points(points_, "points", [&](const auto& v) {
+      using T = std::remove_const_t<std::remove_pointer_t<decltype(v.data)>>;
+      auto g = std::make_unique<miem::NeighborGrid<T>>(v, cell_size, num_threads);
+      if constexpr (std::is_same_v<T, float>) {
+        f32_ = std::move(g);
+      } else {
+        f64_ = std::move(g);
+      }
+    });
   }
 
   template <typename Fn>
@@ -117,30 +112,18 @@ class PyNeighborGrid {
 };
 
 double point_spacing(const py::array& points, int num_threads) {
-  require_points(points, "points");
-  if (is_f32(points)) {
-    const auto v = view_of<float>(points, "points");
-    py::gil_scoped_release nogil;
-    return miem::point_spacing(v, num_threads);
-  }
-  const auto v = view_of<double>(points, "points");
-  py::gil_scoped_release nogil;
-  return miem::point_spacing(v, num_threads);
+  return with_points(points, "points",
+                     [&](const auto& v) { return miem::point_spacing(v, num_threads); });
 }
 
 py::array_t<double> distinct_spacings(const py::array& points, double merge_distance,
                                       int num_threads) {
   require_points(points, "points");
   py::array_t<double> out(points.shape(0));
-  if (is_f32(points)) {
-    const auto v = view_of<float>(points, "points");
-    py::gil_scoped_release nogil;
-    miem::distinct_spacings(v, merge_distance, out.mutable_data(), num_threads);
-  } else {
-    const auto v = view_of<double>(points, "points");
-    py::gil_scoped_release nogil;
-    miem::distinct_spacings(v, merge_distance, out.mutable_data(), num_threads);
-  }
+  double* o = out.mutable_data();
+  with_points(points, "points", [&](const auto& v) {
+    miem::distinct_spacings(v, merge_distance, o, num_threads);
+  });
   return out;
 }
 
@@ -152,15 +135,8 @@ py::tuple estimate_normals(const py::array& points, double radius, int num_threa
   py::array_t<bool> valid(n);
   const miem::NormalsOutput out{normals.mutable_data(), rms.mutable_data(), count.mutable_data(),
                                 reinterpret_cast<std::uint8_t*>(valid.mutable_data())};
-  if (is_f32(points)) {
-    const auto v = view_of<float>(points, "points");
-    py::gil_scoped_release nogil;
-    miem::estimate_normals(v, radius, out, num_threads);
-  } else {
-    const auto v = view_of<double>(points, "points");
-    py::gil_scoped_release nogil;
-    miem::estimate_normals(v, radius, out, num_threads);
-  }
+  with_points(points, "points",
+              [&](const auto& v) { miem::estimate_normals(v, radius, out, num_threads); });
   return py::make_tuple(normals, rms, count, valid);
 }
 
@@ -179,16 +155,8 @@ py::tuple detect_points(const py::array& points, const miem::PointsDetectParams&
   const miem::PointsOutput out{labels.mutable_data(), flags.mutable_data(), angle.mutable_data(),
                                height.mutable_data(),
                                reinterpret_cast<std::uint8_t*>(degenerate.mutable_data())};
-  miem::PointsDetectSummary s;
-  if (is_f32(points)) {
-    const auto v = view_of<float>(points, "points");
-    py::gil_scoped_release nogil;
-    s = miem::detect_points(v, p, out, hooks);
-  } else {
-    const auto v = view_of<double>(points, "points");
-    py::gil_scoped_release nogil;
-    s = miem::detect_points(v, p, out, hooks);
-  }
+  const miem::PointsDetectSummary s = with_points(
+      points, "points", [&](const auto& v) { return miem::detect_points(v, p, out, hooks); });
   py::list defects = defect_list(s.defects);
   py::object plane = plane_or_none(s.plane);
   py::list stages;
@@ -198,27 +166,14 @@ py::tuple detect_points(const py::array& points, const miem::PointsDetectParams&
                         stages, s.edge_radius);
 }
 
-// The survey of miem::PointsDetectHooks::edge_rms (internal, miem.dask): per row, the first
-// height pass's surroundings rms where it gave a verdict, NaN elsewhere.
+// miem::edge_rms_survey (internal, miem.dask).
 py::array_t<double> edge_rms_survey(const py::array& points, const miem::PointsDetectParams& p) {
   require_points(points, "points");
   miem::validate(p);
   const py::ssize_t n = points.shape(0);
   py::array_t<double> rms(n);
-  std::vector<std::uint8_t> labels(static_cast<std::size_t>(n));
-  miem::PointsOutput out;
-  out.labels = labels.data();
-  miem::PointsDetectHooks hooks;
-  hooks.edge_rms = rms.mutable_data();
-  if (is_f32(points)) {
-    const auto v = view_of<float>(points, "points");
-    py::gil_scoped_release nogil;
-    miem::detect_points(v, p, out, hooks);
-  } else {
-    const auto v = view_of<double>(points, "points");
-    py::gil_scoped_release nogil;
-    miem::detect_points(v, p, out, hooks);
-  }
+  double* o = rms.mutable_data();
+  with_points(points, "points", [&](const auto& v) { miem::edge_rms_survey(v, p, o); });
   return rms;
 }
 
