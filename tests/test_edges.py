@@ -280,6 +280,34 @@ def test_hanging_burr_is_abnormal() -> None:
     assert not (out == ref.ABNORMAL).any()
 
 
+def test_hanging_is_measured_from_the_tops_last_sample() -> None:
+    """SPEC "Edge test" step 6, 45 degrees: measured from the nearest *ground* cell towards the
+    top (NORMAL or EDGE), the top's last sample, which the angle passes often label EDGE.
+    Sheet ending in a wall 2 mm down at column 20, its last two samples (columns 18-19) EDGE,
+    column 20 of rows 12-27 hanging ``depth`` below the top (0.1 mm grid). Must fire at
+    depth 0.25: 0.1 mm from the EDGE sample at column 19, 0.25^2 > 0.1^2 (steeper than 45
+    degrees), floor 1.75 mm further down (> 2 x 0.25); measured from the nearest NORMAL cell
+    (column 17, 0.3 mm away) it would not be (0.25^2 < 0.3^2). Must not fire at depth 0.09:
+    0.09^2 < 0.1^2 (gentler than 45 degrees from the last sample: a chamfer or a rounded
+    edge)."""
+    h, w = 40, 40
+    labels = np.zeros((h, w), np.uint8)
+    labels[:, 18:20] = ref.EDGE
+    for depth, fires in ((0.25, True), (0.09, False)):
+        z, burr = _hanging_z(h, w)
+        z[burr] = _noise((h, w), seed=4)[burr] - depth
+        g = _grid(z)
+        out = ref.edge_test(g, labels, window=11, tolerance=8.0, max_iterations=10)[0]
+        flagged = out == ref.ABNORMAL
+        assert flagged[burr].all() == fires and (flagged[burr].any() == fires), depth
+        assert not (flagged & ~burr).any(), depth
+        # the geometry the test rests on, by hand: below the top's plane (z ~ 0) by depth
+        # (> 8 tolerances of 0.002 mm noise), 0.1 mm from column 19's sample, 0.3 from 17's
+        p, q19, q17 = g[20, 20], g[20, 19], g[20, 17]
+        assert (depth ** 2 > np.hypot(*(q19 - p)[:2]) ** 2) == fires
+        assert depth ** 2 < np.hypot(*(q17 - p)[:2]) ** 2
+
+
 def _wall_burr_z(h: int = 50, w: int = 60, row: int = 20) -> tuple[np.ndarray, np.ndarray]:
     """A wall top at ``row`` (floor 3 mm down) with material hanging over it, as on the real
     scan's first wall: three profiles 0.5, 1.0 and 1.5 mm below the top, then two profiles
@@ -385,6 +413,10 @@ def _core_scenes() -> list:
     z, _ = _hanging_z(140, 150)  # a burr hanging beyond a wall (step 6), across tile borders
     z[60:70, :20] += 0.3
     out.append(("hanging", _grid(z)))
+    z, burr = _hanging_z(140, 150)  # hanging 0.25 mm, 45 degrees from the top's last sample
+    z[burr] = _noise((140, 150), seed=4)[burr] - 0.25
+    z[:, 18:20] += 0.02  # a rounded-up rim: the angle passes label the last samples EDGE
+    out.append(("hanging shallow", _grid(z)))
     z, _ = _wall_burr_z(140, 150, row=62)  # steep sub-windows (step 3), across tile borders
     out.append(("steep", _grid(z)))
     return out

@@ -1184,12 +1184,11 @@ def _hanging(
     normals: NDArray[np.float64],
 ) -> NDArray[np.bool_]:
     """The cells of ``cells`` (row-major) that *hang* (SPEC "Edge test" step 6) below one of the
-    sub-windows marked in ``below`` (8, N): steeper than 45 degrees below the top's last support
-    cell towards that sub-window, and with the surface beyond them more than
+    sub-windows marked in ``below`` (8, N): steeper than 45 degrees below the top's last ground
+    cell (NORMAL or EDGE) towards that sub-window, and with the surface beyond them more than
     ``_HANG_SHELF`` times as deep again."""
     hh, ww = labels.shape
-    support = labels == NORMAL
-    ground = support | (labels == EDGE)
+    ground = (labels == NORMAL) | (labels == EDGE)
     rr, cc = np.nonzero(cells)
     p = grid[rr, cc]
     out = np.zeros(rr.size, dtype=bool)
@@ -1202,13 +1201,15 @@ def _hanging(
             continue
         u = normals[k]
         depth = -h[k]
-        v = np.full((rr.size, 3), np.nan)  # P to the nearest support cell towards the sub-window
+        # P to the nearest ground cell towards the sub-window (the top's last sample: the angle
+        # passes often label it EDGE, and the nearest NORMAL cell lies further back)
+        v = np.full((rr.size, 3), np.nan)
         found = np.zeros(rr.size, dtype=bool)
         for j in range(1, r + 1):
             r1, c1 = rr - j * dr, cc - j * dc
             ok = inside(r1, c1)
             hit = np.zeros(rr.size, dtype=bool)
-            hit[ok] = support[r1[ok], c1[ok]]
+            hit[ok] = ground[r1[ok], c1[ok]]
             hit &= ~found
             v[hit] = grid[r1[hit], c1[hit]] - p[hit]
             found |= hit
