@@ -106,6 +106,17 @@ TEST_P(EdgeBands, GroupingDoesNotChangeVerdicts) {
   const std::ptrdiff_t nblk = (W + kEdgeBandCells - 1) / kEdgeBandCells;
   std::vector<double> slots(static_cast<std::size_t>((r + 2) * nblk * kEdgeCacheSlot));
   const EdgeBandCache cache{slots.data(), (r + 2) * nblk};
+  {  // the cache as the previous tile left it (another scene), then cleared, as edge passes do
+    const Scene prev = make_scene(H, W, cs.seed + 100);
+    const auto gp = miem::GridView<double>::dense(prev.xyz.data(), H, W);
+    const Images ip = build_images(gp, prev.labels.data());
+    std::vector<std::uint8_t> mk(static_cast<std::size_t>(W));
+    cache.clear();
+    for (std::ptrdiff_t rr = 0; rr < H; ++rr) {
+      miem::detail::edge_judge_row(gp, rr, rr, H, 0, W, ip.im, ip.o, r, k, prev.labels.data(),
+                                   ones.data(), mk.data(), &cache);
+    }
+  }
   cache.clear();
   std::vector<std::uint8_t> cached(static_cast<std::size_t>(W)), plain(cached), last(cached),
       one(cached), todo1(static_cast<std::size_t>(W), 0);
