@@ -409,6 +409,17 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
   for (std::ptrdiff_t cc = C0; cc < C1;) {
     if (cc >= bend) {  // a new block: banded when it saves rectangles
       bend = std::min(C1, cc + std::max<std::ptrdiff_t>(bw, 1));
+      // A band needs all of its cells' rectangles inside the grid (columns r .. W - r - 1):
+      // a block is cut where that span begins or ends, so only the r cells at each border,
+      // not a whole block of kBandCells, go through the general path. (Band blocks then start
+      // at the same columns in every row: the cache's slots and tags still match.)
+      if (rows_inside && bw >= 16) {
+        if (cc < r) {
+          bend = std::min(bend, r);
+        } else if (cc < W - r) {
+          bend = std::min(bend, W - r);
+        }
+      }
       banded = false;
       if (rows_inside && bw >= 16) {
         std::ptrdiff_t n = 0, first = -1, last = -1;
