@@ -777,9 +777,9 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
     const std::ptrdiff_t units = static_cast<std::ptrdiff_t>(active.size()) * kTileRows;
     added.clear();
     parts.resize(static_cast<std::size_t>(ntn));
+    for (auto& part : parts) part.clear();  // (a thread with an empty range leaves its own)
     parallel_ranges(ntn, units, kTileRows, [&](int th, std::ptrdiff_t u0, std::ptrdiff_t u1) {
       std::vector<std::int64_t>& part = ntn > 1 ? parts[static_cast<std::size_t>(th)] : added;
-      part.clear();
       for (std::ptrdiff_t u = u0; u < u1; ++u) {
         const std::ptrdiff_t t = active[static_cast<std::size_t>(u / kTileRows)];
         const std::ptrdiff_t rr = (t / tiles_c) * kTileRows + u % kTileRows;
