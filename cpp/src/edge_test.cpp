@@ -410,6 +410,17 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
   for (std::ptrdiff_t cc = C0; cc < C1;) {
     if (cc >= bend) {  // a new block: banded when it saves rectangles
       bend = std::min(C1, cc + std::max<std::ptrdiff_t>(bw, 1));
+      // A band needs all of its cells' rectangles inside the grid (columns r .. W - r - 1):
+      // a block is cut where that span begins or ends, so only the r cells at each border,
+      // not a whole block of kBandCells, go through the general path. (Band blocks then start
+      // at the same columns in every row: the cache's slots and tags still match.)
+      if (rows_inside && bw >= 16) {
+        if (cc < r) {
+          bend = std::min(bend, r);
+        } else if (cc < W - r) {
+          bend = std::min(bend, W - r);
+        }
+      }
       banded = false;
       if (rows_inside && bw >= 16) {
         std::ptrdiff_t n = 0, first = -1, last = -1;
@@ -685,11 +696,17 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
     for (std::ptrdiff_t i = i0; i < i1; ++i) todo[i] = labels[i] == kNormal || labels[i] == kEdge;
   });
   std::vector<std::int64_t> added;  // a pass's new ABNORMAL cells
+  // the tiles with a todo cell (the others are skipped: no scan of their cells), and a pass's
+  // such tiles in order; a tile's marks are read only while it has its flag
+  std::vector<std::uint8_t> tile_todo(static_cast<std::size_t>(tiles_r * tiles_c), 1);
+  std::vector<std::int64_t> active;
+  std::vector<std::vector<std::int64_t>> parts;  // a pass's new ABNORMAL cells per thread
   int passes = 0;
   for (int it = 0; it < max_iterations; ++it) {
     ++passes;
 #pragma omp parallel for schedule(dynamic, 1) num_threads(nt) if (nt > 1)
     for (std::ptrdiff_t tile = 0; tile < tiles_r * tiles_c; ++tile) {
+      if (!tile_todo[static_cast<std::size_t>(tile)]) continue;
 #ifdef MIEM_HAVE_OPENMP
       double* const S = scratch.data() + per * omp_get_thread_num();
 #else
@@ -751,20 +768,46 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
                        mark + rr * W, &cache);
       }
     }
-    collect_indices(ntn, N, added, [&](std::ptrdiff_t i) {
-      todo[i] = 0;
-      if (!mark[i]) return false;
-      labels[i] = kAbnormal;
-      return true;
+    // the flagged tiles' rows (unit u: row u % kTileRows of tile active[u / kTileRows]):
+    // their todo cleared, their marks made ABNORMAL and collected (per thread, joined in order)
+    active.clear();
+    for (std::ptrdiff_t t = 0; t < tiles_r * tiles_c; ++t) {
+      if (tile_todo[static_cast<std::size_t>(t)]) active.push_back(t);
+      tile_todo[static_cast<std::size_t>(t)] = 0;
+    }
+    const std::ptrdiff_t units = static_cast<std::ptrdiff_t>(active.size()) * kTileRows;
+    added.clear();
+    parts.resize(static_cast<std::size_t>(ntn));
+    for (auto& part : parts) part.clear();  // (a thread with an empty range leaves its own)
+    parallel_ranges(ntn, units, kTileRows, [&](int th, std::ptrdiff_t u0, std::ptrdiff_t u1) {
+      std::vector<std::int64_t>& part = ntn > 1 ? parts[static_cast<std::size_t>(th)] : added;
+      for (std::ptrdiff_t u = u0; u < u1; ++u) {
+        const std::ptrdiff_t t = active[static_cast<std::size_t>(u / kTileRows)];
+        const std::ptrdiff_t rr = (t / tiles_c) * kTileRows + u % kTileRows;
+        if (rr >= H) continue;
+        const std::ptrdiff_t C0 = (t % tiles_c) * kTileCols, C1 = std::min(W, C0 + kTileCols);
+        for (std::ptrdiff_t i = rr * W + C0; i < rr * W + C1; ++i) {
+          todo[i] = 0;
+          if (!mark[i]) continue;
+          labels[i] = kAbnormal;
+          part.push_back(i);
+        }
+      }
     });
+    if (ntn > 1) {
+      for (const auto& part : parts) added.insert(added.end(), part.begin(), part.end());
+    }
     for (const std::int64_t i : added) {
       // only cells with a new ABNORMAL cell in their window can change at the next pass
       const std::ptrdiff_t rr = i / W, cc = i % W;
-      for (std::ptrdiff_t a = std::max<std::ptrdiff_t>(0, rr - r); a <= std::min(H - 1, rr + r);
-           ++a) {
-        for (std::ptrdiff_t b = std::max<std::ptrdiff_t>(0, cc - r); b <= std::min(W - 1, cc + r);
-             ++b) {
-          todo[a * W + b] = 1;
+      const std::ptrdiff_t a0 = std::max<std::ptrdiff_t>(0, rr - r), a1 = std::min(H - 1, rr + r);
+      const std::ptrdiff_t b0 = std::max<std::ptrdiff_t>(0, cc - r), b1 = std::min(W - 1, cc + r);
+      for (std::ptrdiff_t a = a0; a <= a1; ++a) {
+        for (std::ptrdiff_t b = b0; b <= b1; ++b) todo[a * W + b] = 1;
+      }
+      for (std::ptrdiff_t ta = a0 / kTileRows; ta <= a1 / kTileRows; ++ta) {
+        for (std::ptrdiff_t tb = b0 / kTileCols; tb <= b1 / kTileCols; ++tb) {
+          tile_todo[static_cast<std::size_t>(ta * tiles_c + tb)] = 1;
         }
       }
     }

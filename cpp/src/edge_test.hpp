@@ -3,6 +3,7 @@
 #pragma once
 
 #include <cstdint>
+#include <limits>
 #include <vector>
 
 #include <Eigen/Core>
@@ -57,8 +58,13 @@ constexpr std::ptrdiff_t kEdgeCacheSlot = 8 + 2 * (kEdgeMoments + 1) * kEdgeBand
 struct EdgeBandCache {
   double* data = nullptr;
   std::ptrdiff_t slots = 0;
+  /// Every slot's row tag to NaN, which equals no row: not -1, which is row rr - r - 1 for
+  /// rr = r (the first row with bands), whose lookup then matched a stale slot (another tile's
+  /// bands) when that slot's first cell was the same.
   void clear() const {
-    for (std::ptrdiff_t i = 0; i < slots; ++i) data[i * kEdgeCacheSlot] = -1.0;
+    for (std::ptrdiff_t i = 0; i < slots; ++i) {
+      data[i * kEdgeCacheSlot] = std::numeric_limits<double>::quiet_NaN();
+    }
   }
 };
 
