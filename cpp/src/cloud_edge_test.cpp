@@ -172,25 +172,34 @@ inline bool in_sector(int o, int s) { return (o - s % 8 + 8) % 8 < (s < 8 ? 2 : 
 
 // SPEC "Unorganized clouds: edge test" step 5 (the grid's hanging rule with sectors): does P
 // hang below one of the sectors in `below` (step 4's first condition holds for them)? Steeper
-// than 45 degrees: the support point q of the sector nearest to P (smallest |q - P|, then
-// smallest index), v = q - P, has delta^2 > v.v - (u.v)^2 (delta = -h, P's depth below the
-// sector's plane); a shelf: the opposite sector is empty (the surface beyond has fallen out of
-// reach) or holds a ground point (NORMAL or EDGE at the start of the pass) x with
-// u . (x - P) < -2 delta.
+// than 45 degrees: of the sector's support points on its plane (not |u . (q - m)| > t: the
+// top's, not material hanging below it) the one nearest to P (smallest |q - P|, then smallest
+// index), v = q - P, lies above P more steeply than 45 degrees, u . v > 0 and
+// (u . v)^2 > v.v - (u . v)^2; a shelf: the opposite sector is empty (the surface beyond has
+// fallen out of reach) or holds a ground point (NORMAL or EDGE at the start of the pass) x
+// with u . (x - P) < -2 delta (delta = -h, P's depth below the sector's plane).
 bool hangs(const Gather& sup, const Gather& rest, const std::uint8_t* labels, std::uint32_t i,
            const Eigen::Vector3d& p, const Frame& f, const CloudEdgeTest& e,
            const detail::EdgeSide (&sd)[kSectors], unsigned below) {
-  // The nearest support point per octant: distance, index, offset.
-  double nd[8];
-  std::uint32_t nid[8];
-  Eigen::Vector3d nv[8];
-  std::fill(nd, nd + 8, kInf);
+  // Per candidate sector: its nearest support point on its plane (distance, index, offset).
+  double nd[kSectors];
+  std::uint32_t nid[kSectors] = {};
+  Eigen::Vector3d nv[kSectors];
+  std::fill(nd, nd + kSectors, kInf);
   for_each_member(sup, i, p, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
     const double d = std::sqrt(wx * wx + wy * wy + wz * wz);
-    if (d < nd[o] || (d == nd[o] && sup.id[k] < nid[o])) {
-      nd[o] = d;
-      nid[o] = sup.id[k];
-      nv[o] = Eigen::Vector3d(wx, wy, wz);
+    for (int s = 0; s < kSectors; ++s) {
+      if (!(below >> s & 1u) || !in_sector(o, s)) continue;
+      const detail::EdgeSide& x = sd[s];
+      const double dev = (wx - x.centroid.x()) * x.normal.x() +
+                         (wy - x.centroid.y()) * x.normal.y() +
+                         (wz - x.centroid.z()) * x.normal.z();
+      if (std::abs(dev) > x.tol) continue;
+      if (d < nd[s] || (d == nd[s] && sup.id[k] < nid[s])) {
+        nd[s] = d;
+        nid[s] = sup.id[k];
+        nv[s] = Eigen::Vector3d(wx, wy, wz);
+      }
     }
   });
   // The deepest ground point along each candidate sector's normal, in the opposite sector.
@@ -208,19 +217,13 @@ bool hangs(const Gather& sup, const Gather& rest, const std::uint8_t* labels, st
     if (labels[rest.id[k]] == kEdge) deepest(k, o, wx, wy, wz);
   });
   for (int s = 0; s < kSectors; ++s) {
-    if (!(below >> s & 1u)) continue;
-    int q = -1;  // the sector's nearest support point: the best of its octants'
-    for (int o = 0; o < 8; ++o) {
-      if (!in_sector(o, s) || !(nd[o] < kInf)) continue;
-      if (q < 0 || nd[o] < nd[q] || (nd[o] == nd[q] && nid[o] < nid[q])) q = o;
-    }
-    if (q < 0) continue;
+    if (!(below >> s & 1u) || !(nd[s] < kInf)) continue;
     const detail::EdgeSide& x = sd[s];
     const double delta = -x.h;
-    const Eigen::Vector3d& v = nv[q];
+    const Eigen::Vector3d& v = nv[s];
     const double along = v.x() * x.normal.x() + v.y() * x.normal.y() + v.z() * x.normal.z();
     const double vv = v.x() * v.x() + v.y() * v.y() + v.z() * v.z();
-    if (!(delta * delta > vv - along * along)) continue;
+    if (!(along > 0.0 && along * along > vv - along * along)) continue;
     if (sd[turned(s, 4)].empty || low[s] < -kHangShelf * delta) return true;
   }
   return false;

@@ -2266,7 +2266,7 @@ def _cloud_edge_pass(
     if hang.any():
         hang[hang] = _cloud_hanging(
             labels, sec_i, sec_j, sec_w, np.tile(dist, len(lists)), sup, hang, below[hang],
-            h[hang], nrm[hang], empty[hang])
+            h[hang], nrm[hang], cen[hang], tol[hang], empty[hang])
     return out & (proud | hang)
 
 
@@ -2286,11 +2286,14 @@ def _cloud_hanging(
     below: NDArray[np.bool_],
     h: NDArray[np.float64],
     nrm: NDArray[np.float64],
+    cen: NDArray[np.float64],
+    tol: NDArray[np.float64],
     empty: NDArray[np.bool_],
 ) -> NDArray[np.bool_]:
     """Which candidates of ``sel`` (mask over the pass's candidates) *hang* (SPEC "Unorganized
     clouds: edge test" step 5) below one of the sectors marked in ``below`` ``(M, 16)`` (one row
-    per selected candidate, as ``h``, ``nrm`` and ``empty``). Sector memberships: group
+    per selected candidate, as ``h``, ``nrm``, ``cen``, ``tol`` and ``empty``). Sector
+    memberships: group
     ``sec_i = candidate * 16 + sector`` of point ``sec_j`` at offset ``sec_w`` (distance
     ``sec_d``), ``sup`` the support members."""
     S = _CLOUD_SECTORS
@@ -2300,8 +2303,11 @@ def _cloud_hanging(
     gr = row[sec_i // S]  # the member's selected candidate, -1 for the others
     gs = sec_i % S
     mine = gr >= 0
-    # the nearest support point of each sector: smallest distance, then smallest index
+    # the nearest support point on each sector's plane (the top's, not material hanging below
+    # it): smallest distance, then smallest index
     su = sup & mine
+    su[su] = ~(np.abs(_dot3(sec_w[su] - cen[gr[su], gs[su]], nrm[gr[su], gs[su]]))
+               > tol[gr[su], gs[su]])
     order = np.lexsort((sec_j[su], sec_d[su], gr[su] * S + gs[su]))
     grp = (gr[su] * S + gs[su])[order]
     first = np.ones(grp.size, dtype=bool)
@@ -2319,7 +2325,8 @@ def _cloud_hanging(
         delta = -h[:, s]
         v = near[:, s]
         along = _dot3(v, u)
-        steep = np.isfinite(along) & (delta * delta > _dot3(v, v) - along * along)
+        # q lies above P more steeply than 45 degrees (NaN: no such q)
+        steep = (along > 0.0) & (along * along > _dot3(v, v) - along * along)
         # the shelf: the opposite sector empty (the surface beyond is out of reach) or a ground
         # point there deeper than _CLOUD_HANG_SHELF x delta along u
         g = ground & (gs == o)
