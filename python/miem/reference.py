@@ -2195,7 +2195,8 @@ def _cloud_edge_pass(
     k: float,
 ) -> NDArray[np.bool_]:
     """One cloud edge pass: which of the points ``cand`` (tangent directions ``e1``, ``e2``)
-    become ABNORMAL, the support being the NORMAL points of ``labels``."""
+    become ABNORMAL (SPEC steps 3-5: they fit no clean sector and stand proud of one or hang
+    below one), the support being the NORMAL points of ``labels``."""
     m = cand.size
     out = np.zeros(m, dtype=bool)
     if m == 0:
