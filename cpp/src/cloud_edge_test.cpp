@@ -18,6 +18,7 @@ constexpr int kSectors = 16;  // 8 quarter-disk and 8 half-disk sectors
 constexpr double kRmsFloor = 1e-9;      // of the tolerance, as the height test's
 constexpr double kSuspect = 1.5;        // candidates: surroundings rms above 1.5 x the median
 constexpr double kEmpty = 0.35;  // empty: fewer returns than 0.35 of a full sector (tune split)
+constexpr double kHangShelf = 2.0;  // hanging: the surface beyond lies > 2x P's depth below
 
 // The bit pattern of x >= 0 (-0 read as +0): patterns of such values sort as the values do.
 inline std::uint64_t sort_key(double x) {
@@ -65,6 +66,12 @@ double finite_median(const double* v, std::ptrdiff_t n) {
   return med;
 }
 
+// The turn of sector s by `by` octants within its width (8 quarter, 8 half sectors).
+inline int turned(int s, int by) { return (s / 8) * 8 + (s % 8 + 8 + by) % 8; }
+
+// What step 4 of SPEC "Unorganized clouds: edge test" says of P from its sectors alone.
+enum class SectorVerdict { kFits, kProud, kOther };
+
 // SPEC "Unorganized clouds: edge test" step 4 (the grid's steps 4-5, edge_verdict.hpp, plus the
 // level and top rules): P fits no clean sector and stands proud of a clean sector `a` whose
 // opposite (the sector of the same width turned by 180 degrees) falls away below a's plane, or
@@ -76,16 +83,19 @@ double finite_median(const double* v, std::ptrdiff_t n) {
 // relative to P. P fits a clean sector when |h| is within the cleanest sector's tolerance
 // (k best, floored as the sector's own `floor`): a clean sector of larger rms (up to 2 best,
 // e.g. one holding part of the burr run itself) does not lend P its wider tolerance.
-bool cloud_edge_abnormal(const detail::EdgeSide (&sd)[kSectors], const double (&floor)[kSectors],
-                         double best, double k) {
+// `*below`: when P fits no clean sector and stands proud of none, bit s set for each clean
+// sector s that P lies below with the surface beyond falling away (the hanging rule's first
+// condition, step 5; the rest needs the points).
+SectorVerdict cloud_edge_verdict(const detail::EdgeSide (&sd)[kSectors],
+                                 const double (&floor)[kSectors], double best, double k,
+                                 unsigned* below) {
   const double clean = detail::kEdgeCleanRatio * best;
   for (int s = 0; s < kSectors; ++s) {
     const detail::EdgeSide& x = sd[s];
     if (x.valid && x.rms <= clean && !(std::abs(x.h) > std::max(k * best, floor[s]))) {
-      return false;
+      return SectorVerdict::kFits;
     }
   }
-  auto turned = [](int s, int by) { return (s / 8) * 8 + (s % 8 + 8 + by) % 8; };
   for (int s = 0; s < kSectors; ++s) {
     const detail::EdgeSide& x = sd[s];
     if (!x.valid || !(x.rms <= clean) || !(x.h > x.tol)) continue;
@@ -106,9 +116,19 @@ bool cloud_edge_abnormal(const detail::EdgeSide (&sd)[kSectors], const double (&
     for (const detail::EdgeSide& z : sd) {
       if (z.valid && detail::dot3(x.normal, z.centroid) > 0.0) top = false;
     }
-    if (top) return true;
+    if (top) return SectorVerdict::kProud;
   }
-  return false;
+  *below = 0;
+  for (int s = 0; s < kSectors; ++s) {
+    const detail::EdgeSide& x = sd[s];
+    if (!x.valid || !(x.rms <= clean) || !(x.h < -x.tol)) continue;
+    const detail::EdgeSide& y = sd[turned(s, 4)];
+    if (y.empty || (y.valid && y.rms <= clean && y.h > y.tol &&
+                    detail::dot3(x.normal, y.centroid - x.centroid) < -x.tol)) {
+      *below |= 1u << s;
+    }
+  }
+  return SectorVerdict::kOther;
 }
 
 // The octant of a tangent offset (a, b) != 0 (SPEC step 3): the 45-degree wedge [45 o, 45 o + 45)
@@ -128,29 +148,101 @@ struct Frame {
   Eigen::Vector3d e1, e2;
 };
 
-// The verdict on point p (index i) with tangent frame f, from the finite points gathered around
-// it: NORMAL ones (the support) in `sup`, the others in `rest`.
-bool stands_proud(const Gather& sup, const Gather& rest, std::uint32_t i, const Eigen::Vector3d& p,
-                  const Frame& f, const CloudEdgeTest& e) {
+// Calls visit(k, o, wx, wy, wz) for each point k of g that is a sector member of P (index i):
+// not P, within r_edge, at least `gap` from P in the tangent plane; o its octant, w = q - P.
+template <typename Visit>
+void for_each_member(const Gather& g, std::uint32_t i, const Eigen::Vector3d& p, const Frame& f,
+                     const CloudEdgeTest& e, Visit&& visit) {
   const double r2 = e.r_edge * e.r_edge;
-  OffsetSums oct[8];
-  double fin[8] = {};
-  auto visit = [&](const Gather& g, bool support) {
-    for (std::size_t k = 0; k < g.n; ++k) {
-      if (g.id[k] == i) continue;
-      const double wx = g.x[k] - p.x(), wy = g.y[k] - p.y(), wz = g.z[k] - p.z();
-      if (!(wx * wx + wy * wy + wz * wz <= r2)) continue;
-      const double a = wx * f.e1.x() + wy * f.e1.y() + wz * f.e1.z();
-      const double b = wx * f.e2.x() + wy * f.e2.y() + wz * f.e2.z();
-      const double rho = std::sqrt(a * a + b * b);
-      if (!(rho > 0.0 && rho >= e.gap)) continue;
-      const int o = octant(a, b);
-      fin[o] += 1.0;
-      if (support) oct[o].add(wx, wy, wz);
+  for (std::size_t k = 0; k < g.n; ++k) {
+    if (g.id[k] == i) continue;
+    const double wx = g.x[k] - p.x(), wy = g.y[k] - p.y(), wz = g.z[k] - p.z();
+    if (!(wx * wx + wy * wy + wz * wz <= r2)) continue;
+    const double a = wx * f.e1.x() + wy * f.e1.y() + wz * f.e1.z();
+    const double b = wx * f.e2.x() + wy * f.e2.y() + wz * f.e2.z();
+    const double rho = std::sqrt(a * a + b * b);
+    if (!(rho > 0.0 && rho >= e.gap)) continue;
+    visit(k, octant(a, b), wx, wy, wz);
+  }
+}
+
+// Octant o (0..7) lies in sector s (SPEC step 3: s < 8 holds octants s, s + 1; 8 + s holds
+// s .. s + 3, mod 8).
+inline bool in_sector(int o, int s) { return (o - s % 8 + 8) % 8 < (s < 8 ? 2 : 4); }
+
+// SPEC "Unorganized clouds: edge test" step 5 (the grid's hanging rule with sectors): does P
+// hang below one of the sectors in `below` (step 4's first condition holds for them)? Steeper
+// than 45 degrees: of the sector's support points on its plane (not |u . (q - m)| > t: the
+// top's, not material hanging below it) the one nearest to P (smallest |q - P|, then smallest
+// index), v = q - P, lies above P more steeply than 45 degrees, u . v > 0 and
+// (u . v)^2 > v.v - (u . v)^2; a shelf: the opposite sector is empty (the surface beyond has
+// fallen out of reach) or holds a ground point (NORMAL or EDGE at the start of the pass) x
+// with u . (x - P) < -2 delta (delta = -h, P's depth below the sector's plane).
+bool hangs(const Gather& sup, const Gather& rest, const std::uint8_t* labels, std::uint32_t i,
+           const Eigen::Vector3d& p, const Frame& f, const CloudEdgeTest& e,
+           const detail::EdgeSide (&sd)[kSectors], unsigned below) {
+  // Per candidate sector: its nearest support point on its plane (distance, index, offset).
+  double nd[kSectors];
+  std::uint32_t nid[kSectors] = {};
+  Eigen::Vector3d nv[kSectors];
+  std::fill(nd, nd + kSectors, kInf);
+  for_each_member(sup, i, p, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
+    const double d = std::sqrt(wx * wx + wy * wy + wz * wz);
+    for (int s = 0; s < kSectors; ++s) {
+      if (!(below >> s & 1u) || !in_sector(o, s)) continue;
+      const detail::EdgeSide& x = sd[s];
+      const double dev = (wx - x.centroid.x()) * x.normal.x() +
+                         (wy - x.centroid.y()) * x.normal.y() +
+                         (wz - x.centroid.z()) * x.normal.z();
+      if (std::abs(dev) > x.tol) continue;
+      if (d < nd[s] || (d == nd[s] && sup.id[k] < nid[s])) {
+        nd[s] = d;
+        nid[s] = sup.id[k];
+        nv[s] = Eigen::Vector3d(wx, wy, wz);
+      }
+    }
+  });
+  // The deepest ground point along each candidate sector's normal, in the opposite sector.
+  double low[kSectors];
+  std::fill(low, low + kSectors, kInf);
+  auto deepest = [&](std::size_t, int o, double wx, double wy, double wz) {
+    for (int s = 0; s < kSectors; ++s) {
+      if (!(below >> s & 1u) || !in_sector(o, turned(s, 4))) continue;
+      const Eigen::Vector3d& u = sd[s].normal;
+      low[s] = std::min(low[s], wx * u.x() + wy * u.y() + wz * u.z());
     }
   };
-  visit(sup, true);
-  visit(rest, false);
+  for_each_member(sup, i, p, f, e, deepest);
+  for_each_member(rest, i, p, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
+    if (labels[rest.id[k]] == kEdge) deepest(k, o, wx, wy, wz);
+  });
+  for (int s = 0; s < kSectors; ++s) {
+    if (!(below >> s & 1u) || !(nd[s] < kInf)) continue;
+    const detail::EdgeSide& x = sd[s];
+    const double delta = -x.h;
+    const Eigen::Vector3d& v = nv[s];
+    const double along = v.x() * x.normal.x() + v.y() * x.normal.y() + v.z() * x.normal.z();
+    const double vv = v.x() * v.x() + v.y() * v.y() + v.z() * v.z();
+    if (!(along > 0.0 && along * along > vv - along * along)) continue;
+    if (sd[turned(s, 4)].empty || low[s] < -kHangShelf * delta) return true;
+  }
+  return false;
+}
+
+// The verdict on point p (index i) with tangent frame f, from the finite points gathered around
+// it: NORMAL ones (the support) in `sup`, the others in `rest` (labels: at the start of the
+// pass).
+bool cloud_edge_judge(const Gather& sup, const Gather& rest, const std::uint8_t* labels,
+                      std::uint32_t i, const Eigen::Vector3d& p, const Frame& f,
+                      const CloudEdgeTest& e) {
+  OffsetSums oct[8];
+  double fin[8] = {};
+  for_each_member(sup, i, p, f, e, [&](std::size_t, int o, double wx, double wy, double wz) {
+    fin[o] += 1.0;
+    oct[o].add(wx, wy, wz);
+  });
+  for_each_member(rest, i, p, f, e,
+                  [&](std::size_t, int o, double, double, double) { fin[o] += 1.0; });
   // Sectors 0-7: s holds octants s, s + 1 (mod 8), [45 s, 45 s + 90) degrees from e1 towards
   // e2; sectors 8-15: 8 + s holds octants s .. s + 3, [45 s, 45 s + 180).
   double finite[kSectors];
@@ -193,7 +285,10 @@ bool stands_proud(const Gather& sup, const Gather& rest, std::uint32_t i, const 
     sd[s].normal = lp[s].normal;
     sd[s].centroid = lp[s].mean;
   }
-  return cloud_edge_abnormal(sd, floor, best, e.k);
+  unsigned below = 0;
+  const SectorVerdict v = cloud_edge_verdict(sd, floor, best, e.k, &below);
+  if (v != SectorVerdict::kOther) return v == SectorVerdict::kProud;
+  return below != 0 && hangs(sup, rest, labels, i, p, f, e, sd, below);
 }
 
 }  // namespace
@@ -265,7 +360,7 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
       JudgeScratch& js = scratch[thread_id()];
       const Eigen::Vector3d p = points[i];
       gather_split(grid, grid.box_around(p, p, e.r_edge), class_of, js.gather, js.aside);
-      verdict[j] = stands_proud(js.gather, js.aside, i, p, frame[c], e);
+      verdict[j] = cloud_edge_judge(js.gather, js.aside, labels, i, p, frame[c], e);
     }
     fresh.clear();
     for (std::ptrdiff_t j = 0; j < nj; ++j) {

@@ -2196,17 +2196,18 @@ def _cloud_edge_pass(
     k: float,
 ) -> NDArray[np.bool_]:
     """One cloud edge pass: which of the points ``cand`` (tangent directions ``e1``, ``e2``)
-    become ABNORMAL, the support being the NORMAL points of ``labels``."""
+    become ABNORMAL (SPEC steps 3-5: they fit no clean sector and stand proud of one or hang
+    below one), the support being the NORMAL points of ``labels``."""
     m = cand.size
     out = np.zeros(m, dtype=bool)
     if m == 0:
         return out
-    pi, pj, w, _ = _ball_pairs(tree, pts, pts[cand], r_edge)
+    pi, pj, w, dist = _ball_pairs(tree, pts, pts[cand], r_edge)
     a = _dot3(w, e1[pi])
     b = _dot3(w, e2[pi])
     rho = np.sqrt(a * a + b * b)
     keep = (pj != cand[pi]) & (rho > 0.0) & (rho >= gap)
-    pi, pj, w, a, b = pi[keep], pj[keep], w[keep], a[keep], b[keep]
+    pi, pj, w, a, b, dist = pi[keep], pj[keep], w[keep], a[keep], b[keep], dist[keep]
     octant = _octants(a, b)
     # Sectors 0-7: s holds octants s, s + 1 (90 degrees); sectors 8-15: 8 + s holds octants
     # s .. s + 3 (180 degrees). An octant o lies in sectors o, o - 1 and 8 + o - 3 .. 8 + o.
@@ -2244,6 +2245,7 @@ def _cloud_edge_pass(
     # does not lend P its wider tolerance.
     fits = clean & ~(np.abs(h) > np.maximum(k * best[:, None], _HEIGHT_RMS_FLOOR * spread))
     proud = np.zeros(m, dtype=bool)
+    below = np.zeros((m, _CLOUD_SECTORS), dtype=bool)  # hanging, the first condition
     for s in range(_CLOUD_SECTORS):
         o = (s // 8) * 8 + (s % 8 + 4) % 8  # the opposite sector of the same width
         drop = np.einsum("ij,ij->i", nrm[:, s], cen[:, o] - cen[:, s])
@@ -2258,7 +2260,83 @@ def _cloud_edge_pass(
         above = np.einsum("ij,isj->is", nrm[:, s], cen) > 0.0
         top = ~(valid & above).any(axis=1)
         proud |= clean[:, s] & (h[:, s] > tol[:, s]) & falls & top
-    return ~fits.any(axis=1) & proud
+        # P below this sector, the opposite empty or clean with P above it and falling away
+        beyond = empty[:, o] | (clean[:, o] & (h[:, o] > tol[:, o]) & (drop < -tol[:, s]))
+        below[:, s] = clean[:, s] & (h[:, s] < -tol[:, s]) & beyond
+    out = ~fits.any(axis=1)
+    hang = out & ~proud & below.any(axis=1)
+    if hang.any():
+        hang[hang] = _cloud_hanging(
+            labels, sec_i, sec_j, sec_w, np.tile(dist, len(lists)), sup, hang, below[hang],
+            h[hang], nrm[hang], cen[hang], tol[hang], empty[hang])
+    return out & (proud | hang)
+
+
+#: Cloud hanging rule (SPEC "Unorganized clouds: edge test" step 5): the surface beyond a
+#: hanging point lies more than this times as deep below it as it lies below the top.
+_CLOUD_HANG_SHELF = 2.0
+
+
+def _cloud_hanging(
+    labels: NDArray[np.uint8],
+    sec_i: NDArray[np.int64],
+    sec_j: NDArray[np.int64],
+    sec_w: NDArray[np.float64],
+    sec_d: NDArray[np.float64],
+    sup: NDArray[np.bool_],
+    sel: NDArray[np.bool_],
+    below: NDArray[np.bool_],
+    h: NDArray[np.float64],
+    nrm: NDArray[np.float64],
+    cen: NDArray[np.float64],
+    tol: NDArray[np.float64],
+    empty: NDArray[np.bool_],
+) -> NDArray[np.bool_]:
+    """Which candidates of ``sel`` (mask over the pass's candidates) *hang* (SPEC "Unorganized
+    clouds: edge test" step 5) below one of the sectors marked in ``below`` ``(M, 16)`` (one row
+    per selected candidate, as ``h``, ``nrm``, ``cen``, ``tol`` and ``empty``). Sector
+    memberships: group
+    ``sec_i = candidate * 16 + sector`` of point ``sec_j`` at offset ``sec_w`` (distance
+    ``sec_d``), ``sup`` the support members."""
+    S = _CLOUD_SECTORS
+    m = below.shape[0]
+    row = np.full(sel.size, -1, dtype=np.int64)
+    row[sel] = np.arange(m)
+    gr = row[sec_i // S]  # the member's selected candidate, -1 for the others
+    gs = sec_i % S
+    mine = gr >= 0
+    # the nearest support point on each sector's plane (the top's, not material hanging below
+    # it): smallest distance, then smallest index
+    su = sup & mine
+    su[su] = ~(np.abs(_dot3(sec_w[su] - cen[gr[su], gs[su]], nrm[gr[su], gs[su]]))
+               > tol[gr[su], gs[su]])
+    order = np.lexsort((sec_j[su], sec_d[su], gr[su] * S + gs[su]))
+    grp = (gr[su] * S + gs[su])[order]
+    first = np.ones(grp.size, dtype=bool)
+    first[1:] = grp[1:] != grp[:-1]
+    near = np.full((m * S, 3), np.nan)
+    near[grp[first]] = sec_w[su][order][first]
+    near = near.reshape(m, S, 3)
+    ground = mine & ((labels[sec_j] == NORMAL) | (labels[sec_j] == EDGE))
+    out = np.zeros(m, dtype=bool)
+    for s in range(S):
+        if not below[:, s].any():
+            continue
+        o = (s // 8) * 8 + (s % 8 + 4) % 8
+        u = nrm[:, s]
+        delta = -h[:, s]
+        v = near[:, s]
+        along = _dot3(v, u)
+        # q lies above P more steeply than 45 degrees (NaN: no such q)
+        steep = (along > 0.0) & (along * along > _dot3(v, v) - along * along)
+        # the shelf: the opposite sector empty (the surface beyond is out of reach) or a ground
+        # point there deeper than _CLOUD_HANG_SHELF x delta along u
+        g = ground & (gs == o)
+        low = np.full(m, np.inf)
+        np.minimum.at(low, gr[g], _dot3(sec_w[g], u[gr[g]]))
+        shelf = empty[:, o] | (low < -_CLOUD_HANG_SHELF * delta)
+        out |= below[:, s] & steep & shelf
+    return out
 
 
 def _cloud_edge_test(
