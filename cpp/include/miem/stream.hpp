@@ -33,6 +33,49 @@ struct StreamRow {
   bool ready() const noexcept { return index >= 0; }
 };
 
+namespace detail {
+/// min_step "auto" (docs/SPEC.md "min_step='auto'") decided in resumable steps over rows that
+/// arrive one at a time: the streaming detector's form (auto_min_step.cpp), so that no push
+/// pays the whole decision. Exact medians by radix selection over the doubles' 64-bit
+/// patterns, 16 bits a round: the value batch detection's auto_min_step resolves on the same
+/// rows. Round 0 (the high 16 bits) takes each row as it arrives (add_row), close() ends it,
+/// rounds 1-3 visit the rows again a few at a time (step). Allocates only in init().
+template <typename T>
+class MinStepSelection {
+ public:
+  /// Buffers for rows of `width` adjacent cells, their coordinates `coord_stride` apart.
+  void init(std::ptrdiff_t width, std::ptrdiff_t coord_stride);
+  /// A new set of rows.
+  void reset() noexcept;
+  /// Row n - 1 is in (rows[0 .. n) hold rows 0 .. n - 1 and stay valid until done()): round 0
+  /// takes the rows whose quantities are complete (those before row n - 2).
+  void add_row(const T* const* rows, std::ptrdiff_t n) noexcept;
+  /// No more rows: round 0 takes the last ones and ends; the middle ranks are known.
+  void close(const T* const* rows) noexcept;
+  /// Rounds 1-3: visits at most `budget` rows; true once the value is known.
+  bool step(const T* const* rows, std::ptrdiff_t budget) noexcept;
+  /// True after close().
+  bool closed() const noexcept { return round_ >= 1; }
+  /// True once the value is known.
+  bool done() const noexcept { return round_ > 3; }
+  /// The row visits rounds 1-3 still need (3 per row before close()).
+  std::ptrdiff_t visits_left() const noexcept;
+  /// The min_step (scan units; -1: off), once done().
+  double value() const noexcept { return value_; }
+
+ private:
+  void finish() noexcept;
+  std::vector<std::uint32_t> hist_;  // round 0: 4 x 2^16 counters; rounds 1-3: 8 x 2^16
+  std::vector<std::uint8_t> fin_;    // finite flags of three consecutive rows (a ring)
+  std::ptrdiff_t width_ = 0, ks_ = 1, rows_ = 0, next_ = 0;
+  int round_ = 0;                    // 0: rows coming in; 1-3: the rounds after; 4: done
+  std::size_t count_[4] = {};        // values per quantity
+  std::size_t rank_[8] = {};         // per pick (2 per quantity): the rank within its prefix
+  std::uint64_t prefix_[8] = {};     // ... the bits found so far
+  double value_ = -1.0;
+};
+}  // namespace detail
+
 /// The default parameters of a stream: the default preset, DetectParams{} (angle test, height
 /// test with compact EDGE groups, edge test, min_step "auto", heights).
 DetectParams stream_default_params();
@@ -161,7 +204,10 @@ class ProfileStream {
     return static_cast<std::ptrdiff_t>(row % ring_);
   }
   void use_min_step(double min_step) noexcept;
-  void decide_min_step(std::int64_t last) noexcept;
+  void min_step_row(std::int64_t row) noexcept;
+  void min_step_finish() noexcept;
+  void catch_up(std::int64_t last) noexcept;
+  bool stages_behind() const noexcept { return (ms_wait_ && ms_first_ >= 0) || ms_next_ >= 0; }
   void advance(std::int64_t row) noexcept;
   void run_pass(std::int64_t row, int pass) noexcept;
   void pass1_fast(std::int64_t row) noexcept;
@@ -235,8 +281,9 @@ class ProfileStream {
   int mark_reach_ = 0;           // R of one judgment with that min_step
   DetectParams jparams_;         // params_ with min_step resolved: the judges'
   std::vector<const T*> ms_rows_;       // the rows it reads
-  std::vector<std::uint32_t> ms_hist_;  // its histograms
-  std::vector<std::uint8_t> ms_fin_;    // its finite flags (3 rows)
+  detail::MinStepSelection<T> ms_sel_;  // its selection, a few rows per push
+  std::int64_t ms_next_ = -1;           // decided: the next row the stages catch up on (-1:
+                                        // caught up, or not decided yet)
   std::vector<double> nan_row_;         // heights of a row handed back while waiting
   double cos0_ = 0.0;
 
