@@ -34,7 +34,7 @@ constexpr std::uint8_t kAlive = 255;  // finite and never removed
 // rows a push. The stages then fall at most kMsBacklog rows behind the newest: the
 // kAutoMinStepRows rows round 0 takes, then one per push of rounds 1-3.
 constexpr std::ptrdiff_t kMsChunk = 16;
-constexpr std::int64_t kMsCatch = 4;
+constexpr std::int64_t kMsCatch = 3;
 constexpr std::ptrdiff_t kMsBacklog =
     detail::kAutoMinStepRows + (3 * detail::kAutoMinStepRows + kMsChunk - 1) / kMsChunk;
 

@@ -117,9 +117,11 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 ///     those of the whole grid bit for bit (docs/SPEC.md "Streaming");
 ///   - heights are final h rows after the last height pass (and the last edge pass).
 ///   - with min_step "auto" (SPEC "min_step='auto'": the 256 rows from the first row with a
-///     finite cell), the stages wait from that row on until the 256 rows are in; that push
-///     decides the value (exact medians, no allocation) and runs the waiting pushes' stages
-///     (the one long push of a part: about 33 ms of CPU for 3200 points).
+///     finite cell), the stages wait from that row on until it is decided: each of those
+///     rows is counted as it arrives (round 0 of the exact selection, no allocation), rounds
+///     1-3 visit the 256 rows again 16 a push (48 pushes at the defaults), then the waiting
+///     pushes' stages catch up, at least 3 rows a push, by the push that hands back the first
+///     of those rows (docs/SPEC.md "Streaming"): no push carries the whole decision.
 /// So row i is final once row i + L has arrived, L = stream_lag(params) (543 profiles with
 /// the defaults, 223 with min_step off, 473 without the edge test; 20 + 10 with preset
 /// "paper"). Each cell keeps the
@@ -128,12 +130,12 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 /// shortens the lag, and equals batch detection with those parameters.
 ///
 /// Memory: the last L + h + 2 rows (about L + 2 h; with the edge test L + 64 + edge_window + 2;
-/// 256 more with min_step "auto": 879 rows at the defaults) are kept in a ring, plus
+/// 304 more with min_step "auto": 927 rows at the defaults) are kept in a ring, plus
 /// max(2 R, 2 h) rows that repeat its first rows (2 r with the edge test if more), so that the
 /// rows around any row form one strided GridView; with the edge test also (P + 1)
 /// ceil(width / 128) rings of integral images (11 x (2 r + 2) x (129 + 2 r) doubles and the
 /// column sums) and, per tile column, pass 1's band cache (2 (r + 2) slots of 3080 doubles,
-/// 11 MB at 3200 points): about 183 MB for double profiles of 3200 points with the defaults (96 MB with
+/// 11 MB at 3200 points): about 189 MB (measured) for double profiles of 3200 points with the defaults (96 MB with
 /// min_step off, 92 MB without the edge test), plus the cells of the open defects (a pool
 /// reserved for 16 rows' worth of cells, which grows, once, only for more). Defects come with
 /// the rows (StreamRow::defects) once final; flags and angles are not reported. (Batch
