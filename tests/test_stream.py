@@ -180,11 +180,12 @@ def jittered(grid: np.ndarray, sd: float, lead: int, seed: int) -> np.ndarray:
 
 
 @pytest.mark.parametrize("preset", sorted(miem.PRESETS))
-@pytest.mark.parametrize("rows, lead", [(700, 0), (650, 300), (200, 12)])
+@pytest.mark.parametrize("rows, lead", [(700, 0), (650, 300), (200, 12), (290, 4), (420, 0)])
 def test_stream_runs_min_step_auto_as_batch(preset: str, rows: int, lead: int) -> None:
     """min_step="auto" (SPEC: the first 256 rows from the first row with a finite cell) in the
-    stream, under every preset: decided at push lead + 255 (the stages then catch up), after
-    rows of dropouts handed back while it waits, or at the flush (fewer than 256 rows); labels,
+    stream, under every preset: decided over the pushes after lead + 255 (the stages then catch
+    up), after rows of dropouts handed back while it waits, or at the flush (fewer than 256
+    rows; or while rounds 1-3 run, 290 rows; or while the stages catch up, 420 rows); labels,
     heights and defects equal batch's, and the value differs from the whole grid's (the noise
     changes after the rows it reads)."""
     grid = jittered(make_full_scan(rows, 70, 31), 0.1, lead, 5)
