@@ -180,11 +180,12 @@ def jittered(grid: np.ndarray, sd: float, lead: int, seed: int) -> np.ndarray:
 
 
 @pytest.mark.parametrize("preset", sorted(miem.PRESETS))
-@pytest.mark.parametrize("rows, lead", [(700, 0), (650, 300), (200, 12)])
+@pytest.mark.parametrize("rows, lead", [(700, 0), (650, 300), (200, 12), (290, 4), (420, 0)])
 def test_stream_runs_min_step_auto_as_batch(preset: str, rows: int, lead: int) -> None:
     """min_step="auto" (SPEC: the first 256 rows from the first row with a finite cell) in the
-    stream, under every preset: decided at push lead + 255 (the stages then catch up), after
-    rows of dropouts handed back while it waits, or at the flush (fewer than 256 rows); labels,
+    stream, under every preset: decided over the pushes after lead + 255 (the stages then catch
+    up), after rows of dropouts handed back while it waits, or at the flush (fewer than 256
+    rows; or while rounds 1-3 run, 290 rows; or while the stages catch up, 420 rows); labels,
     heights and defects equal batch's, and the value differs from the whole grid's (the noise
     changes after the rows it reads)."""
     grid = jittered(make_full_scan(rows, 70, 31), 0.1, lead, 5)
@@ -207,6 +208,40 @@ def test_stream_runs_min_step_auto_as_batch(preset: str, rows: int, lead: int) -
     assert_same_defects(defects, want.defects, want.labels)
     # with that value given as a length, batch gives the same labels (the rule is the value)
     np.testing.assert_array_equal(miem.detect(grid, params=p, min_step=step).labels, want.labels)
+
+
+@pytest.mark.parametrize("lead, kw", [(40, {}), (5, {"preset": "paper", "max_iterations": 1,
+                                                    "max_reach": 4})])
+def test_stream_spreads_the_min_step_decision(lead: int, kw: dict) -> None:
+    """min_step="auto" ON (jittered profiles): the stream decides it over several pushes
+    (SPEC "Streaming": rounds 1-3 of the selection 16 rows a push after row F + 255, so with
+    the default lag of 543 the value is known at push F + 255 + 47, not before), and it is the
+    value batch detection resolves (``res.params["min_step"]``); with a lag of 256 (no pushes
+    to spare) the push of row F + 255 decides it. Labels and heights equal batch's."""
+    grid = jittered(make_full_scan(lead + 620, 60, 41), 0.1, lead, 9)
+    p = miem.default_params("stream").replace(min_step="auto")
+    if kw:
+        p = miem.PRESETS[kw.pop("preset")].replace(min_step="auto", **kw)
+    want = miem.detect(grid, params=p)
+    step = want.params["min_step"]
+    assert isinstance(step, float) and step > 0  # auto min_step is on here
+    stream = ProfileStream(60, params=p)
+    rounds = 3 * 256 // 16 if stream.lag == 543 else 1  # pushes rounds 1-3 take
+    assert stream.lag in (543, 256)
+    got = np.full(grid.shape[:2], 99, dtype=np.uint8)
+    heights = np.full(grid.shape[:2], -1e300)
+    for r in range(grid.shape[0]):
+        done = stream.push(grid[r])
+        decided = r >= lead + 255 + rounds - 1
+        assert (stream.min_step is not None) == decided, r
+        if decided:
+            assert stream.min_step == step
+        if done is not None:
+            got[done.row], heights[done.row] = done.labels, done.heights
+    for done in stream.flush():
+        got[done.row], heights[done.row] = done.labels, done.heights
+    np.testing.assert_array_equal(got, want.labels)
+    assert_heights_equal(heights, want.height)
 
 
 def make_outline_scan(h: int, w: int, seed: int) -> np.ndarray:

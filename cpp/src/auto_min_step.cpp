@@ -16,8 +16,9 @@
 // then selected. Distances are selected by their squares (sqrt is monotone: the middle
 // distances are the square roots of the middle squares). Rows are split between threads;
 // counts add up and the kept values are the same set, so the value is the same for any thread
-// count. auto_min_step_rows (the stream's, which may not allocate) selects the same middle
-// values by radix selection over the doubles' 64-bit patterns, 16 bits a round.
+// count. MinStepSelection (the stream's, which may not allocate and must not make one push pay
+// the whole decision) selects the same middle values by radix selection over the doubles'
+// 64-bit patterns, 16 bits a round, in steps of a few rows.
 #include "auto_min_step.hpp"
 
 #include <algorithm>
@@ -52,51 +53,64 @@ inline double dist2_of(const T* a, const T* b, std::ptrdiff_t ks) {
   return dx * dx + dy * dy + dz * dz;
 }
 
-// The four quantities of the cells whose first cell is in rows [r0, r1) of H rows of W cells:
-// f(q, value). `rowp(r)` is row r's first cell (cells cs apart, coordinates ks apart); `fin`
-// (3 * W bytes) holds the finite flags of three consecutive rows as a ring.
+// The finite flags of row r of W cells (GridView::finite's test) into its slot of `fin`
+// (3 * W bytes: the flags of three consecutive rows as a ring). `rowp(r)` is row r's first
+// cell (cells cs apart, coordinates ks apart).
+template <typename T, typename RowP>
+void finite_flags(RowP&& rowp, std::ptrdiff_t W, std::ptrdiff_t cs, std::ptrdiff_t ks,
+                  std::ptrdiff_t r, std::uint8_t* fin) {
+  std::uint8_t* out = fin + (r % 3) * W;
+  const T* p = rowp(r);
+  for (std::ptrdiff_t c = 0; c < W; ++c) {
+    const T* q = p + c * cs;
+    out[c] = (q[0] - q[0]) + (q[ks] - q[ks]) + (q[2 * ks] - q[2 * ks]) == T(0);
+  }
+}
+
+// The four quantities of the cells whose first cell is in row r of H rows of W cells:
+// f(q, value), with the flags of rows r .. min(r + 2, H - 1) in `fin` (finite_flags).
 template <typename T, typename RowP, typename F>
-void visit_rows(RowP&& rowp, std::ptrdiff_t H, std::ptrdiff_t W, std::ptrdiff_t cs,
-                std::ptrdiff_t ks, std::ptrdiff_t r0, std::ptrdiff_t r1, std::uint8_t* fin,
-                F&& f) {
-  const auto row = [&](std::ptrdiff_t r) { return fin + (r % 3) * W; };
-  const auto flags = [&](std::ptrdiff_t r) {
-    std::uint8_t* out = row(r);
-    const T* p = rowp(r);
-    for (std::ptrdiff_t c = 0; c < W; ++c) {
-      const T* q = p + c * cs;  // GridView::finite's test
-      out[c] = (q[0] - q[0]) + (q[ks] - q[ks]) + (q[2 * ks] - q[2 * ks]) == T(0);
-    }
-  };
+void visit_row(RowP&& rowp, std::ptrdiff_t H, std::ptrdiff_t W, std::ptrdiff_t cs,
+               std::ptrdiff_t ks, std::ptrdiff_t r, const std::uint8_t* fin, F&& f) {
+  const auto row = [&](std::ptrdiff_t i) { return fin + (i % 3) * W; };
   // squared distances and second differences of z, from cell pointers
   const auto dist2 = [ks](const T* a, const T* b) { return dist2_of(a, b, ks); };
   const auto second = [ks](const T* a, const T* b, const T* c) {
     return std::abs(static_cast<double>(a[2 * ks]) - 2.0 * static_cast<double>(b[2 * ks]) +
                     static_cast<double>(c[2 * ks]));
   };
-  for (std::ptrdiff_t r = r0; r < std::min(H, r0 + 2); ++r) flags(r);
+  const std::uint8_t* f0 = row(r);
+  const T* p0 = rowp(r);
+  for (std::ptrdiff_t c = 0; c + 1 < W; ++c) {
+    if (!(f0[c] & f0[c + 1])) continue;
+    const T* a = p0 + c * cs;
+    f(0, dist2(a, a + cs));
+    if (c + 2 < W && f0[c + 2]) f(1, second(a, a + cs, a + 2 * cs));
+  }
+  if (r + 1 >= H) return;
+  const std::uint8_t* f1 = row(r + 1);
+  const std::uint8_t* f2 = r + 2 < H ? row(r + 2) : nullptr;
+  const T* p1 = rowp(r + 1);
+  const T* p2 = f2 ? rowp(r + 2) : nullptr;
+  for (std::ptrdiff_t c = 0; c < W; ++c) {
+    if (!(f0[c] & f1[c])) continue;
+    const T* a = p0 + c * cs;
+    const T* b = p1 + c * cs;
+    f(2, dist2(a, b));
+    if (f2 && f2[c]) f(3, second(a, b, p2 + c * cs));
+  }
+}
+
+// The four quantities of the cells whose first cell is in rows [r0, r1) of H rows of W cells
+// (visit_row), `fin` the flags' ring.
+template <typename T, typename RowP, typename F>
+void visit_rows(RowP&& rowp, std::ptrdiff_t H, std::ptrdiff_t W, std::ptrdiff_t cs,
+                std::ptrdiff_t ks, std::ptrdiff_t r0, std::ptrdiff_t r1, std::uint8_t* fin,
+                F&& f) {
+  for (std::ptrdiff_t r = r0; r < std::min(H, r0 + 2); ++r) finite_flags<T>(rowp, W, cs, ks, r, fin);
   for (std::ptrdiff_t r = r0; r < r1; ++r) {
-    if (r + 2 < H) flags(r + 2);
-    const std::uint8_t* f0 = row(r);
-    const T* p0 = rowp(r);
-    for (std::ptrdiff_t c = 0; c + 1 < W; ++c) {
-      if (!(f0[c] & f0[c + 1])) continue;
-      const T* a = p0 + c * cs;
-      f(0, dist2(a, a + cs));
-      if (c + 2 < W && f0[c + 2]) f(1, second(a, a + cs, a + 2 * cs));
-    }
-    if (r + 1 >= H) continue;
-    const std::uint8_t* f1 = row(r + 1);
-    const std::uint8_t* f2 = r + 2 < H ? row(r + 2) : nullptr;
-    const T* p1 = rowp(r + 1);
-    const T* p2 = f2 ? rowp(r + 2) : nullptr;
-    for (std::ptrdiff_t c = 0; c < W; ++c) {
-      if (!(f0[c] & f1[c])) continue;
-      const T* a = p0 + c * cs;
-      const T* b = p1 + c * cs;
-      f(2, dist2(a, b));
-      if (f2 && f2[c]) f(3, second(a, b, p2 + c * cs));
-    }
+    if (r + 2 < H) finite_flags<T>(rowp, W, cs, ks, r + 2, fin);
+    visit_row<T>(rowp, H, W, cs, ks, r, fin, f);
   }
 }
 
@@ -478,70 +492,134 @@ double auto_min_step(const GridView<T>& grid, std::vector<double>& scratch, int 
   return from_medians(count, mids);
 }
 
-// The exact medians by radix selection over the doubles' 64-bit patterns, 16 bits a round
-// (4 passes over the rows, the histograms in `work`): no allocation.
+// The exact medians by radix selection over the doubles' 64-bit patterns, 16 bits a round,
+// in resumable steps (stream.hpp MinStepSelection): round 0 counts the high 16 bits of each
+// quantity's values as rows come in, then each of rounds 1-3 visits every row again and
+// counts, per pick (the two middle ranks of each quantity), the next 16 bits of the values
+// whose bits above match the pick's so far. The same histograms whatever the steps.
+namespace {
+constexpr std::size_t kRadixBins = std::size_t{1} << 16;
+}  // namespace
+
 template <typename T>
-double auto_min_step_rows(const T* const* rows, std::ptrdiff_t H, std::ptrdiff_t W,
-                          std::ptrdiff_t coord_stride, std::uint32_t* hist,
-                          std::uint8_t* fin) noexcept {
-  if (H < 1 || W < 1) return -1.0;
+void MinStepSelection<T>::init(std::ptrdiff_t width, std::ptrdiff_t coord_stride) {
+  width_ = width;
+  ks_ = coord_stride;
+  hist_.assign(2 * kQ * kRadixBins, 0u);
+  fin_.assign(static_cast<std::size_t>(3 * width), 0);
+  reset();
+}
+
+template <typename T>
+void MinStepSelection<T>::reset() noexcept {
+  std::fill(hist_.begin(), hist_.begin() + static_cast<std::ptrdiff_t>(kQ * kRadixBins), 0u);
+  rows_ = next_ = 0;
+  round_ = 0;
+  value_ = -1.0;
+}
+
+template <typename T>
+void MinStepSelection<T>::add_row(const T* const* rows, std::ptrdiff_t n) noexcept {
   const auto rowp = [rows](std::ptrdiff_t r) { return rows[r]; };
-  const auto run = [&](auto&& f) {
-    visit_rows<T>(rowp, H, W, std::ptrdiff_t{1}, coord_stride, 0, H, fin, f);
-  };
-  constexpr std::size_t kB = std::size_t{1} << 16;
-  // round 0: the high 16 bits of each quantity's values
-  std::fill(hist, hist + kQ * kB, 0u);
-  run([hist](int q, double v) { ++hist[q * kB + (bits64(v) >> 48)]; });
-  Counts count{};
-  for (int q = 0; q < kQ; ++q)
-    for (std::size_t b = 0; b < kB; ++b) count[q] += hist[q * kB + b];
+  std::uint32_t* h = hist_.data();
+  const auto count = [h](int q, double v) { ++h[q * kRadixBins + (bits64(v) >> 48)]; };
+  rows_ = n;
+  finite_flags<T>(rowp, width_, std::ptrdiff_t{1}, ks_, n - 1, fin_.data());
+  // the quantities of row r read rows r + 1, r + 2: complete once row r + 2 is in
+  for (; next_ + 2 < n; ++next_)
+    visit_row<T>(rowp, n, width_, std::ptrdiff_t{1}, ks_, next_, fin_.data(), count);
+}
+
+template <typename T>
+void MinStepSelection<T>::close(const T* const* rows) noexcept {
+  const auto rowp = [rows](std::ptrdiff_t r) { return rows[r]; };
+  std::uint32_t* h = hist_.data();
+  const auto count = [h](int q, double v) { ++h[q * kRadixBins + (bits64(v) >> 48)]; };
+  for (; next_ < rows_; ++next_)
+    visit_row<T>(rowp, rows_, width_, std::ptrdiff_t{1}, ks_, next_, fin_.data(), count);
+  for (int q = 0; q < kQ; ++q) {
+    count_[q] = 0;
+    for (std::size_t b = 0; b < kRadixBins; ++b) count_[q] += h[q * kRadixBins + b];
+  }
   // the picks: ranks (n - 1) / 2 and n / 2 of quantity q are picks 2 q and 2 q + 1 (none
   // when q has no value: its prefix can match no pattern), their prefixes so far
-  std::size_t prank[2 * kQ] = {};
-  std::uint64_t pre[2 * kQ];
-  std::fill(pre, pre + 2 * kQ, ~std::uint64_t{0});
+  std::fill(prefix_, prefix_ + 2 * kQ, ~std::uint64_t{0});
   for (int q = 0; q < kQ; ++q) {
-    if (count[q] == 0) continue;
+    rank_[2 * q] = rank_[2 * q + 1] = 0;
+    if (count_[q] == 0) continue;
     for (int k = 0; k < 2; ++k) {
-      std::size_t rank = k == 0 ? (count[q] - 1) / 2 : count[q] / 2;
-      pre[2 * q + k] = static_cast<std::uint64_t>(bin_of(hist + q * kB, rank)) << 48;
-      prank[2 * q + k] = rank;
+      std::size_t rank = k == 0 ? (count_[q] - 1) / 2 : count_[q] / 2;
+      prefix_[2 * q + k] = static_cast<std::uint64_t>(bin_of(h + q * kRadixBins, rank)) << 48;
+      rank_[2 * q + k] = rank;
     }
   }
-  for (int round = 1; round < 4; ++round) {
-    const int shift = 48 - 16 * round;  // the bits found this round: [shift, shift + 16)
+  round_ = 1;
+  next_ = 0;
+  if (count_[0] + count_[1] + count_[2] + count_[3] == 0) finish();  // nothing to select
+}
+
+template <typename T>
+bool MinStepSelection<T>::step(const T* const* rows, std::ptrdiff_t budget) noexcept {
+  const auto rowp = [rows](std::ptrdiff_t r) { return rows[r]; };
+  std::uint32_t* h = hist_.data();
+  std::uint8_t* fin = fin_.data();
+  const std::ptrdiff_t W = width_, H = rows_;
+  while (round_ >= 1 && round_ <= 3 && budget > 0) {
+    const int shift = 48 - 16 * round_;  // the bits found this round: [shift, shift + 16)
     const std::uint64_t known = ~std::uint64_t{0} << (shift + 16);
-    std::fill(hist, hist + 2 * kQ * kB, 0u);
-    run([&](int q, double v) {
+    if (next_ == 0) {
+      std::fill(h, h + 2 * kQ * kRadixBins, 0u);
+      for (std::ptrdiff_t r = 0; r < std::min<std::ptrdiff_t>(H, 2); ++r)
+        finite_flags<T>(rowp, W, std::ptrdiff_t{1}, ks_, r, fin);
+    }
+    const std::uint64_t* pre = prefix_;
+    // few values match a prefix (a branch seldom taken: the histograms, 2 MB, stay untouched)
+    const auto count = [&](int q, double v) {
       const std::uint64_t k = bits64(v), top = k & known, digit = (k >> shift) & 0xFFFF;
-      hist[(2 * q) * kB + digit] += top == pre[2 * q];
-      hist[(2 * q + 1) * kB + digit] += top == pre[2 * q + 1];
-    });
+      if (top == pre[2 * q]) ++h[(2 * q) * kRadixBins + digit];
+      if (top == pre[2 * q + 1]) ++h[(2 * q + 1) * kRadixBins + digit];
+    };
+    for (; next_ < H && budget > 0; ++next_, --budget) {
+      if (next_ + 2 < H) finite_flags<T>(rowp, W, std::ptrdiff_t{1}, ks_, next_ + 2, fin);
+      visit_row<T>(rowp, H, W, std::ptrdiff_t{1}, ks_, next_, fin, count);
+    }
+    if (next_ < H) break;
     for (int s = 0; s < 2 * kQ; ++s)
-      if (count[s / 2] > 0)
-        pre[s] |= static_cast<std::uint64_t>(bin_of(hist + s * kB, prank[s])) << shift;
+      if (count_[s / 2] > 0)
+        prefix_[s] |= static_cast<std::uint64_t>(bin_of(h + s * kRadixBins, rank_[s])) << shift;
+    next_ = 0;
+    if (++round_ > 3) finish();
   }
+  return done();
+}
+
+template <typename T>
+void MinStepSelection<T>::finish() noexcept {
   Mids mids{};
+  Counts count{};
+  for (int q = 0; q < kQ; ++q) count[q] = count_[q];
   for (int s = 0; s < 2 * kQ; ++s) {
     if (count[s / 2] == 0) continue;
     double v;
-    std::memcpy(&v, &pre[s], sizeof v);
+    std::memcpy(&v, &prefix_[s], sizeof v);
     mids[s / 2][s % 2] = v;
   }
-  return from_medians(count, mids);
+  value_ = from_medians(count, mids);  // -1 (off) without values
+  round_ = 4;
+}
+
+template <typename T>
+std::ptrdiff_t MinStepSelection<T>::visits_left() const noexcept {
+  if (round_ < 1 || round_ > 3) return round_ > 3 ? 0 : 3 * rows_;
+  return (3 - round_) * rows_ + (rows_ - next_);
 }
 
 template std::ptrdiff_t first_finite_row<float>(const GridView<float>&);
 template std::ptrdiff_t first_finite_row<double>(const GridView<double>&);
 template GridView<float> min_step_rows<float>(const GridView<float>&);
 template GridView<double> min_step_rows<double>(const GridView<double>&);
-template double auto_min_step_rows<float>(const float* const*, std::ptrdiff_t, std::ptrdiff_t,
-                                          std::ptrdiff_t, std::uint32_t*,
-                                          std::uint8_t*) noexcept;
-template double auto_min_step_rows<double>(const double* const*, std::ptrdiff_t,
-                                           std::ptrdiff_t, std::ptrdiff_t, std::uint32_t*,
-                                           std::uint8_t*) noexcept;
+template class MinStepSelection<float>;
+template class MinStepSelection<double>;
 template double auto_min_step<float>(const GridView<float>&, std::vector<double>&, int);
 template double auto_min_step<double>(const GridView<double>&, std::vector<double>&, int);
 

@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "miem/stream.hpp"  // MinStepSelection (the stream's form)
 #include "miem/views.hpp"
 
 namespace miem::detail {
@@ -27,17 +28,5 @@ std::ptrdiff_t first_finite_row(const GridView<T>& g);
 /// The rows of `g` that min_step="auto" reads (see kAutoMinStepRows).
 template <typename T>
 GridView<T> min_step_rows(const GridView<T>& g);
-
-/// Histogram counters auto_min_step_rows needs (8 x 2^16).
-constexpr std::size_t kMinStepHist = std::size_t{8} << 16;
-
-/// auto_min_step over `H` rows of `W` dense cells (row r at rows[r], coordinates
-/// `coord_stride` apart), which must already be the rows min_step_rows selects, without
-/// allocating (the streaming detector's form): exact medians by radix selection, so the same
-/// value as auto_min_step. `hist`: kMinStepHist counters; `fin`: 3 W bytes.
-template <typename T>
-double auto_min_step_rows(const T* const* rows, std::ptrdiff_t H, std::ptrdiff_t W,
-                          std::ptrdiff_t coord_stride, std::uint32_t* hist,
-                          std::uint8_t* fin) noexcept;
 
 }  // namespace miem::detail

@@ -29,6 +29,15 @@ using detail::kDirRow;
 
 constexpr std::uint8_t kAlive = 255;  // finite and never removed
 
+// min_step "auto" spread over the pushes (ProfileStream::min_step_row): rounds 1-3 of the
+// selection visit at least kMsChunk rows a push, then the stages catch up at least kMsCatch
+// rows a push. The stages then fall at most kMsBacklog rows behind the newest: the
+// kAutoMinStepRows rows round 0 takes, then one per push of rounds 1-3.
+constexpr std::ptrdiff_t kMsChunk = 16;
+constexpr std::int64_t kMsCatch = 3;
+constexpr std::ptrdiff_t kMsBacklog =
+    detail::kAutoMinStepRows + (3 * detail::kAutoMinStepRows + kMsChunk - 1) / kMsChunk;
+
 // Usable at pass p: finite and not removed before pass p (removed at pass q: state == q).
 struct UsableAtPass {
   std::uint8_t pass;
@@ -291,8 +300,8 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
       {static_cast<long long>(lag_) + half_ + 1, static_cast<long long>(alag_) + 2LL * (extent_ + link_gap_),
        static_cast<long long>(alag_) + reach_,
        edge_ ? static_cast<long long>(lag_) + 64 + params_.edge_window : 0LL});
-  // min_step "auto": the stages wait for the kAutoMinStepRows rows it reads (all kept)
-  ring_ = static_cast<std::ptrdiff_t>(back) + 2 + (ms_auto_ ? detail::kAutoMinStepRows : 0);
+  // min_step "auto": the stages fall behind by at most kMsBacklog rows while it is decided
+  ring_ = static_cast<std::ptrdiff_t>(back) + 2 + (ms_auto_ ? kMsBacklog : 0);
   // Any ext_ + 1 consecutive rows form one GridView: a judgment's rows, a window, the rows an
   // edge verdict reads.
   ext_ = std::max<std::ptrdiff_t>(
@@ -321,8 +330,7 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   bits_.assign(static_cast<std::size_t>(width_), 0);
   if (ms_auto_) {
     ms_rows_.assign(static_cast<std::size_t>(detail::kAutoMinStepRows), nullptr);
-    ms_hist_.assign(detail::kMinStepHist, 0u);
-    ms_fin_.assign(static_cast<std::size_t>(3 * width_), 0);
+    ms_sel_.init(width_, phys_ * width_);
     nan_row_.assign(static_cast<std::size_t>(width_), detail::kNaN);
   }
   init_stages();
@@ -340,25 +348,58 @@ void ProfileStream<T>::use_min_step(double min_step) noexcept {
   mark_reach_ = max_scale_ + params_.max_gap + (min_step >= 0.0 ? params_.max_reach : 0);
 }
 
-// min_step "auto" decided on the rows pushed from the first with a finite cell (SPEC
-// "min_step='auto'"), then the stages run on the rows they waited for through `last`, push by
-// push as they would have run.
+// min_step "auto" (SPEC "min_step='auto'", "Streaming") at the push of `row`, from the first
+// row with a finite cell on: round 0 of the selection takes the row (the first
+// kAutoMinStepRows rows), then rounds 1-3 visit at least kMsChunk rows a push, more when the
+// pushes left before the deadline (row ms_first_ + L is the first to hand back a row it
+// decides) must also leave the stages' catch-up kMsCatch rows a push. Once decided, the
+// stages catch up from ms_first_ (catch_up).
 template <typename T>
-void ProfileStream<T>::decide_min_step(std::int64_t last) noexcept {
-  const std::int64_t first = ms_first_;
-  const std::int64_t n = std::min<std::int64_t>(pushed_ - first, detail::kAutoMinStepRows);
-  for (std::int64_t i = 0; i < n; ++i)
-    ms_rows_[static_cast<std::size_t>(i)] = xyz_.data() + slot(first + i) * width_;
-  use_min_step(detail::auto_min_step_rows<T>(ms_rows_.data(), static_cast<std::ptrdiff_t>(n),
-                                             width_, phys_ * width_, ms_hist_.data(),
-                                             ms_fin_.data()));
-  ms_wait_ = false;
+void ProfileStream<T>::min_step_row(std::int64_t row) noexcept {
+  const std::int64_t k = row - ms_first_;
+  if (k < detail::kAutoMinStepRows) {
+    ms_rows_[static_cast<std::size_t>(k)] = xyz_.data() + slot(row) * width_;
+    ms_sel_.add_row(ms_rows_.data(), static_cast<std::ptrdiff_t>(k + 1));
+    if (k + 1 < detail::kAutoMinStepRows) return;
+    ms_sel_.close(ms_rows_.data());
+  }
+  const std::int64_t deadline = ms_first_ + lag_;
+  const std::int64_t reserve = (deadline - ms_first_ + kMsCatch) / kMsCatch;
+  const std::int64_t pushes = std::max<std::int64_t>(1, deadline - row + 1 - reserve);
+  const std::int64_t visits = ms_sel_.visits_left();
+  if (ms_sel_.step(ms_rows_.data(), static_cast<std::ptrdiff_t>(std::max<std::int64_t>(
+                                        kMsChunk, (visits + pushes - 1) / pushes)))) {
+    use_min_step(ms_sel_.value());
+    ms_wait_ = false;
+    ms_next_ = ms_first_;
+  }
+}
+
+// At the flush: min_step "auto" decided on the rows pushed (fewer than it reads when the stream
+// is that short), and the stages caught up.
+template <typename T>
+void ProfileStream<T>::min_step_finish() noexcept {
+  if (ms_wait_ && ms_first_ >= 0) {
+    if (!ms_sel_.closed()) ms_sel_.close(ms_rows_.data());
+    ms_sel_.step(ms_rows_.data(), ms_sel_.visits_left());
+    use_min_step(ms_sel_.value());
+    ms_wait_ = false;
+    ms_next_ = ms_first_;
+  }
+  if (ms_next_ >= 0) catch_up(pushed_ - 1);
+}
+
+// The stages of the pushes that waited for min_step, rows ms_next_ through `last`, push by push
+// as they would have run (each sees the rows pushed up to its own).
+template <typename T>
+void ProfileStream<T>::catch_up(std::int64_t last) noexcept {
   const std::int64_t pushed = pushed_;
-  for (std::int64_t row = first; row <= last; ++row) {
-    pushed_ = row + 1;
-    advance(row);
+  for (; ms_next_ <= last; ++ms_next_) {
+    pushed_ = ms_next_ + 1;
+    advance(ms_next_);
   }
   pushed_ = pushed;
+  if (ms_next_ >= pushed_) ms_next_ = -1;
 }
 
 // The stages of push `row`: pass p on row - p R (its rows within R have all run pass p - 1),
@@ -379,8 +420,12 @@ void ProfileStream<T>::reset() noexcept {
   emitted_ = 0;
   finished_ = false;
   ms_first_ = -1;
+  ms_next_ = -1;
   ms_wait_ = ms_auto_;
-  if (ms_auto_) use_min_step(-1.0);
+  if (ms_auto_) {
+    use_min_step(-1.0);
+    ms_sel_.reset();
+  }
   reset_stages();
   reset_defects();
 }
@@ -440,36 +485,26 @@ Status ProfileStream<T>::push(const PointsView<T>& profile, StreamRow* out) noex
   pushed_ = row + 1;
   const std::int64_t done = row - lag_;
 
-  // min_step "auto": from the first row with a finite cell the stages wait until the rows the
-  // value is taken from are in (before it every row is empty: no stage result depends on it).
+  // min_step "auto": from the first row with a finite cell the stages wait until it is decided
+  // (before that row every row is empty: no stage result depends on it), then catch up, at
+  // least kMsCatch rows a push, all by the push that hands back row ms_first_.
   if (ms_wait_ && ms_first_ < 0 && n_finite > 0) ms_first_ = row;
-  if (ms_wait_ && ms_first_ >= 0) {
-    if (row - ms_first_ + 1 < detail::kAutoMinStepRows) {
-      // a row handed back now lies before the first finite row (lag >= kAutoMinStepRows):
-      // a row of dropouts, INVALID since its push, no height, no defect
-      if (done >= 0) {
-        defect_row(done);
-        out->index = done;
-        out->labels = labels_.data() + slot(done) * W;
-        out->height = nan_row_.data();
-        out->defects = done_.data();
-        out->n_defects = n_done_;
-        emitted_ = done + 1;
-      }
-      return n_finite == 0 ? Status{StatusCode::kEmptyProfile,
-                                    "profile: no finite point (pushed as a row of dropouts, "
-                                    "labels INVALID)"}
-                           : Status{};
-    }
-    decide_min_step(row - 1);  // the rows before this one catch up; this push as usual
+  if (ms_wait_ && ms_first_ >= 0) min_step_row(row);
+  if (ms_next_ >= 0) {
+    const std::int64_t deadline = ms_first_ + lag_;
+    const std::int64_t left = std::max<std::int64_t>(1, deadline - row + 1);
+    catch_up(std::min(row, ms_next_ - 1 + std::max<std::int64_t>(
+                                            kMsCatch, (deadline - ms_next_ + left) / left)));
+  } else if (!stages_behind()) {
+    advance(row);
   }
-
-  advance(row);
   if (done >= 0) {
+    // while the stages are behind, the row handed back lies before the first finite row
+    // (lag >= kAutoMinStepRows): a row of dropouts, INVALID since its push, no height
     defect_row(done);
     out->index = done;
     out->labels = labels_.data() + slot(done) * W;
-    out->height = height_.data() + slot(done) * W;
+    out->height = stages_behind() ? nan_row_.data() : height_.data() + slot(done) * W;
     out->defects = done_.data();
     out->n_defects = n_done_;
     emitted_ = done + 1;
@@ -487,7 +522,7 @@ bool ProfileStream<T>::flush(StreamRow* out) noexcept {
   *out = StreamRow{};
   if (!finished_) {
     finished_ = true;
-    if (ms_wait_ && ms_first_ >= 0) decide_min_step(pushed_ - 1);  // fewer rows than it reads
+    min_step_finish();  // min_step "auto" decided (on fewer rows than it reads if so), caught up
     // The end of the stream is now the grid border: finish every pass on the last rows, pass by
     // pass over all of them (each row's neighbours then have run the pass before).
     const std::int64_t first = std::max<std::int64_t>(0, pushed_ - alag_);

@@ -24,7 +24,8 @@ template <typename T>
 std::vector<std::uint8_t> stream_labels(const std::vector<T>& grid, std::ptrdiff_t H,
                                         std::ptrdiff_t W, const miem::DetectParams& p,
                                         std::vector<double>* heights = nullptr,
-                                        std::vector<miem::Defect>* defects = nullptr) {
+                                        std::vector<miem::Defect>* defects = nullptr,
+                                        double* min_step = nullptr) {
   miem::ProfileStream<T> s(W, p);
   std::vector<std::uint8_t> out(static_cast<std::size_t>(H * W), 99);
   if (heights != nullptr) heights->assign(static_cast<std::size_t>(H * W), -1e300);
@@ -51,6 +52,7 @@ std::vector<std::uint8_t> stream_labels(const std::vector<T>& grid, std::ptrdiff
   while (s.flush(&row)) take(row);
   EXPECT_EQ(next, H);
   EXPECT_FALSE(row.ready());
+  if (min_step != nullptr) *min_step = s.min_step();
   return out;
 }
 
@@ -96,7 +98,10 @@ void expect_stream_equals_batch(const std::vector<double>& grid_d, std::ptrdiff_
       miem::detect_organized(miem::GridView<T>::dense(grid.data(), H, W), p);
   std::vector<double> heights;
   std::vector<miem::Defect> defects;
-  const std::vector<std::uint8_t> streamed = stream_labels(grid, H, W, p, &heights, &defects);
+  double min_step = 0.0;
+  const std::vector<std::uint8_t> streamed =
+      stream_labels(grid, H, W, p, &heights, &defects, &min_step);
+  EXPECT_EQ(min_step, batch.summary.min_step);  // the value batch resolved (min_step "auto": decided)
   expect_same_defects(defects, batch.summary.defects);
   std::size_t bad = 0, bad_height = 0;
   for (std::size_t i = 0; i < streamed.size(); ++i) {

@@ -102,8 +102,9 @@ class ProfileStream:
     with the defaults, 223 with ``min_step=None``, 10 * 2 + 10 = 30 with ``preset="paper"``.
     ``min_step="auto"`` is decided on the 256 profiles from the first one with a finite point
     (docs/SPEC.md "min_step='auto'"), the value :func:`miem.detect` resolves on the same rows:
-    the stream waits for them, and the push that completes them does their work (the one long
-    push of a part, about 33 ms of CPU at 3200 points). A lower ``max_iterations``,
+    the stream waits for them and decides it over the next pushes (48 at the defaults, each
+    visiting 16 of the 256 profiles again), then catches up on their work a few profiles a
+    push, so that no push carries it whole (docs/SPEC.md "Streaming"). A lower ``max_iterations``,
     ``edge_extent``, ``window`` or ``edge_window``, or a ``min_step`` length or None, shortens
     the lag;
     ``edge_tolerance=None`` takes 70 profiles off (and most of the time: bench/RESULTS.md).
@@ -184,7 +185,7 @@ class ProfileStream:
         edge = None if gp.edge_tolerance is None else (a.max_iterations, gp.edge_window // 2)
         _check_storage(w, dt, int(_core.stream_lag(core_params)), max(a.scales) + gp.max_gap
                        + (0 if gp.min_step is None else gp.max_reach), gp.window // 2, edge,
-                       256 if gp.min_step == "auto" else 0)
+                       304 if gp.min_step == "auto" else 0)  # stream.cpp kMsBacklog
         try:
             self._core = cls(w, core_params)
         except MemoryError:

@@ -33,6 +33,49 @@ struct StreamRow {
   bool ready() const noexcept { return index >= 0; }
 };
 
+namespace detail {
+/// min_step "auto" (docs/SPEC.md "min_step='auto'") decided in resumable steps over rows that
+/// arrive one at a time: the streaming detector's form (auto_min_step.cpp), so that no push
+/// pays the whole decision. Exact medians by radix selection over the doubles' 64-bit
+/// patterns, 16 bits a round: the value batch detection's auto_min_step resolves on the same
+/// rows. Round 0 (the high 16 bits) takes each row as it arrives (add_row), close() ends it,
+/// rounds 1-3 visit the rows again a few at a time (step). Allocates only in init().
+template <typename T>
+class MinStepSelection {
+ public:
+  /// Buffers for rows of `width` adjacent cells, their coordinates `coord_stride` apart.
+  void init(std::ptrdiff_t width, std::ptrdiff_t coord_stride);
+  /// A new set of rows.
+  void reset() noexcept;
+  /// Row n - 1 is in (rows[0 .. n) hold rows 0 .. n - 1 and stay valid until done()): round 0
+  /// takes the rows whose quantities are complete (those before row n - 2).
+  void add_row(const T* const* rows, std::ptrdiff_t n) noexcept;
+  /// No more rows: round 0 takes the last ones and ends; the middle ranks are known.
+  void close(const T* const* rows) noexcept;
+  /// Rounds 1-3: visits at most `budget` rows; true once the value is known.
+  bool step(const T* const* rows, std::ptrdiff_t budget) noexcept;
+  /// True after close().
+  bool closed() const noexcept { return round_ >= 1; }
+  /// True once the value is known.
+  bool done() const noexcept { return round_ > 3; }
+  /// The row visits rounds 1-3 still need (3 per row before close()).
+  std::ptrdiff_t visits_left() const noexcept;
+  /// The min_step (scan units; -1: off), once done().
+  double value() const noexcept { return value_; }
+
+ private:
+  void finish() noexcept;
+  std::vector<std::uint32_t> hist_;  // round 0: 4 x 2^16 counters; rounds 1-3: 8 x 2^16
+  std::vector<std::uint8_t> fin_;    // finite flags of three consecutive rows (a ring)
+  std::ptrdiff_t width_ = 0, ks_ = 1, rows_ = 0, next_ = 0;
+  int round_ = 0;                    // 0: rows coming in; 1-3: the rounds after; 4: done
+  std::size_t count_[4] = {};        // values per quantity
+  std::size_t rank_[8] = {};         // per pick (2 per quantity): the rank within its prefix
+  std::uint64_t prefix_[8] = {};     // ... the bits found so far
+  double value_ = -1.0;
+};
+}  // namespace detail
+
 /// The default parameters of a stream: the default preset, DetectParams{} (angle test, height
 /// test with compact EDGE groups, edge test, min_step "auto", heights).
 DetectParams stream_default_params();
@@ -74,9 +117,11 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 ///     those of the whole grid bit for bit (docs/SPEC.md "Streaming");
 ///   - heights are final h rows after the last height pass (and the last edge pass).
 ///   - with min_step "auto" (SPEC "min_step='auto'": the 256 rows from the first row with a
-///     finite cell), the stages wait from that row on until the 256 rows are in; that push
-///     decides the value (exact medians, no allocation) and runs the waiting pushes' stages
-///     (the one long push of a part: about 33 ms of CPU for 3200 points).
+///     finite cell), the stages wait from that row on until it is decided: each of those
+///     rows is counted as it arrives (round 0 of the exact selection, no allocation), rounds
+///     1-3 visit the 256 rows again 16 a push (48 pushes at the defaults), then the waiting
+///     pushes' stages catch up, at least 3 rows a push, by the push that hands back the first
+///     of those rows (docs/SPEC.md "Streaming"): no push carries the whole decision.
 /// So row i is final once row i + L has arrived, L = stream_lag(params) (543 profiles with
 /// the defaults, 223 with min_step off, 473 without the edge test; 20 + 10 with preset
 /// "paper"). Each cell keeps the
@@ -85,12 +130,12 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 /// shortens the lag, and equals batch detection with those parameters.
 ///
 /// Memory: the last L + h + 2 rows (about L + 2 h; with the edge test L + 64 + edge_window + 2;
-/// 256 more with min_step "auto": 879 rows at the defaults) are kept in a ring, plus
+/// 304 more with min_step "auto": 927 rows at the defaults) are kept in a ring, plus
 /// max(2 R, 2 h) rows that repeat its first rows (2 r with the edge test if more), so that the
 /// rows around any row form one strided GridView; with the edge test also (P + 1)
 /// ceil(width / 128) rings of integral images (11 x (2 r + 2) x (129 + 2 r) doubles and the
 /// column sums) and, per tile column, pass 1's band cache (2 (r + 2) slots of 3080 doubles,
-/// 11 MB at 3200 points): about 183 MB for double profiles of 3200 points with the defaults (96 MB with
+/// 11 MB at 3200 points): about 189 MB (measured) for double profiles of 3200 points with the defaults (96 MB with
 /// min_step off, 92 MB without the edge test), plus the cells of the open defects (a pool
 /// reserved for 16 rows' worth of cells, which grows, once, only for more). Defects come with
 /// the rows (StreamRow::defects) once final; flags and angles are not reported. (Batch
@@ -161,7 +206,10 @@ class ProfileStream {
     return static_cast<std::ptrdiff_t>(row % ring_);
   }
   void use_min_step(double min_step) noexcept;
-  void decide_min_step(std::int64_t last) noexcept;
+  void min_step_row(std::int64_t row) noexcept;
+  void min_step_finish() noexcept;
+  void catch_up(std::int64_t last) noexcept;
+  bool stages_behind() const noexcept { return (ms_wait_ && ms_first_ >= 0) || ms_next_ >= 0; }
   void advance(std::int64_t row) noexcept;
   void run_pass(std::int64_t row, int pass) noexcept;
   void pass1_fast(std::int64_t row) noexcept;
@@ -235,8 +283,9 @@ class ProfileStream {
   int mark_reach_ = 0;           // R of one judgment with that min_step
   DetectParams jparams_;         // params_ with min_step resolved: the judges'
   std::vector<const T*> ms_rows_;       // the rows it reads
-  std::vector<std::uint32_t> ms_hist_;  // its histograms
-  std::vector<std::uint8_t> ms_fin_;    // its finite flags (3 rows)
+  detail::MinStepSelection<T> ms_sel_;  // its selection, a few rows per push
+  std::int64_t ms_next_ = -1;           // decided: the next row the stages catch up on (-1:
+                                        // caught up, or not decided yet)
   std::vector<double> nan_row_;         // heights of a row handed back while waiting
   double cos0_ = 0.0;
 
