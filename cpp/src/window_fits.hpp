@@ -486,11 +486,18 @@ void window_fits_rows(const GridView<T>& g, const std::uint8_t* cls, int window,
     // would reload its captures (char stores alias everything), and the loops would not vectorise.
     const Want want_l = want;
     std::ptrdiff_t n_wanted = 0, last = tr0;  // last: the tile's last row with a wanted cell
+    std::ptrdiff_t cend = tc0;                 // after the tile's last column with a wanted cell
     for (std::ptrdiff_t r = tr0; r < tr1; ++r) {
       std::ptrdiff_t m = 0;
       for (std::ptrdiff_t c = tc0; c < tc1; ++c) m += want_l(r * W + c) ? 1 : 0;
       n_wanted += m;
-      if (m > 0) last = r;
+      if (m == 0) continue;
+      last = r;
+      for (std::ptrdiff_t c = tc1; c > cend; --c)
+        if (want_l(r * W + c - 1)) {
+          cend = c;
+          break;
+        }
     }
     if (n_wanted == 0) continue;
     if (n_wanted <= kDirect) {  // a few cells: their windows directly, cheaper than the sums
@@ -503,7 +510,9 @@ void window_fits_rows(const GridView<T>& g, const std::uint8_t* cls, int window,
     const std::ptrdiff_t R1 = std::min(H, tr1 + half);
     const std::ptrdiff_t C0 = std::max<std::ptrdiff_t>(0, tc0 - half);
     const std::ptrdiff_t C1 = std::min(W, tc1 + half);
-    const std::ptrdiff_t nc = C1 - C0;
+    // Columns with sums: up to half past the last wanted column (each column's sums are its own;
+    // the box sums of a cell read half columns either side).
+    const std::ptrdiff_t nc = std::min(C1, cend + half) - C0;
     // Local origin: a NORMAL cell of the region, searched from the tile's middle row.
     Eigen::Vector3d origin = Eigen::Vector3d::Zero();
     bool any = false;
@@ -575,9 +584,10 @@ void window_fits_rows(const GridView<T>& g, const std::uint8_t* cls, int window,
       if (m == 0) continue;
       {
         const double* x = ring_row(r) + (tc0 - C0);
-        std::copy(x, x + ncols, Q);
-        std::copy(x + span, x + span + ncols, Q + cap);
-        std::copy(x + 2 * span, x + 2 * span + ncols, Q + 2 * cap);
+        const std::ptrdiff_t nq = cend - tc0;  // no cell after it is wanted
+        std::copy(x, x + nq, Q);
+        std::copy(x + span, x + span + nq, Q + cap);
+        std::copy(x + 2 * span, x + 2 * span + nq, Q + 2 * cap);
       }
       const RowFits rf =
           row_solve(cs + pad + (tc0 - C0), stride, half, ncols, cap, wrow, m, S, Q, F, okf, redo);
