@@ -120,9 +120,11 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
         g, cls, p.window, p.num_threads, ws.fits,
         [hm](std::ptrdiff_t i) { return (hm[i] & kHWant) != 0; }, visit,
         [&](std::ptrdiff_t i0, std::ptrdiff_t ncols, const std::uint8_t* wrow, const RowFits& rf) {
-          if (!rf.compact) {
-            height_row(ncols, wrow, rf.S, rf.F, rf.okf, rf.cap, p.height_abs, p.height_k,
-                       height ? height + i0 : nullptr, hm + i0);
+          if (!rf.compact) {  // the span of the wanted cells, [j0, j1)
+            const std::ptrdiff_t j0 = rf.j0;
+            height_row(rf.j1 - j0, wrow + j0, rf.S + j0, rf.F + j0, rf.okf + j0, rf.cap,
+                       p.height_abs, p.height_k, height ? height + i0 + j0 : nullptr,
+                       hm + i0 + j0);
             return;
           }
           std::ptrdiff_t e = 0;
@@ -140,13 +142,15 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
       part.clear();
       for (std::ptrdiff_t i0 = r0; i0 < r1; i0 += kSpan) {
         const std::ptrdiff_t i1 = std::min(r1, i0 + kSpan);
-        unsigned marked = 0;
+        // a local restrict pointer: through the captured hm every byte store would reload it
+        std::uint8_t* __restrict h = hm;
+        std::uint8_t marked = 0;
         for (std::ptrdiff_t i = i0; i < i1; ++i) {
-          const std::uint8_t b = hm[i];
-          marked |= b & kHMark;
-          hm[i] = static_cast<std::uint8_t>(b & ~kHWant);
+          const std::uint8_t b = h[i];
+          marked |= b;
+          h[i] = static_cast<std::uint8_t>(b & ~kHWant);
         }
-        if (marked == 0) continue;
+        if ((marked & kHMark) == 0) continue;
         for (std::ptrdiff_t i = i0; i < i1; ++i) {
           if (!(hm[i] & kHMark)) continue;
           labels[i] = kAbnormal;
@@ -168,11 +172,12 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
       const std::ptrdiff_t ca = std::max<std::ptrdiff_t>(0, c - half);
       const std::ptrdiff_t cb = std::min(W - 1, c + half);
       for (std::ptrdiff_t rr = ra; rr <= rb; ++rr) {
-        for (std::ptrdiff_t cc = ca; cc <= cb; ++cc) {
-          const std::ptrdiff_t q = rr * W + cc;
-          std::uint8_t b = static_cast<std::uint8_t>(hm[q] & ~kHFresh);
-          if (labels[q] == kNormal || (b & kHCompact)) b |= kHWant;
-          hm[q] = b;
+        std::uint8_t* __restrict h = hm + rr * W;
+        const std::uint8_t* __restrict l = labels + rr * W;
+        for (std::ptrdiff_t cc = ca; cc <= cb; ++cc) {  // branch-free: vectorised
+          const std::uint8_t b = static_cast<std::uint8_t>(h[cc] & ~kHFresh);
+          const bool want = (l[cc] == kNormal) | ((b & kHCompact) != 0);
+          h[cc] = static_cast<std::uint8_t>(b | (want ? kHWant : 0));
         }
       }
     }

@@ -316,6 +316,7 @@ MIEM_FIT_CLONES inline void round_counts(std::ptrdiff_t n, double* __restrict a,
 /// What row_solve leaves for one row segment: the fit of entry e (e = j, the segment's column,
 /// or with `compact` the e-th wanted cell) is okf[e], n = S[e], height, l0, l1, l2 at F + k * cap
 /// + e and the feature-line cells at S + 10 * cap + e (redo[e]: solved by solve_fits_exact).
+/// Not compact: only the entries [j0, j1) are set, the span of the wanted cells.
 struct RowFits {
   const double* S;
   const double* F;
@@ -323,6 +324,7 @@ struct RowFits {
   const std::uint8_t* redo;
   std::ptrdiff_t cap;
   bool compact;
+  std::ptrdiff_t j0, j1;
 
   WindowFit fit(std::ptrdiff_t e) const {
     WindowFit f;
@@ -349,22 +351,29 @@ inline RowFits row_solve(const double* col, std::ptrdiff_t stride, std::ptrdiff_
                          std::ptrdiff_t ncols, std::ptrdiff_t cap, const std::uint8_t* wrow,
                          std::ptrdiff_t m, double* S, double* Q, double* F, std::uint8_t* okf,
                          std::uint8_t* redo) {
+  // The wanted cells' span [j0, j1): a later height pass wants the cells around a removed one.
+  std::ptrdiff_t j0 = 0, j1 = ncols;
+  while (j0 < j1 && !wrow[j0]) ++j0;
+  while (j1 > j0 && !wrow[j1 - 1]) --j1;
   // Box sums along the row: 11 running sums, one column in and one out per cell. The column
-  // differences first (a loop that vectorises), then the running sums over them.
-  box_sums(col, stride, half, ncols, cap, S);
-  const bool compact = 4 * m < ncols;  // few wanted cells: solve only those
+  // differences first (a loop that vectorises), then the running sums over them. Running from
+  // column 0 (the same sums whatever the span), up to the span's end.
+  box_sums(col, stride, half, j1, cap, S);
+  const bool compact = 4 * m < j1 - j0;  // few wanted cells: solve only those
   if (compact) {
     std::ptrdiff_t k2 = 0;
-    for (std::ptrdiff_t j = 0; j < ncols; ++j) {
+    for (std::ptrdiff_t j = j0; j < j1; ++j) {
       if (!wrow[j]) continue;
       for (int k = 0; k < kMoments; ++k) S[k * cap + k2] = S[k * cap + j];
       for (int k = 0; k < 3; ++k) Q[k * cap + k2] = Q[k * cap + j];
       ++k2;
     }
   }
-  const std::ptrdiff_t ns = compact ? m : ncols;
-  round_counts(ns, S, S + 10 * cap);
-  solve_fits(ns, cap, S, Q, F, okf, redo);
+  // the entries solved: [e0, e1) (each cell's fit is its own lanes' arithmetic: the same bits
+  // whichever cells share its block)
+  const std::ptrdiff_t e0 = compact ? 0 : j0, e1 = compact ? m : j1, ns = e1 - e0;
+  round_counts(ns, S + e0, S + 10 * cap + e0);
+  solve_fits(ns, cap, S + e0, Q + e0, F + e0, okf + e0, redo + e0);
   // The cells whose Newton iteration has not ended in 4 steps (rough or strongly anisotropic
   // windows, as a profiler's 0.05 x 1 mm cells make): again in vector code, kRedo at a time,
   // with fit_from_sums's arithmetic (its results bit for bit).
@@ -381,7 +390,9 @@ inline RowFits row_solve(const double* col, std::ptrdiff_t stride, std::ptrdiff_
       }
       nr = 0;
     };
-    for (std::ptrdiff_t e = 0; e < ns; ++e) {
+    std::uint8_t any = 0;  // most rows have none: one vector pass
+    for (std::ptrdiff_t e = e0; e < e1; ++e) any |= redo[e];
+    for (std::ptrdiff_t e = any ? e0 : e1; e < e1; ++e) {
       if (!redo[e]) continue;
       for (int k = 0; k < kMoments; ++k) S2[k * kRedo + nr] = S[k * cap + e];
       for (int k = 0; k < 3; ++k) Q2[k * kRedo + nr] = Q[k * cap + e];
@@ -390,7 +401,7 @@ inline RowFits row_solve(const double* col, std::ptrdiff_t stride, std::ptrdiff_
     }
     if (nr > 0) flush();
   }
-  return RowFits{S, F, okf, redo, cap, compact};
+  return RowFits{S, F, okf, redo, cap, compact, j0, j1};
 }
 
 template <typename Visit>
@@ -471,12 +482,22 @@ void window_fits_rows(const GridView<T>& g, const std::uint8_t* cls, int window,
     if (sc.flags.size() < static_cast<std::size_t>(3 * cap)) sc.flags.resize(3 * cap);
     const std::ptrdiff_t tr0 = (t / tiles_c) * kBand, tc0 = (t % tiles_c) * kStrip;
     const std::ptrdiff_t tr1 = std::min(H, tr0 + kBand), tc1 = std::min(W, tc0 + kStrip);
+    // A local copy of the predicate: through the caller's closure each byte store to wrow
+    // would reload its captures (char stores alias everything), and the loops would not vectorise.
+    const Want want_l = want;
     std::ptrdiff_t n_wanted = 0, last = tr0;  // last: the tile's last row with a wanted cell
+    std::ptrdiff_t cend = tc0;                 // after the tile's last column with a wanted cell
     for (std::ptrdiff_t r = tr0; r < tr1; ++r) {
       std::ptrdiff_t m = 0;
-      for (std::ptrdiff_t c = tc0; c < tc1; ++c) m += want(r * W + c) ? 1 : 0;
+      for (std::ptrdiff_t c = tc0; c < tc1; ++c) m += want_l(r * W + c) ? 1 : 0;
       n_wanted += m;
-      if (m > 0) last = r;
+      if (m == 0) continue;
+      last = r;
+      for (std::ptrdiff_t c = tc1; c > cend; --c)
+        if (want_l(r * W + c - 1)) {
+          cend = c;
+          break;
+        }
     }
     if (n_wanted == 0) continue;
     if (n_wanted <= kDirect) {  // a few cells: their windows directly, cheaper than the sums
@@ -489,7 +510,9 @@ void window_fits_rows(const GridView<T>& g, const std::uint8_t* cls, int window,
     const std::ptrdiff_t R1 = std::min(H, tr1 + half);
     const std::ptrdiff_t C0 = std::max<std::ptrdiff_t>(0, tc0 - half);
     const std::ptrdiff_t C1 = std::min(W, tc1 + half);
-    const std::ptrdiff_t nc = C1 - C0;
+    // Columns with sums: up to half past the last wanted column (each column's sums are its own;
+    // the box sums of a cell read half columns either side).
+    const std::ptrdiff_t nc = std::min(C1, cend + half) - C0;
     // Local origin: a NORMAL cell of the region, searched from the tile's middle row.
     Eigen::Vector3d origin = Eigen::Vector3d::Zero();
     bool any = false;
@@ -549,17 +572,22 @@ void window_fits_rows(const GridView<T>& g, const std::uint8_t* cls, int window,
         }
       }
       std::ptrdiff_t m = 0;
-      for (std::ptrdiff_t j = 0; j < ncols; ++j) {
-        const bool w = want(r * W + tc0 + j);
-        wrow[j] = w;
-        m += w;
+      {
+        std::uint8_t* __restrict wr = wrow;
+        const std::ptrdiff_t i0 = r * W + tc0;
+        for (std::ptrdiff_t j = 0; j < ncols; ++j) {
+          const bool w = want_l(i0 + j);
+          wr[j] = w;
+          m += w;
+        }
       }
       if (m == 0) continue;
       {
         const double* x = ring_row(r) + (tc0 - C0);
-        std::copy(x, x + ncols, Q);
-        std::copy(x + span, x + span + ncols, Q + cap);
-        std::copy(x + 2 * span, x + 2 * span + ncols, Q + 2 * cap);
+        const std::ptrdiff_t nq = cend - tc0;  // no cell after it is wanted
+        std::copy(x, x + nq, Q);
+        std::copy(x + span, x + span + nq, Q + cap);
+        std::copy(x + 2 * span, x + 2 * span + nq, Q + 2 * cap);
       }
       const RowFits rf =
           row_solve(cs + pad + (tc0 - C0), stride, half, ncols, cap, wrow, m, S, Q, F, okf, redo);
