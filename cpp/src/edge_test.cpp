@@ -346,6 +346,39 @@ void edge_image_row(const GridView<T>& g, std::ptrdiff_t row, const std::uint8_t
   }
 }
 
+// SPEC "Edge test" step 7, isolated spikes: NORMAL candidate (rr, cc) of grid row `grow`
+// (grid rows 0..H - 1: `rr`), with all 8 neighbours inside the grid, lies more than
+// kEdgeSpikeTol x tol off every clean side (edge_spike_side), and the median over its
+// neighbours with a return of |u . (q - centroid)| for the cleanest side is below kEdgeSpikeIso
+// x |h|. The formulas are miem.reference._spikes'.
+template <typename T>
+bool is_spike(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t grow,
+              std::ptrdiff_t rr, std::ptrdiff_t cc, std::ptrdiff_t H, const Eigen::Vector3d& o,
+              const Side (&sd)[8], double best) {
+  const std::ptrdiff_t W = g.cols;
+  if (labels[grow * W + cc] != kNormal || rr < 1 || rr + 1 >= H || cc < 1 || cc + 1 >= W) {
+    return false;
+  }
+  const int s = edge_spike_side(sd, best);
+  if (s < 0) return false;
+  const Side& x = sd[s];
+  double d[8];
+  int n = 0;
+  for (std::ptrdiff_t a = -1; a <= 1; ++a) {
+    for (std::ptrdiff_t b = -1; b <= 1; ++b) {
+      if ((a == 0 && b == 0) || labels[(grow + a) * W + cc + b] == kInvalid) continue;
+      const Eigen::Vector3d q = (g(grow + a, cc + b) - o) - x.centroid;
+      const double v = std::abs(dot3(q, x.normal));
+      int i = n++;  // insertion: d[0..n) ascending
+      for (; i > 0 && d[i - 1] > v; --i) d[i] = d[i - 1];
+      d[i] = v;
+    }
+  }
+  if (n == 0) return false;
+  const double median = n % 2 ? d[n / 2] : (d[n / 2 - 1] + d[n / 2]) / 2.0;
+  return median < kEdgeSpikeIso * std::abs(x.h);
+}
+
 template <typename T>
 void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr,
                     std::ptrdiff_t H, std::ptrdiff_t C0, std::ptrdiff_t C1,
@@ -655,6 +688,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
         }
       }
       if (!abnormal) abnormal = is_hanging(g, lab, grow, cols[j], r, sd, best);
+      if (!abnormal) abnormal = is_spike(g, lab, grow, rr, cols[j], H, o, sd, best);
       mark[i] = abnormal ? 1 : 0;
     }
   }

@@ -45,4 +45,26 @@ inline bool edge_abnormal(const EdgeSide (&sd)[N], double best, Opposite opposit
   return false;
 }
 
+/// Isolated spike (SPEC "Edge test" step 7): P lies more than this times its tolerance off every
+/// clean side (2 x edge_k rms: a cell the shortcut certifies, |h| <= tol on a clean side, never
+/// qualifies) ...
+constexpr double kEdgeSpikeTol = 2.0;
+/// ... and the median distance of its neighbours to the cleanest side's plane is below this
+/// times P's (on a fillet or a bend the neighbours lie as far off that plane as P).
+constexpr double kEdgeSpikeIso = 0.2;
+
+/// Step 7's first half: the cleanest side (the first with the smallest rms among the valid,
+/// non-steep ones) when P lies more than kEdgeSpikeTol x tol off every clean side, else -1.
+template <int N>
+inline int edge_spike_side(const EdgeSide (&sd)[N], double best) {
+  int cleanest = -1;
+  for (int s = 0; s < N; ++s) {
+    const EdgeSide& x = sd[s];
+    if (!x.valid || x.steep || !(x.rms <= kEdgeCleanRatio * best)) continue;
+    if (!(std::abs(x.h) > kEdgeSpikeTol * x.tol)) return -1;
+    if (cleanest < 0 && x.rms == best) cleanest = s;
+  }
+  return cleanest;
+}
+
 }  // namespace miem::detail

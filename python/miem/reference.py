@@ -1228,6 +1228,51 @@ def _hanging(
     return out
 
 
+#: Isolated spikes (SPEC "Edge test" step 7): P lies more than this times its tolerance off
+#: every clean side (2 x edge_k rms: never a cell that fits a clean side) ...
+_EDGE_SPIKE_TOL = 2.0
+#: ... and its neighbours' median distance to the cleanest side's plane is below this times P's.
+_EDGE_SPIKE_ISO = 0.2
+
+
+def _spikes(
+    grid: NDArray[np.float64],
+    labels: NDArray[np.uint8],
+    cells: NDArray[np.bool_],
+    origin: NDArray[np.float64],
+    h: NDArray[np.float64],
+    tol: NDArray[np.float64],
+    level: NDArray[np.bool_],
+    clean: NDArray[np.bool_],
+    rms: NDArray[np.float64],
+    nrm: NDArray[np.float64],
+    cen: NDArray[np.float64],
+) -> NDArray[np.bool_]:
+    """The cells of ``cells`` (row-major; side arrays of shape (8, N)) that are *isolated
+    spikes* (SPEC "Edge test" step 7): NORMAL, all 8 neighbours inside the grid, more than
+    ``_EDGE_SPIKE_TOL`` x tol off every clean side, and the median over the neighbours with a
+    return of their distance to the cleanest side's plane below ``_EDGE_SPIKE_ISO`` x P's."""
+    hh, ww = labels.shape
+    rr, cc = np.nonzero(cells)
+    out = np.zeros(rr.size, dtype=bool)
+    far = ~(clean & ~(np.abs(h) > _EDGE_SPIKE_TOL * tol)).any(axis=0) & clean.any(axis=0)
+    far &= (labels[rr, cc] == NORMAL) & (rr >= 1) & (rr + 1 < hh) & (cc >= 1) & (cc + 1 < ww)
+    cleanest = np.argmin(np.where(level, rms, np.inf), axis=0)  # the first smallest
+    for i in np.flatnonzero(far):
+        s = cleanest[i]
+        u, m = nrm[s, i], cen[s, i]
+        d = [abs(float(_dot3((grid[rr[i] + a, cc[i] + b] - origin) - m, u)))
+             for a in (-1, 0, 1) for b in (-1, 0, 1)
+             if (a or b) and labels[rr[i] + a, cc[i] + b] != INVALID]
+        if not d:
+            continue
+        d.sort()
+        n = len(d)
+        median = d[n // 2] if n % 2 else (d[n // 2 - 1] + d[n // 2]) / 2.0
+        out[i] = median < _EDGE_SPIKE_ISO * abs(h[s, i])
+    return out
+
+
 def _edge_pass(
     grid: NDArray[np.float64],
     labels: NDArray[np.uint8],
@@ -1266,7 +1311,7 @@ def _edge_verdicts(
     k: float,
     origin: NDArray[np.float64],
 ) -> NDArray[np.bool_]:
-    """Steps 4-6 of the edge test for the cells of ``cells`` (sums relative to ``origin``)."""
+    """Steps 4-7 of the edge test for the cells of ``cells`` (sums relative to ``origin``)."""
     out = np.zeros_like(cells)
     h, rms, spread, valid, nrm, cen, empty = _side_fits(
         grid, labels == NORMAL, labels == INVALID, cells, r, origin)
@@ -1298,6 +1343,8 @@ def _edge_verdicts(
         sel[cells] = hang
         hang[hang] = _hanging(grid, labels, sel, r, below[:, hang], h[:, hang], nrm[:, hang])
         out[cells] |= hang
+    # an isolated spike far off every clean side that no other step flags (step 7)
+    out[cells] |= _spikes(grid, labels, cells, origin, h, tol, level, clean, rms, nrm, cen)
     return out
 
 
