@@ -318,7 +318,7 @@ def test_cloud_small_tiles_full_iterations(client) -> None:
     pts = cloud(60, seed=2)
     spacing = miem.point_spacing(pts)
     check_points_equal(pts, 900, preset="paper")
-    # the paper's method: the recommended cloud preset's edge_extent is refused on tiles
+    # the paper's method with radius and min_step given, on small tiles (8 or more a side)
     kw = {"preset": "paper", "radius": 4 * spacing, "min_step": 0.5 * spacing}
     res = mdask.detect_points(pts, tile=7.0, **kw)
     assert res.params["tiles"][0] >= 8
