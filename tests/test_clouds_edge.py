@@ -5,11 +5,17 @@ is found; the core equals the reference; labels do not depend on row order, a ri
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 import miem
 from miem import reference as ref
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from cloud_checks import assert_same_cloud_result  # noqa: E402
 
 A = miem.ABNORMAL
 ON = {"edge_tolerance": 3.0}
@@ -34,16 +40,6 @@ def cut_scene(seed: int, n: int = 56, step: float = 0.3) -> tuple[np.ndarray, np
     pts, burr = pts[keep], burr[keep]
     order = rng.permutation(len(pts))
     return np.ascontiguousarray(pts[order]), burr[order]
-
-
-def _same(core: miem.DetectResult, oracle: ref.RefPointsResult) -> None:
-    np.testing.assert_array_equal(core.labels, oracle.labels)
-    np.testing.assert_array_equal(core.flags, oracle.flags)
-    np.testing.assert_allclose(core.height, oracle.height, atol=1e-9, equal_nan=True)
-    assert core.iterations == oracle.iterations
-    assert core.params["edge_radius"] == pytest.approx(oracle.params["edge_radius"], rel=1e-12)
-    assert [d.indices.tolist() for d in core.defects] == [
-        d.indices.tolist() for d in oracle.defects]
 
 
 def fillet_scene(seed: int, n: int = 50, step: float = 0.3) -> np.ndarray:
@@ -232,7 +228,7 @@ def test_burr_on_a_cut_outline_is_found(seed: int) -> None:
                          ids=["default-radius", "radius-iterations", "no-height-test"])
 def test_core_matches_reference(seed: int, params: dict) -> None:
     pts, _ = cut_scene(seed, n=40)
-    _same(miem.detect_points(pts, **params), ref.detect_points(pts, **params))
+    assert_same_cloud_result(miem.detect_points(pts, **params), ref.detect_points(pts, **params))
 
 
 @pytest.mark.parametrize("k", [DEFAULT_K, 2.0, 1.0])
@@ -241,7 +237,8 @@ def test_core_matches_reference_at_the_border(k: float, scene: str) -> None:
     # low k: many sectors stand proud, so the top and level rules and the half-disk counts
     # decide
     pts = fillet_scene(1, n=36) if scene == "fillet" else bead_scene(0)[0]
-    _same(miem.detect_points(pts, edge_tolerance=k), ref.detect_points(pts, edge_tolerance=k))
+    assert_same_cloud_result(miem.detect_points(pts, edge_tolerance=k),
+                             ref.detect_points(pts, edge_tolerance=k))
 
 
 def test_invariances() -> None:
@@ -258,7 +255,7 @@ def test_invariances() -> None:
         res = miem.detect_points(moved, **ON)
         np.testing.assert_array_equal(res.labels == A, base.labels == A)
     p32 = (pts + 1e3).astype(np.float32)
-    _same(miem.detect_points(p32, **ON), ref.detect_points(p32, **ON))
+    assert_same_cloud_result(miem.detect_points(p32, **ON), ref.detect_points(p32, **ON))
     for nt in (1, 2, 3):
         np.testing.assert_array_equal(miem.detect_points(pts, num_threads=nt, **ON).labels,
                                       base.labels)

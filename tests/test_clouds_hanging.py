@@ -5,11 +5,17 @@ the reference; labels do not depend on row order, a rigid motion, a 1e5 offset o
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 import miem
 from miem import reference as ref
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from cloud_checks import assert_same_cloud_result  # noqa: E402
 
 A = miem.ABNORMAL
 STEP = 0.1
@@ -49,13 +55,6 @@ def wall_scene(seed: int, drop: float = 1.5, hang_depth: float = 0.3,
     pts[:, :2] += rng.uniform(-0.25 * STEP, 0.25 * STEP, (x.size, 2))
     order = rng.permutation(len(pts))
     return np.ascontiguousarray(pts[order]), hang[order]
-
-
-def _same(core: miem.DetectResult, oracle: ref.RefPointsResult) -> None:
-    np.testing.assert_array_equal(core.labels, oracle.labels)
-    np.testing.assert_array_equal(core.flags, oracle.flags)
-    np.testing.assert_allclose(core.height, oracle.height, atol=1e-9, equal_nan=True)
-    assert core.iterations == oracle.iterations
 
 
 def _hangs_by_hand(pts: np.ndarray, normal: np.ndarray, ground: np.ndarray, i: int,
@@ -155,7 +154,7 @@ def test_chamfer_below_a_wall_top_stays_clean(deg: float) -> None:
 def test_core_matches_reference(params: dict) -> None:
     # edge_radius 1.6 mm: the floor 1.5 mm below is in the sectors (the shelf by a ground point)
     pts, _ = wall_scene(1)
-    _same(miem.detect_points(pts, **params), ref.detect_points(pts, **params))
+    assert_same_cloud_result(miem.detect_points(pts, **params), ref.detect_points(pts, **params))
 
 
 def test_invariances() -> None:
@@ -171,7 +170,7 @@ def test_invariances() -> None:
     for moved in (pts @ rot.T + [3.0, -7.0, 11.0], pts + 1e5):
         np.testing.assert_array_equal(miem.detect_points(moved).labels == A, base.labels == A)
     p32 = (pts + 1e3).astype(np.float32)
-    _same(miem.detect_points(p32), ref.detect_points(p32))
+    assert_same_cloud_result(miem.detect_points(p32), ref.detect_points(p32))
     for nt in (1, 2):
         np.testing.assert_array_equal(miem.detect_points(pts, num_threads=nt).labels,
                                       base.labels)
