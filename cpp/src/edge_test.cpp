@@ -256,7 +256,7 @@ template <typename T>
 bool is_hanging(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
                 std::ptrdiff_t cc, std::ptrdiff_t r, const Side (&sd)[8], double best) {
   const auto clean = [&](int s) {
-    return sd[s].valid && !sd[s].steep && sd[s].rms <= kEdgeCleanRatio * best;
+    return edge_clean(sd[s], best);
   };
   for (int s = 0; s < 8; ++s) {
     if (!sd[s].empty && clean(s) && !(std::abs(sd[s].h) > sd[s].tol)) return false;
@@ -680,8 +680,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       if (!abnormal && is_fin(g, lab, grow, cols[j], r)) {  // a fin that fits no clean side
         abnormal = true;
         for (const Side& x : sd) {
-          if (x.valid && !x.steep && x.rms <= kEdgeCleanRatio * best &&
-              !(std::abs(x.h) > x.tol)) {
+          if (edge_clean(x, best) && !(std::abs(x.h) > x.tol)) {
             abnormal = false;
             break;
           }
@@ -734,7 +733,6 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
   // such tiles in order; a tile's marks are read only while it has its flag
   std::vector<std::uint8_t> tile_todo(static_cast<std::size_t>(tiles_r * tiles_c), 1);
   std::vector<std::int64_t> active;
-  std::vector<std::vector<std::int64_t>> parts;  // a pass's new ABNORMAL cells per thread
   int passes = 0;
   for (int it = 0; it < max_iterations; ++it) {
     ++passes;
@@ -810,11 +808,8 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
       tile_todo[static_cast<std::size_t>(t)] = 0;
     }
     const std::ptrdiff_t units = static_cast<std::ptrdiff_t>(active.size()) * kTileRows;
-    added.clear();
-    parts.resize(static_cast<std::size_t>(ntn));
-    for (auto& part : parts) part.clear();  // (a thread with an empty range leaves its own)
-    parallel_ranges(ntn, units, kTileRows, [&](int th, std::ptrdiff_t u0, std::ptrdiff_t u1) {
-      std::vector<std::int64_t>& part = ntn > 1 ? parts[static_cast<std::size_t>(th)] : added;
+    collect_ranges(ntn, units, kTileRows, added,
+                   [&](std::ptrdiff_t u0, std::ptrdiff_t u1, std::vector<std::int64_t>& part) {
       for (std::ptrdiff_t u = u0; u < u1; ++u) {
         const std::ptrdiff_t t = active[static_cast<std::size_t>(u / kTileRows)];
         const std::ptrdiff_t rr = (t / tiles_c) * kTileRows + u % kTileRows;
@@ -828,9 +823,6 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
         }
       }
     });
-    if (ntn > 1) {
-      for (const auto& part : parts) added.insert(added.end(), part.begin(), part.end());
-    }
     for (const std::int64_t i : added) {
       // only cells with a new ABNORMAL cell in their window can change at the next pass
       const std::ptrdiff_t rr = i / W, cc = i % W;

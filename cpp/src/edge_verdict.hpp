@@ -25,6 +25,11 @@ struct EdgeSide {
   Eigen::Vector3d normal, centroid;      // centroid in any frame shared by the sides
 };
 
+/// A clean side (SPEC "Edge test" step 4): valid, not steep, rms <= kEdgeCleanRatio x best.
+inline bool edge_clean(const EdgeSide& x, double best) {
+  return x.valid && !x.steep && x.rms <= kEdgeCleanRatio * best;
+}
+
 /// SPEC "Edge test" steps 4-6: P fits no clean side and stands proud of one whose opposite
 /// side (`opposite(s)`) is empty or falls away below its plane. `best`: the smallest rms of
 /// the valid sides.
@@ -32,13 +37,13 @@ template <int N, typename Opposite>
 inline bool edge_abnormal(const EdgeSide (&sd)[N], double best, Opposite opposite) {
   for (int s = 0; s < N; ++s) {
     const EdgeSide& x = sd[s];
-    if (x.valid && !x.steep && x.rms <= kEdgeCleanRatio * best && !(std::abs(x.h) > x.tol)) {
+    if (edge_clean(x, best) && !(std::abs(x.h) > x.tol)) {
       return false;
     }
   }
   for (int s = 0; s < N; ++s) {
     const EdgeSide& x = sd[s];
-    if (!x.valid || x.steep || !(x.rms <= kEdgeCleanRatio * best) || !(x.h > x.tol)) continue;
+    if (!edge_clean(x, best) || !(x.h > x.tol)) continue;
     const EdgeSide& y = sd[opposite(s)];
     if (y.empty || (y.valid && dot3(x.normal, y.centroid - x.centroid) < -x.tol)) return true;
   }
@@ -60,7 +65,7 @@ inline int edge_spike_side(const EdgeSide (&sd)[N], double best) {
   int cleanest = -1;
   for (int s = 0; s < N; ++s) {
     const EdgeSide& x = sd[s];
-    if (!x.valid || x.steep || !(x.rms <= kEdgeCleanRatio * best)) continue;
+    if (!edge_clean(x, best)) continue;
     if (!(std::abs(x.h) > kEdgeSpikeTol * x.tol)) return -1;
     if (cleanest < 0 && x.rms == best) cleanest = s;
   }

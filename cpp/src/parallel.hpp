@@ -66,21 +66,30 @@ void parallel_ranges(int nt, std::ptrdiff_t n, std::ptrdiff_t align, F f) {
 /// into `out` (cleared first): nt threads scan one range each and their lists are joined in
 /// order, so `out` does not depend on nt. For the stages' scans for new ABNORMAL cells or a
 /// pass's marks, which ran on one thread.
-template <typename Keep>
-void collect_indices(int nt, std::ptrdiff_t n, std::vector<std::int64_t>& out, Keep keep) {
+/// The same for ranges of `grain` units that each yield any number of indices: fn(u0, u1, part)
+/// appends those of units [u0, u1) to `part`; the parts are joined in order.
+template <typename Fn>
+void collect_ranges(int nt, std::ptrdiff_t n, std::ptrdiff_t grain, std::vector<std::int64_t>& out,
+                    Fn fn) {
   out.clear();
   if (nt <= 1) {
-    for (std::ptrdiff_t i = 0; i < n; ++i)
-      if (keep(i)) out.push_back(i);
+    fn(std::ptrdiff_t{0}, n, out);
     return;
   }
   std::vector<std::vector<std::int64_t>> parts(static_cast<std::size_t>(nt));
-  parallel_ranges(nt, n, 64, [&](int t, std::ptrdiff_t i0, std::ptrdiff_t i1) {
-    std::vector<std::int64_t>& part = parts[static_cast<std::size_t>(t)];
-    for (std::ptrdiff_t i = i0; i < i1; ++i)
-      if (keep(i)) part.push_back(i);
+  parallel_ranges(nt, n, grain, [&](int t, std::ptrdiff_t u0, std::ptrdiff_t u1) {
+    fn(u0, u1, parts[static_cast<std::size_t>(t)]);
   });
   for (const auto& part : parts) out.insert(out.end(), part.begin(), part.end());
+}
+
+template <typename Keep>
+void collect_indices(int nt, std::ptrdiff_t n, std::vector<std::int64_t>& out, Keep keep) {
+  collect_ranges(nt, n, 64, out,
+                 [&](std::ptrdiff_t i0, std::ptrdiff_t i1, std::vector<std::int64_t>& part) {
+                   for (std::ptrdiff_t i = i0; i < i1; ++i)
+                     if (keep(i)) part.push_back(i);
+                 });
 }
 
 }  // namespace miem::detail
