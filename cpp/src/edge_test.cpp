@@ -138,18 +138,22 @@ MIEM_EDGE_CLONES void side_planes(std::ptrdiff_t m, std::ptrdiff_t cap, double k
   }
 }
 
-// For each of m cells (SoA over the 8 sides, entry s * m + j): the side with the smallest
+// For each of m cells (side s's bound of cell j at low[s][j]): the side with the smallest
 // bound, the first among equal ones (as `if (low[s] < low[best]) best = s` in side order), and
 // that bound. Branch-free and vectorised over the cells: which side wins is data-dependent, so
 // a branch per side mispredicts.
-MIEM_EDGE_CLONES void best_sides(int m, const double* __restrict lowb,
+MIEM_EDGE_CLONES void best_sides(int m, const double* const* low,
                                  std::int64_t* __restrict sb, double* __restrict low1) {
+  const double *__restrict l0 = low[0], *__restrict l1 = low[1], *__restrict l2 = low[2];
+  const double *__restrict l3 = low[3], *__restrict l4 = low[4], *__restrict l5 = low[5];
+  const double *__restrict l6 = low[6], *__restrict l7 = low[7];
 #pragma GCC ivdep
   for (int j = 0; j < m; ++j) {
-    double best = lowb[j];
+    const double v8[8] = {l0[j], l1[j], l2[j], l3[j], l4[j], l5[j], l6[j], l7[j]};
+    double best = v8[0];
     std::int64_t b = 0;
     for (std::int64_t s = 1; s < 8; ++s) {
-      const double v = lowb[s * m + j];
+      const double v = v8[s];
       const bool lt = v < best;
       best = lt ? v : best;
       b = lt ? s : b;
@@ -298,20 +302,81 @@ bool is_hanging(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t
 
 namespace {
 
-// Cell (row, cc)'s terms of the kM moments (label l): n, x, y, z, xx, xy, xz, yy, yz, zz of a
-// NORMAL cell relative to the origin o, and the INVALID count.
-template <typename T>
-inline void cell_moments(const GridView<T>& g, std::ptrdiff_t row, std::ptrdiff_t cc,
-                         std::uint8_t l, const Eigen::Vector3d& o, double (&t)[kM]) {
-  for (int q = 0; q < kM; ++q) t[q] = 0.0;
-  if (l == kNormal) {
-    const Eigen::Vector3d p = g(row, cc) - o;
-    t[0] = 1.0;
-    t[1] = p.x(), t[2] = p.y(), t[3] = p.z();
-    t[4] = p.x() * p.x(), t[5] = p.x() * p.y(), t[6] = p.x() * p.z();
-    t[7] = p.y() * p.y(), t[8] = p.y() * p.z(), t[9] = p.z() * p.z();
+// s[j] += u[j] (v null) or u[j] * v[j], j < n: column sums, vectorised over the columns.
+MIEM_EDGE_CLONES void column_add(std::ptrdiff_t n, double* __restrict s,
+                                 const double* __restrict u, const double* __restrict v) {
+  if (v == nullptr) {
+    for (std::ptrdiff_t j = 0; j < n; ++j) s[j] += u[j];
+  } else {
+    for (std::ptrdiff_t j = 0; j < n; ++j) s[j] += u[j] * v[j];
   }
-  t[10] = l == kInvalid ? 1.0 : 0.0;
+}
+
+// The running sums along an image row of NQ moments (moment q: out[q * plane + j + 1] =
+// out[q * plane + j] + col[q * col_plane + j], j < n), NQ chains side by side, each sum kept
+// in a register (the same additions in the same order as one at a time).
+template <int NQ>
+inline void row_prefix(std::ptrdiff_t n, double* __restrict out, std::ptrdiff_t plane,
+                       const double* __restrict col, std::ptrdiff_t col_plane) {
+  double run[NQ];
+  for (int q = 0; q < NQ; ++q) run[q] = out[q * plane];
+  for (std::ptrdiff_t j = 0; j < n; ++j) {
+    for (int q = 0; q < NQ; ++q) {
+      run[q] += col[q * col_plane + j];
+      out[q * plane + j + 1] = run[q];
+    }
+  }
+}
+
+// Adds cell row `row` of g (labels `lab`) over grid columns f0 .. f1 - 1 to the column sums
+// (moment q of column f0 + x at col[q * col_plane + x]): per cell n, x, y, z, xx, xy, xz, yy,
+// yz, zz of a NORMAL cell relative to the origin o (0 for any other cell) and the INVALID
+// count. With `out`, also the image row: moment q at out[q * plane], 0 then x + 1 for column
+// f0 + x, the running sum of the column sums along the row (NumPy's order). Blocks of kB
+// columns: the cells' terms branch-free, the column sums vectorised over the columns (each
+// column's own addition: the same bits), the row prefix in its one serial order.
+template <typename T>
+void add_row_moments(const GridView<T>& g, std::ptrdiff_t row, const std::uint8_t* lab,
+                     std::ptrdiff_t f0, std::ptrdiff_t f1, const Eigen::Vector3d& o,
+                     double* __restrict col, std::ptrdiff_t col_plane, double* __restrict out,
+                     std::ptrdiff_t plane) {
+  constexpr std::ptrdiff_t kB = 64;
+  double px[kB], py[kB], pz[kB], nm[kB], iv[kB];
+  const double ox = o.x(), oy = o.y(), oz = o.z();
+  const std::ptrdiff_t cs = g.col_stride, ds = g.coord_stride;
+  if (out != nullptr) {
+    for (int q = 0; q < kM; ++q) out[q * plane] = 0.0;
+  }
+  for (std::ptrdiff_t b = f0; b < f1; b += kB) {
+    const std::ptrdiff_t n = std::min(kB, f1 - b);
+    const T* const p = g.data + row * g.row_stride + b * cs;
+    const std::uint8_t* const lb = lab + b;
+    for (std::ptrdiff_t j = 0; j < n; ++j) {
+      const bool normal = lb[j] == kNormal;
+      const T* const c = p + j * cs;
+      px[j] = normal ? static_cast<double>(c[0]) - ox : 0.0;
+      py[j] = normal ? static_cast<double>(c[ds]) - oy : 0.0;
+      pz[j] = normal ? static_cast<double>(c[2 * ds]) - oz : 0.0;
+      nm[j] = normal ? 1.0 : 0.0;
+      iv[j] = lb[j] == kInvalid ? 1.0 : 0.0;
+    }
+    double* const cb = col + (b - f0);
+    const auto add = [n](double* s, const double* t) { column_add(n, s, t, nullptr); };
+    const auto add2 = [n](double* s, const double* u, const double* v) {
+      column_add(n, s, u, v);
+    };
+    add(cb, nm);
+    add(cb + col_plane, px), add(cb + 2 * col_plane, py), add(cb + 3 * col_plane, pz);
+    add2(cb + 4 * col_plane, px, px), add2(cb + 5 * col_plane, px, py);
+    add2(cb + 6 * col_plane, px, pz), add2(cb + 7 * col_plane, py, py);
+    add2(cb + 8 * col_plane, py, pz), add2(cb + 9 * col_plane, pz, pz);
+    add(cb + 10 * col_plane, iv);
+    if (out == nullptr) continue;
+    double* const ob = out + (b - f0);
+    row_prefix<4>(n, ob, plane, cb, col_plane);
+    row_prefix<4>(n, ob + 4 * plane, plane, cb + 4 * col_plane, col_plane);
+    row_prefix<kM - 8>(n, ob + 8 * plane, plane, cb + 8 * col_plane, col_plane);
+  }
 }
 
 // edge_image_row's column sums only (the image row itself is not written): for the rows above
@@ -320,11 +385,7 @@ template <typename T>
 void edge_column_row(const GridView<T>& g, std::ptrdiff_t row, const std::uint8_t* lab,
                      std::ptrdiff_t f0, std::ptrdiff_t f1, const Eigen::Vector3d& o, double* col,
                      std::ptrdiff_t col_plane) {
-  for (std::ptrdiff_t cc = f0; cc < f1; ++cc) {
-    double t[kM];
-    cell_moments(g, row, cc, lab[cc], o, t);
-    for (int q = 0; q < kM; ++q) col[q * col_plane + cc - f0] += t[q];
-  }
+  add_row_moments(g, row, lab, f0, f1, o, col, col_plane, nullptr, 0);
 }
 
 }  // namespace
@@ -333,17 +394,7 @@ template <typename T>
 void edge_image_row(const GridView<T>& g, std::ptrdiff_t row, const std::uint8_t* lab,
                     std::ptrdiff_t f0, std::ptrdiff_t f1, const Eigen::Vector3d& o, double* col,
                     std::ptrdiff_t col_plane, double* out, std::ptrdiff_t plane) {
-  for (int q = 0; q < kM; ++q) out[q * plane] = 0.0;
-  for (std::ptrdiff_t cc = f0; cc < f1; ++cc) {
-    double t[kM];
-    cell_moments(g, row, cc, lab[cc], o, t);
-    const std::ptrdiff_t x = cc - f0;
-    for (int q = 0; q < kM; ++q) {
-      double& cs = col[q * col_plane + x];
-      cs += t[q];
-      out[q * plane + x + 1] = out[q * plane + x] + cs;
-    }
-  }
+  add_row_moments(g, row, lab, f0, f1, o, col, col_plane, out, plane);
 }
 
 // SPEC "Edge test" step 7, isolated spikes: NORMAL candidate (rr, cc) of grid row `grow`
@@ -390,12 +441,14 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
   const double* const S = im.data;
   const std::uint8_t* const lrow = lab + grow * W;  // the cell's row
   const auto srow = [&im](std::ptrdiff_t s) { return ((s - im.first) % im.rows) * im.stride; };
-  // Up to kChunk candidate cells of the row at a time, all as SoA over their 8 sides
-  // (entry e = side * m + cell): the sub-window sums (corner reads, vectorised over the
-  // cells, or over their span when they are not consecutive, away from the grid border),
-  // then bounds, moments, eigenpairs and planes in vectorised loops; each cell is judged
-  // from those.
-  constexpr int kChunk = 16, kCap = 8 * kChunk;
+  // Candidate cells of the row a chunk at a time: a banded block's candidates all at once (up
+  // to kChunk, the block's width), else up to kSub, all as SoA over their 8 sides (entry
+  // e = side * m + cell): the sub-window sums (corner reads, vectorised over the cells, or
+  // over their span when they are not consecutive, away from the grid border; banded: the
+  // bands'), then bounds and the shortcut over the chunk, and for the cells it leaves,
+  // kSub at a time, moments, eigenpairs and planes of all 8 sides in vectorised loops; each
+  // cell is judged from those.
+  constexpr int kChunk = 64, kSub = 16, kCap = 8 * kSub;
   double mm[kM * kCap], Mb[6 * kCap], Eb[6 * kCap], nnb[kCap], ceb[3 * kCap];
   // F: h, rms, tol, oriented normal; P: the cells per side (filled for the full path only),
   // Pc: the cells (relative to the origin, q * kChunk + j)
@@ -403,7 +456,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
   // flags as doubles (1 or 0): 8-byte lanes throughout, so the vector loops run 8 (or 4) lanes
   // at a time, not 32 (a byte store per lane made GCC pick 32 and run chunks of 16 scalar)
   double okb[kCap], redob[kCap], useb[kCap], emptyb[kCap], validb[kCap];
-  double lowb[kCap];
+  double lowb[8 * kChunk];
   std::ptrdiff_t cols[kChunk];
   constexpr std::ptrdiff_t kSpan = 48;  // sums of up to kSpan columns for scattered cells
   double spn[kM * kSpan];
@@ -507,7 +560,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       }
     }
     int m = 0;
-    for (; cc < bend && m < kChunk; ++cc) {
+    for (const int lim = banded ? kChunk : kSub; cc < bend && m < lim; ++cc) {
       if (candidate(cc)) cols[m++] = cc;
     }
     if (m == 0) continue;
@@ -562,18 +615,19 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
     // kCleanRatio of the smallest bound it is clean whatever the other sides give, and
     // when the cell fits it the verdict is "no" without the other seven solves. The
     // others (and cells without a supported side: no valid side, "no") go on below.
+    const double* low8[8];  // side s's bound of cell j at low8[s][j]
     if (banded) {
       const bool consecutive = cols[m - 1] - cols[0] + 1 == m;
       for (int s = 0; s < 8; ++s) {
         const double* const bl = lowp[kBandOf[s]] + bpos(s, cols[0]);  // cell j: cols[j] - cols[0]
-        if (consecutive) {
-          for (int j = 0; j < m; ++j) lowb[s * m + j] = bl[j];
-        } else {
-          for (int j = 0; j < m; ++j) lowb[s * m + j] = bl[cols[j] - cols[0]];
-        }
+        low8[s] = bl;  // consecutive cells: straight from the band
+        if (consecutive) continue;
+        for (int j = 0; j < m; ++j) lowb[s * m + j] = bl[cols[j] - cols[0]];
+        low8[s] = lowb + s * m;
       }
     } else {
       side_lows(8 * m, kCap, n_min, mm, lowb);
+      for (int s = 0; s < 8; ++s) low8[s] = lowb + s * m;
     }
     int nf = 0;
     {
@@ -581,7 +635,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       double F1[6 * kChunk], low1[kChunk];
       double use1[kChunk], empty1[kChunk], ok1[kChunk], redo1[kChunk], valid1[kChunk];
       std::int64_t sb[kChunk];
-      best_sides(m, lowb, sb, low1);
+      best_sides(m, low8, sb, low1);
       for (int j = 0; j < m; ++j) {
         if (banded) {
           const int s = static_cast<int>(sb[j]);
@@ -611,84 +665,92 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
         cols[nf++] = cols[j];
       }
     }
-    // the cells left to the front, entry s * m + keep[f] to s * nf + f (in this order no
-    // entry is overwritten before it is moved: s * nf + f <= s * m + keep[f])
-    if (banded) {
-      for (int s = 0; s < 8; ++s) {
-        const double* const bs = bandp[kBandOf[s]];
-        for (int f = 0; f < nf; ++f) {
-          const std::ptrdiff_t i = bpos(s, cols[f]);
-          for (int q = 0; q < kM; ++q) mm[q * kCap + s * nf + f] = bs[q * kBandPos + i];
+    // The cells left (cols[0 .. nf), keep: their index in the chunk), kSub at a time: in the
+    // loop, m, cols and keep are the sub-chunk's. Their sides' sums to the front of mm: from
+    // the bands, or (unbanded: one sub-chunk) entry s * mc + keep[f] moved to s * m + f (in
+    // this order no entry is overwritten before it is moved: s * m + f <= s * mc + keep[f]).
+    const int mc = m;
+    const std::ptrdiff_t* const left = cols;
+    const int* const left_keep = keep;
+    for (int fa = 0; fa < nf; fa += kSub) {
+      const int m = std::min(kSub, nf - fa);
+      const std::ptrdiff_t* const cols = left + fa;
+      const int* const keep = left_keep + fa;
+      if (banded) {
+        for (int s = 0; s < 8; ++s) {
+          const double* const bs = bandp[kBandOf[s]];
+          for (int f = 0; f < m; ++f) {
+            const std::ptrdiff_t i = bpos(s, cols[f]);
+            for (int q = 0; q < kM; ++q) mm[q * kCap + s * m + f] = bs[q * kBandPos + i];
+          }
         }
-      }
-    } else if (nf != m) {
-      for (int s = 0; s < 8; ++s) {
-        for (int f = 0; f < nf; ++f) {
-          const int from = s * m + keep[f], to = s * nf + f;
-          if (from == to) continue;
-          for (int q = 0; q < kM; ++q) mm[q * kCap + to] = mm[q * kCap + from];
-        }
-      }
-    }
-    m = nf;
-    if (m == 0) continue;
-    for (int s = 0; s < 8; ++s) {  // the kept cells' points, one per side
-      for (int f = 0; f < nf; ++f) {
-        for (int q = 0; q < 3; ++q) P[q * kCap + s * nf + f] = Pc[q * kChunk + keep[f]];
-      }
-    }
-    const int ms = 8 * m;
-    side_moments(ms, kCap, n_min, mm, nnb, ceb, Mb, useb, emptyb);
-    smallest_eigenpairs_long(ms, kCap, Mb, Eb, okb, redob);
-    side_planes(ms, kCap, k, useb, okb, Eb, nnb, ceb, P, validb, F);
-    for (int e = 0; e < ms; ++e) {
-      if (!redob[e] || !useb[e]) continue;  // Newton needs more steps: the scalar routine
-      Eigen::Matrix3d M;
-      M(0, 0) = Mb[e];
-      M(1, 1) = Mb[kCap + e];
-      M(2, 2) = Mb[2 * kCap + e];
-      M(0, 1) = M(1, 0) = Mb[3 * kCap + e];
-      M(1, 2) = M(2, 1) = Mb[4 * kCap + e];
-      M(0, 2) = M(2, 0) = Mb[5 * kCap + e];
-      double l0 = 0.0, l1 = 0.0, l2 = 0.0;
-      Eigen::Vector3d nv = Eigen::Vector3d::Zero();
-      const bool solved = smallest_eigenpair(M, &l0, &l1, &l2, &nv);
-      side_plane(true, solved, l0, l1, l2, nv.x(), nv.y(), nv.z(), nnb[e], ceb[e],
-                 ceb[kCap + e], ceb[2 * kCap + e], P[e], P[kCap + e], P[2 * kCap + e], k,
-                 validb[e], F[e], F[kCap + e], F[2 * kCap + e], F[3 * kCap + e],
-                 F[4 * kCap + e], F[5 * kCap + e]);
-    }
-    for (int j = 0; j < m; ++j) {
-      const std::ptrdiff_t i = cols[j];
-      Side sd[8];
-      double best = std::numeric_limits<double>::infinity();
-      for (int s = 0; s < 8; ++s) {
-        const int e = s * m + j;
-        Side& x = sd[s];
-        x.empty = emptyb[e] != 0;
-        x.centroid = Eigen::Vector3d(ceb[e], ceb[kCap + e], ceb[2 * kCap + e]);
-        x.valid = validb[e] != 0;
-        if (!x.valid) continue;
-        x.h = F[e];
-        x.rms = F[kCap + e];
-        x.tol = F[2 * kCap + e];
-        x.normal = Eigen::Vector3d(F[3 * kCap + e], F[4 * kCap + e], F[5 * kCap + e]);
-        x.steep = x.normal.z() < kEdgeSteepCos;
-        if (!x.steep) best = std::min(best, x.rms);
-      }
-      bool abnormal = edge_abnormal(sd, best, [](int s) { return kOpposite[s]; });
-      if (!abnormal && is_fin(g, lab, grow, cols[j], r)) {  // a fin that fits no clean side
-        abnormal = true;
-        for (const Side& x : sd) {
-          if (edge_clean(x, best) && !(std::abs(x.h) > x.tol)) {
-            abnormal = false;
-            break;
+      } else if (m != mc) {
+        for (int s = 0; s < 8; ++s) {
+          for (int f = 0; f < m; ++f) {
+            const int from = s * mc + keep[f], to = s * m + f;
+            if (from == to) continue;
+            for (int q = 0; q < kM; ++q) mm[q * kCap + to] = mm[q * kCap + from];
           }
         }
       }
-      if (!abnormal) abnormal = is_hanging(g, lab, grow, cols[j], r, sd, best);
-      if (!abnormal) abnormal = is_spike(g, lab, grow, rr, cols[j], H, o, sd, best);
-      mark[i] = abnormal ? 1 : 0;
+      for (int s = 0; s < 8; ++s) {  // the kept cells' points, one per side
+        for (int f = 0; f < m; ++f) {
+          for (int q = 0; q < 3; ++q) P[q * kCap + s * m + f] = Pc[q * kChunk + keep[f]];
+        }
+      }
+      const int ms = 8 * m;
+      side_moments(ms, kCap, n_min, mm, nnb, ceb, Mb, useb, emptyb);
+      smallest_eigenpairs_long(ms, kCap, Mb, Eb, okb, redob);
+      side_planes(ms, kCap, k, useb, okb, Eb, nnb, ceb, P, validb, F);
+      for (int e = 0; e < ms; ++e) {
+        if (!redob[e] || !useb[e]) continue;  // Newton needs more steps: the scalar routine
+        Eigen::Matrix3d M;
+        M(0, 0) = Mb[e];
+        M(1, 1) = Mb[kCap + e];
+        M(2, 2) = Mb[2 * kCap + e];
+        M(0, 1) = M(1, 0) = Mb[3 * kCap + e];
+        M(1, 2) = M(2, 1) = Mb[4 * kCap + e];
+        M(0, 2) = M(2, 0) = Mb[5 * kCap + e];
+        double l0 = 0.0, l1 = 0.0, l2 = 0.0;
+        Eigen::Vector3d nv = Eigen::Vector3d::Zero();
+        const bool solved = smallest_eigenpair(M, &l0, &l1, &l2, &nv);
+        side_plane(true, solved, l0, l1, l2, nv.x(), nv.y(), nv.z(), nnb[e], ceb[e],
+                   ceb[kCap + e], ceb[2 * kCap + e], P[e], P[kCap + e], P[2 * kCap + e], k,
+                   validb[e], F[e], F[kCap + e], F[2 * kCap + e], F[3 * kCap + e],
+                   F[4 * kCap + e], F[5 * kCap + e]);
+      }
+      for (int j = 0; j < m; ++j) {
+        const std::ptrdiff_t i = cols[j];
+        Side sd[8];
+        double best = std::numeric_limits<double>::infinity();
+        for (int s = 0; s < 8; ++s) {
+          const int e = s * m + j;
+          Side& x = sd[s];
+          x.empty = emptyb[e] != 0;
+          x.centroid = Eigen::Vector3d(ceb[e], ceb[kCap + e], ceb[2 * kCap + e]);
+          x.valid = validb[e] != 0;
+          if (!x.valid) continue;
+          x.h = F[e];
+          x.rms = F[kCap + e];
+          x.tol = F[2 * kCap + e];
+          x.normal = Eigen::Vector3d(F[3 * kCap + e], F[4 * kCap + e], F[5 * kCap + e]);
+          x.steep = x.normal.z() < kEdgeSteepCos;
+          if (!x.steep) best = std::min(best, x.rms);
+        }
+        bool abnormal = edge_abnormal(sd, best, [](int s) { return kOpposite[s]; });
+        if (!abnormal && is_fin(g, lab, grow, cols[j], r)) {  // a fin that fits no clean side
+          abnormal = true;
+          for (const Side& x : sd) {
+            if (edge_clean(x, best) && !(std::abs(x.h) > x.tol)) {
+              abnormal = false;
+              break;
+            }
+          }
+        }
+        if (!abnormal) abnormal = is_hanging(g, lab, grow, cols[j], r, sd, best);
+        if (!abnormal) abnormal = is_spike(g, lab, grow, rr, cols[j], H, o, sd, best);
+        mark[i] = abnormal ? 1 : 0;
+      }
     }
   }
 }
