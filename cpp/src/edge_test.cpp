@@ -456,7 +456,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
   // flags as doubles (1 or 0): 8-byte lanes throughout, so the vector loops run 8 (or 4) lanes
   // at a time, not 32 (a byte store per lane made GCC pick 32 and run chunks of 16 scalar)
   double okb[kCap], redob[kCap], useb[kCap], emptyb[kCap], validb[kCap];
-  double lowb[8 * kChunk];
+  double lowb[kCap];
   std::ptrdiff_t cols[kChunk];
   constexpr std::ptrdiff_t kSpan = 48;  // sums of up to kSpan columns for scattered cells
   double spn[kM * kSpan];
@@ -490,9 +490,9 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
   const std::ptrdiff_t bw = std::min(kBandCells, kBandPos - r - 1);  // a block's columns
   std::ptrdiff_t bend = C0, b0 = 0;  // the block [.., bend); its first band cell b0
   bool banded = false;
-  const auto candidate = [&](std::ptrdiff_t c) {
-    return todo[c] && (lrow[c] == kNormal || lrow[c] == kEdge);
-  };
+  // the block's candidates (bcand[0 .. nb)), the next one to take: ib
+  std::ptrdiff_t bcand[kBandCells];
+  int nb = 0, ib = 0;
   for (std::ptrdiff_t cc = C0; cc < C1;) {
     if (cc >= bend) {  // a new block: banded when it saves rectangles
       bend = std::min(C1, cc + std::max<std::ptrdiff_t>(bw, 1));
@@ -507,15 +507,14 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
           bend = std::min(bend, W - r);
         }
       }
+      nb = 0, ib = 0;
+      for (std::ptrdiff_t c = cc; c < bend; ++c) {  // (branch-free)
+        bcand[nb] = c;
+        nb += todo[c] & ((lrow[c] == kNormal) | (lrow[c] == kEdge));
+      }
       banded = false;
       if (rows_inside && bw >= 16) {
-        std::ptrdiff_t n = 0, first = -1, last = -1;
-        for (std::ptrdiff_t c = cc; c < bend; ++c) {
-          if (!candidate(c)) continue;
-          ++n;
-          if (first < 0) first = c;
-          last = c;
-        }
+        const std::ptrdiff_t n = nb, first = nb ? bcand[0] : -1, last = nb ? bcand[nb - 1] : -1;
         const std::ptrdiff_t w = last - first + 1;
         banded = n > 0 && first - r >= 0 && last + r + 1 <= W && 8 * n > 5 * w + 3 * (r + 1);
         if (banded) {
@@ -560,9 +559,8 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       }
     }
     int m = 0;
-    for (const int lim = banded ? kChunk : kSub; cc < bend && m < lim; ++cc) {
-      if (candidate(cc)) cols[m++] = cc;
-    }
+    for (const int lim = banded ? kChunk : kSub; ib < nb && m < lim; ++ib) cols[m++] = bcand[ib];
+    cc = ib < nb ? bcand[ib] : bend;
     if (m == 0) continue;
     for (int j = 0; j < m; ++j) {
       const Eigen::Vector3d pt = g(grow, cols[j]) - o;
@@ -616,15 +614,8 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
     // when the cell fits it the verdict is "no" without the other seven solves. The
     // others (and cells without a supported side: no valid side, "no") go on below.
     const double* low8[8];  // side s's bound of cell j at low8[s][j]
-    if (banded) {
-      const bool consecutive = cols[m - 1] - cols[0] + 1 == m;
-      for (int s = 0; s < 8; ++s) {
-        const double* const bl = lowp[kBandOf[s]] + bpos(s, cols[0]);  // cell j: cols[j] - cols[0]
-        low8[s] = bl;  // consecutive cells: straight from the band
-        if (consecutive) continue;
-        for (int j = 0; j < m; ++j) lowb[s * m + j] = bl[cols[j] - cols[0]];
-        low8[s] = lowb + s * m;
-      }
+    if (banded) {  // straight from the bands: position j of the span cols[0] .. cols[m - 1]
+      for (int s = 0; s < 8; ++s) low8[s] = lowp[kBandOf[s]] + bpos(s, cols[0]);
     } else {
       side_lows(8 * m, kCap, n_min, mm, lowb);
       for (int s = 0; s < 8; ++s) low8[s] = lowb + s * m;
@@ -635,7 +626,17 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       double F1[6 * kChunk], low1[kChunk];
       double use1[kChunk], empty1[kChunk], ok1[kChunk], redo1[kChunk], valid1[kChunk];
       std::int64_t sb[kChunk];
-      best_sides(m, low8, sb, low1);
+      if (banded && span != m) {  // the span's positions, then the cells' picked out
+        double lows[kChunk];
+        std::int64_t sbs[kChunk];
+        best_sides(static_cast<int>(span), low8, sbs, lows);
+        for (int j = 0; j < m; ++j) {
+          sb[j] = sbs[cols[j] - cols[0]];
+          low1[j] = lows[cols[j] - cols[0]];
+        }
+      } else {
+        best_sides(m, low8, sb, low1);
+      }
       for (int j = 0; j < m; ++j) {
         if (banded) {
           const int s = static_cast<int>(sb[j]);
