@@ -162,6 +162,24 @@ MIEM_EDGE_CLONES void best_sides(int m, const double* const* low,
   }
 }
 
+// The shortcut's test for m cells (edge_judge_row): the solved side (its plane F, `cap` apart:
+// h, rms, tol, normal) is clean, rms <= kEdgeCleanRatio x sqrt(the smallest bound low1) <=
+// 2 best, valid, not steep, not empty (an empty side: hanging?), solved without the scalar
+// redo, and the cell fits it: fits = 1, else 0. Vectorised.
+MIEM_EDGE_CLONES void fits_clean_side(int m, std::ptrdiff_t cap, const double* __restrict redo,
+                                      const double* __restrict valid,
+                                      const double* __restrict empty,
+                                      const double* __restrict low1, const double* __restrict F,
+                                      double* __restrict fits) {
+#pragma GCC ivdep
+  for (int j = 0; j < m; ++j) {
+    const bool clean = F[cap + j] <= kEdgeCleanRatio * std::sqrt(low1[j]);
+    const bool ok = (redo[j] == 0.0) & (valid[j] != 0.0) & clean & (empty[j] == 0.0) &
+                    !(F[5 * cap + j] < kEdgeSteepCos) & !(std::abs(F[j]) > F[2 * cap + j]);
+    fits[j] = ok ? 1.0 : 0.0;
+  }
+}
+
 // Rectangle sums of one side for m consecutive cells, all kM moment planes (`plane` apart in
 // the images, `cap` apart in out): out[j] = a[j] - b[j] - c[j] + d[j], the corner formula of the
 // general path. Vectorised.
@@ -637,10 +655,11 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       } else {
         best_sides(m, low8, sb, low1);
       }
+      const double* sbase[8];  // side s of cell j: from sbase[s] + cols[j] - cols[0] (banded)
+      for (int s = 0; banded && s < 8; ++s) sbase[s] = bandp[kBandOf[s]] + bpos(s, cols[0]);
       for (int j = 0; j < m; ++j) {
         if (banded) {
-          const int s = static_cast<int>(sb[j]);
-          const double* const bs = bandp[kBandOf[s]] + bpos(s, cols[j]);
+          const double* const bs = sbase[sb[j]] + (cols[j] - cols[0]);
           for (int q = 0; q < kM; ++q) mm1[q * kChunk + j] = bs[q * kBandPos];
           continue;
         }
@@ -650,15 +669,15 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       side_moments(m, kChunk, n_min, mm1, nn1, ce1, M1, use1, empty1);
       smallest_eigenpairs_long(m, kChunk, M1, E1, ok1, redo1);
       side_planes(m, kChunk, k, use1, ok1, E1, nn1, ce1, Pc, valid1, F1);
+      double fits[kChunk];
+      fits_clean_side(m, kChunk, redo1, valid1, empty1, low1, F1, fits);
       for (int j = 0; j < m; ++j) {
         const std::ptrdiff_t i = cols[j];
         if (!use1[j]) {  // no side with support: none to fit or stand proud of; a fin?
           mark[i] = is_fin(g, lab, grow, cols[j], r) ? 1 : 0;
           continue;
         }
-        const bool clean = F1[kChunk + j] <= kEdgeCleanRatio * std::sqrt(low1[j]);  // <= 2 best
-        if (!redo1[j] && valid1[j] && clean && !empty1[j] &&  // (an empty side: hanging?)
-            !(F1[5 * kChunk + j] < kEdgeSteepCos) && !(std::abs(F1[j]) > F1[2 * kChunk + j])) {
+        if (fits[j] != 0.0) {
           mark[i] = 0;
           continue;
         }
