@@ -119,7 +119,10 @@ TEST_P(EdgeBands, GroupingDoesNotChangeVerdicts) {
   }
   cache.clear();
   std::vector<std::uint8_t> cached(static_cast<std::size_t>(W)), plain(cached), last(cached),
-      one(cached), todo1(static_cast<std::size_t>(W), 0);
+      one(cached), todo1(static_cast<std::size_t>(W), 0), sparse(cached), todos(cached);
+  // later passes: scattered candidates (todo on 4 cells in 5): banded blocks whose cells are
+  // not consecutive (the shortcut picks their bounds out of the span's positions)
+  std::mt19937 rng(static_cast<unsigned>(cs.seed) * 7u + 1u);
   int candidates = 0, marked = 0;
   for (std::ptrdiff_t rr = 0; rr < H; ++rr) {
     const std::uint8_t* lrow = s.labels.data() + rr * W;
@@ -134,6 +137,9 @@ TEST_P(EdgeBands, GroupingDoesNotChangeVerdicts) {
                                  s.labels.data(), ones.data(), cached.data(), &cache);
     miem::detail::edge_judge_row(g, rr, rr, H, 0, W, img.im, img.o, r, k, s.labels.data(),
                                  ones.data(), plain.data(), nullptr);
+    for (auto& t : todos) t = rng() % 5 != 0 ? 1 : 0;
+    miem::detail::edge_judge_row(g, rr, rr, H, 0, W, img.im, img.o, r, k, s.labels.data(),
+                                 todos.data(), sparse.data(), nullptr);
     for (std::ptrdiff_t c = 0; c <= clast; ++c) {
       if (!(lrow[c] == miem::kNormal || lrow[c] == miem::kEdge)) continue;
       ++candidates;
@@ -146,6 +152,10 @@ TEST_P(EdgeBands, GroupingDoesNotChangeVerdicts) {
           << "cached, row " << rr << " col " << c;
       EXPECT_EQ(plain[static_cast<std::size_t>(c)], one[static_cast<std::size_t>(c)])
           << "uncached, row " << rr << " col " << c;
+      if (todos[static_cast<std::size_t>(c)]) {
+        EXPECT_EQ(sparse[static_cast<std::size_t>(c)], one[static_cast<std::size_t>(c)])
+            << "scattered candidates, row " << rr << " col " << c;
+      }
     }
   }
   // not vacuous: the burrs are found, the surface is not
