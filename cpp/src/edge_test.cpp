@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
 
 #include <Eigen/Core>
@@ -834,15 +835,15 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
       // windows around new ABNORMAL cells, often a corner of the tile)
       std::ptrdiff_t rfirst = -1, rlast = -1, clast = -1;
       for (std::ptrdiff_t rr = R0; rr < R1; ++rr) {
-        for (std::ptrdiff_t cc = C0; cc < C1; ++cc) {
-          const std::ptrdiff_t i = rr * W + cc;
-          mark[i] = 0;
-          if (todo[i] && (labels[i] == kNormal || labels[i] == kEdge)) {
-            if (rfirst < 0) rfirst = rr;
-            rlast = rr;
-            clast = std::max(clast, cc);
-          }
+        std::fill(mark + rr * W + C0, mark + rr * W + C1, std::uint8_t{0});
+        std::ptrdiff_t cc = C1 - 1;  // the row's last candidate (from the end: often C1 - 1)
+        for (const std::ptrdiff_t i = rr * W; cc >= C0; --cc) {
+          if (todo[i + cc] && (labels[i + cc] == kNormal || labels[i + cc] == kEdge)) break;
         }
+        if (cc < C0) continue;
+        if (rfirst < 0) rfirst = rr;
+        rlast = rr;
+        clast = std::max(clast, cc);
       }
       if (rlast < 0) continue;
       // the tile's origin: its first finite cell (a candidate is finite, so there is one)
@@ -897,11 +898,21 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
         const std::ptrdiff_t rr = (t / tiles_c) * kTileRows + u % kTileRows;
         if (rr >= H) continue;
         const std::ptrdiff_t C0 = (t % tiles_c) * kTileCols, C1 = std::min(W, C0 + kTileCols);
-        for (std::ptrdiff_t i = rr * W + C0; i < rr * W + C1; ++i) {
-          todo[i] = 0;
-          if (!mark[i]) continue;
-          labels[i] = kAbnormal;
-          part.push_back(i);
+        std::fill(todo + rr * W + C0, todo + rr * W + C1, std::uint8_t{0});
+        for (std::ptrdiff_t i = rr * W + C0; i < rr * W + C1;) {
+          std::uint64_t w8 = 0;  // 8 marks at a time: most are 0
+          if (i + 8 <= rr * W + C1) {
+            std::memcpy(&w8, mark + i, 8);
+            if (w8 == 0) {
+              i += 8;
+              continue;
+            }
+          }
+          if (mark[i]) {
+            labels[i] = kAbnormal;
+            part.push_back(i);
+          }
+          ++i;
         }
       }
     });
