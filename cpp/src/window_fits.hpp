@@ -300,12 +300,14 @@ MIEM_FIT_CLONES inline void box_sums(const double* __restrict col, std::ptrdiff_
     c = __builtin_shuffle(u0, u2, second);
     d = __builtin_shuffle(u1, u3, second);
   };
-  auto load = [](const double* p) {
-    V v;
-    __builtin_memcpy(&v, p, sizeof(V));
-    return v;
+  // (vectors by reference: by value they would change the default clone's ABI)
+  auto diff = [half](V& v, const double* c, std::ptrdiff_t j) {
+    V a, b;
+    __builtin_memcpy(&a, c + j + half, sizeof(V));
+    __builtin_memcpy(&b, c + j - half - 1, sizeof(V));
+    v = a - b;
   };
-  auto store = [](double* p, V v) { __builtin_memcpy(p, &v, sizeof(V)); };
+  auto store = [](double* p, const V& v) { __builtin_memcpy(p, &v, sizeof(V)); };
   if (n <= 0) return;
   for (int k = 0; k < kMoments; ++k) {
     const double* c = col + k * stride;
@@ -325,10 +327,11 @@ MIEM_FIT_CLONES inline void box_sums(const double* __restrict col, std::ptrdiff_
     V acc = {s[0][0], s[1][0], s[2][0], s[3][0]};
     std::ptrdiff_t j = 1;
     for (; j + 4 <= n; j += 4) {
-      V d0 = load(c[0] + j + half) - load(c[0] + j - half - 1);
-      V d1 = load(c[1] + j + half) - load(c[1] + j - half - 1);
-      V d2 = load(c[2] + j + half) - load(c[2] + j - half - 1);
-      V d3 = load(c[3] + j + half) - load(c[3] + j - half - 1);
+      V d0, d1, d2, d3;
+      diff(d0, c[0], j);
+      diff(d1, c[1], j);
+      diff(d2, c[2], j);
+      diff(d3, c[3], j);
       transpose(d0, d1, d2, d3);  // now d_t = the moments' differences at column j + t
       acc += d0;
       d0 = acc;
