@@ -107,82 +107,6 @@ MIEM_CLONES void kernel_line(std::ptrdiff_t n, const Side& A, const Side& B,
 }
 #undef MIEM_PICK
 
-// The cells s, s + 1 and s + 2 steps away on one side (x, y, z rows and usable lanes, shifted as
-// in Side): the candidates of two consecutive scales s and s + 1 (max_gap >= 1).
-struct Side3 {
-  const double *x1, *y1, *z1, *x2, *y2, *z2, *x3, *y3, *z3;
-  const std::int64_t *ok1, *ok2, *ok3;
-};
-
-// kernel_line for scale s and then scale s + 1 in one pass: the cell s + 1 steps away is the
-// second candidate of scale s and the first of s + 1, so it is loaded and offset from the centre
-// once ((o ? x1 : x2) - p and o ? x1 - p : x2 - p are the same value). The two verdicts fold in
-// the order of the two kernel_line calls this replaces: the same bits. near_bit: scale s's.
-MIEM_CLONES void kernel_line_pair(std::ptrdiff_t n, const Side3& A, const Side3& B,
-                                  const double* __restrict px, const double* __restrict py,
-                                  const double* __restrict pz, double cos0, double c2,
-                                  std::int64_t gap2, std::int64_t bit, std::int64_t near_bit,
-                                  double* __restrict buv, double* __restrict bprod,
-                                  std::int64_t* __restrict bits) {
-  const double *__restrict ax1 = A.x1, *__restrict ay1 = A.y1, *__restrict az1 = A.z1;
-  const double *__restrict ax2 = A.x2, *__restrict ay2 = A.y2, *__restrict az2 = A.z2;
-  const double *__restrict ax3 = A.x3, *__restrict ay3 = A.y3, *__restrict az3 = A.z3;
-  const double *__restrict bx1 = B.x1, *__restrict by1 = B.y1, *__restrict bz1 = B.z1;
-  const double *__restrict bx2 = B.x2, *__restrict by2 = B.y2, *__restrict bz2 = B.z2;
-  const double *__restrict bx3 = B.x3, *__restrict by3 = B.y3, *__restrict bz3 = B.z3;
-  const std::int64_t *__restrict ao1 = A.ok1, *__restrict ao2 = A.ok2, *__restrict ao3 = A.ok3;
-  const std::int64_t *__restrict bo1 = B.ok1, *__restrict bo2 = B.ok2, *__restrict bo3 = B.ok3;
-  for (std::ptrdiff_t c = 0; c < n; ++c) {
-    const double cx = px[c], cy = py[c], cz = pz[c];
-    const std::int64_t oa1 = ao1[c], oa2 = ao2[c], oa3 = ao3[c];
-    const std::int64_t ob1 = bo1[c], ob2 = bo2[c], ob3 = bo3[c];
-    const double a1x = ax1[c] - cx, a1y = ay1[c] - cy, a1z = az1[c] - cz;
-    const double a2x = ax2[c] - cx, a2y = ay2[c] - cy, a2z = az2[c] - cz;
-    const double a3x = ax3[c] - cx, a3y = ay3[c] - cy, a3z = az3[c] - cz;
-    const double b1x = bx1[c] - cx, b1y = by1[c] - cy, b1z = bz1[c] - cz;
-    const double b2x = bx2[c] - cx, b2y = by2[c] - cy, b2z = bz2[c] - cz;
-    const double b3x = bx3[c] - cx, b3y = by3[c] - cy, b3z = bz3[c] - cz;
-    double b_uv = buv[c], b_prod = bprod[c];
-    std::int64_t acc = bits[c];
-    {  // scale s: candidates 1, 2
-      const double ux = oa1 ? a1x : a2x, uy = oa1 ? a1y : a2y, uz = oa1 ? a1z : a2z;
-      const double vx = ob1 ? b1x : b2x, vy = ob1 ? b1y : b2y, vz = ob1 ? b1z : b2z;
-      const double uu = (ux * ux + uy * uy) + uz * uz, vv = (vx * vx + vy * vy) + vz * vz;
-      const std::int64_t aa = oa1 | oa2, ab = ob1 | ob2;
-      const std::int64_t sa = (aa ^ 1) & gap2, sb = (ab ^ 1) & gap2;
-      const double uv = (ux * vx + uy * vy) + uz * vz;
-      const double prod = uu * vv;
-      const std::int64_t good = (aa & ab) & (uu != 0.0) & (vv != 0.0);
-      const std::int64_t flagged = good & detail::cos_at_least(uv, prod, cos0, c2);
-      const std::int64_t better =
-          good & (uv * std::fabs(uv) * b_prod > b_uv * std::fabs(b_uv) * prod);
-      b_uv = better ? uv : b_uv;
-      b_prod = better ? prod : b_prod;
-      acc |= (-good & bit) | (-flagged & (bit << kFlagShift)) | (-(sa | sb) & kSlowBit) |
-             (-(aa | ab) & near_bit);
-    }
-    {  // scale s + 1: candidates 2, 3
-      const double ux = oa2 ? a2x : a3x, uy = oa2 ? a2y : a3y, uz = oa2 ? a2z : a3z;
-      const double vx = ob2 ? b2x : b3x, vy = ob2 ? b2y : b3y, vz = ob2 ? b2z : b3z;
-      const double uu = (ux * ux + uy * uy) + uz * uz, vv = (vx * vx + vy * vy) + vz * vz;
-      const std::int64_t aa = oa2 | oa3, ab = ob2 | ob3;
-      const std::int64_t sa = (aa ^ 1) & gap2, sb = (ab ^ 1) & gap2;
-      const double uv = (ux * vx + uy * vy) + uz * vz;
-      const double prod = uu * vv;
-      const std::int64_t good = (aa & ab) & (uu != 0.0) & (vv != 0.0);
-      const std::int64_t flagged = good & detail::cos_at_least(uv, prod, cos0, c2);
-      const std::int64_t better =
-          good & (uv * std::fabs(uv) * b_prod > b_uv * std::fabs(b_uv) * prod);
-      b_uv = better ? uv : b_uv;
-      b_prod = better ? prod : b_prod;
-      acc |= (-good & bit) | (-flagged & (bit << kFlagShift)) | (-(sa | sb) & kSlowBit);
-    }
-    buv[c] = b_uv;
-    bprod[c] = b_prod;
-    bits[c] = acc;
-  }
-}
-
 // With min_step, the neighbour search of SPEC.md for one side of one (direction, scale), one
 // step at a time for every lane of a block (the lanes that have ended keep their state). State
 // per lane, one word: bits 0-2 the outcome (0 searching, 1 found: u = the offset, 2 none, 4
@@ -436,22 +360,7 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
             rc[4 * c] = static_cast<std::uint8_t>(std::min<std::int64_t>(ext[c], 255));
           continue;
         }
-        const std::size_t ns = p.scales.size();
-        for (std::size_t si = 0; si < ns; ++si) {
-          const int s = p.scales[si];
-          if (p.max_gap > 0 && si + 1 < ns && p.scales[si + 1] == s + 1) {
-            // scales s and s + 1 share the cell s + 1 steps away: one pass for both
-            const double *a1 = at_x(-1, s), *a2 = at_x(-1, s + 1), *a3 = at_x(-1, s + 2);
-            const double *b1 = at_x(+1, s), *b2 = at_x(+1, s + 1), *b3 = at_x(+1, s + 2);
-            const Side3 A{a1, a1 + S, a1 + 2 * S, a2, a2 + S, a2 + 2 * S, a3, a3 + S,
-                          a3 + 2 * S, at_ok(-1, s), at_ok(-1, s + 1), at_ok(-1, s + 2)};
-            const Side3 B{b1, b1 + S, b1 + 2 * S, b2, b2 + S, b2 + 2 * S, b3, b3 + S,
-                          b3 + 2 * S, at_ok(+1, s), at_ok(+1, s + 1), at_ok(+1, s + 2)};
-            kernel_line_pair(nb, A, B, qx, qy, qz, cos0, c2, gap2, bit, s == 1 ? kNearBit : 0,
-                             buv + b0, bprod + b0, bits + b0);
-            ++si;
-            continue;
-          }
+        for (int s : p.scales) {
           const std::ptrdiff_t s2 = p.max_gap > 0 ? s + 1 : s;  // max_gap 0: one candidate
           const double *a1 = at_x(-1, s), *a2 = at_x(-1, s2);
           const double *b1 = at_x(+1, s), *b2 = at_x(+1, s2);
