@@ -6,6 +6,7 @@
 #include <cmath>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 
 #include "angle_math.hpp"
 #include "judge.hpp"
@@ -448,16 +449,26 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
     const std::ptrdiff_t cs = g.col_stride, ys = g.coord_stride, zs = 2 * g.coord_stride;
     std::uint8_t* us = usable + r * W;
     std::uint8_t* lb = labels + r * W;
-    std::ptrdiff_t nf = 0;
-    for (std::ptrdiff_t c = 0; c < W; ++c) {  // GridView::finite, as straight-line code
-      const T* q = base + c * cs;
-      const T s = (q[0] - q[0]) + (q[ys] - q[ys]) + (q[zs] - q[zs]);
-      const bool fin = s == T(0);
-      us[c] = fin;
-      lb[c] = fin ? kNormal : kInvalid;
-      nf += fin;
-    }
-    n_finite += nf;
+    // GridView::finite, as straight-line code; constant strides for the common interleaved
+    // xyz layout (the generic strides keep the loop scalar)
+    auto row = [&](auto cs_, auto ys_, auto zs_) {
+      std::uint8_t* __restrict u = us;
+      std::uint8_t* __restrict l = lb;
+      std::ptrdiff_t nf = 0;
+      for (std::ptrdiff_t c = 0; c < W; ++c) {
+        const T* q = base + c * cs_;
+        const T s = (q[0] - q[0]) + (q[ys_] - q[ys_]) + (q[zs_] - q[zs_]);
+        const bool fin = s == T(0);
+        u[c] = fin;
+        l[c] = fin ? kNormal : kInvalid;
+        nf += fin;
+      }
+      return nf;
+    };
+    using K3 = std::integral_constant<std::ptrdiff_t, 3>;
+    using K1 = std::integral_constant<std::ptrdiff_t, 1>;
+    using K2 = std::integral_constant<std::ptrdiff_t, 2>;
+    n_finite += (cs == 3 && ys == 1) ? row(K3{}, K1{}, K2{}) : row(cs, ys, zs);
     if (out.flags) std::fill(out.flags + r * W, out.flags + (r + 1) * W, std::uint8_t{0});
     if (angle_nan) std::fill(out.angle_deg + r * W, out.angle_deg + (r + 1) * W, kNaN);
   }

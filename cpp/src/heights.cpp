@@ -56,12 +56,22 @@ void heights(const GridView<T>& g, const DetectParams& p, const std::uint8_t* la
     cls[i] = labels[i] == kNormal ? kInPlane : 0;  // feature lines do not matter here
     if (labels[i] == kInvalid) height[i] = kNaN;
   }
-  window_fits(
-      g, cls, p.window, p.num_threads, ws.fits,
-      [labels, hm](std::ptrdiff_t i) {
-        return labels[i] != kInvalid && !(hm != nullptr && (hm[i] & kHFresh));
-      },
-      [height](std::ptrdiff_t i, const WindowFit& f) { height[i] = f.ok ? f.height : kNaN; });
+  auto visit = [height](std::ptrdiff_t i, const WindowFit& f) {
+    height[i] = f.ok ? f.height : kNaN;
+  };
+  // Branch-free predicates (one per case): window_fits scans every tile's want bytes in vector
+  // code, and most tiles have nothing to re-fit when the height test's heights are reused.
+  if (hm != nullptr) {
+    window_fits(
+        g, cls, p.window, p.num_threads, ws.fits,
+        [labels, hm](std::ptrdiff_t i) {
+          return (labels[i] != kInvalid) & ((hm[i] & kHFresh) == 0);
+        },
+        visit);
+  } else {
+    window_fits(g, cls, p.window, p.num_threads, ws.fits,
+                [labels](std::ptrdiff_t i) { return labels[i] != kInvalid; }, visit);
+  }
 }
 
 template void heights<float>(const GridView<float>&, const DetectParams&, const std::uint8_t*,

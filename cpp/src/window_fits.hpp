@@ -282,23 +282,76 @@ void load_rel(const GridView<T>& g, std::ptrdiff_t r, std::ptrdiff_t c0, std::pt
 
 /// S + k * cap + j = the sum of col + k * stride over columns j - half .. j + half, for j in
 /// [0, n), as running sums: S[j] = S[j - 1] + (col[j + half] - col[j - half - 1]).
+/// The 11 running sums are serial chains, so they run side by side in vector lanes, 4 moments a
+/// vector (the last vector's fourth lane repeats moment 10 and is not stored), 4 columns a step:
+/// the columns' differences are loaded per moment, transposed to per column, added in turn and
+/// transposed back. Each moment's additions are the scalar chain's, in its order: the same bits.
 MIEM_FIT_CLONES inline void box_sums(const double* __restrict col, std::ptrdiff_t stride,
                                      std::ptrdiff_t half, std::ptrdiff_t n, std::ptrdiff_t cap,
                                      double* __restrict S) {
+  typedef double V __attribute__((vector_size(32)));
+  typedef long long M __attribute__((vector_size(32)));
+  const M lo = {0, 4, 2, 6}, hi = {1, 5, 3, 7}, first = {0, 1, 4, 5}, second = {2, 3, 6, 7};
+  auto transpose = [&](V& a, V& b, V& c, V& d) {
+    const V u0 = __builtin_shuffle(a, b, lo), u1 = __builtin_shuffle(a, b, hi);
+    const V u2 = __builtin_shuffle(c, d, lo), u3 = __builtin_shuffle(c, d, hi);
+    a = __builtin_shuffle(u0, u2, first);
+    b = __builtin_shuffle(u1, u3, first);
+    c = __builtin_shuffle(u0, u2, second);
+    d = __builtin_shuffle(u1, u3, second);
+  };
+  // (vectors by reference: by value they would change the default clone's ABI)
+  auto diff = [half](V& v, const double* c, std::ptrdiff_t j) {
+    V a, b;
+    __builtin_memcpy(&a, c + j + half, sizeof(V));
+    __builtin_memcpy(&b, c + j - half - 1, sizeof(V));
+    v = a - b;
+  };
+  auto store = [](double* p, const V& v) { __builtin_memcpy(p, &v, sizeof(V)); };
+  if (n <= 0) return;
   for (int k = 0; k < kMoments; ++k) {
     const double* c = col + k * stride;
-    double* s = S + k * cap;
     double a = 0.0;
     for (std::ptrdiff_t d = -half; d <= half; ++d) a += c[d];
-    s[0] = a;
-    for (std::ptrdiff_t j = 1; j < n; ++j) s[j] = c[j + half] - c[j - half - 1];
+    S[k * cap] = a;
   }
-  double acc[kMoments];
-  for (int k = 0; k < kMoments; ++k) acc[k] = S[k * cap];
-  for (std::ptrdiff_t j = 1; j < n; ++j) {
-    for (int k = 0; k < kMoments; ++k) {
-      acc[k] += S[k * cap + j];
-      S[k * cap + j] = acc[k];
+  for (int k0 = 0; k0 < kMoments; k0 += 4) {
+    const int nk = std::min(4, kMoments - k0);
+    const double* c[4];
+    double* s[4];
+    for (int q = 0; q < 4; ++q) {
+      const int k = k0 + std::min(q, nk - 1);
+      c[q] = col + k * stride;
+      s[q] = S + k * cap;
+    }
+    V acc = {s[0][0], s[1][0], s[2][0], s[3][0]};
+    std::ptrdiff_t j = 1;
+    for (; j + 4 <= n; j += 4) {
+      V d0, d1, d2, d3;
+      diff(d0, c[0], j);
+      diff(d1, c[1], j);
+      diff(d2, c[2], j);
+      diff(d3, c[3], j);
+      transpose(d0, d1, d2, d3);  // now d_t = the moments' differences at column j + t
+      acc += d0;
+      d0 = acc;
+      acc += d1;
+      d1 = acc;
+      acc += d2;
+      d2 = acc;
+      acc += d3;
+      d3 = acc;
+      transpose(d0, d1, d2, d3);  // back to per moment
+      store(s[0] + j, d0);
+      store(s[1] + j, d1);
+      store(s[2] + j, d2);
+      if (nk == 4) store(s[3] + j, d3);
+    }
+    for (; j < n; ++j) {
+      for (int q = 0; q < nk; ++q) {
+        const double a = s[q][j - 1] + (c[q][j + half] - c[q][j - half - 1]);
+        s[q][j] = a;
+      }
     }
   }
 }
