@@ -806,10 +806,14 @@ std::uint8_t ProfileStream<T>::min_step_label(const T* grid, const std::uint8_t*
       for (int sd = 0; sd < 2; ++sd) {
         const std::ptrdiff_t dr = (sd == 0 ? -1 : 1) * kDirRow[k];
         const std::ptrdiff_t dc = (sd == 0 ? -1 : 1) * kDirCol[k];
+        // the last step inside the grid along this ray (steps are read in order)
+        std::ptrdiff_t lim = last;
+        if (dr != 0) lim = std::min(lim, dr > 0 ? rows - 1 - r : r);
+        if (dc != 0) lim = std::min(lim, dc > 0 ? W - 1 - c : c);
+        const std::ptrdiff_t delta = dr * W + dc, at0 = r * W + c;
         for (std::ptrdiff_t step = sc;; ++step) {
-          const std::ptrdiff_t rr = r + step * dr, cc = c + step * dc;
-          if (step > last || rr < 0 || rr >= rows || cc < 0 || cc >= W) return kSlowCell;
-          const std::ptrdiff_t at = rr * W + cc;
+          if (step > lim) return kSlowCell;
+          const std::ptrdiff_t at = at0 + step * delta;
           if (state[at] == 0) return kSlowCell;
           const double dx = static_cast<double>(grid[at]) - px;
           const double dy = static_cast<double>(grid[at + pl]) - py;
