@@ -144,7 +144,11 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 ///
 /// Speed: pass 1 runs a vectorised filter over the whole row (SSE2, or AVX2 where the CPU has
 /// it) and judges exactly only the few cells that might be flagged; cells next to a dropout go
-/// through the batch detector's judge. bench/RESULTS.md has the figures.
+/// through the batch detector's judge. With min_step, pass 1 computes each verdict directly
+/// (squared distances, no Eigen), the judge taking only the cells whose searches meet a dropout,
+/// the border or a candidate too close to s min_step to call; a later pass re-judges a cell only
+/// when its last verdict read a cell removed at the pass before (4 bytes per kept cell: how far
+/// each verdict read along each ray). bench/RESULTS.md has the figures.
 ///
 /// Bad profiles never stop or corrupt the stream: a profile of the wrong width or null data is
 /// rejected with a status (nothing is pushed); a profile with no finite point is taken as a row
