@@ -181,7 +181,7 @@ def target_lines(rows: list[dict]) -> list[str]:
     on = next((r for r in rows if "min_step on" in r["scenario"]), None)
     if on is not None:
         out += [f"With min_step on (profiles jittered 0.02 mm in z: \"auto\" resolves to "
-                f"{on.get('min_step', -1):g}; pass 1 judges every cell exactly), lag "
+                f"{on.get('min_step', -1):g}; pass 1 computes every cell's verdict, no vectorised filter), lag "
                 f"{on['lag']}: {verdict(on)}; the part start's longest push "
                 f"{on.get('part_start_cpu_max_us', float('nan')) / 1000:.1f} ms of CPU time.", ""]
     if stage[2] is not None:

@@ -230,8 +230,9 @@ int main(int argc, char** argv) {
   p4.max_iterations = 3;
   scenarios.push_back({"default preset, max_iterations 3", p4, 0.001, false});
   // min_step "auto" resolves to off on the pool above (its noise is below the point spacing);
-  // profiles jittered by 0.02 mm turn it on (about 0.09 mm): pass 1 then judges every cell
-  // exactly (no vectorised filter) and the decision's rounds find values to select.
+  // profiles jittered by 0.02 mm turn it on (about 0.08 mm): pass 1 then computes every
+  // cell's verdict (the neighbour searches, no vectorised filter), the later passes re-judge
+  // more cells (R = 35), and the decision's rounds find values to select.
   scenarios.push_back({"default preset, min_step on (profiles jittered 0.02 mm)", p, 0.001,
                        false, 0.02});
   const std::ptrdiff_t pool_rows = 1024;

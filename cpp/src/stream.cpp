@@ -63,6 +63,7 @@ struct KernelArgs {
 
 constexpr double kMargin = 1e-14;
 constexpr std::uint32_t kBadBit = 1u << 31;  // in bits_: a neighbour is missing
+constexpr std::uint8_t kSlowCell = 0xff;     // min_step_label: CellJudge decides
 
 template <typename T>
 void kernel_scalar(const KernelArgs<T>& a, std::ptrdiff_t c) {
@@ -328,6 +329,8 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   row_cand_.assign(static_cast<std::size_t>(ring_), 0);
   level_.assign(static_cast<std::size_t>(ring_), 0);
   bits_.assign(static_cast<std::size_t>(width_), 0);
+  if (ms_auto_ || params_.min_step >= 0.0) ray_.assign(4 * n1, 0);
+  use_ray_ = min_step_ >= 0.0 && !ray_.empty();
   if (ms_auto_) {
     ms_rows_.assign(static_cast<std::size_t>(detail::kAutoMinStepRows), nullptr);
     ms_sel_.init(width_, phys_ * width_);
@@ -345,6 +348,13 @@ void ProfileStream<T>::use_min_step(double min_step) noexcept {
   min_step_ = min_step;
   jparams_.min_step = min_step;
   fast_ = fast_ok_ && min_step < 0.0;
+  fast_ms_ = fast_ok_ && min_step >= 0.0 && cos0_ > 0.0;
+  use_ray_ = min_step >= 0.0 && !ray_.empty();
+  for (std::size_t i = 0; i < params_.scales.size() && i < 8; ++i) {
+    const double len = params_.scales[i] * (min_step >= 0.0 ? min_step : 0.0), l2 = len * len;
+    ms_lo_[i] = l2 * (1.0 - 1e-12);
+    ms_hi_[i] = l2 * (1.0 + 1e-12);
+  }
   mark_reach_ = max_scale_ + params_.max_gap + (min_step >= 0.0 ? params_.max_reach : 0);
 }
 
@@ -560,6 +570,12 @@ void ProfileStream<T>::remove(std::int64_t row, std::ptrdiff_t col, int pass) no
         const std::ptrdiff_t cc = col + sgn * step * kDirCol[k];
         if (rr < 0 || rr >= pushed_ || cc < 0 || cc >= W) break;
         const std::ptrdiff_t sr = slot(rr);
+        // a cell whose verdict (its row has run this pass) read less far along this ray
+        // keeps it (batch's later passes do the same)
+        if (use_ray_ && level_[sr] >= pass &&
+            ray_[4 * (sr * W + cc) + k] < std::min<std::ptrdiff_t>(step, 255)) {
+          continue;
+        }
         cand_[sr * W + cc] |= bit;
         row_cand_[sr] |= bit;
       }
@@ -583,10 +599,11 @@ void ProfileStream<T>::run_pass(std::int64_t row, int pass) noexcept {
   const std::ptrdiff_t s = slot(row), r = static_cast<std::ptrdiff_t>(row - first);
   const std::uint8_t* st = state_.data() + s * W;
   std::uint8_t* lab = labels_.data() + s * W;
+  std::uint8_t* ray = use_ray_ ? ray_.data() + 4 * s * W : nullptr;
   auto judge_cell = [&](std::ptrdiff_t c) {
     std::uint8_t flags = 0;
     double angle = 0.0;
-    const std::uint8_t l = judge.judge(r, c, &flags, &angle);
+    const std::uint8_t l = judge.judge(r, c, &flags, &angle, ray ? ray + 4 * c : nullptr);
     if (l == kAbnormal) {
       remove(row, c, pass);
     } else {
@@ -594,7 +611,23 @@ void ProfileStream<T>::run_pass(std::int64_t row, int pass) noexcept {
     }
   };
 
-  if (pass == 1) {
+  if (pass == 1 && fast_ms_) {
+    // min_step on: each cell's verdict computed directly (min_step_label), CellJudge only for
+    // the cells whose searches it cannot settle
+    const T* g = xyz_.data() + s0 * W;
+    const std::uint8_t* us = state_.data() + s0 * W;
+    for (std::ptrdiff_t c = 0; c < W; ++c) {
+      if (st[c] == 0) continue;
+      const std::uint8_t l = min_step_label(g, us, grid.rows, r, c, ray ? ray + 4 * c : nullptr);
+      if (l == kSlowCell) {
+        judge_cell(c);
+      } else if (l == kAbnormal) {
+        remove(row, c, 1);
+      } else {
+        lab[c] = l;
+      }
+    }
+  } else if (pass == 1) {
     const bool fast = fast_ && row >= max_scale_ && row + max_scale_ < pushed_ &&
                       W > 2 * static_cast<std::ptrdiff_t>(max_scale_);
     if (!fast) {
@@ -634,12 +667,32 @@ void ProfileStream<T>::run_pass(std::int64_t row, int pass) noexcept {
     }
   } else {
     const std::uint8_t bit = static_cast<std::uint8_t>(1u << (pass & 1));
+    // With min_step: a candidate whose last verdict read no cell removed at pass - 1 (the
+    // only cells it read that changed since: an earlier removal within its reach made it a
+    // candidate then) keeps its verdict; a verdict costs far more than this look.
+    const std::uint8_t* us = state_.data() + s0 * W;
+    const std::uint8_t gone = static_cast<std::uint8_t>(pass - 1);
+    auto reads_removed = [&](std::ptrdiff_t c) {
+      const std::uint8_t* ry = ray + 4 * c;
+      for (int k = 0; k < 4; ++k) {
+        const std::ptrdiff_t n = ry[k] == 255 ? mark_reach_ : ry[k];
+        for (int sgn = -1; sgn <= 1; sgn += 2) {
+          const std::ptrdiff_t dr = sgn * kDirRow[k], dc = sgn * kDirCol[k];
+          for (std::ptrdiff_t step = 1; step <= n; ++step) {
+            const std::ptrdiff_t rr = r + step * dr, cc = c + step * dc;
+            if (rr < 0 || rr >= grid.rows || cc < 0 || cc >= W) break;
+            if (us[rr * W + cc] == gone) return true;
+          }
+        }
+      }
+      return false;
+    };
     if (row_cand_[s] & bit) {
       std::uint8_t* cand = cand_.data() + s * W;
       for (std::ptrdiff_t c = 0; c < W; ++c) {
         if (!(cand[c] & bit)) continue;
         cand[c] &= static_cast<std::uint8_t>(~bit);
-        if (st[c] == kAlive) judge_cell(c);
+        if (st[c] == kAlive && (ray == nullptr || reads_removed(c))) judge_cell(c);
       }
       row_cand_[s] &= static_cast<std::uint8_t>(~bit);
     }
@@ -719,6 +772,79 @@ std::uint8_t ProfileStream<T>::exact_label(std::int64_t row, std::ptrdiff_t c,
   }
   const int need = params_.min_directions > 0 ? std::min(avail, params_.min_directions) : avail;
   if (avail >= 2 && flagged >= need) return kAbnormal;
+  return flagged > 0 ? kEdge : kNormal;
+}
+
+// Pass 1 with min_step (theta0 < 90): the verdict of cell (r, c) of the judge's grid (`grid`:
+// its x plane, `state`: its states, `rows` rows of width_) as CellJudge computes it (the same
+// u, v, dot3 order, square root and clamp), when every neighbour search of SPEC.md settles
+// plainly: each candidate it reads is usable and inside the grid, and its squared distance
+// is clearly below or above (s min_step)^2 (a relative 1e-12 apart, far above the rounding of
+// |q - P| in any order), so it finds the same neighbour as the judge's norm() >= s min_step.
+// The first candidate of the smallest scale is then usable, within 1 + max_gap (fast_ok_):
+// the cell is not isolated, and every direction is available. Else kSlowCell: the judge
+// decides.
+template <typename T>
+std::uint8_t ProfileStream<T>::min_step_label(const T* grid, const std::uint8_t* state,
+                                              std::ptrdiff_t rows, std::ptrdiff_t r,
+                                              std::ptrdiff_t c, std::uint8_t* ray) const noexcept {
+  const std::ptrdiff_t W = width_, pl = phys_ * W;
+  const T* X = grid + r * W + c;
+  const double px = static_cast<double>(X[0]), py = static_cast<double>(X[pl]),
+               pz = static_cast<double>(X[2 * pl]);
+  const std::size_t n_scales = params_.scales.size();
+  const std::ptrdiff_t gap_reach = params_.max_gap + params_.max_reach;
+  int flagged = 0;
+  std::ptrdiff_t ext[4];
+  for (int k = 0; k < 4; ++k) {
+    bool dir_flag = false;
+    ext[k] = 1 + static_cast<std::ptrdiff_t>(params_.max_gap);
+    for (std::size_t si = 0; si < n_scales; ++si) {
+      const std::ptrdiff_t sc = params_.scales[si], last = sc + gap_reach;
+      const double lo = ms_lo_[si], hi = ms_hi_[si];
+      double d[2][3];
+      for (int sd = 0; sd < 2; ++sd) {
+        const std::ptrdiff_t dr = (sd == 0 ? -1 : 1) * kDirRow[k];
+        const std::ptrdiff_t dc = (sd == 0 ? -1 : 1) * kDirCol[k];
+        // the last step inside the grid along this ray (steps are read in order)
+        std::ptrdiff_t lim = last;
+        if (dr != 0) lim = std::min(lim, dr > 0 ? rows - 1 - r : r);
+        if (dc != 0) lim = std::min(lim, dc > 0 ? W - 1 - c : c);
+        const std::ptrdiff_t delta = dr * W + dc, at0 = r * W + c;
+        for (std::ptrdiff_t step = sc;; ++step) {
+          if (step > lim) return kSlowCell;
+          const std::ptrdiff_t at = at0 + step * delta;
+          if (state[at] == 0) return kSlowCell;
+          const double dx = static_cast<double>(grid[at]) - px;
+          const double dy = static_cast<double>(grid[at + pl]) - py;
+          const double dz = static_cast<double>(grid[at + 2 * pl]) - pz;
+          const double dd = (dx * dx + dy * dy) + dz * dz;
+          if (dd > hi) {
+            ext[k] = std::max(ext[k], step);
+            d[sd][0] = dx;
+            d[sd][1] = dy;
+            d[sd][2] = dz;
+            break;
+          }
+          if (!(dd < lo)) return kSlowCell;
+        }
+      }
+      const double* u = d[0];
+      const double* v = d[1];
+      const double uv = (u[0] * v[0] + u[1] * v[1]) + u[2] * v[2];
+      if (uv <= 0.0) continue;  // cos <= 0 < cos0
+      const double uu = (u[0] * u[0] + u[1] * u[1]) + u[2] * u[2];
+      const double vv = (v[0] * v[0] + v[1] * v[1]) + v[2] * v[2];
+      const double cs = std::clamp(uv / std::sqrt(uu * vv), -1.0, 1.0);
+      if (cs >= cos0_) dir_flag = true;
+    }
+    flagged += dir_flag;
+  }
+  if (ray != nullptr) {
+    for (int k = 0; k < 4; ++k) ray[k] = static_cast<std::uint8_t>(std::min<std::ptrdiff_t>(ext[k], 255));
+  }
+  const int need = params_.min_directions > 0 ? std::min(4, params_.min_directions) : 4;
+  if (flagged >= need) return kAbnormal;
   return flagged > 0 ? kEdge : kNormal;
 }
 

@@ -337,6 +337,30 @@ TEST_P(StreamEqualsBatch, FloatProfiles) {
   expect_stream_equals_batch<float>(scan_for(n, 11), n.rows, n.cols, n.params);
 }
 
+// min_step beyond the point spacing on a fine, noisy scan: the neighbour searches pass over
+// near candidates in every direction (pass 1's min_step_label, and the later passes' rays), and
+// the labels depend on it (min_step off labels otherwise).
+TEST(Stream, MinStepBeyondTheSpacingEqualsBatch) {
+  miem::test::ScanOptions o;
+  o.dx = 0.02;
+  o.dy = 0.03;
+  o.noise = 0.02;
+  miem::DetectParams p = miem::stream_default_params();
+  p.min_step_auto = false;
+  p.min_step = 0.05;  // 2.5 dx, 1.7 dy
+  miem::DetectParams off = p;
+  off.min_step = -1.0;
+  const std::ptrdiff_t H = 260, W = 70;
+  for (std::uint64_t seed : {1u, 2u}) {
+    SCOPED_TRACE("seed " + std::to_string(seed));
+    const std::vector<double> g = miem::test::make_scan(H, W, seed, o);
+    const auto view = miem::GridView<double>::dense(g.data(), H, W);
+    EXPECT_NE(miem::detect_organized(view, p).labels, miem::detect_organized(view, off).labels);
+    expect_stream_equals_batch<double>(g, H, W, p);
+    if (seed == 1) expect_stream_equals_batch<float>(g, H, W, p);
+  }
+}
+
 INSTANTIATE_TEST_SUITE_P(Params, StreamEqualsBatch, ::testing::ValuesIn(param_sets()),
                          [](const auto& info) { return std::string(info.param.name); });
 

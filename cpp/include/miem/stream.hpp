@@ -144,7 +144,11 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 ///
 /// Speed: pass 1 runs a vectorised filter over the whole row (SSE2, or AVX2 where the CPU has
 /// it) and judges exactly only the few cells that might be flagged; cells next to a dropout go
-/// through the batch detector's judge. bench/RESULTS.md has the figures.
+/// through the batch detector's judge. With min_step, pass 1 computes each verdict directly
+/// (squared distances, no Eigen), the judge taking only the cells whose searches meet a dropout,
+/// the border or a candidate too close to s min_step to call; a later pass re-judges a cell only
+/// when its last verdict read a cell removed at the pass before (4 bytes per kept cell: how far
+/// each verdict read along each ray). bench/RESULTS.md has the figures.
 ///
 /// Bad profiles never stop or corrupt the stream: a profile of the wrong width or null data is
 /// rejected with a status (nothing is pushed); a profile with no finite point is taken as a row
@@ -214,6 +218,8 @@ class ProfileStream {
   void run_pass(std::int64_t row, int pass) noexcept;
   void pass1_fast(std::int64_t row) noexcept;
   std::uint8_t exact_label(std::int64_t row, std::ptrdiff_t col, std::uint32_t bits) const noexcept;
+  std::uint8_t min_step_label(const T* grid, const std::uint8_t* state, std::ptrdiff_t rows,
+                              std::ptrdiff_t r, std::ptrdiff_t c, std::uint8_t* ray) const noexcept;
   void remove(std::int64_t row, std::ptrdiff_t col, int pass) noexcept;
   // The stages after the angle passes (stream_stages.cpp): each advances its own next row up
   // to the last row it may run on (all pushed rows once the stream is flushed).
@@ -274,6 +280,8 @@ class ProfileStream {
   int max_scale_ = 1;
   bool fast_ok_ = false;  // the scales allow pass 1's vectorised kernel (without min_step)
   bool fast_ = false;     // pass 1 may use the vectorised kernel
+  bool fast_ms_ = false;  // pass 1 may use min_step_label (min_step on, theta0 < 90)
+  double ms_lo_[8] = {}, ms_hi_[8] = {};  // per scale s: (s min_step)^2 (1 -+ 1e-12)
   // min_step "auto" (SPEC "min_step='auto'"): decided once the kAutoMinStepRows rows from the
   // first row with a finite cell are in; the stages wait for it (the rows are kept).
   bool ms_auto_ = false;         // params_.min_step_auto
@@ -296,6 +304,11 @@ class ProfileStream {
   std::vector<std::uint8_t> row_cand_;  // ring_ rows: same bits, "the row has any"
   std::vector<std::uint8_t> labels_;    // ring_ rows
   std::vector<std::uint8_t> level_;     // ring_ rows: passes done
+  std::vector<std::uint8_t> ray_;  // with min_step (given or "auto"), ring_ rows x 4: per cell
+                                   // and direction the farthest step its last verdict read
+                                   // (CellJudge's reach), so that a removal marks only the
+                                   // cells whose verdict it can change
+  bool use_ray_ = false;           // min_step on and ray_ kept
   std::vector<std::uint32_t> bits_;  // width_: pass-1 filter, bit per (direction, scale) that
                                      // may be flagged; bit 31: a neighbour is missing
   std::int64_t pushed_ = 0, emitted_ = 0;
