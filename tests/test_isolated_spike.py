@@ -138,3 +138,42 @@ def test_stream_equals_batch() -> None:
     pts = _scenes()[0][1]
     want = assert_stream_equals_batch(pts, miem.PRESETS["recommended"])
     assert want.labels[20, 16] == miem.ABNORMAL and want.labels[68, 16] == miem.ABNORMAL
+
+
+def _pad(rows: tuple[int, int], cols: tuple[int, int]) -> np.ndarray:
+    """A raised patch 0.08 high, 4 cells before a concave 25-degree fold (the edge test's
+    "stands proud" does not fire there: beyond it the surface rises)."""
+    z = _fold(convex=False)
+    z[rows[0]:rows[1], cols[0]:cols[1]] += 0.08
+    return _grid(z)
+
+
+@pytest.mark.parametrize("rows, cols", [((18, 20), (14, 17)), ((19, 21), (15, 17)),
+                                        ((18, 21), (14, 16))])
+def test_corner_of_a_raised_pad_is_no_spike(rows: tuple[int, int], cols: tuple[int, int],
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    g = _pad(rows, cols)
+    corners = sorted([r, c] for r in (rows[0], rows[1] - 1) for c in (cols[0], cols[1] - 1))
+    for dtype in (np.float64, np.float32):
+        pts = g.astype(dtype)
+        core = miem.detect(pts, preset="recommended").labels
+        np.testing.assert_array_equal(core, ref.detect(pts, preset="recommended").labels)
+        assert not (core == miem.ABNORMAL).any()
+    # the premise: without the corner condition the 4 corners (3 of 8 neighbours raised, in a
+    # row and a column direction) pass step 7's other conditions
+    monkeypatch.setattr(ref, "_spike_corner", lambda res, h: False)
+    assert np.argwhere(ref.detect(g, preset="recommended").labels == miem.ABNORMAL).tolist() \
+        == corners
+
+
+@pytest.mark.parametrize("rows", [(20, 21), (20, 22)])
+def test_spike_raised_one_way_stays_a_spike(rows: tuple[int, int]) -> None:
+    g = _pad(rows, (16, 17))  # one cell, or two in a column: raised in one direction at most
+    labels = miem.detect(g, preset="recommended").labels
+    np.testing.assert_array_equal(labels, ref.detect(g, preset="recommended").labels)
+    assert np.argwhere(labels == miem.ABNORMAL).tolist() == [[r, 16] for r in range(*rows)]
+
+
+def test_pad_stream_equals_batch() -> None:
+    want = assert_stream_equals_batch(_pad((18, 20), (14, 17)), miem.PRESETS["recommended"])
+    assert not (want.labels == miem.ABNORMAL).any()

@@ -420,7 +420,8 @@ void edge_image_row(const GridView<T>& g, std::ptrdiff_t row, const std::uint8_t
 // (grid rows 0..H - 1: `rr`), with all 8 neighbours inside the grid, lies more than
 // kEdgeSpikeTol x tol off every clean side (edge_spike_side), and the median over its
 // neighbours with a return of |u . (q - centroid)| for the cleanest side is below kEdgeSpikeIso
-// x |h|. The formulas are miem.reference._spikes'.
+// x |h|, and it is no corner of a raised patch (edge_spike_corner). The formulas are
+// miem.reference._spikes'.
 template <typename T>
 bool is_spike(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t grow,
               std::ptrdiff_t rr, std::ptrdiff_t cc, std::ptrdiff_t H, const Eigen::Vector3d& o,
@@ -432,13 +433,17 @@ bool is_spike(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t g
   const int s = edge_spike_side(sd, best);
   if (s < 0) return false;
   const Side& x = sd[s];
-  double d[8];
-  int n = 0;
+  double d[8], res[8];
+  int n = 0, t = 0;
   for (std::ptrdiff_t a = -1; a <= 1; ++a) {
     for (std::ptrdiff_t b = -1; b <= 1; ++b) {
-      if ((a == 0 && b == 0) || labels[(grow + a) * W + cc + b] == kInvalid) continue;
+      if (a == 0 && b == 0) continue;
+      double& sv = res[t++];
+      sv = std::numeric_limits<double>::quiet_NaN();
+      if (labels[(grow + a) * W + cc + b] == kInvalid) continue;
       const Eigen::Vector3d q = (g(grow + a, cc + b) - o) - x.centroid;
-      const double v = std::abs(dot3(q, x.normal));
+      sv = dot3(q, x.normal);
+      const double v = std::abs(sv);
       int i = n++;  // insertion: d[0..n) ascending
       for (; i > 0 && d[i - 1] > v; --i) d[i] = d[i - 1];
       d[i] = v;
@@ -446,7 +451,7 @@ bool is_spike(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t g
   }
   if (n == 0) return false;
   const double median = n % 2 ? d[n / 2] : (d[n / 2 - 1] + d[n / 2]) / 2.0;
-  return median < kEdgeSpikeIso * std::abs(x.h);
+  return median < kEdgeSpikeIso * std::abs(x.h) && !edge_spike_corner(res, x.h);
 }
 
 template <typename T>

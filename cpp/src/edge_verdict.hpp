@@ -72,4 +72,19 @@ inline int edge_spike_side(const EdgeSide (&sd)[N], double best) {
   return cleanest;
 }
 
+/// Step 7's last condition (the corner of a raised patch is no isolated spike): a neighbour
+/// is *raised* when its signed distance to the cleanest side's plane lies on P's side beyond
+/// this times |h| ...
+constexpr double kEdgeSpikeRaised = 0.5;
+
+/// ... and P is a *corner* when a raised neighbour lies in its row (left or right) and one in
+/// its column (up or down): a small raised pad or lip, raised in two directions, not a spike.
+/// `res`: the signed distances (u . (q - centroid)) of P's 8 neighbours in row-major order
+/// (up-left, up, up-right, left, right, down-left, down, down-right), NaN without a return.
+inline bool edge_spike_corner(const double (&res)[8], double h) {
+  const double s = h > 0.0 ? 1.0 : -1.0, lim = kEdgeSpikeRaised * std::abs(h);
+  const auto raised = [&](int i) { return s * res[i] > lim; };
+  return (raised(3) || raised(4)) && (raised(1) || raised(6));
+}
+
 }  // namespace miem::detail

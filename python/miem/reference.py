@@ -1233,6 +1233,18 @@ def _hanging(
 _EDGE_SPIKE_TOL = 2.0
 #: ... and its neighbours' median distance to the cleanest side's plane is below this times P's.
 _EDGE_SPIKE_ISO = 0.2
+#: A neighbour is *raised* when its signed distance lies on P's side beyond this times |h|.
+_EDGE_SPIKE_RAISED = 0.5
+
+
+def _spike_corner(res: list[float], h: float) -> bool:
+    """Step 7's last condition: P is the corner of a raised patch (not an isolated spike) when
+    a raised neighbour lies in its row and one in its column. ``res``: the signed distances of
+    P's 8 neighbours (row-major, P left out; NaN without a return) to the cleanest side's
+    plane."""
+    s, lim = (1.0 if h > 0.0 else -1.0), _EDGE_SPIKE_RAISED * abs(h)
+    up = [s * v > lim for v in res]  # NaN: not raised
+    return (up[3] or up[4]) and (up[1] or up[6])
 
 
 def _spikes(
@@ -1251,7 +1263,8 @@ def _spikes(
     """The cells of ``cells`` (row-major; side arrays of shape (8, N)) that are *isolated
     spikes* (SPEC "Edge test" step 7): NORMAL, all 8 neighbours inside the grid, more than
     ``_EDGE_SPIKE_TOL`` x tol off every clean side, and the median over the neighbours with a
-    return of their distance to the cleanest side's plane below ``_EDGE_SPIKE_ISO`` x P's."""
+    return of their distance to the cleanest side's plane below ``_EDGE_SPIKE_ISO`` x P's, and
+    not the corner of a raised patch (``_spike_corner``)."""
     hh, ww = labels.shape
     rr, cc = np.nonzero(cells)
     out = np.zeros(rr.size, dtype=bool)
@@ -1261,15 +1274,16 @@ def _spikes(
     for i in np.flatnonzero(far):
         s = cleanest[i]
         u, m = nrm[s, i], cen[s, i]
-        d = [abs(float(_dot3((grid[rr[i] + a, cc[i] + b] - origin) - m, u)))
-             for a in (-1, 0, 1) for b in (-1, 0, 1)
-             if (a or b) and labels[rr[i] + a, cc[i] + b] != INVALID]
+        res = [float(_dot3((grid[rr[i] + a, cc[i] + b] - origin) - m, u))
+               if labels[rr[i] + a, cc[i] + b] != INVALID else math.nan
+               for a in (-1, 0, 1) for b in (-1, 0, 1) if a or b]
+        d = sorted(abs(v) for v in res if not math.isnan(v))
         if not d:
             continue
-        d.sort()
         n = len(d)
         median = d[n // 2] if n % 2 else (d[n // 2 - 1] + d[n // 2]) / 2.0
-        out[i] = median < _EDGE_SPIKE_ISO * abs(h[s, i])
+        out[i] = (median < _EDGE_SPIKE_ISO * abs(h[s, i])
+                  and not _spike_corner(res, float(h[s, i])))
     return out
 
 
