@@ -99,6 +99,35 @@ def test_error_bands_hand_counts() -> None:
     assert rows[-2:] == ["| 10-19 | 2 (1) | | 0-9 | 2 |", "| 0-9 | 0 (0) | | 20-24 | 1 |"]
 
 
+def test_local_offset_by_hand() -> None:
+    """real_truth step 5 on a hand-built deviation field (0.05 x 0.1 mm grid, 20 x 20 mm): the
+    left half lies 0.1 mm under the golden, the right half 0.04 mm over it. A burr strip
+    (dev 0.3, not a reference cell), wall-case cells (any dev, not reference cells) and a
+    don't-care strip (dev -0.17) must not move the median; 4 mm and more from the seam every
+    cell's offset is its own half's, to the 2 um step; a patch with no reference cell within
+    4 mm has none (NaN)."""
+    h, w = 200, 400
+    x, y = np.meshgrid(np.arange(w) * 0.05, np.arange(h) * 0.1)
+    grid = np.stack([x, y, np.zeros_like(x)], axis=-1)
+    dev = np.where(x < 10.0, -0.1, 0.04)
+    dev = dev + np.where((np.arange(h)[:, None] + np.arange(w)[None, :]) % 2 == 0, 0.01, -0.01)
+    wall = np.zeros((h, w), dtype=bool)
+    dev[:, 100:104] = 0.3  # burr strip at x = 5 mm
+    dev[:, 300:303] = -0.17  # don't care at x = 15 mm
+    wall[:, 60:66] = True  # wall-case at x = 3 mm, deviations of the other half
+    dev[:, 60:66] = 0.04
+    wall[150:, 200:] = True  # a corner with no reference cell (x >= 10, y >= 15 mm)
+    off = rt.local_offset(grid, dev, wall)
+    far_left = (x < 10.0 - 4.3) & ~(y > 15.0 - 4.3)
+    far_right = (x > 10.0 + 4.3) & (y < 15.0 - 4.3)
+    # the median of an even mix of -0.11 and -0.09 lies between them (either is a median)
+    assert np.all((off[far_left] >= -0.11 - 1e-9) & (off[far_left] <= -0.09 + 1e-9))
+    assert np.all((off[far_right] >= 0.03 - 1e-9) & (off[far_right] <= 0.05 + 1e-9))
+    assert np.all((off[:, 100:104] <= -0.09 + 1e-9))  # the burr strip takes its surround's
+    deep = (x > 10.0 + 4.3) & (y > 15.0 + 4.3)
+    assert deep.any() and np.isnan(off[deep]).all()
+
+
 @pytest.mark.skipif(not rt.available(), reason="shared/data/real not present")
 def test_real_truth_registration_and_the_lip_layer() -> None:
     tr = rt.truth()
@@ -121,7 +150,7 @@ def test_real_scan_min_step_auto_and_flat_surface() -> None:
     """On the real scan (uneven profile spacing, 1 um z steps): the core's automatic min_step is
     the reference's rule to the last bit, and flat surface (real_truth's mask, derived from the
     golden sample) is EDGE on under 1 % of its cells with it, against several % without."""
-    tr = rt.truth()
+    tr = rt.truth(local=False)
     g = tr.grid
     res = miem.detect(g, heights="abnormal")
     fin = np.isfinite(g).all(axis=-1)
