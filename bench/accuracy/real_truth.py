@@ -47,9 +47,9 @@ The truth is derived here, without miem, in four steps:
    semivariogram of the absolute deviation over CLEAN cells against ``x, y`` lag (200,000
    random pairs per lag, seed 0) is 0.0001 mm^2 along a profile (0.05 mm), 0.0011 across one
    profile (0.1 mm: the profile-to-profile noise, the nugget), then rises smoothly (0.0019 at
-   1 mm, 0.0028 at 3 mm, 0.0032 at 4 mm, 0.0044 at 8 mm) to its sill 0.0052 from 10-12 mm on.
+   1 mm, 0.0027 at 3 mm, 0.0032 at 4 mm, 0.0045 at 8 mm) to its sill 0.0052 (mean of 12-20 mm).
    The residual's correlation length, the lag at which the semivariogram is half-way from the
-   nugget to the sill (0.0031 mm^2), is 3.9 mm; ``LOCAL_R`` is that, rounded to 4 mm. Within
+   nugget to the sill (0.0032 mm^2), is 4.0 mm; ``LOCAL_R`` is that. Within
    it the residual is still more alike than not (a local best fit), and it is 10-40 times a
    burr's width (1-4 points of 0.05 mm, runs of profiles 0.1 mm apart), so a burr region
    cannot set its own offset (and its cells are not reference cells anyway). Evaluated on
