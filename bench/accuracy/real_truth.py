@@ -294,10 +294,14 @@ def local_offset(grid: np.ndarray, dev_grid: np.ndarray, wall: np.ndarray) -> np
     return out
 
 
-@lru_cache(maxsize=2)
 def truth(local: bool = True) -> RealTruth:
     """The truth of the whole scan (see the module doc): relative to the local offset of nearby
     clean material (step 5) by default, ``local=False`` the absolute deviation (steps 1-4)."""
+    return _truth(bool(local))
+
+
+@lru_cache(maxsize=2)
+def _truth(local: bool) -> RealTruth:
     from scipy import ndimage
 
     grid, dev_grid, wall, nn_median = _deviation()
