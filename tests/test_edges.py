@@ -101,30 +101,31 @@ def test_error_bands_hand_counts() -> None:
 
 def test_local_offset_by_hand() -> None:
     """real_truth step 5 on a hand-built deviation field (0.05 x 0.1 mm grid, 20 x 20 mm): the
-    left half lies 0.1 mm under the golden, the right half 0.04 mm over it. A burr strip
-    (dev 0.3, not a reference cell), wall-case cells (any dev, not reference cells) and a
-    don't-care strip (dev -0.17) must not move the median; 4 mm and more from the seam every
-    cell's offset is its own half's, to the 2 um step; a patch with no reference cell within
-    4 mm has none (NaN)."""
+    left half lies 0.1 mm under the golden, the right half 0.04 mm over it (+-0.01 mm in a
+    checkerboard). A 4 mm band of wall-case cells (dev +0.04) in the left half and a 4 mm band
+    of burr cells (dev 0.3) in the right half cover most of the 4 mm disc of the cells in and
+    next to them: counted as reference cells they would carry the median; they are not, so
+    every cell 4.4 mm or more from the seam (x = 10 mm) gets its own half's offset, to the 2 um
+    step. A corner with no reference cell within 4 mm has none (NaN)."""
     h, w = 200, 400
     x, y = np.meshgrid(np.arange(w) * 0.05, np.arange(h) * 0.1)
     grid = np.stack([x, y, np.zeros_like(x)], axis=-1)
     dev = np.where(x < 10.0, -0.1, 0.04)
     dev = dev + np.where((np.arange(h)[:, None] + np.arange(w)[None, :]) % 2 == 0, 0.01, -0.01)
-    wall = np.zeros((h, w), dtype=bool)
-    dev[:, 100:104] = 0.3  # burr strip at x = 5 mm
-    dev[:, 300:303] = -0.17  # don't care at x = 15 mm
-    wall[:, 60:66] = True  # wall-case at x = 3 mm, deviations of the other half
-    dev[:, 60:66] = 0.04
-    wall[150:, 200:] = True  # a corner with no reference cell (x >= 10, y >= 15 mm)
+    wall = (x >= 2.0) & (x < 6.0)
+    dev[wall] = 0.04
+    burr = (x >= 14.0) & (x < 18.0)
+    dev[burr] = 0.3
+    corner = (x >= 10.0) & (y >= 15.0)
+    wall |= corner  # no reference cell there
     off = rt.local_offset(grid, dev, wall)
-    far_left = (x < 10.0 - 4.3) & ~(y > 15.0 - 4.3)
-    far_right = (x > 10.0 + 4.3) & (y < 15.0 - 4.3)
+    left = (x < 10.0 - 4.4) & (y < 20.0)
+    right = (x > 10.0 + 4.4) & (y < 15.0 - 4.4)
     # the median of an even mix of -0.11 and -0.09 lies between them (either is a median)
-    assert np.all((off[far_left] >= -0.11 - 1e-9) & (off[far_left] <= -0.09 + 1e-9))
-    assert np.all((off[far_right] >= 0.03 - 1e-9) & (off[far_right] <= 0.05 + 1e-9))
-    assert np.all((off[:, 100:104] <= -0.09 + 1e-9))  # the burr strip takes its surround's
-    deep = (x > 10.0 + 4.3) & (y > 15.0 + 4.3)
+    assert np.all((off[left] >= -0.11 - 1e-9) & (off[left] <= -0.09 + 1e-9))
+    assert np.all((off[right] >= 0.03 - 1e-9) & (off[right] <= 0.05 + 1e-9))
+    assert (left & wall).sum() > 5_000 and (right & burr).sum() > 5_000
+    deep = (x > 10.0 + 4.4) & (y > 15.0 + 4.4)
     assert deep.any() and np.isnan(off[deep]).all()
 
 
