@@ -99,6 +99,36 @@ def test_error_bands_hand_counts() -> None:
     assert rows[-2:] == ["| 10-19 | 2 (1) | | 0-9 | 2 |", "| 0-9 | 0 (0) | | 20-24 | 1 |"]
 
 
+def test_local_offset_by_hand() -> None:
+    """real_truth step 5 on a hand-built deviation field (0.05 x 0.1 mm grid, 20 x 20 mm): the
+    left half lies 0.1 mm under the golden, the right half 0.04 mm over it (+-0.01 mm in a
+    checkerboard). A 4 mm band of wall-case cells (dev +0.04) in the left half and a 4 mm band
+    of burr cells (dev 0.3) in the right half cover most of the 4 mm disc of the cells in and
+    next to them: counted as reference cells they would carry the median; they are not, so
+    every cell 4.4 mm or more from the seam (x = 10 mm) gets its own half's offset, to the 2 um
+    step. A corner with no reference cell within 4 mm has none (NaN)."""
+    h, w = 200, 400
+    x, y = np.meshgrid(np.arange(w) * 0.05, np.arange(h) * 0.1)
+    grid = np.stack([x, y, np.zeros_like(x)], axis=-1)
+    dev = np.where(x < 10.0, -0.1, 0.04)
+    dev = dev + np.where((np.arange(h)[:, None] + np.arange(w)[None, :]) % 2 == 0, 0.01, -0.01)
+    wall = (x >= 2.0) & (x < 6.0)
+    dev[wall] = 0.04
+    burr = (x >= 14.0) & (x < 18.0)
+    dev[burr] = 0.3
+    corner = (x >= 10.0) & (y >= 15.0)
+    wall |= corner  # no reference cell there
+    off = rt.local_offset(grid, dev, wall)
+    left = (x < 10.0 - 4.4) & (y < 20.0)
+    right = (x > 10.0 + 4.4) & (y < 15.0 - 4.4)
+    # the median of an even mix of -0.11 and -0.09 lies between them (either is a median)
+    assert np.all((off[left] >= -0.11 - 1e-9) & (off[left] <= -0.09 + 1e-9))
+    assert np.all((off[right] >= 0.03 - 1e-9) & (off[right] <= 0.05 + 1e-9))
+    assert (left & wall).sum() > 5_000 and (right & burr).sum() > 5_000
+    deep = (x > 10.0 + 4.4) & (y > 15.0 + 4.4)
+    assert deep.any() and np.isnan(off[deep]).all()
+
+
 @pytest.mark.skipif(not rt.available(), reason="shared/data/real not present")
 def test_real_truth_registration_and_the_lip_layer() -> None:
     tr = rt.truth()
@@ -121,7 +151,7 @@ def test_real_scan_min_step_auto_and_flat_surface() -> None:
     """On the real scan (uneven profile spacing, 1 um z steps): the core's automatic min_step is
     the reference's rule to the last bit, and flat surface (real_truth's mask, derived from the
     golden sample) is EDGE on under 1 % of its cells with it, against several % without."""
-    tr = rt.truth()
+    tr = rt.truth(local=False)
     g = tr.grid
     res = miem.detect(g, heights="abnormal")
     fin = np.isfinite(g).all(axis=-1)
