@@ -88,3 +88,16 @@ def run_cases(cases):
     return out
 """
 Isolated.CASES = CASES
+
+
+# Under README's ``pytest -n auto --dist loadfile --no-loadscope-reorder`` (pytest-xdist) each
+# file runs whole on one worker (its module-scoped fixtures are made once), files in collection
+# order: the files here go first so that the longest one does not start last and hold up the run.
+XDIST_FIRST = ("tests/test_cpp.py",)  # two C++ builds (plain and sanitized) and their ctest runs
+
+
+def pytest_collection_modifyitems(config, items):
+    if not hasattr(config, "workerinput"):  # not an xdist worker: collection order unchanged
+        return
+    first = {name: i for i, name in enumerate(XDIST_FIRST)}
+    items.sort(key=lambda item: first.get(item.nodeid.split("::")[0], len(first)))
