@@ -31,6 +31,26 @@ inline double dot3(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
   return (a.x() * b.x() + a.y() * b.y()) + a.z() * b.z();
 }
 
+/// The cosine of the angle between u and v from their dot products (uu, vv > 0), clamped to
+/// [-1, 1]: the one evaluation every judge of SPEC's angle test uses.
+inline double clamped_cos(double uv, double uu, double vv) {
+  return std::clamp(uv / std::sqrt(uu * vv), -1.0, 1.0);
+}
+
+/// A cell's label from its directions (SPEC "Angle test"): ABNORMAL when at least 2 directions
+/// are available and at least min(available, min_directions) (0: all) are flagged, else EDGE
+/// when any is flagged, else NORMAL.
+inline std::uint8_t direction_label(int avail, int flagged, int min_directions) {
+  const int need = min_directions > 0 ? std::min(avail, min_directions) : avail;
+  if (avail >= 2 && flagged >= need) return kAbnormal;
+  return flagged > 0 ? kEdge : kNormal;
+}
+
+/// A search's reach (steps read along a ray) as kept in a byte: capped at 255.
+inline std::uint8_t reach_byte(std::ptrdiff_t steps) {
+  return static_cast<std::uint8_t>(std::min<std::ptrdiff_t>(steps, 255));
+}
+
 /// Judges single cells against a fixed usable mask. `Usable` maps a mask byte to "usable"
 /// (the batch detector: bit 0; the streaming detector: "removed at this pass or later").
 /// `kLabelsOnly` (streaming): labels and flags exact, angle NaN, and no square root for a
@@ -79,11 +99,11 @@ class CellJudge {
         const double uv = dot3(u, v);
         dir_avail = true;
         if (kLabelsOnly && uv <= 0.0 && cos0_ > 0.0) continue;  // cos <= 0 < cos0
-        const double cs = std::clamp(uv / std::sqrt(uu * vv), -1.0, 1.0);
+        const double cs = clamped_cos(uv, uu, vv);
         if (cs >= cos0_) dir_flag = true;
         if (cs > best_cos) best_cos = cs;
       }
-      if (reach) reach[k] = static_cast<std::uint8_t>(std::min<std::ptrdiff_t>(ext, 255));
+      if (reach) reach[k] = reach_byte(ext);
       avail += dir_avail;
       if (dir_flag) {
         ++flagged;
@@ -92,9 +112,7 @@ class CellJudge {
     }
     *flags = mask;
     *angle_deg = (!kLabelsOnly && best_cos > -2.0) ? std::acos(best_cos) * kRadToDeg : kNaN;
-    const int need = p_.min_directions > 0 ? std::min(avail, p_.min_directions) : avail;
-    if (avail >= 2 && flagged >= need) return kAbnormal;
-    return flagged > 0 ? kEdge : kNormal;
+    return direction_label(avail, flagged, p_.min_directions);
   }
 
  private:

@@ -573,7 +573,7 @@ void ProfileStream<T>::remove(std::int64_t row, std::ptrdiff_t col, int pass) no
         // a cell whose verdict (its row has run this pass) read less far along this ray
         // keeps it (batch's later passes do the same)
         if (use_ray_ && level_[sr] >= pass &&
-            ray_[4 * (sr * W + cc) + k] < std::min<std::ptrdiff_t>(step, 255)) {
+            ray_[4 * (sr * W + cc) + k] < detail::reach_byte(step)) {
           continue;
         }
         cand_[sr * W + cc] |= bit;
@@ -764,15 +764,12 @@ std::uint8_t ProfileStream<T>::exact_label(std::int64_t row, std::ptrdiff_t c,
       if (uu == 0.0 || vv == 0.0) continue;
       dir_avail = true;
       if (!(b & (1u << i))) continue;  // the filter showed cos < cos0
-      const double cs = std::clamp(detail::dot3(u, v) / std::sqrt(uu * vv), -1.0, 1.0);
-      if (cs >= cos0_) dir_flag = true;
+      if (detail::clamped_cos(detail::dot3(u, v), uu, vv) >= cos0_) dir_flag = true;
     }
     avail += dir_avail;
     flagged += dir_flag;
   }
-  const int need = params_.min_directions > 0 ? std::min(avail, params_.min_directions) : avail;
-  if (avail >= 2 && flagged >= need) return kAbnormal;
-  return flagged > 0 ? kEdge : kNormal;
+  return detail::direction_label(avail, flagged, params_.min_directions);
 }
 
 // Pass 1 with min_step (theta0 < 90): the verdict of cell (r, c) of the judge's grid (`grid`:
@@ -835,17 +832,14 @@ std::uint8_t ProfileStream<T>::min_step_label(const T* grid, const std::uint8_t*
       if (uv <= 0.0) continue;  // cos <= 0 < cos0
       const double uu = (u[0] * u[0] + u[1] * u[1]) + u[2] * u[2];
       const double vv = (v[0] * v[0] + v[1] * v[1]) + v[2] * v[2];
-      const double cs = std::clamp(uv / std::sqrt(uu * vv), -1.0, 1.0);
-      if (cs >= cos0_) dir_flag = true;
+      if (detail::clamped_cos(uv, uu, vv) >= cos0_) dir_flag = true;
     }
     flagged += dir_flag;
   }
   if (ray != nullptr) {
-    for (int k = 0; k < 4; ++k) ray[k] = static_cast<std::uint8_t>(std::min<std::ptrdiff_t>(ext[k], 255));
+    for (int k = 0; k < 4; ++k) ray[k] = detail::reach_byte(ext[k]);
   }
-  const int need = params_.min_directions > 0 ? std::min(4, params_.min_directions) : 4;
-  if (flagged >= need) return kAbnormal;
-  return flagged > 0 ? kEdge : kNormal;
+  return detail::direction_label(4, flagged, params_.min_directions);  // every direction available
 }
 
 namespace nothrow {
