@@ -114,8 +114,7 @@ inline __attribute__((always_inline)) void side_plane(
     double& valid, double& h, double& rms, double& tol, double& ox, double& oy,
     double& oz) {
   valid = use & solved & (l2 > 0.0) & !(l1 <= kRankTol * l2) ? 1.0 : 0.0;
-  const double sg = nz != 0.0 ? (nz > 0.0 ? 1.0 : -1.0)
-                              : (nx != 0.0 ? (nx > 0.0 ? 1.0 : -1.0) : (ny < 0.0 ? -1.0 : 1.0));
+  const double sg = orient_sign(nx, ny, nz);
   ox = nx * sg, oy = ny * sg, oz = nz * sg;  // orient_normal
   h = ((px - cx) * ox + (py - cy) * oy) + (pz - cz) * oz;  // dot3(pt - centroid, normal)
   rms = std::sqrt((l0 < 0.0 ? 0.0 : l0) / nn);  // std::max(l0, 0.0)

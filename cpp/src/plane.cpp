@@ -56,15 +56,7 @@ const char* to_string(PlaneStatus status) noexcept {
 }
 
 Eigen::Vector3d orient_normal(const Eigen::Vector3d& n) noexcept {
-  double sign = 1.0;
-  if (n.z() != 0.0) {
-    sign = n.z() > 0 ? 1.0 : -1.0;
-  } else if (n.x() != 0.0) {
-    sign = n.x() > 0 ? 1.0 : -1.0;
-  } else if (n.y() != 0.0) {
-    sign = n.y() > 0 ? 1.0 : -1.0;
-  }
-  return n * sign;
+  return n * detail::orient_sign(n.x(), n.y(), n.z());
 }
 
 PlaneStatus eigen_plane_from_moments(const Moments& m, Plane* out) noexcept {

@@ -15,6 +15,19 @@
 
 namespace miem::detail {
 
+/// A unit normal component at most this large in magnitude counts as zero when orienting
+/// (SPEC "Plane fit"): an exactly vertical plane's n_z comes out of any eigen-solver as a
+/// rounding residue of either sign, which must not decide the orientation.
+inline constexpr double kOrientTol = 1e-12;
+
+/// The orientation sign of a unit normal (SPEC "Plane fit"): that of n_z, or when
+/// |n_z| <= kOrientTol of n_x, or when |n_x| <= kOrientTol too of n_y (+1 when all are zero).
+inline double orient_sign(double nx, double ny, double nz) noexcept {
+  return std::abs(nz) > kOrientTol ? (nz > 0.0 ? 1.0 : -1.0)
+         : std::abs(nx) > kOrientTol ? (nx > 0.0 ? 1.0 : -1.0)
+                                     : (ny < 0.0 ? -1.0 : 1.0);
+}
+
 /// Eigenvalues l0 <= l1 <= l2 of a symmetric positive semi-definite M and the unit eigenvector
 /// of l0 (unoriented). Returns false when M is zero.
 inline bool smallest_eigenpair(const Eigen::Matrix3d& M, double* l0, double* l1, double* l2,

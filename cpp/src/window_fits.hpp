@@ -118,8 +118,7 @@ inline __attribute__((always_inline)) void solve_fits_body(std::ptrdiff_t m, std
         const double inv_len = 1.0 / std::sqrt(nb > 0.0 ? nb : 1.0);
         nx *= inv_len, ny *= inv_len, nz *= inv_len;
       }
-      const double sg = nz != 0.0 ? (nz > 0.0 ? 1.0 : -1.0)
-                                  : (nx != 0.0 ? (nx > 0.0 ? 1.0 : -1.0) : (ny < 0.0 ? -1.0 : 1.0));
+      const double sg = orient_sign(nx, ny, nz);
       const double h = sg * ((nx * (qx[i] - mx) + ny * (qy[i] - my)) + nz * (qz[i] - mz));
       fh[i] = h;
       f0[i] = x[t];
