@@ -116,10 +116,14 @@ void ProfileStream<T>::edge_labels(std::int64_t row, int pass, std::ptrdiff_t c0
 
 // The integral images of edge pass `pass`, tile column t, band `band`, with the image rows through
 // `upto` (the sums over the grid rows before it): started at the tile's first image row when
-// the set holds another band, then one grid row at a time.
+// the set holds another band, then one grid row at a time. Image rows before `from` are never
+// read (the set's judgments are of rows from + r on): their grid rows add to the column sums
+// only, as batch's rows before its first candidate row (a pass p >= 2, or a tile whose first
+// candidate comes late in the band, catches up without the row prefixes).
 template <typename T>
 const double* ProfileStream<T>::edge_images(int pass, std::ptrdiff_t t, std::int64_t band,
-                                            std::int64_t upto) noexcept {
+                                            std::int64_t upto,
+                                            std::int64_t from) noexcept {
   const std::ptrdiff_t W = width_, r = params_.edge_window / 2;
   const std::ptrdiff_t C0 = t * kTC, C1 = std::min(W, C0 + kTC);
   const std::ptrdiff_t f0 = std::max<std::ptrdiff_t>(0, C0 - r), f1 = std::min(W, C1 + r);
@@ -139,8 +143,8 @@ const double* ProfileStream<T>::edge_images(int pass, std::ptrdiff_t t, std::int
   }
   for (; next < upto; ++next) {  // add grid row `next`: image row next + 1
     edge_labels(next, pass, f0, f1, elab_img_.data());
-    detail::edge_image_row(row_view(next), 0, elab_img_.data(), f0, f1, o, col, EC,
-                           img + ((next + 1 - e0) % ek_) * L, plane);
+    double* const out = next + 1 < from ? nullptr : img + ((next + 1 - e0) % ek_) * L;
+    detail::edge_image_row(row_view(next), 0, elab_img_.data(), f0, f1, o, col, EC, out, plane);
   }
   return img;
 }
@@ -182,7 +186,7 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
       any = todo[c] && (lab[c] == kNormal || lab[c] == kEdge);
     }
     if (!any) continue;
-    const double* img = edge_images(pass, t, band, upto);
+    const double* img = edge_images(pass, t, band, upto, a0);  // reads image rows a0 on
     const std::ptrdiff_t f0 = std::max<std::ptrdiff_t>(0, C0 - r);
     const double* org = eorg_.data() + (b * etiles_ + t) * 3;
     const Eigen::Vector3d o(org[0], org[1], org[2]);
@@ -203,7 +207,7 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
   if (pass == 1 && upto > e0n && R0n < H) {
     const std::ptrdiff_t bn = static_cast<std::ptrdiff_t>((band + 1) % ebands_);
     for (std::ptrdiff_t t = 0; t < etiles_; ++t) {
-      if (eorg_ok_[static_cast<std::size_t>(bn * etiles_ + t)]) edge_images(1, t, band + 1, upto);
+      if (eorg_ok_[static_cast<std::size_t>(bn * etiles_ + t)]) edge_images(1, t, band + 1, upto, 0);
     }
   }
   if (pass > 1) {

@@ -244,7 +244,7 @@ class ProfileStream {
   void run_edges(bool to_end) noexcept;
   void edge_row(std::int64_t row, int pass) noexcept;
   const double* edge_images(int pass, std::ptrdiff_t tile, std::int64_t band,
-                            std::int64_t upto) noexcept;
+                            std::int64_t upto, std::int64_t from) noexcept;
   void edge_labels(std::int64_t row, int pass, std::ptrdiff_t c0, std::ptrdiff_t c1,
                    std::uint8_t* out) const noexcept;
   // Defects (stream_defects.cpp).
