@@ -42,7 +42,8 @@ struct EdgeImages {
 
 /// Adds cell row `row` of g (labels `lab`, indexed by grid column) over grid columns f0 .. f1 - 1
 /// to a tile's column sums (moment q of column f0 + x at col[q * col_plane + x]) and writes the
-/// next image row: moment q at out[q * plane], 0 then x + 1 for column f0 + x. o: the origin.
+/// next image row: moment q at out[q * plane], 0 then x + 1 for column f0 + x (out null: the
+/// column sums only, for a row above every image row that will be read). o: the origin.
 template <typename T>
 void edge_image_row(const GridView<T>& g, std::ptrdiff_t row, const std::uint8_t* lab,
                     std::ptrdiff_t f0, std::ptrdiff_t f1, const Eigen::Vector3d& o, double* col,

@@ -134,8 +134,7 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 /// max(2 R, 2 h) rows that repeat its first rows (2 r with the edge test if more), so that the
 /// rows around any row form one strided GridView; with the edge test also (P + 1)
 /// ceil(width / 128) rings of integral images (11 x (2 r + 2) x (129 + 2 r) doubles and the
-/// column sums) and, per tile column, pass 1's band cache (2 (r + 2) slots of 3080 doubles,
-/// 11 MB at 3200 points): about 189 MB (measured) for double profiles of 3200 points with the defaults (96 MB with
+/// column sums): about 178 MB (measured) for double profiles of 3200 points with the defaults (96 MB with
 /// min_step off, 92 MB without the edge test), plus the cells of the open defects (a pool
 /// reserved for 16 rows' worth of cells, which grows, once, only for more). Defects come with
 /// the rows (StreamRow::defects) once final; flags and angles are not reported. (Batch
@@ -245,7 +244,7 @@ class ProfileStream {
   void run_edges(bool to_end) noexcept;
   void edge_row(std::int64_t row, int pass) noexcept;
   const double* edge_images(int pass, std::ptrdiff_t tile, std::int64_t band,
-                            std::int64_t upto) noexcept;
+                            std::int64_t upto, std::int64_t from) noexcept;
   void edge_labels(std::int64_t row, int pass, std::ptrdiff_t c0, std::ptrdiff_t c1,
                    std::uint8_t* out) const noexcept;
   // Defects (stream_defects.cpp).
@@ -352,9 +351,6 @@ class ProfileStream {
   std::vector<std::int64_t> enext_;      // [p]: next row of edge pass p (1..passes_)
   std::vector<double> eorg_;             // per (band mod ebands_, tile column): the origin
   std::vector<std::uint8_t> eorg_ok_;    // ... found
-  std::ptrdiff_t ecache_slots_ = 0;      // pass 1's band cache: slots per tile column
-  std::vector<double> ecache_;           // ... the slots (edge_test.hpp EdgeBandCache)
-  std::vector<std::int64_t> ecache_band_;  // ... the band they hold, per tile column
   std::vector<std::ptrdiff_t> eorg_missing_;  // per band slot: tiles without an origin yet
   std::vector<std::uint8_t> eones_, elab_img_, elab_row_, emark_, etd_;  // one row each
   // Defects (stream_defects.cpp): open groups as union-find slots over the cells of the last
