@@ -40,6 +40,34 @@ constexpr std::uint8_t kNever = 255;  // hs_: not removed by the height test
 
 constexpr std::uint8_t want_bit(int pass) { return (pass & 1) ? kSWantOdd : kSWantEven; }
 
+// Height pass 1 on a row span of n cells from row_solve's fits (RowFits, not compact): the
+// height of each wanted cell (w[j] != 0; NaN without a plane) and, with `test`, w[j] = 1 where
+// the cell is a candidate (NORMAL or compact EDGE, by its bits hm[j]) the verdict
+// (height_verdict) finds too far, else 0. Straight-line code (vectorised), as the batch's
+// height_row: a cell's verdict and height are those of the one-cell path (RowFits::fit).
+MIEM_FIT_CLONES void pass1_verdicts(std::ptrdiff_t n, const std::uint8_t* __restrict hm,
+                                    const double* __restrict S, const double* __restrict F,
+                                    const std::uint8_t* __restrict okf, std::ptrdiff_t cap,
+                                    bool test, double height_abs, double height_k,
+                                    double* __restrict height, std::uint8_t* __restrict w) {
+  const double* __restrict fh = F;
+  for (std::ptrdiff_t j = 0; j < n; ++j) {
+    const double h = okf[j] != 0 ? fh[j] : detail::kNaN;
+    height[j] = w[j] != 0 ? h : height[j];
+  }
+  if (!test) return;
+  const double* __restrict f0 = F + cap;
+  const double* __restrict f1 = F + 2 * cap;
+  const double* __restrict f2 = F + 3 * cap;
+  const double* __restrict sl = S + 10 * cap;
+  for (std::ptrdiff_t j = 0; j < n; ++j) {
+    const bool cand = (hm[j] & (kInPlane | kSCompact)) != 0;
+    const bool far = detail::height_verdict(okf[j] != 0, sl[j], fh[j], S[j], f0[j], f1[j],
+                                            f2[j], height_abs, height_k);
+    w[j] = static_cast<std::uint8_t>((w[j] != 0) & cand & far);
+  }
+}
+
 }  // namespace
 
 template <typename T>
@@ -269,15 +297,30 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
     }
     if (m == 0) continue;
     detail::load_rel(g, 0, tc0, n, o[0], o[1], o[2], Q, Q + cap, Q + 2 * cap);
-    detail::row_fits(col, stride_, h, n, cap, wrow, m, S, Q, F, okf, redo,
-                     [&](std::ptrdiff_t j, const detail::WindowFit& f) {
-                       const std::ptrdiff_t c = tc0 + j;
-                       height[c] = f.ok ? f.height : detail::kNaN;
-                       if (htest_ && (hm[c] & (kInPlane | kSCompact)) &&
-                           detail::height_far(f, params_)) {
-                         remove_height(row, c, 1);
-                       }
-                     });
+    const detail::RowFits rf =
+        detail::row_solve(col, stride_, h, n, cap, wrow, m, S, Q, F, okf, redo);
+    if (!rf.compact) {  // the whole span at once: heights, then the verdicts
+      const std::ptrdiff_t j0 = rf.j0, j1 = rf.j1;
+      std::uint8_t* far = wrow;  // wrow[j] becomes: cell j is wanted and too far
+      pass1_verdicts(j1 - j0, hm + tc0 + j0, rf.S + j0, rf.F + j0, rf.okf + j0, rf.cap,
+                     htest_, params_.height_abs, params_.height_k, height + tc0 + j0, far + j0);
+      if (!htest_) continue;
+      std::uint8_t any = 0;
+      for (std::ptrdiff_t j = j0; j < j1; ++j) any |= far[j];
+      for (std::ptrdiff_t j = any ? j0 : j1; j < j1; ++j)
+        if (far[j]) remove_height(row, tc0 + j, 1);
+      continue;
+    }
+    std::ptrdiff_t e = 0;
+    for (std::ptrdiff_t j = 0; j < n; ++j) {
+      if (!wrow[j]) continue;
+      const detail::WindowFit f = rf.fit(e++);
+      const std::ptrdiff_t c = tc0 + j;
+      height[c] = f.ok ? f.height : detail::kNaN;
+      if (htest_ && (hm[c] & (kInPlane | kSCompact)) && detail::height_far(f, params_)) {
+        remove_height(row, c, 1);
+      }
+    }
   }
 }
 

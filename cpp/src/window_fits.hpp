@@ -14,6 +14,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <type_traits>
 #include <vector>
 
 #include <Eigen/Core>
@@ -189,26 +190,46 @@ inline WindowFit fit_from_sums(const double* s, const Eigen::Vector3d& q) {
   cs, cs + stride, cs + 2 * stride, cs + 3 * stride, cs + 4 * stride, cs + 5 * stride,     \
       cs + 6 * stride, cs + 7 * stride, cs + 8 * stride, cs + 9 * stride, cs + 10 * stride
 
+// The class bytes of up to kSumChunk cells as 1.0 / 0.0 doubles (w: kInPlane, l: kLine). The
+// sums' loops read these, not the bytes: a byte next to the doubles makes GCC take 32 cells at a
+// time, and the 11 sums of 32 cells spill to the stack (three instructions in four were moves).
+inline constexpr std::ptrdiff_t kSumChunk = 64;
+inline __attribute__((always_inline)) void class_weights(const std::uint8_t* __restrict cl,
+                                                         std::ptrdiff_t n, double* __restrict w,
+                                                         double* __restrict l) {
+  for (std::ptrdiff_t j = 0; j < n; ++j) {
+    w[j] = (cl[j] & kInPlane) != 0 ? 1.0 : 0.0;
+    l[j] = (cl[j] & kLine) != 0 ? 1.0 : 0.0;
+  }
+}
+
 MIEM_FIT_CLONES inline void add_row_sums(const std::uint8_t* __restrict cl, std::ptrdiff_t n,
                                          const double* __restrict px,
                                          const double* __restrict py,
                                          const double* __restrict pz, double sign,
                                          MIEM_SUM_PARAMS) {
-  for (std::ptrdiff_t j = 0; j < n; ++j) {
-    const bool in = (cl[j] & kInPlane) != 0;
-    const double w = in ? sign : 0.0;
-    const double x = in ? px[j] : 0.0, y = in ? py[j] : 0.0, z = in ? pz[j] : 0.0;
-    c0[j] += w;
-    c1[j] += w * x;
-    c2[j] += w * y;
-    c3[j] += w * z;
-    c4[j] += w * (x * x);
-    c5[j] += w * (x * y);
-    c6[j] += w * (x * z);
-    c7[j] += w * (y * y);
-    c8[j] += w * (y * z);
-    c9[j] += w * (z * z);
-    c10[j] += (cl[j] & kLine) ? sign : 0.0;
+  for (std::ptrdiff_t j0 = 0; j0 < n; j0 += kSumChunk) {
+    const std::ptrdiff_t m = std::min(kSumChunk, n - j0);
+    double wi[kSumChunk], li[kSumChunk];
+    class_weights(cl + j0, m, wi, li);
+    for (std::ptrdiff_t t = 0; t < m; ++t) {
+      const std::ptrdiff_t j = j0 + t;
+      const bool in = wi[t] != 0.0;
+      const double w = in ? sign : 0.0, l = li[t] != 0.0 ? sign : 0.0;
+      const double qx = px[j], qy = py[j], qz = pz[j];
+      const double x = in ? qx : 0.0, y = in ? qy : 0.0, z = in ? qz : 0.0;
+      c0[j] += w;
+      c1[j] += w * x;
+      c2[j] += w * y;
+      c3[j] += w * z;
+      c4[j] += w * (x * x);
+      c5[j] += w * (x * y);
+      c6[j] += w * (x * z);
+      c7[j] += w * (y * y);
+      c8[j] += w * (y * z);
+      c9[j] += w * (z * z);
+      c10[j] += l;
+    }
   }
 }
 
@@ -217,22 +238,29 @@ MIEM_FIT_CLONES inline void move_row_sums(
     const double* __restrict az, const std::uint8_t* __restrict cb, const double* __restrict bx,
     const double* __restrict by, const double* __restrict bz, std::ptrdiff_t n,
     MIEM_SUM_PARAMS) {
-  for (std::ptrdiff_t j = 0; j < n; ++j) {
-    const bool ia = (ca[j] & kInPlane) != 0, ib = (cb[j] & kInPlane) != 0;
-    const double wa = ia ? 1.0 : 0.0, wb = ib ? 1.0 : 0.0;
-    const double xa = ia ? ax[j] : 0.0, ya = ia ? ay[j] : 0.0, za = ia ? az[j] : 0.0;
-    const double xb = ib ? bx[j] : 0.0, yb = ib ? by[j] : 0.0, zb = ib ? bz[j] : 0.0;
-    c0[j] += wa - wb;
-    c1[j] += xa - xb;
-    c2[j] += ya - yb;
-    c3[j] += za - zb;
-    c4[j] += xa * xa - xb * xb;
-    c5[j] += xa * ya - xb * yb;
-    c6[j] += xa * za - xb * zb;
-    c7[j] += ya * ya - yb * yb;
-    c8[j] += ya * za - yb * zb;
-    c9[j] += za * za - zb * zb;
-    c10[j] += ((ca[j] & kLine) ? 1.0 : 0.0) - ((cb[j] & kLine) ? 1.0 : 0.0);
+  for (std::ptrdiff_t j0 = 0; j0 < n; j0 += kSumChunk) {
+    const std::ptrdiff_t m = std::min(kSumChunk, n - j0);
+    double wa[kSumChunk], la[kSumChunk], wb[kSumChunk], lb[kSumChunk];
+    class_weights(ca + j0, m, wa, la);
+    class_weights(cb + j0, m, wb, lb);
+    for (std::ptrdiff_t t = 0; t < m; ++t) {
+      const std::ptrdiff_t j = j0 + t;
+      const bool ia = wa[t] != 0.0, ib = wb[t] != 0.0;
+      const double pxa = ax[j], pya = ay[j], pza = az[j], pxb = bx[j], pyb = by[j], pzb = bz[j];
+      const double xa = ia ? pxa : 0.0, ya = ia ? pya : 0.0, za = ia ? pza : 0.0;
+      const double xb = ib ? pxb : 0.0, yb = ib ? pyb : 0.0, zb = ib ? pzb : 0.0;
+      c0[j] += wa[t] - wb[t];
+      c1[j] += xa - xb;
+      c2[j] += ya - yb;
+      c3[j] += za - zb;
+      c4[j] += xa * xa - xb * xb;
+      c5[j] += xa * ya - xb * yb;
+      c6[j] += xa * za - xb * zb;
+      c7[j] += ya * ya - yb * yb;
+      c8[j] += ya * za - yb * zb;
+      c9[j] += za * za - zb * zb;
+      c10[j] += la[t] - lb[t];
+    }
   }
 }
 
@@ -257,6 +285,34 @@ inline void move_row_moments(const std::uint8_t* ca, const double* ax, const dou
 #undef MIEM_SUM_ARGS
 #undef MIEM_SUM_PARAMS
 
+// n points stored x, y, z, x, y, z, ... (a dense grid's row) as SoA coordinates relative to
+// (ox, oy, oz): load_rel's arithmetic in vector code (the interleaved loads vectorise in the
+// AVX2 clones; the generic loop below runs one point at a time).
+MIEM_FIT_CLONES inline void load_rel_xyz(const double* __restrict p, std::ptrdiff_t n, double ox,
+                                         double oy, double oz, double* __restrict x,
+                                         double* __restrict y, double* __restrict z) {
+  for (std::ptrdiff_t j = 0; j < n; ++j) {
+    x[j] = p[3 * j] - ox;
+    y[j] = p[3 * j + 1] - oy;
+    z[j] = p[3 * j + 2] - oz;
+  }
+}
+
+// The same for n points stored as three planes, x at p, y at p + yo, z at p + 2 yo (the
+// stream's ring).
+MIEM_FIT_CLONES inline void load_rel_planes(const double* __restrict p, std::ptrdiff_t yo,
+                                            std::ptrdiff_t n, double ox, double oy, double oz,
+                                            double* __restrict x, double* __restrict y,
+                                            double* __restrict z) {
+  const double* __restrict py = p + yo;
+  const double* __restrict pz = p + 2 * yo;
+  for (std::ptrdiff_t j = 0; j < n; ++j) {
+    x[j] = p[j] - ox;
+    y[j] = py[j] - oy;
+    z[j] = pz[j] - oz;
+  }
+}
+
 // Row r, columns [c0, c0 + n), as SoA coordinates relative to (ox, oy, oz).
 template <typename T>
 void load_rel(const GridView<T>& g, std::ptrdiff_t r, std::ptrdiff_t c0, std::ptrdiff_t n,
@@ -270,6 +326,16 @@ void load_rel(const GridView<T>& g, std::ptrdiff_t r, std::ptrdiff_t c0, std::pt
     const char* nb = reinterpret_cast<const char*>(base + g.row_stride);
     const std::ptrdiff_t bytes = ((n - 1) * ps + zo + 1) * static_cast<std::ptrdiff_t>(sizeof(T));
     for (std::ptrdiff_t off = 0; off < bytes; off += 64) __builtin_prefetch(nb + off);
+  }
+  if constexpr (std::is_same_v<T, double>) {
+    if (ps == 3 && yo == 1) {
+      load_rel_xyz(base, n, ox, oy, oz, x, y, z);
+      return;
+    }
+    if (ps == 1) {
+      load_rel_planes(base, yo, n, ox, oy, oz, x, y, z);
+      return;
+    }
   }
   for (std::ptrdiff_t j = 0; j < n; ++j) {
     const T* q = base + j * ps;
