@@ -190,7 +190,7 @@ def test_plane_fits_match_reference(seed: int) -> None:
 
 def test_vertical_planes_are_oriented_by_geometry_not_rounding() -> None:
     # Points on a plane y = const: the unit normal is (0, +-1, 0) up to rounding, and its n_z
-    # is a residue of either sign. SPEC "Plane fit" counts |n_z| <= 1e-12 as zero, so both
+    # is a residue of either sign. SPEC "Plane fit" counts |n_z| <= 1e-6 as zero, so both
     # fits orient by n_y > 0 (before that rule 70 of these 300 core fits and 32 reference fits
     # came out with n_y < 0).
     rng = np.random.default_rng(1)
@@ -203,23 +203,39 @@ def test_vertical_planes_are_oriented_by_geometry_not_rounding() -> None:
             assert fit.normal[1] > 0
 
 
-def test_height_over_a_single_row_window_is_by_geometry() -> None:
-    # The CI failure of an earlier stop (hypothesis, theta0="auto", window 3): a spike leaves
-    # only three NORMAL cells on one row (y = 0.4) in the window of EDGE cell (2, 2), so its
-    # plane is the vertical plane y = 0.4 and the height of that cell (y = 0.8) is +0.4 by the
-    # SPEC's orientation, whatever sign the solver's n_z residue has.
-    z = np.array([
-        [-1.60386285e-03, -2.64871799e-03, -4.96723244e-04, 8.40890476e-04, 2.27209306e-03],
-        [2.19412799e-04, -1.10529464e-03, -1.56956071e-03, 1.49749154e-03, 3.26956609e-03],
-        [5.45537552e-04, -2.46665733e-03, -1.91653041e-03, 3.20003818e-03, 4.05764881e-04],
-        [-3.46426968e-03, -1.67392386e-04, 1.99976735e01, -1.25857619e-03, -9.76011647e-04]])
-    yy, xx = np.mgrid[0:4, 0:5].astype(float)
-    grid = np.dstack([xx * 0.25, yy * 0.4, z])
+_ONE_ROW_WINDOWS = [
+    # CI failures (hypothesis, theta0="auto", window 3): defects leave only three NORMAL cells on
+    # one row in the window of cell `cell`, so its plane is the vertical plane y = that row's y
+    # and the height of the cell is its y offset, +-dy, by the SPEC's orientation (n_y > 0),
+    # whatever sign the solver's n_z residue has (up to 1e-11 here in the core's window solver).
+    (0.4, [[-1.60386285e-03, -2.64871799e-03, -4.96723244e-04, 8.40890476e-04, 2.27209306e-03],
+           [2.19412799e-04, -1.10529464e-03, -1.56956071e-03, 1.49749154e-03, 3.26956609e-03],
+           [5.45537552e-04, -2.46665733e-03, -1.91653041e-03, 3.20003818e-03, 4.05764881e-04],
+           [-3.46426968e-03, -1.67392386e-04, 1.99976735e01, -1.25857619e-03, -9.76011647e-04]],
+     (2, 2), 0.4),  # window rows 1..3: NORMAL cells only on row 1, the cell on row 2: +dy
+    (0.25, [[2.51460442e-04, -2.64209727e-04, 1.28084530e-03, 2.09800234e-04, -1.07133875e-03,
+             1.83495494e00, 1.83683975e00, 1.89416193e-03, -1.40747047e-03, -2.53084294e-03,
+             -1.24654893e-03, 8.26519587e-05],
+            [-4.65006155e-03, -4.37583328e-04, -2.49182189e-03, -1.46453471e-03, -1.08851797e-03,
+             1.83359915e00, 1.83505501e00, 2.08502674e-03, -2.57069326e-04, 2.73292694e-03,
+             -1.33038935e-03, 7.03020140e-04],
+            [1.80694036e-03, 1.88024596e-04, -1.48699850e-03, -1.84345075e-03, -9.15451651e-04,
+             4.40390247e-04, -2.01923637e-03, -4.18351150e-04, -3.18450020e-04, 1.08169117e-03,
+             4.29318245e-04, 7.10745418e-04]],
+     (1, 5), -0.25),  # window rows 0..2: NORMAL cells only on row 2, the cell on row 1: -dy
+]
+
+
+@pytest.mark.parametrize("dy, z, cell, height", _ONE_ROW_WINDOWS)
+def test_height_over_a_single_row_window_is_by_geometry(dy, z, cell, height) -> None:
+    z = np.asarray(z)
+    yy, xx = np.mgrid[0:z.shape[0], 0:z.shape[1]].astype(float)
+    grid = np.dstack([xx * 0.25, yy * dy, z])
     p = dict(theta0="auto", scales=(1,), max_gap=0, min_step=None, min_directions=None,
              max_iterations=1, window=3, height_tolerance=None, edge_extent=0)
     for res in (miem.detect(grid, **p), ref.detect(grid, **p)):
-        assert res.labels[2, 2] == miem.EDGE
-        assert res.height[2, 2] == pytest.approx(0.4, abs=1e-9)
+        assert res.labels[cell] in (miem.ABNORMAL, miem.EDGE)
+        assert res.height[cell] == pytest.approx(height, abs=1e-9)
 
 
 def test_scan_line_functions_match_reference() -> None:

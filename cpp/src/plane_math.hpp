@@ -17,8 +17,9 @@ namespace miem::detail {
 
 /// A unit normal component at most this large in magnitude counts as zero when orienting
 /// (SPEC "Plane fit"): an exactly vertical plane's n_z comes out of any eigen-solver as a
-/// rounding residue of either sign, which must not decide the orientation.
-inline constexpr double kOrientTol = 1e-12;
+/// rounding residue of either sign (up to the machine epsilon times l2 / l1, 1e-11 on a window
+/// of one noisy row), which must not decide the orientation.
+inline constexpr double kOrientTol = 1e-6;
 
 /// The orientation sign of a unit normal (SPEC "Plane fit"): that of n_z, or when
 /// |n_z| <= kOrientTol of n_x, or when |n_x| <= kOrientTol too of n_y (+1 when all are zero).

@@ -185,7 +185,7 @@ class Normals:
     Attributes
     ----------
     normals : ndarray, shape (N, 3), float64
-        Oriented unit normals (``n_z > 0``; if ``|n_z| <= 1e-12`` the first larger component is
+        Oriented unit normals (``n_z > 0``; if ``|n_z| <= 1e-6`` the first larger component is
         positive); NaN rows where ``valid`` is False.
     rms : ndarray, shape (N,), float64
         RMS orthogonal distance of the fitted points from their plane, in the points' units;

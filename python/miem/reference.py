@@ -90,7 +90,7 @@ class RefPlane:
     Attributes
     ----------
     normal : ndarray, shape (3,), float64
-        Unit normal, oriented so that ``normal[2] > 0``, or, when ``|normal[2]| <= 1e-12``, so
+        Unit normal, oriented so that ``normal[2] > 0``, or, when ``|normal[2]| <= 1e-6``, so
         that its first component larger than that in magnitude is positive.
     d : float
         Offset, ``-normal . centroid`` (caller's length unit).
@@ -265,11 +265,11 @@ def _dot3(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]
     return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
 
 
-_ORIENT_TOL = 1e-12  # a unit-normal component this small is a rounding residue when orienting
+_ORIENT_TOL = 1e-6  # a unit-normal component this small is a rounding residue when orienting
 
 
 def _orient(normals: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Orient unit normals ``(..., 3)``: ``n_z > 0``, or if ``|n_z| <= 1e-12`` the first
+    """Orient unit normals ``(..., 3)``: ``n_z > 0``, or if ``|n_z| <= 1e-6`` the first
     component larger than that in magnitude positive (SPEC "Plane fit")."""
     nx, ny, nz = normals[..., 0], normals[..., 1], normals[..., 2]
     lead = np.where(np.abs(nz) > _ORIENT_TOL, nz, np.where(np.abs(nx) > _ORIENT_TOL, nx, ny))

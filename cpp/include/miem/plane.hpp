@@ -10,7 +10,7 @@
 namespace miem {
 
 /// A plane n . p + d = 0 with |n| = 1, oriented so that n_z > 0 (if n_z is zero, that is
-/// |n_z| <= 1e-12, the first component that is not zero in that sense is positive).
+/// |n_z| <= 1e-6, the first component that is not zero in that sense is positive).
 struct Plane {
   Eigen::Vector3d normal = Eigen::Vector3d::Zero();
   double d = 0.0;
@@ -44,7 +44,7 @@ enum class PlaneStatus : std::uint8_t {
 /// Human-readable text for a status.
 const char* to_string(PlaneStatus status) noexcept;
 
-/// Orient a unit normal: n_z > 0, or if |n_z| <= 1e-12 the first component larger than that in
+/// Orient a unit normal: n_z > 0, or if |n_z| <= 1e-6 the first component larger than that in
 /// magnitude positive (a vertical plane's n_z is a rounding residue of either sign).
 Eigen::Vector3d orient_normal(const Eigen::Vector3d& n) noexcept;
 
