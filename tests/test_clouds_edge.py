@@ -79,6 +79,30 @@ def _sector_verdict(pts: np.ndarray, normal: np.ndarray, i: int, r_edge: float,
     opposite, for each of those whether it is their top and whether a clean neighbour of the
     opposite lies at its level (and, `with_own`, whether it fits a clean sector within that
     sector's own tolerance k * rms)."""
+    planes, f, full = _sector_planes(pts, normal, i, r_edge, gap)
+    best = min(p[2] for p in planes if p is not None)
+    clean = [p is not None and p[2] <= 2 * best for p in planes]
+    # P fits a clean sector within the cleanest sector's tolerance, k * best (SPEC step 4)
+    fits = any(c and abs(p[0] @ p[1]) <= k * best for c, p in zip(clean, planes))
+    fits_own = any(c and abs(p[0] @ p[1]) <= k * p[2] for c, p in zip(clean, planes))
+    empty = f < 0.35 * full  # SPEC step 3
+    turned = [[(s // 8) * 8 + (s % 8 + 8 + by) % 8 for s in range(16)] for by in range(8)]
+    proud = [s for s in range(16) if clean[s] and -planes[s][0] @ planes[s][1] > k * planes[s][2]
+             and empty[turned[4][s]]]
+    top = [not any(p is not None and planes[s][0] @ p[1] > 0 for p in planes) for s in proud]
+    # the level rule: a clean neighbour of the empty opposite at the sector's level
+    level = [any(clean[c] and abs(planes[s][0] @ (planes[c][1] - planes[s][1]))
+                 <= k * planes[s][2] for c in (turned[3][s], turned[5][s])) for s in proud]
+    if with_own:
+        return fits, proud, top, level, fits_own
+    return fits, proud, top, level
+
+
+def _sector_planes(pts: np.ndarray, normal: np.ndarray, i: int, r_edge: float,
+                   gap: float) -> tuple:
+    """SPEC "Unorganized clouds: edge test" steps 2-3 for point i, with SVDs: per sector
+    (0-7 quarter, 8-15 half disks) its plane (oriented normal, centroid offset from P, rms) or
+    None when not valid, the finite counts `f` and `full`."""
     w = pts - pts[i]
     dist = np.linalg.norm(w, axis=1)
     cen = w[dist <= r_edge].mean(axis=0)
@@ -104,22 +128,7 @@ def _sector_verdict(pts: np.ndarray, normal: np.ndarray, i: int, r_edge: float,
         m = w[sel].mean(axis=0)
         _, sv, vt = np.linalg.svd(w[sel] - m, full_matrices=False)
         planes.append((vt[2] if vt[2, 2] > 0 else -vt[2], m, sv[2] / np.sqrt(sel.sum())))
-    best = min(p[2] for p in planes if p is not None)
-    clean = [p is not None and p[2] <= 2 * best for p in planes]
-    # P fits a clean sector within the cleanest sector's tolerance, k * best (SPEC step 4)
-    fits = any(c and abs(p[0] @ p[1]) <= k * best for c, p in zip(clean, planes))
-    fits_own = any(c and abs(p[0] @ p[1]) <= k * p[2] for c, p in zip(clean, planes))
-    empty = f < 0.35 * full  # SPEC step 3
-    turned = [[(s // 8) * 8 + (s % 8 + 8 + by) % 8 for s in range(16)] for by in range(8)]
-    proud = [s for s in range(16) if clean[s] and -planes[s][0] @ planes[s][1] > k * planes[s][2]
-             and empty[turned[4][s]]]
-    top = [not any(p is not None and planes[s][0] @ p[1] > 0 for p in planes) for s in proud]
-    # the level rule: a clean neighbour of the empty opposite at the sector's level
-    level = [any(clean[c] and abs(planes[s][0] @ (planes[c][1] - planes[s][1]))
-                 <= k * planes[s][2] for c in (turned[3][s], turned[5][s])) for s in proud]
-    if with_own:
-        return fits, proud, top, level, fits_own
-    return fits, proud, top, level
+    return planes, f, full
 
 
 def test_top_rule_by_hand() -> None:
@@ -201,6 +210,78 @@ def test_fit_within_the_cleanest_tolerance_by_hand() -> None:
             mine = [i for s, i in caught if s == seed]
             for fn in (miem.detect_points, ref.detect_points):
                 assert (fn(pts).labels[mine] == A).all(), seed
+    assert caught  # the case this test is about
+
+
+def crease_scene(seed: int, lip: bool, n: int = 44, step: float = 0.1, noise: float = 0.01,
+                 b: float = 0.15, m: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """A tilted plane folding down by 30 degrees past a line at 25 degrees (a convex crease);
+    with `lip`, a burr run `m` points wide on the near side's last points (along 40 % of the
+    line), raised from b / 2 to b towards the line (as the accuracy suite's burrs); x / y
+    jittered, rows shuffled. Returns the points and the lip mask."""
+    rng = np.random.default_rng(seed)
+    r, c = np.mgrid[0:n, 0:n]
+    x, y = c.ravel() * step, r.ravel() * step
+    phi = np.radians(25.0)
+    d = (x - 0.5 * n * step) * np.cos(phi) + (y - 0.5 * n * step) * np.sin(phi)
+    t = -(x - 0.5 * n * step) * np.sin(phi) + (y - 0.5 * n * step) * np.cos(phi)
+    burr = lip & (d < 0.0) & (d >= -m * step) & (np.abs(t) < 0.2 * n * step)
+    rise = b * (0.5 + 0.5 * np.clip(1.0 + d / (m * step), 0.0, 1.0))
+    z = (0.04 * x + 0.02 * y - np.tan(np.radians(30.0)) * np.maximum(d, 0.0)
+         + rng.normal(0.0, noise, x.size) + rise * burr)
+    pts = np.column_stack([x, y, z])
+    pts[:, :2] += rng.uniform(-0.25 * step, 0.25 * step, (x.size, 2))
+    order = rng.permutation(len(pts))
+    return np.ascontiguousarray(pts[order]), burr[order]
+
+
+def test_crossing_rule_by_hand() -> None:
+    """Lip points on a convex crease, judged here from the sectors: each fits a clean sector
+    (the far side's plane, extended back across the crease, runs through the lip: the grid's
+    rule keeps them), but every clean sector it fits lies past the feature, its centroid below
+    the plane of a clean sector the point stands proud of, whose opposite falls away and of
+    which it is the top: ABNORMAL in the core and the reference (SPEC step 4, the crossing
+    rule), as is the whole lip and nothing else. Without the lip, no point of the crease is
+    ABNORMAL."""
+    k = DEFAULT_K
+    caught = []
+    # (seed 2's clean crease has one ABNORMAL point, with or without the crossing rule)
+    for seed in (0, 1, 3):
+        pts, lip = crease_scene(seed, True)
+        pre = ref.detect_points(pts, edge_tolerance=None)
+        r_edge, gap = pre.params["height_radius"], pre.params["min_step"]
+        normal = pre.labels == miem.NORMAL
+        mine = []
+        for i in np.flatnonzero(lip & (pre.labels != A)):
+            planes, _, _ = _sector_planes(pts, normal, int(i), r_edge, gap)
+            best = min(p[2] for p in planes if p is not None)
+            clean = [p is not None and p[2] <= 2 * best for p in planes]
+            fit = [c and abs(p[0] @ p[1]) <= k * best for c, p in zip(clean, planes)]
+            if not any(fit):
+                continue
+            for s in range(16):
+                o = (s // 8) * 8 + (s % 8 + 4) % 8
+                if not clean[s] or planes[o] is None:
+                    continue
+                u, m, rms = planes[s]
+                if not (-u @ m > k * rms and u @ (planes[o][1] - m) < -k * rms):
+                    continue  # not proud of s, or s's opposite does not fall away
+                if any(p is not None and u @ p[1] > 0 for p in planes):
+                    continue  # not the top of s
+                if all(u @ (planes[c][1] - m) < -k * rms for c in range(16) if fit[c]):
+                    mine.append(int(i))
+                    break
+        for fn in (miem.detect_points, ref.detect_points):
+            lab = fn(pts).labels
+            assert (lab[mine] == A).all(), seed
+            # the whole lip and nothing else (without the crossing rule: 24 and 23 of the 35
+            # lip points of seeds 0 and 1, the rest fitted the far side's plane in every pass)
+            assert (lab[lip] == A).all() and not (lab[~lip] == A).any(), seed
+        caught += mine
+        clean_pts, _ = crease_scene(seed, False)
+        for fn in (miem.detect_points, ref.detect_points):
+            assert not (fn(clean_pts).labels == A).any(), seed
+        assert_same_cloud_result(miem.detect_points(pts), ref.detect_points(pts))
     assert caught  # the case this test is about
 
 

@@ -73,16 +73,19 @@ inline int turned(int s, int by) { return (s / 8) * 8 + (s % 8 + 8 + by) % 8; }
 enum class SectorVerdict { kFits, kProud, kOther };
 
 // SPEC "Unorganized clouds: edge test" step 4 (the grid's steps 4-5, edge_verdict.hpp, plus the
-// level and top rules): P fits no clean sector and stands proud of a clean sector `a` whose
+// level, top and crossing rules): P stands proud of a clean sector `a` whose
 // opposite (the sector of the same width turned by 180 degrees) falls away below a's plane, or
 // is empty while neither of its neighbours (the same width, turned by +-45 degrees) is a clean
 // sector at a's level (a bead or ridge on a surface that goes on past P, whose opposite sector
 // only the scan's border empties, is not a lip before an outline), and no valid sector's
 // centroid lies above P along a's normal (P is the top of what it stands on: a point on a
-// fillet or a slope whose rising side the scan's border hides is not a lip). Centroids are
-// relative to P. P fits a clean sector when |h| is within the cleanest sector's tolerance
-// (k best, floored as the sector's own `floor`): a clean sector of larger rms (up to 2 best,
-// e.g. one holding part of the burr run itself) does not lend P its wider tolerance.
+// fillet or a slope whose rising side the scan's border hides is not a lip), and every clean
+// sector P fits lies past the feature (the crossing rule: its centroid below a's plane by
+// more than a's tolerance; on a convex crease the far side's plane, extended back, runs through
+// a lip on the near side). Centroids are relative to P. P fits a clean sector when |h| is
+// within the cleanest sector's tolerance (k best, floored as the sector's own `floor`): a
+// clean sector of larger rms (up to 2 best, e.g. one holding part of the burr run itself)
+// does not lend P its wider tolerance.
 // `*below`: when P fits no clean sector and stands proud of none, bit s set for each clean
 // sector s that P lies below with the surface beyond falling away (the hanging rule's first
 // condition, step 5; the rest needs the points).
@@ -90,11 +93,12 @@ SectorVerdict cloud_edge_verdict(const detail::EdgeSide (&sd)[kSectors],
                                  const double (&floor)[kSectors], double best, double k,
                                  unsigned* below) {
   const double clean = detail::kEdgeCleanRatio * best;
+  bool fit[kSectors];
+  bool any_fit = false;
   for (int s = 0; s < kSectors; ++s) {
     const detail::EdgeSide& x = sd[s];
-    if (x.valid && x.rms <= clean && !(std::abs(x.h) > std::max(k * best, floor[s]))) {
-      return SectorVerdict::kFits;
-    }
+    fit[s] = x.valid && x.rms <= clean && !(std::abs(x.h) > std::max(k * best, floor[s]));
+    any_fit = any_fit || fit[s];
   }
   for (int s = 0; s < kSectors; ++s) {
     const detail::EdgeSide& x = sd[s];
@@ -116,8 +120,16 @@ SectorVerdict cloud_edge_verdict(const detail::EdgeSide (&sd)[kSectors],
     for (const detail::EdgeSide& z : sd) {
       if (z.valid && detail::dot3(x.normal, z.centroid) > 0.0) top = false;
     }
-    if (top) return SectorVerdict::kProud;
+    if (!top) continue;
+    // The crossing rule: a sector P fits clears it only when it is not past the feature (its
+    // centroid not below x's plane by more than x's tolerance).
+    bool cleared = false;
+    for (int c = 0; c < kSectors && !cleared; ++c) {
+      cleared = fit[c] && !(detail::dot3(x.normal, sd[c].centroid - x.centroid) < -x.tol);
+    }
+    if (!cleared) return SectorVerdict::kProud;
   }
+  if (any_fit) return SectorVerdict::kFits;
   *below = 0;
   for (int s = 0; s < kSectors; ++s) {
     const detail::EdgeSide& x = sd[s];

@@ -71,8 +71,9 @@ struct CloudEdgeTest {
 
 /// Edge passes after the height passes: candidates are the NORMAL and EDGE points whose
 /// `*first_rms` (height_passes' HeightTest::first_rms, NaN: no verdict; freed once the
-/// candidates are listed) is NaN or above 1.5 x the median; one becomes ABNORMAL when it fits none of its clean sectors and stands proud of one
-/// whose opposite is empty or falls away. NORMAL points made ABNORMAL are appended to
+/// candidates are listed) is NaN or above 1.5 x the median; one becomes ABNORMAL when it stands
+/// proud of a clean sector whose opposite is empty or falls away and fits no clean sector that
+/// is not past the feature (the crossing rule), or fits none and hangs below one. NORMAL points made ABNORMAL are appended to
 /// `*unnormal` (when given). Returns the number of passes run.
 template <typename T>
 int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,

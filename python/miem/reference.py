@@ -2261,8 +2261,9 @@ def _cloud_edge_pass(
     k: float,
 ) -> NDArray[np.bool_]:
     """One cloud edge pass: which of the points ``cand`` (tangent directions ``e1``, ``e2``)
-    become ABNORMAL (SPEC steps 3-5: they fit no clean sector and stand proud of one or hang
-    below one), the support being the NORMAL points of ``labels``."""
+    become ABNORMAL (SPEC steps 3-5: they stand proud of a clean sector and fit no clean sector
+    that is not past the feature (the crossing rule), or fit none and hang below one), the
+    support being the NORMAL points of ``labels``."""
     m = cand.size
     out = np.zeros(m, dtype=bool)
     if m == 0:
@@ -2310,6 +2311,7 @@ def _cloud_edge_pass(
     # does not lend P its wider tolerance.
     fits = clean & ~(np.abs(h) > np.maximum(k * best[:, None], _HEIGHT_RMS_FLOOR * spread))
     proud = np.zeros(m, dtype=bool)
+    across = np.zeros(m, dtype=bool)  # stands proud and fits only sectors past the feature
     below = np.zeros((m, _CLOUD_SECTORS), dtype=bool)  # hanging, the first condition
     for s in range(_CLOUD_SECTORS):
         o = (s // 8) * 8 + (s % 8 + 4) % 8  # the opposite sector of the same width
@@ -2324,7 +2326,14 @@ def _cloud_edge_pass(
         # the top rule: no valid sector's centroid above P along this sector's normal
         above = np.einsum("ij,isj->is", nrm[:, s], cen) > 0.0
         top = ~(valid & above).any(axis=1)
-        proud |= clean[:, s] & (h[:, s] > tol[:, s]) & falls & top
+        proud_s = clean[:, s] & (h[:, s] > tol[:, s]) & falls & top
+        proud |= proud_s
+        # the crossing rule: the clean sectors P fits all lie beyond the feature, their
+        # centroids below this sector's plane (u_s . (m_c - m_s) < -t_s): P stands proud of its
+        # own side and only the surface past the crease, extended back, runs through it
+        lvl = np.einsum("ij,isj->is", nrm[:, s], cen - cen[:, s][:, None, :])
+        past = lvl < -tol[:, s][:, None]
+        across |= proud_s & ~(fits & ~past).any(axis=1)
         # P below this sector, the opposite empty or clean with P above it and falling away
         beyond = empty[:, o] | (clean[:, o] & (h[:, o] > tol[:, o]) & (drop < -tol[:, s]))
         below[:, s] = clean[:, s] & (h[:, s] < -tol[:, s]) & beyond
@@ -2334,7 +2343,7 @@ def _cloud_edge_pass(
         hang[hang] = _cloud_hanging(
             labels, sec_i, sec_j, sec_w, np.tile(dist, len(lists)), sup, hang, below[hang],
             h[hang], nrm[hang], cen[hang], tol[hang], empty[hang])
-    return out & (proud | hang)
+    return (out & (proud | hang)) | across
 
 
 #: Cloud hanging rule (SPEC "Unorganized clouds: edge test" step 5): the surface beyond a
