@@ -10,11 +10,17 @@ spikes (many passes). Labels, flags and iterations must equal the reference's ex
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 import miem
 from miem import reference as ref
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from stream_batch import stream_labels  # noqa: E402
 
 
 def profiler_grid(seed: int, h: int = 36, w: int = 70) -> np.ndarray:
@@ -123,3 +129,20 @@ def test_min_step_skipped_steps_match_reference(seed: int, case: dict) -> None:
             assert core.iterations == oracle.iterations
             np.testing.assert_allclose(core.angle, oracle.angle, rtol=0, atol=1e-9,
                                        equal_nan=True)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("case", [
+    {"scales": (1, 2), "min_step": 0.2, "max_gap": 1},
+    {"scales": (1, 2), "min_step": 0.15, "max_gap": 1},   # ties at 3 and 6 steps
+    {"scales": (1, 3), "min_step": 0.33, "max_gap": 2, "min_directions": 2},
+], ids=lambda c: ",".join(f"{k}={v}" for k, v in c.items()))
+def test_stream_min_step_skipped_steps_match_reference(seed: int, case: dict) -> None:
+    """The stream's pass 1 with min_step (theta0 < 90: each verdict computed directly) skips the
+    same surely near steps along a profile; its labels equal the reference's."""
+    grid = smooth_profiler_grid(seed)
+    kw = {"theta0": 80.0, "max_iterations": 12, **case}
+    params = miem.PRESETS["paper"].replace(**kw)
+    oracle = ref.detect(grid, preset="paper", **kw)
+    assert (oracle.labels == miem.ABNORMAL).sum() > 0
+    np.testing.assert_array_equal(stream_labels(grid, params), oracle.labels)

@@ -11,6 +11,7 @@
 
 #include "angle_math.hpp"
 #include "judge.hpp"
+#include "min_step_skip.hpp"
 #include "parallel.hpp"
 #include "stages.hpp"
 
@@ -192,42 +193,6 @@ MIEM_CLONES void fold_searches(std::ptrdiff_t n, const SideSearch& A, const Side
 }
 #undef MIEM_FOLD
 
-// Along the row (direction 0), a bound that lets a min_step search skip its first steps: for
-// each usable cell i, e[i] = |q_n - q_i| / (n - i) with n the next usable cell of the row (0 when
-// none; 0 for unusable cells). Along a ray from P = q_c, the usable cells a < b met in turn are
-// at most (b - a) max e apart, so the usable cell j steps away lies within j D of P, D the
-// largest e the path crosses: with j D <= (1 - 1e-9) s min_step it is surely nearer than the
-// search's bound (far below the 1e-12 margin of search_step's "near") and the search reads it
-// only to pass it. (SPEC's search is unchanged: the skipped steps are exactly the ones it passes
-// over, their unusable cells still count as gaps.)
-void row_speeds(std::ptrdiff_t W, const double* x, std::ptrdiff_t S, const std::int64_t* ok,
-                double* e) {
-  const double *y = x + S, *z = x + 2 * S;
-  std::ptrdiff_t next = -1;
-  for (std::ptrdiff_t c = W - 1; c >= 0; --c) {
-    e[c] = 0.0;
-    if (!ok[c]) continue;
-    if (next >= 0) {
-      const double dx = x[next] - x[c], dy = y[next] - y[c], dz = z[next] - z[c];
-      e[c] = std::sqrt((dx * dx + dy * dy) + dz * dz) / static_cast<double>(next - c);
-    }
-    next = c;
-  }
-}
-
-// The first step a min_step search at scale s must read (steps s .. start - 1 are surely near,
-// see row_speeds) given D, the largest e along the paths, and len = s min_step; at most stop.
-std::ptrdiff_t first_read_step(double D, double len, std::ptrdiff_t s, std::ptrdiff_t stop) {
-  const double t = len * (1.0 - 1e-9);
-  if (!(t > 0.0)) return s;
-  std::ptrdiff_t j = stop;  // the last surely near step
-  if (D > 0.0 && t / D < static_cast<double>(stop)) {
-    j = static_cast<std::ptrdiff_t>(t / D);
-    while (j > 0 && static_cast<double>(j) * D > t) --j;
-  }
-  return std::min(std::max(s, j + 1), stop);
-}
-
 // kNearBit where a usable cell lies 1 or 2 (with gap2: 1 .. 2) steps away along one of the
 // rays (when scale 1 is not among the scales).
 MIEM_CLONES void near_line(std::ptrdiff_t n, const std::int64_t* const* __restrict ok,
@@ -327,10 +292,10 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
   std::int64_t* bits = sc.bits.data();
   SideSearch sides[2];
   std::int64_t ext[kBlock];
-  // with min_step, along row r: row_speeds (padding: 0), the unusable cells before each
-  // column, and per chunk of kChunk columns the largest speed and the unusable cells within
-  // `pad` columns of it (the steps a search of the chunk can skip)
-  std::vector<double> speed(deep ? S : 0, 0.0);
+  // with min_step, along row r (min_step_skip.hpp): row_speeds, the unusable cells before each
+  // padded column, and per chunk of kChunk columns the largest speed and the unusable cells
+  // within `pad` columns of it (the steps a search of the chunk can skip)
+  std::vector<double> speed(deep ? W : 0);
   std::vector<std::int64_t> gaps_before(deep ? S + 1 : 0, 0);
   const std::ptrdiff_t n_chunks = (W + kChunk - 1) / kChunk;
   std::vector<double> chunk_speed(deep ? n_chunks : 0);
@@ -342,14 +307,13 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
     std::fill(bits, bits + W, 0);
     const double* px = slot_x(r);
     if (deep) {
-      row_speeds(W, px, S, slot_ok(r), speed.data() + pad);
-      const std::int64_t* ok = slot_ok(r) - pad;
-      for (std::ptrdiff_t i = 0; i < S; ++i) gaps_before[i + 1] = gaps_before[i] + (ok[i] ^ 1);
+      const std::int64_t* ok = slot_ok(r);
+      row_speeds(W, px, S, [ok](std::ptrdiff_t c) { return ok[c] != 0; }, speed.data());
+      chunk_speeds(speed.data(), W, kChunk, pad, chunk_speed.data());
+      for (std::ptrdiff_t i = 0; i < S; ++i)
+        gaps_before[i + 1] = gaps_before[i] + (ok[i - pad] ^ 1);
       for (std::ptrdiff_t ch = 0; ch < n_chunks; ++ch) {
         const std::ptrdiff_t a = ch * kChunk, b = std::min(W, a + kChunk) + 2 * pad;
-        double D = 0.0;
-        for (std::ptrdiff_t i = a; i < b; ++i) D = std::max(D, speed[i]);
-        chunk_speed[ch] = D;
         chunk_gaps[ch] = gaps_before[b] - gaps_before[a];
       }
     }
