@@ -10,11 +10,17 @@ spikes (many passes). Labels, flags and iterations must equal the reference's ex
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 import miem
 from miem import reference as ref
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from stream_batch import stream_labels  # noqa: E402
 
 
 def profiler_grid(seed: int, h: int = 36, w: int = 70) -> np.ndarray:
@@ -78,3 +84,65 @@ def test_min_step_auto_on_a_profiler_grid_matches_reference() -> None:
         np.testing.assert_array_equal(core.labels, oracle.labels)
         np.testing.assert_array_equal(core.flags, oracle.flags)
         np.testing.assert_allclose(core.height, oracle.height, rtol=0, atol=1e-7, equal_nan=True)
+
+
+def smooth_profiler_grid(seed: int, h: int = 30, w: int = 150) -> np.ndarray:
+    """Smooth profiles (0.05 apart, 1e-4 noise): along a profile the first steps of a min_step
+    search lie surely near, so the core skips them (the path-length bound of row_speeds). Lone
+    dropouts and pairs of them fall inside the skipped steps (gaps still counted; a pair ends a
+    max_gap 1 search), spikes make the bound loose in their stretch, and flat rows put
+    candidates exactly at s * min_step (0.05 k) right after the skipped steps."""
+    rng = np.random.default_rng(seed)
+    dy = rng.choice([0.1, 0.2, 1.0], h - 1)
+    y = np.concatenate([[0.0], np.cumsum(dy)])[:, None] * np.ones((1, w))
+    x = np.arange(w)[None, :] * 0.05 * np.ones((h, 1))
+    z = 0.1 * y + 0.3 * np.exp(-((x - 3.0) ** 2) / 2.0) + rng.normal(0.0, 1e-4, (h, w))
+    z[::5] = 0.1 * y[::5]  # flat rows: exact ties at the bound
+    grid = np.dstack([x, y, z])
+    flat = grid.reshape(-1, 3)
+    idx = rng.choice(h * w, size=12, replace=False)
+    flat[idx, 2] += rng.choice([-1.0, 1.0], idx.size) * rng.uniform(0.3, 1.0, idx.size)
+    flat[rng.choice(h * w, size=h * w // 40, replace=False)] = np.nan  # lone dropouts
+    for r in rng.integers(0, h, 6):  # pairs of dropouts along a profile
+        c = rng.integers(0, w - 2)
+        grid[r, c:c + 2] = np.nan
+    return grid
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("case", [
+    {"scales": (1, 2), "min_step": 0.2, "max_gap": 1},
+    {"scales": (1, 2), "min_step": 0.15, "max_gap": 1},   # ties at 3 and 6 steps
+    {"scales": (1, 3), "min_step": 0.33, "max_gap": 2},
+    {"scales": (2,), "min_step": 0.2, "max_gap": 0, "max_reach": 4},
+], ids=lambda c: ",".join(f"{k}={v}" for k, v in c.items()))
+def test_min_step_skipped_steps_match_reference(seed: int, case: dict) -> None:
+    grid = smooth_profiler_grid(seed)
+    kw = {"preset": "paper", "theta0": 100.0, "max_iterations": 12, **case}
+    for dtype in (np.float64, np.float32):
+        g = grid.astype(dtype)
+        oracle = ref.detect(g, **kw)
+        for nt in (1, 2):
+            core = miem.detect(g, num_threads=nt, **kw)
+            np.testing.assert_array_equal(core.labels, oracle.labels)
+            np.testing.assert_array_equal(core.flags, oracle.flags)
+            assert core.iterations == oracle.iterations
+            np.testing.assert_allclose(core.angle, oracle.angle, rtol=0, atol=1e-9,
+                                       equal_nan=True)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("case", [
+    {"scales": (1, 2), "min_step": 0.2, "max_gap": 1},
+    {"scales": (1, 2), "min_step": 0.15, "max_gap": 1},   # ties at 3 and 6 steps
+    {"scales": (1, 3), "min_step": 0.33, "max_gap": 2, "min_directions": 2},
+], ids=lambda c: ",".join(f"{k}={v}" for k, v in c.items()))
+def test_stream_min_step_skipped_steps_match_reference(seed: int, case: dict) -> None:
+    """The stream's pass 1 with min_step (theta0 < 90: each verdict computed directly) skips the
+    same surely near steps along a profile; its labels equal the reference's."""
+    grid = smooth_profiler_grid(seed)
+    kw = {"theta0": 80.0, "max_iterations": 12, **case}
+    params = miem.PRESETS["paper"].replace(**kw)
+    oracle = ref.detect(grid, preset="paper", **kw)
+    assert (oracle.labels == miem.ABNORMAL).sum() > 0
+    np.testing.assert_array_equal(stream_labels(grid, params), oracle.labels)

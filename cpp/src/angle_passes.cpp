@@ -7,9 +7,11 @@
 #include <stdexcept>
 #include <string>
 #include <type_traits>
+#include <vector>
 
 #include "angle_math.hpp"
 #include "judge.hpp"
+#include "min_step_skip.hpp"
 #include "parallel.hpp"
 #include "stages.hpp"
 
@@ -290,12 +292,31 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
   std::int64_t* bits = sc.bits.data();
   SideSearch sides[2];
   std::int64_t ext[kBlock];
+  // with min_step, along row r (min_step_skip.hpp): row_speeds, the unusable cells before each
+  // padded column, and per chunk of kChunk columns the largest speed and the unusable cells
+  // within `pad` columns of it (the steps a search of the chunk can skip)
+  std::vector<double> speed(deep ? W : 0);
+  std::vector<std::int64_t> gaps_before(deep ? S + 1 : 0, 0);
+  const std::ptrdiff_t n_chunks = (W + kChunk - 1) / kChunk;
+  std::vector<double> chunk_speed(deep ? n_chunks : 0);
+  std::vector<std::int64_t> chunk_gaps(deep ? n_chunks : 0);
   for (std::ptrdiff_t r = r_begin; r < r_end; ++r) {
     if (r + pad < H) load_row(g, usable, r + pad, S, slot_x(r + pad), slot_ok(r + pad));
     std::fill(buv, buv + W, -2.0);
     std::fill(bprod, bprod + W, 0.0);
     std::fill(bits, bits + W, 0);
     const double* px = slot_x(r);
+    if (deep) {
+      const std::int64_t* ok = slot_ok(r);
+      row_speeds(W, px, S, [ok](std::ptrdiff_t c) { return ok[c] != 0; }, speed.data());
+      chunk_speeds(speed.data(), W, kChunk, pad, chunk_speed.data());
+      for (std::ptrdiff_t i = 0; i < S; ++i)
+        gaps_before[i + 1] = gaps_before[i] + (ok[i - pad] ^ 1);
+      for (std::ptrdiff_t ch = 0; ch < n_chunks; ++ch) {
+        const std::ptrdiff_t a = ch * kChunk, b = std::min(W, a + kChunk) + 2 * pad;
+        chunk_gaps[ch] = gaps_before[b] - gaps_before[a];
+      }
+    }
     // Blocks of columns, every (direction, scale) per block: the block's rows stay in L1.
     for (std::ptrdiff_t b0 = 0; b0 < W; b0 += kBlock) {
       const std::ptrdiff_t nb = std::min(W, b0 + kBlock) - b0;
@@ -332,7 +353,28 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
               // chunks of kChunk lanes: a chunk ends with its own longest search
               for (std::ptrdiff_t c0 = 0; c0 < nb; c0 += kChunk) {
                 const std::ptrdiff_t nc = std::min(kChunk, nb - c0);
-                for (std::ptrdiff_t step = s; step <= stop; ++step) {
+                std::ptrdiff_t first = s;
+                if (k == 0) {
+                  // along the row: skip the surely near steps (row_speeds), counting their
+                  // gaps; not when a lane's gaps there end its search
+                  const std::ptrdiff_t ch = (b0 + c0) / kChunk;
+                  first = first_read_step(chunk_speed[ch], len, s, stop);
+                  if (first > s && chunk_gaps[ch] > 0) {
+                    const std::int64_t* u = gaps_before.data() + pad + b0;  // u[c]: [.., c)
+                    std::int64_t worst = 0;
+                    for (std::ptrdiff_t c = c0; c < c0 + nc; ++c) {
+                      const std::int64_t gc = sgn > 0 ? u[c + first] - u[c + s]
+                                                      : u[c - s + 1] - u[c - first + 1];
+                      sr.st[c] = gc << kGapShift;
+                      worst = std::max(worst, gc);
+                    }
+                    if (worst > gap) {
+                      std::fill(sr.st + c0, sr.st + c0 + nc, 0);
+                      first = s;
+                    }
+                  }
+                }
+                for (std::ptrdiff_t step = first; step <= stop; ++step) {
                   const double* x = at_x(sgn, step);
                   if (!search_step(c0, nc, x, x + S, x + 2 * S, at_ok(sgn, step), qx, qy, qz,
                                    lo, hi, gap, step, sr))

@@ -19,6 +19,7 @@
 
 #include "auto_min_step.hpp"
 #include "judge.hpp"
+#include "min_step_skip.hpp"
 
 namespace miem {
 
@@ -64,6 +65,7 @@ struct KernelArgs {
 constexpr double kMargin = 1e-14;
 constexpr std::uint32_t kBadBit = 1u << 31;  // in bits_: a neighbour is missing
 constexpr std::uint8_t kSlowCell = 0xff;     // min_step_label: CellJudge decides
+constexpr std::ptrdiff_t kSpeedChunk = 32;   // columns per chunk of speed_
 
 template <typename T>
 void kernel_scalar(const KernelArgs<T>& a, std::ptrdiff_t c) {
@@ -329,7 +331,12 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   row_cand_.assign(static_cast<std::size_t>(ring_), 0);
   level_.assign(static_cast<std::size_t>(ring_), 0);
   bits_.assign(static_cast<std::size_t>(width_), 0);
-  if (ms_auto_ || params_.min_step >= 0.0) ray_.assign(4 * n1, 0);
+  if (ms_auto_ || params_.min_step >= 0.0) {
+    ray_.assign(4 * n1, 0);
+    const std::ptrdiff_t chunks = (width_ + kSpeedChunk - 1) / kSpeedChunk;
+    speed_.assign(static_cast<std::size_t>(width_ + chunks), 0.0);
+    skip_first_.assign(static_cast<std::size_t>(chunks) * params_.scales.size(), 0);
+  }
   use_ray_ = min_step_ >= 0.0 && !ray_.empty();
   if (ms_auto_) {
     ms_rows_.assign(static_cast<std::size_t>(detail::kAutoMinStepRows), nullptr);
@@ -352,6 +359,7 @@ void ProfileStream<T>::use_min_step(double min_step) noexcept {
   use_ray_ = min_step >= 0.0 && !ray_.empty();
   for (std::size_t i = 0; i < params_.scales.size() && i < 8; ++i) {
     const double len = params_.scales[i] * (min_step >= 0.0 ? min_step : 0.0), l2 = len * len;
+    ms_len_[i] = len;
     ms_lo_[i] = l2 * (1.0 - 1e-12);
     ms_hi_[i] = l2 * (1.0 + 1e-12);
   }
@@ -616,6 +624,19 @@ void ProfileStream<T>::run_pass(std::int64_t row, int pass) noexcept {
     // the cells whose searches it cannot settle
     const T* g = xyz_.data() + s0 * W;
     const std::uint8_t* us = state_.data() + s0 * W;
+    // the row's speeds: min_step_label skips the steps along it that are surely near
+    const std::uint8_t* ur = us + r * W;
+    detail::row_speeds(W, g + r * W, phys_ * W, [ur](std::ptrdiff_t c) { return ur[c] != 0; },
+                       speed_.data());
+    detail::chunk_speeds(speed_.data(), W, kSpeedChunk, mark_reach_, speed_.data() + W);
+    const std::size_t n_scales = params_.scales.size();
+    for (std::ptrdiff_t ch = 0; ch * kSpeedChunk < W; ++ch) {
+      for (std::size_t si = 0; si < n_scales; ++si) {
+        const std::ptrdiff_t sc = params_.scales[si];
+        skip_first_[ch * n_scales + si] = detail::first_read_step(
+            speed_[W + ch], ms_len_[si], sc, sc + params_.max_gap + params_.max_reach);
+      }
+    }
     for (std::ptrdiff_t c = 0; c < W; ++c) {
       if (st[c] == 0) continue;
       const std::uint8_t l = min_step_label(g, us, grid.rows, r, c, ray ? ray + 4 * c : nullptr);
@@ -808,7 +829,16 @@ std::uint8_t ProfileStream<T>::min_step_label(const T* grid, const std::uint8_t*
         if (dr != 0) lim = std::min(lim, dr > 0 ? rows - 1 - r : r);
         if (dc != 0) lim = std::min(lim, dc > 0 ? W - 1 - c : c);
         const std::ptrdiff_t delta = dr * W + dc, at0 = r * W + c;
-        for (std::ptrdiff_t step = sc;; ++step) {
+        std::ptrdiff_t step = sc;
+        if (k == 0) {
+          // along the row: the steps before `first` are surely near (min_step_skip.hpp); the
+          // search still needs them inside the grid and usable
+          const std::ptrdiff_t first = skip_first_[(c / kSpeedChunk) * n_scales + si];
+          if (first - 1 > lim) return kSlowCell;
+          for (; step < first; ++step)
+            if (state[at0 + step * delta] == 0) return kSlowCell;
+        }
+        for (;; ++step) {
           if (step > lim) return kSlowCell;
           const std::ptrdiff_t at = at0 + step * delta;
           if (state[at] == 0) return kSlowCell;

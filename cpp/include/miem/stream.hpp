@@ -281,6 +281,11 @@ class ProfileStream {
   bool fast_ = false;     // pass 1 may use the vectorised kernel
   bool fast_ms_ = false;  // pass 1 may use min_step_label (min_step on, theta0 < 90)
   double ms_lo_[8] = {}, ms_hi_[8] = {};  // per scale s: (s min_step)^2 (1 -+ 1e-12)
+  double ms_len_[8] = {};                 // per scale s: s min_step
+  // with min_step, pass 1 of a row (min_step_skip.hpp): row_speeds (width_), then per chunk of
+  // 32 columns the largest within mark_reach_
+  std::vector<double> speed_;
+  std::vector<std::ptrdiff_t> skip_first_;  // per chunk and scale: the first step to read
   // min_step "auto" (SPEC "min_step='auto'"): decided once the kAutoMinStepRows rows from the
   // first row with a finite cell are in; the stages wait for it (the rows are kept).
   bool ms_auto_ = false;         // params_.min_step_auto
