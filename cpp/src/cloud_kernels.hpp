@@ -17,6 +17,10 @@
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 
+#ifdef __SSE2__
+#include <emmintrin.h>
+#endif
+
 #include "miem/neighbor_grid.hpp"
 #include "miem/unorganized.hpp"
 #include "parallel.hpp"
@@ -312,7 +316,8 @@ struct OffsetSums {
 
 // Moments of the offsets g[pos[q]] - p, q = 0 .. n - 1, in two lanes (the even and the odd q),
 // added at the end: two independent chains of additions. The result depends only on the
-// sequence of points, never on how it was gathered.
+// sequence of points, never on how it was gathered. With SSE2 the two lanes are the two halves
+// of one register (the same operations in the same order: the same bits as the scalar loop).
 inline OffsetSums offset_sums(const Gather& g, const std::uint32_t* __restrict pos, std::size_t n,
                               const Eigen::Vector3d& p) {
   const double* __restrict gx = g.x.data();
@@ -320,6 +325,30 @@ inline OffsetSums offset_sums(const Gather& g, const std::uint32_t* __restrict p
   const double* __restrict gz = g.z.data();
   const double px = p.x(), py = p.y(), pz = p.z();
   double a[9][2] = {};  // x y z xx xy xz yy yz zz, per lane
+  std::size_t q = 0;
+#ifdef __SSE2__
+  {
+    const __m128d vpx = _mm_set1_pd(px), vpy = _mm_set1_pd(py), vpz = _mm_set1_pd(pz);
+    __m128d v[9];
+    for (__m128d& r : v) r = _mm_setzero_pd();
+    for (; q + 1 < n; q += 2) {
+      const std::uint32_t k0 = pos[q], k1 = pos[q + 1];  // lane 0: even q, lane 1: odd q
+      const __m128d x = _mm_sub_pd(_mm_set_pd(gx[k1], gx[k0]), vpx);
+      const __m128d y = _mm_sub_pd(_mm_set_pd(gy[k1], gy[k0]), vpy);
+      const __m128d z = _mm_sub_pd(_mm_set_pd(gz[k1], gz[k0]), vpz);
+      v[0] = _mm_add_pd(v[0], x);
+      v[1] = _mm_add_pd(v[1], y);
+      v[2] = _mm_add_pd(v[2], z);
+      v[3] = _mm_add_pd(v[3], _mm_mul_pd(x, x));
+      v[4] = _mm_add_pd(v[4], _mm_mul_pd(x, y));
+      v[5] = _mm_add_pd(v[5], _mm_mul_pd(x, z));
+      v[6] = _mm_add_pd(v[6], _mm_mul_pd(y, y));
+      v[7] = _mm_add_pd(v[7], _mm_mul_pd(y, z));
+      v[8] = _mm_add_pd(v[8], _mm_mul_pd(z, z));
+    }
+    for (int i = 0; i < 9; ++i) _mm_storeu_pd(a[i], v[i]);
+  }
+#endif
   auto add = [&](int l, std::uint32_t k) {
     const double x = gx[k] - px, y = gy[k] - py, z = gz[k] - pz;
     a[0][l] += x;
@@ -332,8 +361,7 @@ inline OffsetSums offset_sums(const Gather& g, const std::uint32_t* __restrict p
     a[7][l] += y * z;
     a[8][l] += z * z;
   };
-  std::size_t q = 0;
-  for (; q + 1 < n; q += 2) {
+  for (; q + 1 < n; q += 2) {  // (without SSE2)
     add(0, pos[q]);
     add(1, pos[q + 1]);
   }
