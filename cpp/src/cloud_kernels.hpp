@@ -443,7 +443,6 @@ struct JudgeScratch {
   Gather aside;  // a second list of candidates (gather_split)
   Selection sel;
   std::vector<std::uint64_t> best_key;  // per (direction, side, scale) slot: bits of its d2
-  std::vector<std::uint32_t> best_id;   // the slot's neighbour's point index
   std::vector<int> best_m;      // position in `sel` of the slot's neighbour, -1: none
   std::vector<double> tlen;     // per selected neighbour: tangent-plane length
   std::vector<std::uint16_t> hits;  // per selected neighbour: its (direction, side) cones
@@ -508,7 +507,6 @@ class PointJudge {
       default: cone_hits<8>(s, n, d, js); break;
     }
     js.best_key.assign(slots, ~std::uint64_t{0});
-    js.best_id.assign(slots, ~std::uint32_t{0});
     switch (S) {  // the scale count as a constant where it is small: the slot loop unrolled
       case 1: nearest_slots<1>(s, js, S); break;
       case 2: nearest_slots<2>(s, js, S); break;
@@ -630,7 +628,6 @@ class PointJudge {
     const double* __restrict sd2 = s.d2.data();
     const std::uint32_t* __restrict sid = s.id.data();
     std::uint64_t* __restrict bkey = js.best_key.data();
-    std::uint32_t* __restrict bid = js.best_id.data();
     int* __restrict bm = js.best_m.data();
     const double* __restrict step = step_.data();
     const int n_sel = static_cast<int>(s.n);
@@ -647,12 +644,13 @@ class PointJudge {
         const int base = bit * S;  // slot (k, side) = bit: side 0 is g = +1, side 1 is g = -1
         for (int si = 0; si < S; ++si) {
           const int q = base + si;
-          const bool better = (tlen >= step[si]) &
-                              ((key < bkey[q]) | ((key == bkey[q]) & (id < bid[q])));
+          // A tie (equal d2) is rare: the index of the slot's neighbour is read only then.
+          bool nearer = key < bkey[q];
+          if (__builtin_expect(key == bkey[q], 0)) nearer = id < sid[bm[q]];
+          const bool better = (tlen >= step[si]) & nearer;
           const std::uint64_t m64 = 0 - static_cast<std::uint64_t>(better);
           const std::uint32_t m32 = static_cast<std::uint32_t>(m64);
           bkey[q] = (key & m64) | (bkey[q] & ~m64);
-          bid[q] = (id & m32) | (bid[q] & ~m32);
           bm[q] = static_cast<int>((static_cast<std::uint32_t>(m) & m32) |
                                    (static_cast<std::uint32_t>(bm[q]) & ~m32));
         }
