@@ -154,16 +154,17 @@ inline void select(const Gather& g, const Eigen::Vector3d& p, double r2, std::in
     all[k] = dx * dx + dy * dy + dz * dz;
   }
   std::size_t m = 0;
-  if (self < 0) {
-    for (std::size_t k = 0; k < n; ++k) {
-      pos[m] = static_cast<std::uint32_t>(k);
-      m += static_cast<std::size_t>(all[k] <= r2);
-    }
-  } else {
+  for (std::size_t k = 0; k < n; ++k) {
+    pos[m] = static_cast<std::uint32_t>(k);
+    m += static_cast<std::size_t>(all[k] <= r2);
+  }
+  if (self >= 0) {  // drop `self` from the kept (at most once: gathered indices are distinct)
     const std::uint32_t me = static_cast<std::uint32_t>(self);
-    for (std::size_t k = 0; k < n; ++k) {
-      pos[m] = static_cast<std::uint32_t>(k);
-      m += static_cast<std::size_t>((all[k] <= r2) & (gid[k] != me));
+    std::size_t q = 0;
+    while (q < m && gid[pos[q]] != me) ++q;
+    if (q < m) {
+      std::copy(pos + q + 1, pos + m, pos + q);
+      --m;
     }
   }
   double* __restrict wx = s.wx.data();
