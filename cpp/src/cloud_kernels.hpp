@@ -17,6 +17,10 @@
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 
+#ifdef __SSE2__
+#include <emmintrin.h>
+#endif
+
 #include "miem/neighbor_grid.hpp"
 #include "miem/unorganized.hpp"
 #include "parallel.hpp"
@@ -150,16 +154,17 @@ inline void select(const Gather& g, const Eigen::Vector3d& p, double r2, std::in
     all[k] = dx * dx + dy * dy + dz * dz;
   }
   std::size_t m = 0;
-  if (self < 0) {
-    for (std::size_t k = 0; k < n; ++k) {
-      pos[m] = static_cast<std::uint32_t>(k);
-      m += static_cast<std::size_t>(all[k] <= r2);
-    }
-  } else {
+  for (std::size_t k = 0; k < n; ++k) {
+    pos[m] = static_cast<std::uint32_t>(k);
+    m += static_cast<std::size_t>(all[k] <= r2);
+  }
+  if (self >= 0) {  // drop `self` from the kept (at most once: gathered indices are distinct)
     const std::uint32_t me = static_cast<std::uint32_t>(self);
-    for (std::size_t k = 0; k < n; ++k) {
-      pos[m] = static_cast<std::uint32_t>(k);
-      m += static_cast<std::size_t>((all[k] <= r2) & (gid[k] != me));
+    std::size_t q = 0;
+    while (q < m && gid[pos[q]] != me) ++q;
+    if (q < m) {
+      std::copy(pos + q + 1, pos + m, pos + q);
+      --m;
     }
   }
   double* __restrict wx = s.wx.data();
@@ -312,7 +317,8 @@ struct OffsetSums {
 
 // Moments of the offsets g[pos[q]] - p, q = 0 .. n - 1, in two lanes (the even and the odd q),
 // added at the end: two independent chains of additions. The result depends only on the
-// sequence of points, never on how it was gathered.
+// sequence of points, never on how it was gathered. With SSE2 the two lanes are the two halves
+// of one register (the same operations in the same order: the same bits as the scalar loop).
 inline OffsetSums offset_sums(const Gather& g, const std::uint32_t* __restrict pos, std::size_t n,
                               const Eigen::Vector3d& p) {
   const double* __restrict gx = g.x.data();
@@ -320,6 +326,30 @@ inline OffsetSums offset_sums(const Gather& g, const std::uint32_t* __restrict p
   const double* __restrict gz = g.z.data();
   const double px = p.x(), py = p.y(), pz = p.z();
   double a[9][2] = {};  // x y z xx xy xz yy yz zz, per lane
+  std::size_t q = 0;
+#ifdef __SSE2__
+  {
+    const __m128d vpx = _mm_set1_pd(px), vpy = _mm_set1_pd(py), vpz = _mm_set1_pd(pz);
+    __m128d v[9];
+    for (__m128d& r : v) r = _mm_setzero_pd();
+    for (; q + 1 < n; q += 2) {
+      const std::uint32_t k0 = pos[q], k1 = pos[q + 1];  // lane 0: even q, lane 1: odd q
+      const __m128d x = _mm_sub_pd(_mm_set_pd(gx[k1], gx[k0]), vpx);
+      const __m128d y = _mm_sub_pd(_mm_set_pd(gy[k1], gy[k0]), vpy);
+      const __m128d z = _mm_sub_pd(_mm_set_pd(gz[k1], gz[k0]), vpz);
+      v[0] = _mm_add_pd(v[0], x);
+      v[1] = _mm_add_pd(v[1], y);
+      v[2] = _mm_add_pd(v[2], z);
+      v[3] = _mm_add_pd(v[3], _mm_mul_pd(x, x));
+      v[4] = _mm_add_pd(v[4], _mm_mul_pd(x, y));
+      v[5] = _mm_add_pd(v[5], _mm_mul_pd(x, z));
+      v[6] = _mm_add_pd(v[6], _mm_mul_pd(y, y));
+      v[7] = _mm_add_pd(v[7], _mm_mul_pd(y, z));
+      v[8] = _mm_add_pd(v[8], _mm_mul_pd(z, z));
+    }
+    for (int i = 0; i < 9; ++i) _mm_storeu_pd(a[i], v[i]);
+  }
+#endif
   auto add = [&](int l, std::uint32_t k) {
     const double x = gx[k] - px, y = gy[k] - py, z = gz[k] - pz;
     a[0][l] += x;
@@ -332,8 +362,7 @@ inline OffsetSums offset_sums(const Gather& g, const std::uint32_t* __restrict p
     a[7][l] += y * z;
     a[8][l] += z * z;
   };
-  std::size_t q = 0;
-  for (; q + 1 < n; q += 2) {
+  for (; q + 1 < n; q += 2) {  // (without SSE2)
     add(0, pos[q]);
     add(1, pos[q + 1]);
   }
@@ -415,7 +444,6 @@ struct JudgeScratch {
   Gather aside;  // a second list of candidates (gather_split)
   Selection sel;
   std::vector<std::uint64_t> best_key;  // per (direction, side, scale) slot: bits of its d2
-  std::vector<std::uint32_t> best_id;   // the slot's neighbour's point index
   std::vector<int> best_m;      // position in `sel` of the slot's neighbour, -1: none
   std::vector<double> tlen;     // per selected neighbour: tangent-plane length
   std::vector<std::uint16_t> hits;  // per selected neighbour: its (direction, side) cones
@@ -480,7 +508,6 @@ class PointJudge {
       default: cone_hits<8>(s, n, d, js); break;
     }
     js.best_key.assign(slots, ~std::uint64_t{0});
-    js.best_id.assign(slots, ~std::uint32_t{0});
     switch (S) {  // the scale count as a constant where it is small: the slot loop unrolled
       case 1: nearest_slots<1>(s, js, S); break;
       case 2: nearest_slots<2>(s, js, S); break;
@@ -537,7 +564,43 @@ class PointJudge {
       dz[k] = d[k].z();
     }
     const std::size_t n_sel = s.n;
-    for (std::size_t m = 0; m < n_sel; ++m) {
+    std::size_t m = 0;
+#ifdef __SSE2__
+    // Two neighbours at a time, one per half of a register: the same operations in the same
+    // order as the scalar loop below, so the same bits.
+    {
+      const __m128d vnx = _mm_set1_pd(nx), vny = _mm_set1_pd(ny), vnz = _mm_set1_pd(nz);
+      const __m128d vch = _mm_set1_pd(cos_half), sign = _mm_set1_pd(-0.0);
+      for (; m + 1 < n_sel; m += 2) {
+        const __m128d ax = _mm_loadu_pd(wx + m), ay = _mm_loadu_pd(wy + m),
+                      az = _mm_loadu_pd(wz + m);
+        const __m128d wn = _mm_add_pd(_mm_add_pd(_mm_mul_pd(ax, vnx), _mm_mul_pd(ay, vny)),
+                                      _mm_mul_pd(az, vnz));
+        const __m128d tx = _mm_sub_pd(ax, _mm_mul_pd(wn, vnx));
+        const __m128d ty = _mm_sub_pd(ay, _mm_mul_pd(wn, vny));
+        const __m128d tz = _mm_sub_pd(az, _mm_mul_pd(wn, vnz));
+        const __m128d tlen = _mm_sqrt_pd(
+            _mm_add_pd(_mm_add_pd(_mm_mul_pd(tx, tx), _mm_mul_pd(ty, ty)), _mm_mul_pd(tz, tz)));
+        const __m128d lim = _mm_mul_pd(tlen, vch);
+        unsigned h0 = 0, h1 = 0;
+        for (int k = 0; k < K; ++k) {
+          const __m128d td = _mm_add_pd(
+              _mm_add_pd(_mm_mul_pd(tx, _mm_set1_pd(dx[k])), _mm_mul_pd(ty, _mm_set1_pd(dy[k]))),
+              _mm_mul_pd(tz, _mm_set1_pd(dz[k])));
+          const __m128d pos = _mm_cmpge_pd(td, lim);
+          const __m128d neg = _mm_andnot_pd(pos, _mm_cmpge_pd(_mm_xor_pd(td, sign), lim));
+          const unsigned pm = static_cast<unsigned>(_mm_movemask_pd(pos));
+          const unsigned nm = static_cast<unsigned>(_mm_movemask_pd(neg));
+          h0 |= ((pm & 1u) << (2 * k)) | ((nm & 1u) << (2 * k + 1));
+          h1 |= ((pm >> 1) << (2 * k)) | ((nm >> 1) << (2 * k + 1));
+        }
+        _mm_storeu_pd(tl + m, tlen);
+        hits[m] = static_cast<std::uint16_t>(tl[m] > 0.0 ? h0 : 0u);
+        hits[m + 1] = static_cast<std::uint16_t>(tl[m + 1] > 0.0 ? h1 : 0u);
+      }
+    }
+#endif
+    for (; m < n_sel; ++m) {
       const double wn = wx[m] * nx + wy[m] * ny + wz[m] * nz;
       const double tx = wx[m] - wn * nx, ty = wy[m] - wn * ny, tz = wz[m] - wn * nz;
       const double tlen = std::sqrt(tx * tx + ty * ty + tz * tz);
@@ -566,7 +629,6 @@ class PointJudge {
     const double* __restrict sd2 = s.d2.data();
     const std::uint32_t* __restrict sid = s.id.data();
     std::uint64_t* __restrict bkey = js.best_key.data();
-    std::uint32_t* __restrict bid = js.best_id.data();
     int* __restrict bm = js.best_m.data();
     const double* __restrict step = step_.data();
     const int n_sel = static_cast<int>(s.n);
@@ -583,12 +645,13 @@ class PointJudge {
         const int base = bit * S;  // slot (k, side) = bit: side 0 is g = +1, side 1 is g = -1
         for (int si = 0; si < S; ++si) {
           const int q = base + si;
-          const bool better = (tlen >= step[si]) &
-                              ((key < bkey[q]) | ((key == bkey[q]) & (id < bid[q])));
+          // A tie (equal d2) is rare: the index of the slot's neighbour is read only then.
+          bool nearer = key < bkey[q];
+          if (__builtin_expect(key == bkey[q], 0)) nearer = id < sid[bm[q]];
+          const bool better = (tlen >= step[si]) & nearer;
           const std::uint64_t m64 = 0 - static_cast<std::uint64_t>(better);
           const std::uint32_t m32 = static_cast<std::uint32_t>(m64);
           bkey[q] = (key & m64) | (bkey[q] & ~m64);
-          bid[q] = (id & m32) | (bid[q] & ~m32);
           bm[q] = static_cast<int>((static_cast<std::uint32_t>(m) & m32) |
                                    (static_cast<std::uint32_t>(bm[q]) & ~m32));
         }
