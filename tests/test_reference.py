@@ -679,13 +679,12 @@ def _literal_labels(
                             rr, cc = r + side * k * dr, c + side * k * dc
                             if 0 <= rr < h and 0 <= cc < w and usable[rr][cc]:
                                 isolated = False
-                n_avail = 0  # directions available at any scale
-                n_flag = [0] * len(scales)  # directions flagged at each scale
+                n_avail = n_flag = 0
                 bits = 0
                 best = math.nan
                 for kd, (dr, dc) in enumerate(_DIRS):
                     avail = flagged = False
-                    for j, s in enumerate(scales):
+                    for s in scales:
                         a = neighbour(usable, r, c, dr, dc, s, -1)
                         b = neighbour(usable, r, c, dr, dc, s, +1)
                         if a is None or b is None:
@@ -699,24 +698,22 @@ def _literal_labels(
                             continue
                         cs = min(1.0, max(-1.0, uv / math.sqrt(uu * vv)))
                         avail = True
-                        n_flag[j] += cs >= cos0
                         flagged = flagged or cs >= cos0
                         ang = math.degrees(math.acos(cs))
                         best = ang if math.isnan(best) else min(best, ang)
                     n_avail += avail
+                    n_flag += flagged
                     bits |= (1 << kd) if flagged else 0
                 if isolated:
                     labels[r, c], flags[r, c], angle[r, c] = A, 0, math.nan
                     new.append((r, c))
                     continue
-                # ABNORMAL when every available direction (or min_directions of them) is
-                # flagged at one and the same scale
                 need = n_avail if min_directions is None else min(n_avail, min_directions)
-                if n_avail >= 2 and max(n_flag) >= need:
+                if n_avail >= 2 and n_flag >= need:
                     labels[r, c] = A
                     new.append((r, c))
                 else:
-                    labels[r, c] = E if bits else N
+                    labels[r, c] = E if n_flag > 0 else N
                 flags[r, c], angle[r, c] = bits, best
         for r, c in new:
             abnormal[r][c] = True

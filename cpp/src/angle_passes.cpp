@@ -39,20 +39,9 @@ constexpr std::ptrdiff_t kChunk = 32;   // lanes per min_step search
 #define MIEM_CLONES
 #endif
 
-// Bits of RowScratch::bits per cell: directions available (0-3) and flagged (4-7) at any scale,
-// a search the kernel cannot finish (slow: the scalar judge decides), a usable cell within the
-// isolation reach, and from kScaleShift one byte per scale (index j in p.scales): the
-// directions available (bits 0-3) and flagged (4-7) at that scale. A (direction, scale) verdict
-// sets both groups at once (its `bit` holds both available bits, flagged = bit << kFlagShift),
-// so the kernels do no extra work for it. Up to kKernelScales scales; more go to the scalar
-// judge.
+// Bits of RowScratch::bits per cell: directions available (0-3) and flagged (4-7), a search the
+// kernel cannot finish (slow: the scalar judge decides), a usable cell within the isolation reach.
 constexpr std::int64_t kFlagShift = 4, kSlowBit = 1 << 8, kNearBit = 1 << 9;
-constexpr int kScaleShift = 12, kKernelScales = 6;  // bits up to 12 + 8 * 6 - 1 = 59
-
-// A (direction k, scale index j) verdict's available bits: any scale and scale j.
-constexpr std::int64_t verdict_bits(int k, int j) {
-  return (std::int64_t{1} << k) | (std::int64_t{1} << (kScaleShift + 8 * j + k));
-}
 
 // The two candidates of one side of one (direction, scale): the cells s and s + 1 steps away
 // (x, y, z rows and usable lanes, already shifted so that index c is the candidate of cell c).
@@ -229,43 +218,21 @@ MIEM_CLONES void angles_line(std::ptrdiff_t n, const double* __restrict buv,
   }
 }
 
-// The labels (and flags) of a row's usable cells (ok[c]) from the kernel's bits (SPEC
-// "Judgment", scale_verdict.hpp): ABNORMAL by abnormal_verdict, else EDGE when a direction is
-// flagged at any scale, else NORMAL. Slow cells get a label here too; the scalar judge
-// overwrites it. With one scale its flags are the cell's flags; with more, the scale bytes'
-// flagged counts side by side in one word (SWAR, the bytes not in use hold 0), each compared
-// with `need` (0..4; a count is at most 4: no borrow between bytes): `hit` when one of them is
-// at least `need`. (Branch-free selects only: a ternary here stops the vectoriser.)
+// The labels (and flags) of a row's usable cells (ok[c]) from the kernel's bits: ABNORMAL when at
+// least 2 directions are available and at least min(available, min_directions) (0: all) are
+// flagged, EDGE when some are, else NORMAL (SPEC "Detection"). Slow cells get a label here too;
+// the scalar judge overwrites it.
 MIEM_CLONES void label_line(std::ptrdiff_t n, const std::int64_t* __restrict bits,
-                            const std::int64_t* __restrict ok, int n_scales, int min_directions,
+                            const std::int64_t* __restrict ok, int min_directions,
                             std::uint8_t* __restrict labels, std::uint8_t* __restrict flags) {
   const std::int64_t md = min_directions;
   auto pop4 = [](std::int64_t x) { return (x & 1) + ((x >> 1) & 1) + ((x >> 2) & 1) + ((x >> 3) & 1); };
-  if (n_scales == 1) {
-    for (std::ptrdiff_t c = 0; c < n; ++c) {
-      const std::int64_t b = bits[c], flag = (b >> kFlagShift) & 15;
-      const std::int64_t abn = detail::abnormal_verdict(pop4(b & 15), pop4(flag), md);
-      const std::uint8_t l = abn ? kAbnormal : (flag != 0 ? kEdge : kNormal);
-      labels[c] = ok[c] ? l : labels[c];
-    }
-  } else {
-    constexpr std::int64_t kBytes = 0x0000010101010101LL;  // one per scale byte
-    for (std::ptrdiff_t c = 0; c < n; ++c) {
-      const std::int64_t b = bits[c], flag = (b >> kFlagShift) & 15, a = pop4(b & 15);
-      std::int64_t f = (b >> (kScaleShift + kFlagShift)) & (15 * kBytes);
-      f = f - ((f >> 1) & (5 * kBytes));
-      f = (f & (3 * kBytes)) + ((f >> 2) & (3 * kBytes));  // per byte: flagged at that scale
-      const std::int64_t need = detail::needed_directions(a, md);
-      std::int64_t nb = need | (need << 8);
-      nb |= nb << 16;
-      nb |= (nb & 0xFFFF) << 32;  // need in each of the 6 bytes
-      const std::int64_t hit = (((0x80 * kBytes) | f) - nb) & (0x80 * kBytes);
-      // most flagged at one scale, as far as the verdict reads it: need when reached, else 0
-      const std::int64_t most = need & -static_cast<std::int64_t>(hit != 0);
-      const std::int64_t abn = detail::abnormal_verdict(a, most, md);
-      const std::uint8_t l = abn ? kAbnormal : (flag != 0 ? kEdge : kNormal);
-      labels[c] = ok[c] ? l : labels[c];
-    }
+  for (std::ptrdiff_t c = 0; c < n; ++c) {
+    const std::int64_t b = bits[c], flag = (b >> kFlagShift) & 15;
+    const std::int64_t a = pop4(b & 15), f = pop4(flag);
+    const std::int64_t need = md > 0 ? (a < md ? a : md) : a;
+    const std::uint8_t l = (a >= 2) & (f >= need) ? kAbnormal : (f > 0 ? kEdge : kNormal);
+    labels[c] = ok[c] ? l : labels[c];
   }
   if (flags == nullptr) return;
   for (std::ptrdiff_t c = 0; c < n; ++c) {
@@ -321,7 +288,6 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
     load_row(g, usable, rr, S, slot_x(rr), slot_ok(rr));
   }
   const bool has_scale1 = std::find(p.scales.begin(), p.scales.end(), 1) != p.scales.end();
-  const int n_scales = static_cast<int>(p.scales.size());  // at most kKernelScales
   double *buv = sc.best.data(), *bprod = sc.best.data() + S;
   std::int64_t* bits = sc.bits.data();
   SideSearch sides[2];
@@ -359,6 +325,7 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
       int n_near = 0;
       for (int k = 0; k < 4; ++k) {
         const int dr = detail::kDirRow[k], dc = detail::kDirCol[k];
+        const std::int64_t bit = std::int64_t{1} << k;
         // the cells `step` steps away on side sgn, shifted to the block's first column
         auto at_x = [&](int sgn, std::ptrdiff_t step) {
           return slot_x(r + sgn * step * dr) + b0 + sgn * step * dc;
@@ -371,8 +338,7 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
           // ring's depth (lanes still searching there go to the scalar judge).
           const std::int64_t gap = p.max_gap;
           std::fill(ext, ext + nb, 1 + gap);
-          for (int j = 0; j < n_scales; ++j) {
-            const int s = p.scales[j];
+          for (int s : p.scales) {
             const double len = s * p.min_step, l2 = len * len;
             const double lo = l2 * (1.0 - 1e-12), hi = l2 * (1.0 + 1e-12);
             const std::ptrdiff_t last = s + gap + p.max_reach;
@@ -416,8 +382,8 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
                 }
               }
             }
-            fold_searches(nb, sides[0], sides[1], last <= depth ? 2 : 4, stop, cos0, c2,
-                          verdict_bits(k, j), buv + b0, bprod + b0, bits + b0, ext);
+            fold_searches(nb, sides[0], sides[1], last <= depth ? 2 : 4, stop, cos0, c2, bit,
+                          buv + b0, bprod + b0, bits + b0, ext);
           }
           // isolation: a usable cell among steps 1 .. 1 + max_gap (those within the ring; a
           // cell without one goes to the scalar judge)
@@ -436,8 +402,7 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
             rc[4 * c] = static_cast<std::uint8_t>(std::min<std::int64_t>(ext[c], 255));
           continue;
         }
-        for (int j = 0; j < n_scales; ++j) {
-          const int s = p.scales[j];
+        for (int s : p.scales) {
           const std::ptrdiff_t s2 = p.max_gap > 0 ? s + 1 : s;  // max_gap 0: one candidate
           const double *a1 = at_x(-1, s), *a2 = at_x(-1, s2);
           const double *b1 = at_x(+1, s), *b2 = at_x(+1, s2);
@@ -445,8 +410,8 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
                        at_ok(-1, s2)};
           const Side B{b1, b1 + S, b1 + 2 * S, b2, b2 + S, b2 + 2 * S, at_ok(+1, s),
                        at_ok(+1, s2)};
-          kernel_line(nb, A, B, qx, qy, qz, cos0, c2, gap2, verdict_bits(k, j),
-                      s == 1 ? kNearBit : 0, buv + b0, bprod + b0, bits + b0);
+          kernel_line(nb, A, B, qx, qy, qz, cos0, c2, gap2, bit, s == 1 ? kNearBit : 0,
+                      buv + b0, bprod + b0, bits + b0);
         }
         if (!has_scale1) {
           const std::ptrdiff_t s2 = p.max_gap > 0 ? 2 : 1;
@@ -463,7 +428,7 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
     if (angle_row) angles_line(W, buv, bprod, centre_ok, angle_row);
     // The kernel's verdicts for the whole row (vector code), then the scalar judge for the
     // cells whose search the kernel could not finish.
-    label_line(W, bits, centre_ok, n_scales, p.min_directions, labels + r * W,
+    label_line(W, bits, centre_ok, p.min_directions, labels + r * W,
                flags_out ? flags_out + r * W : nullptr);
     for (std::ptrdiff_t c = 0; c < W; ++c) {
       const std::int64_t b = bits[c];
@@ -498,14 +463,12 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
   // only while its scratch stays within 8 bytes per grid cell (at least 1 MiB), with no more
   // threads than rows (with min_step, at the shallow depth when the deep one does not fit);
   // beyond, the scalar judge (same labels, SPEC) reads the grid in place (README "Guarantees").
-  // So it does with more than kKernelScales scales (the kernel's bits hold that many).
   constexpr int kDeep = 16;
   const int ntk = static_cast<int>(std::min<std::ptrdiff_t>(nt, H));
   auto kernel_fits = [&](int depth) {
     const double padded = static_cast<double>(W + 2 * depth);
     const double bytes = ntk * padded * (32.0 * (2 * depth + 2) + 24.0);
-    return smax <= 64 && p.scales.size() <= static_cast<std::size_t>(kKernelScales) &&
-           bytes <= std::max(double(1 << 20), 8.0 * static_cast<double>(N));
+    return smax <= 64 && bytes <= std::max(double(1 << 20), 8.0 * static_cast<double>(N));
   };
   int depth = smax + 1;
   if (has_min_step) {

@@ -24,7 +24,6 @@
 #include "miem/neighbor_grid.hpp"
 #include "miem/unorganized.hpp"
 #include "parallel.hpp"
-#include "scale_verdict.hpp"
 
 namespace miem::cloud {
 
@@ -515,11 +514,12 @@ class PointJudge {
       case 3: nearest_slots<3>(s, js, S); break;
       default: nearest_slots<0>(s, js, S); break;
     }
-    detail::ScaleVerdict verdict(min_dirs_);
+    int avail = 0, flagged = 0;
+    std::uint8_t mask = 0;
     double best_cos = -2.0;
-    for (int si = 0; si < S; ++si) {
-      unsigned avail = 0, flagged = 0;  // directions available / flagged at scale si
-      for (int k = 0; k < K_; ++k) {
+    for (int k = 0; k < K_; ++k) {
+      bool dir_avail = false, dir_flag = false;
+      for (int si = 0; si < S; ++si) {
         const int mp = bm[(k * 2 + 0) * S + si], mm = bm[(k * 2 + 1) * S + si];
         if (mp < 0 || mm < 0) continue;
         const Eigen::Vector3d u(wx[mm], wy[mm], wz[mm]);  // A - P, A on side -1
@@ -527,15 +527,21 @@ class PointJudge {
         const double uu = sd2[mm], vv = sd2[mp];
         if (uu == 0.0 || vv == 0.0) continue;
         const double cs = std::clamp(u.dot(v) / std::sqrt(uu * vv), -1.0, 1.0);
-        avail |= 1u << k;
-        if (cs >= cos0_) flagged |= 1u << k;
+        dir_avail = true;
+        if (cs >= cos0_) dir_flag = true;
         if (cs > best_cos) best_cos = cs;
       }
-      verdict.add(avail, flagged);
+      avail += dir_avail;
+      if (dir_flag) {
+        ++flagged;
+        mask |= static_cast<std::uint8_t>(1u << k);
+      }
     }
-    *flags = verdict.flags();
+    *flags = mask;
     *angle = best_cos > -2.0 ? std::acos(best_cos) * kRadToDeg : kNaN;
-    return verdict.label();
+    const int need = min_dirs_ > 0 ? std::min(avail, min_dirs_) : avail;
+    if (avail >= 2 && flagged >= need) return kAbnormal;
+    return flagged > 0 ? kEdge : kNormal;
   }
 
  private:

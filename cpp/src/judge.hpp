@@ -12,7 +12,6 @@
 #include "miem/organized.hpp"
 #include "miem/plane.hpp"
 #include "miem/views.hpp"
-#include "scale_verdict.hpp"
 
 namespace miem::detail {
 
@@ -36,6 +35,15 @@ inline double dot3(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
 /// [-1, 1]: the one evaluation every judge of SPEC's angle test uses.
 inline double clamped_cos(double uv, double uu, double vv) {
   return std::clamp(uv / std::sqrt(uu * vv), -1.0, 1.0);
+}
+
+/// A cell's label from its directions (SPEC "Angle test"): ABNORMAL when at least 2 directions
+/// are available and at least min(available, min_directions) (0: all) are flagged, else EDGE
+/// when any is flagged, else NORMAL.
+inline std::uint8_t direction_label(int avail, int flagged, int min_directions) {
+  const int need = min_directions > 0 ? std::min(avail, min_directions) : avail;
+  if (avail >= 2 && flagged >= need) return kAbnormal;
+  return flagged > 0 ? kEdge : kNormal;
 }
 
 /// A search's reach (steps read along a ray) as kept in a byte: capped at 255.
@@ -75,34 +83,36 @@ class CellJudge {
       return kAbnormal;
     }
     const Eigen::Vector3d P = g_(r, c);
-    ScaleVerdict verdict(p_.min_directions);
+    int avail = 0, flagged = 0;
+    std::uint8_t mask = 0;
     double best_cos = -2.0;
-    const std::ptrdiff_t ext0 = 1 + static_cast<std::ptrdiff_t>(p_.max_gap);
-    std::ptrdiff_t ext[4] = {ext0, ext0, ext0, ext0};
-    for (int s : p_.scales) {
-      unsigned avail = 0, flagged = 0;  // directions available / flagged at scale s
-      for (int k = 0; k < 4; ++k) {
+    for (int k = 0; k < 4; ++k) {
+      bool dir_avail = false, dir_flag = false;
+      std::ptrdiff_t ext = 1 + static_cast<std::ptrdiff_t>(p_.max_gap);
+      for (int s : p_.scales) {
         Eigen::Vector3d a, b;
-        const bool has_a = neighbour(r, c, P, -1, k, s, &a, &ext[k]);
-        if (!has_a || !neighbour(r, c, P, +1, k, s, &b, &ext[k])) continue;
+        const bool has_a = neighbour(r, c, P, -1, k, s, &a, &ext);
+        if (!has_a || !neighbour(r, c, P, +1, k, s, &b, &ext)) continue;
         const Eigen::Vector3d u = a - P, v = b - P;
         const double uu = dot3(u, u), vv = dot3(v, v);
         if (uu == 0.0 || vv == 0.0) continue;
         const double uv = dot3(u, v);
-        avail |= 1u << k;
+        dir_avail = true;
         if (kLabelsOnly && uv <= 0.0 && cos0_ > 0.0) continue;  // cos <= 0 < cos0
         const double cs = clamped_cos(uv, uu, vv);
-        if (cs >= cos0_) flagged |= 1u << k;
+        if (cs >= cos0_) dir_flag = true;
         if (cs > best_cos) best_cos = cs;
       }
-      verdict.add(avail, flagged);
+      if (reach) reach[k] = reach_byte(ext);
+      avail += dir_avail;
+      if (dir_flag) {
+        ++flagged;
+        mask |= static_cast<std::uint8_t>(1u << k);
+      }
     }
-    if (reach) {
-      for (int k = 0; k < 4; ++k) reach[k] = reach_byte(ext[k]);
-    }
-    *flags = verdict.flags();
+    *flags = mask;
     *angle_deg = (!kLabelsOnly && best_cos > -2.0) ? std::acos(best_cos) * kRadToDeg : kNaN;
-    return verdict.label();
+    return direction_label(avail, flagged, p_.min_directions);
   }
 
  private:

@@ -766,12 +766,12 @@ std::uint8_t ProfileStream<T>::exact_label(std::int64_t row, std::ptrdiff_t c,
   const Eigen::Vector3d P(static_cast<double>(X0[0]), static_cast<double>(X0[plane]),
                           static_cast<double>(X0[2 * plane]));
   const std::size_t n_scales = params_.scales.size();
-  detail::ScaleVerdict verdict(params_.min_directions);
-  for (std::size_t si = 0; si < n_scales; ++si) {
-    const std::ptrdiff_t sc = params_.scales[si];
-    unsigned avail = 0, flagged = 0;  // directions available / flagged at scale sc
-    for (int k = 0; k < 4; ++k) {
+  int avail = 0, flagged = 0;
+  for (int k = 0; k < 4; ++k) {
+    bool dir_avail = false, dir_flag = false;
+    for (std::size_t si = 0; si < n_scales; ++si) {
       const int i = k * static_cast<int>(n_scales) + static_cast<int>(si);
+      const std::ptrdiff_t sc = params_.scales[si];
       const std::ptrdiff_t dr = kDirRow[k] * sc, dc = kDirCol[k] * sc;
       const T* a = xyz_.data() + slot(row - dr) * W + (c - dc);
       const T* bb = xyz_.data() + slot(row + dr) * W + (c + dc);
@@ -783,13 +783,14 @@ std::uint8_t ProfileStream<T>::exact_label(std::int64_t row, std::ptrdiff_t c,
                                                 static_cast<double>(bb[2 * plane])) - P;
       const double uu = detail::dot3(u, u), vv = detail::dot3(v, v);
       if (uu == 0.0 || vv == 0.0) continue;
-      avail |= 1u << k;
+      dir_avail = true;
       if (!(b & (1u << i))) continue;  // the filter showed cos < cos0
-      if (detail::clamped_cos(detail::dot3(u, v), uu, vv) >= cos0_) flagged |= 1u << k;
+      if (detail::clamped_cos(detail::dot3(u, v), uu, vv) >= cos0_) dir_flag = true;
     }
-    verdict.add(avail, flagged);
+    avail += dir_avail;
+    flagged += dir_flag;
   }
-  return verdict.label();
+  return detail::direction_label(avail, flagged, params_.min_directions);
 }
 
 // Pass 1 with min_step (theta0 < 90): the verdict of cell (r, c) of the judge's grid (`grid`:
@@ -811,14 +812,14 @@ std::uint8_t ProfileStream<T>::min_step_label(const T* grid, const std::uint8_t*
                pz = static_cast<double>(X[2 * pl]);
   const std::size_t n_scales = params_.scales.size();
   const std::ptrdiff_t gap_reach = params_.max_gap + params_.max_reach;
-  detail::ScaleVerdict verdict(params_.min_directions);
+  int flagged = 0;
   std::ptrdiff_t ext[4];
-  for (int k = 0; k < 4; ++k) ext[k] = 1 + static_cast<std::ptrdiff_t>(params_.max_gap);
-  for (std::size_t si = 0; si < n_scales; ++si) {
-    const std::ptrdiff_t sc = params_.scales[si], last = sc + gap_reach;
-    const double lo = ms_lo_[si], hi = ms_hi_[si];
-    unsigned flagged = 0;  // directions flagged at scale sc (every one is available)
-    for (int k = 0; k < 4; ++k) {
+  for (int k = 0; k < 4; ++k) {
+    bool dir_flag = false;
+    ext[k] = 1 + static_cast<std::ptrdiff_t>(params_.max_gap);
+    for (std::size_t si = 0; si < n_scales; ++si) {
+      const std::ptrdiff_t sc = params_.scales[si], last = sc + gap_reach;
+      const double lo = ms_lo_[si], hi = ms_hi_[si];
       double d[2][3];
       for (int sd = 0; sd < 2; ++sd) {
         const std::ptrdiff_t dr = (sd == 0 ? -1 : 1) * kDirRow[k];
@@ -861,14 +862,14 @@ std::uint8_t ProfileStream<T>::min_step_label(const T* grid, const std::uint8_t*
       if (uv <= 0.0) continue;  // cos <= 0 < cos0
       const double uu = (u[0] * u[0] + u[1] * u[1]) + u[2] * u[2];
       const double vv = (v[0] * v[0] + v[1] * v[1]) + v[2] * v[2];
-      if (detail::clamped_cos(uv, uu, vv) >= cos0_) flagged |= 1u << k;
+      if (detail::clamped_cos(uv, uu, vv) >= cos0_) dir_flag = true;
     }
-    verdict.add(15, flagged);
+    flagged += dir_flag;
   }
   if (ray != nullptr) {
     for (int k = 0; k < 4; ++k) ray[k] = detail::reach_byte(ext[k]);
   }
-  return verdict.label();
+  return detail::direction_label(4, flagged, params_.min_directions);  // every direction available
 }
 
 namespace nothrow {

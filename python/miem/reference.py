@@ -556,18 +556,16 @@ def _judge_pass(
     min_step: float | None,
     max_reach: int,
 ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.uint8], NDArray[np.float64]]:
-    """The directions available (at any scale), per scale (first axis, in the order of
-    ``scales``) the directions flagged at that scale, the flag bitmask (flagged at any scale)
-    and the smallest angle."""
+    """Available / flagged direction counts, flag bitmask and smallest angle for every cell."""
     h, w = usable.shape
     n_avail = np.zeros((h, w), dtype=np.int64)
-    n_flag = np.zeros((len(scales), h, w), dtype=np.int64)
+    n_flag = np.zeros((h, w), dtype=np.int64)
     flags = np.zeros((h, w), dtype=np.uint8)
     angle = np.full((h, w), np.nan)
     for k_dir, direction in enumerate(DIRECTIONS):
         dir_avail = np.zeros((h, w), dtype=bool)
         dir_flag = np.zeros((h, w), dtype=bool)
-        for j, s in enumerate(scales):
+        for s in scales:
             a_pts, a_ok = _neighbour(grid, usable, direction, s, -1, max_gap, min_step, max_reach)
             b_pts, b_ok = _neighbour(grid, usable, direction, s, +1, max_gap, min_step, max_reach)
             u = a_pts - grid
@@ -582,22 +580,12 @@ def _judge_pass(
             ang = np.full((h, w), np.nan)
             ang[avail] = np.degrees(np.arccos(cos[avail]))
             angle = np.fmin(angle, ang)
-            n_flag[j] += flagged
             dir_avail |= avail
             dir_flag |= flagged
         n_avail += dir_avail
+        n_flag += dir_flag
         flags |= np.where(dir_flag, np.uint8(1 << k_dir), np.uint8(0)).astype(np.uint8)
     return n_avail, n_flag, flags, angle
-
-
-def _abnormal_at_a_scale(
-    n_avail: NDArray[np.int64], n_flag: NDArray[np.int64], min_dir: int | None
-) -> NDArray[np.bool_]:
-    """SPEC "Judgment": at least 2 directions available (``n_avail``, at any scale) and, at one
-    scale (``n_flag``'s first axis), at least ``need`` of them flagged (all, or
-    ``min(available, min_directions)``)."""
-    need = n_avail if min_dir is None else np.minimum(n_avail, min_dir)
-    return (n_avail >= 2) & np.any(n_flag >= need, axis=0)
 
 
 def _window_fits(
@@ -1632,11 +1620,12 @@ def detect(
                 g, usable, cos0, scale_tuple, gap, step, reach
             )
             isolated = _isolated(usable, gap)
-            new_abn = judged & (isolated | _abnormal_at_a_scale(n_avail, n_flag, min_dir))
+            need = n_avail if min_dir is None else np.minimum(n_avail, min_dir)
+            new_abn = judged & (isolated | ((n_avail >= 2) & (n_flag >= need)))
             rest = judged & ~new_abn
             labels[new_abn] = ABNORMAL
-            labels[rest & (pass_flags != 0)] = EDGE
-            labels[rest & (pass_flags == 0)] = NORMAL
+            labels[rest & (n_flag > 0)] = EDGE
+            labels[rest & (n_flag == 0)] = NORMAL
             flags[judged] = np.where(isolated, np.uint8(0), pass_flags)[judged]
             angle[judged] = np.where(isolated, np.nan, pass_angle)[judged]
             abnormal |= new_abn
@@ -1984,8 +1973,7 @@ def _points_pass(
     """One pass over the usable points of a cloud.
 
     Returns, per point: the neighbourhood size ``|Q|``, the mask of possible neighbourhood
-    fits, the directions available (at any scale), per scale (first axis) the directions
-    flagged at that scale, the flag bitmask (flagged at any scale) and the smallest angle.
+    fits, the available and flagged direction counts, the flag bitmask and the smallest angle.
     """
     n_pts = usable.shape[0]
     m = usable[pi] & usable[pj]  # usable p and usable q (q != p: self pairs are not in the list)
@@ -1993,7 +1981,7 @@ def _points_pass(
     cnt, _, evals, evecs, ok = _group_fits(pi, w, n_pts, usable)
 
     n_avail = np.zeros(n_pts, dtype=np.int64)
-    n_flag = np.zeros((len(scales), n_pts), dtype=np.int64)
+    n_flag = np.zeros(n_pts, dtype=np.int64)
     flags = np.zeros(n_pts, dtype=np.uint8)
     angle = np.full(n_pts, np.nan)
     if not ok.any():
@@ -2030,7 +2018,7 @@ def _points_pass(
         in_minus = positive & (-td >= bound)
         dir_avail = np.zeros(n_pts, dtype=bool)
         dir_flag = np.zeros(n_pts, dtype=bool)
-        for j, s_ok in enumerate(step_ok):
+        for s_ok in step_ok:
             first_a = _first_per_group(in_minus & s_ok, pi, n_pts)  # side -1: A
             first_b = _first_per_group(in_plus & s_ok, pi, n_pts)  # side +1: B
             both = (first_a >= 0) & (first_b >= 0)
@@ -2043,10 +2031,10 @@ def _points_pass(
             cos = np.clip(uv[good] / np.sqrt(uu[good] * vv[good]), -1.0, 1.0)
             idx = np.flatnonzero(both)[good]
             dir_avail[idx] = True
-            n_flag[j, idx[cos >= cos0]] += 1
             dir_flag[idx[cos >= cos0]] = True
             angle[idx] = np.fmin(angle[idx], np.degrees(np.arccos(cos)))
         n_avail += dir_avail
+        n_flag += dir_flag
         flags[dir_flag] |= np.uint8(1 << k)
     return cnt, ok, n_avail, n_flag, flags, angle
 
@@ -2629,11 +2617,12 @@ def detect_points(
                 pi, pj, w, dist, judged, cos0, scale_tuple, step, k_dirs
             )
             small = judged & (cnt < 3)
-            new_abn = small | (judged & fit_ok & _abnormal_at_a_scale(n_avail, n_flag, min_dir))
+            need = n_avail if min_dir is None else np.minimum(n_avail, min_dir)
+            new_abn = small | (judged & fit_ok & (n_avail >= 2) & (n_flag >= need))
             rest = judged & ~new_abn
             labels[new_abn] = ABNORMAL
-            labels[rest & (pass_flags != 0)] = EDGE
-            labels[rest & (pass_flags == 0)] = NORMAL
+            labels[rest & (n_flag > 0)] = EDGE
+            labels[rest & (n_flag == 0)] = NORMAL
             flags[judged] = np.where(small, np.uint8(0), pass_flags)[judged]
             angle[judged] = np.where(small, np.nan, pass_angle)[judged]
             degenerate[judged] = (~small & ~fit_ok)[judged]
