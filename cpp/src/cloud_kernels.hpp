@@ -81,7 +81,6 @@ struct Selection {
   std::size_t n = 0;
   std::vector<double> all_d2;      // select's scratch: every candidate's squared distance
   std::vector<std::uint32_t> pos;  // select's scratch: positions of the kept candidates
-  std::vector<std::uint32_t> ball;  // ball_sums' scratch
 
   void reserve(std::size_t cap) {
     if (wx.size() < cap) {
@@ -92,7 +91,6 @@ struct Selection {
       id.resize(cap);
       all_d2.resize(cap);
       pos.resize(cap);
-      ball.resize(cap);
     }
   }
 };
@@ -394,24 +392,44 @@ inline void ball_sums(const Gather& g, const Eigen::Vector3d& p, double r2, doub
   std::uint32_t* __restrict in_pos = s.id.data();    // inner positions
   const double px = p.x(), py = p.y(), pz = p.z();
   const std::size_t n = g.n;
-  for (std::size_t k = 0; k < n; ++k) {
+  // One pass: each candidate's squared distance, then its position appended to the ring or
+  // the inner list (branch-free: which one is unpredictable).
+  std::size_t m_out = 0, m_in = 0, k = 0;
+#ifdef __SSE2__
+  {
+    // Two candidates at a time, one per half of a register: the same d2 as the scalar loop.
+    const __m128d vpx = _mm_set1_pd(px), vpy = _mm_set1_pd(py), vpz = _mm_set1_pd(pz);
+    const __m128d vr2 = _mm_set1_pd(r2), vin2 = _mm_set1_pd(in2);
+    for (; k + 1 < n; k += 2) {
+      const __m128d dx = _mm_sub_pd(_mm_loadu_pd(gx + k), vpx);
+      const __m128d dy = _mm_sub_pd(_mm_loadu_pd(gy + k), vpy);
+      const __m128d dz = _mm_sub_pd(_mm_loadu_pd(gz + k), vpz);
+      const __m128d d2 = _mm_add_pd(_mm_add_pd(_mm_mul_pd(dx, dx), _mm_mul_pd(dy, dy)),
+                                    _mm_mul_pd(dz, dz));
+      _mm_storeu_pd(all + k, d2);
+      const unsigned b = static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(d2, vr2)));
+      const unsigned in = b & static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(d2, vin2)));
+      const unsigned out = b & ~in;
+      const std::uint32_t k0 = static_cast<std::uint32_t>(k), k1 = k0 + 1;
+      out_pos[m_out] = k0;
+      m_out += out & 1u;
+      out_pos[m_out] = k1;
+      m_out += out >> 1;
+      in_pos[m_in] = k0;
+      m_in += in & 1u;
+      in_pos[m_in] = k1;
+      m_in += in >> 1;
+    }
+  }
+#endif
+  for (; k < n; ++k) {
     const double dx = gx[k] - px, dy = gy[k] - py, dz = gz[k] - pz;
-    all[k] = dx * dx + dy * dy + dz * dz;
-  }
-  // The ball first (most candidates are outside it), then inner or ring.
-  std::uint32_t* __restrict ball = s.ball.data();
-  std::size_t m = 0;
-  for (std::size_t k = 0; k < n; ++k) {
-    ball[m] = static_cast<std::uint32_t>(k);
-    m += static_cast<std::size_t>(all[k] <= r2);
-  }
-  std::size_t m_out = 0, m_in = 0;
-  for (std::size_t q = 0; q < m; ++q) {
-    const std::uint32_t k = ball[q];
-    const bool in = all[k] <= in2;
-    out_pos[m_out] = k;
-    in_pos[m_in] = k;
-    m_out += static_cast<std::size_t>(!in);
+    const double d2 = dx * dx + dy * dy + dz * dz;
+    all[k] = d2;
+    const bool b = d2 <= r2, in = b && d2 <= in2;
+    out_pos[m_out] = static_cast<std::uint32_t>(k);
+    in_pos[m_in] = static_cast<std::uint32_t>(k);
+    m_out += static_cast<std::size_t>(b && !in);
     m_in += static_cast<std::size_t>(in);
   }
   *ring = offset_sums(g, out_pos, m_out, p);
@@ -510,7 +528,11 @@ class PointJudge {
     js.best_key.assign(slots, ~std::uint64_t{0});
     switch (S) {  // the scale count as a constant where it is small: the slot loop unrolled
       case 1: nearest_slots<1>(s, js, S); break;
+#ifdef __SSE2__
+      case 2: nearest_slots_two(s, js); break;
+#else
       case 2: nearest_slots<2>(s, js, S); break;
+#endif
       case 3: nearest_slots<3>(s, js, S); break;
       default: nearest_slots<0>(s, js, S); break;
     }
@@ -658,6 +680,58 @@ class PointJudge {
       }
     }
   }
+
+#ifdef __SSE2__
+  // nearest_slots for two scales (the default): a slot's two scales are the two halves of a
+  // register. The best d2 is compared as a double (+inf: empty) rather than by its bits, the
+  // same order for d2 >= 0; ties (equal d2, rare) go to the smaller index as in nearest_slots,
+  // and an empty slot takes any neighbour.
+  void nearest_slots_two(const Selection& s, JudgeScratch& js) const {
+    constexpr int kSlots = kMaxDirections * 2 * 2;
+    alignas(16) double bd[kSlots];
+    alignas(16) std::int64_t bi[kSlots];
+    const int slots = K_ * 2 * 2;
+    for (int q = 0; q < slots; ++q) {
+      bd[q] = kInf;
+      bi[q] = -1;
+    }
+    const double* __restrict tl = js.tlen.data();
+    const std::uint16_t* __restrict hits = js.hits.data();
+    const double* __restrict sd2 = s.d2.data();
+    const std::uint32_t* __restrict sid = s.id.data();
+    const __m128d vstep = _mm_loadu_pd(step_.data());
+    const int n_sel = static_cast<int>(s.n);
+    for (int m = 0; m < n_sel; ++m) {
+      unsigned h = hits[m];
+      if (h == 0) continue;
+      const __m128d key = _mm_set1_pd(sd2[m]);
+      const __m128d far = _mm_cmple_pd(vstep, _mm_set1_pd(tl[m]));  // tlen >= step[si]
+      const __m128i vm = _mm_set1_epi64x(m);
+      while (h != 0) {
+        const int q = 2 * __builtin_ctz(h);  // slot (k, side) = bit, scales q and q + 1
+        h &= h - 1;
+        const __m128d cur = _mm_load_pd(bd + q);
+        __m128d nearer = _mm_cmplt_pd(key, cur);
+        if (__builtin_expect(_mm_movemask_pd(_mm_cmpeq_pd(key, cur)) != 0, 0)) {
+          alignas(16) std::int64_t tie[2];
+          for (int l = 0; l < 2; ++l) {
+            tie[l] = sd2[m] == bd[q + l] && (bi[q + l] < 0 || sid[m] < sid[bi[q + l]]) ? -1 : 0;
+          }
+          nearer = _mm_or_pd(nearer, _mm_castsi128_pd(_mm_load_si128(
+                                         reinterpret_cast<const __m128i*>(tie))));
+        }
+        const __m128d better = _mm_and_pd(nearer, far);
+        _mm_store_pd(bd + q, _mm_or_pd(_mm_and_pd(better, key), _mm_andnot_pd(better, cur)));
+        const __m128i bm = _mm_castpd_si128(better);
+        __m128i* slot = reinterpret_cast<__m128i*>(bi + q);
+        _mm_store_si128(slot, _mm_or_si128(_mm_and_si128(bm, vm),
+                                           _mm_andnot_si128(bm, _mm_load_si128(slot))));
+      }
+    }
+    int* bmo = js.best_m.data();
+    for (int q = 0; q < slots; ++q) bmo[q] = static_cast<int>(bi[q]);
+  }
+#endif
 
   double r2_, min_step_;
   int K_, min_dirs_;
