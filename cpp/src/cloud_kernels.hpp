@@ -95,6 +95,45 @@ struct Selection {
   }
 };
 
+#ifdef __SSE2__
+// Branch-free compaction of 4 candidates: for a 4-bit mask (bit l: candidate l is kept), the
+// kept lanes packed to the front, ascending (lane[mask]), and how many there are (count[mask]).
+struct CompactTable {
+  alignas(16) std::uint32_t lane[16][4];
+  std::uint32_t count[16];
+};
+constexpr CompactTable make_compact_table() {
+  CompactTable t{};
+  for (unsigned m = 0; m < 16; ++m) {
+    unsigned c = 0;
+    for (unsigned l = 0; l < 4; ++l) {
+      if (m >> l & 1u) t.lane[m][c++] = l;
+    }
+    t.count[m] = c;
+  }
+  return t;
+}
+inline constexpr CompactTable kCompact = make_compact_table();
+
+// Appends k + (the kept lanes of `mask`) at pos + m (`k`: k in every lane) and returns the new
+// m. Writes 4 entries: pos must have room for m + 4 of them.
+inline std::size_t compact4(std::uint32_t* pos, std::size_t m, unsigned mask, __m128i k) {
+  const __m128i lanes = _mm_load_si128(reinterpret_cast<const __m128i*>(kCompact.lane[mask]));
+  _mm_storeu_si128(reinterpret_cast<__m128i*>(pos + m), _mm_add_epi32(lanes, k));
+  return m + kCompact.count[mask];
+}
+
+// Squared distances from (px, py, pz) of candidates k, k + 1 of g (the scalar formula's
+// operations in its order: the same bits).
+inline __m128d d2_pair(const double* gx, const double* gy, const double* gz, std::size_t k,
+                       __m128d px, __m128d py, __m128d pz) {
+  const __m128d dx = _mm_sub_pd(_mm_loadu_pd(gx + k), px);
+  const __m128d dy = _mm_sub_pd(_mm_loadu_pd(gy + k), py);
+  const __m128d dz = _mm_sub_pd(_mm_loadu_pd(gz + k), pz);
+  return _mm_add_pd(_mm_add_pd(_mm_mul_pd(dx, dx), _mm_mul_pd(dy, dy)), _mm_mul_pd(dz, dz));
+}
+#endif
+
 // Calls f(position in order(), index) for every point of `box`, in cell-key order.
 template <typename T, typename F>
 void for_each_in_box(const NeighborGrid<T>& grid, const CellBox& box, F&& f) {
@@ -133,9 +172,8 @@ void gather_split(const NeighborGrid<T>& grid, const CellBox& box, ClassOf&& cla
 }
 
 // Select the gathered points within r of p (excluding index `self`, pass -1 to keep it), in
-// gather order. Three loops: every candidate's squared distance (vectorised: no dependence
-// between candidates), the positions of the kept ones (a branch-free compaction), then their
-// offsets.
+// gather order. Two loops: every candidate's squared distance and the positions of the kept ones
+// (a branch-free compaction, four at a time with SSE2), then their offsets.
 inline void select(const Gather& g, const Eigen::Vector3d& p, double r2, std::int64_t self,
                    Selection& s) {
   s.reserve(g.n + 1);
@@ -147,12 +185,29 @@ inline void select(const Gather& g, const Eigen::Vector3d& p, double r2, std::in
   std::uint32_t* __restrict pos = s.pos.data();
   const double px = p.x(), py = p.y(), pz = p.z();
   const std::size_t n = g.n;
-  for (std::size_t k = 0; k < n; ++k) {
+  std::size_t m = 0, k = 0;
+#ifdef __SSE2__
+  {
+    // Four candidates at a time (two registers), compacted by table.
+    const __m128d vpx = _mm_set1_pd(px), vpy = _mm_set1_pd(py), vpz = _mm_set1_pd(pz);
+    const __m128d vr2 = _mm_set1_pd(r2);
+    __m128i vk = _mm_setzero_si128();  // k in every lane
+    const __m128i four = _mm_set1_epi32(4);
+    for (; k + 3 < n; k += 4) {
+      const __m128d a = d2_pair(gx, gy, gz, k, vpx, vpy, vpz);
+      const __m128d b = d2_pair(gx, gy, gz, k + 2, vpx, vpy, vpz);
+      _mm_storeu_pd(all + k, a);
+      _mm_storeu_pd(all + k + 2, b);
+      const unsigned keep = static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(a, vr2))) |
+                            static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(b, vr2))) << 2;
+      m = compact4(pos, m, keep, vk);
+      vk = _mm_add_epi32(vk, four);
+    }
+  }
+#endif
+  for (; k < n; ++k) {
     const double dx = gx[k] - px, dy = gy[k] - py, dz = gz[k] - pz;
     all[k] = dx * dx + dy * dy + dz * dz;
-  }
-  std::size_t m = 0;
-  for (std::size_t k = 0; k < n; ++k) {
     pos[m] = static_cast<std::uint32_t>(k);
     m += static_cast<std::size_t>(all[k] <= r2);
   }
@@ -397,28 +452,24 @@ inline void ball_sums(const Gather& g, const Eigen::Vector3d& p, double r2, doub
   std::size_t m_out = 0, m_in = 0, k = 0;
 #ifdef __SSE2__
   {
-    // Two candidates at a time, one per half of a register: the same d2 as the scalar loop.
+    // Four candidates at a time (two registers), compacted by table.
     const __m128d vpx = _mm_set1_pd(px), vpy = _mm_set1_pd(py), vpz = _mm_set1_pd(pz);
     const __m128d vr2 = _mm_set1_pd(r2), vin2 = _mm_set1_pd(in2);
-    for (; k + 1 < n; k += 2) {
-      const __m128d dx = _mm_sub_pd(_mm_loadu_pd(gx + k), vpx);
-      const __m128d dy = _mm_sub_pd(_mm_loadu_pd(gy + k), vpy);
-      const __m128d dz = _mm_sub_pd(_mm_loadu_pd(gz + k), vpz);
-      const __m128d d2 = _mm_add_pd(_mm_add_pd(_mm_mul_pd(dx, dx), _mm_mul_pd(dy, dy)),
-                                    _mm_mul_pd(dz, dz));
-      _mm_storeu_pd(all + k, d2);
-      const unsigned b = static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(d2, vr2)));
-      const unsigned in = b & static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(d2, vin2)));
-      const unsigned out = b & ~in;
-      const std::uint32_t k0 = static_cast<std::uint32_t>(k), k1 = k0 + 1;
-      out_pos[m_out] = k0;
-      m_out += out & 1u;
-      out_pos[m_out] = k1;
-      m_out += out >> 1;
-      in_pos[m_in] = k0;
-      m_in += in & 1u;
-      in_pos[m_in] = k1;
-      m_in += in >> 1;
+    __m128i vk = _mm_setzero_si128();  // k in every lane
+    const __m128i four = _mm_set1_epi32(4);
+    for (; k + 3 < n; k += 4) {
+      const __m128d a = d2_pair(gx, gy, gz, k, vpx, vpy, vpz);
+      const __m128d b = d2_pair(gx, gy, gz, k + 2, vpx, vpy, vpz);
+      _mm_storeu_pd(all + k, a);
+      _mm_storeu_pd(all + k + 2, b);
+      const unsigned ball = static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(a, vr2))) |
+                            static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(b, vr2))) << 2;
+      const unsigned in = ball & (static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(a, vin2))) |
+                                  static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(b, vin2)))
+                                      << 2);
+      m_out = compact4(out_pos, m_out, ball & ~in, vk);
+      m_in = compact4(in_pos, m_in, in, vk);
+      vk = _mm_add_epi32(vk, four);
     }
   }
 #endif
