@@ -246,3 +246,25 @@ def test_bad_points(points, match):
 def test_bad_parameters(kwargs, match):
     with pytest.raises(ValueError, match=match):
         detect_points(patch(n=6), **kwargs)
+
+
+@pytest.mark.parametrize("a_first", [True, False])
+@pytest.mark.parametrize("threads", [1, 2])
+def test_equal_distances_in_a_cone_go_to_the_smaller_index(a_first, threads):
+    # SPEC "Unorganized clouds": a slot's neighbour is the nearest, then the smallest index. P's
+    # +x cone holds A and B at the same distance (mirror images in y) and the -x cone C, so P's
+    # angle is the angle APC or BPC, whichever of A and B has the smaller index. A far point
+    # fixes the grid origin so that a cell boundary (y = -0.1) separates B (gathered first) from
+    # A: the rule is not "first gathered".
+    P, A, B, C = [0.0, 0, 0], [1.0, 0.2, 0], [1.0, -0.2, 0], [-1.0, 0.3, 0]
+    rest = [[-2.0, 0, 0], [2.0, 0, 0], [-3.0, -2.6, 0]]
+    pts = np.array([P, A, B, C] + rest if a_first else [P, B, A, C] + rest)
+    res = detect_points(pts, radius=2.5, min_step=0.1, K=2, max_iterations=1,
+                        num_threads=threads)
+    q = np.array(A if a_first else B)
+    c = np.array(C)
+    expected = np.degrees(np.arccos(q @ c / np.sqrt((q @ q) * (c @ c))))
+    assert res.angle[0] == pytest.approx(expected, abs=1e-9)
+    other = np.array(B if a_first else A)
+    assert abs(np.degrees(np.arccos(other @ c / np.sqrt((other @ other) * (c @ c))))
+               - expected) > 1.0  # the two choices differ: the test can tell them apart

@@ -303,6 +303,26 @@ bool cloud_edge_judge(const Gather& sup, const Gather& rest, const std::uint8_t*
   return below != 0 && hangs(sup, rest, labels, i, p, f, e, sd, below);
 }
 
+// Splits the gathered finite points `g` as gather_split does with the edge test's classes: the
+// NORMAL ones stay in `g` (in order), the others go to `rest` (in order).
+void split_normal(const std::uint8_t* labels, Gather& g, Gather& rest) {
+  rest.clear();
+  std::size_t m = 0;
+  for (std::size_t k = 0; k < g.n; ++k) {
+    const Eigen::Vector3d q(g.x[k], g.y[k], g.z[k]);
+    if (labels[g.id[k]] == kNormal) {
+      g.x[m] = q.x();
+      g.y[m] = q.y();
+      g.z[m] = q.z();
+      g.id[m] = g.id[k];
+      ++m;
+    } else {
+      rest.push(q, g.id[k]);
+    }
+  }
+  g.n = m;
+}
+
 }  // namespace
 
 template <typename T>
@@ -326,9 +346,15 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
     std::vector<double>().swap(*first_rms);  // free N doubles before the frames (peak memory)
   }
   // Frames: the plane of the finite points within radius, the point included (as the normals).
+  // When the frame's disk is the sectors' (e.radius == e.r_edge, as detect_points sets them),
+  // the first pass's verdicts come from the same gather: its NORMAL points (the labels do not
+  // change before the first pass) are the support, the others the rest, each in gather order,
+  // as gather_split would list them.
   const std::ptrdiff_t nc = static_cast<std::ptrdiff_t>(cand.size());
   std::vector<Frame> frame(cand.size());
   std::vector<std::uint8_t> framed(cand.size(), 0);
+  const bool first_here = e.radius == e.r_edge;
+  std::vector<std::uint8_t> first_verdict(first_here ? cand.size() : 0, 0);
   const double fr2 = e.radius * e.radius;
   auto every = [](std::uint32_t, std::uint32_t) { return true; };
   {
@@ -344,6 +370,10 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
       frame[c].e1 = lp.major;
       frame[c].e2 = lp.normal.cross(lp.major);
       framed[c] = 1;
+      if (first_here) {
+        split_normal(labels, js.gather, js.aside);
+        first_verdict[c] = cloud_edge_judge(js.gather, js.aside, labels, cand[c], p, frame[c], e);
+      }
     }
   }
   std::vector<std::uint32_t> todo;
@@ -359,20 +389,25 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
   int passes = 0;
   while (passes < e.max_iterations) {
     ++passes;
-    for (std::ptrdiff_t k = 0; k < grid.num_indexed(); ++k) {
-      class_sorted[k] = labels[order[k]] == kNormal ? kClassMain : kClassAside;
-    }
     const std::ptrdiff_t nj = static_cast<std::ptrdiff_t>(todo.size());
     verdict.assign(todo.size(), 0);
-    const int ntj = std::min(nt, detail::thread_count(num_threads, nj, 256));
+    if (passes == 1 && first_here) {  // judged with the frames
+      for (std::ptrdiff_t j = 0; j < nj; ++j) verdict[j] = first_verdict[todo[j]];
+      std::vector<std::uint8_t>().swap(first_verdict);
+    } else {
+      for (std::ptrdiff_t k = 0; k < grid.num_indexed(); ++k) {
+        class_sorted[k] = labels[order[k]] == kNormal ? kClassMain : kClassAside;
+      }
+      const int ntj = std::min(nt, detail::thread_count(num_threads, nj, 256));
 #pragma omp parallel for schedule(dynamic, 32) num_threads(ntj) if (ntj > 1)
-    for (std::ptrdiff_t j = 0; j < nj; ++j) {
-      const std::uint32_t c = todo[j], i = cand[c];
-      if (labels[i] != kNormal && labels[i] != kEdge) continue;
-      JudgeScratch& js = scratch[thread_id()];
-      const Eigen::Vector3d p = points[i];
-      gather_split(grid, grid.box_around(p, p, e.r_edge), class_of, js.gather, js.aside);
-      verdict[j] = cloud_edge_judge(js.gather, js.aside, labels, i, p, frame[c], e);
+      for (std::ptrdiff_t j = 0; j < nj; ++j) {
+        const std::uint32_t c = todo[j], i = cand[c];
+        if (labels[i] != kNormal && labels[i] != kEdge) continue;
+        JudgeScratch& js = scratch[thread_id()];
+        const Eigen::Vector3d p = points[i];
+        gather_split(grid, grid.box_around(p, p, e.r_edge), class_of, js.gather, js.aside);
+        verdict[j] = cloud_edge_judge(js.gather, js.aside, labels, i, p, frame[c], e);
+      }
     }
     fresh.clear();
     for (std::ptrdiff_t j = 0; j < nj; ++j) {

@@ -81,7 +81,6 @@ struct Selection {
   std::size_t n = 0;
   std::vector<double> all_d2;      // select's scratch: every candidate's squared distance
   std::vector<std::uint32_t> pos;  // select's scratch: positions of the kept candidates
-  std::vector<std::uint32_t> ball;  // ball_sums' scratch
 
   void reserve(std::size_t cap) {
     if (wx.size() < cap) {
@@ -92,10 +91,48 @@ struct Selection {
       id.resize(cap);
       all_d2.resize(cap);
       pos.resize(cap);
-      ball.resize(cap);
     }
   }
 };
+
+#ifdef __SSE2__
+// Branch-free compaction of 4 candidates: for a 4-bit mask (bit l: candidate l is kept), the
+// kept lanes packed to the front, ascending (lane[mask]), and how many there are (count[mask]).
+struct CompactTable {
+  alignas(16) std::uint32_t lane[16][4];
+  std::uint32_t count[16];
+};
+constexpr CompactTable make_compact_table() {
+  CompactTable t{};
+  for (unsigned m = 0; m < 16; ++m) {
+    unsigned c = 0;
+    for (unsigned l = 0; l < 4; ++l) {
+      if (m >> l & 1u) t.lane[m][c++] = l;
+    }
+    t.count[m] = c;
+  }
+  return t;
+}
+inline constexpr CompactTable kCompact = make_compact_table();
+
+// Appends k + (the kept lanes of `mask`) at pos + m (`k`: k in every lane) and returns the new
+// m. Writes 4 entries: pos must have room for m + 4 of them.
+inline std::size_t compact4(std::uint32_t* pos, std::size_t m, unsigned mask, __m128i k) {
+  const __m128i lanes = _mm_load_si128(reinterpret_cast<const __m128i*>(kCompact.lane[mask]));
+  _mm_storeu_si128(reinterpret_cast<__m128i*>(pos + m), _mm_add_epi32(lanes, k));
+  return m + kCompact.count[mask];
+}
+
+// Squared distances from (px, py, pz) of candidates k, k + 1 of g (the scalar formula's
+// operations in its order: the same bits).
+inline __m128d d2_pair(const double* gx, const double* gy, const double* gz, std::size_t k,
+                       __m128d px, __m128d py, __m128d pz) {
+  const __m128d dx = _mm_sub_pd(_mm_loadu_pd(gx + k), px);
+  const __m128d dy = _mm_sub_pd(_mm_loadu_pd(gy + k), py);
+  const __m128d dz = _mm_sub_pd(_mm_loadu_pd(gz + k), pz);
+  return _mm_add_pd(_mm_add_pd(_mm_mul_pd(dx, dx), _mm_mul_pd(dy, dy)), _mm_mul_pd(dz, dz));
+}
+#endif
 
 // Calls f(position in order(), index) for every point of `box`, in cell-key order.
 template <typename T, typename F>
@@ -135,9 +172,8 @@ void gather_split(const NeighborGrid<T>& grid, const CellBox& box, ClassOf&& cla
 }
 
 // Select the gathered points within r of p (excluding index `self`, pass -1 to keep it), in
-// gather order. Three loops: every candidate's squared distance (vectorised: no dependence
-// between candidates), the positions of the kept ones (a branch-free compaction), then their
-// offsets.
+// gather order. Two loops: every candidate's squared distance and the positions of the kept ones
+// (a branch-free compaction, four at a time with SSE2), then their offsets.
 inline void select(const Gather& g, const Eigen::Vector3d& p, double r2, std::int64_t self,
                    Selection& s) {
   s.reserve(g.n + 1);
@@ -149,12 +185,29 @@ inline void select(const Gather& g, const Eigen::Vector3d& p, double r2, std::in
   std::uint32_t* __restrict pos = s.pos.data();
   const double px = p.x(), py = p.y(), pz = p.z();
   const std::size_t n = g.n;
-  for (std::size_t k = 0; k < n; ++k) {
+  std::size_t m = 0, k = 0;
+#ifdef __SSE2__
+  {
+    // Four candidates at a time (two registers), compacted by table.
+    const __m128d vpx = _mm_set1_pd(px), vpy = _mm_set1_pd(py), vpz = _mm_set1_pd(pz);
+    const __m128d vr2 = _mm_set1_pd(r2);
+    __m128i vk = _mm_setzero_si128();  // k in every lane
+    const __m128i four = _mm_set1_epi32(4);
+    for (; k + 3 < n; k += 4) {
+      const __m128d a = d2_pair(gx, gy, gz, k, vpx, vpy, vpz);
+      const __m128d b = d2_pair(gx, gy, gz, k + 2, vpx, vpy, vpz);
+      _mm_storeu_pd(all + k, a);
+      _mm_storeu_pd(all + k + 2, b);
+      const unsigned keep = static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(a, vr2))) |
+                            static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(b, vr2))) << 2;
+      m = compact4(pos, m, keep, vk);
+      vk = _mm_add_epi32(vk, four);
+    }
+  }
+#endif
+  for (; k < n; ++k) {
     const double dx = gx[k] - px, dy = gy[k] - py, dz = gz[k] - pz;
     all[k] = dx * dx + dy * dy + dz * dz;
-  }
-  std::size_t m = 0;
-  for (std::size_t k = 0; k < n; ++k) {
     pos[m] = static_cast<std::uint32_t>(k);
     m += static_cast<std::size_t>(all[k] <= r2);
   }
@@ -394,24 +447,40 @@ inline void ball_sums(const Gather& g, const Eigen::Vector3d& p, double r2, doub
   std::uint32_t* __restrict in_pos = s.id.data();    // inner positions
   const double px = p.x(), py = p.y(), pz = p.z();
   const std::size_t n = g.n;
-  for (std::size_t k = 0; k < n; ++k) {
+  // One pass: each candidate's squared distance, then its position appended to the ring or
+  // the inner list (branch-free: which one is unpredictable).
+  std::size_t m_out = 0, m_in = 0, k = 0;
+#ifdef __SSE2__
+  {
+    // Four candidates at a time (two registers), compacted by table.
+    const __m128d vpx = _mm_set1_pd(px), vpy = _mm_set1_pd(py), vpz = _mm_set1_pd(pz);
+    const __m128d vr2 = _mm_set1_pd(r2), vin2 = _mm_set1_pd(in2);
+    __m128i vk = _mm_setzero_si128();  // k in every lane
+    const __m128i four = _mm_set1_epi32(4);
+    for (; k + 3 < n; k += 4) {
+      const __m128d a = d2_pair(gx, gy, gz, k, vpx, vpy, vpz);
+      const __m128d b = d2_pair(gx, gy, gz, k + 2, vpx, vpy, vpz);
+      _mm_storeu_pd(all + k, a);
+      _mm_storeu_pd(all + k + 2, b);
+      const unsigned ball = static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(a, vr2))) |
+                            static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(b, vr2))) << 2;
+      const unsigned in = ball & (static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(a, vin2))) |
+                                  static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(b, vin2)))
+                                      << 2);
+      m_out = compact4(out_pos, m_out, ball & ~in, vk);
+      m_in = compact4(in_pos, m_in, in, vk);
+      vk = _mm_add_epi32(vk, four);
+    }
+  }
+#endif
+  for (; k < n; ++k) {
     const double dx = gx[k] - px, dy = gy[k] - py, dz = gz[k] - pz;
-    all[k] = dx * dx + dy * dy + dz * dz;
-  }
-  // The ball first (most candidates are outside it), then inner or ring.
-  std::uint32_t* __restrict ball = s.ball.data();
-  std::size_t m = 0;
-  for (std::size_t k = 0; k < n; ++k) {
-    ball[m] = static_cast<std::uint32_t>(k);
-    m += static_cast<std::size_t>(all[k] <= r2);
-  }
-  std::size_t m_out = 0, m_in = 0;
-  for (std::size_t q = 0; q < m; ++q) {
-    const std::uint32_t k = ball[q];
-    const bool in = all[k] <= in2;
-    out_pos[m_out] = k;
-    in_pos[m_in] = k;
-    m_out += static_cast<std::size_t>(!in);
+    const double d2 = dx * dx + dy * dy + dz * dz;
+    all[k] = d2;
+    const bool b = d2 <= r2, in = b && d2 <= in2;
+    out_pos[m_out] = static_cast<std::uint32_t>(k);
+    in_pos[m_in] = static_cast<std::uint32_t>(k);
+    m_out += static_cast<std::size_t>(b && !in);
     m_in += static_cast<std::size_t>(in);
   }
   *ring = offset_sums(g, out_pos, m_out, p);
@@ -510,7 +579,11 @@ class PointJudge {
     js.best_key.assign(slots, ~std::uint64_t{0});
     switch (S) {  // the scale count as a constant where it is small: the slot loop unrolled
       case 1: nearest_slots<1>(s, js, S); break;
+#ifdef __SSE2__
+      case 2: nearest_slots_two(s, js); break;
+#else
       case 2: nearest_slots<2>(s, js, S); break;
+#endif
       case 3: nearest_slots<3>(s, js, S); break;
       default: nearest_slots<0>(s, js, S); break;
     }
@@ -658,6 +731,58 @@ class PointJudge {
       }
     }
   }
+
+#ifdef __SSE2__
+  // nearest_slots for two scales (the default): a slot's two scales are the two halves of a
+  // register. The best d2 is compared as a double (+inf: empty) rather than by its bits, the
+  // same order for d2 >= 0; ties (equal d2, rare) go to the smaller index as in nearest_slots,
+  // and an empty slot takes any neighbour.
+  void nearest_slots_two(const Selection& s, JudgeScratch& js) const {
+    constexpr int kSlots = kMaxDirections * 2 * 2;
+    alignas(16) double bd[kSlots];
+    alignas(16) std::int64_t bi[kSlots];
+    const int slots = K_ * 2 * 2;
+    for (int q = 0; q < slots; ++q) {
+      bd[q] = kInf;
+      bi[q] = -1;
+    }
+    const double* __restrict tl = js.tlen.data();
+    const std::uint16_t* __restrict hits = js.hits.data();
+    const double* __restrict sd2 = s.d2.data();
+    const std::uint32_t* __restrict sid = s.id.data();
+    const __m128d vstep = _mm_loadu_pd(step_.data());
+    const int n_sel = static_cast<int>(s.n);
+    for (int m = 0; m < n_sel; ++m) {
+      unsigned h = hits[m];
+      if (h == 0) continue;
+      const __m128d key = _mm_set1_pd(sd2[m]);
+      const __m128d far = _mm_cmple_pd(vstep, _mm_set1_pd(tl[m]));  // tlen >= step[si]
+      const __m128i vm = _mm_set1_epi64x(m);
+      while (h != 0) {
+        const int q = 2 * __builtin_ctz(h);  // slot (k, side) = bit, scales q and q + 1
+        h &= h - 1;
+        const __m128d cur = _mm_load_pd(bd + q);
+        __m128d nearer = _mm_cmplt_pd(key, cur);
+        if (__builtin_expect(_mm_movemask_pd(_mm_cmpeq_pd(key, cur)) != 0, 0)) {
+          alignas(16) std::int64_t tie[2];
+          for (int l = 0; l < 2; ++l) {
+            tie[l] = sd2[m] == bd[q + l] && (bi[q + l] < 0 || sid[m] < sid[bi[q + l]]) ? -1 : 0;
+          }
+          nearer = _mm_or_pd(nearer, _mm_castsi128_pd(_mm_load_si128(
+                                         reinterpret_cast<const __m128i*>(tie))));
+        }
+        const __m128d better = _mm_and_pd(nearer, far);
+        _mm_store_pd(bd + q, _mm_or_pd(_mm_and_pd(better, key), _mm_andnot_pd(better, cur)));
+        const __m128i bm = _mm_castpd_si128(better);
+        __m128i* slot = reinterpret_cast<__m128i*>(bi + q);
+        _mm_store_si128(slot, _mm_or_si128(_mm_and_si128(bm, vm),
+                                           _mm_andnot_si128(bm, _mm_load_si128(slot))));
+      }
+    }
+    int* bmo = js.best_m.data();
+    for (int q = 0; q < slots; ++q) bmo[q] = static_cast<int>(bi[q]);
+  }
+#endif
 
   double r2_, min_step_;
   int K_, min_dirs_;
