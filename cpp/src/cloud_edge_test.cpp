@@ -6,6 +6,9 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#ifdef __SSE2__
+#include <emmintrin.h>
+#endif
 
 #include "cloud_stages.hpp"
 #include "edge_verdict.hpp"
@@ -160,22 +163,98 @@ struct Frame {
   Eigen::Vector3d e1, e2;
 };
 
-// Calls visit(k, o, wx, wy, wz) for each point k of `ball` (the points within r_edge of P, index
-// i, offsets w = q - P: select's) that is a sector member of P: not P, at least `gap` from P in
-// the tangent plane; o its octant.
-template <typename Visit>
-void for_each_member(const Selection& ball, std::uint32_t i, const Frame& f,
-                     const CloudEdgeTest& e, Visit&& visit) {
+// Octants of the members of a run of `ball` (see for_each_member): oc[q] = the octant of point
+// k0 + q, or kNotMember. P itself (and any point at P's tangent position) has rho = 0: never a
+// member, so P's index needs no test.
+constexpr std::uint8_t kNotMember = 8;
+
+#ifdef __SSE2__
+// The octant of a member by table (member_octants' code: bit 0 a > 0, 1 a < 0, 2 b > 0, 3 b == 0,
+// 4 b < a, 5 b > -a, 6 a < b, 7 b < -a), kNotMember for the codes of non-members (bit 8).
+struct OctantTable {
+  std::uint8_t oct[512];
+  OctantTable() {
+    for (int c = 0; c < 512; ++c) {
+      const bool ap = c & 1, an = c >> 1 & 1, bp = c >> 2 & 1, bz = c >> 3 & 1;
+      const bool lt = c >> 4 & 1, pn = c >> 5 & 1, gt = c >> 6 & 1, nn = c >> 7 & 1;
+      int o;  // octant(a, b), from the same comparisons
+      if (bp || (bz && ap)) {
+        o = ap ? (lt ? 0 : 1) : (pn ? 2 : 3);
+      } else {
+        o = an ? (gt ? 4 : 5) : (nn ? 6 : 7);
+      }
+      oct[c] = c >> 8 ? kNotMember : static_cast<std::uint8_t>(o);
+    }
+  }
+};
+const OctantTable kOctants;
+#endif
+
+inline void member_octants(const Selection& ball, std::size_t k0, std::size_t n, const Frame& f,
+                           double gap, std::uint8_t* __restrict oc) {
+  const double* __restrict X = ball.wx.data() + k0;
+  const double* __restrict Y = ball.wy.data() + k0;
+  const double* __restrict Z = ball.wz.data() + k0;
   const double e1x = f.e1.x(), e1y = f.e1.y(), e1z = f.e1.z();
   const double e2x = f.e2.x(), e2y = f.e2.y(), e2z = f.e2.z();
-  for (std::size_t k = 0; k < ball.n; ++k) {
-    if (ball.id[k] == i) continue;
-    const double wx = ball.wx[k], wy = ball.wy[k], wz = ball.wz[k];
+  std::size_t q = 0;
+#ifdef __SSE2__
+  {
+    // Two at a time: the same operations in the same order as the scalar tail (the same bits);
+    // the comparisons' results as a code in each lane (a small integer double), then the table.
+    const __m128d v1x = _mm_set1_pd(e1x), v1y = _mm_set1_pd(e1y), v1z = _mm_set1_pd(e1z);
+    const __m128d v2x = _mm_set1_pd(e2x), v2y = _mm_set1_pd(e2y), v2z = _mm_set1_pd(e2z);
+    const __m128d zero = _mm_setzero_pd(), vgap = _mm_set1_pd(gap);
+    const __m128d sign = _mm_set1_pd(-0.0);
+    auto bit = [](__m128d m, double v) { return _mm_and_pd(m, _mm_set1_pd(v)); };
+    for (; q + 1 < n; q += 2) {
+      const __m128d wx = _mm_loadu_pd(X + q), wy = _mm_loadu_pd(Y + q), wz = _mm_loadu_pd(Z + q);
+      const __m128d a = _mm_add_pd(_mm_add_pd(_mm_mul_pd(wx, v1x), _mm_mul_pd(wy, v1y)),
+                                   _mm_mul_pd(wz, v1z));
+      const __m128d b = _mm_add_pd(_mm_add_pd(_mm_mul_pd(wx, v2x), _mm_mul_pd(wy, v2y)),
+                                   _mm_mul_pd(wz, v2z));
+      const __m128d rho = _mm_sqrt_pd(_mm_add_pd(_mm_mul_pd(a, a), _mm_mul_pd(b, b)));
+      const __m128d in = _mm_and_pd(_mm_cmpgt_pd(rho, zero), _mm_cmpge_pd(rho, vgap));
+      const __m128d na = _mm_xor_pd(a, sign);
+      __m128d code = _mm_add_pd(bit(_mm_cmpgt_pd(a, zero), 1.0), bit(_mm_cmplt_pd(a, zero), 2.0));
+      code = _mm_add_pd(code, bit(_mm_cmpgt_pd(b, zero), 4.0));
+      code = _mm_add_pd(code, bit(_mm_cmpeq_pd(b, zero), 8.0));
+      code = _mm_add_pd(code, bit(_mm_cmplt_pd(b, a), 16.0));
+      code = _mm_add_pd(code, bit(_mm_cmpgt_pd(b, na), 32.0));
+      code = _mm_add_pd(code, bit(_mm_cmplt_pd(a, b), 64.0));
+      code = _mm_add_pd(code, bit(_mm_cmplt_pd(b, na), 128.0));
+      code = _mm_add_pd(code, _mm_andnot_pd(in, _mm_set1_pd(256.0)));
+      const __m128i c = _mm_cvttpd_epi32(code);
+      oc[q] = kOctants.oct[_mm_cvtsi128_si32(c)];
+      oc[q + 1] = kOctants.oct[_mm_cvtsi128_si32(_mm_shuffle_epi32(c, 1))];
+    }
+  }
+#endif
+  for (; q < n; ++q) {
+    const double wx = X[q], wy = Y[q], wz = Z[q];
     const double a = wx * e1x + wy * e1y + wz * e1z;
     const double b = wx * e2x + wy * e2y + wz * e2z;
     const double rho = std::sqrt(a * a + b * b);
-    if (!(rho > 0.0 && rho >= e.gap)) continue;
-    visit(k, octant(a, b), wx, wy, wz);
+    oc[q] = rho > 0.0 && rho >= gap ? static_cast<std::uint8_t>(octant(a, b)) : kNotMember;
+  }
+}
+
+// Calls visit(k, o, wx, wy, wz) for each point k of `ball` (the points within r_edge of P,
+// offsets w = q - P: select's) that is a sector member of P: not P, at least `gap` from P in the
+// tangent plane (SPEC step 3); o its octant. In gather order.
+template <typename Visit>
+void for_each_member(const Selection& ball, const Frame& f, const CloudEdgeTest& e,
+                     Visit&& visit) {
+  constexpr std::size_t kRun = 256;
+  std::uint8_t oc[kRun];
+  for (std::size_t k0 = 0; k0 < ball.n; k0 += kRun) {
+    const std::size_t m = std::min(kRun, ball.n - k0);
+    member_octants(ball, k0, m, f, e.gap, oc);
+    for (std::size_t q = 0; q < m; ++q) {
+      if (oc[q] == kNotMember) continue;
+      const std::size_t k = k0 + q;
+      visit(k, oc[q], ball.wx[k], ball.wy[k], ball.wz[k]);
+    }
   }
 }
 
@@ -191,7 +270,7 @@ inline bool in_sector(int o, int s) { return (o - s % 8 + 8) % 8 < (s < 8 ? 2 : 
 // (u . v)^2 > v.v - (u . v)^2; a shelf: the opposite sector is empty (the surface beyond has
 // fallen out of reach) or holds a ground point (NORMAL or EDGE at the start of the pass) x
 // with u . (x - P) < -2 delta (delta = -h, P's depth below the sector's plane).
-bool hangs(const Selection& ball, const std::uint8_t* labels, std::uint32_t i, const Frame& f,
+bool hangs(const Selection& ball, const std::uint8_t* labels, const Frame& f,
            const CloudEdgeTest& e, const detail::EdgeSide (&sd)[kSectors], unsigned below) {
   // Per candidate sector: its nearest support point on its plane (distance, index, offset), and
   // the deepest ground point along its normal in the opposite sector.
@@ -200,7 +279,7 @@ bool hangs(const Selection& ball, const std::uint8_t* labels, std::uint32_t i, c
   Eigen::Vector3d nv[kSectors];
   std::fill(nd, nd + kSectors, kInf);
   std::fill(low, low + kSectors, kInf);
-  for_each_member(ball, i, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
+  for_each_member(ball, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
     const std::uint8_t c = labels[ball.id[k]];
     if (c != kNormal && c != kEdge) return;
     for (int s = 0; s < kSectors; ++s) {
@@ -237,17 +316,44 @@ bool hangs(const Selection& ball, const std::uint8_t* labels, std::uint32_t i, c
   return false;
 }
 
-// The verdict on point i with tangent frame f, from the finite points within r_edge of it
+// The verdict on a point P with tangent frame f, from the finite points within r_edge of it
 // (`ball`, select's, in gather order): the NORMAL ones (labels: at the start of the pass) are
 // the support, the others count as returns only.
-bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, std::uint32_t i,
-                      const Frame& f, const CloudEdgeTest& e) {
+bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const Frame& f,
+                      const CloudEdgeTest& e) {
   OffsetSums oct[8];
   double fin[8] = {};
-  for_each_member(ball, i, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
+#ifdef __SSE2__
+  // OffsetSums::add in pairs of fields, (n, x) (y, z) (xx, xy) (xz, yy) (yz, zz): the same
+  // operations on each field in the same order (the same bits).
+  __m128d acc[8][5];
+  for (auto& a : acc) {
+    for (__m128d& r : a) r = _mm_setzero_pd();
+  }
+  for_each_member(ball, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
+    fin[o] += 1.0;
+    if (labels[ball.id[k]] != kNormal) return;
+    const __m128d xy = _mm_set_pd(wy, wx), yz = _mm_set_pd(wz, wy);
+    __m128d* a = acc[o];
+    a[0] = _mm_add_pd(a[0], _mm_set_pd(wx, 1.0));
+    a[1] = _mm_add_pd(a[1], yz);
+    a[2] = _mm_add_pd(a[2], _mm_mul_pd(_mm_set1_pd(wx), xy));
+    a[3] = _mm_add_pd(a[3], _mm_mul_pd(xy, _mm_set_pd(wy, wz)));
+    a[4] = _mm_add_pd(a[4], _mm_mul_pd(yz, _mm_set1_pd(wz)));
+  });
+  for (int o = 0; o < 8; ++o) {
+    alignas(16) double v[10];
+    for (int q = 0; q < 5; ++q) _mm_store_pd(v + 2 * q, acc[o][q]);
+    OffsetSums& t = oct[o];
+    t.n = v[0], t.x = v[1], t.y = v[2], t.z = v[3], t.xx = v[4], t.xy = v[5];
+    t.xz = v[6], t.yy = v[7], t.yz = v[8], t.zz = v[9];
+  }
+#else
+  for_each_member(ball, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
     fin[o] += 1.0;
     if (labels[ball.id[k]] == kNormal) oct[o].add(wx, wy, wz);
   });
+#endif
   // Sectors 0-7: s holds octants s, s + 1 (mod 8), [45 s, 45 s + 90) degrees from e1 towards
   // e2; sectors 8-15: 8 + s holds octants s .. s + 3, [45 s, 45 s + 180).
   double finite[kSectors];
@@ -293,7 +399,7 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, std::ui
   unsigned below = 0;
   const SectorVerdict v = cloud_edge_verdict(sd, floor, best, e.k, &below);
   if (v != SectorVerdict::kOther) return v == SectorVerdict::kProud;
-  return below != 0 && hangs(ball, labels, i, f, e, sd, below);
+  return below != 0 && hangs(ball, labels, f, e, sd, below);
 }
 
 }  // namespace
@@ -328,21 +434,19 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
   const bool first_here = e.radius == e.r_edge;
   std::vector<std::uint8_t> first_verdict(first_here ? cand.size() : 0, 0);
   const double fr2 = e.radius * e.radius;
-  auto every = [](std::uint32_t, std::uint32_t) { return true; };
   {
     const int ntc = std::min(nt, detail::thread_count(num_threads, nc, 256));
 #pragma omp parallel for schedule(dynamic, 32) num_threads(ntc) if (ntc > 1)
     for (std::ptrdiff_t c = 0; c < nc; ++c) {
       JudgeScratch& js = scratch[thread_id()];
       const Eigen::Vector3d p = points[cand[c]];
-      gather_box(grid, grid.box_around(p, p, e.radius), every, js.gather);
-      select(js.gather, p, fr2, -1, js.sel);
+      select_box(grid, grid.box_around(p, p, e.radius), p, fr2, js.sel);
       LocalPlane lp;
       if (fit_selection(js.sel, true, &lp) != PlaneStatus::kOk) continue;
       frame[c].e1 = lp.major;
       frame[c].e2 = lp.normal.cross(lp.major);
       framed[c] = 1;
-      if (first_here) first_verdict[c] = cloud_edge_judge(js.sel, labels, cand[c], frame[c], e);
+      if (first_here) first_verdict[c] = cloud_edge_judge(js.sel, labels, frame[c], e);
     }
   }
   std::vector<std::uint32_t> todo;
@@ -368,9 +472,8 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
         if (labels[i] != kNormal && labels[i] != kEdge) continue;
         JudgeScratch& js = scratch[thread_id()];
         const Eigen::Vector3d p = points[i];
-        gather_box(grid, grid.box_around(p, p, e.r_edge), every, js.gather);
-        select(js.gather, p, r2, -1, js.sel);
-        verdict[j] = cloud_edge_judge(js.sel, labels, i, frame[c], e);
+        select_box(grid, grid.box_around(p, p, e.r_edge), p, r2, js.sel);
+        verdict[j] = cloud_edge_judge(js.sel, labels, frame[c], e);
       }
     }
     fresh.clear();
