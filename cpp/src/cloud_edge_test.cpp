@@ -10,6 +10,7 @@
 #include <emmintrin.h>
 #endif
 
+#include "cloud_sectors.hpp"
 #include "cloud_stages.hpp"
 #include "edge_verdict.hpp"
 
@@ -146,99 +147,6 @@ SectorVerdict cloud_edge_verdict(const detail::EdgeSide (&sd)[kSectors],
   return SectorVerdict::kOther;
 }
 
-// The octant of a tangent offset (a, b) != 0 (SPEC step 3): the 45-degree wedge [45 o, 45 o + 45)
-// degrees from e1 towards e2 that holds it, by exact comparisons (a point on a boundary belongs
-// to the wedge that starts there).
-inline int octant(double a, double b) {
-  if (b > 0.0 || (b == 0.0 && a > 0.0)) {  // [0, 180)
-    if (a > 0.0) return b < a ? 0 : 1;
-    return b > -a ? 2 : 3;
-  }
-  if (a < 0.0) return -b < -a ? 4 : 5;  // [180, 270)
-  return a < -b ? 6 : 7;                // [270, 360)
-}
-
-// Tangent directions of a candidate.
-struct Frame {
-  Eigen::Vector3d e1, e2;
-};
-
-// Octants of the members of a run of `ball` (see for_each_member): oc[q] = the octant of point
-// k0 + q, or kNotMember. P itself (and any point at P's tangent position) has rho = 0: never a
-// member, so P's index needs no test.
-constexpr std::uint8_t kNotMember = 8;
-
-#ifdef __SSE2__
-// The octant of a member by table (member_octants' code: bit 0 a > 0, 1 a < 0, 2 b > 0, 3 b == 0,
-// 4 b < a, 5 b > -a, 6 a < b, 7 b < -a), kNotMember for the codes of non-members (bit 8).
-struct OctantTable {
-  std::uint8_t oct[512];
-  OctantTable() {
-    for (int c = 0; c < 512; ++c) {
-      const bool ap = c & 1, an = c >> 1 & 1, bp = c >> 2 & 1, bz = c >> 3 & 1;
-      const bool lt = c >> 4 & 1, pn = c >> 5 & 1, gt = c >> 6 & 1, nn = c >> 7 & 1;
-      int o;  // octant(a, b), from the same comparisons
-      if (bp || (bz && ap)) {
-        o = ap ? (lt ? 0 : 1) : (pn ? 2 : 3);
-      } else {
-        o = an ? (gt ? 4 : 5) : (nn ? 6 : 7);
-      }
-      oct[c] = c >> 8 ? kNotMember : static_cast<std::uint8_t>(o);
-    }
-  }
-};
-const OctantTable kOctants;
-#endif
-
-inline void member_octants(const Selection& ball, std::size_t k0, std::size_t n, const Frame& f,
-                           double gap, std::uint8_t* __restrict oc) {
-  const double* __restrict X = ball.wx.data() + k0;
-  const double* __restrict Y = ball.wy.data() + k0;
-  const double* __restrict Z = ball.wz.data() + k0;
-  const double e1x = f.e1.x(), e1y = f.e1.y(), e1z = f.e1.z();
-  const double e2x = f.e2.x(), e2y = f.e2.y(), e2z = f.e2.z();
-  std::size_t q = 0;
-#ifdef __SSE2__
-  {
-    // Two at a time: the same operations in the same order as the scalar tail (the same bits);
-    // the comparisons' results as a code in each lane (a small integer double), then the table.
-    const __m128d v1x = _mm_set1_pd(e1x), v1y = _mm_set1_pd(e1y), v1z = _mm_set1_pd(e1z);
-    const __m128d v2x = _mm_set1_pd(e2x), v2y = _mm_set1_pd(e2y), v2z = _mm_set1_pd(e2z);
-    const __m128d zero = _mm_setzero_pd(), vgap = _mm_set1_pd(gap);
-    const __m128d sign = _mm_set1_pd(-0.0);
-    auto bit = [](__m128d m, double v) { return _mm_and_pd(m, _mm_set1_pd(v)); };
-    for (; q + 1 < n; q += 2) {
-      const __m128d wx = _mm_loadu_pd(X + q), wy = _mm_loadu_pd(Y + q), wz = _mm_loadu_pd(Z + q);
-      const __m128d a = _mm_add_pd(_mm_add_pd(_mm_mul_pd(wx, v1x), _mm_mul_pd(wy, v1y)),
-                                   _mm_mul_pd(wz, v1z));
-      const __m128d b = _mm_add_pd(_mm_add_pd(_mm_mul_pd(wx, v2x), _mm_mul_pd(wy, v2y)),
-                                   _mm_mul_pd(wz, v2z));
-      const __m128d rho = _mm_sqrt_pd(_mm_add_pd(_mm_mul_pd(a, a), _mm_mul_pd(b, b)));
-      const __m128d in = _mm_and_pd(_mm_cmpgt_pd(rho, zero), _mm_cmpge_pd(rho, vgap));
-      const __m128d na = _mm_xor_pd(a, sign);
-      __m128d code = _mm_add_pd(bit(_mm_cmpgt_pd(a, zero), 1.0), bit(_mm_cmplt_pd(a, zero), 2.0));
-      code = _mm_add_pd(code, bit(_mm_cmpgt_pd(b, zero), 4.0));
-      code = _mm_add_pd(code, bit(_mm_cmpeq_pd(b, zero), 8.0));
-      code = _mm_add_pd(code, bit(_mm_cmplt_pd(b, a), 16.0));
-      code = _mm_add_pd(code, bit(_mm_cmpgt_pd(b, na), 32.0));
-      code = _mm_add_pd(code, bit(_mm_cmplt_pd(a, b), 64.0));
-      code = _mm_add_pd(code, bit(_mm_cmplt_pd(b, na), 128.0));
-      code = _mm_add_pd(code, _mm_andnot_pd(in, _mm_set1_pd(256.0)));
-      const __m128i c = _mm_cvttpd_epi32(code);
-      oc[q] = kOctants.oct[_mm_cvtsi128_si32(c)];
-      oc[q + 1] = kOctants.oct[_mm_cvtsi128_si32(_mm_shuffle_epi32(c, 1))];
-    }
-  }
-#endif
-  for (; q < n; ++q) {
-    const double wx = X[q], wy = Y[q], wz = Z[q];
-    const double a = wx * e1x + wy * e1y + wz * e1z;
-    const double b = wx * e2x + wy * e2y + wz * e2z;
-    const double rho = std::sqrt(a * a + b * b);
-    oc[q] = rho > 0.0 && rho >= gap ? static_cast<std::uint8_t>(octant(a, b)) : kNotMember;
-  }
-}
-
 // Calls visit(k, o, wx, wy, wz) for each point k of `ball` (the points within r_edge of P,
 // offsets w = q - P: select's) that is a sector member of P: not P, at least `gap` from P in the
 // tangent plane (SPEC step 3); o its octant. In gather order.
@@ -249,7 +157,8 @@ void for_each_member(const Selection& ball, const Frame& f, const CloudEdgeTest&
   std::uint8_t oc[kRun];
   for (std::size_t k0 = 0; k0 < ball.n; k0 += kRun) {
     const std::size_t m = std::min(kRun, ball.n - k0);
-    member_octants(ball, k0, m, f, e.gap, oc);
+    member_octants(ball.wx.data() + k0, ball.wy.data() + k0, ball.wz.data() + k0, m, f, e.gap,
+                   oc);
     for (std::size_t q = 0; q < m; ++q) {
       if (oc[q] == kNotMember) continue;
       const std::size_t k = k0 + q;
