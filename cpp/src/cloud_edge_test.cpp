@@ -6,7 +6,11 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#ifdef __SSE2__
+#include <emmintrin.h>
+#endif
 
+#include "cloud_sectors.hpp"
 #include "cloud_stages.hpp"
 #include "edge_verdict.hpp"
 
@@ -143,38 +147,23 @@ SectorVerdict cloud_edge_verdict(const detail::EdgeSide (&sd)[kSectors],
   return SectorVerdict::kOther;
 }
 
-// The octant of a tangent offset (a, b) != 0 (SPEC step 3): the 45-degree wedge [45 o, 45 o + 45)
-// degrees from e1 towards e2 that holds it, by exact comparisons (a point on a boundary belongs
-// to the wedge that starts there).
-inline int octant(double a, double b) {
-  if (b > 0.0 || (b == 0.0 && a > 0.0)) {  // [0, 180)
-    if (a > 0.0) return b < a ? 0 : 1;
-    return b > -a ? 2 : 3;
-  }
-  if (a < 0.0) return -b < -a ? 4 : 5;  // [180, 270)
-  return a < -b ? 6 : 7;                // [270, 360)
-}
-
-// Tangent directions of a candidate.
-struct Frame {
-  Eigen::Vector3d e1, e2;
-};
-
-// Calls visit(k, o, wx, wy, wz) for each point k of g that is a sector member of P (index i):
-// not P, within r_edge, at least `gap` from P in the tangent plane; o its octant, w = q - P.
+// Calls visit(k, o, wx, wy, wz) for each point k of `ball` (the points within r_edge of P,
+// offsets w = q - P: select's) that is a sector member of P: not P, at least `gap` from P in the
+// tangent plane (SPEC step 3); o its octant. In gather order.
 template <typename Visit>
-void for_each_member(const Gather& g, std::uint32_t i, const Eigen::Vector3d& p, const Frame& f,
-                     const CloudEdgeTest& e, Visit&& visit) {
-  const double r2 = e.r_edge * e.r_edge;
-  for (std::size_t k = 0; k < g.n; ++k) {
-    if (g.id[k] == i) continue;
-    const double wx = g.x[k] - p.x(), wy = g.y[k] - p.y(), wz = g.z[k] - p.z();
-    if (!(wx * wx + wy * wy + wz * wz <= r2)) continue;
-    const double a = wx * f.e1.x() + wy * f.e1.y() + wz * f.e1.z();
-    const double b = wx * f.e2.x() + wy * f.e2.y() + wz * f.e2.z();
-    const double rho = std::sqrt(a * a + b * b);
-    if (!(rho > 0.0 && rho >= e.gap)) continue;
-    visit(k, octant(a, b), wx, wy, wz);
+void for_each_member(const Selection& ball, const Frame& f, const CloudEdgeTest& e,
+                     Visit&& visit) {
+  constexpr std::size_t kRun = 256;
+  std::uint8_t oc[kRun];
+  for (std::size_t k0 = 0; k0 < ball.n; k0 += kRun) {
+    const std::size_t m = std::min(kRun, ball.n - k0);
+    member_octants(ball.wx.data() + k0, ball.wy.data() + k0, ball.wz.data() + k0, m, f, e.gap,
+                   oc);
+    for (std::size_t q = 0; q < m; ++q) {
+      if (oc[q] == kNotMember) continue;
+      const std::size_t k = k0 + q;
+      visit(k, oc[q], ball.wx[k], ball.wy[k], ball.wz[k]);
+    }
   }
 }
 
@@ -190,15 +179,24 @@ inline bool in_sector(int o, int s) { return (o - s % 8 + 8) % 8 < (s < 8 ? 2 : 
 // (u . v)^2 > v.v - (u . v)^2; a shelf: the opposite sector is empty (the surface beyond has
 // fallen out of reach) or holds a ground point (NORMAL or EDGE at the start of the pass) x
 // with u . (x - P) < -2 delta (delta = -h, P's depth below the sector's plane).
-bool hangs(const Gather& sup, const Gather& rest, const std::uint8_t* labels, std::uint32_t i,
-           const Eigen::Vector3d& p, const Frame& f, const CloudEdgeTest& e,
-           const detail::EdgeSide (&sd)[kSectors], unsigned below) {
-  // Per candidate sector: its nearest support point on its plane (distance, index, offset).
-  double nd[kSectors];
+bool hangs(const Selection& ball, const std::uint8_t* labels, const Frame& f,
+           const CloudEdgeTest& e, const detail::EdgeSide (&sd)[kSectors], unsigned below) {
+  // Per candidate sector: its nearest support point on its plane (distance, index, offset), and
+  // the deepest ground point along its normal in the opposite sector.
+  double nd[kSectors], low[kSectors];
   std::uint32_t nid[kSectors] = {};
   Eigen::Vector3d nv[kSectors];
   std::fill(nd, nd + kSectors, kInf);
-  for_each_member(sup, i, p, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
+  std::fill(low, low + kSectors, kInf);
+  for_each_member(ball, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
+    const std::uint8_t c = labels[ball.id[k]];
+    if (c != kNormal && c != kEdge) return;
+    for (int s = 0; s < kSectors; ++s) {
+      if (!(below >> s & 1u) || !in_sector(o, turned(s, 4))) continue;
+      const Eigen::Vector3d& u = sd[s].normal;
+      low[s] = std::min(low[s], wx * u.x() + wy * u.y() + wz * u.z());
+    }
+    if (c != kNormal) return;
     const double d = std::sqrt(wx * wx + wy * wy + wz * wz);
     for (int s = 0; s < kSectors; ++s) {
       if (!(below >> s & 1u) || !in_sector(o, s)) continue;
@@ -207,26 +205,12 @@ bool hangs(const Gather& sup, const Gather& rest, const std::uint8_t* labels, st
                          (wy - x.centroid.y()) * x.normal.y() +
                          (wz - x.centroid.z()) * x.normal.z();
       if (std::abs(dev) > x.tol) continue;
-      if (d < nd[s] || (d == nd[s] && sup.id[k] < nid[s])) {
+      if (d < nd[s] || (d == nd[s] && ball.id[k] < nid[s])) {
         nd[s] = d;
-        nid[s] = sup.id[k];
+        nid[s] = ball.id[k];
         nv[s] = Eigen::Vector3d(wx, wy, wz);
       }
     }
-  });
-  // The deepest ground point along each candidate sector's normal, in the opposite sector.
-  double low[kSectors];
-  std::fill(low, low + kSectors, kInf);
-  auto deepest = [&](std::size_t, int o, double wx, double wy, double wz) {
-    for (int s = 0; s < kSectors; ++s) {
-      if (!(below >> s & 1u) || !in_sector(o, turned(s, 4))) continue;
-      const Eigen::Vector3d& u = sd[s].normal;
-      low[s] = std::min(low[s], wx * u.x() + wy * u.y() + wz * u.z());
-    }
-  };
-  for_each_member(sup, i, p, f, e, deepest);
-  for_each_member(rest, i, p, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
-    if (labels[rest.id[k]] == kEdge) deepest(k, o, wx, wy, wz);
   });
   for (int s = 0; s < kSectors; ++s) {
     if (!(below >> s & 1u) || !(nd[s] < kInf)) continue;
@@ -241,20 +225,44 @@ bool hangs(const Gather& sup, const Gather& rest, const std::uint8_t* labels, st
   return false;
 }
 
-// The verdict on point p (index i) with tangent frame f, from the finite points gathered around
-// it: NORMAL ones (the support) in `sup`, the others in `rest` (labels: at the start of the
-// pass).
-bool cloud_edge_judge(const Gather& sup, const Gather& rest, const std::uint8_t* labels,
-                      std::uint32_t i, const Eigen::Vector3d& p, const Frame& f,
+// The verdict on a point P with tangent frame f, from the finite points within r_edge of it
+// (`ball`, select's, in gather order): the NORMAL ones (labels: at the start of the pass) are
+// the support, the others count as returns only.
+bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const Frame& f,
                       const CloudEdgeTest& e) {
   OffsetSums oct[8];
   double fin[8] = {};
-  for_each_member(sup, i, p, f, e, [&](std::size_t, int o, double wx, double wy, double wz) {
+#ifdef __SSE2__
+  // OffsetSums::add in pairs of fields, (n, x) (y, z) (xx, xy) (xz, yy) (yz, zz): the same
+  // operations on each field in the same order (the same bits).
+  __m128d acc[8][5];
+  for (auto& a : acc) {
+    for (__m128d& r : a) r = _mm_setzero_pd();
+  }
+  for_each_member(ball, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
     fin[o] += 1.0;
-    oct[o].add(wx, wy, wz);
+    if (labels[ball.id[k]] != kNormal) return;
+    const __m128d xy = _mm_set_pd(wy, wx), yz = _mm_set_pd(wz, wy);
+    __m128d* a = acc[o];
+    a[0] = _mm_add_pd(a[0], _mm_set_pd(wx, 1.0));
+    a[1] = _mm_add_pd(a[1], yz);
+    a[2] = _mm_add_pd(a[2], _mm_mul_pd(_mm_set1_pd(wx), xy));
+    a[3] = _mm_add_pd(a[3], _mm_mul_pd(xy, _mm_set_pd(wy, wz)));
+    a[4] = _mm_add_pd(a[4], _mm_mul_pd(yz, _mm_set1_pd(wz)));
   });
-  for_each_member(rest, i, p, f, e,
-                  [&](std::size_t, int o, double, double, double) { fin[o] += 1.0; });
+  for (int o = 0; o < 8; ++o) {
+    alignas(16) double v[10];
+    for (int q = 0; q < 5; ++q) _mm_store_pd(v + 2 * q, acc[o][q]);
+    OffsetSums& t = oct[o];
+    t.n = v[0], t.x = v[1], t.y = v[2], t.z = v[3], t.xx = v[4], t.xy = v[5];
+    t.xz = v[6], t.yy = v[7], t.yz = v[8], t.zz = v[9];
+  }
+#else
+  for_each_member(ball, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
+    fin[o] += 1.0;
+    if (labels[ball.id[k]] == kNormal) oct[o].add(wx, wy, wz);
+  });
+#endif
   // Sectors 0-7: s holds octants s, s + 1 (mod 8), [45 s, 45 s + 90) degrees from e1 towards
   // e2; sectors 8-15: 8 + s holds octants s .. s + 3, [45 s, 45 s + 180).
   double finite[kSectors];
@@ -300,27 +308,7 @@ bool cloud_edge_judge(const Gather& sup, const Gather& rest, const std::uint8_t*
   unsigned below = 0;
   const SectorVerdict v = cloud_edge_verdict(sd, floor, best, e.k, &below);
   if (v != SectorVerdict::kOther) return v == SectorVerdict::kProud;
-  return below != 0 && hangs(sup, rest, labels, i, p, f, e, sd, below);
-}
-
-// Splits the gathered finite points `g` as gather_split does with the edge test's classes: the
-// NORMAL ones stay in `g` (in order), the others go to `rest` (in order).
-void split_normal(const std::uint8_t* labels, Gather& g, Gather& rest) {
-  rest.clear();
-  std::size_t m = 0;
-  for (std::size_t k = 0; k < g.n; ++k) {
-    const Eigen::Vector3d q(g.x[k], g.y[k], g.z[k]);
-    if (labels[g.id[k]] == kNormal) {
-      g.x[m] = q.x();
-      g.y[m] = q.y();
-      g.z[m] = q.z();
-      g.id[m] = g.id[k];
-      ++m;
-    } else {
-      rest.push(q, g.id[k]);
-    }
-  }
-  g.n = m;
+  return below != 0 && hangs(ball, labels, f, e, sd, below);
 }
 
 }  // namespace
@@ -347,43 +335,34 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
   }
   // Frames: the plane of the finite points within radius, the point included (as the normals).
   // When the frame's disk is the sectors' (e.radius == e.r_edge, as detect_points sets them),
-  // the first pass's verdicts come from the same gather: its NORMAL points (the labels do not
-  // change before the first pass) are the support, the others the rest, each in gather order,
-  // as gather_split would list them.
+  // the first pass's verdicts come from the frame's selection (the same ball, in gather order;
+  // the labels do not change before the first pass).
   const std::ptrdiff_t nc = static_cast<std::ptrdiff_t>(cand.size());
   std::vector<Frame> frame(cand.size());
   std::vector<std::uint8_t> framed(cand.size(), 0);
   const bool first_here = e.radius == e.r_edge;
   std::vector<std::uint8_t> first_verdict(first_here ? cand.size() : 0, 0);
   const double fr2 = e.radius * e.radius;
-  auto every = [](std::uint32_t, std::uint32_t) { return true; };
   {
     const int ntc = std::min(nt, detail::thread_count(num_threads, nc, 256));
 #pragma omp parallel for schedule(dynamic, 32) num_threads(ntc) if (ntc > 1)
     for (std::ptrdiff_t c = 0; c < nc; ++c) {
       JudgeScratch& js = scratch[thread_id()];
       const Eigen::Vector3d p = points[cand[c]];
-      gather_box(grid, grid.box_around(p, p, e.radius), every, js.gather);
-      select(js.gather, p, fr2, -1, js.sel);
+      select_box(grid, grid.box_around(p, p, e.radius), p, fr2, js.sel);
       LocalPlane lp;
       if (fit_selection(js.sel, true, &lp) != PlaneStatus::kOk) continue;
       frame[c].e1 = lp.major;
       frame[c].e2 = lp.normal.cross(lp.major);
       framed[c] = 1;
-      if (first_here) {
-        split_normal(labels, js.gather, js.aside);
-        first_verdict[c] = cloud_edge_judge(js.gather, js.aside, labels, cand[c], p, frame[c], e);
-      }
+      if (first_here) first_verdict[c] = cloud_edge_judge(js.sel, labels, frame[c], e);
     }
   }
   std::vector<std::uint32_t> todo;
   for (std::ptrdiff_t c = 0; c < nc; ++c) {
     if (framed[c]) todo.push_back(static_cast<std::uint32_t>(c));
   }
-  const std::uint32_t* order = grid.order();
-  std::vector<std::uint8_t> class_sorted(static_cast<std::size_t>(grid.num_indexed()));
-  const std::uint8_t* cs = class_sorted.data();
-  auto class_of = [cs](std::uint32_t k, std::uint32_t) { return cs[k]; };
+  const double r2 = e.r_edge * e.r_edge;
   std::vector<std::uint8_t> verdict, mark(cand.size(), 0);  // mark: per candidate
   std::vector<std::uint32_t> fresh;
   int passes = 0;
@@ -395,9 +374,6 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
       for (std::ptrdiff_t j = 0; j < nj; ++j) verdict[j] = first_verdict[todo[j]];
       std::vector<std::uint8_t>().swap(first_verdict);
     } else {
-      for (std::ptrdiff_t k = 0; k < grid.num_indexed(); ++k) {
-        class_sorted[k] = labels[order[k]] == kNormal ? kClassMain : kClassAside;
-      }
       const int ntj = std::min(nt, detail::thread_count(num_threads, nj, 256));
 #pragma omp parallel for schedule(dynamic, 32) num_threads(ntj) if (ntj > 1)
       for (std::ptrdiff_t j = 0; j < nj; ++j) {
@@ -405,8 +381,8 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
         if (labels[i] != kNormal && labels[i] != kEdge) continue;
         JudgeScratch& js = scratch[thread_id()];
         const Eigen::Vector3d p = points[i];
-        gather_split(grid, grid.box_around(p, p, e.r_edge), class_of, js.gather, js.aside);
-        verdict[j] = cloud_edge_judge(js.gather, js.aside, labels, i, p, frame[c], e);
+        select_box(grid, grid.box_around(p, p, e.r_edge), p, r2, js.sel);
+        verdict[j] = cloud_edge_judge(js.sel, labels, frame[c], e);
       }
     }
     fresh.clear();

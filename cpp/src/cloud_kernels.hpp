@@ -236,6 +236,38 @@ inline void select(const Gather& g, const Eigen::Vector3d& p, double r2, std::in
   s.n = m;
 }
 
+// select(gather_box(box, every), p, r2, -1) without the gather: the points of `box` within r of
+// p, straight from the grid's cell-ordered copy, in cell-key order; the same offsets, squared
+// distances (the same operations) and order. Fills wx, wy, wz, d2, id.
+template <typename T>
+void select_box(const NeighborGrid<T>& grid, const CellBox& box, const Eigen::Vector3d& p,
+                double r2, Selection& s) {
+  const std::uint32_t* order = grid.order();
+  const double px = p.x(), py = p.y(), pz = p.z();
+  std::size_t m = 0;
+  grid.for_each_cell(box, [&](std::ptrdiff_t cell) {
+    const std::uint32_t b = grid.cell_begin(cell), e = grid.cell_begin(cell + 1);
+    s.reserve(m + (e - b));
+    double* __restrict wx = s.wx.data();
+    double* __restrict wy = s.wy.data();
+    double* __restrict wz = s.wz.data();
+    double* __restrict sd2 = s.d2.data();
+    std::uint32_t* __restrict sid = s.id.data();
+    for (std::uint32_t k = b; k < e; ++k) {
+      const Eigen::Vector3d q = grid.sorted_point(k);
+      const double dx = q.x() - px, dy = q.y() - py, dz = q.z() - pz;
+      const double d2 = dx * dx + dy * dy + dz * dz;
+      wx[m] = dx;
+      wy[m] = dy;
+      wz[m] = dz;
+      sd2[m] = d2;
+      sid[m] = order[k];
+      m += static_cast<std::size_t>(d2 <= r2);
+    }
+  });
+  s.n = m;
+}
+
 // Eigen-decomposition of a symmetric 3 x 3 scatter matrix: eigenvalues ascending, orthonormal
 // eigenvectors in the columns of V. The closed form (computeDirect, 2.5x faster) when its result
 // is well conditioned: all three eigenvalues apart by more than 1 % of the largest (its error
