@@ -22,16 +22,23 @@ ON = {"edge_tolerance": 3.0}
 DEFAULT_K = 4.0  # SPEC "Unorganized clouds: edge test": on by default
 
 
+def line_grid(n: int, step: float, cx: float, deg: float) -> tuple[np.ndarray, ...]:
+    """An n x n grid of `step` (x, y, flattened) and each point's signed distance d across a
+    line through (cx n step, n step / 2) at `deg` degrees, and t along it."""
+    r, c = np.mgrid[0:n, 0:n]
+    x, y = c.ravel() * step, r.ravel() * step
+    phi = np.radians(deg)
+    d = (x - cx * n * step) * np.cos(phi) + (y - 0.5 * n * step) * np.sin(phi)
+    t = -(x - cx * n * step) * np.sin(phi) + (y - 0.5 * n * step) * np.cos(phi)
+    return x, y, d, t
+
+
 def cut_scene(seed: int, n: int = 56, step: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
     """A tilted plane cut along a line at 20 degrees, a burr run 2 points wide raised 0.12 mm
     on the cut's last points (along 40 % of the line); x / y jittered, rows shuffled. Returns
     the points and the burr mask."""
     rng = np.random.default_rng(seed)
-    r, c = np.mgrid[0:n, 0:n]
-    x, y = c.ravel() * step, r.ravel() * step
-    phi = np.radians(20.0)
-    d = (x - 0.6 * n * step) * np.cos(phi) + (y - 0.5 * n * step) * np.sin(phi)
-    t = -(x - 0.6 * n * step) * np.sin(phi) + (y - 0.5 * n * step) * np.cos(phi)
+    x, y, d, t = line_grid(n, step, 0.6, 20.0)
     keep = d < 0.0
     burr = keep & (d >= -2.0 * step) & (np.abs(t) < 0.2 * n * step)
     z = 0.05 * x + 0.02 * y + rng.normal(0.0, 0.005, x.size) + 0.12 * burr
@@ -220,11 +227,7 @@ def crease_scene(seed: int, lip: bool, n: int = 44, step: float = 0.1, noise: fl
     line), raised from b / 2 to b towards the line (as the accuracy suite's burrs); x / y
     jittered, rows shuffled. Returns the points and the lip mask."""
     rng = np.random.default_rng(seed)
-    r, c = np.mgrid[0:n, 0:n]
-    x, y = c.ravel() * step, r.ravel() * step
-    phi = np.radians(25.0)
-    d = (x - 0.5 * n * step) * np.cos(phi) + (y - 0.5 * n * step) * np.sin(phi)
-    t = -(x - 0.5 * n * step) * np.sin(phi) + (y - 0.5 * n * step) * np.cos(phi)
+    x, y, d, t = line_grid(n, step, 0.5, 25.0)
     burr = lip & (d < 0.0) & (d >= -m * step) & (np.abs(t) < 0.2 * n * step)
     rise = b * (0.5 + 0.5 * np.clip(1.0 + d / (m * step), 0.0, 1.0))
     z = (0.04 * x + 0.02 * y - np.tan(np.radians(30.0)) * np.maximum(d, 0.0)

@@ -295,11 +295,19 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
   // with min_step, along row r (min_step_skip.hpp): row_speeds, the unusable cells before each
   // padded column, and per chunk of kChunk columns the largest speed and the unusable cells
   // within `pad` columns of it (the steps a search of the chunk can skip)
-  std::vector<double> speed(deep ? W : 0);
-  std::vector<std::int64_t> gaps_before(deep ? S + 1 : 0, 0);
+  // (the thread's scratch: no allocation once it has held a row this wide)
   const std::ptrdiff_t n_chunks = (W + kChunk - 1) / kChunk;
-  std::vector<double> chunk_speed(deep ? n_chunks : 0);
-  std::vector<std::int64_t> chunk_gaps(deep ? n_chunks : 0);
+  if (deep) {
+    sc.speed.resize(static_cast<std::size_t>(W));
+    sc.gaps_before.resize(static_cast<std::size_t>(S + 1));
+    sc.gaps_before[0] = 0;
+    sc.chunk_speed.resize(static_cast<std::size_t>(n_chunks));
+    sc.chunk_gaps.resize(static_cast<std::size_t>(n_chunks));
+  }
+  std::vector<double>& speed = sc.speed;
+  std::vector<std::int64_t>& gaps_before = sc.gaps_before;
+  std::vector<double>& chunk_speed = sc.chunk_speed;
+  std::vector<std::int64_t>& chunk_gaps = sc.chunk_gaps;
   for (std::ptrdiff_t r = r_begin; r < r_end; ++r) {
     if (r + pad < H) load_row(g, usable, r + pad, S, slot_x(r + pad), slot_ok(r + pad));
     std::fill(buv, buv + W, -2.0);

@@ -132,6 +132,23 @@ inline __m128d d2_pair(const double* gx, const double* gy, const double* gz, std
   const __m128d dz = _mm_sub_pd(_mm_loadu_pd(gz + k), pz);
   return _mm_add_pd(_mm_add_pd(_mm_mul_pd(dx, dx), _mm_mul_pd(dy, dy)), _mm_mul_pd(dz, dz));
 }
+
+// Squared distances of candidates k .. k + 3 (d2_pair twice), stored at all + k.
+struct Four {
+  __m128d a, b;
+  // bit l: candidate k + l has d2 <= lim
+  unsigned within(__m128d lim) const {
+    return static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(a, lim))) |
+           static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(b, lim))) << 2;
+  }
+};
+inline Four d2_four(const double* gx, const double* gy, const double* gz, std::size_t k,
+                    __m128d px, __m128d py, __m128d pz, double* all) {
+  const Four f{d2_pair(gx, gy, gz, k, px, py, pz), d2_pair(gx, gy, gz, k + 2, px, py, pz)};
+  _mm_storeu_pd(all + k, f.a);
+  _mm_storeu_pd(all + k + 2, f.b);
+  return f;
+}
 #endif
 
 // Calls f(position in order(), index) for every point of `box`, in cell-key order.
@@ -194,13 +211,8 @@ inline void select(const Gather& g, const Eigen::Vector3d& p, double r2, std::in
     __m128i vk = _mm_setzero_si128();  // k in every lane
     const __m128i four = _mm_set1_epi32(4);
     for (; k + 3 < n; k += 4) {
-      const __m128d a = d2_pair(gx, gy, gz, k, vpx, vpy, vpz);
-      const __m128d b = d2_pair(gx, gy, gz, k + 2, vpx, vpy, vpz);
-      _mm_storeu_pd(all + k, a);
-      _mm_storeu_pd(all + k + 2, b);
-      const unsigned keep = static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(a, vr2))) |
-                            static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(b, vr2))) << 2;
-      m = compact4(pos, m, keep, vk);
+      const Four f = d2_four(gx, gy, gz, k, vpx, vpy, vpz, all);
+      m = compact4(pos, m, f.within(vr2), vk);
       vk = _mm_add_epi32(vk, four);
     }
   }
@@ -490,15 +502,8 @@ inline void ball_sums(const Gather& g, const Eigen::Vector3d& p, double r2, doub
     __m128i vk = _mm_setzero_si128();  // k in every lane
     const __m128i four = _mm_set1_epi32(4);
     for (; k + 3 < n; k += 4) {
-      const __m128d a = d2_pair(gx, gy, gz, k, vpx, vpy, vpz);
-      const __m128d b = d2_pair(gx, gy, gz, k + 2, vpx, vpy, vpz);
-      _mm_storeu_pd(all + k, a);
-      _mm_storeu_pd(all + k + 2, b);
-      const unsigned ball = static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(a, vr2))) |
-                            static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(b, vr2))) << 2;
-      const unsigned in = ball & (static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(a, vin2))) |
-                                  static_cast<unsigned>(_mm_movemask_pd(_mm_cmple_pd(b, vin2)))
-                                      << 2);
+      const Four f = d2_four(gx, gy, gz, k, vpx, vpy, vpz, all);
+      const unsigned ball = f.within(vr2), in = ball & f.within(vin2);
       m_out = compact4(out_pos, m_out, ball & ~in, vk);
       m_in = compact4(in_pos, m_in, in, vk);
       vk = _mm_add_epi32(vk, four);

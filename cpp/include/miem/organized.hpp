@@ -25,6 +25,10 @@ struct RowScratch {
   std::vector<std::int64_t> ok;    ///< 64-bit lanes beside the doubles: no packing in the kernel
   std::vector<double> best;
   std::vector<std::int64_t> bits;  ///< per cell: available / flagged directions, slow, near
+  // with min_step (min_step_skip.hpp): a row's speeds, the unusable cells before each padded
+  // column, and per chunk of columns the largest speed and the unusable cells it may skip
+  std::vector<double> speed, chunk_speed;
+  std::vector<std::int64_t> gaps_before, chunk_gaps;
   void resize(std::ptrdiff_t rows, std::ptrdiff_t cols) {
     const auto n = static_cast<std::size_t>(cols);
     xyz.resize(static_cast<std::size_t>(rows) * 3 * n);
