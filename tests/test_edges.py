@@ -14,10 +14,12 @@ import pytest
 
 ACCURACY = Path(__file__).resolve().parents[1] / "bench" / "accuracy"
 sys.path.insert(0, str(ACCURACY))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import edge_scenes  # noqa: E402
 import real_truth as rt  # noqa: E402
 import suite  # noqa: E402
+from stream_batch import stream_labels  # noqa: E402
 import miem  # noqa: E402
 from miem import _core  # noqa: E402
 from miem import reference as ref  # noqa: E402
@@ -340,6 +342,42 @@ def test_hanging_is_measured_from_the_tops_last_sample() -> None:
         assert depth ** 2 < np.hypot(*(q17 - p)[:2]) ** 2
 
 
+def test_hanging_ledge_goes_on_from_its_drop() -> None:
+    """SPEC "Edge test" step 6, the path of ABNORMAL cells: a ledge hanging 0.25 mm below the
+    top beyond a wall 2 mm tall at column 20 (0.1 mm grid), columns 20-24 of rows 4-35.
+    Columns 20-23 are ABNORMAL already (earlier passes); column 24 lies 0.5 mm from the top's
+    last sample (column 19), farther than it lies deep (0.25^2 < 0.5^2: gentler than 45 degrees
+    from there), but the path 19 -> 20 drops 0.25 mm over 0.1 mm (steeper than 45 degrees) and
+    runs over ABNORMAL cells to it: column 24 hangs. Must not fire when the path is broken by a
+    dropout (column 22 INVALID), nor when the path descends gently (columns 20-23 going down
+    0.05 mm per 0.1 mm: a chamfer, whose cells another rule flagged). Checked on rows 11-28,
+    whose 15-cell sub-windows lie within the ledge's rows (nearer its ends the top's
+    sub-window takes in floor beyond the ledge and is not clean)."""
+    h, w = 40, 40
+    cols = np.arange(w)[None, :].repeat(h, 0)
+    rows, inner = slice(4, 36), slice(11, 29)
+    for case, fires in (("ledge", True), ("dropout", False), ("chamfer", False)):
+        z = _noise((h, w)) - 2.0 * (cols >= 25)
+        z[:, 20:25] = -2.0 + _noise((h, w), seed=5)[:, 20:25]  # the wall: floor under the ledge
+        z[rows, 20:25] = _noise((h, w), seed=4)[rows, 20:25] - 0.25
+        if case == "chamfer":
+            z[rows, 20:24] = -0.05 * (cols[rows, 20:24] - 19) + _noise((h, w), 6)[rows, 20:24]
+        labels = np.zeros((h, w), np.uint8)
+        labels[rows, 20:24] = ref.ABNORMAL
+        if case == "dropout":
+            z[rows, 22] = np.nan
+            labels[rows, 22] = ref.INVALID
+        g = _grid(z)
+        out = ref.edge_test(g, labels, window=15, tolerance=8.0, max_iterations=1)[0]
+        new = (out == ref.ABNORMAL) & (labels != ref.ABNORMAL)
+        assert new[inner, 24].all() == fires and new[rows, 24].any() == fires, case
+        assert not new[:, :24].any() and not new[:, 25:].any(), case
+        # by hand: 0.5 mm from column 19's sample, 0.25 deep; the drop 19 -> 20 is steep
+        p, q, first = g[20, 24], g[20, 19], g[20, 20]
+        assert 0.25 ** 2 < np.hypot(*(q - p)[:2]) ** 2
+        assert ((q - first)[2] > np.hypot(*(q - first)[:2])) == (case != "chamfer")
+
+
 def _wall_burr_z(h: int = 50, w: int = 60, row: int = 20) -> tuple[np.ndarray, np.ndarray]:
     """A wall top at ``row`` (floor 3 mm down) with material hanging over it, as on the real
     scan's first wall: three profiles 0.5, 1.0 and 1.5 mm below the top, then two profiles
@@ -559,6 +597,18 @@ def test_stream_runs_the_edge_test() -> None:
     p.edge_k = 8.0
     p.min_step_auto = False
     assert _core.ProfileStream64(10, p).lag > _core.stream_lag(_core.paper_params())
+
+
+def test_stream_hangs_ledges_as_batch() -> None:
+    """The hanging rule's path of ABNORMAL cells (SPEC "Edge test" step 6) reads the labels of
+    earlier passes: the stream (its labels at the start of each pass, kept per cell) equals
+    batch on the tuning edge scene whose ledges need it (hanging runs beside raised lips)."""
+    spec = next(s for s in suite.specs("tune", real=False) if s.name == "tune-edge_wall-1")
+    grid = suite.build(spec).points
+    p = miem.default_params("stream")
+    want = miem.detect(grid, params=p)
+    assert (want.labels != miem.detect(grid, params=p, edge_tolerance=None).labels).sum() > 50
+    np.testing.assert_array_equal(stream_labels(grid, p), want.labels)
 
 
 def _stacked_edge_scan(n_rows: int, n_cols: int) -> np.ndarray:

@@ -267,9 +267,10 @@ bool is_fin(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
 // SPEC "Edge test" step 6, hanging cells: P (candidate (rr, cc), its 8 sides `sd`, `best` their
 // smallest rms) fits no clean side with a return and lies, below a clean side x whose opposite
 // is empty or clean with P above it and falls away, deeper below x's plane than the top's last
-// ground cell (NORMAL or EDGE) towards x is away along that plane (steeper than 45 degrees),
-// with ground beyond P (within r, away from x) more than kHangShelf times as deep again along
-// x's normal. The formulas are miem.reference._hanging's.
+// ground cell (NORMAL or EDGE) towards x is away along that plane (steeper than 45 degrees) or
+// beyond a step steeper than that on a path of ABNORMAL cells from that ground cell, with
+// ground beyond P (within r, away from x) more than kHangShelf times as deep again along x's
+// normal. The formulas are miem.reference._hanging's.
 constexpr double kHangShelf = 2.0;
 constexpr int kHangDirs[8][2] = {{0, 1},  {0, -1}, {1, 0},  {-1, 0},
                                  {1, 1},  {1, -1}, {-1, 1}, {-1, -1}};  // side -> towards P
@@ -298,12 +299,30 @@ bool is_hanging(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t
     const std::ptrdiff_t dr = kHangDirs[s][0], dc = kHangDirs[s][1];
     const double depth = -x.h;
     bool steep = false;
+    // the path towards x: while it runs over ABNORMAL cells (`chain`), a step from one cell to
+    // the next towards P that drops steeper than 45 degrees below x's plane (`steep_step`)
+    bool chain = true, via = false, steep_step = false;
+    Eigen::Vector3d prev = p;
     for (std::ptrdiff_t j = 1; j <= r; ++j) {  // the nearest ground cell towards x
       const std::uint8_t l = label(rr - j * dr, cc - j * dc);
-      if (l != kNormal && l != kEdge) continue;
+      const bool ground = l == kNormal || l == kEdge;
+      if (chain && (ground || l == kAbnormal)) {
+        const Eigen::Vector3d c = g(rr - j * dr, cc - j * dc);
+        const Eigen::Vector3d w = prev - c;
+        const double along_w = dot3(w, x.normal);
+        steep_step = steep_step ||
+                     (along_w < 0.0 && along_w * along_w > dot3(w, w) - along_w * along_w);
+        if (!ground) {
+          prev = c;
+          via = true;
+        }
+      } else if (!ground) {
+        chain = false;
+      }
+      if (!ground) continue;
       const Eigen::Vector3d v = g(rr - j * dr, cc - j * dc) - p;
       const double along = dot3(v, x.normal);
-      steep = depth * depth > dot3(v, v) - along * along;
+      steep = depth * depth > dot3(v, v) - along * along || (chain && via && steep_step);
       break;
     }
     if (!steep) continue;

@@ -1189,10 +1189,12 @@ def _hanging(
 ) -> NDArray[np.bool_]:
     """The cells of ``cells`` (row-major) that *hang* (SPEC "Edge test" step 6) below one of the
     sub-windows marked in ``below`` (8, N): steeper than 45 degrees below the top's last ground
-    cell (NORMAL or EDGE) towards that sub-window, and with the surface beyond them more than
+    cell (NORMAL or EDGE) towards that sub-window, or beyond a step that drops that steeply on
+    a path of ABNORMAL cells from that ground cell, and with the surface beyond them more than
     ``_HANG_SHELF`` times as deep again."""
     hh, ww = labels.shape
     ground = (labels == NORMAL) | (labels == EDGE)
+    hung = labels == ABNORMAL
     rr, cc = np.nonzero(cells)
     p = grid[rr, cc]
     out = np.zeros(rr.size, dtype=bool)
@@ -1209,16 +1211,34 @@ def _hanging(
         # passes often label it EDGE, and the nearest NORMAL cell lies further back)
         v = np.full((rr.size, 3), np.nan)
         found = np.zeros(rr.size, dtype=bool)
+        # the path P - j d towards the ground cell: while it runs over ABNORMAL cells (`chain`),
+        # any step from a cell to the next one towards P that drops steeper than 45 degrees
+        prev = p.copy()
+        chain = np.ones(rr.size, dtype=bool)
+        drop = np.zeros(rr.size, dtype=bool)
+        via = np.zeros(rr.size, dtype=bool)  # the path passed an ABNORMAL cell
         for j in range(1, r + 1):
             r1, c1 = rr - j * dr, cc - j * dc
             ok = inside(r1, c1)
             hit = np.zeros(rr.size, dtype=bool)
             hit[ok] = ground[r1[ok], c1[ok]]
+            on = np.zeros(rr.size, dtype=bool)
+            on[ok] = hung[r1[ok], c1[ok]]
+            step = ~found & chain & (hit | on)  # x = this cell, y = prev
+            x = np.zeros((rr.size, 3))
+            x[step] = grid[r1[step], c1[step]]
+            w = prev - x
+            along_w = _dot3(w, u)
+            drop |= step & (along_w < 0.0) & (along_w * along_w > _dot3(w, w) - along_w * along_w)
+            prev[step & on] = x[step & on]
+            via |= step & on
+            chain &= found | hit | on
             hit &= ~found
             v[hit] = grid[r1[hit], c1[hit]] - p[hit]
             found |= hit
         along = _dot3(v, u)
         steep = found & (depth * depth > _dot3(v, v) - along * along)
+        steep |= found & chain & via & drop
         low = np.full(rr.size, np.inf)  # the deepest ground cell beyond P, along u
         for j in range(1, r + 1):
             r1, c1 = rr + j * dr, cc + j * dc
