@@ -36,38 +36,17 @@ from miem import reference as ref  # noqa: E402
 SIDES = ("left", "right", "up", "down", "up-left", "up-right", "down-left", "down-right")
 
 
-def _hanging_parts(grid, labels, rr, cc, r, below, h, nrm):  # noqa: ANN001, ANN202
-    """Per cell: some hanging candidate side passes the 45-degree condition / the shelf /
-    both (the conditions of ``miem.reference._hanging``, apart)."""
-    hh, ww = labels.shape
-    support, ground = labels == miem.NORMAL, (labels == miem.NORMAL) | (labels == miem.EDGE)
-    p = grid[rr, cc]
-    steep_any, shelf_any, both = (np.zeros(rr.size, dtype=bool) for _ in range(3))
-    for k, (dr, dc) in enumerate(ref._HANG_DIRECTIONS):
-        u, depth = nrm[k], -h[k]
-        v, found = np.full((rr.size, 3), np.nan), np.zeros(rr.size, dtype=bool)
-        low = np.full(rr.size, np.inf)
-        for j in range(1, r + 1):
-            for sg in (-1, 1):
-                r1, c1 = rr + sg * j * dr, cc + sg * j * dc
-                ok = (r1 >= 0) & (r1 < hh) & (c1 >= 0) & (c1 < ww)
-                hit = np.zeros(rr.size, dtype=bool)
-                if sg < 0:  # towards the side: the nearest support cell
-                    hit[ok] = support[r1[ok], c1[ok]]
-                    hit &= ~found
-                    v[hit] = grid[r1[hit], c1[hit]] - p[hit]
-                    found |= hit
-                else:  # beyond P: the deepest ground cell along u
-                    hit[ok] = ground[r1[ok], c1[ok]]
-                    hv = np.full(rr.size, np.inf)
-                    hv[hit] = ref._dot3(grid[r1[hit], c1[hit]] - p[hit], u[hit])
-                    low = np.minimum(low, hv)
-        along = ref._dot3(v, u)
-        steep = found & (depth * depth > ref._dot3(v, v) - along * along)
-        shelf = low < -ref._HANG_SHELF * depth
-        steep_any |= below[k] & steep
-        shelf_any |= below[k] & shelf
-        both |= below[k] & steep & shelf
+def _hanging_parts(grid, labels, cells, r, below, h, nrm):  # noqa: ANN001, ANN202
+    """Per cell of ``cells``: some hanging candidate side passes the 45-degree condition / the
+    shelf / both (``miem.reference._hang_conditions``, apart)."""
+    n = below.shape[1]
+    steep_any, shelf_any, both = (np.zeros(n, dtype=bool) for _ in range(3))
+    for k in range(len(SIDES)):
+        if below[k].any():
+            steep, shelf = ref._hang_conditions(grid, labels, cells, r, k, h[k], nrm[k])
+            steep_any |= below[k] & steep
+            shelf_any |= below[k] & shelf
+            both |= below[k] & steep & shelf
     return steep_any, shelf_any, both
 
 
@@ -101,7 +80,7 @@ def misses(first: int, last: int) -> dict:
         rr, cc = np.nonzero(cells)
         nofit = ~fits.any(axis=0)
         cand = nofit & below.any(axis=0)
-        st, sh, both = _hanging_parts(g, labels, rr, cc, r, below, h, nrm)
+        st, sh, both = _hanging_parts(g, labels, cells, r, below, h, nrm)
     tilt = np.degrees(np.arccos(np.clip(nrm[..., 2], -1.0, 1.0)))
     fit_sides = collections.Counter()
     fit_tilt = collections.defaultdict(list)

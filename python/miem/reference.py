@@ -1188,68 +1188,84 @@ def _hanging(
     normals: NDArray[np.float64],
 ) -> NDArray[np.bool_]:
     """The cells of ``cells`` (row-major) that *hang* (SPEC "Edge test" step 6) below one of the
-    sub-windows marked in ``below`` (8, N): steeper than 45 degrees below the top's last ground
-    cell (NORMAL or EDGE) towards that sub-window, or beyond a step that drops that steeply on
-    a path of ABNORMAL cells from that ground cell, and with the surface beyond them more than
-    ``_HANG_SHELF`` times as deep again."""
+    sub-windows marked in ``below`` (8, N): both conditions of :func:`_hang_conditions` hold
+    towards that sub-window."""
+    out = np.zeros(below.shape[1], dtype=bool)
+    for k in range(len(_HANG_DIRECTIONS)):
+        if below[k].any():
+            steep, shelf = _hang_conditions(grid, labels, cells, r, k, h[k], normals[k])
+            out |= below[k] & steep & shelf
+    return out
+
+
+def _hang_conditions(
+    grid: NDArray[np.float64],
+    labels: NDArray[np.uint8],
+    cells: NDArray[np.bool_],
+    r: int,
+    k: int,
+    h: NDArray[np.float64],
+    u: NDArray[np.float64],
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """For the cells of ``cells`` (row-major) below sub-window ``k`` (``h`` their heights over
+    its plane, ``u`` its normals), SPEC "Edge test" step 6's two conditions of hanging apart:
+    *steep* (steeper than 45 degrees below the top's last ground cell, NORMAL or EDGE, towards
+    the sub-window, or beyond a step that drops that steeply on a path of ABNORMAL cells from
+    that ground cell) and *shelf* (ground beyond P more than ``_HANG_SHELF`` times as deep
+    again)."""
     hh, ww = labels.shape
+    dr, dc = _HANG_DIRECTIONS[k]
     ground = (labels == NORMAL) | (labels == EDGE)
     hung = labels == ABNORMAL
     rr, cc = np.nonzero(cells)
     p = grid[rr, cc]
-    out = np.zeros(rr.size, dtype=bool)
+    depth = -h
 
     def inside(r1: NDArray[np.int64], c1: NDArray[np.int64]) -> NDArray[np.bool_]:
         return (r1 >= 0) & (r1 < hh) & (c1 >= 0) & (c1 < ww)
 
-    for k, (dr, dc) in enumerate(_HANG_DIRECTIONS):
-        if not below[k].any():
-            continue
-        u = normals[k]
-        depth = -h[k]
-        # P to the nearest ground cell towards the sub-window (the top's last sample: the angle
-        # passes often label it EDGE, and the nearest NORMAL cell lies further back)
-        v = np.full((rr.size, 3), np.nan)
-        found = np.zeros(rr.size, dtype=bool)
-        # the path P - j d towards the ground cell: while it runs over ABNORMAL cells (`chain`),
-        # any step from a cell to the next one towards P that drops steeper than 45 degrees
-        prev = p.copy()
-        chain = np.ones(rr.size, dtype=bool)
-        drop = np.zeros(rr.size, dtype=bool)
-        via = np.zeros(rr.size, dtype=bool)  # the path passed an ABNORMAL cell
-        for j in range(1, r + 1):
-            r1, c1 = rr - j * dr, cc - j * dc
-            ok = inside(r1, c1)
-            hit = np.zeros(rr.size, dtype=bool)
-            hit[ok] = ground[r1[ok], c1[ok]]
-            on = np.zeros(rr.size, dtype=bool)
-            on[ok] = hung[r1[ok], c1[ok]]
-            step = ~found & chain & (hit | on)  # x = this cell, y = prev
-            x = np.zeros((rr.size, 3))
-            x[step] = grid[r1[step], c1[step]]
-            w = prev - x
-            along_w = _dot3(w, u)
-            drop |= step & (along_w < 0.0) & (along_w * along_w > _dot3(w, w) - along_w * along_w)
-            prev[step & on] = x[step & on]
-            via |= step & on
-            chain &= found | hit | on
-            hit &= ~found
-            v[hit] = grid[r1[hit], c1[hit]] - p[hit]
-            found |= hit
-        along = _dot3(v, u)
-        steep = found & (depth * depth > _dot3(v, v) - along * along)
-        steep |= found & chain & via & drop
-        low = np.full(rr.size, np.inf)  # the deepest ground cell beyond P, along u
-        for j in range(1, r + 1):
-            r1, c1 = rr + j * dr, cc + j * dc
-            ok = inside(r1, c1)
-            hit = np.zeros(rr.size, dtype=bool)
-            hit[ok] = ground[r1[ok], c1[ok]]
-            hv = np.full(rr.size, np.inf)
-            hv[hit] = _dot3(grid[r1[hit], c1[hit]] - p[hit], u[hit])
-            low = np.minimum(low, hv)
-        out |= below[k] & steep & (low < -_HANG_SHELF * depth)
-    return out
+    # P to the nearest ground cell towards the sub-window (the top's last sample: the angle
+    # passes often label it EDGE, and the nearest NORMAL cell lies further back)
+    v = np.full((rr.size, 3), np.nan)
+    found = np.zeros(rr.size, dtype=bool)
+    # the path P - j d towards the ground cell: while it runs over ABNORMAL cells (`chain`),
+    # any step from a cell to the next one towards P that drops steeper than 45 degrees
+    prev = p.copy()
+    chain = np.ones(rr.size, dtype=bool)
+    drop = np.zeros(rr.size, dtype=bool)
+    via = np.zeros(rr.size, dtype=bool)  # the path passed an ABNORMAL cell
+    for j in range(1, r + 1):
+        r1, c1 = rr - j * dr, cc - j * dc
+        ok = inside(r1, c1)
+        hit = np.zeros(rr.size, dtype=bool)
+        hit[ok] = ground[r1[ok], c1[ok]]
+        on = np.zeros(rr.size, dtype=bool)
+        on[ok] = hung[r1[ok], c1[ok]]
+        step = ~found & chain & (hit | on)  # x = this cell, y = prev
+        x = np.zeros((rr.size, 3))
+        x[step] = grid[r1[step], c1[step]]
+        w = prev - x
+        along_w = _dot3(w, u)
+        drop |= step & (along_w < 0.0) & (along_w * along_w > _dot3(w, w) - along_w * along_w)
+        prev[step & on] = x[step & on]
+        via |= step & on
+        chain &= found | hit | on
+        hit &= ~found
+        v[hit] = grid[r1[hit], c1[hit]] - p[hit]
+        found |= hit
+    along = _dot3(v, u)
+    steep = found & (depth * depth > _dot3(v, v) - along * along)
+    steep |= found & chain & via & drop
+    low = np.full(rr.size, np.inf)  # the deepest ground cell beyond P, along u
+    for j in range(1, r + 1):
+        r1, c1 = rr + j * dr, cc + j * dc
+        ok = inside(r1, c1)
+        hit = np.zeros(rr.size, dtype=bool)
+        hit[ok] = ground[r1[ok], c1[ok]]
+        hv = np.full(rr.size, np.inf)
+        hv[hit] = _dot3(grid[r1[hit], c1[hit]] - p[hit], u[hit])
+        low = np.minimum(low, hv)
+    return steep, low < -_HANG_SHELF * depth
 
 
 #: Isolated spikes (SPEC "Edge test" step 7): P lies more than this times its tolerance off
