@@ -3,7 +3,7 @@
 Every synthetic scene of :mod:`suite` (and the paper scene) is flattened, its x / y jittered by
 up to a quarter sampling step (uniform in ``[-step/4, step/4]``), its rows shuffled and its
 dropouts removed, so a detector sees an irregular cloud with no order. The truth labels follow
-the points. Same splits as the suite (tune / test).
+the points. Same splits as the suite (tune / test, and the diagnosis set third).
 
 The jitter moves a point along x / y but keeps its ``z``: on a surface of slope ``g`` it adds
 noise across the surface of about ``g * step / (4 sqrt 3)`` (uniform), which the organized scene
@@ -122,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     import argparse
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--split", choices=("tune", "test"), default="tune")
+    ap.add_argument("--split", choices=("tune", "test", "third"), default="tune")
     ap.add_argument("--kinds", default="", help="comma-separated focus kinds (default: all)")
     ap.add_argument("--no-grid", action="store_true",
                     help="skip the organized detector on the same scenes")

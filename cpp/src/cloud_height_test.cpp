@@ -47,26 +47,109 @@ void assign_roles(const NeighborGrid<T>& grid, const PointsView<T>& points,
   }
 }
 
-// The height verdict of point p from the NORMAL candidates `g` and the feature-line candidates
-// `lines` gathered around it. With `height`, also the point's height over the plane of the NORMAL
-// points within t.radius: the same selection and sums as the heights stage's (height_plane), so
-// the same value to the bit.
-inline bool too_far(const Gather& g, const Gather& lines, const Eigen::Vector3d& p,
+// The bead rule (SPEC "Unorganized clouds: floating groups and height test", step 3): is p,
+// which the test would flag, on a designed bead one point wide across its surroundings? `w`:
+// the offsets from p of the usable (NORMAL or EDGE) points q != p within the height radius;
+// (u, mean) the surroundings plane (mean: its centroid offset from p), h = u . (p - centroid).
+// The run (p and the points q at p's level: |sign(h) u . (q - centroid) - |h|| < |h| / 2) is a
+// line one point wide (at least 3 points; the square root of the middle eigenvalue of the
+// covariance of their offsets below kBeadWidth spacings) that crosses p's ball (along the line's direction it reaches within kBeadMargin
+// spacings of the farthest points both ways), and the other points lie on both sides of it
+// (each side at least kBeadSide of them).
+inline bool on_bead(const std::vector<Eigen::Vector3d>& w, const LocalPlane& lp,
+                    double spacing) {
+  const Eigen::Vector3d& u = lp.normal;
+  const double h = -u.dot(lp.mean);
+  const double level = std::abs(h), band = kBeadLevel * level, sgn = h > 0.0 ? 1.0 : -1.0;
+  auto in_run = [&](const Eigen::Vector3d& q) {
+    return std::abs(sgn * u.dot(q - lp.mean) - level) < band;
+  };
+  double n = 1.0;  // p, at offset 0
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d sq = Eigen::Matrix3d::Zero();
+  for (const Eigen::Vector3d& q : w) {
+    if (!in_run(q)) continue;
+    n += 1.0;
+    sum += q;
+    sq += q * q.transpose();
+  }
+  if (n < 3.0) return false;
+  const Eigen::Vector3d c = sum / n;
+  const Eigen::Matrix3d C = sq / n - c * c.transpose();
+  Eigen::Vector3d ev;
+  Eigen::Matrix3d V;
+  eigen_sym3(C, ev, V);
+  const double width = kBeadWidth * spacing;
+  if (!(ev(1) < width * width)) return false;
+  Eigen::Vector3d L = V.col(2) - V.col(2).dot(u) * u;
+  if (!(L.squaredNorm() > 0.0)) return false;
+  L.normalize();
+  const Eigen::Vector3d across = u.cross(L);
+  double run_lo = 0.0, run_hi = 0.0, all_lo = 0.0, all_hi = 0.0, plus = 0.0, minus = 0.0;
+  for (const Eigen::Vector3d& q : w) {
+    const double a = L.dot(q);
+    all_lo = std::min(all_lo, a);
+    all_hi = std::max(all_hi, a);
+    if (in_run(q)) {
+      run_lo = std::min(run_lo, a);
+      run_hi = std::max(run_hi, a);
+    } else {
+      const double b = across.dot(q - c);
+      plus += b > 0.0 ? 1.0 : 0.0;
+      minus += b < 0.0 ? 1.0 : 0.0;
+    }
+  }
+  const double margin = kBeadMargin * spacing;
+  if (!(run_lo <= all_lo + margin && run_hi >= all_hi - margin)) return false;
+  const double side = kBeadSide * (plus + minus);
+  return plus + minus > 0.0 && plus >= side && minus >= side;
+}
+
+// The usable points' offsets for on_bead: the NORMAL ones within the height radius (ring
+// positions s.pos[0..n_ring), inner s.id[0..n_inner), ball_sums'; not p) and the EDGE ones of
+// `edges` (compact: a feature-line point near made the test abstain before).
+inline bool bead_at(const Gather& g, const Gather& edges, const Selection& s, std::size_t n_ring,
+                    std::size_t n_inner, const Eigen::Vector3d& p, double r2,
+                    const LocalPlane& lp, double spacing) {
+  std::vector<Eigen::Vector3d> w;
+  auto at = [&](const Gather& x, std::size_t k) {
+    return Eigen::Vector3d(x.x[k] - p.x(), x.y[k] - p.y(), x.z[k] - p.z());
+  };
+  for (std::size_t q = 0; q < n_inner; ++q) {
+    if (s.all_d2[s.id[q]] > 0.0) w.push_back(at(g, s.id[q]));
+  }
+  for (std::size_t q = 0; q < n_ring; ++q) w.push_back(at(g, s.pos[q]));
+  for (std::size_t k = 0; k < edges.n; ++k) {
+    const Eigen::Vector3d q = at(edges, k);
+    const double d2 = q.squaredNorm();
+    if (d2 > 0.0 && d2 <= r2) w.push_back(q);
+  }
+  return on_bead(w, lp, spacing);
+}
+
+// The height verdict of point p from the NORMAL candidates `g` and the EDGE candidates `lines`
+// (feature-line and compact, told apart by `role`) gathered around it. With `height`, also the
+// point's height over the plane of the NORMAL points within t.radius: the same selection and
+// sums as the heights stage's (height_plane), so the same value to the bit.
+inline bool too_far(const Gather& g, const Gather& lines, const std::uint8_t* role,
+                    const Eigen::Vector3d& p,
                     const HeightTest& t, Selection& s, double* height, double* rms_out) {
   const double r2 = t.radius * t.radius, in2 = t.inner * t.inner;
   const double px = p.x(), py = p.y(), pz = p.z();
   bool line = false;  // a feature-line point within t.radius: the test abstains
   for (std::size_t k = 0; k < lines.n; ++k) {
     const double dx = lines.x[k] - px, dy = lines.y[k] - py, dz = lines.z[k] - pz;
-    line |= dx * dx + dy * dy + dz * dz <= r2;
+    line |= role[lines.id[k]] == kRoleLine && dx * dx + dy * dy + dz * dz <= r2;
   }
   if (line && height == nullptr) return false;
   // The NORMAL points within t.radius: those beyond t.inner are the surroundings (`around`, not
   // the point's own bump).
   OffsetSums around, inner;
   ball_sums(g, p, r2, in2, s, &around, &inner);
-  const double inner_n = inner.n;
+  const std::size_t n_ring = static_cast<std::size_t>(around.n);
+  const std::size_t m_in = static_cast<std::size_t>(inner.n);
   LocalPlane lp;
+  auto flag = [&] { return !bead_at(g, lines, s, n_ring, m_in, p, r2, lp, t.spacing); };
   if (height != nullptr) {
     *height = plane_from_sums(around.plus(inner), &lp) == PlaneStatus::kOk
                   ? -lp.normal.dot(lp.mean)
@@ -79,19 +162,18 @@ inline bool too_far(const Gather& g, const Gather& lines, const Eigen::Vector3d&
   const Eigen::Vector3d& ev = lp.eigenvalues;
   const double rms = std::sqrt(std::max(ev(0), 0.0) / n);
   if (rms_out != nullptr) *rms_out = rms;
-  if (t.abs > 0.0 && h > t.abs) return true;
+  if (t.abs > 0.0 && h > t.abs) return flag();
   if (!(t.k > 0.0) && !(t.iso_k > 0.0)) return false;
   // The common case first: below every multiple of the rms in use (the isolated-point rule
   // applies with a length tolerance too).
   const double k_lo = !(t.k > 0.0) ? t.iso_k : t.iso_k > 0.0 ? std::min(t.k, t.iso_k) : t.k;
   if (!(h > k_lo * rms)) return false;
   if (!(h > 1e-9 * std::sqrt((ev(1) + ev(2)) / n))) return false;
-  if (t.k > 0.0 && h > t.k * rms) return true;
+  if (t.k > 0.0 && h > t.k * rms) return flag();
   if (!(t.iso_k > 0.0 && h > t.iso_k * rms)) return false;
   // The isolated-point rule: the NORMAL points q != p within t.inner (the inner positions
   // ball_sums left in s.id; p itself is the one at distance 0) lie about the surroundings plane
   // as loosely as its rms says: the median of their |heights| is at least kIsolatedMedian rms.
-  const std::size_t m_in = static_cast<std::size_t>(inner_n);
   const double nx = lp.normal.x(), ny = lp.normal.y(), nz = lp.normal.z();
   const double mx = lp.mean.x(), my = lp.mean.y(), mz = lp.mean.z();
   double* __restrict hv = s.wx.data();  // free here: ball_sums does not use it
@@ -107,7 +189,7 @@ inline bool too_far(const Gather& g, const Gather& lines, const Eigen::Vector3d&
   std::nth_element(hv, hv + mid, hv + m);
   double med = hv[mid];
   if (m % 2 == 0) med = (*std::max_element(hv, hv + mid) + med) / 2.0;
-  return med >= kIsolatedMedian * rms;
+  return med >= kIsolatedMedian * rms && flag();
 }
 
 }  // namespace
@@ -123,7 +205,7 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
   const std::uint32_t* order = grid.order();
   const std::uint8_t* rl = nullptr;
   // Candidate classes in grid order (sequential reads in the gathers): NORMAL points into the
-  // main list, feature-line points aside.
+  // main list, EDGE points (feature-line and compact) aside.
   std::vector<std::uint8_t> class_sorted(static_cast<std::size_t>(grid.num_indexed()));
   const std::uint8_t* cs = class_sorted.data();
   auto class_of = [cs](std::uint32_t k, std::uint32_t) { return cs[k]; };
@@ -138,7 +220,9 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
 #pragma omp parallel for schedule(static) num_threads(ntn) if (ntn > 1)
       for (std::ptrdiff_t k = 0; k < ni; ++k) {
         const std::uint8_t r = rl[order[k]];
-        class_sorted[k] = r == kRoleNormal ? kClassMain : r == kRoleLine ? kClassAside : kClassSkip;
+        class_sorted[k] = r == kRoleNormal                        ? kClassMain
+                          : r == kRoleLine || r == kRoleCompact ? kClassAside
+                                                                : kClassSkip;
       }
     }
     ++passes;
@@ -155,7 +239,9 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
           if (!tested(rl[i])) continue;
           double* h = t.height != nullptr ? t.height + i : nullptr;
           double* rms = t.first_rms != nullptr ? t.first_rms + i : nullptr;
-          if (too_far(js.gather, js.aside, grid.sorted_point(k), t, js.sel, h, rms)) mark[i] = 1;
+          if (too_far(js.gather, js.aside, rl, grid.sorted_point(k), t, js.sel, h, rms)) {
+            mark[i] = 1;
+          }
           if (h != nullptr) t.have[i] = 1;
         }
       });
@@ -182,7 +268,7 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
         JudgeScratch& js = scratch[thread_id()];
         const Eigen::Vector3d pi = points[i];
         gather_split(grid, grid.box_around(pi, pi, t.radius), class_of, js.gather, js.aside);
-        if (too_far(js.gather, js.aside, pi, t, js.sel, nullptr, nullptr)) mark[i] = 1;
+        if (too_far(js.gather, js.aside, rl, pi, t, js.sel, nullptr, nullptr)) mark[i] = 1;
       }
     }
     std::ptrdiff_t added = 0;

@@ -26,6 +26,14 @@ std::vector<std::uint32_t> floating_points(const NeighborGrid<T>& grid, const Po
 /// The isolated-point rule of the height test: the median |height| of the point's inner NORMAL
 /// neighbours over the surroundings plane must be at least this multiple of the plane's rms.
 inline constexpr double kIsolatedMedian = 0.5;
+// The bead rule (SPEC "Unorganized clouds: floating groups and height test", step 3): the run
+// (the points within kBeadLevel |h| of p's level) is a line at most kBeadWidth spacings wide
+// (rms across), reaching within kBeadMargin spacings of the farthest usable points both ways,
+// with at least kBeadSide of the others on each side.
+inline constexpr double kBeadLevel = 0.5;
+inline constexpr double kBeadWidth = 0.25;
+inline constexpr double kBeadMargin = 2.0;
+inline constexpr double kBeadSide = 0.25;
 
 /// The height test's settings, resolved (lengths in the points' units).
 struct HeightTest {
@@ -36,6 +44,7 @@ struct HeightTest {
   double inner = 0.0;          ///< the plane is fitted to the NORMAL points beyond this
   double link = 0.0;           ///< EDGE grouping distance
   double compact_len = 0.0;    ///< EDGE groups at most this across are compact
+  double spacing = 0.0;        ///< the cloud's spacing (the bead rule's lengths)
   int max_iterations = 1;
   /// Optional: the first pass also writes the height of every tested point over the plane of
   /// the NORMAL points within `radius` (as the heights stage does) into `height[i]`, sets

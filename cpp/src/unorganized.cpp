@@ -325,6 +325,7 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
     t.inner = radius;
     t.link = link;
     t.compact_len = p.edge_extent * summary.spacing;
+    t.spacing = summary.spacing;
     t.max_iterations = p.max_iterations;
     std::vector<std::uint32_t> unnormal;
     if (p.height_mode == HeightMode::kAll) {

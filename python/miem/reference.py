@@ -2182,6 +2182,7 @@ def _cloud_height_pass(
     tolerance: tuple[str, float],
     stats: NDArray[np.float64] | None = None,
     isolated: float | None = None,
+    spacing: float = 0.0,
 ) -> NDArray[np.bool_]:
     """One cloud height pass: the NORMAL and compact-EDGE points that become ABNORMAL (with
     ``stats``, also each point's surroundings rms where the test gave a verdict, NaN elsewhere).
@@ -2189,7 +2190,8 @@ def _cloud_height_pass(
     ``(hi, hj, hw)`` are the pairs within the height radius, each point paired with itself too;
     ``outer`` marks the pairs farther apart than ``radius`` (the plane is fitted to those: the
     surroundings, not the point's own bump). ``isolated`` (a multiple of the rms, or None: off)
-    turns on the isolated-point rule (with the "<k>rms" tolerance only).
+    turns on the isolated-point rule (with the "<k>rms" tolerance only). ``spacing`` is the
+    unit of the bead rule's lengths (SPEC step 3), which spares the points on a designed bead.
     """
     n_pts = normal.shape[0]
     tested = normal | compact
@@ -2213,17 +2215,67 @@ def _cloud_height_pass(
         out = exists & (absh > value)
     else:
         out = exists & (absh > value * rms) & (absh > floor)
-    if isolated is None:  # (with a length tolerance too, when it is given)
-        return out
-    # The isolated-point rule: |h| > isolated * rms, and the NORMAL points q != p within radius
-    # lie about the surroundings plane as loosely as its rms says (the median of their |heights|
-    # is at least _CLOUD_ISOLATED_MEDIAN * rms): p alone stands out of a smooth neighbourhood.
-    cand = exists & ~out & (absh > isolated * rms) & (absh > floor)
-    ins = cand[hi] & normal[hj] & ~outer & (hi != hj)
-    gi = hi[ins]
-    hq = np.abs(_dot3(nrm[gi], hw[ins] - cen[gi]))
-    med = _group_medians(gi, hq, n_pts)
-    return out | (cand & (med >= _CLOUD_ISOLATED_MEDIAN * rms))
+    if isolated is not None:  # (with a length tolerance too, when it is given)
+        # The isolated-point rule: |h| > isolated * rms, and the NORMAL points q != p within
+        # radius lie about the surroundings plane as loosely as its rms says (the median of
+        # their |heights| is at least _CLOUD_ISOLATED_MEDIAN * rms): p alone stands out of a
+        # smooth neighbourhood.
+        cand = exists & ~out & (absh > isolated * rms) & (absh > floor)
+        ins = cand[hi] & normal[hj] & ~outer & (hi != hj)
+        gi = hi[ins]
+        hq = np.abs(_dot3(nrm[gi], hw[ins] - cen[gi]))
+        med = _group_medians(gi, hq, n_pts)
+        out = out | (cand & (med >= _CLOUD_ISOLATED_MEDIAN * rms))
+    # The bead rule: a point on a designed bead one point wide keeps its label.
+    usable = normal | compact | line
+    pairs = out[hi] & (hj != hi) & usable[hj]
+    pi, pw = hi[pairs], hw[pairs]
+    for i in np.flatnonzero(out):
+        if _cloud_bead(pw[pi == i], nrm[i], cen[i], spacing):
+            out[i] = False
+    return out
+
+
+#: Cloud height test, bead rule (SPEC "Unorganized clouds: floating groups and height test",
+#: step 3): the run holds the points within this share of |h| of the point's level ...
+_CLOUD_BEAD_LEVEL = 0.5
+#: ... and is at most this many spacings wide (rms across the line) ...
+_CLOUD_BEAD_WIDTH = 0.25
+#: ... reaches within this many spacings of the farthest usable points both ways ...
+_CLOUD_BEAD_MARGIN = 2.0
+#: ... and has at least this share of the other usable points on each side.
+_CLOUD_BEAD_SIDE = 0.25
+
+
+def _cloud_bead(
+    w: NDArray[np.float64], u: NDArray[np.float64], c: NDArray[np.float64], spacing: float
+) -> bool:
+    """SPEC "Unorganized clouds: floating groups and height test", step 3, the bead rule: is a
+    point on a designed bead one point wide across its surroundings? ``w``: the offsets from it
+    of the usable points within the height radius (not itself); ``u``, ``c``: the surroundings
+    plane's oriented normal and centroid offset."""
+    h = -float(u @ c)
+    raised = np.abs(np.sign(h) * ((w - c) @ u) - abs(h)) < _CLOUD_BEAD_LEVEL * abs(h)
+    run = np.vstack([np.zeros((1, 3)), w[raised]])  # the point itself at offset 0
+    if run.shape[0] < 3:
+        return False
+    m = run.mean(axis=0)
+    evals, evecs = np.linalg.eigh((run - m).T @ (run - m) / run.shape[0])
+    if not evals[1] < (_CLOUD_BEAD_WIDTH * spacing) ** 2:
+        return False
+    line = evecs[:, 2] - (evecs[:, 2] @ u) * u
+    norm = float(np.sqrt(line @ line))
+    if not norm > 0.0:
+        return False
+    line = line / norm
+    along = np.concatenate([[0.0], w @ line])
+    run_along = np.concatenate([[0.0], w[raised] @ line])
+    margin = _CLOUD_BEAD_MARGIN * spacing
+    if not (run_along.min() <= along.min() + margin and run_along.max() >= along.max() - margin):
+        return False
+    side = (w[~raised] - m) @ np.cross(u, line)
+    plus, minus = int(np.count_nonzero(side > 0.0)), int(np.count_nonzero(side < 0.0))
+    return plus + minus > 0 and min(plus, minus) >= _CLOUD_BEAD_SIDE * (plus + minus)
 
 
 def _group_medians(
@@ -2683,7 +2735,7 @@ def detect_points(
                 compact = _cloud_compact_edges(pts, edge, lnk, extent * spacing)
                 new_abn = _cloud_height_pass(
                     hi, hj, hw, outer, labels == NORMAL, compact, edge & ~compact, tolerance,
-                    first_rms if it == 0 else None, iso_k,
+                    first_rms if it == 0 else None, iso_k, spacing,
                 )
                 labels[new_abn] = ABNORMAL
                 abnormal |= new_abn
