@@ -10,10 +10,10 @@
 // runs; detect_organized's outputs are zeroed vectors besides), the process CPU time of both
 // ("run_cpu", "fresh_cpu"), their minor page faults (last repeat) and least system CPU time
 // ("run_faults", "fresh_faults", "run_sys", "fresh_sys"), the min_step used (-1: off) and
-// checksums of the labels, flags, heights and angles. With "fresh-stages" it adds "fresh_stages": each stage timed as in a
-// fresh run (a new workspace and new outputs per repeat), with the minor page faults and the
-// system CPU time (getrusage, all threads) each stage and the release of the buffers ("free")
-// cost: where a new detector's extra time goes.
+// checksums of the labels, flags, heights and angles. With "fresh-stages" it adds
+// "fresh_stages": each stage timed as in a fresh run (a new workspace and new outputs per
+// repeat), with the minor page faults and the system CPU time (getrusage, all threads) of each
+// stage and of the release of the buffers ("free"): where a new detector's extra time goes.
 // With LD_PRELOAD=libmiem_schedule_probe.so (schedule_probe.cpp) it adds "schedule": per stage
 // and run, the CPU work, the critical path (serial CPU + the largest thread's CPU of each parallel
 // region), the master's CPU spent entering and leaving regions and the regions, per call:
@@ -290,7 +290,7 @@ int main(int argc, char** argv) {
               "\"fresh_cpu\": %.6f, \"run_faults\": %ld, \"fresh_faults\": %ld, "
               "\"run_sys\": %.6f, \"fresh_sys\": %.6f}\n",
               best_run, best_fresh, best_run_cpu, g_cpu_clock ? "cpu" : "wall", min_step, sum,
-              fsum, hsum, asum, fresh_same ? "true" : "false", best_fresh_cpu, run_flt, fresh_flt, run_sys,
-              fresh_sys);
+              fsum, hsum, asum, fresh_same ? "true" : "false", best_fresh_cpu, run_flt, fresh_flt,
+              run_sys, fresh_sys);
   return 0;
 }

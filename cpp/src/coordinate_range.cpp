@@ -25,7 +25,8 @@ inline T take(T top, T v) {
 inline double row_top(const double* p, std::ptrdiff_t n, double top) {
   std::ptrdiff_t c = 0;
 #ifdef __SSE2__
-  const __m128d sign = _mm_set1_pd(-0.0), inf = _mm_set1_pd(std::numeric_limits<double>::infinity());
+  const __m128d sign = _mm_set1_pd(-0.0);
+  const __m128d inf = _mm_set1_pd(std::numeric_limits<double>::infinity());
   __m128d t0 = _mm_setzero_pd(), t1 = _mm_setzero_pd();
   for (; c + 4 <= n; c += 4) {  // |v| where it is below inf, else 0; max (no NaN reaches it)
     const __m128d a0 = _mm_andnot_pd(sign, _mm_loadu_pd(p + c));
