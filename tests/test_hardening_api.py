@@ -267,6 +267,31 @@ def test_stream_refuses_profiles_beyond_the_range():
     assert s.rows_pushed == 1  # refused, not half-taken
 
 
+@pytest.mark.parametrize("layout", ["c", "strided", "reversed", "fortran", "float32"])
+def test_the_range_check_reads_every_value_of_any_layout(layout):
+    """One value out of range at the last position of a view (inf and NaN elsewhere do not
+    count): refused, with its magnitude in the message; lifting the largest magnitude of a tiny
+    grid into the range there makes it computable."""
+    g = _grid()
+    g[1, 2] = [np.inf, np.nan, -np.inf]
+    views = {"c": lambda a: a, "strided": lambda a: a[:, ::2],
+             "reversed": lambda a: a[::-1, ::-1, ::-1], "fortran": np.asfortranarray,
+             "float32": lambda a: a.astype(np.float32)[:, 1:]}
+    arr = views[layout](g)
+    miem.detect(arr)  # in range: computes
+    last = tuple(n - 1 for n in arr.shape)
+    keep = arr[last]
+    arr[last] = -3e18
+    with pytest.raises(ValueError, match=r"magnitude of 3e\+18.*rescale"):
+        miem.detect(arr)
+    arr[last] = keep
+    arr *= 1e-20  # largest magnitude below 1e-18: refused ...
+    with pytest.raises(ValueError, match="rescale"):
+        miem.detect(arr)
+    arr[last] = 1.0  # ... unless the last value lifts it
+    miem.detect(arr)
+
+
 def test_plane_distance_of_non_finite_points_is_nan():
     plane = miem.fit_plane(_grid().reshape(-1, 3))
     d = plane.distance(np.array([[np.inf, 0, 0], [0, 0, -np.inf], [np.nan, 0, 0], [0, 0, 1.0]]))

@@ -2,26 +2,36 @@
 // (cpp/src/stages.hpp) timed on its own, in the order run() calls them.
 //
 // Usage: miem_bench_stages GRID.f64 ROWS COLS THREADS REPEATS [paper|recommended|recommended-no-edge]
+//        [fresh-stages]
 // GRID.f64 is ROWS x COLS x 3 doubles (numpy tofile). Prints one JSON object: the best time of
 // each stage over REPEATS runs (seconds; process CPU time with 1 thread, wall time with more),
 // the whole run() ("run": one detector reused, its workspace warm; "run_fresh": a new detector
-// and new, uninitialised outputs per call, as miem.detect runs; detect_organized's outputs are
-// zeroed vectors besides), the
-// process CPU time of run() ("run_cpu"), the min_step used (-1: off) and checksums of the labels,
-// flags, heights and angles.
+// and new, uninitialised outputs per call allocated as np.empty allocates them, as miem.detect
+// runs; detect_organized's outputs are zeroed vectors besides), the process CPU time of both
+// ("run_cpu", "fresh_cpu"), their minor page faults (last repeat) and least system CPU time
+// ("run_faults", "fresh_faults", "run_sys", "fresh_sys"), the min_step used (-1: off) and
+// checksums of the labels, flags, heights and angles. With "fresh-stages" it adds
+// "fresh_stages": each stage timed as in a fresh run (a new workspace and new outputs per
+// repeat), with the minor page faults and the system CPU time (getrusage, all threads) of each
+// stage and of the release of the buffers ("free"): where a new detector's extra time goes.
 // With LD_PRELOAD=libmiem_schedule_probe.so (schedule_probe.cpp) it adds "schedule": per stage
 // and run, the CPU work, the critical path (serial CPU + the largest thread's CPU of each parallel
 // region), the master's CPU spent entering and leaving regions and the regions, per call:
 // work / critical is the speed-up the schedule allows.
 #include <dlfcn.h>
+#include <sys/mman.h>
+#include <sys/resource.h>
 
 #include <algorithm>
 #include <chrono>
 #include <ctime>
+#include <cstdint>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <fstream>
 #include <memory>
+#include <new>
 #include <string>
 #include <vector>
 
@@ -56,6 +66,35 @@ const auto g_result = reinterpret_cast<ResultFn>(dlsym(RTLD_DEFAULT, "miem_probe
 void section(const char* name) {
   if (g_section) g_section(name);
 }
+// An output array as np.empty allocates it (miem.detect's outputs): malloc, and from 4 MiB on
+// MADV_HUGEPAGE from the next 4 KiB page to the end (NumPy's default_malloc, numpy alloc.c).
+template <typename T>
+struct NumpyEmpty {
+  T* p;
+  explicit NumpyEmpty(std::size_t n) : p(static_cast<T*>(std::malloc(n * sizeof(T)))) {
+    if (p == nullptr) throw std::bad_alloc();
+#ifdef MADV_HUGEPAGE
+    const std::size_t bytes = n * sizeof(T);
+    if (bytes >= (std::size_t{1} << 22)) {
+      const std::size_t off = 4096 - reinterpret_cast<std::uintptr_t>(p) % 4096;
+      madvise(reinterpret_cast<char*>(p) + off, bytes - off, MADV_HUGEPAGE);
+    }
+#endif
+  }
+  NumpyEmpty(const NumpyEmpty&) = delete;
+  NumpyEmpty& operator=(const NumpyEmpty&) = delete;
+  ~NumpyEmpty() { std::free(p); }
+};
+// minor page faults and system CPU seconds of the process so far (all threads)
+struct Usage {
+  long minflt = 0;
+  double sys = 0.0;
+};
+Usage usage() {
+  rusage ru;
+  getrusage(RUSAGE_SELF, &ru);
+  return {ru.ru_minflt, static_cast<double>(ru.ru_stime.tv_sec) + 1e-6 * ru.ru_stime.tv_usec};
+}
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -66,6 +105,7 @@ int main(int argc, char** argv) {
   const std::ptrdiff_t H = std::stol(argv[2]), W = std::stol(argv[3]);
   const int nt = std::stoi(argv[4]), reps = std::stoi(argv[5]);
   const std::string preset = argc > 6 ? argv[6] : "recommended";
+  const bool fresh_stages = argc > 7 && std::string(argv[7]) == "fresh-stages";
   g_cpu_clock = nt == 1;
   std::vector<double> xyz(static_cast<std::size_t>(H * W * 3));
   std::ifstream f(argv[1], std::ios::binary);
@@ -93,7 +133,9 @@ int main(int argc, char** argv) {
   std::fill(best, best + kStages, 1e30);
   miem::detail::Workspace ws;
   miem::OrganizedDetector det(p);
-  double best_fresh = 1e30, best_run_cpu = 1e30;
+  double best_fresh = 1e30, best_run_cpu = 1e30, run_sys = 1e30, fresh_sys = 1e30;
+  double best_fresh_cpu = 1e30;
+  long run_flt = 0, fresh_flt = 0;  // minor page faults of the last repeat
   for (int rep = 0; rep < reps; ++rep) {
     double t[kStages + 1];
     miem::DetectParams eff = p;
@@ -131,20 +173,77 @@ int main(int argc, char** argv) {
     for (int k = 0; k < kStages; ++k) best[k] = std::min(best[k], t[k + 1] - t[k]);
     (void)plane;
     section("run");
+    const Usage u0 = usage();
     const double c0 = process_cpu(), t0 = now();
     det.run(g, out);
     best_run = std::min(best_run, now() - t0);
     best_run_cpu = std::min(best_run_cpu, process_cpu() - c0);
+    const Usage u1 = usage();
+    run_flt = u1.minflt - u0.minflt;
+    run_sys = std::min(run_sys, u1.sys - u0.sys);
     section("run_fresh");
-    const double t1 = now();
+    const double c1 = process_cpu(), t1 = now();
     {  // as miem.detect runs: a new detector, outputs allocated and not initialised (np.empty)
       miem::OrganizedDetector fresh_det(p);
-      std::unique_ptr<std::uint8_t[]> fl(new std::uint8_t[N]), ff(new std::uint8_t[N]);
-      std::unique_ptr<double[]> fa(new double[N]), fh(new double[N]);
-      fresh_det.run(g, miem::OrganizedOutput{fl.get(), ff.get(), fa.get(), fh.get()});
+      NumpyEmpty<std::uint8_t> fl(N), ff(N);
+      NumpyEmpty<double> fa(N), fh(N);
+      fresh_det.run(g, miem::OrganizedOutput{fl.p, ff.p, fa.p, fh.p});
     }
     best_fresh = std::min(best_fresh, now() - t1);
+    best_fresh_cpu = std::min(best_fresh_cpu, process_cpu() - c1);
+    const Usage u2 = usage();
+    fresh_flt = u2.minflt - u1.minflt;
+    fresh_sys = std::min(fresh_sys, u2.sys - u1.sys);
     section(nullptr);
+  }
+  // Each stage as a fresh run meets it: a new workspace and new, uninitialised outputs.
+  constexpr int kFresh = kStages + 1;  // the stages and the release of the buffers
+  double fbest[kFresh], fsys[kFresh];
+  long fflt[kFresh];
+  std::fill(fbest, fbest + kFresh, 1e30);
+  std::fill(fsys, fsys + kFresh, 1e30);
+  std::fill(fflt, fflt + kFresh, 0L);
+  for (int rep = 0; fresh_stages && rep < reps; ++rep) {
+    double t[kFresh + 1];
+    Usage u[kFresh + 1];
+    auto mark = [&](int k) {
+      u[k] = usage();
+      t[k] = now();
+    };
+    {
+      auto fws = std::make_unique<miem::detail::Workspace>();
+      NumpyEmpty<std::uint8_t> fl(N), ff(N);
+      NumpyEmpty<double> fa(N), fh(N);
+      const miem::OrganizedOutput fo{fl.p, ff.p, fa.p, fh.p};
+      miem::DetectParams eff = p;
+      mark(0);
+      if (eff.min_step_auto) {
+        eff.min_step = miem::detail::auto_min_step(g, fws->survey, nt);
+        eff.min_step_auto = false;
+      }
+      mark(1);
+      miem::detail::angle_passes(g, eff, fo, *fws);
+      mark(2);
+      const bool ht = eff.height_test();
+      if (ht) miem::detail::height_test(g, eff, fo.labels, fo.height, *fws);
+      mark(3);
+      if (eff.edge_test())
+        miem::detail::edge_passes(g, fo.labels, eff.edge_window, eff.edge_k,
+                                  eff.max_iterations, nt, fws->edge_sums, fws->edge_flags);
+      mark(4);
+      (void)miem::detail::miem_plane(g, fo.labels, nt, *fws);
+      mark(5);
+      miem::detail::heights(g, eff, fo.labels, fo.height, ht, *fws);
+      mark(6);
+      (void)miem::detail::organized_defects(g, fo.labels, fo.height, eff.window, *fws, nt);
+      mark(7);
+    }
+    mark(8);
+    for (int k = 0; k < kFresh; ++k) {
+      if (t[k + 1] - t[k] < fbest[k]) fflt[k] = u[k + 1].minflt - u[k].minflt;
+      fbest[k] = std::min(fbest[k], t[k + 1] - t[k]);
+      fsys[k] = std::min(fsys[k], u[k + 1].sys - u[k].sys);
+    }
   }
   // the fresh detector's outputs equal the reused one's
   const miem::DetectResult fresh = miem::detect_organized(g, p);
@@ -178,10 +277,20 @@ int main(int argc, char** argv) {
     }
     std::printf("}, ");
   }
+  if (fresh_stages) {  // per stage: best time, its minor faults, least system time
+    std::printf("\"fresh_stages\": {");
+    for (int k = 0; k < kFresh; ++k)
+      std::printf("%s\"%s\": [%.6f, %ld, %.6f]", k ? ", " : "", k < kStages ? names[k] : "free",
+                  fbest[k], fflt[k], fsys[k]);
+    std::printf("}, ");
+  }
   std::printf("\"run\": %.6f, \"run_fresh\": %.6f, \"run_cpu\": %.6f, \"clock\": \"%s\", "
               "\"min_step\": %.17g, \"checksum\": %lld, \"flags_checksum\": %lld, "
-              "\"height_bits\": %llu, \"angle_bits\": %llu, \"fresh_same\": %s}\n",
+              "\"height_bits\": %llu, \"angle_bits\": %llu, \"fresh_same\": %s, "
+              "\"fresh_cpu\": %.6f, \"run_faults\": %ld, \"fresh_faults\": %ld, "
+              "\"run_sys\": %.6f, \"fresh_sys\": %.6f}\n",
               best_run, best_fresh, best_run_cpu, g_cpu_clock ? "cpu" : "wall", min_step, sum,
-              fsum, hsum, asum, fresh_same ? "true" : "false");
+              fsum, hsum, asum, fresh_same ? "true" : "false", best_fresh_cpu, run_flt, fresh_flt,
+              run_sys, fresh_sys);
   return 0;
 }

@@ -228,10 +228,7 @@ def _check_range(arr: np.ndarray, name: str, lower: bool = True) -> None:
     """ValueError when the finite coordinates leave the SPEC range (one pass, no copy). With
     ``lower=False`` only the upper bound is checked (a stream sees one profile at a time, and
     the lower bound is about the whole scan)."""
-    finite = np.isfinite(arr)  # one byte per value, no float temporary
-    hi = float(np.max(arr, where=finite, initial=-np.inf))
-    lo = float(np.min(arr, where=finite, initial=np.inf))
-    top = max(abs(hi), abs(lo)) if hi >= lo else 0.0
+    top = _core.finite_extent(arr, name)  # largest finite magnitude: one pass, in place
     if top > COORDINATE_MAX or (lower and 0.0 < top < COORDINATE_MIN):
         raise ValueError(
             f"{name}: finite coordinates reach a magnitude of {top:.3g}, outside the range the "

@@ -2,10 +2,12 @@
 // local heights and defects. The exact rules are in docs/SPEC.md.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <limits>
 #include <optional>
 #include <memory>
+#include <new>
 #include <string>
 #include <utility>
 #include <vector>
@@ -44,18 +46,31 @@ struct FitScratch {
   std::vector<std::uint8_t> flags;
 };
 
-/// An allocator whose resize() leaves new cells unwritten (default-initialised): the per-cell
-/// buffers below are first written by the stages' parallel loops, so a new detector's pages are
-/// touched by all its threads, not zeroed first by one (miem.detect builds one per call).
+/// Memory for the per-cell buffers below (cpp/src/cell_memory.cpp): blocks of 2 MiB or more are
+/// 2 MiB-aligned and advised as huge-page candidates (Linux MADV_HUGEPAGE, as NumPy advises its
+/// large arrays), so a new detector's first touch of a buffer costs one page fault per 2 MiB, not
+/// one per 4 KiB; smaller blocks come from operator new. Freed blocks go back as usual.
+void* allocate_cells(std::size_t bytes);
+void free_cells(void* p, std::size_t bytes) noexcept;
+
+/// An allocator whose resize() leaves new cells unwritten (default-initialised) in memory from
+/// allocate_cells: the per-cell buffers below are first written by the stages' parallel loops, so
+/// a new detector's pages are touched by all its threads, not zeroed first by one (miem.detect
+/// builds one per call).
 template <typename T>
-struct UninitAllocator : std::allocator<T> {
+struct CellAllocator : std::allocator<T> {
   template <typename U>
   struct rebind {
-    using other = UninitAllocator<U>;
+    using other = CellAllocator<U>;
   };
-  UninitAllocator() = default;
+  CellAllocator() = default;
   template <typename U>
-  UninitAllocator(const UninitAllocator<U>&) noexcept {}
+  CellAllocator(const CellAllocator<U>&) noexcept {}
+  T* allocate(std::size_t n) {
+    if (n > std::numeric_limits<std::size_t>::max() / sizeof(T)) throw std::bad_array_new_length();
+    return static_cast<T*>(allocate_cells(n * sizeof(T)));
+  }
+  void deallocate(T* p, std::size_t n) noexcept { free_cells(p, n * sizeof(T)); }
   template <typename U>
   void construct(U* p) noexcept {
     ::new (static_cast<void*>(p)) U;
@@ -66,7 +81,7 @@ struct UninitAllocator : std::allocator<T> {
   }
 };
 /// One byte per cell (or a few), not initialised by resize().
-using CellBytes = std::vector<std::uint8_t, UninitAllocator<std::uint8_t>>;
+using CellBytes = std::vector<std::uint8_t, CellAllocator<std::uint8_t>>;
 
 /// The work buffers of one detector, kept between runs (same-size runs do not allocate).
 struct Workspace {

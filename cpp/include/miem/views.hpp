@@ -57,4 +57,11 @@ struct GridView {
   }
 };
 
+/// The largest magnitude among the finite values of `rows` x `cols` values of T at `data` (strides
+/// in elements), 0 when none is finite: the number SPEC's coordinate range bounds (the Python
+/// layer compares it, miem/_api.py _check_range). One read pass, no temporaries.
+template <typename T>
+double largest_finite_magnitude(const T* data, std::ptrdiff_t rows, std::ptrdiff_t cols,
+                                std::ptrdiff_t row_stride, std::ptrdiff_t col_stride);
+
 }  // namespace miem

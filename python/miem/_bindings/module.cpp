@@ -4,6 +4,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <algorithm>
 #include <cstdint>
 #include <stdexcept>
 #include <string>
@@ -17,6 +18,8 @@ namespace py = pybind11;
 namespace {
 
 using miem::bindings::defect_list;
+using miem::bindings::elem_stride;
+using miem::bindings::is_f32;
 using miem::bindings::plane_or_none;
 using miem::bindings::plane_tuple;
 using miem::bindings::require_float;
@@ -33,6 +36,49 @@ py::tuple fit_plane(const py::array& points, const std::string& method, int num_
     return eig ? miem::fit_plane_eigen(v, num_threads) : miem::fit_plane_lstsq(v, num_threads);
   });
   return plane_tuple(p);
+}
+
+// The largest finite magnitude of an array of any shape (miem.largest_finite_magnitude over its
+// last two axes, for each index of the others; C-contiguous data as one row), read in place.
+template <typename T>
+double finite_extent_of(const py::array& a, const char* name) {
+  const T* base = static_cast<const T*>(a.data());
+  const int nd = static_cast<int>(a.ndim());
+  if (a.size() == 0) return 0.0;
+  if (nd == 0 || (a.flags() & py::array::c_style)) {
+    const std::ptrdiff_t n = a.size();
+    py::gil_scoped_release nogil;
+    return miem::largest_finite_magnitude(base, 1, n, 0, 1);
+  }
+  std::vector<std::ptrdiff_t> shape(static_cast<std::size_t>(nd)), st(shape.size());
+  for (int k = 0; k < nd; ++k) {
+    shape[k] = a.shape(k);
+    st[k] = elem_stride<T>(a, k, name);
+  }
+  if (nd == 1) {
+    py::gil_scoped_release nogil;
+    return miem::largest_finite_magnitude(base, 1, shape[0], 0, st[0]);
+  }
+  std::ptrdiff_t blocks = 1;
+  for (int k = 0; k < nd - 2; ++k) blocks *= shape[k];
+  double top = 0.0;
+  py::gil_scoped_release nogil;
+  for (std::ptrdiff_t b = 0; b < blocks; ++b) {
+    std::ptrdiff_t off = 0, rest = b;
+    for (int k = nd - 3; k >= 0; --k) {
+      off += (rest % shape[k]) * st[k];
+      rest /= shape[k];
+    }
+    top = std::max(top, miem::largest_finite_magnitude(base + off, shape[nd - 2], shape[nd - 1],
+                                                       st[nd - 2], st[nd - 1]));
+  }
+  return top;
+}
+
+double finite_extent(const py::array& a, const std::string& name) {
+  require_float(a, name.c_str());
+  return is_f32(a) ? finite_extent_of<float>(a, name.c_str())
+                   : finite_extent_of<double>(a, name.c_str());
 }
 
 template <bool kHeights>
@@ -77,6 +123,8 @@ PYBIND11_MODULE(_core, m) {
 #endif
   m.def("max_threads", &miem::max_threads,
         "The most threads any call uses; larger num_threads requests are clamped to it.");
+  m.def("finite_extent", &finite_extent, py::arg("a"), py::arg("name"),
+        "The largest magnitude among the finite values of a float32/float64 array (0 if none).");
   m.def("fit_plane", &fit_plane, py::arg("points"), py::arg("method"), py::arg("num_threads"));
   m.def("scan_line_angles", &scan_line<false>, py::arg("line"), py::arg("step"));
   m.def("scan_line_heights", &scan_line<true>, py::arg("line"), py::arg("step"));
