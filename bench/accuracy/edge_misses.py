@@ -45,10 +45,7 @@ def standing(points: np.ndarray, labels: np.ndarray, cells: np.ndarray) -> np.nd
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         h, rms, spread, valid, nrm, _, _ = ref._side_fits(
             points, labels == miem.NORMAL, labels == miem.INVALID, cells, r, origin)
-        level = valid & (nrm[..., 2] >= ref._EDGE_STEEP_COS)
-        best = np.min(np.where(level, rms, np.inf), axis=0)
-        clean = level & (rms <= ref._EDGE_CLEAN_RATIO * best)
-        tol = np.maximum(k * rms, ref._HEIGHT_RMS_FLOOR * spread)
+        _, clean, tol = ref._clean_sides(rms, spread, valid, nrm, k)
         fits = (clean & ~(np.abs(h) > tol)).any(axis=0)
         above = (clean & (h > tol)).any(axis=0)
         below = (clean & (h < -tol)).any(axis=0)

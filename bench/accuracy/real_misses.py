@@ -66,10 +66,7 @@ def misses(first: int, last: int) -> dict:
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         h, rms, spread, valid, nrm, cen, empty = ref._side_fits(
             g, labels == miem.NORMAL, labels == miem.INVALID, cells, r, origin)
-        level = valid & (nrm[..., 2] >= ref._EDGE_STEEP_COS)
-        best = np.min(np.where(level, rms, np.inf), axis=0)
-        clean = level & (rms <= ref._EDGE_CLEAN_RATIO * best)
-        tol = np.maximum(k * rms, ref._HEIGHT_RMS_FLOOR * spread)
+        _, clean, tol = ref._clean_sides(rms, spread, valid, nrm, k)
         fits = clean & ~(np.abs(h) > tol)
         below = np.zeros_like(clean)
         for a, b in ref._EDGE_OPPOSITE:

@@ -1357,6 +1357,22 @@ def _edge_pass(
     return out
 
 
+def _clean_sides(
+    rms: NDArray[np.float64],
+    spread: NDArray[np.float64],
+    valid: NDArray[np.bool_],
+    nrm: NDArray[np.float64],
+    k: float,
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_], NDArray[np.float64]]:
+    """SPEC "Edge test" steps 3-4 on :func:`_side_fits`' results: which sub-windows are valid
+    and not steep (``level``), which are *clean* (level, rms at most twice the best level
+    one's) and each one's tolerance ``t`` (with its round-off floor, as the height test's)."""
+    level = valid & (nrm[..., 2] >= _EDGE_STEEP_COS)
+    best = np.min(np.where(level, rms, np.inf), axis=0)
+    clean = level & (rms <= _EDGE_CLEAN_RATIO * best)
+    return level, clean, np.maximum(k * rms, _HEIGHT_RMS_FLOOR * spread)
+
+
 def _edge_verdicts(
     grid: NDArray[np.float64],
     labels: NDArray[np.uint8],
@@ -1369,10 +1385,7 @@ def _edge_verdicts(
     out = np.zeros_like(cells)
     h, rms, spread, valid, nrm, cen, empty = _side_fits(
         grid, labels == NORMAL, labels == INVALID, cells, r, origin)
-    level = valid & (nrm[..., 2] >= _EDGE_STEEP_COS)  # valid and not steep
-    best = np.min(np.where(level, rms, np.inf), axis=0)
-    clean = level & (rms <= _EDGE_CLEAN_RATIO * best)
-    tol = np.maximum(k * rms, _HEIGHT_RMS_FLOOR * spread)  # round-off floor, as the height test
+    level, clean, tol = _clean_sides(rms, spread, valid, nrm, k)
     fits = clean & ~(np.abs(h) > tol)
     # P stands proud (outward, above the plane) of a clean side whose opposite side has no
     # support (an outline) or falls away below that plane (a convex edge, a wall top).
