@@ -401,9 +401,9 @@ def test_steep_sub_window_is_never_clean() -> None:
     """SPEC "Edge test" step 4: a sub-window whose plane is steeper than 70 degrees is never
     clean (P is not tested against it). Must fire: at the middle profile of material hanging
     over a wall top, the left half-window (15 profiles x 7 points of 0.05 mm) holds top, burr
-    and floor; its plane (NumPy, by hand) is within 20 degrees of vertical, and it "fits" the cell. Without the rule
-    the cells stay as they are; with it every inner cell of that profile is ABNORMAL and no cell
-    off the burr. Must not fire: designed faces tilted 60 degrees keep all 8 sub-windows valid
+    and floor; its plane (NumPy, by hand) is within 20 degrees of vertical, and it "fits" the
+    cell. Without the rule the cells stay as they are; with it every inner cell of that profile
+    is ABNORMAL and no cell off the burr. Must not fire: designed faces tilted 60 degrees keep all 8 sub-windows valid
     and nothing is flagged; at 75 degrees every sub-window is steep."""
     z, burr = _wall_burr_z()
     g = _grid(z)

@@ -272,8 +272,8 @@ def specs(split: str, *, real: bool | None = None) -> list[SceneSpec]:
                       "step": (0.05, 0.1, 0.2, 0.5)[(i + j + shift) % 4],
                       "noise": (0.005, 0.01, 0.02)[(i + 2 * j + shift) % 3]}
             out.append(SceneSpec(f"{split}-{kind}-{j}", split, kind, "edge", params))
-    paper = {"step": 0.5, "noise": {"test": 0.03, "tune": 0.05, "third": 0.04}[split], "dropout": 0.01,
-             "n_abnormal": 9, "n_on_edge": 3, "seed": base + 500}
+    paper = {"step": 0.5, "noise": {"test": 0.03, "tune": 0.05, "third": 0.04}[split],
+             "dropout": 0.01, "n_abnormal": 9, "n_on_edge": 3, "seed": base + 500}
     out.append(SceneSpec(f"{split}-paper", split, "paper", "paper", paper))
     if real:
         for j, (name, fname, sp, rows, cols) in enumerate(_REAL_CROPS):

@@ -53,9 +53,9 @@ void assign_roles(const NeighborGrid<T>& grid, const PointsView<T>& points,
 // (u, mean) the surroundings plane (mean: its centroid offset from p), h = u . (p - centroid).
 // The run (p and the points q at p's level: |sign(h) u . (q - centroid) - |h|| < |h| / 2) is a
 // line one point wide (at least 3 points; the square root of the middle eigenvalue of the
-// covariance of their offsets below kBeadWidth spacings) that crosses p's ball (along the line's direction it reaches within kBeadMargin
-// spacings of the farthest points both ways), and the other points lie on both sides of it
-// (each side at least kBeadSide of them).
+// covariance of their offsets below kBeadWidth spacings) that crosses p's ball (along the
+// line's direction it reaches within kBeadMargin spacings of the farthest points both ways),
+// and the other points lie on both sides of it (each side at least kBeadSide of them).
 inline bool on_bead(const std::vector<Eigen::Vector3d>& w, const LocalPlane& lp,
                     double spacing) {
   const Eigen::Vector3d& u = lp.normal;
