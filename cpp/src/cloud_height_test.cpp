@@ -108,10 +108,11 @@ inline bool on_bead(const std::vector<Eigen::Vector3d>& w, const LocalPlane& lp,
 // The usable points' offsets for on_bead: the NORMAL ones within the height radius (ring
 // positions s.pos[0..n_ring), inner s.id[0..n_inner), ball_sums'; not p) and the EDGE ones of
 // `edges` (compact: a feature-line point near made the test abstain before).
-inline bool bead_at(const Gather& g, const Gather& edges, const Selection& s, std::size_t n_ring,
+inline bool bead_at(const Gather& g, const Gather& edges, Selection& s, std::size_t n_ring,
                     std::size_t n_inner, const Eigen::Vector3d& p, double r2,
                     const LocalPlane& lp, double spacing) {
-  std::vector<Eigen::Vector3d> w;
+  std::vector<Eigen::Vector3d>& w = s.offsets;  // the thread's scratch: no allocation once grown
+  w.clear();
   auto at = [&](const Gather& x, std::size_t k) {
     return Eigen::Vector3d(x.x[k] - p.x(), x.y[k] - p.y(), x.z[k] - p.z());
   };

@@ -81,6 +81,7 @@ struct Selection {
   std::size_t n = 0;
   std::vector<double> all_d2;      // select's scratch: every candidate's squared distance
   std::vector<std::uint32_t> pos;  // select's scratch: positions of the kept candidates
+  std::vector<Eigen::Vector3d> offsets;  // the height test's bead rule: usable points' offsets
 
   void reserve(std::size_t cap) {
     if (wx.size() < cap) {

@@ -306,21 +306,23 @@ bool is_hanging(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t
     for (std::ptrdiff_t j = 1; j <= r; ++j) {  // the nearest ground cell towards x
       const std::uint8_t l = label(rr - j * dr, cc - j * dc);
       const bool ground = l == kNormal || l == kEdge;
-      if (chain && (ground || l == kAbnormal)) {
-        const Eigen::Vector3d c = g(rr - j * dr, cc - j * dc);
+      if (!ground && l != kAbnormal) {  // INVALID or outside: the path is broken
+        chain = false;
+        continue;
+      }
+      const Eigen::Vector3d c = g(rr - j * dr, cc - j * dc);
+      if (chain) {
         const Eigen::Vector3d w = prev - c;
         const double along_w = dot3(w, x.normal);
         steep_step = steep_step ||
                      (along_w < 0.0 && along_w * along_w > dot3(w, w) - along_w * along_w);
-        if (!ground) {
-          prev = c;
-          via = true;
-        }
-      } else if (!ground) {
-        chain = false;
       }
-      if (!ground) continue;
-      const Eigen::Vector3d v = g(rr - j * dr, cc - j * dc) - p;
+      if (!ground) {
+        prev = c;
+        via = true;
+        continue;
+      }
+      const Eigen::Vector3d v = c - p;
       const double along = dot3(v, x.normal);
       steep = depth * depth > dot3(v, v) - along * along || (chain && via && steep_step);
       break;
