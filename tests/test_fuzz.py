@@ -39,8 +39,12 @@ def test_fuzz_harness_short_run(name, tmp_path):
            "-seed=1",
            f"-artifact_prefix={tmp_path}/", "-print_final_stats=1"]
     env = dict(os.environ, PYTHONHASHSEED="0")
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=SECONDS + 120, env=env,
-                          cwd=tmp_path)
+    # Through sh, which forks the harness: libFuzzer's -rss_limit_mb reads the peak RSS
+    # (ru_maxrss), and a child started straight from this process inherits this process's peak
+    # across exec (a pytest worker that ran a big test earlier: "out-of-memory (used: 6702Mb)"
+    # at the harness's first input); a grandchild forked by a small shell starts from its own.
+    proc = subprocess.run(["/bin/sh", "-c", '"$@"; exit $?', "sh", *cmd], capture_output=True,
+                          text=True, timeout=SECONDS + 120, env=env, cwd=tmp_path)
     tail = "\n".join(proc.stderr.splitlines()[-40:])
     assert proc.returncode == 0, f"fuzz_{name} found a problem:\n{tail}"
     assert "Done" in proc.stderr, tail
