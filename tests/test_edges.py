@@ -184,8 +184,8 @@ def _edge_labels(g: np.ndarray) -> np.ndarray:
     return ref.edge_test(g, res.labels, window=11, tolerance=8.0, max_iterations=10)[0]
 
 
-@pytest.mark.parametrize("kind", ["step", "crease", "outline", "valley", "bead", "strip", "rib",
-                                  "roof", "ledge", "chamfer", "round"])
+@pytest.mark.parametrize("kind", ["step", "crease", "outline", "valley", "fillet", "bead", "strip",
+                                  "rib", "roof", "ledge", "chamfer", "round"])
 def test_clean_features_stay_clean(kind: str) -> None:
     h, w = 40, 40
     cols = np.arange(w)[None, :].repeat(h, 0)
@@ -213,20 +213,21 @@ def test_clean_features_stay_clean(kind: str) -> None:
         z = z - 2.0 * (cols >= 20)
     elif kind == "crease":
         z = z - np.tan(np.radians(30)) * np.maximum(cols - 20, 0) * 0.1  # convex: falls away
-    elif kind == "valley":  # concave crease with a lip: not tested (a designed fillet looks so)
+    elif kind == "valley":  # a concave crease (30 degrees)
         z = z + np.tan(np.radians(30)) * np.maximum(cols - 20, 0) * 0.1
-        z[12:28, 18:20] += 0.1
+    elif kind == "fillet":  # a concave crease rounded over about 1 mm: above both faces' planes
+        # (0.2 mm at the line), but rising all the way: no lip (SPEC "Edge test" step 6)
+        x = (cols - 20) * 0.1
+        z = z + np.tan(np.radians(30)) * 0.3 * np.logaddexp(0.0, x / 0.3)
     elif kind == "bead":  # a designed bead across every profile: the same plane on both sides
         z[:, 20] += 0.3
     else:
         z[:, 20:] = np.nan
     labels = _edge_labels(_grid(z))
-    # valley: the lip's 2 outer corner cells have 3 of 8 neighbours raised, in a row and a
-    # column direction: the corner of a raised patch, not an isolated spike (step 7)
     assert not (labels == ref.ABNORMAL).any()
 
 
-@pytest.mark.parametrize("kind", ["step", "outline", "crease"])
+@pytest.mark.parametrize("kind", ["step", "outline", "crease", "valley"])
 def test_lip_before_the_feature_is_abnormal(kind: str) -> None:
     h, w = 40, 40
     cols = np.arange(w)[None, :].repeat(h, 0)
@@ -235,6 +236,8 @@ def test_lip_before_the_feature_is_abnormal(kind: str) -> None:
         z = z - 2.0 * (cols >= 20)
     elif kind == "crease":
         z = z - np.tan(np.radians(30)) * np.maximum(cols - 20, 0) * 0.1  # convex: falls away
+    elif kind == "valley":  # concave: the face beyond rises (step 6, lips at a concave feature)
+        z = z + np.tan(np.radians(30)) * np.maximum(cols - 20, 0) * 0.1
     else:
         z[:, 20:] = np.nan
     lip = np.zeros((h, w), bool)
@@ -244,6 +247,47 @@ def test_lip_before_the_feature_is_abnormal(kind: str) -> None:
     flagged = labels == ref.ABNORMAL
     assert flagged[lip].all()  # 0.1 mm = 50 noise sigmas above the top surface
     assert not (flagged & ~lip).any()
+
+
+def _valley_lip_z(fold: float, h: int = 40, w: int = 40) -> tuple[np.ndarray, np.ndarray]:
+    """A concave crease at column 20 (the face beyond rises at ``fold`` degrees) with a lip
+    0.1 mm tall on the last two columns before it, rows 12-27; returns z and the lip mask."""
+    cols = np.arange(w)[None, :].repeat(h, 0)
+    z = _noise((h, w)) + np.tan(np.radians(fold)) * np.maximum(cols - 20, 0) * 0.1
+    lip = np.zeros((h, w), bool)
+    lip[12:28, 18:20] = True
+    return z + 0.1 * lip, lip
+
+
+def test_lip_at_a_concave_feature_needs_a_dip_then_a_rise() -> None:
+    """SPEC "Edge test" step 6, lips at a concave feature, on NORMAL labels (11-cell
+    sub-windows, 8 rms, so D = max(16 rms, half the lip's height) = 0.05 mm): before a
+    30-degree valley the lip's inner rows fire, column 18 at the first pass (its left side is
+    clean, z = 0; beyond it the crease cell at column 20 lies 0.1 mm lower: the dip; then the
+    face rises 0.17 mm above z = 0 at column 23), column 19 at the second (with column 18 out
+    of the support its left side is clean). Must not fire (in the lip's inner rows) when the
+    same lip stands on a plane (no rise beyond the dip: a bead, which the height test judges)
+    nor when the cells beyond the lip rise at once (a ramp up from the lip's height: no dip, as
+    on a fillet)."""
+    rows = slice(17, 23)  # whose sub-windows lie within the lip's rows 12-27 (r = 5)
+    for case, fires in (("valley", True), ("plane", False), ("ramp", False)):
+        z, lip = _valley_lip_z(0.0 if case == "plane" else 30.0)
+        if case == "ramp":  # beyond the lip the face starts at the lip's height
+            z[:, 20:] += 0.1
+        g = _grid(z)
+        labels = np.zeros(lip.shape, np.uint8)
+        for passes, cols in ((1, [18]), (10, [18, 19])):
+            out = ref.edge_test(g, labels, window=11, tolerance=8.0, max_iterations=passes)[0]
+            new = out == ref.ABNORMAL
+            assert new[rows][:, cols].all() == fires and new[rows].any() == fires, case
+            assert not (new & ~lip).any(), case
+            if case == "valley" and passes == 1:
+                assert not new[rows, 19].any(), case
+    # by hand, at the first pass: row 20, column 18 over the left side's plane (z = 0, within
+    # noise): the crease cell 2 columns on lies 0.1 lower, column 23 rises 0.3 tan(30) = 0.17
+    # above z = 0: both more than D = 0.05
+    z, _ = _valley_lip_z(30.0)
+    assert z[20, 18] - z[20, 20] > 0.05 and z[20, 23] > 0.05
 
 
 def _fin_z(h: int = 40, w: int = 40, diagonal: bool = False) -> tuple[np.ndarray, np.ndarray]:
@@ -352,7 +396,9 @@ def test_hanging_ledge_goes_on_from_its_drop() -> None:
     dropout (column 22 INVALID), nor when the path descends gently (columns 20-23 going down
     0.05 mm per 0.1 mm: a chamfer, whose cells another rule flagged). Checked on rows 11-28,
     whose 15-cell sub-windows lie within the ledge's rows (nearer its ends the top's
-    sub-window takes in floor beyond the ledge and is not clean)."""
+    sub-window takes in floor beyond the ledge and is not clean; there, seen diagonally, the
+    ledge's end cells stand above the floor around them with the top rising beyond: lips at a
+    concave feature, whatever the path)."""
     h, w = 40, 40
     cols = np.arange(w)[None, :].repeat(h, 0)
     rows, inner = slice(4, 36), slice(11, 29)
@@ -370,7 +416,7 @@ def test_hanging_ledge_goes_on_from_its_drop() -> None:
         g = _grid(z)
         out = ref.edge_test(g, labels, window=15, tolerance=8.0, max_iterations=1)[0]
         new = (out == ref.ABNORMAL) & (labels != ref.ABNORMAL)
-        assert new[inner, 24].all() == fires and new[rows, 24].any() == fires, case
+        assert new[inner, 24].all() == fires and new[inner, 24].any() == fires, case
         assert not new[:, :24].any() and not new[:, 25:].any(), case
         # by hand: 0.5 mm from column 19's sample, 0.25 deep; the drop 19 -> 20 is steep
         p, q, first = g[20, 24], g[20, 19], g[20, 20]
@@ -489,6 +535,9 @@ def _core_scenes() -> list:
     out.append(("hanging shallow", _grid(z)))
     z, _ = _wall_burr_z(140, 150, row=62)  # steep sub-windows (step 3), across tile borders
     out.append(("steep", _grid(z)))
+    z, _ = _valley_lip_z(30.0, 140, 150)  # a lip at a concave crease (step 6), across tiles
+    z[60:75, 17:20] += 0.05
+    out.append(("valley lip", _grid(z.T.copy())))
     return out
 
 

@@ -142,7 +142,8 @@ def test_stream_equals_batch() -> None:
 
 def _pad(rows: tuple[int, int], cols: tuple[int, int]) -> np.ndarray:
     """A raised patch 0.08 high, 4 cells before a concave 25-degree fold (the edge test's
-    "stands proud" does not fire there: beyond it the surface rises)."""
+    "stands proud" does not fire there: beyond it the surface rises; a lip at a concave feature,
+    step 6: beyond the patch the surface dips, then rises with the fold)."""
     z = _fold(convex=False)
     z[rows[0]:rows[1], cols[0]:cols[1]] += 0.08
     return _grid(z)
@@ -153,14 +154,19 @@ def _pad(rows: tuple[int, int], cols: tuple[int, int]) -> np.ndarray:
 def test_corner_of_a_raised_pad_is_no_spike(rows: tuple[int, int], cols: tuple[int, int],
                                              monkeypatch: pytest.MonkeyPatch) -> None:
     g = _pad(rows, cols)
+    pad = np.zeros(g.shape[:2], bool)
+    pad[rows[0]:rows[1], cols[0]:cols[1]] = True
     corners = sorted([r, c] for r in (rows[0], rows[1] - 1) for c in (cols[0], cols[1] - 1))
     for dtype in (np.float64, np.float32):
         pts = g.astype(dtype)
         core = miem.detect(pts, preset="recommended").labels
         np.testing.assert_array_equal(core, ref.detect(pts, preset="recommended").labels)
-        assert not (core == miem.ABNORMAL).any()
-    # the premise: without the corner condition the 4 corners (3 of 8 neighbours raised, in a
-    # row and a column direction) pass step 7's other conditions
+        np.testing.assert_array_equal(core == miem.ABNORMAL, pad)  # the whole pad: a lip
+    # the spike rule alone (the lip rule off) flags none of it: without the corner condition
+    # the 4 corners (3 of 8 neighbours raised, in a row and a column direction) pass step 7's
+    # other conditions
+    monkeypatch.setattr(ref, "_lips", lambda *a: np.zeros(a[4].shape[1], dtype=bool))
+    assert not (ref.detect(g, preset="recommended").labels == miem.ABNORMAL).any()
     monkeypatch.setattr(ref, "_spike_corner", lambda res, h: False)
     assert np.argwhere(ref.detect(g, preset="recommended").labels == miem.ABNORMAL).tolist() \
         == corners
@@ -176,4 +182,5 @@ def test_spike_raised_one_way_stays_a_spike(rows: tuple[int, int]) -> None:
 
 def test_pad_stream_equals_batch() -> None:
     want = assert_stream_equals_batch(_pad((18, 20), (14, 17)), miem.PRESETS["recommended"])
-    assert not (want.labels == miem.ABNORMAL).any()
+    assert np.argwhere(want.labels == miem.ABNORMAL).tolist() == [
+        [r, c] for r in (18, 19) for c in (14, 15, 16)]

@@ -332,7 +332,7 @@ def test_stream_runs_the_whole_default_detector() -> None:
     grid = make_full_scan(300, 120, 5)
     base = miem.PRESETS["recommended"]
     full = miem.detect(grid, params=base)
-    angle_only = miem.detect(grid, params=base, height_tolerance=None)
+    angle_only = miem.detect(grid, params=base, height_tolerance=None, edge_tolerance=None)
     one_pass = miem.detect(grid, params=base, max_iterations=1)
     no_compact = miem.detect(grid, params=base, edge_extent=0)
     n = lambda r: int((r.labels == miem.ABNORMAL).sum())  # noqa: E731

@@ -109,7 +109,7 @@ def detect_proposed(
     ndarray (H, W), bool
     """
     lab = miem.detect(grid, window=window, max_iterations=max_iterations, heights="abnormal",
-                      height_tolerance=None, **angle).labels.copy()
+                      height_tolerance=None, edge_tolerance=None, **angle).labels.copy()
     box = np.ones((3, 3), dtype=bool)
     for _ in range(max_iterations):
         normal, edge = lab == miem.NORMAL, lab == miem.EDGE

@@ -337,6 +337,45 @@ bool is_hanging(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t
   return false;
 }
 
+// SPEC "Edge test" step 6, lips at a concave feature: P (candidate (rr, cc), its 8 sides `sd`,
+// `best` their smallest rms) fits no clean side, lies above a clean side x, and along the cells
+// P + j d beyond P away from x (j = 1..r, ground cells only: NORMAL or EDGE), with
+// D = max(kEdgeLipTol x tol, kEdgeLipDip x h), the surface first dips (a cell lower than P
+// along x's normal by more than D), then rises (the last of these ground cells, after the dip,
+// lies above x's plane by more than D): a lip before a concave crease or step, not a fillet
+// (no dip), a terrace's edge (its next cells level with P), a bead on a plane or a fin beyond
+// P (no lasting rise) nor a profile offset of a few rms. The formulas are
+// miem.reference._lips'.
+constexpr double kEdgeLipTol = 2.0, kEdgeLipDip = 0.5;
+
+template <typename T>
+bool is_lip(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
+            std::ptrdiff_t cc, std::ptrdiff_t r, const Side (&sd)[8], double best) {
+  for (const Side& x : sd) {
+    if (edge_clean(x, best) && !(std::abs(x.h) > x.tol)) return false;
+  }
+  const std::ptrdiff_t H = g.rows, W = g.cols;
+  const Eigen::Vector3d p = g(rr, cc);
+  for (int s = 0; s < 8; ++s) {
+    const Side& x = sd[s];
+    if (!edge_clean(x, best) || !(x.h > x.tol)) continue;
+    const std::ptrdiff_t dr = kHangDirs[s][0], dc = kHangDirs[s][1];
+    const double dip = std::max(kEdgeLipTol * x.tol, kEdgeLipDip * x.h);
+    bool dipped = false, risen = false;  // risen: the last ground cell so far, after a dip, high
+    for (std::ptrdiff_t j = 1; j <= r; ++j) {
+      const std::ptrdiff_t a = rr + j * dr, b = cc + j * dc;
+      if (a < 0 || a >= H || b < 0 || b >= W) break;
+      const std::uint8_t l = labels[a * W + b];
+      if (l != kNormal && l != kEdge) continue;
+      const double d = dot3(g(a, b) - p, x.normal);
+      risen = dipped && x.h + d > dip;
+      dipped = dipped || d < -dip;
+    }
+    if (risen) return true;
+  }
+  return false;
+}
+
 }  // namespace
 
 namespace {
@@ -794,6 +833,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
           }
         }
         if (!abnormal) abnormal = is_hanging(g, lab, grow, cols[j], r, sd, best);
+        if (!abnormal) abnormal = is_lip(g, lab, grow, cols[j], r, sd, best);
         if (!abnormal) abnormal = is_spike(g, lab, grow, rr, cols[j], H, o, sd, best);
         mark[i] = abnormal ? 1 : 0;
       }

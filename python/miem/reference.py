@@ -1268,6 +1268,60 @@ def _hang_conditions(
     return steep, low < -_HANG_SHELF * depth
 
 
+#: Lips at a concave feature (SPEC "Edge test" step 6): beyond P the surface falls back by more
+#: than this times the clean side's tolerance (2 x edge_k rms: a profile offset of a few rms, as
+#: on the real scans, is no lip) ...
+_EDGE_LIP_TOL = 2.0
+#: ... and by more than this share of P's height over that side's plane (a lip, not the edge of
+#: a terrace whose next cells lie level with P), then rises above that plane by as much.
+_EDGE_LIP_DIP = 0.5
+
+
+def _lips(
+    grid: NDArray[np.float64],
+    labels: NDArray[np.uint8],
+    cells: NDArray[np.bool_],
+    r: int,
+    lip: NDArray[np.bool_],
+    normals: NDArray[np.float64],
+    h: NDArray[np.float64],
+    tol: NDArray[np.float64],
+) -> NDArray[np.bool_]:
+    """The cells of ``cells`` (row-major; ``lip``, ``normals``, ``h``, ``tol``: (8, N), N the
+    cells set in ``cells``) that are *lips at a concave feature* (SPEC "Edge test" step 6):
+    above a clean sub-window ``a`` marked in ``lip``, and along the cells ``P + j d`` beyond P
+    away from ``a`` (``j = 1..r``, ground cells only: NORMAL or EDGE), with
+    ``D = max(_EDGE_LIP_TOL t, _EDGE_LIP_DIP h)`` (``t``, ``h``: ``a``'s tolerance and P's
+    height over ``a``'s plane), first a *dip* (a cell lower than P along ``a``'s normal by more
+    than ``D``), then a *rise*: the last of these ground cells, after the dip, lies above
+    ``a``'s plane by more than ``D`` (the surface goes on rising, unlike a fin beyond P)."""
+    hh, ww = labels.shape
+    ground = (labels == NORMAL) | (labels == EDGE)
+    rr, cc = np.nonzero(cells)
+    p = grid[rr, cc]
+    out = np.zeros(rr.size, dtype=bool)
+    for k in range(len(_HANG_DIRECTIONS)):
+        if not lip[k].any():
+            continue
+        dr, dc = _HANG_DIRECTIONS[k]
+        u, hk, tk = normals[k], h[k], tol[k]
+        dip = np.maximum(_EDGE_LIP_TOL * tk, _EDGE_LIP_DIP * hk)
+        dipped = np.zeros(rr.size, dtype=bool)  # a dip among the ground cells so far
+        risen = np.zeros(rr.size, dtype=bool)  # the last ground cell so far: after a dip, high
+        for j in range(1, r + 1):
+            r1, c1 = rr + j * dr, cc + j * dc
+            ok = (r1 >= 0) & (r1 < hh) & (c1 >= 0) & (c1 < ww)
+            hit = np.zeros(rr.size, dtype=bool)
+            hit[ok] = ground[r1[ok], c1[ok]]
+            hit &= lip[k]
+            d = np.full(rr.size, np.nan)
+            d[hit] = _dot3(grid[r1[hit], c1[hit]] - p[hit], u[hit])
+            risen[hit] = dipped[hit] & (hk[hit] + d[hit] > dip[hit])
+            dipped |= hit & (d < -dip)
+        out |= risen
+    return out
+
+
 #: Isolated spikes (SPEC "Edge test" step 7): P lies more than this times its tolerance off
 #: every clean side (2 x edge_k rms: never a cell that fits a clean side) ...
 _EDGE_SPIKE_TOL = 2.0
@@ -1402,6 +1456,16 @@ def _edge_verdicts(
             below[x] = clean[x] & (h[x] < -tol[x]) & beyond
     fin = _fins(grid, labels, cells, r)[cells]  # (SPEC step 6: reach r, inside the tile's frame)
     out[cells] = ~fits.any(axis=0) & (proud | fin)
+    # a lip at a concave feature: P above a clean side, and beyond P the surface dips, then
+    # rises above that side's plane (step 6)
+    lip = clean & (h > tol)
+    lip[:, fits.any(axis=0)] = False
+    has = lip.any(axis=0)
+    if has.any():
+        sel = cells.copy()
+        sel[cells] = has
+        has[has] = _lips(grid, labels, sel, r, lip[:, has], nrm[:, has], h[:, has], tol[:, has])
+        out[cells] |= has
     # a hanging cell that fits no clean side with a return (an empty side's support is the last
     # returns before a dropout, often the hanging material itself bridged to the floor beyond)
     hang = ~(fits & ~empty).any(axis=0)
