@@ -78,7 +78,9 @@ enum class SectorVerdict { kFits, kProud, kOther };
 
 // SPEC "Unorganized clouds: edge test" step 4 (the grid's steps 4-5, edge_verdict.hpp, plus the
 // level, top and crossing rules): P stands proud of a clean sector `a` whose
-// opposite (the sector of the same width turned by 180 degrees) falls away below a's plane, or
+// opposite (the sector of the same width turned by 180 degrees) falls away below a's plane (the
+// centroid of its support, `centred`: at least 3 points, a plane or not: a flange falling away
+// steeply leaves its sector too few points to be valid), or
 // is empty while neither of its neighbours (the same width, turned by +-45 degrees) is a clean
 // sector at a's level (a bead or ridge on a surface that goes on past P, whose opposite sector
 // only the scan's border empties, is not a lip before an outline), and no valid sector's
@@ -94,6 +96,7 @@ enum class SectorVerdict { kFits, kProud, kOther };
 // sector s that P lies below with the surface beyond falling away (the hanging rule's first
 // condition, step 5; the rest needs the points).
 SectorVerdict cloud_edge_verdict(const detail::EdgeSide (&sd)[kSectors],
+                                 const bool (&centred)[kSectors],
                                  const double (&floor)[kSectors], double best, double k,
                                  unsigned* below) {
   const double clean = detail::kEdgeCleanRatio * best;
@@ -117,7 +120,8 @@ SectorVerdict cloud_edge_verdict(const detail::EdgeSide (&sd)[kSectors],
         outline = false;
       }
     }
-    if (!(outline || (y.valid && detail::dot3(x.normal, y.centroid - x.centroid) < -x.tol))) {
+    if (!(outline ||
+          (centred[o] && detail::dot3(x.normal, y.centroid - x.centroid) < -x.tol))) {
       continue;
     }
     bool top = true;
@@ -295,9 +299,15 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
     best = std::min(best, rms[s]);
   }
   detail::EdgeSide sd[kSectors];  // centroids relative to P (the planes' means)
+  bool centred[kSectors];         // a centroid of at least 3 support points (valid or not)
   for (int s = 0; s < kSectors; ++s) {
     sd[s].valid = valid[s];
     sd[s].empty = empty[s];
+    centred[s] = sums[s].n >= 3.0;
+    if (centred[s] && !valid[s]) {  // as plane_from_sums' mean
+      const double inv = 1.0 / sums[s].n;
+      sd[s].centroid = Eigen::Vector3d(sums[s].x * inv, sums[s].y * inv, sums[s].z * inv);
+    }
     if (!valid[s]) continue;
     sd[s].h = h[s];
     sd[s].rms = rms[s];
@@ -306,7 +316,7 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
     sd[s].centroid = lp[s].mean;
   }
   unsigned below = 0;
-  const SectorVerdict v = cloud_edge_verdict(sd, floor, best, e.k, &below);
+  const SectorVerdict v = cloud_edge_verdict(sd, centred, floor, best, e.k, &below);
   if (v != SectorVerdict::kOther) return v == SectorVerdict::kProud;
   return below != 0 && hangs(ball, labels, f, e, sd, below);
 }

@@ -2423,7 +2423,9 @@ def _cloud_edge_pass(
         for c in ((o // 8) * 8 + (o % 8 + 7) % 8, (o // 8) * 8 + (o % 8 + 1) % 8):
             lvl = np.abs(np.einsum("ij,ij->i", nrm[:, s], cen[:, c] - cen[:, s]))
             outline &= ~(clean[:, c] & ~(lvl > tol[:, s]))
-        falls = outline | (valid[:, o] & (drop < -tol[:, s]))
+        # the opposite falls away: the centroid of its support (at least 3 points; no plane
+        # needed: a flange falling away steeply leaves its sector too few points to be valid)
+        falls = outline | ((cnt[:, o] >= 3.0) & (drop < -tol[:, s]))
         # the top rule: no valid sector's centroid above P along this sector's normal
         above = np.einsum("ij,isj->is", nrm[:, s], cen) > 0.0
         top = ~(valid & above).any(axis=1)
