@@ -2319,6 +2319,9 @@ _CLOUD_SECTORS = 16
 #: (a steep face, sampled more sparsely in 3-D, keeps about half; 0.35 chosen on the tune split
 #: of the held-out-style clouds: 0.25 missed burrs hanging past wall tops).
 _CLOUD_EMPTY = 0.35
+#: ... and, as the opposite of a hanging point (SPEC step 5), below this fraction: a face
+#: falling away steeper than 45 degrees past a convex crease keeps about 0.3-0.35.
+_CLOUD_HANG_EMPTY = 0.3
 
 
 def _cloud_frames(
@@ -2394,6 +2397,7 @@ def _cloud_edge_pass(
     half = full / 2.0
     valid = ok & (cnt >= np.maximum(3.0, half))  # at least half a full sector of support
     empty = finite < _CLOUD_EMPTY * full  # hardly any returns: the surface ends
+    gone = finite < _CLOUD_HANG_EMPTY * full  # beyond a hanging point: nothing in reach
     nrm = np.full((n_groups, 3), np.nan)
     good = ok.reshape(-1)
     nrm[good] = _orient(evecs[good][:, :, 0])
@@ -2438,14 +2442,14 @@ def _cloud_edge_pass(
         past = lvl < -tol[:, s][:, None]
         across |= proud_s & ~(fits & ~past).any(axis=1)
         # P below this sector, the opposite empty or clean with P above it and falling away
-        beyond = empty[:, o] | (clean[:, o] & (h[:, o] > tol[:, o]) & (drop < -tol[:, s]))
+        beyond = gone[:, o] | (clean[:, o] & (h[:, o] > tol[:, o]) & (drop < -tol[:, s]))
         below[:, s] = clean[:, s] & (h[:, s] < -tol[:, s]) & beyond
     out = ~fits.any(axis=1)
     hang = out & ~proud & below.any(axis=1)
     if hang.any():
         hang[hang] = _cloud_hanging(
             labels, sec_i, sec_j, sec_w, np.tile(dist, len(lists)), sup, hang, below[hang],
-            h[hang], nrm[hang], cen[hang], tol[hang], empty[hang])
+            h[hang], nrm[hang], cen[hang], tol[hang], gone[hang])
     return (out & (proud | hang)) | across
 
 
@@ -2471,7 +2475,8 @@ def _cloud_hanging(
 ) -> NDArray[np.bool_]:
     """Which candidates of ``sel`` (mask over the pass's candidates) *hang* (SPEC "Unorganized
     clouds: edge test" step 5) below one of the sectors marked in ``below`` ``(M, 16)`` (one row
-    per selected candidate, as ``h``, ``nrm``, ``cen``, ``tol`` and ``empty``). Sector
+    per selected candidate, as ``h``, ``nrm``, ``cen``, ``tol`` and ``empty``: below
+    ``_CLOUD_HANG_EMPTY`` of a full sector's returns). Sector
     memberships: group
     ``sec_i = candidate * 16 + sector`` of point ``sec_j`` at offset ``sec_w`` (distance
     ``sec_d``), ``sup`` the support members."""
