@@ -106,10 +106,11 @@ def _sector_verdict(pts: np.ndarray, normal: np.ndarray, i: int, r_edge: float,
 
 
 def _sector_planes(pts: np.ndarray, normal: np.ndarray, i: int, r_edge: float,
-                   gap: float) -> tuple:
+                   gap: float, with_support: bool = False) -> tuple:
     """SPEC "Unorganized clouds: edge test" steps 2-3 for point i, with SVDs: per sector
     (0-7 quarter, 8-15 half disks) its plane (oriented normal, centroid offset from P, rms) or
-    None when not valid, the finite counts `f` and `full`."""
+    None when not valid, the finite counts `f` and `full` (and, `with_support`, per sector its
+    support count and centroid offset from P, None below 3 points)."""
     w = pts - pts[i]
     dist = np.linalg.norm(w, axis=1)
     cen = w[dist <= r_edge].mean(axis=0)
@@ -126,16 +127,17 @@ def _sector_planes(pts: np.ndarray, normal: np.ndarray, i: int, r_edge: float,
                                                       for s in range(8)]
     f = np.array([np.sum(keep & np.isin(octant, o)) for o in sectors], float)
     full = np.array([f[:8].max()] * 8 + [f[8:].max()] * 8)
-    planes = []
+    planes, support = [], []
     for s, o in enumerate(sectors):
         sel = keep & normal & np.isin(octant, o)
+        support.append((int(sel.sum()), w[sel].mean(axis=0) if sel.sum() >= 3 else None))
         if sel.sum() < max(3.0, full[s] / 2.0):
             planes.append(None)
             continue
         m = w[sel].mean(axis=0)
         _, sv, vt = np.linalg.svd(w[sel] - m, full_matrices=False)
         planes.append((vt[2] if vt[2, 2] > 0 else -vt[2], m, sv[2] / np.sqrt(sel.sum())))
-    return planes, f, full
+    return (planes, f, full, support) if with_support else (planes, f, full)
 
 
 def test_top_rule_by_hand() -> None:
@@ -288,6 +290,78 @@ def test_crossing_rule_by_hand() -> None:
     assert caught  # the case this test is about
 
 
+def flange_scene(seed: int, lip: bool, n: int = 44, step: float = 0.2, noise: float = 0.01,
+                 bend: float = 70.0, width: float = 0.5, b: float = 0.4,
+                 m: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """A tilted plane bending down past a line at 25 degrees into a flange `bend` degrees
+    steep, rounded over `width` mm (as the accuracy suite's flanges); with `lip`, a burr run `m`
+    points wide on the near side's last points (along 40 % of the line), raised from b / 2 to
+    b towards the line; x / y jittered, rows shuffled. Returns the points and the lip mask."""
+    rng = np.random.default_rng(seed)
+    x, y, d, t = line_grid(n, step, 0.5, 25.0)
+    burr = lip & (d < 0.0) & (d >= -m * step) & (np.abs(t) < 0.2 * n * step)
+    rise = b * (0.5 + 0.5 * np.clip(1.0 + d / (m * step), 0.0, 1.0))
+    fall = np.tan(np.radians(bend)) * width * np.logaddexp(0.0, d / width)
+    z = 0.04 * x + 0.02 * y - fall + rng.normal(0.0, noise, x.size) + rise * burr
+    pts = np.column_stack([x, y, z])
+    pts[:, :2] += rng.uniform(-0.25 * step, 0.25 * step, (x.size, 2))
+    order = rng.permutation(len(pts))
+    return np.ascontiguousarray(pts[order]), burr[order]
+
+
+def test_opposite_centroid_falls_by_hand() -> None:
+    """Lip points before a steep flange, judged here from the sectors on the labels the edge
+    test starts from: each fits no clean sector and stands proud of a clean sector of which it
+    is the top, but by the grid's rule (the opposite valid and its centroid below, or an
+    outline) of none: the flange falls away out of the ball, so the opposite sector holds
+    fewer than half a full sector's support points and has no plane, while their centroid
+    lies below the proud sector's plane (SPEC step 4: a centroid needs no plane). ABNORMAL in
+    the core and the reference (by the grid's rule alone they stayed NORMAL); nothing but the
+    lip is ABNORMAL, and without the lip nothing is. (On a flange this steep most of the lip
+    fits a clean sector and stays as it was, by either rule.)"""
+    k = DEFAULT_K
+    pts, lip = flange_scene(0, True)
+    pre = ref.detect_points(pts, edge_tolerance=None)
+    r_edge, gap = pre.params["height_radius"], pre.params["min_step"]
+    normal = pre.labels == miem.NORMAL
+    caught = []
+    for i in np.flatnonzero(lip & (pre.labels != A)):
+        planes, f, full, support = _sector_planes(pts, normal, int(i), r_edge, gap, True)
+        best = min(p[2] for p in planes if p is not None)
+        clean = [p is not None and p[2] <= 2 * best for p in planes]
+        if any(c and abs(p[0] @ p[1]) <= k * best for c, p in zip(clean, planes)):
+            continue  # fits a clean sector
+        old = new = False
+        for s in range(16):
+            o = (s // 8) * 8 + (s % 8 + 4) % 8
+            if not clean[s]:
+                continue
+            u, m, rms = planes[s]
+            if not -u @ m > k * rms or any(p is not None and u @ p[1] > 0 for p in planes):
+                continue  # not proud of s, or not its top
+            near = [(s // 8) * 8 + (o % 8 + by) % 8 for by in (-1, 1)]
+            outline = f[o] < 0.35 * full[o] and not any(
+                clean[c] and abs(u @ (planes[c][1] - m)) <= k * rms for c in near)
+            old |= outline or (planes[o] is not None and u @ (planes[o][1] - m) < -k * rms)
+            n_o, m_o = support[o]
+            new |= planes[o] is None and f[o] >= 0.35 * full[o] and n_o >= 3 and (
+                u @ (m_o - m) < -k * rms)
+        if new and not old:
+            caught.append(int(i))
+    assert caught  # the case this test is about
+    for fn in (miem.detect_points, ref.detect_points):
+        lab = fn(pts).labels
+        assert (lab[caught] == A).all()
+        assert not (lab[~lip] == A).any()
+        assert not (fn(flange_scene(0, False)[0]).labels == A).any()
+    assert_same_cloud_result(miem.detect_points(pts), ref.detect_points(pts))
+    p32 = (pts + 1e3).astype(np.float32)
+    assert_same_cloud_result(miem.detect_points(p32), ref.detect_points(p32))
+    base = miem.detect_points(pts).labels
+    for nt in (1, 2):
+        np.testing.assert_array_equal(miem.detect_points(pts, num_threads=nt).labels, base)
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_burr_on_a_cut_outline_is_found(seed: int) -> None:
     pts, burr = cut_scene(seed)
@@ -316,11 +390,12 @@ def test_core_matches_reference(seed: int, params: dict) -> None:
 
 
 @pytest.mark.parametrize("k", [DEFAULT_K, 2.0, 1.0])
-@pytest.mark.parametrize("scene", ["fillet", "bead"])
+@pytest.mark.parametrize("scene", ["fillet", "bead", "flange"])
 def test_core_matches_reference_at_the_border(k: float, scene: str) -> None:
-    # low k: many sectors stand proud, so the top and level rules and the half-disk counts
-    # decide
-    pts = fillet_scene(1, n=36) if scene == "fillet" else bead_scene(0)[0]
+    # low k: many sectors stand proud, so the top and level rules, the half-disk counts and
+    # (flange: sectors too sparse for a plane) the opposite's centroid decide
+    pts = {"fillet": lambda: fillet_scene(1, n=36), "bead": lambda: bead_scene(0)[0],
+           "flange": lambda: flange_scene(2, True, n=36)[0]}[scene]()
     assert_same_cloud_result(miem.detect_points(pts, edge_tolerance=k),
                              ref.detect_points(pts, edge_tolerance=k))
 

@@ -22,6 +22,9 @@ constexpr int kSectors = 16;  // 8 quarter-disk and 8 half-disk sectors
 constexpr double kRmsFloor = 1e-9;      // of the tolerance, as the height test's
 constexpr double kSuspect = 1.5;        // candidates: surroundings rms above 1.5 x the median
 constexpr double kEmpty = 0.35;  // empty: fewer returns than 0.35 of a full sector (tune split)
+// ... and, as the opposite of a hanging point, below 0.3: a face falling away steeper than 45
+// degrees past a convex crease keeps about 0.3-0.35 (SPEC step 5)
+constexpr double kHangEmpty = 0.3;
 constexpr double kHangShelf = 2.0;  // hanging: the surface beyond lies > 2x P's depth below
 
 // The bit pattern of x >= 0 (-0 read as +0): patterns of such values sort as the values do.
@@ -78,7 +81,9 @@ enum class SectorVerdict { kFits, kProud, kOther };
 
 // SPEC "Unorganized clouds: edge test" step 4 (the grid's steps 4-5, edge_verdict.hpp, plus the
 // level, top and crossing rules): P stands proud of a clean sector `a` whose
-// opposite (the sector of the same width turned by 180 degrees) falls away below a's plane, or
+// opposite (the sector of the same width turned by 180 degrees) falls away below a's plane (the
+// centroid of its support, `centred`: at least 3 points, a plane or not: a flange falling away
+// steeply leaves its sector too few points to be valid), or
 // is empty while neither of its neighbours (the same width, turned by +-45 degrees) is a clean
 // sector at a's level (a bead or ridge on a surface that goes on past P, whose opposite sector
 // only the scan's border empties, is not a lip before an outline), and no valid sector's
@@ -92,8 +97,10 @@ enum class SectorVerdict { kFits, kProud, kOther };
 // does not lend P its wider tolerance.
 // `*below`: when P fits no clean sector and stands proud of none, bit s set for each clean
 // sector s that P lies below with the surface beyond falling away (the hanging rule's first
-// condition, step 5; the rest needs the points).
+// condition, step 5; the rest needs the points): its opposite `gone` (fewer returns than
+// kHangEmpty of a full sector) or clean with P above it.
 SectorVerdict cloud_edge_verdict(const detail::EdgeSide (&sd)[kSectors],
+                                 const bool (&centred)[kSectors], const bool (&gone)[kSectors],
                                  const double (&floor)[kSectors], double best, double k,
                                  unsigned* below) {
   const double clean = detail::kEdgeCleanRatio * best;
@@ -117,7 +124,8 @@ SectorVerdict cloud_edge_verdict(const detail::EdgeSide (&sd)[kSectors],
         outline = false;
       }
     }
-    if (!(outline || (y.valid && detail::dot3(x.normal, y.centroid - x.centroid) < -x.tol))) {
+    if (!(outline ||
+          (centred[o] && detail::dot3(x.normal, y.centroid - x.centroid) < -x.tol))) {
       continue;
     }
     bool top = true;
@@ -139,7 +147,7 @@ SectorVerdict cloud_edge_verdict(const detail::EdgeSide (&sd)[kSectors],
     const detail::EdgeSide& x = sd[s];
     if (!x.valid || !(x.rms <= clean) || !(x.h < -x.tol)) continue;
     const detail::EdgeSide& y = sd[turned(s, 4)];
-    if (y.empty || (y.valid && y.rms <= clean && y.h > y.tol &&
+    if (gone[turned(s, 4)] || (y.valid && y.rms <= clean && y.h > y.tol &&
                     detail::dot3(x.normal, y.centroid - x.centroid) < -x.tol)) {
       *below |= 1u << s;
     }
@@ -176,11 +184,12 @@ inline bool in_sector(int o, int s) { return (o - s % 8 + 8) % 8 < (s < 8 ? 2 : 
 // than 45 degrees: of the sector's support points on its plane (not |u . (q - m)| > t: the
 // top's, not material hanging below it) the one nearest to P (smallest |q - P|, then smallest
 // index), v = q - P, lies above P more steeply than 45 degrees, u . v > 0 and
-// (u . v)^2 > v.v - (u . v)^2; a shelf: the opposite sector is empty (the surface beyond has
+// (u . v)^2 > v.v - (u . v)^2; a shelf: the opposite sector is `gone` (the surface beyond has
 // fallen out of reach) or holds a ground point (NORMAL or EDGE at the start of the pass) x
 // with u . (x - P) < -2 delta (delta = -h, P's depth below the sector's plane).
 bool hangs(const Selection& ball, const std::uint8_t* labels, const Frame& f,
-           const CloudEdgeTest& e, const detail::EdgeSide (&sd)[kSectors], unsigned below) {
+           const CloudEdgeTest& e, const detail::EdgeSide (&sd)[kSectors],
+           const bool (&gone)[kSectors], unsigned below) {
   // Per candidate sector: its nearest support point on its plane (distance, index, offset), and
   // the deepest ground point along its normal in the opposite sector.
   double nd[kSectors], low[kSectors];
@@ -220,7 +229,7 @@ bool hangs(const Selection& ball, const std::uint8_t* labels, const Frame& f,
     const double along = v.x() * x.normal.x() + v.y() * x.normal.y() + v.z() * x.normal.z();
     const double vv = v.x() * v.x() + v.y() * v.y() + v.z() * v.z();
     if (!(along > 0.0 && along * along > vv - along * along)) continue;
-    if (sd[turned(s, 4)].empty || low[s] < -kHangShelf * delta) return true;
+    if (gone[turned(s, 4)] || low[s] < -kHangShelf * delta) return true;
   }
   return false;
 }
@@ -276,13 +285,14 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
     full[0] = std::max(full[0], finite[s]);
   }
   for (int s = 8; s < kSectors; ++s) full[1] = std::max(full[1], finite[s]);
-  bool valid[kSectors], empty[kSectors];
+  bool valid[kSectors], empty[kSectors], gone[kSectors];
   double h[kSectors], rms[kSectors], tol[kSectors], floor[kSectors] = {};
   LocalPlane lp[kSectors];
   double best = kInf;
   for (int s = 0; s < kSectors; ++s) {
     const double half = full[s / 8] / 2.0;
     empty[s] = finite[s] < kEmpty * full[s / 8];  // (a steep face keeps about half)
+    gone[s] = finite[s] < kHangEmpty * full[s / 8];
     valid[s] = sums[s].n >= std::max(3.0, half) &&
                plane_from_sums(sums[s], &lp[s]) == PlaneStatus::kOk;
     if (!valid[s]) continue;
@@ -295,9 +305,15 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
     best = std::min(best, rms[s]);
   }
   detail::EdgeSide sd[kSectors];  // centroids relative to P (the planes' means)
+  bool centred[kSectors];         // a centroid of at least 3 support points (valid or not)
   for (int s = 0; s < kSectors; ++s) {
     sd[s].valid = valid[s];
     sd[s].empty = empty[s];
+    centred[s] = sums[s].n >= 3.0;
+    if (centred[s] && !valid[s]) {  // as plane_from_sums' mean
+      const double inv = 1.0 / sums[s].n;
+      sd[s].centroid = Eigen::Vector3d(sums[s].x * inv, sums[s].y * inv, sums[s].z * inv);
+    }
     if (!valid[s]) continue;
     sd[s].h = h[s];
     sd[s].rms = rms[s];
@@ -306,9 +322,9 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
     sd[s].centroid = lp[s].mean;
   }
   unsigned below = 0;
-  const SectorVerdict v = cloud_edge_verdict(sd, floor, best, e.k, &below);
+  const SectorVerdict v = cloud_edge_verdict(sd, centred, gone, floor, best, e.k, &below);
   if (v != SectorVerdict::kOther) return v == SectorVerdict::kProud;
-  return below != 0 && hangs(ball, labels, f, e, sd, below);
+  return below != 0 && hangs(ball, labels, f, e, sd, gone, below);
 }
 
 }  // namespace

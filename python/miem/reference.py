@@ -2383,6 +2383,9 @@ _CLOUD_SECTORS = 16
 #: (a steep face, sampled more sparsely in 3-D, keeps about half; 0.35 chosen on the tune split
 #: of the held-out-style clouds: 0.25 missed burrs hanging past wall tops).
 _CLOUD_EMPTY = 0.35
+#: ... and, as the opposite of a hanging point (SPEC step 5), below this fraction: a face
+#: falling away steeper than 45 degrees past a convex crease keeps about 0.3-0.35.
+_CLOUD_HANG_EMPTY = 0.3
 
 
 def _cloud_frames(
@@ -2458,6 +2461,7 @@ def _cloud_edge_pass(
     half = full / 2.0
     valid = ok & (cnt >= np.maximum(3.0, half))  # at least half a full sector of support
     empty = finite < _CLOUD_EMPTY * full  # hardly any returns: the surface ends
+    gone = finite < _CLOUD_HANG_EMPTY * full  # beyond a hanging point: nothing in reach
     nrm = np.full((n_groups, 3), np.nan)
     good = ok.reshape(-1)
     nrm[good] = _orient(evecs[good][:, :, 0])
@@ -2487,7 +2491,9 @@ def _cloud_edge_pass(
         for c in ((o // 8) * 8 + (o % 8 + 7) % 8, (o // 8) * 8 + (o % 8 + 1) % 8):
             lvl = np.abs(np.einsum("ij,ij->i", nrm[:, s], cen[:, c] - cen[:, s]))
             outline &= ~(clean[:, c] & ~(lvl > tol[:, s]))
-        falls = outline | (valid[:, o] & (drop < -tol[:, s]))
+        # the opposite falls away: the centroid of its support (at least 3 points; no plane
+        # needed: a flange falling away steeply leaves its sector too few points to be valid)
+        falls = outline | ((cnt[:, o] >= 3.0) & (drop < -tol[:, s]))
         # the top rule: no valid sector's centroid above P along this sector's normal
         above = np.einsum("ij,isj->is", nrm[:, s], cen) > 0.0
         top = ~(valid & above).any(axis=1)
@@ -2500,14 +2506,14 @@ def _cloud_edge_pass(
         past = lvl < -tol[:, s][:, None]
         across |= proud_s & ~(fits & ~past).any(axis=1)
         # P below this sector, the opposite empty or clean with P above it and falling away
-        beyond = empty[:, o] | (clean[:, o] & (h[:, o] > tol[:, o]) & (drop < -tol[:, s]))
+        beyond = gone[:, o] | (clean[:, o] & (h[:, o] > tol[:, o]) & (drop < -tol[:, s]))
         below[:, s] = clean[:, s] & (h[:, s] < -tol[:, s]) & beyond
     out = ~fits.any(axis=1)
     hang = out & ~proud & below.any(axis=1)
     if hang.any():
         hang[hang] = _cloud_hanging(
             labels, sec_i, sec_j, sec_w, np.tile(dist, len(lists)), sup, hang, below[hang],
-            h[hang], nrm[hang], cen[hang], tol[hang], empty[hang])
+            h[hang], nrm[hang], cen[hang], tol[hang], gone[hang])
     return (out & (proud | hang)) | across
 
 
@@ -2533,7 +2539,8 @@ def _cloud_hanging(
 ) -> NDArray[np.bool_]:
     """Which candidates of ``sel`` (mask over the pass's candidates) *hang* (SPEC "Unorganized
     clouds: edge test" step 5) below one of the sectors marked in ``below`` ``(M, 16)`` (one row
-    per selected candidate, as ``h``, ``nrm``, ``cen``, ``tol`` and ``empty``). Sector
+    per selected candidate, as ``h``, ``nrm``, ``cen``, ``tol`` and ``empty``: below
+    ``_CLOUD_HANG_EMPTY`` of a full sector's returns). Sector
     memberships: group
     ``sec_i = candidate * 16 + sector`` of point ``sec_j`` at offset ``sec_w`` (distance
     ``sec_d``), ``sup`` the support members."""
