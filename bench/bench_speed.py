@@ -373,6 +373,11 @@ def fmt_min_step(rows: list[dict]) -> list[str]:
                      + " | ".join(f"{s[k] * 1e3:.0f}" for k in STAGES + ("run",))
                      + f" | {r['n'] / s['run'] / 1e6:.1f} | {up} | "
                      + f"{same if label == 'now' else ''} |")
+    if any(r["before"] is not None and r["before"].get("checksum") != r["now"].get("checksum")
+           for r in rows):
+        L += ["", "**no**: the labels differ because a rule added since that commit fires on "
+              "that scan (SPEC \"Edge test\" step 6: the hanging ledge's path, lips at a concave "
+              "feature); its speed-up then compares slightly different work."]
     return L
 
 
