@@ -2535,13 +2535,12 @@ def _cloud_hanging(
     nrm: NDArray[np.float64],
     cen: NDArray[np.float64],
     tol: NDArray[np.float64],
-    empty: NDArray[np.bool_],
+    gone: NDArray[np.bool_],
 ) -> NDArray[np.bool_]:
     """Which candidates of ``sel`` (mask over the pass's candidates) *hang* (SPEC "Unorganized
     clouds: edge test" step 5) below one of the sectors marked in ``below`` ``(M, 16)`` (one row
-    per selected candidate, as ``h``, ``nrm``, ``cen``, ``tol`` and ``empty``: below
-    ``_CLOUD_HANG_EMPTY`` of a full sector's returns). Sector
-    memberships: group
+    per selected candidate, as ``h``, ``nrm``, ``cen``, ``tol`` and ``gone``: fewer than
+    ``_CLOUD_HANG_EMPTY`` of a full sector's returns). Sector memberships: group
     ``sec_i = candidate * 16 + sector`` of point ``sec_j`` at offset ``sec_w`` (distance
     ``sec_d``), ``sup`` the support members."""
     S = _CLOUD_SECTORS
@@ -2575,12 +2574,12 @@ def _cloud_hanging(
         along = _dot3(v, u)
         # q lies above P more steeply than 45 degrees (NaN: no such q)
         steep = (along > 0.0) & (along * along > _dot3(v, v) - along * along)
-        # the shelf: the opposite sector empty (the surface beyond is out of reach) or a ground
+        # the shelf: the opposite sector gone (the surface beyond is out of reach) or a ground
         # point there deeper than _CLOUD_HANG_SHELF x delta along u
         g = ground & (gs == o)
         low = np.full(m, np.inf)
         np.minimum.at(low, gr[g], _dot3(sec_w[g], u[gr[g]]))
-        shelf = empty[:, o] | (low < -_CLOUD_HANG_SHELF * delta)
+        shelf = gone[:, o] | (low < -_CLOUD_HANG_SHELF * delta)
         out |= below[:, s] & steep & shelf
     return out
 
