@@ -15,7 +15,10 @@ import miem
 from miem import reference as ref
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from cloud_checks import assert_same_cloud_result  # noqa: E402
+from cloud_checks import (  # noqa: E402
+    assert_core_is_reference_everywhere,
+    assert_same_cloud_result,
+)
 
 A = miem.ABNORMAL
 ON = {"edge_tolerance": 3.0}
@@ -354,12 +357,7 @@ def test_opposite_centroid_falls_by_hand() -> None:
         assert (lab[caught] == A).all()
         assert not (lab[~lip] == A).any()
         assert not (fn(flange_scene(0, False)[0]).labels == A).any()
-    assert_same_cloud_result(miem.detect_points(pts), ref.detect_points(pts))
-    p32 = (pts + 1e3).astype(np.float32)
-    assert_same_cloud_result(miem.detect_points(p32), ref.detect_points(p32))
-    base = miem.detect_points(pts).labels
-    for nt in (1, 2):
-        np.testing.assert_array_equal(miem.detect_points(pts, num_threads=nt).labels, base)
+    assert_core_is_reference_everywhere(pts)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
