@@ -95,6 +95,37 @@ Usage usage() {
   getrusage(RUSAGE_SELF, &ru);
   return {ru.ru_minflt, static_cast<double>(ru.ru_stime.tv_sec) + 1e-6 * ru.ru_stime.tv_usec};
 }
+// The stages of OrganizedDetector::run in its order (organized.cpp) on `out` with workspace
+// `ws`; at(k) is called before stage k (k = 0..6) and after the last (k = 7). Returns the
+// min_step used (-1: off).
+template <typename At>
+double run_stages(const miem::GridView<double>& g, const miem::DetectParams& p,
+                  const miem::OrganizedOutput& out, miem::detail::Workspace& ws, int nt, At at) {
+  miem::DetectParams eff = p;
+  at(0);
+  if (eff.min_step_auto) {
+    eff.min_step = miem::detail::auto_min_step(g, ws.survey, nt);
+    eff.min_step_auto = false;
+  }
+  at(1);
+  miem::detail::angle_passes(g, eff, out, ws);
+  at(2);
+  const bool ht = eff.height_test();
+  if (ht) miem::detail::height_test(g, eff, out.labels, out.height, ws);
+  at(3);
+  if (eff.edge_test()) {
+    miem::detail::edge_passes(g, out.labels, eff.edge_window, eff.edge_k, eff.max_iterations,
+                              nt, ws.edge_sums, ws.edge_flags);
+  }
+  at(4);
+  (void)miem::detail::miem_plane(g, out.labels, nt, ws);
+  at(5);
+  miem::detail::heights(g, eff, out.labels, out.height, ht, ws);
+  at(6);
+  (void)miem::detail::organized_defects(g, out.labels, out.height, eff.window, ws, nt);
+  at(7);
+  return eff.min_step;
+}
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -138,40 +169,11 @@ int main(int argc, char** argv) {
   long run_flt = 0, fresh_flt = 0;  // minor page faults of the last repeat
   for (int rep = 0; rep < reps; ++rep) {
     double t[kStages + 1];
-    miem::DetectParams eff = p;
-    section(names[0]);
-    t[0] = now();
-    if (eff.min_step_auto) {
-      eff.min_step = miem::detail::auto_min_step(g, ws.survey, nt);
-      eff.min_step_auto = false;
-    }
-    t[1] = now();
-    min_step = eff.min_step;
-    section(names[1]);
-    miem::detail::angle_passes(g, eff, out, ws);
-    t[2] = now();
-    section(names[2]);
-    const bool ht = eff.height_test();
-    if (ht) miem::detail::height_test(g, eff, labels.data(), height.data(), ws);
-    t[3] = now();
-    section(names[3]);
-    if (eff.edge_test())
-      miem::detail::edge_passes(g, labels.data(), eff.edge_window, eff.edge_k,
-                                eff.max_iterations, nt, ws.edge_sums, ws.edge_flags);
-    t[4] = now();
-    section(names[4]);
-    auto plane = miem::detail::miem_plane(g, labels.data(), nt, ws);
-    t[5] = now();
-    section(names[5]);
-    miem::detail::heights(g, eff, labels.data(), height.data(), ht, ws);
-    t[6] = now();
-    section(names[6]);
-    auto defects =
-        miem::detail::organized_defects(g, labels.data(), height.data(), eff.window, ws, nt);
-    t[7] = now();
-    section(nullptr);
+    min_step = run_stages(g, p, out, ws, nt, [&](int k) {
+      t[k] = now();
+      section(k < kStages ? names[k] : nullptr);
+    });
     for (int k = 0; k < kStages; ++k) best[k] = std::min(best[k], t[k + 1] - t[k]);
-    (void)plane;
     section("run");
     const Usage u0 = usage();
     const double c0 = process_cpu(), t0 = now();
@@ -215,28 +217,7 @@ int main(int argc, char** argv) {
       NumpyEmpty<std::uint8_t> fl(N), ff(N);
       NumpyEmpty<double> fa(N), fh(N);
       const miem::OrganizedOutput fo{fl.p, ff.p, fa.p, fh.p};
-      miem::DetectParams eff = p;
-      mark(0);
-      if (eff.min_step_auto) {
-        eff.min_step = miem::detail::auto_min_step(g, fws->survey, nt);
-        eff.min_step_auto = false;
-      }
-      mark(1);
-      miem::detail::angle_passes(g, eff, fo, *fws);
-      mark(2);
-      const bool ht = eff.height_test();
-      if (ht) miem::detail::height_test(g, eff, fo.labels, fo.height, *fws);
-      mark(3);
-      if (eff.edge_test())
-        miem::detail::edge_passes(g, fo.labels, eff.edge_window, eff.edge_k,
-                                  eff.max_iterations, nt, fws->edge_sums, fws->edge_flags);
-      mark(4);
-      (void)miem::detail::miem_plane(g, fo.labels, nt, *fws);
-      mark(5);
-      miem::detail::heights(g, eff, fo.labels, fo.height, ht, *fws);
-      mark(6);
-      (void)miem::detail::organized_defects(g, fo.labels, fo.height, eff.window, *fws, nt);
-      mark(7);
+      (void)run_stages(g, p, fo, *fws, nt, mark);
     }
     mark(8);
     for (int k = 0; k < kFresh; ++k) {

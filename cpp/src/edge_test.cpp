@@ -265,12 +265,12 @@ bool is_fin(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
 }
 
 // SPEC "Edge test" step 6, hanging cells: P (candidate (rr, cc), its 8 sides `sd`, `best` their
-// smallest rms) fits no clean side with a return and lies, below a clean side x whose opposite
-// is empty or clean with P above it and falls away, deeper below x's plane than the top's last
-// ground cell (NORMAL or EDGE) towards x is away along that plane (steeper than 45 degrees) or
-// beyond a step steeper than that on a path of ABNORMAL cells from that ground cell, with
-// ground beyond P (within r, away from x) more than kHangShelf times as deep again along x's
-// normal. The formulas are miem.reference._hanging's.
+// smallest rms; the caller has found that P fits no clean side with a return) lies, below a
+// clean side x whose opposite is empty or clean with P above it and falls away, deeper below
+// x's plane than the top's last ground cell (NORMAL or EDGE) towards x is away along that plane
+// (steeper than 45 degrees) or beyond a step steeper than that on a path of ABNORMAL cells from
+// that ground cell, with ground beyond P (within r, away from x) more than kHangShelf times as
+// deep again along x's normal. The formulas are miem.reference._hanging's.
 constexpr double kHangShelf = 2.0;
 constexpr int kHangDirs[8][2] = {{0, 1},  {0, -1}, {1, 0},  {-1, 0},
                                  {1, 1},  {1, -1}, {-1, 1}, {-1, -1}};  // side -> towards P
@@ -281,9 +281,6 @@ bool is_hanging(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t
   const auto clean = [&](int s) {
     return edge_clean(sd[s], best);
   };
-  for (int s = 0; s < 8; ++s) {
-    if (!sd[s].empty && clean(s) && !(std::abs(sd[s].h) > sd[s].tol)) return false;
-  }
   const std::ptrdiff_t H = g.rows, W = g.cols;
   const auto label = [&](std::ptrdiff_t a, std::ptrdiff_t b) -> std::uint8_t {
     if (a < 0 || a >= H || b < 0 || b >= W) return kInvalid;
@@ -338,7 +335,8 @@ bool is_hanging(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t
 }
 
 // SPEC "Edge test" step 6, lips at a concave feature: P (candidate (rr, cc), its 8 sides `sd`,
-// `best` their smallest rms) fits no clean side, lies above a clean side x, and along the cells
+// `best` their smallest rms; the caller has found that P fits no clean side) lies above a clean
+// side x, and along the cells
 // P + j d beyond P away from x (j = 1..r, ground cells only: NORMAL or EDGE), with
 // D = max(kEdgeLipTol x tol, kEdgeLipDip x h), the surface first dips (a cell lower than P
 // along x's normal by more than D), then rises (the last of these ground cells, after the dip,
@@ -351,9 +349,6 @@ constexpr double kEdgeLipTol = 2.0, kEdgeLipDip = 0.5;
 template <typename T>
 bool is_lip(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
             std::ptrdiff_t cc, std::ptrdiff_t r, const Side (&sd)[8], double best) {
-  for (const Side& x : sd) {
-    if (edge_clean(x, best) && !(std::abs(x.h) > x.tol)) return false;
-  }
   const std::ptrdiff_t H = g.rows, W = g.cols;
   const Eigen::Vector3d p = g(rr, cc);
   for (int s = 0; s < 8; ++s) {
@@ -822,19 +817,21 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
           x.steep = x.normal.z() < kEdgeSteepCos;
           if (!x.steep) best = std::min(best, x.rms);
         }
-        bool abnormal = edge_abnormal(sd, best, [](int s) { return kOpposite[s]; });
-        if (!abnormal && is_fin(g, lab, grow, cols[j], r)) {  // a fin that fits no clean side
-          abnormal = true;
-          for (const Side& x : sd) {
-            if (edge_clean(x, best) && !(std::abs(x.h) > x.tol)) {
-              abnormal = false;
-              break;
-            }
+        // P fits a clean side (`fits`; one with a return: `fits_ground`): then no rule of
+        // step 6 or 7 flags it but hanging, which a fit to an empty side does not clear (and
+        // step 7 needs every clean side more than 2 tol off)
+        bool fits = false, fits_ground = false;
+        for (const Side& x : sd) {
+          if (edge_clean(x, best) && !(std::abs(x.h) > x.tol)) {
+            fits = true;
+            fits_ground = fits_ground || !x.empty;
           }
         }
-        if (!abnormal) abnormal = is_hanging(g, lab, grow, cols[j], r, sd, best);
-        if (!abnormal) abnormal = is_lip(g, lab, grow, cols[j], r, sd, best);
-        if (!abnormal) abnormal = is_spike(g, lab, grow, rr, cols[j], H, o, sd, best);
+        bool abnormal = !fits && (edge_proud(sd, best, [](int s) { return kOpposite[s]; }) ||
+                                  is_fin(g, lab, grow, cols[j], r) ||
+                                  is_lip(g, lab, grow, cols[j], r, sd, best));
+        if (!abnormal && !fits_ground) abnormal = is_hanging(g, lab, grow, cols[j], r, sd, best);
+        if (!abnormal && !fits) abnormal = is_spike(g, lab, grow, rr, cols[j], H, o, sd, best);
         mark[i] = abnormal ? 1 : 0;
       }
     }

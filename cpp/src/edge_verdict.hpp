@@ -1,6 +1,7 @@
 // Steps 4-6 of the edge test (docs/SPEC.md "Edge test"), shared by grids (one-sided sub-windows)
 // and clouds (tangent-plane sectors, "Unorganized clouds: edge test"): from the planes of a
-// point's one-sided neighbourhoods, is it ABNORMAL?
+// point's one-sided neighbourhoods, which are clean, does it stand proud of one, is it an
+// isolated spike?
 #pragma once
 
 #include <cmath>
@@ -30,17 +31,11 @@ inline bool edge_clean(const EdgeSide& x, double best) {
   return x.valid && !x.steep && x.rms <= kEdgeCleanRatio * best;
 }
 
-/// SPEC "Edge test" steps 4-6: P fits no clean side and stands proud of one whose opposite
-/// side (`opposite(s)`) is empty or falls away below its plane. `best`: the smallest rms of
-/// the valid sides.
+/// SPEC "Edge test" step 5: P stands proud of a clean side whose opposite side
+/// (`opposite(s)`) is empty or falls away below its plane (step 6 flags it when it also fits no
+/// clean side, which the caller checks). `best`: the smallest rms of the valid sides.
 template <int N, typename Opposite>
-inline bool edge_abnormal(const EdgeSide (&sd)[N], double best, Opposite opposite) {
-  for (int s = 0; s < N; ++s) {
-    const EdgeSide& x = sd[s];
-    if (edge_clean(x, best) && !(std::abs(x.h) > x.tol)) {
-      return false;
-    }
-  }
+inline bool edge_proud(const EdgeSide (&sd)[N], double best, Opposite opposite) {
   for (int s = 0; s < N; ++s) {
     const EdgeSide& x = sd[s];
     if (!edge_clean(x, best) || !(x.h > x.tol)) continue;

@@ -34,7 +34,7 @@ import itertools
 import math
 import numbers
 import re
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -1257,15 +1257,36 @@ def _hang_conditions(
     steep = found & (depth * depth > _dot3(v, v) - along * along)
     steep |= found & chain & via & drop
     low = np.full(rr.size, np.inf)  # the deepest ground cell beyond P, along u
+    for hit, d in _beyond(grid, labels, cells, r, k, u):
+        low = np.minimum(low, np.where(hit, d, np.inf))
+    return steep, low < -_HANG_SHELF * depth
+
+
+def _beyond(
+    grid: NDArray[np.float64],
+    labels: NDArray[np.uint8],
+    cells: NDArray[np.bool_],
+    r: int,
+    k: int,
+    u: NDArray[np.float64],
+) -> Iterator[tuple[NDArray[np.bool_], NDArray[np.float64]]]:
+    """The ground cells beyond the cells P of ``cells`` (row-major) away from sub-window ``k``,
+    ``x = P + j d`` for ``j = 1..r`` in order (SPEC "Edge test" step 6: a hanging cell's shelf,
+    a lip's dip and rise): per ``j``, which P have one there (NORMAL or EDGE, inside the grid)
+    and its ``u . (x - P)`` (NaN where none)."""
+    hh, ww = labels.shape
+    dr, dc = _HANG_DIRECTIONS[k]
+    ground = (labels == NORMAL) | (labels == EDGE)
+    rr, cc = np.nonzero(cells)
+    p = grid[rr, cc]
     for j in range(1, r + 1):
         r1, c1 = rr + j * dr, cc + j * dc
-        ok = inside(r1, c1)
+        ok = (r1 >= 0) & (r1 < hh) & (c1 >= 0) & (c1 < ww)
         hit = np.zeros(rr.size, dtype=bool)
         hit[ok] = ground[r1[ok], c1[ok]]
-        hv = np.full(rr.size, np.inf)
-        hv[hit] = _dot3(grid[r1[hit], c1[hit]] - p[hit], u[hit])
-        low = np.minimum(low, hv)
-    return steep, low < -_HANG_SHELF * depth
+        d = np.full(rr.size, np.nan)
+        d[hit] = _dot3(grid[r1[hit], c1[hit]] - p[hit], u[hit])
+        yield hit, d
 
 
 #: Lips at a concave feature (SPEC "Edge test" step 6): beyond P the surface falls back by more
@@ -1295,30 +1316,18 @@ def _lips(
     height over ``a``'s plane), first a *dip* (a cell lower than P along ``a``'s normal by more
     than ``D``), then a *rise*: the last of these ground cells, after the dip, lies above
     ``a``'s plane by more than ``D`` (the surface goes on rising, unlike a fin beyond P)."""
-    hh, ww = labels.shape
-    ground = (labels == NORMAL) | (labels == EDGE)
-    rr, cc = np.nonzero(cells)
-    p = grid[rr, cc]
-    out = np.zeros(rr.size, dtype=bool)
+    out = np.zeros(lip.shape[1], dtype=bool)
     for k in range(len(_HANG_DIRECTIONS)):
         if not lip[k].any():
             continue
-        dr, dc = _HANG_DIRECTIONS[k]
-        u, hk, tk = normals[k], h[k], tol[k]
-        dip = np.maximum(_EDGE_LIP_TOL * tk, _EDGE_LIP_DIP * hk)
-        dipped = np.zeros(rr.size, dtype=bool)  # a dip among the ground cells so far
-        risen = np.zeros(rr.size, dtype=bool)  # the last ground cell so far: after a dip, high
-        for j in range(1, r + 1):
-            r1, c1 = rr + j * dr, cc + j * dc
-            ok = (r1 >= 0) & (r1 < hh) & (c1 >= 0) & (c1 < ww)
-            hit = np.zeros(rr.size, dtype=bool)
-            hit[ok] = ground[r1[ok], c1[ok]]
-            hit &= lip[k]
-            d = np.full(rr.size, np.nan)
-            d[hit] = _dot3(grid[r1[hit], c1[hit]] - p[hit], u[hit])
+        hk = h[k]
+        dip = np.maximum(_EDGE_LIP_TOL * tol[k], _EDGE_LIP_DIP * hk)
+        dipped = np.zeros(out.size, dtype=bool)  # a dip among the ground cells so far
+        risen = np.zeros(out.size, dtype=bool)  # the last ground cell so far: after a dip, high
+        for hit, d in _beyond(grid, labels, cells, r, k, normals[k]):
             risen[hit] = dipped[hit] & (hk[hit] + d[hit] > dip[hit])
             dipped |= hit & (d < -dip)
-        out |= risen
+        out |= lip[k] & risen
     return out
 
 

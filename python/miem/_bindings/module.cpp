@@ -55,10 +55,8 @@ double finite_extent_of(const py::array& a, const char* name) {
     shape[k] = a.shape(k);
     st[k] = elem_stride<T>(a, k, name);
   }
-  if (nd == 1) {
-    py::gil_scoped_release nogil;
-    return miem::largest_finite_magnitude(base, 1, shape[0], 0, st[0]);
-  }
+  // rows x cols blocks over the last two axes (a 1-D array: one row), one per index of the rest
+  const std::ptrdiff_t rows = nd > 1 ? shape[nd - 2] : 1, row_st = nd > 1 ? st[nd - 2] : 0;
   std::ptrdiff_t blocks = 1;
   for (int k = 0; k < nd - 2; ++k) blocks *= shape[k];
   double top = 0.0;
@@ -69,8 +67,8 @@ double finite_extent_of(const py::array& a, const char* name) {
       off += (rest % shape[k]) * st[k];
       rest /= shape[k];
     }
-    top = std::max(top, miem::largest_finite_magnitude(base + off, shape[nd - 2], shape[nd - 1],
-                                                       st[nd - 2], st[nd - 1]));
+    top = std::max(top, miem::largest_finite_magnitude(base + off, rows, shape[nd - 1], row_st,
+                                                       st[nd - 1]));
   }
   return top;
 }
