@@ -1,6 +1,7 @@
 // The stages of organized detection (docs/SPEC.md), in the order OrganizedDetector::run calls
 // them. Each lives in the file named for it:
-//   angle_passes.cpp  finiteness, pass 1 (row kernel), theta0 "auto", later passes
+//   angle_passes.cpp  finiteness, pass 1, theta0 "auto", later passes (pass1_row.cpp: pass
+//                     1's row kernel, which ProfileStream runs too with min_step)
 //   height_test.cpp   compact EDGE groups and the height passes (beyond the paper)
 //   miem_plane.cpp    the MIEM plane of the non-ABNORMAL points
 //   heights.cpp       the local height of each point over its window plane

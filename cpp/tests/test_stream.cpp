@@ -338,7 +338,7 @@ TEST_P(StreamEqualsBatch, FloatProfiles) {
 }
 
 // min_step beyond the point spacing on a fine, noisy scan: the neighbour searches pass over
-// near candidates in every direction (pass 1's min_step_label, and the later passes' rays), and
+// near candidates in every direction (pass 1's row kernel, and the later passes' rays), and
 // the labels depend on it (min_step off labels otherwise).
 TEST(Stream, MinStepBeyondTheSpacingEqualsBatch) {
   miem::test::ScanOptions o;

@@ -217,8 +217,7 @@ class ProfileStream {
   void run_pass(std::int64_t row, int pass) noexcept;
   void pass1_fast(std::int64_t row) noexcept;
   std::uint8_t exact_label(std::int64_t row, std::ptrdiff_t col, std::uint32_t bits) const noexcept;
-  std::uint8_t min_step_label(const T* grid, const std::uint8_t* state, std::ptrdiff_t rows,
-                              std::ptrdiff_t r, std::ptrdiff_t c, std::uint8_t* ray) const noexcept;
+  void pass1_kernel(std::int64_t row) noexcept;
   void remove(std::int64_t row, std::ptrdiff_t col, int pass) noexcept;
   // The stages after the angle passes (stream_stages.cpp): each advances its own next row up
   // to the last row it may run on (all pushed rows once the stream is flushed).
@@ -279,13 +278,14 @@ class ProfileStream {
   int max_scale_ = 1;
   bool fast_ok_ = false;  // the scales allow pass 1's vectorised kernel (without min_step)
   bool fast_ = false;     // pass 1 may use the vectorised kernel
-  bool fast_ms_ = false;  // pass 1 may use min_step_label (min_step on, theta0 < 90)
-  double ms_lo_[8] = {}, ms_hi_[8] = {};  // per scale s: (s min_step)^2 (1 -+ 1e-12)
-  double ms_len_[8] = {};                 // per scale s: s min_step
-  // with min_step, pass 1 of a row (min_step_skip.hpp): row_speeds (width_), then per chunk of
-  // 32 columns the largest within mark_reach_
-  std::vector<double> speed_;
-  std::vector<std::ptrdiff_t> skip_first_;  // per chunk and scale: the first step to read
+  // With min_step, pass 1 runs batch detection's row kernel (src/pass1_row.hpp) on its own
+  // ring of converted rows: each row converted once, when the first row within p1_depth_ of it
+  // is judged (rows are judged in order).
+  bool p1_kernel_ = false;          // min_step on and the kernel's ring kept
+  detail::RowScratch p1_;           // the ring (2 p1_depth_ + 2 padded rows)
+  std::ptrdiff_t p1_depth_ = 0;     // its depth (steps a search reads in the kernel)
+  std::int64_t p1_next_ = 0;        // the next row to convert
+  std::vector<std::uint8_t> p1_lab_;  // width_: the kernel's labels of the row
   // min_step "auto" (SPEC "min_step='auto'"): decided once the kAutoMinStepRows rows from the
   // first row with a finite cell are in; the stages wait for it (the rows are kept).
   bool ms_auto_ = false;         // params_.min_step_auto

@@ -1,0 +1,406 @@
+// Pass 1's row kernel (pass1_row.hpp), shared by batch detection and ProfileStream.
+#include "pass1_row.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include "angle_math.hpp"
+#include "judge.hpp"
+#include "min_step_skip.hpp"
+
+namespace miem::detail {
+
+namespace {
+
+// Pass 1 row kernel. Whole rows are judged with straight-line loops over structure-of-arrays
+// copies of the rows, which the compiler vectorizes (AVX-512 and AVX2 clones are picked at run
+// time where the CPU has them). Without min_step the neighbour search of SPEC.md ends at its
+// first or second cell (the candidate at s cells is usable, or it is not and the one at s + 1
+// is: one dropout, the max_gap = 1 default); with min_step it runs step by step for all lanes
+// of a block to a depth of up to 16 steps. Rows carry `depth` padding columns of unusable cells
+// on each side and rows beyond the grid read an all-unusable row, so the grid's border needs no
+// special case.
+// Cells whose search goes further (max_gap > 1 with two unusable cells in a row without
+// min_step, deeper than the ring with it, a min_step candidate within a relative 1e-12 of the
+// bound, no usable cell within the isolation reach) fall back to the scalar judge.
+constexpr std::ptrdiff_t kBlock = 256;  // columns per block of the row kernel
+constexpr std::ptrdiff_t kChunk = 32;   // lanes per min_step search
+
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+#define MIEM_CLONES __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
+#else
+#define MIEM_CLONES
+#endif
+
+constexpr std::int64_t kFlagShift = kPass1FlagShift, kSlowBit = kPass1SlowBit,
+                       kNearBit = kPass1NearBit;
+
+// The two candidates of one side of one (direction, scale): the cells s and s + 1 steps away
+// (x, y, z rows and usable lanes, already shifted so that index c is the candidate of cell c).
+struct Side {
+  const double *x1, *y1, *z1, *x2, *y2, *z2;
+  const std::int64_t *ok1, *ok2;
+};
+
+// The candidate a search returns when it ends at one of the two cells: the first usable one.
+// Writes the offset u from the centre, `any` (a usable cell among the two, then u is the
+// search's answer) and `slow` (the search would go on: two unusable cells and max_gap > 1).
+#define MIEM_PICK(P, c, ux, uy, uz, uu, slow, any)                                          \
+  do {                                                                                      \
+    const std::int64_t o1 = P##o1[c], o2 = P##o2[c];                                        \
+    const double x1 = P##x1[c], y1 = P##y1[c], z1 = P##z1[c];                               \
+    const double x2 = P##x2[c], y2 = P##y2[c], z2 = P##z2[c];                               \
+    ux = (o1 ? x1 : x2) - px[c];                                                            \
+    uy = (o1 ? y1 : y2) - py[c];                                                            \
+    uz = (o1 ? z1 : z2) - pz[c];                                                            \
+    uu = (ux * ux + uy * uy) + uz * uz;                                                     \
+    any = o1 | o2;                                                                          \
+    slow = (any ^ 1) & gap2;                                                                \
+  } while (0)
+
+// The verdict of one (direction, scale) from the offsets u, v of its two neighbours, folded
+// into the cell's running best (uv, prod) and its bits. The running best cos is kept as the
+// pair (uv, prod) = (u.v, |u|^2 |v|^2) and compared through uv |uv| / prod, which orders like
+// uv / sqrt(prod): no square root or division per candidate.
+#define MIEM_FOLD(c, ux, uy, uz, uu, vx, vy, vz, vv, found)                                 \
+  const double uv = (ux * vx + uy * vy) + uz * vz;                                          \
+  const double prod = uu * vv;                                                              \
+  const std::int64_t good = (found) & (uu != 0.0) & (vv != 0.0);                            \
+  const std::int64_t flagged = good & detail::cos_at_least(uv, prod, cos0, c2);             \
+  const double b_uv = buv[c], b_prod = bprod[c];                                            \
+  const std::int64_t better =                                                               \
+      good & (uv * std::fabs(uv) * b_prod > b_uv * std::fabs(b_uv) * prod);                 \
+  buv[c] = better ? uv : b_uv;                                                              \
+  bprod[c] = better ? prod : b_prod
+
+// One (direction, scale) without min_step over columns [0, n). Masks and bits are 64-bit lanes
+// like the doubles, so nothing is packed or unpacked. `near_bit`: set kNearBit where a side has
+// a usable cell (scale 1: the two candidates are the whole isolation reach of max_gap <= 1).
+MIEM_CLONES void kernel_line(std::ptrdiff_t n, const Side& A, const Side& B,
+                             const double* __restrict px, const double* __restrict py,
+                             const double* __restrict pz, double cos0, double c2,
+                             std::int64_t gap2, std::int64_t bit, std::int64_t near_bit,
+                             double* __restrict buv, double* __restrict bprod,
+                             std::int64_t* __restrict bits) {
+  const double *__restrict ax1 = A.x1, *__restrict ay1 = A.y1, *__restrict az1 = A.z1;
+  const double *__restrict ax2 = A.x2, *__restrict ay2 = A.y2, *__restrict az2 = A.z2;
+  const double *__restrict bx1 = B.x1, *__restrict by1 = B.y1, *__restrict bz1 = B.z1;
+  const double *__restrict bx2 = B.x2, *__restrict by2 = B.y2, *__restrict bz2 = B.z2;
+  const std::int64_t *__restrict ao1 = A.ok1, *__restrict ao2 = A.ok2;
+  const std::int64_t *__restrict bo1 = B.ok1, *__restrict bo2 = B.ok2;
+  for (std::ptrdiff_t c = 0; c < n; ++c) {
+    double ux, uy, uz, uu, vx, vy, vz, vv;
+    std::int64_t sa, aa, sb, ab;
+    MIEM_PICK(a, c, ux, uy, uz, uu, sa, aa);
+    MIEM_PICK(b, c, vx, vy, vz, vv, sb, ab);
+    MIEM_FOLD(c, ux, uy, uz, uu, vx, vy, vz, vv, aa & ab);
+    // 0/1 lanes to masks by negation (an int64 multiply has no AVX2 instruction)
+    bits[c] |= (-good & bit) | (-flagged & (bit << kFlagShift)) | (-(sa | sb) & kSlowBit) |
+               (-(aa | ab) & near_bit);
+  }
+}
+#undef MIEM_PICK
+
+// With min_step, the neighbour search of SPEC.md for one side of one (direction, scale), one
+// step at a time for every lane of a block (the lanes that have ended keep their state). State
+// per lane, one word: bits 0-2 the outcome (0 searching, 1 found: u = the offset, 2 none, 4
+// slow: the scalar judge decides: a candidate within a relative 1e-12 of s * min_step, where
+// the spec's square root decides, or a search deeper than the row ring), bits 3-15 the gaps
+// met, bits 16- the step where the search ended.
+struct SideSearch {
+  double ux[kBlock], uy[kBlock], uz[kBlock];
+  std::int64_t st[kBlock];
+};
+constexpr std::int64_t kGapShift = 3, kGapMask = 0x1FFF, kEndShift = 16;
+
+// One step of the search for lanes [c0, c0 + n): the candidates' rows x, y, z, ok (shifted so
+// that index c is the candidate of cell c). Far: |q - P|^2 > hi; near: < lo. Returns whether a
+// lane searches on.
+MIEM_CLONES std::int64_t search_step(std::ptrdiff_t c0, std::ptrdiff_t n,
+                                     const double* __restrict x,
+                                     const double* __restrict y, const double* __restrict z,
+                                     const std::int64_t* __restrict ok,
+                                     const double* __restrict px, const double* __restrict py,
+                                     const double* __restrict pz, double lo, double hi,
+                                     std::int64_t max_gap, std::int64_t step,
+                                     SideSearch& __restrict sr) {
+  double *__restrict ux = sr.ux, *__restrict uy = sr.uy, *__restrict uz = sr.uz;
+  std::int64_t* __restrict st = sr.st;
+  const std::int64_t end = step << kEndShift;
+  std::int64_t any = 0;
+  for (std::ptrdiff_t c = c0; c < c0 + n; ++c) {
+    const std::int64_t s0 = st[c];
+    const std::int64_t act = ((s0 | (s0 >> 1) | (s0 >> 2)) & 1) ^ 1, o = ok[c];
+    const double dx = x[c] - px[c], dy = y[c] - py[c], dz = z[c] - pz[c];
+    const double dd = (dx * dx + dy * dy) + dz * dz;
+    const std::int64_t miss = act & (o ^ 1);
+    const std::int64_t g = ((s0 >> kGapShift) & kGapMask) + miss;
+    const std::int64_t far = dd > hi, near = dd < lo;
+    const std::int64_t f = act & o & far;
+    const std::int64_t none = miss & (g > max_gap);
+    const std::int64_t slow = act & o & (far ^ 1) & (near ^ 1);
+    const std::int64_t done = f | none | slow;
+    const std::int64_t s1 = s0 + (miss << kGapShift) + (f | (none << 1) | (slow << 2)) +
+                            (-done & end);
+    st[c] = s1;
+    ux[c] = f ? dx : ux[c];
+    uy[c] = f ? dy : uy[c];
+    uz[c] = f ? dz : uz[c];
+    any |= act & (done ^ 1);
+  }
+  return any;
+}
+
+// The verdict of one (direction, scale) from the two sides' searches (SideSearch), as
+// kernel_line. A side still searching at step `stop` (`open` 4: beyond the ring; 2: the
+// spec's last step passed) ends slow / none; a slow side makes the cell slow unless the other
+// side has none. ext: raised to the last step each side read. (Bit tests only: 64-bit
+// compares do not vectorise everywhere.)
+MIEM_CLONES void fold_searches(std::ptrdiff_t n, const SideSearch& A, const SideSearch& B,
+                               std::int64_t open, std::int64_t stop, double cos0, double c2,
+                               std::int64_t bit, double* __restrict buv,
+                               double* __restrict bprod, std::int64_t* __restrict bits,
+                               std::int64_t* __restrict ext) {
+  const double *__restrict ax = A.ux, *__restrict ay = A.uy, *__restrict az = A.uz;
+  const double *__restrict bx = B.ux, *__restrict by = B.uy, *__restrict bz = B.uz;
+  const std::int64_t *__restrict ast = A.st, *__restrict bst = B.st;
+  for (std::ptrdiff_t c = 0; c < n; ++c) {
+    const std::int64_t sa0 = ast[c], sb0 = bst[c];
+    const std::int64_t oa = -(((sa0 | (sa0 >> 1) | (sa0 >> 2)) & 1) ^ 1);  // still searching
+    const std::int64_t ob = -(((sb0 | (sb0 >> 1) | (sb0 >> 2)) & 1) ^ 1);
+    const std::int64_t sa = sa0 | (oa & open), sb = sb0 | (ob & open);
+    const std::int64_t ea = (oa & stop) | (~oa & (sa0 >> kEndShift));
+    const std::int64_t eb = (ob & stop) | (~ob & (sb0 >> kEndShift));
+    const std::int64_t e0 = ext[c], e1 = ea > eb ? ea : eb;
+    ext[c] = e0 > e1 ? e0 : e1;
+    const double ux = ax[c], uy = ay[c], uz = az[c];
+    const double vx = bx[c], vy = by[c], vz = bz[c];
+    const double uu = (ux * ux + uy * uy) + uz * uz, vv = (vx * vx + vy * vy) + vz * vz;
+    const std::int64_t fa = sa & 1, fb = sb & 1, la = (sa >> 2) & 1, lb = (sb >> 2) & 1;
+    const std::int64_t na = (sa >> 1) & 1, nb = (sb >> 1) & 1;
+    MIEM_FOLD(c, ux, uy, uz, uu, vx, vy, vz, vv, fa & fb);
+    const std::int64_t slow = (la | lb) & ((na | nb) ^ 1);
+    bits[c] |= (-good & bit) | (-flagged & (bit << kFlagShift)) | (-slow & kSlowBit);
+  }
+}
+#undef MIEM_FOLD
+
+// kNearBit where a usable cell lies 1 or 2 (with gap2: 1 .. 2) steps away along one of the
+// rays (when scale 1 is not among the scales).
+MIEM_CLONES void near_line(std::ptrdiff_t n, const std::int64_t* const* __restrict ok,
+                           int m, std::int64_t* __restrict bits) {
+  for (std::ptrdiff_t c = 0; c < n; ++c) {
+    std::int64_t a = 0;
+    for (int k = 0; k < m; ++k) a |= ok[k][c];
+    bits[c] |= a * kNearBit;
+  }
+}
+
+// Smallest angle (degrees) from the best (uv, prod) pairs of a row; NaN where none or where the
+// cell itself is not usable.
+MIEM_CLONES void angles_line(std::ptrdiff_t n, const double* __restrict buv,
+                             const double* __restrict bprod, const std::int64_t* __restrict ok,
+                             double* __restrict out) {
+  for (std::ptrdiff_t c = 0; c < n; ++c) {
+    const bool has = (bprod[c] > 0.0) & (ok[c] != 0);
+    double cs = buv[c] / std::sqrt(has ? bprod[c] : 1.0);
+    cs = cs < -1.0 ? -1.0 : (cs > 1.0 ? 1.0 : cs);
+    const double deg = detail::acos_fast(cs) * detail::kRadToDeg;
+    out[c] = has ? deg : detail::kNaN;
+  }
+}
+
+// The labels (and flags) of a row's usable cells (ok[c]) from the kernel's bits: ABNORMAL when at
+// least 2 directions are available and at least min(available, min_directions) (0: all) are
+// flagged, EDGE when some are, else NORMAL (SPEC "Detection"). Slow cells get a label here too;
+// the scalar judge overwrites it.
+MIEM_CLONES void label_line(std::ptrdiff_t n, const std::int64_t* __restrict bits,
+                            const std::int64_t* __restrict ok, int min_directions,
+                            std::uint8_t* __restrict labels, std::uint8_t* __restrict flags) {
+  const std::int64_t md = min_directions;
+  auto pop4 = [](std::int64_t x) { return (x & 1) + ((x >> 1) & 1) + ((x >> 2) & 1) + ((x >> 3) & 1); };
+  for (std::ptrdiff_t c = 0; c < n; ++c) {
+    const std::int64_t b = bits[c], flag = (b >> kFlagShift) & 15;
+    const std::int64_t a = pop4(b & 15), f = pop4(flag);
+    const std::int64_t need = md > 0 ? (a < md ? a : md) : a;
+    const std::uint8_t l = (a >= 2) & (f >= need) ? kAbnormal : (f > 0 ? kEdge : kNormal);
+    labels[c] = ok[c] ? l : labels[c];
+  }
+  if (flags == nullptr) return;
+  for (std::ptrdiff_t c = 0; c < n; ++c) {
+    const std::uint8_t flag = static_cast<std::uint8_t>((bits[c] >> kFlagShift) & 15);
+    flags[c] = ok[c] ? flag : flags[c];
+  }
+}
+
+
+}  // namespace
+
+void pass1_prepare(RowScratch& sc, std::ptrdiff_t W, std::ptrdiff_t depth, bool min_step) {
+  const std::ptrdiff_t S = W + 2 * depth;
+  sc.resize(2 * depth + 2, S);
+  std::fill(sc.xyz.begin(), sc.xyz.end(), 0.0);
+  std::fill(sc.ok.begin(), sc.ok.end(), 0);
+  if (min_step) {
+    // with min_step (min_step_skip.hpp): row_speeds, the unusable cells before each padded
+    // column, and per chunk of kChunk columns the largest speed and the unusable cells within
+    // `depth` columns of it (the steps a search of the chunk can skip)
+    sc.speed.resize(static_cast<std::size_t>(W));
+    sc.gaps_before.resize(static_cast<std::size_t>(S + 1));
+    sc.gaps_before[0] = 0;
+    const std::ptrdiff_t n_chunks = (W + kChunk - 1) / kChunk;
+    sc.chunk_speed.resize(static_cast<std::size_t>(n_chunks));
+    sc.chunk_gaps.resize(static_cast<std::size_t>(n_chunks));
+  }
+}
+
+void pass1_row(const Pass1Ring& ring, std::ptrdiff_t r, const DetectParams& p,
+               std::uint8_t* labels, std::uint8_t* flags_out, double* angle_row,
+               std::uint8_t* reach) {
+  RowScratch& sc = *ring.sc;
+  const std::ptrdiff_t W = ring.W, depth = ring.depth, pad = depth, S = ring.stride();
+  const double cos0 = std::cos(p.theta0_deg * detail::kDegToRad), c2 = cos0 * cos0;
+  const std::int64_t gap2 = p.max_gap > 1;
+  const bool deep = p.min_step >= 0.0;
+  auto slot_x = [&](std::ptrdiff_t rr) { return ring.x(rr); };
+  auto slot_ok = [&](std::ptrdiff_t rr) { return ring.ok(rr); };
+  const bool has_scale1 = std::find(p.scales.begin(), p.scales.end(), 1) != p.scales.end();
+  double *buv = sc.best.data(), *bprod = sc.best.data() + S;
+  std::int64_t* bits = sc.bits.data();
+  SideSearch sides[2];
+  std::int64_t ext[kBlock];
+  const std::ptrdiff_t n_chunks = (W + kChunk - 1) / kChunk;
+  double* speed = sc.speed.data();
+  std::int64_t* gaps_before = sc.gaps_before.data();
+  double* chunk_speed = sc.chunk_speed.data();
+  std::int64_t* chunk_gaps = sc.chunk_gaps.data();
+  std::fill(buv, buv + W, -2.0);
+  std::fill(bprod, bprod + W, 0.0);
+  std::fill(bits, bits + W, 0);
+  const double* px = slot_x(r);
+  if (deep) {
+    const std::int64_t* ok = slot_ok(r);
+    row_speeds(W, px, S, [ok](std::ptrdiff_t c) { return ok[c] != 0; }, speed);
+    chunk_speeds(speed, W, kChunk, pad, chunk_speed);
+    for (std::ptrdiff_t i = 0; i < S; ++i)
+      gaps_before[i + 1] = gaps_before[i] + (ok[i - pad] ^ 1);
+    for (std::ptrdiff_t ch = 0; ch < n_chunks; ++ch) {
+      const std::ptrdiff_t a = ch * kChunk, b = std::min(W, a + kChunk) + 2 * pad;
+      chunk_gaps[ch] = gaps_before[b] - gaps_before[a];
+    }
+  }
+  // Blocks of columns, every (direction, scale) per block: the block's rows stay in L1.
+  for (std::ptrdiff_t b0 = 0; b0 < W; b0 += kBlock) {
+    const std::ptrdiff_t nb = std::min(W, b0 + kBlock) - b0;
+    const double *qx = px + b0, *qy = px + S + b0, *qz = px + 2 * S + b0;
+    const std::int64_t* near_ok[16];
+    int n_near = 0;
+    for (int k = 0; k < 4; ++k) {
+      const int dr = detail::kDirRow[k], dc = detail::kDirCol[k];
+      const std::int64_t bit = std::int64_t{1} << k;
+      // the cells `step` steps away on side sgn, shifted to the block's first column
+      auto at_x = [&](int sgn, std::ptrdiff_t step) {
+        return slot_x(r + sgn * step * dr) + b0 + sgn * step * dc;
+      };
+      auto at_ok = [&](int sgn, std::ptrdiff_t step) {
+        return slot_ok(r + sgn * step * dr) + b0 + sgn * step * dc;
+      };
+      if (deep) {
+        // SPEC's search step by step to its last step s + max_gap + max_reach, or to the
+        // ring's depth (lanes still searching there go to the scalar judge).
+        const std::int64_t gap = p.max_gap;
+        std::fill(ext, ext + nb, 1 + gap);
+        for (int s : p.scales) {
+          const double len = s * p.min_step, l2 = len * len;
+          const double lo = l2 * (1.0 - 1e-12), hi = l2 * (1.0 + 1e-12);
+          const std::ptrdiff_t last = s + gap + p.max_reach;
+          const std::ptrdiff_t stop = std::min<std::ptrdiff_t>(last, depth);
+          for (int sd = 0; sd < 2; ++sd) {
+            const int sgn = sd == 0 ? -1 : 1;
+            SideSearch& sr = sides[sd];
+            std::fill(sr.st, sr.st + nb, 0);
+            std::fill(sr.ux, sr.ux + nb, 0.0);
+            std::fill(sr.uy, sr.uy + nb, 0.0);
+            std::fill(sr.uz, sr.uz + nb, 0.0);
+            // chunks of kChunk lanes: a chunk ends with its own longest search
+            for (std::ptrdiff_t c0 = 0; c0 < nb; c0 += kChunk) {
+              const std::ptrdiff_t nc = std::min(kChunk, nb - c0);
+              std::ptrdiff_t first = s;
+              if (k == 0) {
+                // along the row: skip the surely near steps (row_speeds), counting their
+                // gaps; not when a lane's gaps there end its search
+                const std::ptrdiff_t ch = (b0 + c0) / kChunk;
+                first = first_read_step(chunk_speed[ch], len, s, stop);
+                if (first > s && chunk_gaps[ch] > 0) {
+                  const std::int64_t* u = gaps_before + pad + b0;  // u[c]: [.., c)
+                  std::int64_t worst = 0;
+                  for (std::ptrdiff_t c = c0; c < c0 + nc; ++c) {
+                    const std::int64_t gc = sgn > 0 ? u[c + first] - u[c + s]
+                                                    : u[c - s + 1] - u[c - first + 1];
+                    sr.st[c] = gc << kGapShift;
+                    worst = std::max(worst, gc);
+                  }
+                  if (worst > gap) {
+                    std::fill(sr.st + c0, sr.st + c0 + nc, 0);
+                    first = s;
+                  }
+                }
+              }
+              for (std::ptrdiff_t step = first; step <= stop; ++step) {
+                const double* x = at_x(sgn, step);
+                if (!search_step(c0, nc, x, x + S, x + 2 * S, at_ok(sgn, step), qx, qy, qz,
+                                 lo, hi, gap, step, sr))
+                  break;
+              }
+            }
+          }
+          fold_searches(nb, sides[0], sides[1], last <= depth ? 2 : 4, stop, cos0, c2, bit,
+                        buv + b0, bprod + b0, bits + b0, ext);
+        }
+        // isolation: a usable cell among steps 1 .. 1 + max_gap (those within the ring; a
+        // cell without one goes to the scalar judge)
+        const std::ptrdiff_t iso = std::min<std::ptrdiff_t>(1 + gap, depth);
+        for (std::ptrdiff_t step = 1; step <= iso; ++step) {
+          for (int sgn = -1; sgn <= 1; sgn += 2) {
+            near_ok[n_near++] = at_ok(sgn, step);
+            if (n_near == 16) {
+              near_line(nb, near_ok, n_near, bits + b0);
+              n_near = 0;
+            }
+          }
+        }
+        std::uint8_t* rc = reach + b0 * 4 + k;
+        for (std::ptrdiff_t c = 0; c < nb; ++c)
+          rc[4 * c] = static_cast<std::uint8_t>(std::min<std::int64_t>(ext[c], 255));
+        continue;
+      }
+      for (int s : p.scales) {
+        const std::ptrdiff_t s2 = p.max_gap > 0 ? s + 1 : s;  // max_gap 0: one candidate
+        const double *a1 = at_x(-1, s), *a2 = at_x(-1, s2);
+        const double *b1 = at_x(+1, s), *b2 = at_x(+1, s2);
+        const Side A{a1, a1 + S, a1 + 2 * S, a2, a2 + S, a2 + 2 * S, at_ok(-1, s),
+                     at_ok(-1, s2)};
+        const Side B{b1, b1 + S, b1 + 2 * S, b2, b2 + S, b2 + 2 * S, at_ok(+1, s),
+                     at_ok(+1, s2)};
+        kernel_line(nb, A, B, qx, qy, qz, cos0, c2, gap2, bit, s == 1 ? kNearBit : 0,
+                    buv + b0, bprod + b0, bits + b0);
+      }
+      if (!has_scale1) {
+        const std::ptrdiff_t s2 = p.max_gap > 0 ? 2 : 1;
+        near_ok[n_near++] = at_ok(-1, 1);
+        near_ok[n_near++] = at_ok(-1, s2);
+        near_ok[n_near++] = at_ok(+1, 1);
+        near_ok[n_near++] = at_ok(+1, s2);
+      }
+    }
+    if (n_near > 0) near_line(nb, near_ok, n_near, bits + b0);
+  }
+  const std::int64_t* centre_ok = slot_ok(r);
+  if (angle_row) angles_line(W, buv, bprod, centre_ok, angle_row);
+  // The kernel's verdicts for the whole row (vector code); the caller's scalar judge replaces
+  // those of the cells the kernel could not finish (pass1_needs_judge).
+  label_line(W, bits, centre_ok, p.min_directions, labels, flags_out);
+}
+
+}  // namespace miem::detail

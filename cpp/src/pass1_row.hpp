@@ -1,0 +1,74 @@
+// Pass 1's row kernel (docs/SPEC.md "Detection"), shared by batch detection (angle_passes.cpp)
+// and ProfileStream (with min_step): the verdicts of a whole row from structure-of-arrays copies
+// of the rows around it, vectorised; the cells it cannot settle go to the scalar judge.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+
+#include "miem/organized.hpp"
+#include "miem/params.hpp"
+
+namespace miem::detail {
+
+/// The rows the kernel reads: a ring of 2 depth + 1 converted rows in a RowScratch (slot
+/// rr % (2 depth + 1) for row rr), and one all-unusable row (slot 2 depth + 1) that stands for
+/// the rows outside [0, H). Each row has `depth` padding columns of unusable cells on each side,
+/// so that the grid's border needs no special case. A row is loaded once (pass1_load or the
+/// batch's load_row) before the rows within `depth` of it are judged.
+struct Pass1Ring {
+  RowScratch* sc = nullptr;
+  std::ptrdiff_t H = 0, W = 0, depth = 0;
+
+  std::ptrdiff_t stride() const { return W + 2 * depth; }  // a padded row
+  std::ptrdiff_t slot(std::ptrdiff_t rr) const {
+    return (rr < 0 || rr >= H) ? 2 * depth + 1 : rr % (2 * depth + 1);
+  }
+  /// Row rr's x (then y, z, stride() apart), column 0 at index 0.
+  double* x(std::ptrdiff_t rr) const { return sc->xyz.data() + slot(rr) * 3 * stride() + depth; }
+  /// Row rr's usable lanes (1 or 0).
+  std::int64_t* ok(std::ptrdiff_t rr) const { return sc->ok.data() + slot(rr) * stride() + depth; }
+};
+
+/// Sizes `sc` for a ring of W columns and `depth` (min_step: the search's per-row buffers too)
+/// and clears it (every cell unusable). Allocates only when it has held less.
+void pass1_prepare(RowScratch& sc, std::ptrdiff_t W, std::ptrdiff_t depth, bool min_step);
+
+/// Loads row rr into the ring from coordinate planes (x[c], y[c], z[c]) and a usable predicate:
+/// unusable cells read as 0 (finite), so no NaN enters the kernel's selects.
+template <typename T, typename Usable>
+void pass1_load(const Pass1Ring& ring, std::ptrdiff_t rr, const T* x, const T* y, const T* z,
+                Usable usable) {
+  double* ox = ring.x(rr);
+  double* oy = ox + ring.stride();
+  double* oz = oy + ring.stride();
+  std::int64_t* ok = ring.ok(rr);
+  for (std::ptrdiff_t c = 0; c < ring.W; ++c) {
+    const std::int64_t u = usable(c) ? 1 : 0;
+    ox[c] = u ? static_cast<double>(x[c]) : 0.0;
+    oy[c] = u ? static_cast<double>(y[c]) : 0.0;
+    oz[c] = u ? static_cast<double>(z[c]) : 0.0;
+    ok[c] = u;
+  }
+}
+
+/// Pass 1 on row r (rows r - depth .. r + depth loaded): each usable cell's label (and flags
+/// and smallest angle, where given) from the kernel, with min_step (p.min_step >= 0) the rays
+/// each verdict read in `reach` (4 bytes per cell: the row's). The cells the kernel cannot
+/// settle (pass1_needs_judge) get a label too, which the caller's scalar judge replaces.
+void pass1_row(const Pass1Ring& ring, std::ptrdiff_t r, const DetectParams& p,
+               std::uint8_t* labels, std::uint8_t* flags, double* angle, std::uint8_t* reach);
+
+/// Bits of RowScratch::bits per cell: directions available (0-3) and flagged (4-7), a search
+/// the kernel cannot finish (slow), a usable cell within the isolation reach (near).
+constexpr std::int64_t kPass1FlagShift = 4, kPass1SlowBit = 1 << 8, kPass1NearBit = 1 << 9;
+
+/// Whether the scalar judge decides cell c of the row pass1_row judged last (`ok`: that row's
+/// ring.ok(r)): a usable cell whose search the kernel could not finish, or with no usable cell
+/// within the isolation reach.
+inline bool pass1_needs_judge(const RowScratch& sc, const std::int64_t* ok, std::ptrdiff_t c) {
+  const std::int64_t b = sc.bits[static_cast<std::size_t>(c)];
+  return ok[c] != 0 && ((b & kPass1SlowBit) != 0 || (b & kPass1NearBit) == 0);
+}
+
+}  // namespace miem::detail
