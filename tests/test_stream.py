@@ -157,38 +157,47 @@ def test_stream_equals_detect_full_detector(preset: str, variant: int, dtype) ->
     assert_same_defects(defects, want.defects, want.labels)
 
 
-# min_step on: pass 1 runs batch detection's row kernel (cpp/src/pass1_row.hpp) on the stream's
-# own ring of converted rows, CellJudge for what it cannot settle. Spacing 0.25 mm along the
-# profiles: min_step 1.6 mm puts the scale-2 and -3 neighbours 13 and 20 steps out, past the
-# kernel's 16 (CellJudge's), scale 1 within it; theta0 above 90 flags the flat surface (with
-# neighbours that far, 150 degrees flags a few percent of it).
+# Pass 1 runs batch detection's row kernel (cpp/src/pass1_row.hpp) on the stream's own ring of
+# converted rows, CellJudge for what it cannot settle: always with min_step, and without it where
+# more than 0.5 % of the rows around are dropouts (elsewhere a filter, and CellJudge next to each
+# dropout). Spacing 0.25 mm along the profiles: min_step 1.6 mm puts the scale-2 and -3
+# neighbours 13 and 20 steps out, past the kernel's 16 (CellJudge's), scale 1 within it; theta0
+# above 90 flags the flat surface (with neighbours that far, 150 degrees flags a few percent).
 PASS1_VARIANTS = [
     {"min_step": 0.3}, {"min_step": 0.3, "theta0": 60.0}, {"min_step": 0.3, "theta0": 120.0},
     {"min_step": 1.6, "scales": (1, 2, 3), "theta0": 150.0},
     {"min_step": 0.6, "max_gap": 2, "scales": (2, 3), "theta0": 150.0},
-    {"min_step": 0.3, "max_reach": 2},
+    {"min_step": 0.3, "max_reach": 2}, {"min_step": None},
+    {"min_step": None, "max_gap": 2, "scales": (1, 3), "theta0": 120.0},
 ]
 
 
 @pytest.mark.parametrize("variant", range(len(PASS1_VARIANTS)))
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
-def test_stream_pass1_with_min_step_equals_detect(variant: int, dtype) -> None:
-    """The stream's pass 1 with min_step (the row kernel) against batch detection, on a scan
-    with 6 % dropouts, runs of them along and across the profiles and a lost profile: the
-    angle passes' labels alone (pass 1 alone: no later pass re-judges a cell; all passes) and
-    the default detector."""
-    grid = make_full_scan(150, 90, 40 + variant).astype(dtype)
+def test_stream_pass1_kernel_equals_detect(variant: int, dtype) -> None:
+    """The stream's pass 1 against batch detection on a scan whose first 90 profiles have 6 %
+    dropouts, runs of them along and across the profiles and a lost profile, and whose last 50
+    have none (the filter's rows without min_step): the angle passes' labels alone (pass 1
+    alone: no later pass re-judges a cell; all passes) and the default detector."""
+    h, w = 150, 90
+    grid = make_full_scan(h, w, 40 + variant).astype(dtype)
+    for r in range(100, h):  # the last rows without dropouts
+        bad = np.isnan(grid[r, :, 2])
+        grid[r, :, 0] = np.arange(w) * 0.25
+        grid[r, :, 1] = r * 0.3
+        grid[r, bad, 2] = np.interp(np.flatnonzero(bad), np.flatnonzero(~bad), grid[r, ~bad, 2])
     rng = np.random.default_rng(variant)
-    grid[rng.random(grid.shape[:2]) < 0.05] = np.nan
+    grid[:90][rng.random((90, w)) < 0.05] = np.nan
     grid[20:60, 30] = np.nan  # a run across the profiles
     grid[70, 10:40] = np.nan  # and one along a profile
+    assert np.isfinite(grid[100:]).all()
     angles = {"heights": "abnormal", "height_tolerance": None, "edge_tolerance": None}
     for base in ({**angles, "max_iterations": 1}, angles, {}):
         p = miem.default_params("stream").replace(**base, **PASS1_VARIANTS[variant])
         want = miem.detect(grid, params=p)
         assert want.params["min_step"] == PASS1_VARIANTS[variant]["min_step"]
         assert np.isin(want.labels, (miem.ABNORMAL, miem.EDGE)).sum() > 20
-        got = stream_all(ProfileStream(90, params=p, dtype=dtype), grid)
+        got = stream_all(ProfileStream(w, params=p, dtype=dtype), grid)
         np.testing.assert_array_equal(got, want.labels)
 
 

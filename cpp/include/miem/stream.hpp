@@ -218,6 +218,7 @@ class ProfileStream {
   void pass1_fast(std::int64_t row) noexcept;
   std::uint8_t exact_label(std::int64_t row, std::ptrdiff_t col, std::uint32_t bits) const noexcept;
   void pass1_kernel(std::int64_t row) noexcept;
+  std::ptrdiff_t pass1_depth(bool min_step) const noexcept;
   void remove(std::int64_t row, std::ptrdiff_t col, int pass) noexcept;
   // The stages after the angle passes (stream_stages.cpp): each advances its own next row up
   // to the last row it may run on (all pushed rows once the stream is flushed).
@@ -278,10 +279,11 @@ class ProfileStream {
   int max_scale_ = 1;
   bool fast_ok_ = false;  // the scales allow pass 1's vectorised kernel (without min_step)
   bool fast_ = false;     // pass 1 may use the vectorised kernel
-  // With min_step, pass 1 runs batch detection's row kernel (src/pass1_row.hpp) on its own
-  // ring of converted rows: each row converted once, when the first row within p1_depth_ of it
-  // is judged (rows are judged in order).
-  bool p1_kernel_ = false;          // min_step on and the kernel's ring kept
+  // Pass 1 runs batch detection's row kernel (src/pass1_row.hpp) with min_step, and without it
+  // next to dropouts, on its own ring of converted rows: each row converted once, when the
+  // first row within p1_depth_ of it that runs the kernel is judged (rows are judged in order).
+  bool p1_kernel_ = false;          // min_step on and the kernel's ring kept: every row
+  std::vector<std::int32_t> p1_miss_;  // ring_ rows: the row's dropouts
   detail::RowScratch p1_;           // the ring (2 p1_depth_ + 2 padded rows)
   std::ptrdiff_t p1_depth_ = 0;     // its depth (steps a search reads in the kernel)
   std::int64_t p1_next_ = 0;        // the next row to convert
