@@ -26,6 +26,20 @@ constexpr double kEmpty = 0.35;  // empty: fewer returns than 0.35 of a full sec
 // degrees past a convex crease keeps about 0.3-0.35 (SPEC step 5)
 constexpr double kHangEmpty = 0.3;
 constexpr double kHangShelf = 2.0;  // hanging: the surface beyond lies > 2x P's depth below
+// Lips at a concave feature (SPEC step 6): the grid's dip, beyond P lower than P by more than
+// max(2 tol, 0.5 h) (reference _EDGE_LIP_TOL, _EDGE_LIP_DIP) ...
+constexpr double kLipTol = 2.0, kLipDip = 0.5;
+// ... the opposite sector's support centroid above the plane by more than h / 4 (a bead one
+// point wide through P lifts it by about 0.13 h at the default radius) ...
+constexpr double kLipRise = 0.25;
+// ... along the strip beyond P, which reaches this times the edge radius either side of its
+// ray (one spacing at the default radius)
+constexpr double kLipStrip = 0.1;
+// The bisector of sector o: 45 o + 45 degrees (quarter sectors), 45 (o - 8) + 90 (half
+// sectors), from e1 towards e2; (cos, sin) per multiple of 45 degrees (sqrt(0.5) rounded).
+constexpr double kR2 = 0.7071067811865476;
+constexpr double kTurnCos[8] = {1.0, kR2, 0.0, -kR2, -1.0, -kR2, 0.0, kR2};
+constexpr double kTurnSin[8] = {0.0, kR2, 1.0, kR2, 0.0, -kR2, -1.0, -kR2};
 
 // The bit pattern of x >= 0 (-0 read as +0): patterns of such values sort as the values do.
 inline std::uint64_t sort_key(double x) {
@@ -76,6 +90,9 @@ double finite_median(const double* v, std::ptrdiff_t n) {
 // The turn of sector s by `by` octants within its width (8 quarter, 8 half sectors).
 inline int turned(int s, int by) { return (s / 8) * 8 + (s % 8 + 8 + by) % 8; }
 
+// The index in kTurnCos / kTurnSin of sector s's bisector.
+inline int bisector(int s) { return (s % 8 + 1 + s / 8) % 8; }
+
 // What step 4 of SPEC "Unorganized clouds: edge test" says of P from its sectors alone.
 enum class SectorVerdict { kFits, kProud, kOther };
 
@@ -98,11 +115,14 @@ enum class SectorVerdict { kFits, kProud, kOther };
 // `*below`: when P fits no clean sector and stands proud of none, bit s set for each clean
 // sector s that P lies below with the surface beyond falling away (the hanging rule's first
 // condition, step 5; the rest needs the points): its opposite `gone` (fewer returns than
-// kHangEmpty of a full sector) or clean with P above it.
+// kHangEmpty of a full sector) or clean with P above it; `*raised`: then bit s set for each
+// clean sector s that P lies above (h > tol) with the surface beyond rising (the lips' first
+// condition, step 6): the centroid of the opposite's support (at least 3 points, `centred`) lies
+// above s's plane by more than kLipRise x h.
 SectorVerdict cloud_edge_verdict(const detail::EdgeSide (&sd)[kSectors],
                                  const bool (&centred)[kSectors], const bool (&gone)[kSectors],
                                  const double (&floor)[kSectors], double best, double k,
-                                 unsigned* below) {
+                                 unsigned* below, unsigned* raised) {
   const double clean = detail::kEdgeCleanRatio * best;
   bool fit[kSectors];
   bool any_fit = false;
@@ -143,9 +163,17 @@ SectorVerdict cloud_edge_verdict(const detail::EdgeSide (&sd)[kSectors],
   }
   if (any_fit) return SectorVerdict::kFits;
   *below = 0;
+  *raised = 0;
   for (int s = 0; s < kSectors; ++s) {
     const detail::EdgeSide& x = sd[s];
-    if (!x.valid || !(x.rms <= clean) || !(x.h < -x.tol)) continue;
+    if (!x.valid || !(x.rms <= clean)) continue;
+    if (x.h > x.tol) {
+      const int o = turned(s, 4);
+      if (centred[o] && detail::dot3(x.normal, sd[o].centroid - x.centroid) > kLipRise * x.h) {
+        *raised |= 1u << s;
+      }
+    }
+    if (!(x.h < -x.tol)) continue;
     const detail::EdgeSide& y = sd[turned(s, 4)];
     if (gone[turned(s, 4)] || (y.valid && y.rms <= clean && y.h > y.tol &&
                     detail::dot3(x.normal, y.centroid - x.centroid) < -x.tol)) {
@@ -230,6 +258,58 @@ bool hangs(const Selection& ball, const std::uint8_t* labels, const Frame& f,
     const double vv = v.x() * v.x() + v.y() * v.y() + v.z() * v.z();
     if (!(along > 0.0 && along * along > vv - along * along)) continue;
     if (gone[turned(s, 4)] || low[s] < -kHangShelf * delta) return true;
+  }
+  return false;
+}
+
+// SPEC "Unorganized clouds: edge test" step 6, lips at a concave feature (the grid's rule,
+// edge_test.cpp's is_lip, with a strip of the ball for its line of cells): is P a lip beyond one
+// of the sectors s in `raised` (clean, P above them, the opposite's support rising: the
+// caller's)? The *strip* beyond P away from s: the ground points (NORMAL or EDGE at the start of
+// the pass) x whose tangent offset, along g (the bisector of s's opposite) and across it, has
+// along > |across| (the quarter disk around g) and |across| <= kLipStrip x r_edge; in order of
+// along (the furthest last, then the smallest index). With D = max(kLipTol x tol, kLipDip x h),
+// a point before the last dips (u . (x - P) < -D) and the last lies above s's plane
+// (h + u . (x - P) > tol): the surface beyond falls back below P, then rises (a concave crease
+// or a step up), not a fillet (no dip) nor a bead or fin beyond P (the last point on the plane).
+bool is_lip(const Selection& ball, const std::uint8_t* labels, const Frame& f,
+            const CloudEdgeTest& e, const detail::EdgeSide (&sd)[kSectors], unsigned raised) {
+  // Per sector of `raised`: the strip's last point (its offset along, index, u . (x - P)) and
+  // the lowest u . (x - P) of the points before it.
+  double low[kSectors], far[kSectors], last[kSectors];
+  std::uint32_t lid[kSectors] = {};
+  std::fill(low, low + kSectors, kInf);
+  std::fill(far, far + kSectors, -kInf);
+  std::fill(last, last + kSectors, kInf);
+  const double width = kLipStrip * e.r_edge;
+  for_each_member(ball, f, e, [&](std::size_t k, int, double wx, double wy, double wz) {
+    const std::uint8_t c = labels[ball.id[k]];
+    if (c != kNormal && c != kEdge) return;
+    const double a = wx * f.e1.x() + wy * f.e1.y() + wz * f.e1.z();
+    const double b = wx * f.e2.x() + wy * f.e2.y() + wz * f.e2.z();
+    for (int s = 0; s < kSectors; ++s) {
+      if (!(raised >> s & 1u)) continue;
+      const int t = bisector(turned(s, 4));
+      const double along = kTurnCos[t] * a + kTurnSin[t] * b;
+      const double across = kTurnCos[t] * b - kTurnSin[t] * a;
+      if (!(along > std::abs(across)) || std::abs(across) > width) continue;
+      const Eigen::Vector3d& u = sd[s].normal;
+      const double d = wx * u.x() + wy * u.y() + wz * u.z();
+      if (along > far[s] || (along == far[s] && ball.id[k] < lid[s])) {
+        low[s] = std::min(low[s], last[s]);  // the last so far now lies before the last
+        far[s] = along;
+        lid[s] = ball.id[k];
+        last[s] = d;
+      } else {
+        low[s] = std::min(low[s], d);
+      }
+    }
+  });
+  for (int s = 0; s < kSectors; ++s) {
+    if (!(raised >> s & 1u)) continue;
+    const detail::EdgeSide& x = sd[s];
+    const double dip = std::max(kLipTol * x.tol, kLipDip * x.h);
+    if (low[s] < -dip && x.h + last[s] > x.tol) return true;
   }
   return false;
 }
@@ -321,10 +401,12 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
     sd[s].normal = lp[s].normal;
     sd[s].centroid = lp[s].mean;
   }
-  unsigned below = 0;
-  const SectorVerdict v = cloud_edge_verdict(sd, centred, gone, floor, best, e.k, &below);
+  unsigned below = 0, raised = 0;
+  const SectorVerdict v =
+      cloud_edge_verdict(sd, centred, gone, floor, best, e.k, &below, &raised);
   if (v != SectorVerdict::kOther) return v == SectorVerdict::kProud;
-  return below != 0 && hangs(ball, labels, f, e, sd, gone, below);
+  return (below != 0 && hangs(ball, labels, f, e, sd, gone, below)) ||
+         (raised != 0 && is_lip(ball, labels, f, e, sd, raised));
 }
 
 }  // namespace

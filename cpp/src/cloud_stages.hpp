@@ -82,7 +82,8 @@ struct CloudEdgeTest {
 /// `*first_rms` (height_passes' HeightTest::first_rms, NaN: no verdict; freed once the
 /// candidates are listed) is NaN or above 1.5 x the median; one becomes ABNORMAL when it stands
 /// proud of a clean sector whose opposite is empty or falls away and fits no clean sector that
-/// is not past the feature (the crossing rule), or fits none and hangs below one. NORMAL points made ABNORMAL are appended to
+/// is not past the feature (the crossing rule), or fits none and hangs below one or is a lip
+/// at a concave feature beyond one. NORMAL points made ABNORMAL are appended to
 /// `*unnormal` (when given). Returns the number of passes run.
 template <typename T>
 int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,

@@ -2438,9 +2438,9 @@ def _cloud_edge_pass(
     k: float,
 ) -> NDArray[np.bool_]:
     """One cloud edge pass: which of the points ``cand`` (tangent directions ``e1``, ``e2``)
-    become ABNORMAL (SPEC steps 3-5: they stand proud of a clean sector and fit no clean sector
-    that is not past the feature (the crossing rule), or fit none and hang below one), the
-    support being the NORMAL points of ``labels``."""
+    become ABNORMAL (SPEC steps 3-6: they stand proud of a clean sector and fit no clean sector
+    that is not past the feature (the crossing rule), or fit none and hang below one or are a
+    lip at a concave feature beyond one), the support being the NORMAL points of ``labels``."""
     m = cand.size
     out = np.zeros(m, dtype=bool)
     if m == 0:
@@ -2523,7 +2523,16 @@ def _cloud_edge_pass(
         hang[hang] = _cloud_hanging(
             labels, sec_i, sec_j, sec_w, np.tile(dist, len(lists)), sup, hang, below[hang],
             h[hang], nrm[hang], cen[hang], tol[hang], gone[hang])
-    return (out & (proud | hang)) | across
+    # the lips' sectors: clean, P above them, the opposite's support centroid (at least 3
+    # points) above their plane by more than _CLOUD_LIP_RISE x h
+    opp = [(s // 8) * 8 + (s % 8 + 4) % 8 for s in range(_CLOUD_SECTORS)]
+    rise = np.einsum("isj,isj->is", nrm, cen[:, opp] - cen)
+    raised = clean & (h > tol) & (cnt[:, opp] >= 3.0) & (rise > _CLOUD_LIP_RISE * h)
+    lip = out & ~proud & ~hang & raised.any(axis=1)
+    if lip.any():
+        lip[lip] = _cloud_lips(labels, pi, pj, w, a, b, lip, raised[lip], h[lip], nrm[lip],
+                               tol[lip], r_edge)
+    return (out & (proud | hang | lip)) | across
 
 
 #: Cloud hanging rule (SPEC "Unorganized clouds: edge test" step 5): the surface beyond a
@@ -2590,6 +2599,73 @@ def _cloud_hanging(
         np.minimum.at(low, gr[g], _dot3(sec_w[g], u[gr[g]]))
         shelf = gone[:, o] | (low < -_CLOUD_HANG_SHELF * delta)
         out |= below[:, s] & steep & shelf
+    return out
+
+
+#: Cloud lips at a concave feature (SPEC "Unorganized clouds: edge test" step 6): the grid's dip
+#: (_EDGE_LIP_TOL, _EDGE_LIP_DIP); the opposite sector's support centroid lies above the
+#: sector's plane by more than this times P's height (a bead one point wide through P lifts it
+#: by about 0.13 h at the default radius) ...
+_CLOUD_LIP_RISE = 0.25
+#: ... and the strip beyond P reaches this times the edge radius either side of its ray.
+_CLOUD_LIP_STRIP = 0.1
+#: A sector's bisector in the tangent plane, ``45 o + 45`` degrees from ``e1`` towards ``e2``
+#: (quarter sector ``o``) or ``45 (o - 8) + 90`` (half sector): per multiple of 45 degrees,
+#: its ``(cos, sin)``.
+_R2 = float(np.sqrt(0.5))
+_CLOUD_TURNS = ((1.0, 0.0), (_R2, _R2), (0.0, 1.0), (-_R2, _R2), (-1.0, 0.0), (-_R2, -_R2),
+                (0.0, -1.0), (_R2, -_R2))
+
+
+def _cloud_lips(
+    labels: NDArray[np.uint8],
+    pi: NDArray[np.int64],
+    pj: NDArray[np.int64],
+    w: NDArray[np.float64],
+    a: NDArray[np.float64],
+    b: NDArray[np.float64],
+    sel: NDArray[np.bool_],
+    raised: NDArray[np.bool_],
+    h: NDArray[np.float64],
+    nrm: NDArray[np.float64],
+    tol: NDArray[np.float64],
+    r_edge: float,
+) -> NDArray[np.bool_]:
+    """Which candidates of ``sel`` (mask over the pass's candidates) are *lips at a concave
+    feature* (SPEC "Unorganized clouds: edge test" step 6) beyond one of the sectors marked in
+    ``raised`` ``(M, 16)`` (clean, P above it, its opposite rising; one row per selected
+    candidate, as ``h``, ``nrm`` and ``tol``): along the strip beyond P (the ground members
+    with ``along > |across|`` and ``|across| <= _CLOUD_LIP_STRIP r_edge`` about the bisector
+    of the opposite sector, in order of ``along``, then index), a point before the last dips
+    and the last lies above the sector's plane. Sector members: candidate ``pi`` (of the
+    pass), point ``pj``, offset ``w``, tangent offset ``(a, b)``."""
+    m = raised.shape[0]
+    row = np.full(sel.size, -1, dtype=np.int64)
+    row[sel] = np.arange(m)
+    gr = row[pi]
+    ground = (gr >= 0) & ((labels[pj] == NORMAL) | (labels[pj] == EDGE))
+    out = np.zeros(m, dtype=bool)
+    for s in range(_CLOUD_SECTORS):
+        if not raised[:, s].any():
+            continue
+        o = (s // 8) * 8 + (s % 8 + 4) % 8
+        c, sn = _CLOUD_TURNS[(o % 8 + 1 + o // 8) % 8]
+        along = c * a + sn * b  # how far beyond P, away from s
+        across = c * b - sn * a
+        g = ground & (along > np.abs(across)) & ~(np.abs(across) > _CLOUD_LIP_STRIP * r_edge)
+        g &= raised[np.maximum(gr, 0), s]
+        # in strip order per candidate: the furthest along first (the last), then the index
+        order = np.flatnonzero(g)[np.lexsort((pj[g], -along[g], gr[g]))]
+        grp = gr[order]
+        d = _dot3(w[order], nrm[grp, s])  # u_s . (x - P)
+        first = np.ones(grp.size, dtype=bool)
+        first[1:] = grp[1:] != grp[:-1]
+        last = np.full(m, -np.inf)
+        last[grp[first]] = d[first]
+        low = np.full(m, np.inf)  # the lowest point before the last
+        np.minimum.at(low, grp[~first], d[~first])
+        dip = np.maximum(_EDGE_LIP_TOL * tol[:, s], _EDGE_LIP_DIP * h[:, s])
+        out |= raised[:, s] & (low < -dip) & (h[:, s] + last > tol[:, s])
     return out
 
 
