@@ -807,8 +807,8 @@ std::uint8_t ProfileStream<T>::exact_label(std::int64_t row, std::ptrdiff_t c,
 
 // Pass 1 of `row` by the row kernel (pass1_row.hpp): the rows within p1_depth_ converted (those
 // not yet: pass 1 runs row by row, in order; the rows it skipped were not needed), then the
-// kernel's labels of the row in p1_lab_ and, with min_step, the rays each verdict read in ray_. The rows beyond the last pushed one
-// are the grid's border, as in run_pass's judge.
+// kernel's labels of the row in p1_lab_ and, with min_step, the rays each verdict read in ray_.
+// The rows beyond the last pushed one are the grid's border, as in run_pass's judge.
 template <typename T>
 void ProfileStream<T>::pass1_kernel(std::int64_t row) noexcept {
   const std::ptrdiff_t W = width_, plane = phys_ * W;
