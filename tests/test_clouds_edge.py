@@ -18,6 +18,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from cloud_checks import (  # noqa: E402
     assert_core_is_reference_everywhere,
     assert_same_cloud_result,
+    sectors_by_hand,
 )
 
 A = miem.ABNORMAL
@@ -114,32 +115,10 @@ def _sector_planes(pts: np.ndarray, normal: np.ndarray, i: int, r_edge: float,
     (0-7 quarter, 8-15 half disks) its plane (oriented normal, centroid offset from P, rms) or
     None when not valid, the finite counts `f` and `full` (and, `with_support`, per sector its
     support count and centroid offset from P, None below 3 points)."""
-    w = pts - pts[i]
-    dist = np.linalg.norm(w, axis=1)
-    cen = w[dist <= r_edge].mean(axis=0)
-    _, _, vt = np.linalg.svd(w[dist <= r_edge] - cen)
-    n = vt[2] if vt[2, 2] > 0 else -vt[2]
-    e1 = vt[0] - (vt[0] @ n) * n
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(n, e1)
-    a, b = w @ e1, w @ e2
-    rho = np.hypot(a, b)
-    keep = (dist <= r_edge) & (np.arange(len(pts)) != i) & (rho > 0) & (rho >= gap)
-    octant = np.minimum((np.mod(np.arctan2(b, a), 2 * np.pi) / (np.pi / 4)).astype(int), 7)
-    sectors = [[s, (s + 1) % 8] for s in range(8)] + [[(s + j) % 8 for j in range(4)]
-                                                      for s in range(8)]
-    f = np.array([np.sum(keep & np.isin(octant, o)) for o in sectors], float)
-    full = np.array([f[:8].max()] * 8 + [f[8:].max()] * 8)
-    planes, support = [], []
-    for s, o in enumerate(sectors):
-        sel = keep & normal & np.isin(octant, o)
-        support.append((int(sel.sum()), w[sel].mean(axis=0) if sel.sum() >= 3 else None))
-        if sel.sum() < max(3.0, full[s] / 2.0):
-            planes.append(None)
-            continue
-        m = w[sel].mean(axis=0)
-        _, sv, vt = np.linalg.svd(w[sel] - m, full_matrices=False)
-        planes.append((vt[2] if vt[2, 2] > 0 else -vt[2], m, sv[2] / np.sqrt(sel.sum())))
+    hs = sectors_by_hand(pts, normal, i, r_edge, gap)
+    planes, f, full = hs.planes, hs.f, hs.full
+    sup = [m & normal for m in hs.inside]
+    support = [(int(m.sum()), hs.w[m].mean(axis=0) if m.sum() >= 3 else None) for m in sup]
     return (planes, f, full, support) if with_support else (planes, f, full)
 
 

@@ -18,6 +18,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from cloud_checks import (  # noqa: E402
     assert_core_is_reference_everywhere,
     assert_same_cloud_result,
+    sectors_by_hand,
 )
 
 A = miem.ABNORMAL
@@ -66,37 +67,11 @@ def _hangs_by_hand(pts: np.ndarray, normal: np.ndarray, ground: np.ndarray, i: i
     """SPEC steps 2-5 for point i, computed here with SVDs: (whether it fits a clean sector,
     whether it hangs below a clean sector), the opposite sector counting as empty beyond a
     hanging point below `gone_frac` of a full sector's returns."""
-    w = pts - pts[i]
-    dist = np.linalg.norm(w, axis=1)
-    ball = dist <= r_edge
-    _, _, vt = np.linalg.svd(w[ball] - w[ball].mean(axis=0))
-    n = vt[2] if vt[2, 2] > 0 else -vt[2]
-    e1 = vt[0] - (vt[0] @ n) * n
-    e1 /= np.linalg.norm(e1)
-    a, b = w @ e1, w @ np.cross(n, e1)
-    rho = np.hypot(a, b)
-    member = ball & (np.arange(len(pts)) != i) & (rho > 0) & (rho >= gap)
-    octant = np.minimum((np.mod(np.arctan2(b, a), 2 * np.pi) / (np.pi / 4)).astype(int), 7)
-    sectors = [[s, (s + 1) % 8] for s in range(8)] + [[(s + j) % 8 for j in range(4)]
-                                                      for s in range(8)]
-    inside = [member & np.isin(octant, o) for o in sectors]
-    f = np.array([m.sum() for m in inside], float)
-    full = np.array([f[:8].max()] * 8 + [f[8:].max()] * 8)
-    gone = f < gone_frac * full
-    planes = []
-    for s, m in enumerate(inside):
-        sel = m & normal
-        if sel.sum() < max(3.0, full[s] / 2.0):
-            planes.append(None)
-            continue
-        c = w[sel].mean(axis=0)
-        _, sv, vt = np.linalg.svd(w[sel] - c, full_matrices=False)
-        u = vt[2] if vt[2, 2] > 0 else -vt[2]
-        planes.append((u, c, sv[2] / np.sqrt(sel.sum())))
-    best = min(p[2] for p in planes if p is not None)
-    clean = [p is not None and p[2] <= 2 * best for p in planes]
-    h = [None if p is None else -p[0] @ p[1] for p in planes]
-    fits = any(c and abs(hs) <= k * best for c, hs in zip(clean, h))
+    hs = sectors_by_hand(pts, normal, i, r_edge, gap)
+    w, dist, inside, planes, clean, h = hs.w, hs.dist, hs.inside, hs.planes, hs.clean, hs.h
+    gone = hs.f < gone_frac * hs.full
+    best = hs.best
+    fits = any(c and abs(hv) <= k * best for c, hv in zip(clean, h))
     hangs = False
     for s in range(16):
         o = (s // 8) * 8 + (s % 8 + 4) % 8

@@ -15,7 +15,7 @@ import miem
 from miem import reference as ref
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from cloud_checks import assert_core_is_reference_everywhere  # noqa: E402
+from cloud_checks import assert_core_is_reference_everywhere, sectors_by_hand  # noqa: E402
 
 A = miem.ABNORMAL
 K = 4.0  # the default edge_tolerance
@@ -56,54 +56,27 @@ def _lip_by_hand(pts: np.ndarray, normal: np.ndarray, ground: np.ndarray, i: int
                  r_edge: float, gap: float) -> tuple[bool, bool]:
     """SPEC steps 2-4 and 6 for point i, computed here with SVDs and angles: (whether it fits a
     clean sector, whether it is a lip beyond one)."""
-    w = pts - pts[i]
-    dist = np.linalg.norm(w, axis=1)
-    ball = dist <= r_edge
-    _, _, vt = np.linalg.svd(w[ball] - w[ball].mean(axis=0))
-    n = vt[2] if vt[2, 2] > 0 else -vt[2]
-    e1 = vt[0] - (vt[0] @ n) * n
-    e1 /= np.linalg.norm(e1)
-    a, b = w @ e1, w @ np.cross(n, e1)
-    rho = np.hypot(a, b)
-    member = ball & (np.arange(len(pts)) != i) & (rho > 0) & (rho >= gap)
-    theta = np.mod(np.arctan2(b, a), 2 * np.pi)
-    octant = np.minimum((theta / (np.pi / 4)).astype(int), 7)
-    # sector s: its octants and its bisector's angle
-    sectors = [([s, (s + 1) % 8], np.pi / 4 * (s + 1)) for s in range(8)] + [
-        ([(s + j) % 8 for j in range(4)], np.pi / 4 * (s + 2)) for s in range(8)]
-    inside = [member & np.isin(octant, o) for o, _ in sectors]
-    f = np.array([m.sum() for m in inside], float)
-    full = np.array([f[:8].max()] * 8 + [f[8:].max()] * 8)
-    planes = []
-    for s, m in enumerate(inside):
-        sel = m & normal
-        if sel.sum() < max(3.0, full[s] / 2.0):
-            planes.append(None)
-            continue
-        c = w[sel].mean(axis=0)
-        _, sv, vt = np.linalg.svd(w[sel] - c, full_matrices=False)
-        planes.append((vt[2] if vt[2, 2] > 0 else -vt[2], c, sv[2] / np.sqrt(sel.sum())))
-    best = min(p[2] for p in planes if p is not None)
-    clean = [p is not None and p[2] <= 2 * best for p in planes]
-    fits = any(c and abs(p[0] @ p[1]) <= K * best for c, p in zip(clean, planes))
+    hs = sectors_by_hand(pts, normal, i, r_edge, gap)
+    fits = any(c and abs(h) <= K * hs.best for c, h in zip(hs.clean, hs.h))
     lip = False
     for s in range(16):
-        if not clean[s]:
+        if not hs.clean[s]:
             continue
-        u, c, rms = planes[s]
-        h, t = -u @ c, K * rms
+        u, c, rms = hs.planes[s]
+        h, t = hs.h[s], K * rms
         o = (s // 8) * 8 + (s % 8 + 4) % 8
-        opp = inside[o] & normal
-        if not (h > t and opp.sum() >= 3 and u @ (w[opp].mean(axis=0) - c) > 0.25 * h):
+        opp = hs.inside[o] & normal
+        if not (h > t and opp.sum() >= 3 and u @ (hs.w[opp].mean(axis=0) - c) > 0.25 * h):
             continue  # not above s, or the surface beyond does not rise
-        g = sectors[o][1]  # the strip beyond P: within 45 degrees of g and 0.1 r_edge of it
-        along, across = rho * np.cos(theta - g), rho * np.sin(theta - g)
-        strip = np.flatnonzero(member & ground & (along > np.abs(across))
+        g = hs.bisector[o]  # the strip beyond P: within 45 degrees of g and 0.1 r_edge of it
+        along = hs.rho * np.cos(hs.theta - g)
+        across = hs.rho * np.sin(hs.theta - g)
+        strip = np.flatnonzero(hs.member & ground & (along > np.abs(across))
                                & (np.abs(across) <= 0.1 * r_edge))
         if strip.size < 2:
             continue
         strip = strip[np.argsort(along[strip])]
-        depth = w[strip] @ u  # below P along s's normal: < 0
+        depth = hs.w[strip] @ u  # below P along s's normal: < 0
         dip = max(2 * t, 0.5 * h)
         lip |= bool(depth[:-1].min() < -dip and h + depth[-1] > t)
     return fits, lip
