@@ -134,20 +134,23 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 /// max(2 R, 2 h) rows that repeat its first rows (2 r with the edge test if more), so that the
 /// rows around any row form one strided GridView; with the edge test also (P + 1)
 /// ceil(width / 128) rings of integral images (11 x (2 r + 2) x (129 + 2 r) doubles and the
-/// column sums): about 178 MB (measured) for double profiles of 3200 points with the defaults (96 MB with
-/// min_step off, 92 MB without the edge test), plus the cells of the open defects (a pool
+/// column sums), and pass 1's row-kernel ring (2 d + 2 rows of width + 2 d cells, 32 bytes each;
+/// d = 16 with min_step, else the largest scale + 1): about 202 MB (measured: resident growth
+/// on construction) for double profiles of 3200 points with the defaults (101 MB with min_step
+/// off, 98 MB without the edge test), plus the cells of the open defects (a pool
 /// reserved for 16 rows' worth of cells, which grows, once, only for more). Defects come with
 /// the rows (StreamRow::defects) once final; flags and angles are not reported. (Batch
 /// detection also refuses a grid of fewer than 3 finite points; a stream simply labels what it
 /// gets.)
 ///
-/// Speed: pass 1 runs a vectorised filter over the whole row (SSE2, or AVX2 where the CPU has
-/// it) and judges exactly only the few cells that might be flagged; cells next to a dropout go
-/// through the batch detector's judge. With min_step, pass 1 computes each verdict directly
-/// (squared distances, no Eigen), the judge taking only the cells whose searches meet a dropout,
-/// the border or a candidate too close to s min_step to call; a later pass re-judges a cell only
-/// when its last verdict read a cell removed at the pass before (4 bytes per kept cell: how far
-/// each verdict read along each ray). bench/RESULTS.md has the figures.
+/// Speed: without min_step, pass 1 runs a vectorised filter over the whole row (SSE2, or AVX2
+/// where the CPU has it) and judges exactly only the few cells that might be flagged, the batch
+/// detector's judge taking the cells next to a dropout; where more than 0.5 % of the rows
+/// around are dropouts, and always with min_step, it runs batch detection's vectorised row
+/// kernel instead (neighbour searches across dropouts and to s min_step in SIMD lanes), the
+/// judge taking only the searches it cannot finish. A later pass re-judges a cell only when its
+/// last verdict read a cell removed at the pass before (with min_step: 4 bytes per kept cell,
+/// how far each verdict read along each ray). bench/RESULTS.md has the figures.
 ///
 /// Bad profiles never stop or corrupt the stream: a profile of the wrong width or null data is
 /// rejected with a status (nothing is pushed); a profile with no finite point is taken as a row
