@@ -254,6 +254,29 @@ def test_stream_runs_min_step_auto_as_batch(preset: str, rows: int, lead: int) -
     np.testing.assert_array_equal(miem.detect(grid, params=p, min_step=step).labels, want.labels)
 
 
+def test_stream_parts_switch_the_pass1_kernel_depth() -> None:
+    """One stream, min_step "auto", parts reset in turn: jittered profiles (auto on: pass 1's
+    row kernel searches 16 steps deep), then twice a steady scanner (auto off: the filter, and
+    the kernel 3 steps deep on the rows next to the part's 4 % dropouts; the second part finds
+    the kernel's ring as the first left it), then jittered again. Each part's labels equal batch
+    detection of that part alone."""
+    modes = (True, False, False, True)
+    parts = []
+    for k, on in enumerate(modes):
+        g = make_full_scan(420, 60, 51 + k)
+        if on:
+            g = jittered(g, 0.1, 0, 60 + k)
+        g[np.random.default_rng(70 + k).random(g.shape[:2]) < 0.04] = np.nan
+        parts.append(g)
+    p = miem.default_params("stream").replace(min_step="auto")
+    stream = ProfileStream(60, params=p)
+    for g, on in zip(parts, modes):
+        want = miem.detect(g, params=p)
+        assert (want.params["min_step"] is not None) == on
+        np.testing.assert_array_equal(stream_all(stream, g), want.labels)
+        stream.reset()
+
+
 @pytest.mark.parametrize("lead, kw", [(40, {}), (5, {"preset": "paper", "max_iterations": 1,
                                                     "max_reach": 4})])
 def test_stream_spreads_the_min_step_decision(lead: int, kw: dict) -> None:
