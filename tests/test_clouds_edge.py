@@ -90,9 +90,8 @@ def _sector_verdict(pts: np.ndarray, normal: np.ndarray, i: int, r_edge: float,
     opposite, for each of those whether it is their top and whether a clean neighbour of the
     opposite lies at its level (and, `with_own`, whether it fits a clean sector within that
     sector's own tolerance k * rms)."""
-    planes, f, full = _sector_planes(pts, normal, i, r_edge, gap)
-    best = min(p[2] for p in planes if p is not None)
-    clean = [p is not None and p[2] <= 2 * best for p in planes]
+    hs = sectors_by_hand(pts, normal, i, r_edge, gap)
+    planes, f, full, best, clean = hs.planes, hs.f, hs.full, hs.best, hs.clean
     # P fits a clean sector within the cleanest sector's tolerance, k * best (SPEC step 4)
     fits = any(c and abs(p[0] @ p[1]) <= k * best for c, p in zip(clean, planes))
     fits_own = any(c and abs(p[0] @ p[1]) <= k * p[2] for c, p in zip(clean, planes))
@@ -107,19 +106,6 @@ def _sector_verdict(pts: np.ndarray, normal: np.ndarray, i: int, r_edge: float,
     if with_own:
         return fits, proud, top, level, fits_own
     return fits, proud, top, level
-
-
-def _sector_planes(pts: np.ndarray, normal: np.ndarray, i: int, r_edge: float,
-                   gap: float, with_support: bool = False) -> tuple:
-    """SPEC "Unorganized clouds: edge test" steps 2-3 for point i, with SVDs: per sector
-    (0-7 quarter, 8-15 half disks) its plane (oriented normal, centroid offset from P, rms) or
-    None when not valid, the finite counts `f` and `full` (and, `with_support`, per sector its
-    support count and centroid offset from P, None below 3 points)."""
-    hs = sectors_by_hand(pts, normal, i, r_edge, gap)
-    planes, f, full = hs.planes, hs.f, hs.full
-    sup = [m & normal for m in hs.inside]
-    support = [(int(m.sum()), hs.w[m].mean(axis=0) if m.sum() >= 3 else None) for m in sup]
-    return (planes, f, full, support) if with_support else (planes, f, full)
 
 
 def test_top_rule_by_hand() -> None:
@@ -240,7 +226,7 @@ def test_crossing_rule_by_hand() -> None:
         normal = pre.labels == miem.NORMAL
         mine = []
         for i in np.flatnonzero(lip & (pre.labels != A)):
-            planes, _, _ = _sector_planes(pts, normal, int(i), r_edge, gap)
+            planes = sectors_by_hand(pts, normal, int(i), r_edge, gap).planes
             best = min(p[2] for p in planes if p is not None)
             clean = [p is not None and p[2] <= 2 * best for p in planes]
             fit = [c and abs(p[0] @ p[1]) <= k * best for c, p in zip(clean, planes)]
@@ -308,9 +294,8 @@ def test_opposite_centroid_falls_by_hand() -> None:
     normal = pre.labels == miem.NORMAL
     caught = []
     for i in np.flatnonzero(lip & (pre.labels != A)):
-        planes, f, full, support = _sector_planes(pts, normal, int(i), r_edge, gap, True)
-        best = min(p[2] for p in planes if p is not None)
-        clean = [p is not None and p[2] <= 2 * best for p in planes]
+        hs = sectors_by_hand(pts, normal, int(i), r_edge, gap)
+        planes, f, full, best, clean = hs.planes, hs.f, hs.full, hs.best, hs.clean
         if any(c and abs(p[0] @ p[1]) <= k * best for c, p in zip(clean, planes)):
             continue  # fits a clean sector
         old = new = False
@@ -325,9 +310,9 @@ def test_opposite_centroid_falls_by_hand() -> None:
             outline = f[o] < 0.35 * full[o] and not any(
                 clean[c] and abs(u @ (planes[c][1] - m)) <= k * rms for c in near)
             old |= outline or (planes[o] is not None and u @ (planes[o][1] - m) < -k * rms)
-            n_o, m_o = support[o]
-            new |= planes[o] is None and f[o] >= 0.35 * full[o] and n_o >= 3 and (
-                u @ (m_o - m) < -k * rms)
+            sup = hs.inside[o] & normal  # the opposite's support: its centroid, no plane
+            new |= planes[o] is None and f[o] >= 0.35 * full[o] and sup.sum() >= 3 and (
+                u @ (hs.w[sup].mean(axis=0) - m) < -k * rms)
         if new and not old:
             caught.append(int(i))
     assert caught  # the case this test is about

@@ -26,10 +26,8 @@ constexpr double kEmpty = 0.35;  // empty: fewer returns than 0.35 of a full sec
 // degrees past a convex crease keeps about 0.3-0.35 (SPEC step 5)
 constexpr double kHangEmpty = 0.3;
 constexpr double kHangShelf = 2.0;  // hanging: the surface beyond lies > 2x P's depth below
-// Lips at a concave feature (SPEC step 6): the grid's dip, beyond P lower than P by more than
-// max(2 tol, 0.5 h) (reference _EDGE_LIP_TOL, _EDGE_LIP_DIP) ...
-constexpr double kLipTol = 2.0, kLipDip = 0.5;
-// ... the opposite sector's support centroid above the plane by more than h / 4 (a bead one
+// Lips at a concave feature (SPEC step 6): the grid's dip (detail::kEdgeLipTol, kEdgeLipDip),
+// the opposite sector's support centroid above the plane by more than h / 4 (a bead one
 // point wide through P lifts it by about 0.13 h at the default radius) ...
 constexpr double kLipRise = 0.25;
 // ... along the strip beyond P, which reaches this times the edge radius either side of its
@@ -268,10 +266,11 @@ bool hangs(const Selection& ball, const std::uint8_t* labels, const Frame& f,
 // caller's)? The *strip* beyond P away from s: the ground points (NORMAL or EDGE at the start of
 // the pass) x whose tangent offset, along g (the bisector of s's opposite) and across it, has
 // along > |across| (the quarter disk around g) and |across| <= kLipStrip x r_edge; in order of
-// along (the furthest last, then the smallest index). With D = max(kLipTol x tol, kLipDip x h),
-// a point before the last dips (u . (x - P) < -D) and the last lies above s's plane
-// (h + u . (x - P) > tol): the surface beyond falls back below P, then rises (a concave crease
-// or a step up), not a fillet (no dip) nor a bead or fin beyond P (the last point on the plane).
+// along (the furthest last, then the smallest index). With
+// D = max(kEdgeLipTol x tol, kEdgeLipDip x h), a point before the last dips (u . (x - P) < -D)
+// and the last lies above s's plane (h + u . (x - P) > tol): the surface beyond falls back
+// below P, then rises (a concave crease or a step up), not a fillet (no dip) nor a bead or fin
+// beyond P (the last point on the plane).
 bool is_lip(const Selection& ball, const std::uint8_t* labels, const Frame& f,
             const CloudEdgeTest& e, const detail::EdgeSide (&sd)[kSectors], unsigned raised) {
   // Per sector of `raised`: the strip's last point (its offset along, index, u . (x - P)) and
@@ -308,7 +307,7 @@ bool is_lip(const Selection& ball, const std::uint8_t* labels, const Frame& f,
   for (int s = 0; s < kSectors; ++s) {
     if (!(raised >> s & 1u)) continue;
     const detail::EdgeSide& x = sd[s];
-    const double dip = std::max(kLipTol * x.tol, kLipDip * x.h);
+    const double dip = std::max(detail::kEdgeLipTol * x.tol, detail::kEdgeLipDip * x.h);
     if (low[s] < -dip && x.h + last[s] > x.tol) return true;
   }
   return false;

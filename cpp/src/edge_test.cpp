@@ -275,6 +275,22 @@ constexpr double kHangShelf = 2.0;
 constexpr int kHangDirs[8][2] = {{0, 1},  {0, -1}, {1, 0},  {-1, 0},
                                  {1, 1},  {1, -1}, {-1, 1}, {-1, -1}};  // side -> towards P
 
+// The ground cells (NORMAL or EDGE) beyond P = (rr, cc) away from side s, P + j d for j = 1..r
+// inside the grid, in order (a hanging cell's shelf, a lip's dip and rise): visit(u . (x - P))
+// for each. miem.reference._beyond.
+template <typename T, typename Visit>
+void beyond(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
+            std::ptrdiff_t cc, std::ptrdiff_t r, int s, const Eigen::Vector3d& u, Visit&& visit) {
+  const std::ptrdiff_t H = g.rows, W = g.cols, dr = kHangDirs[s][0], dc = kHangDirs[s][1];
+  const Eigen::Vector3d p = g(rr, cc);
+  for (std::ptrdiff_t j = 1; j <= r; ++j) {
+    const std::ptrdiff_t a = rr + j * dr, b = cc + j * dc;
+    if (a < 0 || a >= H || b < 0 || b >= W) break;
+    const std::uint8_t l = labels[a * W + b];
+    if (l == kNormal || l == kEdge) visit(dot3(g(a, b) - p, u));
+  }
+}
+
 template <typename T>
 bool is_hanging(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
                 std::ptrdiff_t cc, std::ptrdiff_t r, const Side (&sd)[8], double best) {
@@ -325,11 +341,11 @@ bool is_hanging(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t
       break;
     }
     if (!steep) continue;
-    for (std::ptrdiff_t j = 1; j <= r; ++j) {  // ground beyond P, deeper along x's normal
-      const std::uint8_t l = label(rr + j * dr, cc + j * dc);
-      if (l != kNormal && l != kEdge) continue;
-      if (dot3(g(rr + j * dr, cc + j * dc) - p, x.normal) < -kHangShelf * depth) return true;
-    }
+    bool shelf = false;  // ground beyond P, deeper along x's normal
+    beyond(g, labels, rr, cc, r, s, x.normal, [&](double d) {
+      shelf = shelf || d < -kHangShelf * depth;
+    });
+    if (shelf) return true;
   }
   return false;
 }
@@ -344,28 +360,18 @@ bool is_hanging(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t
 // (no dip), a terrace's edge (its next cells level with P), a bead on a plane or a fin beyond
 // P (no lasting rise) nor a profile offset of a few rms. The formulas are
 // miem.reference._lips'.
-constexpr double kEdgeLipTol = 2.0, kEdgeLipDip = 0.5;
-
 template <typename T>
 bool is_lip(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
             std::ptrdiff_t cc, std::ptrdiff_t r, const Side (&sd)[8], double best) {
-  const std::ptrdiff_t H = g.rows, W = g.cols;
-  const Eigen::Vector3d p = g(rr, cc);
   for (int s = 0; s < 8; ++s) {
     const Side& x = sd[s];
     if (!edge_clean(x, best) || !(x.h > x.tol)) continue;
-    const std::ptrdiff_t dr = kHangDirs[s][0], dc = kHangDirs[s][1];
     const double dip = std::max(kEdgeLipTol * x.tol, kEdgeLipDip * x.h);
     bool dipped = false, risen = false;  // risen: the last ground cell so far, after a dip, high
-    for (std::ptrdiff_t j = 1; j <= r; ++j) {
-      const std::ptrdiff_t a = rr + j * dr, b = cc + j * dc;
-      if (a < 0 || a >= H || b < 0 || b >= W) break;
-      const std::uint8_t l = labels[a * W + b];
-      if (l != kNormal && l != kEdge) continue;
-      const double d = dot3(g(a, b) - p, x.normal);
+    beyond(g, labels, rr, cc, r, s, x.normal, [&](double d) {
       risen = dipped && x.h + d > dip;
       dipped = dipped || d < -dip;
-    }
+    });
     if (risen) return true;
   }
   return false;

@@ -45,6 +45,12 @@ inline bool edge_proud(const EdgeSide (&sd)[N], double best, Opposite opposite) 
   return false;
 }
 
+/// SPEC "Edge test" step 6 (grids) and "Unorganized clouds: edge test" step 6, lips at a
+/// concave feature: beyond P the surface dips below it by more than D = max(kEdgeLipTol x tol,
+/// kEdgeLipDip x h) (a profile offset of a few rms is no lip, nor a terrace's edge whose next
+/// cells lie level with P). miem.reference._EDGE_LIP_TOL, _EDGE_LIP_DIP.
+constexpr double kEdgeLipTol = 2.0, kEdgeLipDip = 0.5;
+
 /// Isolated spike (SPEC "Edge test" step 7): P lies more than this times its tolerance off every
 /// clean side (2 x edge_k rms: a cell the shortcut certifies, |h| <= tol on a clean side, never
 /// qualifies) ...

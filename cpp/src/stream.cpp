@@ -648,8 +648,7 @@ void ProfileStream<T>::run_pass(std::int64_t row, int pass) noexcept {
   }
   if (pass == 1 && kernel) {
     // the row kernel, CellJudge for the cells it cannot settle
-    pass1_kernel(row);
-    const std::int64_t* ok = detail::Pass1Ring{&p1_, pushed_, W, p1_depth_}.ok(row);
+    const std::int64_t* ok = pass1_kernel(row);
     for (std::ptrdiff_t c = 0; c < W; ++c) {
       if (st[c] == 0) continue;
       if (detail::pass1_needs_judge(p1_, ok, c)) {
@@ -808,9 +807,10 @@ std::uint8_t ProfileStream<T>::exact_label(std::int64_t row, std::ptrdiff_t c,
 // Pass 1 of `row` by the row kernel (pass1_row.hpp): the rows within p1_depth_ converted (those
 // not yet: pass 1 runs row by row, in order; the rows it skipped were not needed), then the
 // kernel's labels of the row in p1_lab_ and, with min_step, the rays each verdict read in ray_.
-// The rows beyond the last pushed one are the grid's border, as in run_pass's judge.
+// The rows beyond the last pushed one are the grid's border, as in run_pass's judge. Returns
+// the row's usable lanes (pass1_needs_judge reads them).
 template <typename T>
-void ProfileStream<T>::pass1_kernel(std::int64_t row) noexcept {
+const std::int64_t* ProfileStream<T>::pass1_kernel(std::int64_t row) noexcept {
   const std::ptrdiff_t W = width_, plane = phys_ * W;
   const detail::Pass1Ring ring{&p1_, static_cast<std::ptrdiff_t>(pushed_), W, p1_depth_};
   p1_next_ = std::max<std::int64_t>(p1_next_, row - p1_depth_);
@@ -823,6 +823,7 @@ void ProfileStream<T>::pass1_kernel(std::int64_t row) noexcept {
   }
   detail::pass1_row(ring, static_cast<std::ptrdiff_t>(row), jparams_, p1_lab_.data(), nullptr,
                     nullptr, use_ray_ ? ray_.data() + 4 * slot(row) * W : nullptr);
+  return ring.ok(static_cast<std::ptrdiff_t>(row));
 }
 
 namespace nothrow {

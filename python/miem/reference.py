@@ -2397,6 +2397,12 @@ _CLOUD_EMPTY = 0.35
 _CLOUD_HANG_EMPTY = 0.3
 
 
+def _turned(s: int, by: int) -> int:
+    """Sector ``s`` turned by ``by`` octants within its width (8 quarter, then 8 half sectors):
+    ``by = 4`` its opposite, ``+-1`` its neighbours."""
+    return (s // 8) * 8 + (s % 8 + by) % 8
+
+
 def _cloud_frames(
     tree: Any, pts: NDArray[np.float64], idx: NDArray[np.int64], radius: float
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
@@ -2492,12 +2498,12 @@ def _cloud_edge_pass(
     across = np.zeros(m, dtype=bool)  # stands proud and fits only sectors past the feature
     below = np.zeros((m, _CLOUD_SECTORS), dtype=bool)  # hanging, the first condition
     for s in range(_CLOUD_SECTORS):
-        o = (s // 8) * 8 + (s % 8 + 4) % 8  # the opposite sector of the same width
+        o = _turned(s, 4)  # the opposite sector of the same width
         drop = np.einsum("ij,ij->i", nrm[:, s], cen[:, o] - cen[:, s])
         # the level rule: an empty opposite is an outline unless a clean neighbour of it (the
         # same width, turned by +-45 degrees) lies at this sector's level
         outline = empty[:, o].copy()
-        for c in ((o // 8) * 8 + (o % 8 + 7) % 8, (o // 8) * 8 + (o % 8 + 1) % 8):
+        for c in (_turned(o, -1), _turned(o, 1)):
             lvl = np.abs(np.einsum("ij,ij->i", nrm[:, s], cen[:, c] - cen[:, s]))
             outline &= ~(clean[:, c] & ~(lvl > tol[:, s]))
         # the opposite falls away: the centroid of its support (at least 3 points; no plane
@@ -2525,7 +2531,7 @@ def _cloud_edge_pass(
             h[hang], nrm[hang], cen[hang], tol[hang], gone[hang])
     # the lips' sectors: clean, P above them, the opposite's support centroid (at least 3
     # points) above their plane by more than _CLOUD_LIP_RISE x h
-    opp = [(s // 8) * 8 + (s % 8 + 4) % 8 for s in range(_CLOUD_SECTORS)]
+    opp = [_turned(s, 4) for s in range(_CLOUD_SECTORS)]
     rise = np.einsum("isj,isj->is", nrm, cen[:, opp] - cen)
     raised = clean & (h > tol) & (cnt[:, opp] >= 3.0) & (rise > _CLOUD_LIP_RISE * h)
     lip = out & ~proud & ~hang & raised.any(axis=1)
@@ -2585,7 +2591,7 @@ def _cloud_hanging(
     for s in range(S):
         if not below[:, s].any():
             continue
-        o = (s // 8) * 8 + (s % 8 + 4) % 8
+        o = _turned(s, 4)
         u = nrm[:, s]
         delta = -h[:, s]
         v = near[:, s]
@@ -2648,7 +2654,7 @@ def _cloud_lips(
     for s in range(_CLOUD_SECTORS):
         if not raised[:, s].any():
             continue
-        o = (s // 8) * 8 + (s % 8 + 4) % 8
+        o = _turned(s, 4)
         c, sn = _CLOUD_TURNS[(o % 8 + 1 + o // 8) % 8]
         along = c * a + sn * b  # how far beyond P, away from s
         across = c * b - sn * a

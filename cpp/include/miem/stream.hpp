@@ -220,7 +220,7 @@ class ProfileStream {
   void run_pass(std::int64_t row, int pass) noexcept;
   void pass1_fast(std::int64_t row) noexcept;
   std::uint8_t exact_label(std::int64_t row, std::ptrdiff_t col, std::uint32_t bits) const noexcept;
-  void pass1_kernel(std::int64_t row) noexcept;
+  const std::int64_t* pass1_kernel(std::int64_t row) noexcept;
   std::ptrdiff_t pass1_depth(bool min_step) const noexcept;
   void remove(std::int64_t row, std::ptrdiff_t col, int pass) noexcept;
   // The stages after the angle passes (stream_stages.cpp): each advances its own next row up
