@@ -26,6 +26,7 @@ constexpr double kEmpty = 0.35;  // empty: fewer returns than 0.35 of a full sec
 // degrees past a convex crease keeps about 0.3-0.35 (SPEC step 5)
 constexpr double kHangEmpty = 0.3;
 constexpr double kHangShelf = 2.0;  // hanging: the surface beyond lies > 2x P's depth below
+constexpr double kLedgeLevel = 0.5;  // a ledge's material within 0.5 x P's depth of P's level
 // Lips at a concave feature (SPEC step 6): the grid's dip (detail::kEdgeLipTol, kEdgeLipDip),
 // the opposite sector's support centroid above the plane by more than h / 4 (a bead one
 // point wide through P lifts it by about 0.13 h at the default radius) ...
@@ -205,6 +206,22 @@ void for_each_member(const Selection& ball, const Frame& f, const CloudEdgeTest&
 // s .. s + 3, mod 8).
 inline bool in_sector(int o, int s) { return (o - s % 8 + 8) % 8 < (s < 8 ? 2 : 4); }
 
+// A sector's member nearest to P (smallest |q - P|, then smallest index) and its offset.
+struct Nearest {
+  double d = kInf;
+  std::uint32_t id = 0;
+  Eigen::Vector3d w = Eigen::Vector3d::Zero();
+  void offer(double dq, std::uint32_t iq, double wx, double wy, double wz) {
+    if (dq < d || (dq == d && iq < id)) d = dq, id = iq, w = Eigen::Vector3d(wx, wy, wz);
+  }
+};
+
+// u . (w - m): a member's signed distance from a sector's plane.
+inline double off_plane(const detail::EdgeSide& x, double wx, double wy, double wz) {
+  return (wx - x.centroid.x()) * x.normal.x() + (wy - x.centroid.y()) * x.normal.y() +
+         (wz - x.centroid.z()) * x.normal.z();
+}
+
 // SPEC "Unorganized clouds: edge test" step 5 (the grid's hanging rule with sectors): does P
 // hang below one of the sectors in `below` (step 4's first condition holds for them)? Steeper
 // than 45 degrees: of the sector's support points on its plane (not |u . (q - m)| > t: the
@@ -212,19 +229,28 @@ inline bool in_sector(int o, int s) { return (o - s % 8 + 8) % 8 < (s < 8 ? 2 : 
 // index), v = q - P, lies above P more steeply than 45 degrees, u . v > 0 and
 // (u . v)^2 > v.v - (u . v)^2; a shelf: the opposite sector is `gone` (the surface beyond has
 // fallen out of reach) or holds a ground point (NORMAL or EDGE at the start of the pass) x
-// with u . (x - P) < -2 delta (delta = -h, P's depth below the sector's plane).
+// with u . (x - P) < -2 delta (delta = -h, P's depth below the sector's plane). Or, with u . v
+// > 0, P extends a ledge already removed: of the sector's ABNORMAL members below its plane
+// (u . (y - m) < -t) the one nearest to P (same order) lies nearer than q (y . y < v . v) and
+// level with P (|u . y| <= 0.5 delta).
 bool hangs(const Selection& ball, const std::uint8_t* labels, const Frame& f,
            const CloudEdgeTest& e, const detail::EdgeSide (&sd)[kSectors],
            const bool (&gone)[kSectors], unsigned below) {
   // Per candidate sector: its nearest support point on its plane (distance, index, offset), and
   // the deepest ground point along its normal in the opposite sector.
-  double nd[kSectors], low[kSectors];
-  std::uint32_t nid[kSectors] = {};
-  Eigen::Vector3d nv[kSectors];
-  std::fill(nd, nd + kSectors, kInf);
+  Nearest top[kSectors], ledge[kSectors];
+  double low[kSectors];
   std::fill(low, low + kSectors, kInf);
   for_each_member(ball, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
     const std::uint8_t c = labels[ball.id[k]];
+    if (c == kAbnormal) {  // a ledge's material: below the sector's plane by more than t
+      for (int s = 0; s < kSectors; ++s) {
+        if (!(below >> s & 1u) || !in_sector(o, s)) continue;
+        if (!(off_plane(sd[s], wx, wy, wz) < -sd[s].tol)) continue;
+        ledge[s].offer(std::sqrt(wx * wx + wy * wy + wz * wz), ball.id[k], wx, wy, wz);
+      }
+      return;
+    }
     if (c != kNormal && c != kEdge) return;
     for (int s = 0; s < kSectors; ++s) {
       if (!(below >> s & 1u) || !in_sector(o, turned(s, 4))) continue;
@@ -235,26 +261,27 @@ bool hangs(const Selection& ball, const std::uint8_t* labels, const Frame& f,
     const double d = std::sqrt(wx * wx + wy * wy + wz * wz);
     for (int s = 0; s < kSectors; ++s) {
       if (!(below >> s & 1u) || !in_sector(o, s)) continue;
-      const detail::EdgeSide& x = sd[s];
-      const double dev = (wx - x.centroid.x()) * x.normal.x() +
-                         (wy - x.centroid.y()) * x.normal.y() +
-                         (wz - x.centroid.z()) * x.normal.z();
-      if (std::abs(dev) > x.tol) continue;
-      if (d < nd[s] || (d == nd[s] && ball.id[k] < nid[s])) {
-        nd[s] = d;
-        nid[s] = ball.id[k];
-        nv[s] = Eigen::Vector3d(wx, wy, wz);
-      }
+      if (std::abs(off_plane(sd[s], wx, wy, wz)) > sd[s].tol) continue;
+      top[s].offer(d, ball.id[k], wx, wy, wz);
     }
   });
+  const auto dot = [](const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+    return a.x() * b.x() + a.y() * b.y() + a.z() * b.z();
+  };
   for (int s = 0; s < kSectors; ++s) {
-    if (!(below >> s & 1u) || !(nd[s] < kInf)) continue;
+    if (!(below >> s & 1u) || !(top[s].d < kInf)) continue;
     const detail::EdgeSide& x = sd[s];
     const double delta = -x.h;
-    const Eigen::Vector3d& v = nv[s];
-    const double along = v.x() * x.normal.x() + v.y() * x.normal.y() + v.z() * x.normal.z();
-    const double vv = v.x() * v.x() + v.y() * v.y() + v.z() * v.z();
-    if (!(along > 0.0 && along * along > vv - along * along)) continue;
+    const Eigen::Vector3d& u = x.normal;
+    const Eigen::Vector3d& v = top[s].w;
+    const double along = dot(v, u), vv = dot(v, v);
+    if (!(along > 0.0)) continue;
+    const bool steep = along * along > vv - along * along;
+    // ... or P extends a ledge already removed: its material y nearer than q, level with P
+    const Eigen::Vector3d& y = ledge[s].w;
+    const bool extends = ledge[s].d < kInf && dot(y, y) < vv &&
+                         std::abs(dot(y, u)) <= kLedgeLevel * delta;
+    if (!steep && !extends) continue;
     if (gone[turned(s, 4)] || low[s] < -kHangShelf * delta) return true;
   }
   return false;

@@ -2544,6 +2544,9 @@ def _cloud_edge_pass(
 #: Cloud hanging rule (SPEC "Unorganized clouds: edge test" step 5): the surface beyond a
 #: hanging point lies more than this times as deep below it as it lies below the top.
 _CLOUD_HANG_SHELF = 2.0
+#: ... and a hanging point extends a ledge (material below the sector's plane already removed)
+#: when that material lies within this times P's depth of P's level.
+_CLOUD_LEDGE_LEVEL = 0.5
 
 
 def _cloud_hanging(
@@ -2574,18 +2577,31 @@ def _cloud_hanging(
     gr = row[sec_i // S]  # the member's selected candidate, -1 for the others
     gs = sec_i % S
     mine = gr >= 0
-    # the nearest support point on each sector's plane (the top's, not material hanging below
-    # it): smallest distance, then smallest index
+
+    def nearest(pick: NDArray[np.bool_]) -> NDArray[np.float64]:
+        # per (candidate, sector), the offset of its picked member nearest to P (smallest
+        # distance, then smallest index); NaN where none
+        order = np.lexsort((sec_j[pick], sec_d[pick], gr[pick] * S + gs[pick]))
+        grp = (gr[pick] * S + gs[pick])[order]
+        first = np.ones(grp.size, dtype=bool)
+        first[1:] = grp[1:] != grp[:-1]
+        out = np.full((m * S, 3), np.nan)
+        out[grp[first]] = sec_w[pick][order][first]
+        return out.reshape(m, S, 3)
+
+    def off_plane(pick: NDArray[np.bool_]) -> NDArray[np.float64]:
+        # the picked members' signed distances from their sector's plane
+        return _dot3(sec_w[pick] - cen[gr[pick], gs[pick]], nrm[gr[pick], gs[pick]])
+
+    # the support point on each sector's plane nearest to P (the top's, not material hanging
+    # below it) ...
     su = sup & mine
-    su[su] = ~(np.abs(_dot3(sec_w[su] - cen[gr[su], gs[su]], nrm[gr[su], gs[su]]))
-               > tol[gr[su], gs[su]])
-    order = np.lexsort((sec_j[su], sec_d[su], gr[su] * S + gs[su]))
-    grp = (gr[su] * S + gs[su])[order]
-    first = np.ones(grp.size, dtype=bool)
-    first[1:] = grp[1:] != grp[:-1]
-    near = np.full((m * S, 3), np.nan)
-    near[grp[first]] = sec_w[su][order][first]
-    near = near.reshape(m, S, 3)
+    su[su] = ~(np.abs(off_plane(su)) > tol[gr[su], gs[su]])
+    near = nearest(su)
+    # ... and the ABNORMAL member below it (more than its tolerance) nearest to P: a ledge
+    ab = mine & (labels[sec_j] == ABNORMAL)
+    ab[ab] = off_plane(ab) < -tol[gr[ab], gs[ab]]
+    hung = nearest(ab)
     ground = mine & ((labels[sec_j] == NORMAL) | (labels[sec_j] == EDGE))
     out = np.zeros(m, dtype=bool)
     for s in range(S):
@@ -2598,6 +2614,11 @@ def _cloud_hanging(
         along = _dot3(v, u)
         # q lies above P more steeply than 45 degrees (NaN: no such q)
         steep = (along > 0.0) & (along * along > _dot3(v, v) - along * along)
+        # ... or P extends a ledge already removed: that ABNORMAL member y lies nearer than q
+        # and level with P (|u . y| <= _CLOUD_LEDGE_LEVEL x delta), q above P
+        y = hung[:, s]
+        level = np.abs(_dot3(y, u)) <= _CLOUD_LEDGE_LEVEL * delta
+        steep |= (along > 0.0) & (_dot3(y, y) < _dot3(v, v)) & level
         # the shelf: the opposite sector gone (the surface beyond is out of reach) or a ground
         # point there deeper than _CLOUD_HANG_SHELF x delta along u
         g = ground & (gs == o)
