@@ -198,9 +198,9 @@ STAGES = ("min_step_auto", "angle_passes", "height_test", "edge_test", "miem_pla
 BASES = [
     ("fbc6d8f", "the default before issue 10 (no edge test, no min_step 'auto')", "recommended",
      "recommended-no-edge"),
-    ("67252b8", "two sessions ago: before the min_step row kernel, the fin rule and the "
+    ("67252b8", "2026-12-02, before the min_step row kernel, the fin rule and the "
      "edge test's branch-free judge", "recommended", "recommended"),
-    ("cd0cfef", "start of this session: before the vectorised window sums, the masked MIEM-plane "
+    ("cd0cfef", "2026-12-02, before the vectorised window sums, the masked MIEM-plane "
      "moments and the min_step row skip", "recommended", "recommended"),
 ]
 
@@ -313,8 +313,10 @@ def profiler_grid(h: int, w: int, seed: int = 0) -> np.ndarray:
 
 # The commit before the vectorised min_step search (issue 17, priority 1): its binary runs the
 # min_step scans in the same run as today's.
-MIN_STEP_BASE = ("cd0cfef", "the start of this session, before the min_step row skip (the "
-                 "searches along a row pass over the steps a path-length bound shows surely near)")
+MIN_STEP_BASE = ("cd0cfef", "2026-12-02, before the min_step row skip (the searches along a "
+                 "row pass over the steps a path-length bound shows surely near) and before the "
+                 "edge test's lip and hanging-ledge rules (which change labels on the real scan "
+                 "and add to its edge test)")
 
 
 def min_step_times(build_dir: Path, side: int, repeats: int, build_bases: bool = True):
