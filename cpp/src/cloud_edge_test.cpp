@@ -236,8 +236,9 @@ inline double off_plane(const detail::EdgeSide& x, double wx, double wy, double 
 bool hangs(const Selection& ball, const std::uint8_t* labels, const Frame& f,
            const CloudEdgeTest& e, const detail::EdgeSide (&sd)[kSectors],
            const bool (&gone)[kSectors], unsigned below) {
-  // Per candidate sector: its nearest support point on its plane (distance, index, offset), and
-  // the deepest ground point along its normal in the opposite sector.
+  // Per candidate sector: its nearest support point on its plane and its nearest ABNORMAL
+  // member below its plane (distance, index, offset), and the deepest ground point along its
+  // normal in the opposite sector.
   Nearest top[kSectors], ledge[kSectors];
   double low[kSectors];
   std::fill(low, low + kSectors, kInf);
@@ -265,22 +266,19 @@ bool hangs(const Selection& ball, const std::uint8_t* labels, const Frame& f,
       top[s].offer(d, ball.id[k], wx, wy, wz);
     }
   });
-  const auto dot = [](const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
-    return a.x() * b.x() + a.y() * b.y() + a.z() * b.z();
-  };
   for (int s = 0; s < kSectors; ++s) {
     if (!(below >> s & 1u) || !(top[s].d < kInf)) continue;
     const detail::EdgeSide& x = sd[s];
     const double delta = -x.h;
     const Eigen::Vector3d& u = x.normal;
     const Eigen::Vector3d& v = top[s].w;
-    const double along = dot(v, u), vv = dot(v, v);
+    const double along = detail::dot3(v, u), vv = detail::dot3(v, v);
     if (!(along > 0.0)) continue;
     const bool steep = along * along > vv - along * along;
     // ... or P extends a ledge already removed: its material y nearer than q, level with P
     const Eigen::Vector3d& y = ledge[s].w;
-    const bool extends = ledge[s].d < kInf && dot(y, y) < vv &&
-                         std::abs(dot(y, u)) <= kLedgeLevel * delta;
+    const bool extends = ledge[s].d < kInf && detail::dot3(y, y) < vv &&
+                         std::abs(detail::dot3(y, u)) <= kLedgeLevel * delta;
     if (!steep && !extends) continue;
     if (gone[turned(s, 4)] || low[s] < -kHangShelf * delta) return true;
   }
