@@ -13,6 +13,17 @@ import miem
 from miem import reference as ref
 
 
+def pre_edge_pass(pts: np.ndarray) -> tuple[ref.RefPointsResult, float, float, np.ndarray,
+                                             np.ndarray]:
+    """The reference without the edge test on ``pts`` (the labels the first edge pass starts
+    from) and what the by-hand sectors need: the edge radius, the gap, the support (NORMAL) and
+    the ground (NORMAL or EDGE) masks."""
+    pre = ref.detect_points(pts, edge_tolerance=None)
+    normal = pre.labels == miem.NORMAL
+    return (pre, pre.params["height_radius"], pre.params["min_step"], normal,
+            normal | (pre.labels == miem.EDGE))
+
+
 def assert_same_cloud_result(core: miem.DetectResult, oracle: ref.RefPointsResult) -> None:
     np.testing.assert_array_equal(core.labels, oracle.labels)
     np.testing.assert_array_equal(core.flags, oracle.flags)

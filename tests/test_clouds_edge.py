@@ -18,6 +18,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from cloud_checks import (  # noqa: E402
     assert_core_is_reference_everywhere,
     assert_same_cloud_result,
+    pre_edge_pass,
     sectors_by_hand,
 )
 
@@ -153,9 +154,7 @@ def test_level_rule_by_hand() -> None:
     plane goes on past the bead; only the border empties the opposite): not an outline, so
     the point stays as it was."""
     pts, bead = bead_scene(0)
-    pre = ref.detect_points(pts, edge_tolerance=None)
-    r_edge, gap = pre.params["height_radius"], pre.params["min_step"]
-    normal = pre.labels == miem.NORMAL
+    pre, r_edge, gap, normal, _ = pre_edge_pass(pts)
     caught = []
     for i in np.flatnonzero(bead & (pre.labels != A)):
         fits, proud, top, level = _sector_verdict(pts, normal, int(i), r_edge, gap, DEFAULT_K)
@@ -175,9 +174,7 @@ def test_fit_within_the_cleanest_tolerance_by_hand() -> None:
     caught = []
     for seed in range(4):
         pts, burr = cut_scene(seed)
-        pre = ref.detect_points(pts, edge_tolerance=None)
-        r_edge, gap = pre.params["height_radius"], pre.params["min_step"]
-        normal = pre.labels == miem.NORMAL
+        pre, r_edge, gap, normal, _ = pre_edge_pass(pts)
         for i in np.flatnonzero(burr & (pre.labels != A)):
             fits, proud, top, level, own = _sector_verdict(pts, normal, int(i), r_edge, gap,
                                                            DEFAULT_K, with_own=True)
@@ -221,9 +218,7 @@ def test_crossing_rule_by_hand() -> None:
     # (seed 2's clean crease has one ABNORMAL point, with or without the crossing rule)
     for seed in (0, 1, 3):
         pts, lip = crease_scene(seed, True)
-        pre = ref.detect_points(pts, edge_tolerance=None)
-        r_edge, gap = pre.params["height_radius"], pre.params["min_step"]
-        normal = pre.labels == miem.NORMAL
+        pre, r_edge, gap, normal, _ = pre_edge_pass(pts)
         mine = []
         for i in np.flatnonzero(lip & (pre.labels != A)):
             planes = sectors_by_hand(pts, normal, int(i), r_edge, gap).planes
@@ -289,9 +284,7 @@ def test_opposite_centroid_falls_by_hand() -> None:
     fits a clean sector and stays as it was, by either rule.)"""
     k = DEFAULT_K
     pts, lip = flange_scene(0, True)
-    pre = ref.detect_points(pts, edge_tolerance=None)
-    r_edge, gap = pre.params["height_radius"], pre.params["min_step"]
-    normal = pre.labels == miem.NORMAL
+    pre, r_edge, gap, normal, _ = pre_edge_pass(pts)
     caught = []
     for i in np.flatnonzero(lip & (pre.labels != A)):
         hs = sectors_by_hand(pts, normal, int(i), r_edge, gap)

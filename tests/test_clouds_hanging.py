@@ -18,6 +18,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from cloud_checks import (  # noqa: E402
     assert_core_is_reference_everywhere,
     assert_same_cloud_result,
+    pre_edge_pass,
     sectors_by_hand,
 )
 
@@ -107,10 +108,7 @@ def test_hanging_by_hand() -> None:
     sector and hang below one (the opposite empty: the floor is out of reach): ABNORMAL in the
     core and the reference."""
     pts, hang = wall_scene(0)
-    pre = ref.detect_points(pts, edge_tolerance=None)
-    r_edge, gap = pre.params["height_radius"], pre.params["min_step"]
-    normal = pre.labels == miem.NORMAL
-    ground = normal | (pre.labels == miem.EDGE)
+    pre, r_edge, gap, normal, ground = pre_edge_pass(pts)
     caught = []
     for i in np.flatnonzero(hang & ground):
         fits, hangs = _hangs_by_hand(pts, normal, ground, int(i), r_edge, gap, 4.0)
@@ -168,10 +166,7 @@ def test_steep_face_past_a_crease_does_not_hang_by_hand() -> None:
     the hanging rule (SPEC step 5), so they do not hang (with 0.35 they did) and are not
     ABNORMAL in the core and the reference."""
     pts = crease_scene(1)
-    pre = ref.detect_points(pts, edge_tolerance=None)
-    r_edge, gap = pre.params["height_radius"], pre.params["min_step"]
-    normal = pre.labels == miem.NORMAL
-    ground = normal | (pre.labels == miem.EDGE)
+    pre, r_edge, gap, normal, ground = pre_edge_pass(pts)
     caught = []
     for i in np.flatnonzero(ground & (_offsets(pts[:, 0], pts[:, 1])[0] > 0.0)):
         fits, hangs = _hangs_by_hand(pts, normal, ground, int(i), r_edge, gap, 4.0)

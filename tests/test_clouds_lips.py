@@ -15,7 +15,11 @@ import miem
 from miem import reference as ref
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from cloud_checks import assert_core_is_reference_everywhere, sectors_by_hand  # noqa: E402
+from cloud_checks import (  # noqa: E402
+    assert_core_is_reference_everywhere,
+    pre_edge_pass,
+    sectors_by_hand,
+)
 
 A = miem.ABNORMAL
 K = 4.0  # the default edge_tolerance
@@ -91,10 +95,7 @@ def test_lip_before_a_concave_crease_by_hand(fold_deg: float) -> None:
     caught = []
     for seed in (0, 1):
         pts, lip = concave_scene(seed, True, fold_deg)
-        pre = ref.detect_points(pts, edge_tolerance=None)
-        r_edge, gap = pre.params["height_radius"], pre.params["min_step"]
-        normal = pre.labels == miem.NORMAL
-        ground = normal | (pre.labels == miem.EDGE)
+        pre, r_edge, gap, normal, ground = pre_edge_pass(pts)
         mine = []
         for i in np.flatnonzero(lip & ground):
             fits, is_lip = _lip_by_hand(pts, normal, ground, int(i), r_edge, gap)

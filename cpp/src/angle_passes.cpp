@@ -18,25 +18,14 @@ namespace miem::detail {
 
 namespace {
 
-// Copy row rr of the grid into structure-of-arrays slot buffers (x, y, z, ok: `stride` apart
-// for the coordinates, first grid column at index 0; the padding around it stays unusable).
+// Row rr of the grid into the kernel's ring (pass1_load), usable: bit 0 of `usable`.
 template <typename T>
-void load_row(const GridView<T>& g, const std::uint8_t* usable, std::ptrdiff_t rr,
-              std::ptrdiff_t stride, double* x, std::int64_t* ok) {
-  const std::ptrdiff_t W = g.cols;
-  double* y = x + stride;
-  double* z = y + stride;
-  const std::uint8_t* us = usable + rr * W;
+void load_row(const GridView<T>& g, const std::uint8_t* usable, const Pass1Ring& ring,
+              std::ptrdiff_t rr) {
   const T* base = g.data + rr * g.row_stride;
-  for (std::ptrdiff_t c = 0; c < W; ++c) {
-    const T* q = base + c * g.col_stride;
-    const std::int64_t u = us[c] & 1;
-    // unusable cells read as 0 (finite), so no NaN enters the selects
-    x[c] = u ? static_cast<double>(q[0]) : 0.0;
-    y[c] = u ? static_cast<double>(q[g.coord_stride]) : 0.0;
-    z[c] = u ? static_cast<double>(q[2 * g.coord_stride]) : 0.0;
-    ok[c] = u;
-  }
+  const std::uint8_t* us = usable + rr * g.cols;
+  pass1_load(ring, rr, base, base + g.coord_stride, base + 2 * g.coord_stride, g.col_stride,
+             [us](std::ptrdiff_t c) { return (us[c] & 1) != 0; });
 }
 
 // Judge rows [r_begin, r_end) of pass 1 with the row kernel (pass1_row.hpp), keeping its ring
@@ -53,10 +42,10 @@ void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectPa
   const Pass1Ring ring{&sc, H, W, depth};
   for (std::ptrdiff_t rr = std::max<std::ptrdiff_t>(0, r_begin - pad);
        rr < std::min(H, r_begin + pad); ++rr) {
-    load_row(g, usable, rr, ring.stride(), ring.x(rr), ring.ok(rr));
+    load_row(g, usable, ring, rr);
   }
   for (std::ptrdiff_t r = r_begin; r < r_end; ++r) {
-    if (r + pad < H) load_row(g, usable, r + pad, ring.stride(), ring.x(r + pad), ring.ok(r + pad));
+    if (r + pad < H) load_row(g, usable, ring, r + pad);
     double* angle_row = angle_out ? angle_out + r * W : nullptr;
     pass1_row(ring, r, p, labels + r * W, flags_out ? flags_out + r * W : nullptr, angle_row,
               reach ? reach + 4 * r * W : nullptr);

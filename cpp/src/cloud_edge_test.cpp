@@ -211,15 +211,14 @@ struct Nearest {
   double d = kInf;
   std::uint32_t id = 0;
   Eigen::Vector3d w = Eigen::Vector3d::Zero();
-  void offer(double dq, std::uint32_t iq, double wx, double wy, double wz) {
-    if (dq < d || (dq == d && iq < id)) d = dq, id = iq, w = Eigen::Vector3d(wx, wy, wz);
+  void offer(double dq, std::uint32_t iq, const Eigen::Vector3d& wq) {
+    if (dq < d || (dq == d && iq < id)) d = dq, id = iq, w = wq;
   }
 };
 
 // u . (w - m): a member's signed distance from a sector's plane.
-inline double off_plane(const detail::EdgeSide& x, double wx, double wy, double wz) {
-  return (wx - x.centroid.x()) * x.normal.x() + (wy - x.centroid.y()) * x.normal.y() +
-         (wz - x.centroid.z()) * x.normal.z();
+inline double off_plane(const detail::EdgeSide& x, const Eigen::Vector3d& w) {
+  return detail::dot3(w - x.centroid, x.normal);
 }
 
 // SPEC "Unorganized clouds: edge test" step 5 (the grid's hanging rule with sectors): does P
@@ -244,26 +243,24 @@ bool hangs(const Selection& ball, const std::uint8_t* labels, const Frame& f,
   std::fill(low, low + kSectors, kInf);
   for_each_member(ball, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
     const std::uint8_t c = labels[ball.id[k]];
+    if (c != kAbnormal && c != kNormal && c != kEdge) return;
+    const Eigen::Vector3d w(wx, wy, wz);
+    const double d = std::sqrt(detail::dot3(w, w));
     if (c == kAbnormal) {  // a ledge's material: below the sector's plane by more than t
       for (int s = 0; s < kSectors; ++s) {
         if (!(below >> s & 1u) || !in_sector(o, s)) continue;
-        if (!(off_plane(sd[s], wx, wy, wz) < -sd[s].tol)) continue;
-        ledge[s].offer(std::sqrt(wx * wx + wy * wy + wz * wz), ball.id[k], wx, wy, wz);
+        if (off_plane(sd[s], w) < -sd[s].tol) ledge[s].offer(d, ball.id[k], w);
       }
       return;
     }
-    if (c != kNormal && c != kEdge) return;
     for (int s = 0; s < kSectors; ++s) {
       if (!(below >> s & 1u) || !in_sector(o, turned(s, 4))) continue;
-      const Eigen::Vector3d& u = sd[s].normal;
-      low[s] = std::min(low[s], wx * u.x() + wy * u.y() + wz * u.z());
+      low[s] = std::min(low[s], detail::dot3(w, sd[s].normal));
     }
     if (c != kNormal) return;
-    const double d = std::sqrt(wx * wx + wy * wy + wz * wz);
     for (int s = 0; s < kSectors; ++s) {
       if (!(below >> s & 1u) || !in_sector(o, s)) continue;
-      if (std::abs(off_plane(sd[s], wx, wy, wz)) > sd[s].tol) continue;
-      top[s].offer(d, ball.id[k], wx, wy, wz);
+      if (!(std::abs(off_plane(sd[s], w)) > sd[s].tol)) top[s].offer(d, ball.id[k], w);
     }
   });
   for (int s = 0; s < kSectors; ++s) {
@@ -309,16 +306,15 @@ bool is_lip(const Selection& ball, const std::uint8_t* labels, const Frame& f,
   for_each_member(ball, f, e, [&](std::size_t k, int, double wx, double wy, double wz) {
     const std::uint8_t c = labels[ball.id[k]];
     if (c != kNormal && c != kEdge) return;
-    const double a = wx * f.e1.x() + wy * f.e1.y() + wz * f.e1.z();
-    const double b = wx * f.e2.x() + wy * f.e2.y() + wz * f.e2.z();
+    const Eigen::Vector3d w(wx, wy, wz);
+    const double a = detail::dot3(w, f.e1), b = detail::dot3(w, f.e2);
     for (int s = 0; s < kSectors; ++s) {
       if (!(raised >> s & 1u)) continue;
       const int t = bisector(turned(s, 4));
       const double along = kTurnCos[t] * a + kTurnSin[t] * b;
       const double across = kTurnCos[t] * b - kTurnSin[t] * a;
       if (!(along > std::abs(across)) || std::abs(across) > width) continue;
-      const Eigen::Vector3d& u = sd[s].normal;
-      const double d = wx * u.x() + wy * u.y() + wz * u.z();
+      const double d = detail::dot3(w, sd[s].normal);
       if (along > far[s] || (along == far[s] && ball.id[k] < lid[s])) {
         low[s] = std::min(low[s], last[s]);  // the last so far now lies before the last
         far[s] = along;

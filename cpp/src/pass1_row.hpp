@@ -14,8 +14,7 @@ namespace miem::detail {
 /// The rows the kernel reads: a ring of 2 depth + 1 converted rows in a RowScratch (slot
 /// rr % (2 depth + 1) for row rr), and one all-unusable row (slot 2 depth + 1) that stands for
 /// the rows outside [0, H). Each row has `depth` padding columns of unusable cells on each side,
-/// so that the grid's border needs no special case. A row is loaded once (pass1_load or the
-/// batch's load_row) before the rows within `depth` of it are judged.
+/// so that the grid's border needs no special case. A row is loaded once (pass1_load) before the rows within `depth` of it are judged.
 struct Pass1Ring {
   RowScratch* sc = nullptr;
   std::ptrdiff_t H = 0, W = 0, depth = 0;
@@ -34,20 +33,21 @@ struct Pass1Ring {
 /// and clears it (every cell unusable). Allocates only when it has held less.
 void pass1_prepare(RowScratch& sc, std::ptrdiff_t W, std::ptrdiff_t depth, bool min_step);
 
-/// Loads row rr into the ring from coordinate planes (x[c], y[c], z[c]) and a usable predicate:
-/// unusable cells read as 0 (finite), so no NaN enters the kernel's selects.
+/// Loads row rr into the ring from coordinate planes (column c at x[c * cs], y[c * cs],
+/// z[c * cs]) and a usable predicate: unusable cells read as 0 (finite), so no NaN enters the
+/// kernel's selects.
 template <typename T, typename Usable>
 void pass1_load(const Pass1Ring& ring, std::ptrdiff_t rr, const T* x, const T* y, const T* z,
-                Usable usable) {
+                std::ptrdiff_t cs, Usable usable) {
   double* ox = ring.x(rr);
   double* oy = ox + ring.stride();
   double* oz = oy + ring.stride();
   std::int64_t* ok = ring.ok(rr);
   for (std::ptrdiff_t c = 0; c < ring.W; ++c) {
     const std::int64_t u = usable(c) ? 1 : 0;
-    ox[c] = u ? static_cast<double>(x[c]) : 0.0;
-    oy[c] = u ? static_cast<double>(y[c]) : 0.0;
-    oz[c] = u ? static_cast<double>(z[c]) : 0.0;
+    ox[c] = u ? static_cast<double>(x[c * cs]) : 0.0;
+    oy[c] = u ? static_cast<double>(y[c * cs]) : 0.0;
+    oz[c] = u ? static_cast<double>(z[c * cs]) : 0.0;
     ok[c] = u;
   }
 }
