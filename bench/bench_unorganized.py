@@ -32,6 +32,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import time  # noqa: E402
 
+from common import interleaved  # noqa: E402
+
 
 def best_of(fn, repeats: int) -> tuple:
     """(smallest wall time, smallest process CPU time) of `repeats` calls of fn(), seconds. On a
@@ -44,18 +46,6 @@ def best_of(fn, repeats: int) -> tuple:
         cpus.append(time.process_time() - c0)
     return min(walls), min(cpus)
 
-
-def interleaved(fns: list, repeats: int) -> list[tuple]:
-    """best_of for each of fns, their calls alternated (fns[0], fns[1], fns[0], ...)."""
-    walls: list[list[float]] = [[] for _ in fns]
-    cpus: list[list[float]] = [[] for _ in fns]
-    for _ in range(max(1, repeats)):
-        for i, fn in enumerate(fns):
-            c0, t0 = time.process_time(), time.perf_counter()
-            fn()
-            walls[i].append(time.perf_counter() - t0)
-            cpus[i].append(time.process_time() - c0)
-    return [(min(w), min(c)) for w, c in zip(walls, cpus)]
 
 HERE = Path(__file__).resolve().parent
 OUT = HERE / "results_unorganized.md"

@@ -19,6 +19,19 @@ def best_of(fn, repeats: int) -> float:
     return min(times)
 
 
+def interleaved(fns: list, repeats: int) -> list[tuple]:
+    """best_of for each of fns, their calls alternated (fns[0], fns[1], fns[0], ...)."""
+    walls: list[list[float]] = [[] for _ in fns]
+    cpus: list[list[float]] = [[] for _ in fns]
+    for _ in range(max(1, repeats)):
+        for i, fn in enumerate(fns):
+            c0, t0 = time.process_time(), time.perf_counter()
+            fn()
+            walls[i].append(time.perf_counter() - t0)
+            cpus[i].append(time.process_time() - c0)
+    return [(min(w), min(c)) for w, c in zip(walls, cpus)]
+
+
 def cpu_name() -> str:
     """The CPU model from /proc/cpuinfo (or platform's guess) and the widest vector unit miem's
     kernels can use on it (the core carries AVX2 and AVX-512 clones: timings taken on machines
