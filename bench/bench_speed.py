@@ -424,7 +424,9 @@ def fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, meta,
         ns = [r["cpu1"] / r["n"] * 1e9 for r in rows_sweep if r["side"] >= 512]
         if ns:
             L += ["", f"Cost per point from 512^2 up: {min(ns):.0f} to {max(ns):.0f} ns "
-                  f"(max / min {max(ns) / min(ns):.2f}: linear when close to 1)."]
+                  f"(max / min {max(ns) / min(ns):.2f}: linear when close to 1). The wall "
+                  "columns are `miem.detect` through Python, best of the repeats, the 1-thread "
+                  "and 2-thread calls alternated."]
     L += ["", "| `fit_plane`, 1 thread | time | GB/s | NumPy `sum` GB/s | share of the yardstick |",
           "|---|---:|---:|---:|---:|"]
     for r in rows_fit:
