@@ -139,6 +139,8 @@ def sweep(sides: list[int], repeats: int) -> list[dict]:
         grid = scan_grid(side, side)
         n = side * side
         reps = repeats if side < 4096 else max(1, repeats - 1)
+        # CPU time in a block of 1-thread calls of its own: after a 2-thread call the idle
+        # OpenMP worker spins on, and its CPU time would count in the next 1-thread call
         t1 = cpu_time(lambda: miem.detect(grid, preset=PRESET, num_threads=1), reps)
         # the speed-up is a ratio: its two timings alternate, so a burst of load on the shared
         # machine hits both alike

@@ -30,21 +30,13 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import time  # noqa: E402
-
 from common import interleaved  # noqa: E402
 
 
 def best_of(fn, repeats: int) -> tuple:
     """(smallest wall time, smallest process CPU time) of `repeats` calls of fn(), seconds. On a
     shared machine the CPU time (every thread of this process) is the steadier measure."""
-    walls, cpus = [], []
-    for _ in range(max(1, repeats)):
-        c0, t0 = time.process_time(), time.perf_counter()
-        fn()
-        walls.append(time.perf_counter() - t0)
-        cpus.append(time.process_time() - c0)
-    return min(walls), min(cpus)
+    return interleaved([fn], repeats)[0]
 
 
 HERE = Path(__file__).resolve().parent
