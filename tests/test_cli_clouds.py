@@ -1,6 +1,7 @@
-"""The command line on unorganized files (issue 11): a grid is rebuilt when the points are in
-scan-line order, the cloud detector runs otherwise, the path taken is said and reported, and the
-reports index the input's points. Expected values come from the Python API on the same points."""
+"""The command line on unorganized files (issue 11): a grid is rebuilt when the points lie on
+scan lines (in file order, or in any order: rows sorted by line position), the cloud detector runs
+otherwise, the path taken is said and reported, and the reports index the input's points.
+Expected values come from the Python API on the same points."""
 
 from __future__ import annotations
 
@@ -32,18 +33,22 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     flat = scan.points.reshape(-1, 3)
     flat = flat[np.isfinite(flat).all(axis=1)]
     rng = np.random.default_rng(0)
-    shuffled = flat[rng.permutation(len(flat))]
+    profiles = flat[rng.permutation(len(flat))]  # on scan lines, not in their order
+    shuffled = profiles.copy()
+    shuffled[:, :2] += rng.uniform(-0.075, 0.075, (len(flat), 2))  # a quarter of the 0.3 step
     shuffled = np.vstack([shuffled, shuffled[:100]])  # and exact duplicates
     mio.write(d / "shuffled.pcd", shuffled.astype(np.float32))
+    mio.write(d / "profiles.pcd", profiles)
     mio.write(d / "lines.xyz", flat)
-    return {"shuffled": d / "shuffled.pcd", "lines": d / "lines.xyz"}
+    return {"shuffled": d / "shuffled.pcd", "lines": d / "lines.xyz",
+            "profiles": d / "profiles.pcd"}
 
 
 def test_shuffled_cloud_runs_the_cloud_detector(files: dict, tmp_path: Path) -> None:
     res = run("detect", files["shuffled"], "--out-dir", tmp_path, "--radius", "2.0", "--k", "6",
               "--no-progress")
     assert res.returncode == 0, res.stderr
-    assert "not in scan-line order: cloud detector" in res.stderr
+    assert "not on scan lines (in file order or by line position): cloud detector" in res.stderr
     doc = json.loads((tmp_path / "shuffled.defects.json").read_text())
     assert doc["layout"] == "cloud" and doc["grid"] is None
     pts = mio.read(files["shuffled"]).points
@@ -71,6 +76,29 @@ def test_scan_line_order_is_rebuilt_and_cloud_options_rejected(files: dict,
     assert fit.returncode == 0 and "MIEM" in fit.stdout
 
 
+def test_points_on_scan_lines_in_any_order_get_their_grid(files: dict, tmp_path: Path) -> None:
+    # the 50 x 60 scan's points shuffled: the grid detector on the grid rebuilt by line
+    # position, labels reported per input point; the same labels as the organized scan's
+    res = run("detect", files["profiles"], "--out-dir", tmp_path, "--no-progress", "--format",
+              "csv")
+    assert res.returncode == 0, res.stderr
+    assert "on scan lines but not in their order (rows sorted by line position): rebuilt a " \
+           "50 x 60 grid" in res.stderr
+    assert json.loads((tmp_path / "profiles.defects.json").read_text())["layout"] == "scanlines"
+    pts = mio.read(files["profiles"]).points
+    organized = mio.read(files["lines"]).points  # the scan's finite cells, row by row
+    grid = mio.grid_from_scanlines(organized)
+    assert grid.shape == (50, 60, 3)
+    api = miem.detect(grid)
+    # each point's cell found independently: its (x, y) in the organized scan
+    cell = {(x, y): i for i, (x, y) in enumerate(grid.reshape(-1, 3)[:, :2].tolist())}
+    want = api.labels.ravel()[[cell[(x, y)] for x, y in pts[:, :2].tolist()]]
+    labelled = mio.read(tmp_path / "profiles.labels.csv")
+    np.testing.assert_array_equal(labelled.points, pts)
+    np.testing.assert_array_equal(labelled.fields["label"], want)
+    assert (want == miem.ABNORMAL).sum() >= 3
+
+
 def test_plot_of_a_cloud(files: dict, tmp_path: Path) -> None:
     out = tmp_path / "c.png"
     res = run("plot", files["shuffled"], "-o", out)
@@ -87,6 +115,9 @@ def test_every_real_file_has_a_path(tmp_path: Path) -> None:
     assert len(names) >= 15
     layouts = {p.name: cli._load(p, args).layout for p in names}
     assert layouts["second_source.pcd"] == "scanlines"
+    # cturtle: a height map on a 5 mm x-y grid stored column by column (x first): its rows
+    # by line position (y), not in file order
+    assert layouts["cturtle.pcd"] == "scanlines"
     assert layouts["office1.pcd"] == "grid" and layouts["target.pcd"] == "cloud"
     res = run("detect", REAL / "table_scene_lms400_outliers.pcd", REAL / "lamppost.pcd",
               "--out-dir", tmp_path,

@@ -460,6 +460,73 @@ def test_grid_from_scanlines_duplicates() -> None:
     assert np.isfinite(first).all(axis=-1).sum() == 5
 
 
+def test_grid_from_scanlines_by_line_position_in_any_order() -> None:
+    # The grid of test_grid_from_scanlines_rebuilds_the_grid, its points shuffled: order="line"
+    # gives the same grid (profiles in increasing y) and the index maps each input point to its
+    # cell; the caller's array is not changed.
+    rng = np.random.default_rng(6)
+    h, w, step = 15, 40, 0.05
+    c = np.mgrid[0:h, 0:w][1]
+    ys = np.cumsum(rng.choice([0.1, 0.2, 1.0], size=h))
+    grid = np.stack([c * step - 2.0, np.broadcast_to(ys[:, None], (h, w)),
+                     rng.normal(0, 0.01, (h, w))], axis=-1)
+    grid[rng.random((h, w)) < 0.2] = np.nan
+    grid[:, 0] = np.nan
+    grid[7, 0] = [-2.0, ys[7], 0.0]
+    pts, cells = scanline_points(grid)
+    perm = rng.permutation(len(pts))
+    shuffled = np.vstack([pts[perm][:50], [[np.nan] * 3], pts[perm][50:]])
+    before = shuffled.copy()
+    for kwargs in ({}, {"step": step}):
+        out, index = mio.grid_from_scanlines(shuffled, order="line", return_index=True, **kwargs)
+        np.testing.assert_array_equal(out, grid)
+        np.testing.assert_array_equal(index[50], -1)
+        np.testing.assert_array_equal(np.delete(index, 50), cells[perm])
+    np.testing.assert_array_equal(shuffled, before)
+    # file order reads the shuffled points as one profile per change of y: no such grid
+    with pytest.raises(ValueError):
+        mio.grid_from_scanlines(shuffled, step=step, max_cells=10 * len(pts))
+    # in scan-line order both orders agree
+    np.testing.assert_array_equal(mio.grid_from_scanlines(pts, order="line"), grid)
+    with pytest.raises(ValueError, match="order: expected 'file' or 'line'"):
+        mio.grid_from_scanlines(pts, order="sorted")
+
+
+def test_grid_from_scanlines_by_line_position_duplicates_in_file_order() -> None:
+    # two points in one cell: "first" / "last" keep the first / last in the input's order,
+    # whatever their sorted order (the later one has the smaller x)
+    pts = np.array([[0.2, 1, 1], [0.11, 0, 2], [0.0, 0, 3], [0.09, 0, 4], [0.0, 1, 5],
+                    [0.2, 0, 6]])
+    with pytest.raises(ValueError, match="1 points fall in a cell"):
+        mio.grid_from_scanlines(pts, step=0.1, order="line")
+    first = mio.grid_from_scanlines(pts, step=0.1, order="line", duplicates="first")
+    last = mio.grid_from_scanlines(pts, step=0.1, order="line", duplicates="last")
+    assert first.shape == (2, 3, 3)
+    assert first[0, 1, 2] == 2 and last[0, 1, 2] == 4
+    np.testing.assert_array_equal(first[1, 2], [0.2, 1, 1])
+
+
+def test_rebuilt_grid_of_a_jittered_or_random_cloud_is_refused() -> None:
+    # what the command line does with an unorganized file: a grid from the scan lines in file
+    # order, else by line position, else none (the cloud detector runs)
+    rng = np.random.default_rng(2)
+    y, x = np.mgrid[0:30, 0:40] * 0.1
+    pts = np.stack([x, y, rng.normal(0, 0.01, x.shape)], axis=-1).reshape(-1, 3)
+    grid, index, order = mio._rebuild_grid(pts)
+    assert order == "file" and grid.shape == (30, 40, 3)
+    shuffled = pts[rng.permutation(len(pts))]
+    grid2, index2, order2 = mio._rebuild_grid(shuffled)
+    assert order2 == "line"
+    np.testing.assert_array_equal(grid2, grid)
+    np.testing.assert_array_equal(grid2.reshape(-1, 3)[index2], shuffled)
+    jittered = shuffled.copy()
+    jittered[:, :2] += rng.uniform(-0.025, 0.025, (len(pts), 2))  # a quarter step
+    with pytest.raises(ValueError):
+        mio._rebuild_grid(jittered)
+    with pytest.raises(ValueError):
+        mio._rebuild_grid(rng.uniform(0, 10, (500, 3)))
+
+
 def test_grid_from_scanlines_rejects_non_scanline_clouds() -> None:
     rng = np.random.default_rng(0)
     with pytest.raises(ValueError, match="not evenly spaced"):
@@ -522,6 +589,12 @@ def test_second_source_scanlines_to_grid() -> None:
     assert finite[0].sum() == 1
     # Estimating the step gives the same grid.
     np.testing.assert_array_equal(mio.grid_from_scanlines(scan.points), grid)
+    # The points shuffled (as a tool that reorders them leaves them): by line position the
+    # same grid, every point at its cell.
+    perm = np.random.default_rng(0).permutation(len(ref))
+    by_line, index2 = mio.grid_from_scanlines(scan.points[perm], order="line", return_index=True)
+    np.testing.assert_array_equal(by_line, grid)
+    np.testing.assert_array_equal(index2, index[perm])
 
 
 @pytest.mark.skipif(not GOCATOR.exists(), reason="shared/data/real not beside the repo")

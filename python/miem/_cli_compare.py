@@ -99,8 +99,8 @@ def _scan(path: Path) -> tuple[Any, np.ndarray, np.ndarray | None]:
         raise _Error(str(exc)) from None
     if data.organized:
         return data, data.points, None
-    try:  # scan-line ordered exports become a grid (MIEM's organized detector)
-        grid, index = mio.grid_from_scanlines(data.points, return_index=True)
+    try:  # exports on scan lines become a grid (MIEM's organized detector), as for detect
+        grid, index, _ = mio._rebuild_grid(data.points)
         return data, grid, index
     except ValueError:
         return data, data.points, None

@@ -194,9 +194,10 @@ def _add_detect_options(parser: argparse.ArgumentParser) -> None:
     s = parser.add_argument_group(
         "reading",
         "Unorganized files (N x 3, e.g. a PCD with HEIGHT 1) are rebuilt into a grid from "
-        "their scan-line order (miem.io.grid_from_scanlines: a new profile starts where the "
-        "line coordinate changes) when they have one, else the cloud detector runs on the "
-        "points (see --layout).",
+        "their scan lines (miem.io.grid_from_scanlines: a new profile starts where the "
+        "line coordinate changes, in file order or, for points in another order, sorted by "
+        "it) when they lie on scan lines, else the cloud detector runs on the points (see "
+        "--layout).",
     )
     s.add_argument("--input-format", choices=_READ_FORMATS, metavar="FORMAT",
                    help="read every input as FORMAT instead of guessing from its suffix "
@@ -213,9 +214,11 @@ def _add_detect_options(parser: argparse.ArgumentParser) -> None:
                         "(default: half the point spacing)")
     s.add_argument("--layout", choices=["auto", "scanlines", "cloud"], default="auto",
                    help="how to treat an unorganized file: 'scanlines' rebuilds a grid from "
-                        "its scan-line order, 'cloud' runs the cloud detector on the points as "
-                        "they are; 'auto' (default) rebuilds when the points are in scan-line "
-                        "order and runs the cloud detector otherwise, and says which it took")
+                        "its scan lines, 'cloud' runs the cloud detector on the points as "
+                        "they are; 'auto' (default) rebuilds when the points lie on scan lines "
+                        "(in file order, or in any order: rows sorted by line position) and "
+                        "at least half the grid's cells are filled, runs the cloud detector "
+                        "otherwise, and says which it took")
     s.add_argument("--duplicates", choices=["error", "first", "last"], default="error",
                    help="two points in one grid cell: fail, or keep the first/last "
                         "(default: error)")
@@ -513,19 +516,18 @@ def _load(path: Path, args: argparse.Namespace) -> _Loaded:
     why = "--layout cloud"
     if args.layout != "cloud":
         try:
-            grid, index = mio.grid_from_scanlines(
-                data.points, step=args.line_step, line_axis=_AXES[args.line_axis],
-                along_axis=_AXES[args.along_axis], line_tol=args.line_tol,
-                duplicates=args.duplicates, return_index=True,
+            grid, index, order = mio._rebuild_grid(
+                data.points, force=args.layout == "scanlines", step=args.line_step,
+                line_axis=_AXES[args.line_axis], along_axis=_AXES[args.along_axis],
+                line_tol=args.line_tol, duplicates=args.duplicates,
             )
             fill = float(np.isfinite(grid).all(axis=-1).mean())
-            if args.layout == "scanlines" or fill >= _MIN_FILL:
-                _say(args, f"{path.name}: unorganized ({n:,} points) in scan-line order: "
-                           f"rebuilt a {grid.shape[0]} x {grid.shape[1]} grid "
-                           f"({fill:.0%} of its cells filled), grid detector")
-                return _Loaded(data, grid, index, _units(path, grid, args), "scanlines")
-            why = (f"a scan-line grid would be only {fill:.0%} filled "
-                   f"({grid.shape[0]} x {grid.shape[1]})")
+            how = ("in scan-line order" if order == "file" else
+                   "on scan lines but not in their order (rows sorted by line position)")
+            _say(args, f"{path.name}: unorganized ({n:,} points) {how}: "
+                       f"rebuilt a {grid.shape[0]} x {grid.shape[1]} grid "
+                       f"({fill:.0%} of its cells filled), grid detector")
+            return _Loaded(data, grid, index, _units(path, grid, args), "scanlines")
         except ValueError as exc:
             if args.layout == "scanlines":
                 raise _Failure(
@@ -533,13 +535,9 @@ def _load(path: Path, args: argparse.Namespace) -> _Loaded:
                     f"rebuilt from its scan lines: {_cli_words(str(exc))}; see --line-step, "
                     "--line-axis, --along-axis, --line-tol, or --layout cloud"
                 ) from exc
-            why = "its points are not in scan-line order"
+            why = "its points are not on scan lines (in file order or by line position)"
     _say(args, f"{path.name}: unorganized ({n:,} points), {why}: cloud detector")
     return _Loaded(data, data.points, None, _units(path, data.points, args), "cloud")
-
-
-# A scan-line rebuild is used (with --layout auto) when at least this share of its cells is filled.
-_MIN_FILL = 0.5
 
 
 def _say(args: argparse.Namespace, text: str) -> None:

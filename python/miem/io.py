@@ -1043,6 +1043,7 @@ def grid_from_scanlines(
     max_offset: float = 0.25,
     max_cells: int = 200_000_000,
     return_index: bool = False,
+    order: Literal["file", "line"] = "file",
 ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Rebuild an organized grid from points stored profile by profile.
 
@@ -1051,6 +1052,8 @@ def grid_from_scanlines(
     motion (``line_axis``), its points evenly spaced along ``along_axis``. Row ``r`` of the grid is
     the ``r``-th profile in file order; column ``c`` is ``round((a - a_min) / step)`` for the
     along-profile coordinate ``a`` (``a_min`` over all points). Cells no point falls in are NaN.
+    Tools that reorder points (a shuffle, a merge, some exporters) keep them on their profiles
+    but lose that order: ``order="line"`` rebuilds such scans from the positions alone.
 
     Parameters
     ----------
@@ -1080,6 +1083,15 @@ def grid_from_scanlines(
     return_index : bool
         Also return, for each input point, its flat cell index ``r * W + c`` (-1 for skipped
         points), to map per-cell results back onto the input order.
+    order : {"file", "line"}
+        ``"file"``: the points are in scan-line order, a profile's points one after another.
+        ``"line"``: in any order; the points are sorted by their line coordinate (then along
+        coordinate, a stable sort) and a new profile starts where the sorted line coordinate
+        changes by more than `line_tol`, so row ``r`` is the ``r``-th profile position from the
+        lowest. The two give the same grid for a file whose profiles are in increasing line
+        position; two passes over the same line positions (profiles that share a position)
+        are one profile with ``"line"``: duplicate cells. ``duplicates="first"`` / ``"last"``
+        still mean in file order.
 
     Returns
     -------
@@ -1110,6 +1122,8 @@ def grid_from_scanlines(
             raise ValueError(f"{name}: expected 0, 1 or 2, got {ax!r}")
     if line_axis == along_axis:
         raise ValueError(f"line_axis and along_axis must differ, both are {line_axis}")
+    if order not in ("file", "line"):
+        raise ValueError(f"order: expected 'file' or 'line', got {order!r}")
     if duplicates not in ("error", "first", "last"):
         raise ValueError(f"duplicates: expected 'error', 'first' or 'last', got {duplicates!r}")
     if not (isinstance(max_offset, (int, float)) and 0 < max_offset <= 0.5):
@@ -1120,14 +1134,18 @@ def grid_from_scanlines(
         raise ValueError(f"points: need at least 2 finite points, got {src.size}")
     line = pts[src, line_axis].astype(np.float64)
     along = pts[src, along_axis].astype(np.float64)
-    dline = np.abs(np.diff(line))
+    # "line": the profiles are read in sorted order, then everything else is in file order
+    sort = np.lexsort((along, line)) if order == "line" else None
+    line_s = line if sort is None else line[sort]
+    along_s = along if sort is None else along[sort]
+    dline = np.abs(np.diff(line_s))
     if line_tol is not None:
         line_tol = float(line_tol)
         if not (np.isfinite(line_tol) and line_tol >= 0):
             raise ValueError(f"line_tol: expected a length >= 0, got {line_tol!r}")
     if step is None:
         within = dline <= (line_tol if line_tol is not None else 0.0)
-        d = np.abs(np.diff(along))[within]
+        d = np.abs(np.diff(along_s))[within]
         d = d[d > 0]
         if d.size == 0:
             raise ValueError(
@@ -1146,6 +1164,8 @@ def grid_from_scanlines(
     row = np.zeros(src.size, dtype=np.int64)
     row[starts] = 1
     row = np.cumsum(row)
+    if sort is not None:
+        row[sort] = row.copy()
     pos = (along - along.min()) / step
     col = np.rint(pos).astype(np.int64)
     worst = float(np.max(np.abs(pos - col)))
@@ -1153,9 +1173,10 @@ def grid_from_scanlines(
         raise ValueError(
             f"points are not evenly spaced by step={step:g} along axis {along_axis}: a point lies "
             f"{worst:.2f} steps off its column (max_offset={max_offset:g}); check step and "
-            "along_axis, or the points are not in scan-line order"
+            "along_axis, or the points are not in scan-line order (order='line' for points "
+            "on profiles in another order)"
         )
-    h = int(row[-1]) + 1
+    h = int(row.max()) + 1
     w = int(col.max()) + 1
     if h * w > max_cells:
         raise ValueError(
@@ -1163,9 +1184,9 @@ def grid_from_scanlines(
             "do not look like scan lines, or step is too small"
         )
     flat = row * w + col
-    order = np.arange(src.size) if duplicates != "last" else np.arange(src.size)[::-1]
-    _, first = np.unique(flat[order], return_index=True)
-    keep = np.sort(order[first])
+    seq = np.arange(src.size) if duplicates != "last" else np.arange(src.size)[::-1]
+    _, first = np.unique(flat[seq], return_index=True)
+    keep = np.sort(seq[first])
     n_dup = src.size - keep.size
     if n_dup and duplicates == "error":
         raise ValueError(
@@ -1179,6 +1200,40 @@ def grid_from_scanlines(
     index = np.full(pts.shape[0], -1, dtype=np.int64)
     index[src[keep]] = flat[keep]
     return grid, index
+
+
+def _rebuild_grid(points: np.ndarray, force: bool = False,
+                  **kw: Any) -> tuple[np.ndarray, np.ndarray, str]:
+    """The command line's grid for an unorganized file: `grid_from_scanlines` in file order,
+    else by line position (``order="line"``), keeping a grid only when at least half its cells
+    hold a point (`_MIN_FILL`). With `force`, when neither does, the file order's grid whatever
+    its fill. Returns (grid, index, the order taken); raises the file order's ValueError when
+    there is no grid. (The fill bound caps the grid at N / _MIN_FILL cells, so shuffled points
+    read in file order, one profile per point, allocate nothing.)"""
+    n = int(np.isfinite(points).all(axis=1).sum()) if points.ndim == 2 else 0
+    cap = min(kw.pop("max_cells", 200_000_000), max(1, int(n / _MIN_FILL)))
+    first: ValueError | None = None
+    for order in ("file", "line"):
+        try:
+            grid, index = grid_from_scanlines(points, return_index=True, order=order,
+                                              max_cells=cap, **kw)
+        except ValueError as exc:
+            first = first or exc
+            continue
+        fill = float(np.isfinite(grid).all(axis=-1).mean())
+        if fill >= _MIN_FILL:
+            return grid, index, order
+        first = first or ValueError(f"a grid rebuilt from the scan lines would be only {fill:.0%} "
+                                    f"filled ({grid.shape[0]} x {grid.shape[1]})")
+    if force:
+        grid, index = grid_from_scanlines(points, return_index=True, **kw)
+        return grid, index, "file"
+    assert first is not None
+    raise first
+
+
+# A rebuilt grid is used (without force) when at least this share of its cells holds a point.
+_MIN_FILL = 0.5
 
 
 # ---------------------------------------------------------------------------------------------
