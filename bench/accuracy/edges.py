@@ -73,9 +73,25 @@ def _as_cloud(points: np.ndarray) -> np.ndarray:
     return labels.reshape(fin.shape)
 
 
+def _regridded(points: np.ndarray) -> np.ndarray:
+    """The same shuffled points as :func:`_as_cloud`, rebuilt into a grid by line position as
+    ``miem detect`` does with an unorganized file (``miem.io._rebuild_grid``: file order, else
+    sorted by y), detected with the defaults; labels put back on the grid."""
+    import miem.io as mio
+
+    fin = np.isfinite(points).all(-1)
+    cells = np.flatnonzero(fin)
+    order = np.random.default_rng(0).permutation(cells.size)
+    grid, index, _ = mio._rebuild_grid(points[fin][order])
+    labels = np.full(fin.size, miem.INVALID, dtype=np.uint8)
+    labels[cells[order]] = miem.detect(grid).labels.reshape(-1)[index]
+    return labels.reshape(fin.shape)
+
+
 #: The real scan also as a cloud: what a user without the scan's grid (a merged or resampled
-#: cloud) gets from the same scan.
-REAL_CONTENDERS = {**CONTENDERS, "recommended, as a cloud": _as_cloud}
+#: cloud) gets from the same scan; and its shuffled points as ``miem detect`` reads a file.
+REAL_CONTENDERS = {**CONTENDERS, "recommended, as a cloud": _as_cloud,
+                   "recommended, shuffled, grid rebuilt by line position": _regridded}
 
 
 def region_counts(flagged: np.ndarray, region: np.ndarray, heights: np.ndarray,
