@@ -110,3 +110,25 @@ def test_cli_second_source_against_target_without_initial_pose(tmp_path, capsys)
     d, _ = cKDTree(ref).query(aligned[::20])
     assert np.median(d) < 0.15  # independent check of the fit: nearest-point distances
     assert sum(doc["counts"].values()) == 250_681
+
+
+def test_compare_reads_points_on_scan_lines_in_any_order(tmp_path) -> None:
+    # as miem detect: an unorganized export on scan lines becomes its grid, in file order or,
+    # shuffled, by line position; points off any scan line (jittered) stay a cloud
+    from miem import simulate
+    from miem._cli_compare import _scan
+
+    scan = simulate.make_scan(shape=(30, 40), surface="tilted", noise=0.01, seed=1).points
+    assert np.isfinite(scan).all()
+    flat = scan.reshape(-1, 3)
+    rng = np.random.default_rng(4)
+    shuffled = flat[rng.permutation(len(flat))]
+    np.save(tmp_path / "shuffled.npy", shuffled)
+    _, grid, index = _scan(tmp_path / "shuffled.npy")
+    np.testing.assert_array_equal(grid, scan)
+    np.testing.assert_array_equal(grid.reshape(-1, 3)[index], shuffled)
+    jittered = shuffled.copy()
+    jittered[:, :2] += rng.uniform(-0.05, 0.05, (len(flat), 2))
+    np.save(tmp_path / "jittered.npy", jittered)
+    _, points, index = _scan(tmp_path / "jittered.npy")
+    assert index is None and points.shape == (len(flat), 3)
