@@ -1132,20 +1132,27 @@ def grid_from_scanlines(
     src = np.flatnonzero(finite)
     if src.size < 2:
         raise ValueError(f"points: need at least 2 finite points, got {src.size}")
-    line = pts[src, line_axis].astype(np.float64)
-    along = pts[src, along_axis].astype(np.float64)
-    # "line": the profiles are read in sorted order, then everything else is in file order
-    sort = np.lexsort((along, line)) if order == "line" else None
+    every = src.size == pts.shape[0]  # (then columns, not gathers)
+    line = (pts[:, line_axis] if every else pts[src, line_axis]).astype(np.float64)
+    along = (pts[:, along_axis] if every else pts[src, along_axis]).astype(np.float64)
+    # "line": the profiles are read in sorted order (a stable sort by the line coordinate), then
+    # everything else is in file order
+    sort = np.argsort(line, kind="stable") if order == "line" else None
     line_s = line if sort is None else line[sort]
-    along_s = along if sort is None else along[sort]
     dline = np.abs(np.diff(line_s))
     if line_tol is not None:
         line_tol = float(line_tol)
         if not (np.isfinite(line_tol) and line_tol >= 0):
             raise ValueError(f"line_tol: expected a length >= 0, got {line_tol!r}")
     if step is None:
-        within = dline <= (line_tol if line_tol is not None else 0.0)
-        d = np.abs(np.diff(along_s))[within]
+        if sort is None:
+            ls, al = line, along
+        else:  # the first 2^18 points by line position, each profile's sorted along it
+            m = min(src.size, 1 << 18)
+            sub = sort[np.lexsort((along[sort[:m]], line_s[:m]))]
+            ls, al = line[sub], along[sub]
+        within = np.abs(np.diff(ls)) <= (line_tol if line_tol is not None else 0.0)
+        d = np.abs(np.diff(al))[within]
         d = d[d > 0]
         if d.size == 0:
             raise ValueError(
@@ -1184,9 +1191,15 @@ def grid_from_scanlines(
             "do not look like scan lines, or step is too small"
         )
     flat = row * w + col
-    seq = np.arange(src.size) if duplicates != "last" else np.arange(src.size)[::-1]
-    _, first = np.unique(flat[seq], return_index=True)
-    keep = np.sort(seq[first])
+    taken = np.zeros(h * w, dtype=bool)  # (a byte a cell: a twelfth of the grid)
+    taken[flat] = True
+    if np.count_nonzero(taken) == src.size:  # no two points in one cell (no sort needed)
+        keep = np.arange(src.size)
+    else:
+        seq = np.arange(src.size) if duplicates != "last" else np.arange(src.size)[::-1]
+        _, first = np.unique(flat[seq], return_index=True)
+        keep = np.sort(seq[first])
+    del taken
     n_dup = src.size - keep.size
     if n_dup and duplicates == "error":
         raise ValueError(
@@ -1194,7 +1207,10 @@ def grid_from_scanlines(
             "pass duplicates='first' or 'last' to keep one, or check step"
         )
     grid = np.full((h, w, 3), np.nan, dtype=pts.dtype)
-    grid.reshape(-1, 3)[flat[keep]] = pts[src[keep]]
+    if every and keep.size == src.size:
+        grid.reshape(-1, 3)[flat] = pts
+    else:
+        grid.reshape(-1, 3)[flat[keep]] = pts[src[keep]]
     if not return_index:
         return grid
     index = np.full(pts.shape[0], -1, dtype=np.int64)
@@ -1214,6 +1230,8 @@ def _rebuild_grid(points: np.ndarray, force: bool = False,
     cap = min(kw.pop("max_cells", 200_000_000), max(1, int(n / _MIN_FILL)))
     first: ValueError | None = None
     for order in ("file", "line"):
+        if order == "line" and not _few_lines(points, kw.get("line_axis", 1)):
+            break  # a cloud, not scan lines: no sort of all its points
         try:
             grid, index = grid_from_scanlines(points, return_index=True, order=order,
                                               max_cells=cap, **kw)
@@ -1234,6 +1252,18 @@ def _rebuild_grid(points: np.ndarray, force: bool = False,
 
 # A rebuilt grid is used (without force) when at least this share of its cells holds a point.
 _MIN_FILL = 0.5
+
+
+def _few_lines(points: np.ndarray, line_axis: int, sample: int = 1 << 16) -> bool:
+    """Whether the points' line coordinates take few distinct values, as points on scan lines
+    do (any order): at most 90 % distinct in an even sample of up to `sample` points. A cloud's
+    are nearly all distinct; a scan's are at most its profiles (more than 90 % distinct only
+    when it has several times `sample` profiles)."""
+    if points.ndim != 2 or points.shape[0] < 2 or line_axis not in (0, 1, 2):
+        return True  # (grid_from_scanlines says what is wrong)
+    line = points[:: max(1, points.shape[0] // sample), line_axis]
+    line = line[np.isfinite(line)]
+    return np.unique(line).size <= 0.9 * line.size
 
 
 # ---------------------------------------------------------------------------------------------
