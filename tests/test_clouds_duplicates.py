@@ -112,9 +112,16 @@ def test_flattened_grid_keeps_its_grid_with_shape_and_warns_without() -> None:
     rng = np.random.default_rng(0)
     import warnings
 
+    shuffled = finite[rng.permutation(len(finite))]  # on its scan lines, not in their order
+    with pytest.warns(UserWarning, match=r"not in scan-line order \(\d+ y positions.*"
+                                         r"order='line'"):
+        res = miem.detect(shuffled)
+    assert res.labels.shape == (len(finite),)  # still the cloud detector
+    jittered = shuffled.copy()
+    jittered[:, :2] += rng.uniform(-0.1, 0.1, (len(finite), 2))  # a third of the 0.3 step
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        miem.detect(finite[rng.permutation(len(finite))])  # a true cloud: no warning
+        miem.detect(jittered)  # a true cloud: no warning
     for bad in ((40, 51), (40,), (0, 2000), (40.0, 50)):
         with pytest.raises(ValueError, match="shape"):
             miem.detect(flat, shape=bad)

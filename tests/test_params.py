@@ -34,9 +34,13 @@ def scan(h: int = 40, w: int = 36, seed: int = 0) -> np.ndarray:
 
 
 def cloud() -> np.ndarray:
-    """The same kind of surface as an unorganized cloud (rows shuffled)."""
+    """The same kind of surface as an unorganized cloud (rows shuffled, x and y jittered by up
+    to a sixth of the 0.3 step: off any scan line, as the cloud path's own data)."""
     pts = scan(30, 30, 1).reshape(-1, 3)
-    return pts[np.random.default_rng(5).permutation(len(pts))]
+    rng = np.random.default_rng(5)
+    pts = pts[rng.permutation(len(pts))]
+    pts[:, :2] += rng.uniform(-0.05, 0.05, (len(pts), 2))
+    return pts
 
 
 # --- defaults and presets --------------------------------------------------------------------
