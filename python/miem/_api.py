@@ -509,7 +509,9 @@ def detect(
         An organized scan that arrives flattened (an ``(H*W, 3)`` array, e.g. an Open3D cloud
         read from an organized PCD): its ``(H, W)``, so that it keeps its grid and gets the
         organized detector. Without it, an ``(N, 3)`` array is an unorganized cloud; a warning
-        says when one looks like a flattened grid (rows in scan-line order).
+        says when one looks like a flattened grid (rows in scan-line order) or like a
+        profiler scan in another order (rebuild it with
+        ``miem.io.grid_from_scanlines(points, order="line")``).
     **overrides
         Fields of :class:`miem.DetectParams` that replace those of ``params`` / the preset.
 
