@@ -7,7 +7,7 @@ from the same numbers. Fragments written by other benchmark scripts (``results_*
 file) are included as they are: ``results_speed.md`` (bench_speed.py: the default detector against
 Open3D and PCL, size sweep, memory, threads, where the time goes) first, the others after.
 ``--all`` first reruns those scripts (bench_speed.py, run_cpp.py, bench_unorganized.py,
-bench_edges.py), so one
+bench_edges.py, bench_rebuild.py), so one
 command regenerates every table.
 """
 
@@ -92,7 +92,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.all:
         quick = {"bench_speed.py": ["--quick"], "run_cpp.py": ["--quick"],
-                 "bench_unorganized.py": ["--n", "100000"], "bench_edges.py": []}
+                 "bench_unorganized.py": ["--n", "100000"], "bench_edges.py": [],
+                 "bench_rebuild.py": ["--quick"]}
         for script, small in quick.items():
             cmd = [sys.executable, str(HERE / script)] + (small if args.quick else [])
             subprocess.run(cmd, check=True)
