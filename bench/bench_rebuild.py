@@ -67,7 +67,7 @@ def measure(repeats: int, quick: bool) -> list[dict]:
         shuffled = pts[np.random.default_rng(1).permutation(n)]
         t_det = best_of(lambda: miem.detect(grid), max(1, repeats - 1))
         for order, p in (("file order", pts), ("shuffled", shuffled)):
-            got, index, taken = mio._rebuild_grid(p)  # check before timing
+            got, index, taken, _ = mio._rebuild_grid(p)  # check before timing
             np.testing.assert_array_equal(got, grid)
             np.testing.assert_array_equal(got.reshape(-1, 3)[index], p)
             t = best_of(lambda: mio._rebuild_grid(p), repeats)

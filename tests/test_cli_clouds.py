@@ -65,7 +65,7 @@ def test_scan_line_order_is_rebuilt_and_cloud_options_rejected(files: dict,
                                                               tmp_path: Path) -> None:
     res = run("detect", files["lines"], "--out-dir", tmp_path, "--no-progress")
     assert res.returncode == 0, res.stderr
-    assert "in scan-line order: rebuilt a 50 x 60 grid" in res.stderr
+    assert "in scan-line order (profiles at constant y): rebuilt a 50 x 60 grid" in res.stderr
     assert json.loads((tmp_path / "lines.defects.json").read_text())["layout"] == "scanlines"
     bad = run("detect", files["lines"], "--out-dir", tmp_path, "--radius", "1", "--no-progress")
     assert bad.returncode == 1 and "--radius apply to the cloud detector only" in bad.stderr
@@ -82,8 +82,8 @@ def test_points_on_scan_lines_in_any_order_get_their_grid(files: dict, tmp_path:
     res = run("detect", files["profiles"], "--out-dir", tmp_path, "--no-progress", "--format",
               "csv")
     assert res.returncode == 0, res.stderr
-    assert "on scan lines but not in their order (rows sorted by line position): rebuilt a " \
-           "50 x 60 grid" in res.stderr
+    assert "on scan lines but not in their order (profiles at constant y, rows sorted by " \
+           "it): rebuilt a 50 x 60 grid" in res.stderr
     assert json.loads((tmp_path / "profiles.defects.json").read_text())["layout"] == "scanlines"
     pts = mio.read(files["profiles"]).points
     organized = mio.read(files["lines"]).points  # the scan's finite cells, row by row
@@ -108,7 +108,7 @@ def test_plot_of_a_cloud(files: dict, tmp_path: Path) -> None:
 
 @pytest.mark.skipif(not REAL.exists(), reason="needs ../shared/data/real")
 def test_every_real_file_has_a_path(tmp_path: Path) -> None:
-    args = argparse.Namespace(input_format=None, line_step=None, line_axis="y", along_axis="x",
+    args = argparse.Namespace(input_format=None, line_step=None, line_axis=None, along_axis=None,
                               line_tol=None, duplicates="error", layout="auto", units=None,
                               quiet=True)
     names = sorted(p for p in REAL.iterdir() if p.suffix in (".pcd", ".csv", ".ply"))

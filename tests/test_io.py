@@ -512,10 +512,10 @@ def test_rebuilt_grid_of_a_jittered_or_random_cloud_is_refused() -> None:
     rng = np.random.default_rng(2)
     y, x = np.mgrid[0:30, 0:40] * 0.1
     pts = np.stack([x, y, rng.normal(0, 0.01, x.shape)], axis=-1).reshape(-1, 3)
-    grid, index, order = mio._rebuild_grid(pts)
-    assert order == "file" and grid.shape == (30, 40, 3)
+    grid, index, order, la = mio._rebuild_grid(pts)
+    assert (order, la) == ("file", 1) and grid.shape == (30, 40, 3)
     shuffled = pts[rng.permutation(len(pts))]
-    grid2, index2, order2 = mio._rebuild_grid(shuffled)
+    grid2, index2, order2, _ = mio._rebuild_grid(shuffled)
     assert order2 == "line"
     np.testing.assert_array_equal(grid2, grid)
     np.testing.assert_array_equal(grid2.reshape(-1, 3)[index2], shuffled)
@@ -525,6 +525,30 @@ def test_rebuilt_grid_of_a_jittered_or_random_cloud_is_refused() -> None:
         mio._rebuild_grid(jittered)
     with pytest.raises(ValueError):
         mio._rebuild_grid(rng.uniform(0, 10, (500, 3)))
+
+
+def test_rebuilt_grid_of_profiles_at_constant_x() -> None:
+    # a scanner moving along x: profiles at constant x (0.1 / 0.2 / 1.0 mm apart), points
+    # 0.05 mm apart along y. Without axes given, the command line's rebuild finds that layout,
+    # in file order and shuffled (where the y-x layout also passes the checks, but leaves the
+    # columns between uneven profiles empty: the fuller grid is taken)
+    rng = np.random.default_rng(3)
+    h, w = 25, 60
+    xs = np.cumsum(rng.choice([0.1, 0.2, 1.0], size=h, p=[0.6, 0.3, 0.1]))
+    r, c = np.mgrid[0:h, 0:w]
+    grid = np.stack([xs[r], c * 0.05, rng.normal(0, 0.01, (h, w))], axis=-1)
+    pts = grid.reshape(-1, 3)
+    got, index, order, la = mio._rebuild_grid(pts)
+    assert (order, la) == ("file", 0)
+    np.testing.assert_array_equal(got, grid)
+    shuffled = pts[rng.permutation(len(pts))]
+    got, index, order, la = mio._rebuild_grid(shuffled)
+    assert (order, la) == ("line", 0)
+    np.testing.assert_array_equal(got, grid)
+    np.testing.assert_array_equal(got.reshape(-1, 3)[index], shuffled)
+    # the axes given: only that layout (here the wrong one for file order: no grid)
+    with pytest.raises(ValueError):
+        mio._rebuild_grid(pts, line_axis=1, along_axis=0)
 
 
 def test_grid_from_scanlines_rejects_non_scanline_clouds() -> None:

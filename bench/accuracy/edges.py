@@ -82,7 +82,7 @@ def _regridded(points: np.ndarray) -> np.ndarray:
     fin = np.isfinite(points).all(-1)
     cells = np.flatnonzero(fin)
     order = np.random.default_rng(0).permutation(cells.size)
-    grid, index, _ = mio._rebuild_grid(points[fin][order])
+    grid, index, _, _ = mio._rebuild_grid(points[fin][order])
     labels = np.full(fin.size, miem.INVALID, dtype=np.uint8)
     labels[cells[order]] = miem.detect(grid).labels.reshape(-1)[index]
     return labels.reshape(fin.shape)

@@ -100,7 +100,7 @@ def _scan(path: Path) -> tuple[Any, np.ndarray, np.ndarray | None]:
     if data.organized:
         return data, data.points, None
     try:  # exports on scan lines become a grid (MIEM's organized detector), as for detect
-        grid, index, _ = mio._rebuild_grid(data.points)
+        grid, index, _, _ = mio._rebuild_grid(data.points)
         return data, grid, index
     except ValueError:
         return data, data.points, None

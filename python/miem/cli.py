@@ -205,10 +205,11 @@ def _add_detect_options(parser: argparse.ArgumentParser) -> None:
     s.add_argument("--line-step", type=_finite_float, metavar="LENGTH",
                    help="point spacing along a profile, in the scan's units "
                         "(default: estimated from the data)")
-    s.add_argument("--line-axis", choices=list(_AXES), default="y",
-                   help="coordinate that is constant within a profile (default: y)")
-    s.add_argument("--along-axis", choices=list(_AXES), default="x",
-                   help="coordinate that runs along a profile (default: x)")
+    s.add_argument("--line-axis", choices=list(_AXES), default=None,
+                   help="coordinate that is constant within a profile (default: y, else x: "
+                        "both are tried)")
+    s.add_argument("--along-axis", choices=list(_AXES), default=None,
+                   help="coordinate that runs along a profile (default: the other of x and y)")
     s.add_argument("--line-tol", type=_finite_float, metavar="LENGTH",
                    help="change of the line coordinate that starts a new profile "
                         "(default: half the point spacing)")
@@ -516,14 +517,16 @@ def _load(path: Path, args: argparse.Namespace) -> _Loaded:
     why = "--layout cloud"
     if args.layout != "cloud":
         try:
-            grid, index, order = mio._rebuild_grid(
+            axes = {k: _AXES[v] for k, v in (("line_axis", args.line_axis),
+                                              ("along_axis", args.along_axis)) if v}
+            grid, index, order, la = mio._rebuild_grid(
                 data.points, force=args.layout == "scanlines", step=args.line_step,
-                line_axis=_AXES[args.line_axis], along_axis=_AXES[args.along_axis],
-                line_tol=args.line_tol, duplicates=args.duplicates,
+                line_tol=args.line_tol, duplicates=args.duplicates, **axes,
             )
             fill = float(np.isfinite(grid).all(axis=-1).mean())
-            how = ("in scan-line order" if order == "file" else
-                   "on scan lines but not in their order (rows sorted by line position)")
+            lines = f"profiles at constant {'xyz'[la]}"
+            how = (f"in scan-line order ({lines})" if order == "file" else
+                   f"on scan lines but not in their order ({lines}, rows sorted by it)")
             _say(args, f"{path.name}: unorganized ({n:,} points) {how}: "
                        f"rebuilt a {grid.shape[0]} x {grid.shape[1]} grid "
                        f"({fill:.0%} of its cells filled), grid detector")

@@ -1219,51 +1219,98 @@ def grid_from_scanlines(
 
 
 def _rebuild_grid(points: np.ndarray, force: bool = False,
-                  **kw: Any) -> tuple[np.ndarray, np.ndarray, str]:
+                  **kw: Any) -> tuple[np.ndarray, np.ndarray, str, int]:
     """The command line's grid for an unorganized file: `grid_from_scanlines` in file order,
     else by line position (``order="line"``), keeping a grid only when at least half its cells
-    hold a point (`_MIN_FILL`). With `force`, when neither does, the file order's grid whatever
-    its fill. Returns (grid, index, the order taken); raises the file order's ValueError when
-    there is no grid. (The fill bound caps the grid at N / _MIN_FILL cells, so shuffled points
-    read in file order, one profile per point, allocate nothing.)"""
+    hold a point (`_MIN_FILL`). Without `line_axis` / `along_axis` in `kw` both horizontal
+    layouts are tried: profiles at constant y (along x), then at constant x (along y), file
+    order for both before line order (in file order the first grid, in line order the one
+    with the larger fill: a scan's true profiles fill their grid; read the other way its
+    uneven profile spacing leaves empty columns). An order whose cheap look at a sample says no is not
+    tried: file order when consecutive points do not mostly stay on their line
+    (`_in_scan_order`), line order when the line coordinates are nearly all distinct
+    (`_few_lines`). With `force`, when none gives a grid, the first layout's in file order
+    whatever its fill. Returns (grid, index, the order taken, the line axis); raises the first
+    ValueError when there is no grid. (The fill bound caps the grid at N / _MIN_FILL cells, so
+    no attempt allocates a grid of one profile per point.)"""
     n = int(np.isfinite(points).all(axis=1).sum()) if points.ndim == 2 else 0
     cap = min(kw.pop("max_cells", 200_000_000), max(1, int(n / _MIN_FILL)))
+    la, aa = kw.pop("line_axis", None), kw.pop("along_axis", None)
+    if la is None and aa is None:
+        layouts = [(1, 0), (0, 1)]
+    else:
+        la = (1 if aa != 1 else 0) if la is None else la
+        aa = ([a for a in (0, 1, 2) if a != la][0]) if aa is None else aa
+        layouts = [(la, aa)]
     first: ValueError | None = None
     for order in ("file", "line"):
-        if order == "line" and not _few_lines(points, kw.get("line_axis", 1)):
-            break  # a cloud, not scan lines: no sort of all its points
-        try:
-            grid, index = grid_from_scanlines(points, return_index=True, order=order,
-                                              max_cells=cap, **kw)
-        except ValueError as exc:
-            first = first or exc
-            continue
-        fill = float(np.isfinite(grid).all(axis=-1).mean())
-        if fill >= _MIN_FILL:
-            return grid, index, order
-        first = first or ValueError(f"a grid rebuilt from the scan lines would be only {fill:.0%} "
-                                    f"filled ({grid.shape[0]} x {grid.shape[1]})")
+        best: tuple | None = None  # (fill, grid, index, line axis)
+        for la, aa in layouts:
+            look = _in_scan_order if order == "file" else _few_lines
+            if not force and not look(points, la, aa):
+                first = first or ValueError(
+                    f"the points are not on scan lines along axis {aa} ({order} order)")
+                continue
+            try:
+                grid, index = grid_from_scanlines(points, return_index=True, order=order,
+                                                  max_cells=cap, line_axis=la, along_axis=aa,
+                                                  **kw)
+            except ValueError as exc:
+                first = first or exc
+                continue
+            fill = float(np.isfinite(grid).all(axis=-1).mean())
+            if fill < _MIN_FILL:
+                first = first or ValueError(
+                    f"a grid rebuilt from the scan lines would be only {fill:.0%} filled "
+                    f"({grid.shape[0]} x {grid.shape[1]})")
+            elif order == "file":
+                return grid, index, order, la  # the scanner's own sequence
+            elif best is None or fill > best[0]:
+                best = (fill, grid, index, la)  # sorted: the layout that fills its grid best
+        if best is not None:
+            return best[1], best[2], order, best[3]
     if force:
-        grid, index = grid_from_scanlines(points, return_index=True, **kw)
-        return grid, index, "file"
+        la, aa = layouts[0]
+        grid, index = grid_from_scanlines(points, return_index=True, line_axis=la,
+                                          along_axis=aa, **kw)
+        return grid, index, "file", la
     assert first is not None
     raise first
 
 
-# A rebuilt grid is used (without force) when at least this share of its cells holds a point.
-_MIN_FILL = 0.5
+def _sample_rows(points: np.ndarray, sample: int, even: bool) -> np.ndarray:
+    """Up to `sample` finite points: the first ones (consecutive) or an even stride."""
+    if points.ndim != 2 or points.shape[0] < 3:
+        return np.zeros((0, 3))
+    s = points[:: max(1, points.shape[0] // sample)] if even else points[:sample]
+    return s[np.isfinite(s).all(axis=1)].astype(np.float64)
 
 
-def _few_lines(points: np.ndarray, line_axis: int, sample: int = 1 << 16) -> bool:
+def _in_scan_order(points: np.ndarray, la: int, aa: int, sample: int = 1 << 16) -> bool:
+    """Whether consecutive points mostly stay on their line, as a scan in file order: among
+    the first `sample` points, at least 80 % of consecutive steps change the line coordinate
+    less than the along coordinate (within a profile of W points, (W - 1) / W of them; in a
+    shuffled or random cloud about half)."""
+    s = _sample_rows(points, sample, even=False)
+    if s.shape[0] < 3 or not {la, aa} <= {0, 1, 2}:
+        return True  # (grid_from_scanlines says what is wrong)
+    d = np.abs(np.diff(s, axis=0))
+    return float(np.mean(d[:, la] < d[:, aa])) >= 0.8
+
+
+def _few_lines(points: np.ndarray, la: int, aa: int = 0, sample: int = 1 << 16) -> bool:
     """Whether the points' line coordinates take few distinct values, as points on scan lines
     do (any order): at most 90 % distinct in an even sample of up to `sample` points. A cloud's
     are nearly all distinct; a scan's are at most its profiles (more than 90 % distinct only
     when it has several times `sample` profiles)."""
-    if points.ndim != 2 or points.shape[0] < 2 or line_axis not in (0, 1, 2):
+    s = _sample_rows(points, sample, even=True)
+    if s.shape[0] < 3 or la not in (0, 1, 2):
         return True  # (grid_from_scanlines says what is wrong)
-    line = points[:: max(1, points.shape[0] // sample), line_axis]
-    line = line[np.isfinite(line)]
-    return np.unique(line).size <= 0.9 * line.size
+    return np.unique(s[:, la]).size <= 0.9 * s.shape[0]
+
+
+# A rebuilt grid is used (without force) when at least this share of its cells holds a point.
+_MIN_FILL = 0.5
 
 
 # ---------------------------------------------------------------------------------------------
