@@ -1085,10 +1085,10 @@ def grid_from_scanlines(
         points), to map per-cell results back onto the input order.
     order : {"file", "line"}
         ``"file"``: the points are in scan-line order, a profile's points one after another.
-        ``"line"``: in any order; the points are sorted by their line coordinate (then along
-        coordinate, a stable sort) and a new profile starts where the sorted line coordinate
-        changes by more than `line_tol`, so row ``r`` is the ``r``-th profile position from the
-        lowest. The two give the same grid for a file whose profiles are in increasing line
+        ``"line"``: in any order; the points are sorted by their line coordinate (a stable
+        sort) and a new profile starts where the sorted line coordinate changes by more than
+        `line_tol`, so row ``r`` is the ``r``-th profile position from the lowest (the step,
+        when estimated, from the first 2^18 points so sorted, each profile's along it). The two give the same grid for a file whose profiles are in increasing line
         position; two passes over the same line positions (profiles that share a position)
         are one profile with ``"line"``: duplicate cells. ``duplicates="first"`` / ``"last"``
         still mean in file order.
@@ -1226,8 +1226,8 @@ def _rebuild_grid(points: np.ndarray, force: bool = False,
     layouts are tried: profiles at constant y (along x), then at constant x (along y), file
     order for both before line order (in file order the first grid, in line order the one
     with the larger fill: a scan's true profiles fill their grid; read the other way its
-    uneven profile spacing leaves empty columns). An order whose cheap look at a sample says no is not
-    tried: file order when consecutive points do not mostly stay on their line
+    uneven profile spacing leaves empty columns). An order whose cheap look at a sample says
+    no is not tried: file order when consecutive points do not mostly stay on their line
     (`_in_scan_order`), line order when the line coordinates are nearly all distinct
     (`_few_lines`). With `force`, when none gives a grid, the first layout's in file order
     whatever its fill. Returns (grid, index, the order taken, the line axis); raises the first
