@@ -338,3 +338,46 @@ def test_no_function_writes_to_its_input(grid, dtype):
         s.push(row)
     np.testing.assert_array_equal(g, before[0])
     np.testing.assert_array_equal(cloud, before[1])
+
+
+@st.composite
+def profiler_scans(draw):
+    """An organized profiler scan: `h` profiles at uneven positions along y (steps of 0.06 to
+    2 mm, above half the 0.05 mm point spacing), points 0.05 mm apart along x from an offset,
+    noisy z, NaN holes (one profile complete: with holes everywhere neither the grid's width
+    nor the point spacing can be told; a point in every profile), in float64 or float32."""
+    h, w = draw(st.integers(2, 12)), draw(st.integers(3, 20))
+    seed = draw(st.integers(0, 2**31 - 1))
+    x0 = draw(st.sampled_from([0.0, -3.7, 125.0]))
+    dtype = draw(st.sampled_from([np.float64, np.float32]))
+    rng = np.random.default_rng(seed)
+    ys = x0 + np.cumsum(rng.uniform(0.06, 2.0, h))
+    c = np.mgrid[0:h, 0:w][1]
+    g = np.stack([x0 + c * 0.05, np.broadcast_to(ys[:, None], (h, w)),
+                  rng.normal(0, 0.02, (h, w))], axis=-1)
+    holes = rng.random((h, w)) < draw(st.sampled_from([0.0, 0.1, 0.4]))
+    holes[rng.integers(h)] = False  # one whole profile: the width and the step are known
+    holes[np.arange(h), rng.integers(w, size=h)] = False  # (a profile without points is none)
+    g[holes] = np.nan
+    return g.astype(dtype)
+
+
+@CI
+@_seeded
+@given(profiler_scans(), st.integers(0, 2**31 - 1))
+def test_shuffled_profiler_scan_rebuilds_its_grid(grid, seed):
+    # grid_from_scanlines: in file order and, shuffled, by line position, the very grid, each
+    # point at its cell; the caller's points unchanged
+    import miem.io as mio
+
+    flat = grid.reshape(-1, 3)
+    cells = np.flatnonzero(np.isfinite(flat).all(axis=1))
+    pts = flat[cells]
+    np.testing.assert_array_equal(mio.grid_from_scanlines(pts), grid)
+    perm = np.random.default_rng(seed).permutation(len(pts))
+    shuffled = pts[perm]
+    before = shuffled.copy()
+    out, index = mio.grid_from_scanlines(shuffled, order="line", return_index=True)
+    np.testing.assert_array_equal(out, grid)
+    np.testing.assert_array_equal(index, cells[perm])
+    np.testing.assert_array_equal(shuffled, before)
