@@ -1224,9 +1224,10 @@ def _rebuild_grid(points: np.ndarray, force: bool = False,
     else by line position (``order="line"``), keeping a grid only when at least half its cells
     hold a point (`_MIN_FILL`). Without `line_axis` / `along_axis` in `kw` both horizontal
     layouts are tried: profiles at constant y (along x), then at constant x (along y), file
-    order for both before line order (in file order the first grid, in line order the one
-    with the larger fill: a scan's true profiles fill their grid; read the other way its
-    uneven profile spacing leaves empty columns). An order whose cheap look at a sample says
+    order for both before line order (in file order the first grid; in line order the one
+    with the larger fill, the layout whose sample says fuller (`_sample_fill`) first and the
+    other only when the first fills less than 90 %: a scan's true profiles fill their grid,
+    read the other way its uneven profile spacing leaves empty columns). An order whose cheap look at a sample says
     no is not tried: file order when consecutive points do not mostly stay on their line
     (`_in_scan_order`), line order when the line coordinates are nearly all distinct
     (`_few_lines`). With `force`, when none gives a grid, the first layout's in file order
@@ -1245,7 +1246,12 @@ def _rebuild_grid(points: np.ndarray, force: bool = False,
     first: ValueError | None = None
     for order in ("file", "line"):
         best: tuple | None = None  # (fill, grid, index, line axis)
+        if order == "line" and len(layouts) > 1:  # the likelier layout first (sorting is dear)
+            # (stable, to 1 %: a square lattice fills both alike and stays y first)
+            layouts = sorted(layouts, key=lambda ax: -round(_sample_fill(points, *ax), 2))
         for la, aa in layouts:
+            if best is not None and best[0] >= 0.9:
+                break  # a layout that fills 90 % of its grid: the other cannot beat it by much
             look = _in_scan_order if order == "file" else _few_lines
             if not force and not look(points, la, aa):
                 first = first or ValueError(
@@ -1296,6 +1302,23 @@ def _in_scan_order(points: np.ndarray, la: int, aa: int, sample: int = 1 << 16) 
         return True  # (grid_from_scanlines says what is wrong)
     d = np.abs(np.diff(s, axis=0))
     return float(np.mean(d[:, la] < d[:, aa])) >= 0.8
+
+
+def _sample_fill(points: np.ndarray, la: int, aa: int, sample: int = 1 << 16) -> float:
+    """The share of its grid's cells a layout would fill, estimated from an even sample: N
+    points over (distinct line values in the sample) x (along range / the smallest gap between
+    distinct along values). Read the wrong way, a scan's uneven profile spacing becomes
+    columns, most of them empty."""
+    s = _sample_rows(points, sample, even=True)
+    if s.shape[0] < 3:
+        return 0.0
+    along = np.unique(s[:, aa])
+    gaps = np.diff(along)
+    gaps = gaps[gaps > 0]
+    if gaps.size == 0:
+        return 0.0
+    cols = (along[-1] - along[0]) / gaps.min() + 1.0
+    return float(points.shape[0] / (np.unique(s[:, la]).size * cols))
 
 
 def _few_lines(points: np.ndarray, la: int, aa: int = 0, sample: int = 1 << 16) -> bool:
