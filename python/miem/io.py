@@ -1227,8 +1227,9 @@ def _rebuild_grid(points: np.ndarray, force: bool = False,
     order for both before line order (in file order the first grid; in line order the one
     with the larger fill, the layout whose sample says fuller (`_sample_fill`) first and the
     other only when the first fills less than 90 %: a scan's true profiles fill their grid,
-    read the other way its uneven profile spacing leaves empty columns). An order whose cheap look at a sample says
-    no is not tried: file order when consecutive points do not mostly stay on their line
+    read the other way its uneven profile spacing leaves empty columns). An order whose cheap
+    look at a sample says no is not tried: file order when consecutive points do not mostly
+    stay on their line
     (`_in_scan_order`), line order when the line coordinates are nearly all distinct
     (`_few_lines`). With `force`, when none gives a grid, the first layout's in file order
     whatever its fill. Returns (grid, index, the order taken, the line axis); raises the first
@@ -1243,6 +1244,7 @@ def _rebuild_grid(points: np.ndarray, force: bool = False,
         la = (1 if aa != 1 else 0) if la is None else la
         aa = ([a for a in (0, 1, 2) if a != la][0]) if aa is None else aa
         layouts = [(la, aa)]
+    given = layouts[0]  # (force: the first layout, whatever the line order's sort)
     first: ValueError | None = None
     for order in ("file", "line"):
         best: tuple | None = None  # (fill, grid, index, line axis)
@@ -1276,7 +1278,7 @@ def _rebuild_grid(points: np.ndarray, force: bool = False,
         if best is not None:
             return best[1], best[2], order, best[3]
     if force:
-        la, aa = layouts[0]
+        la, aa = given
         grid, index = grid_from_scanlines(points, return_index=True, line_axis=la,
                                           along_axis=aa, **kw)
         return grid, index, "file", la
