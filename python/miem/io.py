@@ -1088,9 +1088,10 @@ def grid_from_scanlines(
         ``"line"``: in any order; the points are sorted by their line coordinate (a stable
         sort) and a new profile starts where the sorted line coordinate changes by more than
         `line_tol`, so row ``r`` is the ``r``-th profile position from the lowest (the step,
-        when estimated, from the first 2^18 points so sorted, each profile's along it). The two give the same grid for a file whose profiles are in increasing line
-        position; two passes over the same line positions (profiles that share a position)
-        are one profile with ``"line"``: duplicate cells. ``duplicates="first"`` / ``"last"``
+        when estimated, from the first 2^18 points so sorted, each profile's along it). The
+        two give the same grid for a file whose profiles are in increasing line position;
+        two passes over the same line positions (profiles that share a position) are one
+        profile with ``"line"``: duplicate cells. ``duplicates="first"`` / ``"last"``
         still mean in file order.
 
     Returns
