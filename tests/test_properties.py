@@ -12,6 +12,7 @@ derandomized, so CI runs the same few examples every time in seconds; set
 from __future__ import annotations
 
 import os
+import warnings
 
 import numpy as np
 import pytest
@@ -323,7 +324,9 @@ def test_no_function_writes_to_its_input(grid, dtype):
     miem.detect(g)
     miem.detect(g, preset="recommended", heights="abnormal")
     if cloud.shape[0] >= 3:
-        miem.detect(cloud)
+        with warnings.catch_warnings():  # (a flattened grid's advice is not what this checks;
+            warnings.simplefilter("ignore", UserWarning)  # which examples give one varies)
+            miem.detect(cloud)
         miem.estimate_normals(cloud, 1.0)
         miem.point_spacing(cloud)
         miem.NeighborGrid(cloud, 1.0).radius_query(0, 1.0)

@@ -61,31 +61,34 @@ CONTENDERS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
 }
 
 
-def _as_cloud(points: np.ndarray) -> np.ndarray:
-    """The grid's points as an unorganized cloud (its finite points, rows shuffled with a fixed
-    seed, no grid) through ``miem.detect_points`` with the defaults; labels put back on the grid
-    (INVALID where the grid has no point)."""
+def _on_shuffled(points: np.ndarray, run: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    """`run` on the grid's finite points, rows shuffled with a fixed seed (no grid), giving a
+    label per point; the labels put back on the grid (INVALID where the grid has no point)."""
     fin = np.isfinite(points).all(-1)
     cells = np.flatnonzero(fin)
     order = np.random.default_rng(0).permutation(cells.size)
     labels = np.full(fin.size, miem.INVALID, dtype=np.uint8)
-    labels[cells[order]] = miem.detect_points(points[fin][order]).labels
+    labels[cells[order]] = run(points[fin][order])
     return labels.reshape(fin.shape)
+
+
+def _as_cloud(points: np.ndarray) -> np.ndarray:
+    """The grid's points as an unorganized cloud (shuffled, :func:`_on_shuffled`) through
+    ``miem.detect_points`` with the defaults."""
+    return _on_shuffled(points, lambda p: miem.detect_points(p).labels)
 
 
 def _regridded(points: np.ndarray) -> np.ndarray:
-    """The same shuffled points as :func:`_as_cloud`, rebuilt into a grid by line position as
-    ``miem detect`` does with an unorganized file (``miem.io._rebuild_grid``: file order, else
-    sorted by y), detected with the defaults; labels put back on the grid."""
+    """The same shuffled points, rebuilt into a grid as ``miem detect`` does with an
+    unorganized file (``miem.io._rebuild_grid``: file order, else sorted by y), detected with
+    the defaults."""
     import miem.io as mio
 
-    fin = np.isfinite(points).all(-1)
-    cells = np.flatnonzero(fin)
-    order = np.random.default_rng(0).permutation(cells.size)
-    grid, index, _, _ = mio._rebuild_grid(points[fin][order])
-    labels = np.full(fin.size, miem.INVALID, dtype=np.uint8)
-    labels[cells[order]] = miem.detect(grid).labels.reshape(-1)[index]
-    return labels.reshape(fin.shape)
+    def run(p: np.ndarray) -> np.ndarray:
+        grid, index, _, _ = mio._rebuild_grid(p)
+        return miem.detect(grid).labels.reshape(-1)[index]
+
+    return _on_shuffled(points, run)
 
 
 #: The real scan also as a cloud: what a user without the scan's grid (a merged or resampled

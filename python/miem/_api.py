@@ -421,34 +421,6 @@ def _looks_like_grid(arr: np.ndarray) -> str:
     return ""
 
 
-def _on_scan_lines(arr: np.ndarray, sample: int = 1 << 14) -> str:
-    """Why an ``(N, 3)`` cloud looks like a profiler scan whose points were reordered ("" when
-    it does not): in an even sample of up to `sample` points, y (or x) takes at most half as
-    many distinct values as points (profile positions) and the other horizontal coordinate
-    sits on a regular step (every sampled value within 0.1 steps of ``min + k step``, the step
-    the smallest gap between its distinct values). A cheap look, not the rebuild."""
-    n = arr.shape[0]
-    if n < 256:
-        return ""
-    s = arr[:: max(1, n // sample)].astype(np.float64)
-    s = s[np.isfinite(s).all(axis=1)]
-    for la, aa in ((1, 0), (0, 1)):
-        lines = np.unique(s[:, la]).size
-        if not 2 <= lines <= 0.5 * s.shape[0]:
-            continue
-        along = np.unique(s[:, aa])
-        gaps = np.diff(along)
-        if along.size < 3 or not (gaps > 0).all():
-            continue
-        step = float(gaps.min())
-        pos = (along - along[0]) / step
-        if step > 0 and float(np.max(np.abs(pos - np.rint(pos)))) <= 0.1:
-            name = "xyz"
-            return (f"{lines} {name[la]} positions in a sample of {s.shape[0]} points, "
-                    f"{name[aa]} on a {step:.6g} step")
-    return ""
-
-
 def _grid_or_cloud(data: object) -> np.ndarray:
     if _is_open3d(data):
         from .io import from_open3d
@@ -554,6 +526,8 @@ def detect(
                 "its grid, or rebuild one with miem.io.grid_from_scanlines",
                 UserWarning, stacklevel=2)
         else:
+            from .io import _on_scan_lines
+
             why = _on_scan_lines(arr)
             if why:
                 warnings.warn(

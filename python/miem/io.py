@@ -1230,12 +1230,11 @@ def _rebuild_grid(points: np.ndarray, force: bool = False,
     other only when the first fills less than 90 %: a scan's true profiles fill their grid,
     read the other way its uneven profile spacing leaves empty columns). An order whose cheap
     look at a sample says no is not tried: file order when consecutive points do not mostly
-    stay on their line
-    (`_in_scan_order`), line order when the line coordinates are nearly all distinct
-    (`_few_lines`). With `force`, when none gives a grid, the first layout's in file order
-    whatever its fill. Returns (grid, index, the order taken, the line axis); raises the first
-    ValueError when there is no grid. (The fill bound caps the grid at N / _MIN_FILL cells, so
-    no attempt allocates a grid of one profile per point.)"""
+    stay on their line (`_in_scan_order`), line order when the line coordinates are nearly all
+    distinct (`_few_lines`). With `force`, when none gives a grid, the first layout's in file
+    order whatever its fill. Returns (grid, index, the order taken, the line axis); raises the
+    first ValueError when there is no grid. (The fill bound caps the grid at N / _MIN_FILL
+    cells, so no attempt allocates a grid of one profile per point.)"""
     n = int(np.isfinite(points).all(axis=1).sum()) if points.ndim == 2 else 0
     cap = min(kw.pop("max_cells", 200_000_000), max(1, int(n / _MIN_FILL)))
     la, aa = kw.pop("line_axis", None), kw.pop("along_axis", None)
@@ -1246,17 +1245,22 @@ def _rebuild_grid(points: np.ndarray, force: bool = False,
         aa = ([a for a in (0, 1, 2) if a != la][0]) if aa is None else aa
         layouts = [(la, aa)]
     given = layouts[0]  # (force: the first layout, whatever the line order's sort)
+    # the looks' samples, taken once: the first points (file order), an even stride (line order)
+    samples = {"file": _sample_rows(points, _LOOK, even=False),
+               "line": _sample_rows(points, _LOOK, even=True)}
     first: ValueError | None = None
     for order in ("file", "line"):
+        s = samples[order]
         best: tuple | None = None  # (fill, grid, index, line axis)
         if order == "line" and len(layouts) > 1:  # the likelier layout first (sorting is dear)
             # (stable, to 1 %: a square lattice fills both alike and stays y first)
-            layouts = sorted(layouts, key=lambda ax: -round(_sample_fill(points, *ax), 2))
+            layouts = sorted(layouts, key=lambda ax: -round(_sample_fill(s, points.shape[0],
+                                                                        *ax), 2))
         for la, aa in layouts:
             if best is not None and best[0] >= 0.9:
                 break  # a layout that fills 90 % of its grid: the other cannot beat it by much
             look = _in_scan_order if order == "file" else _few_lines
-            if not force and not look(points, la, aa):
+            if not force and not look(s, la, aa):
                 first = first or ValueError(
                     f"the points are not on scan lines along axis {aa} ({order} order)")
                 continue
@@ -1287,52 +1291,82 @@ def _rebuild_grid(points: np.ndarray, force: bool = False,
     raise first
 
 
+# Cheap looks at a sample of the points (whether they lie on scan lines) before any rebuild.
+_LOOK = 1 << 16  # points in the command line's samples
+
+
 def _sample_rows(points: np.ndarray, sample: int, even: bool) -> np.ndarray:
-    """Up to `sample` finite points: the first ones (consecutive) or an even stride."""
+    """Up to `sample` finite points as float64: the first ones (consecutive) or an even
+    stride."""
     if points.ndim != 2 or points.shape[0] < 3:
         return np.zeros((0, 3))
     s = points[:: max(1, points.shape[0] // sample)] if even else points[:sample]
     return s[np.isfinite(s).all(axis=1)].astype(np.float64)
 
 
-def _in_scan_order(points: np.ndarray, la: int, aa: int, sample: int = 1 << 16) -> bool:
-    """Whether consecutive points mostly stay on their line, as a scan in file order: among
-    the first `sample` points, at least 80 % of consecutive steps change the line coordinate
-    less than the along coordinate (within a profile of W points, (W - 1) / W of them; in a
-    shuffled or random cloud about half)."""
-    s = _sample_rows(points, sample, even=False)
+def _distinct_step(values: np.ndarray) -> tuple[np.ndarray, float]:
+    """The distinct values (sorted) and the smallest gap between them (0 with fewer than 2)."""
+    u = np.unique(values)
+    return u, float(np.diff(u).min()) if u.size > 1 else 0.0
+
+
+def _in_scan_order(s: np.ndarray, la: int, aa: int) -> bool:
+    """Whether consecutive points (`s`: the first ones) mostly stay on their line, as a scan
+    in file order: at least 80 % of consecutive steps change the line coordinate less than the
+    along coordinate (within a profile of W points, (W - 1) / W of them; in a shuffled or
+    random cloud about half)."""
     if s.shape[0] < 3 or not {la, aa} <= {0, 1, 2}:
         return True  # (grid_from_scanlines says what is wrong)
     d = np.abs(np.diff(s, axis=0))
     return float(np.mean(d[:, la] < d[:, aa])) >= 0.8
 
 
-def _sample_fill(points: np.ndarray, la: int, aa: int, sample: int = 1 << 16) -> float:
-    """The share of its grid's cells a layout would fill, estimated from an even sample: N
-    points over (distinct line values in the sample) x (along range / the smallest gap between
-    distinct along values). Read the wrong way, a scan's uneven profile spacing becomes
-    columns, most of them empty."""
-    s = _sample_rows(points, sample, even=True)
+def _sample_fill(s: np.ndarray, n: int, la: int, aa: int) -> float:
+    """The share of its grid's cells a layout would fill, estimated from an even sample `s` of
+    `n` points: n over (distinct line values in the sample) x (along range / the smallest gap
+    between distinct along values). Read the wrong way, a scan's uneven profile spacing
+    becomes columns, most of them empty."""
     if s.shape[0] < 3:
         return 0.0
-    along = np.unique(s[:, aa])
-    gaps = np.diff(along)
-    gaps = gaps[gaps > 0]
-    if gaps.size == 0:
+    along, step = _distinct_step(s[:, aa])
+    if along.size < 2:
         return 0.0
-    cols = (along[-1] - along[0]) / gaps.min() + 1.0
-    return float(points.shape[0] / (np.unique(s[:, la]).size * cols))
+    cols = (along[-1] - along[0]) / step + 1.0
+    return float(n / (np.unique(s[:, la]).size * cols))
 
 
-def _few_lines(points: np.ndarray, la: int, aa: int = 0, sample: int = 1 << 16) -> bool:
-    """Whether the points' line coordinates take few distinct values, as points on scan lines
-    do (any order): at most 90 % distinct in an even sample of up to `sample` points. A cloud's
-    are nearly all distinct; a scan's are at most its profiles (more than 90 % distinct only
-    when it has several times `sample` profiles)."""
-    s = _sample_rows(points, sample, even=True)
+def _few_lines(s: np.ndarray, la: int, aa: int = 0) -> bool:
+    """Whether the line coordinates of an even sample `s` take few distinct values, as points
+    on scan lines do (any order): at most 90 % distinct. A cloud's are nearly all distinct; a
+    scan's are at most its profiles (more than 90 % distinct only when it has several times
+    the sample's size in profiles)."""
     if s.shape[0] < 3 or la not in (0, 1, 2):
         return True  # (grid_from_scanlines says what is wrong)
     return np.unique(s[:, la]).size <= 0.9 * s.shape[0]
+
+
+def _on_scan_lines(points: np.ndarray, sample: int = 1 << 14) -> str:
+    """Why an ``(N, 3)`` cloud looks like a profiler scan whose points were reordered ("" when
+    it does not), for `miem.detect`'s warning: in an even sample of up to `sample` points, y
+    (or x) takes at most half as many distinct values as points (profile positions) and the
+    other horizontal coordinate sits on a regular step (every sampled value within 0.1 steps
+    of ``min + k step``, the step the smallest gap between its distinct values). A cheap look,
+    not the rebuild."""
+    if points.shape[0] < 256:
+        return ""
+    s = _sample_rows(points, sample, even=True)
+    for la, aa in ((1, 0), (0, 1)):
+        lines = np.unique(s[:, la]).size
+        if not 2 <= lines <= 0.5 * s.shape[0]:
+            continue
+        along, step = _distinct_step(s[:, aa])
+        if along.size < 3:
+            continue
+        pos = (along - along[0]) / step
+        if float(np.max(np.abs(pos - np.rint(pos)))) <= 0.1:
+            return (f"{lines} {'xyz'[la]} positions in a sample of {s.shape[0]} points, "
+                    f"{'xyz'[aa]} on a {step:.6g} step")
+    return ""
 
 
 # A rebuilt grid is used (without force) when at least this share of its cells holds a point.
