@@ -12,9 +12,13 @@ Two modes:
 The cloud is scan-like and truly unorganized: a curved sheet from ``miem.simulate.make_scan``
 (0.3 mm steps, z noise, spikes, pits, dust, 2x2 clusters), x / y jittered by +-0.075 mm, rows in
 random order, dropouts removed (Open3D has no NaN handling). Every contender gets the same array.
-Open3D uses every core; miem runs with ``num_threads=2`` (this machine's cores) for the ratios
-and is also reported on 1 thread. Open3D's outlier filters are different methods, shown for
-scale: what a user would otherwise run on such a cloud.
+The same points in scan order (profile by profile, as a scanner writes them) are timed too:
+Open3D's k-d tree queries run about 3x faster on them (memory locality), miem's do not change
+(its neighbour grid sorts the points), so the ratios are given for both orders. With the shared
+data beside the repository (``../shared/data/real``), the real unorganized files are timed as
+well, in their file order. Open3D uses every core; miem runs with ``num_threads=2`` (this
+machine's cores) for the ratios and is also reported on 1 thread. Open3D's outlier filters are
+different methods, shown for scale: what a user would otherwise run on such a cloud.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ import os
 import platform
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +46,10 @@ def best_of(fn, repeats: int) -> tuple:
 
 HERE = Path(__file__).resolve().parent
 OUT = HERE / "results_unorganized.md"
+#: The shared real scans (absent in a user's clone: their table is then left out).
+REAL_DIR = HERE.parents[1] / "shared" / "data" / "real"
+#: Real files below this size are left out of the real-cloud table (timings of a few ms).
+REAL_MIN_POINTS = 10_000
 #: The stage profile of the build before the #11 speed work (main at fbc6d8f with the stage clock
 #: added), written by ``--save-profile`` run against that build.
 PROFILE_BEFORE = HERE / "results_unorganized_profile_before.json"
@@ -50,8 +59,9 @@ DEFAULT_N = 1_000_000
 EDGE_OFF = {"edge_tolerance": None}
 
 
-def scan_cloud(n: int = DEFAULT_N, seed: int = 1) -> np.ndarray:
-    """About `n` points of a jittered, shuffled curved-sheet scan with defects, float64 (N, 3)."""
+def scan_cloud(n: int = DEFAULT_N, seed: int = 1, shuffle: bool = True) -> np.ndarray:
+    """About `n` points of a jittered, shuffled curved-sheet scan with defects, float64 (N, 3);
+    `shuffle` false: the same points in scan order (row by row)."""
     from miem.simulate import make_scan
 
     side = max(16, round(float(np.sqrt(n))))
@@ -64,7 +74,9 @@ def scan_cloud(n: int = DEFAULT_N, seed: int = 1) -> np.ndarray:
     rng = np.random.default_rng(seed)
     pts = scan.points.reshape(-1, 3).copy()
     pts[:, :2] += rng.uniform(-0.075, 0.075, (len(pts), 2))
-    pts = pts[rng.permutation(len(pts))]
+    order = rng.permutation(len(pts))
+    if shuffle:
+        pts = pts[order]
     return np.ascontiguousarray(pts[np.isfinite(pts).all(axis=1)])
 
 
@@ -207,6 +219,55 @@ def uneven_cloud(pts: np.ndarray, seed: int = 2) -> np.ndarray:
     return np.ascontiguousarray(pts[rng.random(len(pts)) < 0.25 + 0.75 * u])
 
 
+def real_lines(o3d, repeats: int) -> list[str]:
+    """miem's default detection against Open3D's statistical outlier removal on the real files
+    of REAL_DIR (file order; organized files as grids for miem, their finite points for
+    Open3D), with the neighbourhood sizes that set a cloud's cost. Empty without the data."""
+    import miem
+    import miem._unorganized as mu
+    import miem.io as mio
+
+    files = sorted(REAL_DIR.glob("*.pcd")) if REAL_DIR.is_dir() else []
+    rows = []
+    for f in files:
+        data = np.asarray(mio.read(f).points, dtype=np.float64)
+        flat = data.reshape(-1, 3)
+        finite = np.ascontiguousarray(flat[np.isfinite(flat).all(axis=1)])
+        if len(finite) < REAL_MIN_POINTS:
+            continue
+        grid = data.ndim == 3
+        arg = data if grid else finite
+        with warnings.catch_warnings():  # a profiler export read as points: advice, not data
+            warnings.simplefilter("ignore", UserWarning)
+            res = miem.detect(arg, num_threads=2)
+            t_m, _ = best_of(lambda: miem.detect(arg, num_threads=2), repeats)
+        pc = _o3d_cloud(o3d, finite)
+        t_o, _ = best_of(lambda: pc.remove_statistical_outlier(20, 2.0), repeats)
+        ball = "" if grid else mu.estimate_normals(finite, res.params["radius"]).count
+        rows.append((f.name, len(finite), "grid" if grid else "cloud", ball, t_m, t_o))
+    if not rows:
+        return []
+    lines = ["### Real files (file order)", "",
+             f"The real scans of `shared/data/real` with at least {REAL_MIN_POINTS:,} finite "
+             "points, as a user loads them (`miem.io.read`): `miem.detect` with the defaults "
+             "(2 threads; an organized file as its grid) against Open3D's "
+             "`remove_statistical_outlier(20, 2.0)` (all cores) on the same finite points, best "
+             f"of {repeats}. A cloud's cost grows with the points in its balls (radius 5 x "
+             "spacing, the height and edge tests twice that): 'points per ball' is the count at "
+             "`radius`, mean and largest. (`miem detect FILE` rebuilds the grid of a profiler "
+             "export, which this table does not: `bench/results_rebuild.md`.)", "",
+             "| file | points | miem path | points per ball: mean / max | miem detect (s) | "
+             "Open3D SOR (s) | SOR / miem |", "|---|---|---|---|---|---|---|"]
+    for name, npts, path, ball, t_m, t_o in rows:
+        b = "" if isinstance(ball, str) else f"{ball.mean():.0f} / {ball.max():,}"
+        lines.append(f"| {name} | {npts:,} | {path} | {b} | {t_m:.3f} | {t_o:.3f} | "
+                     f"{t_o / t_m:.2f}x |")
+    ratios = [t_o / t_m for *_, t_m, t_o in rows]
+    lines += ["", f"SOR / miem over these files: median {np.median(ratios):.2f}x, range "
+              f"{min(ratios):.2f}x - {max(ratios):.2f}x.", ""]
+    return lines
+
+
 def accuracy_lines() -> list[str]:
     """Held-out-style clouds (bench/accuracy/clouds.py): F1 per defect kind, both splits, with
     the user's defaults (``miem.detect(points)``) and ``preset="recommended"``."""
@@ -260,6 +321,7 @@ def run(n: int, repeats: int, accuracy: bool = True) -> str:
     import miem._unorganized as mu
 
     pts = scan_cloud(n)
+    scan = scan_cloud(n, shuffle=False)  # the same points in scan order
     n = len(pts)
     uneven = uneven_cloud(pts)
     spacing = mu.point_spacing(pts)
@@ -292,6 +354,10 @@ def run(n: int, repeats: int, accuracy: bool = True) -> str:
     if preset != "recommended":
         add("miem, 2 threads", "detect(points, preset='recommended')",
             lambda: miem.detect(pts, preset="recommended", num_threads=2))
+    t_d2s = add("miem, 2 threads", "detect(points), the same cloud in scan order",
+                lambda: miem.detect(scan, num_threads=2))
+    t_n2s = add("miem, 2 threads", "estimate_normals(radius), the same cloud in scan order",
+                lambda: mu.estimate_normals(scan, radius, num_threads=2))
     add("miem, 2 threads", f"detect(points), uneven density ({len(uneven):,} points)",
         lambda: miem.detect(uneven, num_threads=2))
     add("miem, 1 thread", "detect(points, edge_tolerance=None) (the default without "
@@ -299,7 +365,7 @@ def run(n: int, repeats: int, accuracy: bool = True) -> str:
     t_e2 = add("miem, 2 threads", "detect(points, edge_tolerance=None) (the default without "
                "the cloud edge test)", lambda: miem.detect(pts, num_threads=2, **EDGE_OFF))
     parity = None
-    t_on = t_os = t_or = None
+    t_on = t_os = t_or = t_ons = t_oss = None
     if o3d is not None:
         parity = check_normals_parity(pts, radius, o3d)
         o3d_reps = max(1, min(repeats, 2))
@@ -316,6 +382,16 @@ def run(n: int, repeats: int, accuracy: bool = True) -> str:
                    lambda: pc_in.remove_radius_outlier(3, radius), o3d_reps)
         _, kept = pc_in.remove_statistical_outlier(20, 2.0)
         o3d_removed = n - len(kept)
+        pc_scan = _o3d_cloud(o3d, scan)
+
+        def o3d_normals_scan() -> None:
+            pc = _o3d_cloud(o3d, scan)
+            pc.estimate_normals(o3d.geometry.KDTreeSearchParamRadius(radius))
+
+        t_ons = add("Open3D (all cores)", "estimate_normals (same radius), the same cloud in scan "
+                    "order", o3d_normals_scan, o3d_reps)
+        t_oss = add("Open3D (all cores)", "remove_statistical_outlier(20, 2.0), the same cloud "
+                    "in scan order", lambda: pc_scan.remove_statistical_outlier(20, 2.0), o3d_reps)
 
     import tempfile
 
@@ -332,7 +408,8 @@ def run(n: int, repeats: int, accuracy: bool = True) -> str:
 
     header = (
         f"Cloud: {n:,} points, curved sheet scan (0.3 mm steps, x / y jittered by +-0.075 mm, "
-        f"rows shuffled), float64; spacing {spacing:.4f} mm. Every call uses the defaults a "
+        f"rows shuffled; also in scan order where it says so), float64; spacing {spacing:.4f} mm. "
+        "Every call uses the defaults a "
         f"user gets: `miem.detect(points)` (preset {preset!r}: radius 5 x spacing = "
         f"{radius:.4f} mm, ~{np.mean(mu.estimate_normals(pts, radius).count):.0f} points per "
         "neighbourhood), normals at that radius for both libraries. "
@@ -350,10 +427,14 @@ def run(n: int, repeats: int, accuracy: bool = True) -> str:
     lines.append(f"| miem 2 threads detect speed-up over 1 thread | {t_d1 / t_d2:.2f}x | "
                  f">= 1.7: {met(t_d1 / t_d2 >= 1.7)} |")
     if t_on is not None:
-        lines.append(f"| Open3D estimate_normals / miem estimate_normals (2 threads) | "
+        lines.append(f"| Open3D estimate_normals / miem estimate_normals (2 threads), shuffled | "
                      f"{t_on / t_n2:.1f}x | >= 3x: {met(t_on / t_n2 >= 3)} |")
-        lines.append(f"| Open3D statistical outlier removal / miem detect (2 threads) | "
+        lines.append(f"| the same, cloud in scan order | {t_ons / t_n2s:.1f}x | "
+                     f">= 3x: {met(t_ons / t_n2s >= 3)} |")
+        lines.append(f"| Open3D statistical outlier removal / miem detect (2 threads), shuffled | "
                      f"{t_os / t_d2:.2f}x | >= 2x: {met(t_os / t_d2 >= 2)} |")
+        lines.append(f"| the same, cloud in scan order | {t_oss / t_d2s:.2f}x | "
+                     f">= 2x: {met(t_oss / t_d2s >= 2)} |")
         lines.append(f"| Open3D radius outlier removal / miem detect (2 threads) | "
                      f"{t_or / t_d2:.2f}x | |")
         c_os = cpu["Open3D (all cores)|remove_statistical_outlier(20, 2.0)"]
@@ -380,6 +461,8 @@ def run(n: int, repeats: int, accuracy: bool = True) -> str:
     lines += ["", summary, "Memory: VmHWM growth over the RSS before the call, in a fresh "
               "process.", ""]
     lines += profile_lines(stage_profile(pts, repeats))
+    if o3d is not None:
+        lines += real_lines(o3d, max(1, min(repeats, 2)))
     if accuracy:
         lines += accuracy_lines()
     return "\n".join(lines)
