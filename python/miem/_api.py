@@ -540,7 +540,7 @@ def detect(
         from ._unorganized import _detect_cloud
 
         p, name = resolve_params(params, preset, overrides, "cloud")
-        return _detect_cloud(arr, p, name, nt)
+        return _detect_cloud(arr, p, name, nt, advise=True)
     p, name = resolve_params(params, preset, overrides, "grid")
     core_params = p._core_grid(nt)
     if arr.ndim != 3 or arr.shape[2] != 3:

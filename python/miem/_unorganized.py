@@ -7,6 +7,7 @@ section "Unorganized clouds".
 from __future__ import annotations
 
 import numbers
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Dict, Optional, Tuple, Union
@@ -315,7 +316,7 @@ def detect_points(
     ``cloud`` part (``radius``, default ``5 * spacing`` with ``spacing`` the median
     nearest-neighbour distance, :func:`point_spacing`; ``K``; ``min_step``; ``link``;
     ``heights``; ``height_tolerance``; ``edge_extent``; ``min_group``; ``height_radius``;
-    ``merge_distance``; ``edge_tolerance`` and ``edge_radius``: the cloud edge test, off by
+    ``merge_distance``; ``edge_tolerance`` and ``edge_radius``: the cloud edge test, on by
     default, SPEC "Unorganized clouds: edge test"). A field of the ``grid`` part (``window``, ``max_gap``, the grid edge
     test, ...) is a ``ValueError`` naming it: clouds do not implement it.
 
@@ -368,13 +369,48 @@ def detect_points(
     """
     arr = _points(points)
     p, name = resolve_params(params, preset, overrides, "cloud")
-    return _detect_cloud(arr, p, name, _threads(num_threads))
+    return _detect_cloud(arr, p, name, _threads(num_threads), advise=True)
+
+
+#: The dense-cluster advice of detect_points / miem.detect (:func:`_dense_advice`): given for
+#: clouds of at least this many rows ...
+_DENSE_MIN_POINTS = 20_000
+#: ... whose points have on average more than this many others within ``radius`` (an even scan
+#: has about 50 at the default radius; the detector's time grows with the count) ...
+_DENSE_MEAN = 500
+#: ... estimated on an even sample of this many rows (their counts among themselves, scaled).
+_DENSE_SAMPLE = 1 << 14
+
+
+def _dense_advice(arr: np.ndarray, radius: float, nt: int) -> str:
+    """Why detecting `arr` at `radius` costs far more than an even scan, or "": the mean count
+    of other points within `radius` and the share above 1,000, estimated on an even sample of
+    the rows (each sampled point's count among the sample, times rows / sample) when that mean
+    is above _DENSE_MEAN."""
+    n = arr.shape[0]
+    if n < _DENSE_MIN_POINTS:
+        return ""
+    m = min(n, _DENSE_SAMPLE)
+    sample = arr[np.linspace(0, n - 1, m).astype(np.int64)]
+    sample = sample[np.isfinite(sample).all(axis=1)]
+    if sample.shape[0] < 2:
+        return ""
+    others = (_core.estimate_normals(sample, radius, nt)[2] - 1) * (n / m)
+    mean = float(others.mean())
+    if mean <= _DENSE_MEAN:
+        return ""
+    return (f"its points have about {mean:,.0f} others each within radius {radius:.4g} "
+            f"({np.mean(others > 1000):.0%} of them more than 1,000), where an even scan has "
+            "about 50 at the default radius")
 
 
 def _detect_cloud(arr: np.ndarray, p: DetectParams, name: str, nt: int,
-                  edge_rms_median: float = float("nan")) -> PointsDetectResult:
+                  edge_rms_median: float = float("nan"),
+                  advise: bool = False) -> PointsDetectResult:
     """detect_points on a checked (N, 3) float array with resolved parameters.
-    ``edge_rms_median``: internal (miem.dask, see :func:`_cloud_part`)."""
+    ``edge_rms_median``: internal (miem.dask, see :func:`_cloud_part`). ``advise``: warn when
+    the cloud is dense enough to make the run slow (:func:`_dense_advice`; the public entry
+    points, not miem.dask's parts)."""
     if arr.shape[0] < 3:
         raise ValueError(f"points: need at least 3 points, got {arr.shape[0]}")
     core_params = p._core_cloud(nt)
@@ -395,6 +431,13 @@ def _detect_cloud(arr: np.ndarray, p: DetectParams, name: str, nt: int,
         spacing=float(spacing), height_radius=float(height_radius_u), merged=int(merged),
         edge_radius=float(edge_radius_u) if edge_radius_u > 0 else p.cloud.edge_radius,
     )
+    why = _dense_advice(arr, float(radius_u), nt) if advise else ""
+    if why:
+        warnings.warn(
+            f"detect: this ({arr.shape[0]}, 3) cloud is dense for its radius: {why}. The "
+            "cloud detector's time grows with the points in each ball: drop dense clusters "
+            "(such as returns around the scanner), or pass a smaller radius",
+            UserWarning, stacklevel=3)
     return PointsDetectResult(
         labels=labels, flags=flags, angle=angle, height=height,
         plane=None if plane_t is None else _plane(plane_t),

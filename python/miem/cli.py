@@ -23,6 +23,7 @@ import signal
 import sys
 import threading
 import time
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
@@ -572,9 +573,18 @@ def _detect(loaded: _Loaded, kwargs: dict[str, Any], path: Path,
     if args is not None:
         kwargs = _cloud_kwargs(loaded, kwargs, args, path)
     try:
-        return detect(loaded.grid, **kwargs)
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always", UserWarning)
+            res = detect(loaded.grid, **kwargs)
     except ValueError as exc:
         raise _Failure(f"{path}: {_cli_words(str(exc))}") from exc
+    for w in seen:  # detect's advice as the command line's other warnings, in its words
+        if not issubclass(w.category, UserWarning):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+            continue
+        text = _cli_words(str(w.message)).replace("a smaller radius", "a smaller --radius")
+        print(f"miem: warning: {path.name}: {text}", file=sys.stderr)
+    return res
 
 
 def _is_same_file(a: Path, b: Path) -> bool:
