@@ -13,10 +13,10 @@ The cloud is scan-like and truly unorganized: a curved sheet from ``miem.simulat
 (0.3 mm steps, z noise, spikes, pits, dust, 2x2 clusters), x / y jittered by +-0.075 mm, rows in
 random order, dropouts removed (Open3D has no NaN handling). Every contender gets the same array.
 The same points in scan order (profile by profile, as a scanner writes them) are timed too:
-Open3D's k-d tree queries run about 3x faster on them (memory locality), miem's do not change
-(its neighbour grid sorts the points), so the ratios are given for both orders. With the shared
-data beside the repository (``../shared/data/real``), the real unorganized files are timed as
-well, in their file order. Open3D uses every core; miem runs with ``num_threads=2`` (this
+Open3D's k-d tree queries run several times faster on them (memory locality), miem's hardly
+change (its neighbour grid sorts the points), so the ratios are given for both orders. With
+the shared data beside the repository (``../shared/data/real``), the real unorganized files are
+timed as well, in their file order. Open3D uses every core; miem runs with ``num_threads=2`` (this
 machine's cores) for the ratios and is also reported on 1 thread. Open3D's outlier filters are
 different methods, shown for scale: what a user would otherwise run on such a cloud.
 """
@@ -74,9 +74,8 @@ def scan_cloud(n: int = DEFAULT_N, seed: int = 1, shuffle: bool = True) -> np.nd
     rng = np.random.default_rng(seed)
     pts = scan.points.reshape(-1, 3).copy()
     pts[:, :2] += rng.uniform(-0.075, 0.075, (len(pts), 2))
-    order = rng.permutation(len(pts))
     if shuffle:
-        pts = pts[order]
+        pts = pts[rng.permutation(len(pts))]
     return np.ascontiguousarray(pts[np.isfinite(pts).all(axis=1)])
 
 
