@@ -72,8 +72,32 @@ def test_scan_line_order_is_rebuilt_and_cloud_options_rejected(files: dict,
     forced = run("detect", files["lines"], "--out-dir", tmp_path, "--layout", "cloud",
                  "--no-progress")
     assert forced.returncode == 0 and "--layout cloud: cloud detector" in forced.stderr
+    # detect's advice on a flattened grid, in the command line's words (no Python warning)
+    assert ("miem: warning: lines.xyz: detect: this (3000, 3) cloud looks like a flattened "
+            "organized scan") in forced.stderr
+    assert forced.stderr.count("as --layout cloud asks; drop it to rebuild its grid") == 1
+    assert "UserWarning" not in forced.stderr and "shape=" not in forced.stderr
     fit = run("fit", files["shuffled"])
     assert fit.returncode == 0 and "MIEM" in fit.stdout
+
+
+def test_sparse_profiles_get_the_advice_in_options(tmp_path: Path) -> None:
+    # a profiler scan with 60 % of its points gone, shuffled: its grid would be 40 % full, so
+    # the cloud detector runs, and detect's advice names the command line's options
+    scan = simulate.make_scan(shape=(60, 80), surface="tilted", noise=0.01, seed=3)
+    flat = scan.points.reshape(-1, 3)
+    flat = flat[np.isfinite(flat).all(axis=1)]
+    rng = np.random.default_rng(0)
+    keep = flat[rng.random(len(flat)) < 0.4]
+    mio.write(tmp_path / "sparse.xyz", keep[rng.permutation(len(keep))])
+    res = run("detect", tmp_path / "sparse.xyz", "--out-dir", tmp_path / "o", "--no-progress")
+    assert res.returncode == 0, res.stderr
+    assert "not on scan lines (in file order or by line position): cloud detector" in res.stderr
+    assert (f"miem: warning: sparse.xyz: detect: this ({len(keep)}, 3) cloud looks like a "
+            "profiler scan whose points are not in scan-line order") in res.stderr
+    assert ("no grid could be rebuilt from its scan lines; see --line-step, --line-axis, "
+            "--along-axis, --line-tol or --layout scanlines") in res.stderr
+    assert "grid_from_scanlines" not in res.stderr and "UserWarning" not in res.stderr
 
 
 def test_points_on_scan_lines_in_any_order_get_their_grid(files: dict, tmp_path: Path) -> None:

@@ -583,6 +583,13 @@ def _detect(loaded: _Loaded, kwargs: dict[str, Any], path: Path,
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
             continue
         text = _cli_words(str(w.message)).replace("a smaller radius", "a smaller --radius")
+        looks, sep, _ = text.partition("; it is detected as an unorganized cloud")
+        if sep:  # the API's advice on a grid (shape=, grid_from_scanlines) in options
+            text = looks + sep + (
+                ", as --layout cloud asks; drop it to rebuild its grid"
+                if getattr(args, "layout", None) == "cloud" else
+                ": no grid could be rebuilt from its scan lines; see --line-step, --line-axis, "
+                "--along-axis, --line-tol or --layout scanlines")
         print(f"miem: warning: {path.name}: {text}", file=sys.stderr)
     return res
 
