@@ -98,6 +98,19 @@ def test_sparse_profiles_get_the_advice_in_options(tmp_path: Path) -> None:
     assert ("no grid could be rebuilt from its scan lines; see --line-step, --line-axis, "
             "--along-axis, --line-tol or --layout scanlines") in res.stderr
     assert "grid_from_scanlines" not in res.stderr and "UserWarning" not in res.stderr
+    # --layout scanlines takes the fullest grid any order gave: the 60 x 80 one, by line
+    # position (in file order the shuffled points would spread over one profile per point)
+    forced = run("detect", tmp_path / "sparse.xyz", "--out-dir", tmp_path / "f", "--layout",
+                 "scanlines", "--no-progress")
+    assert forced.returncode == 0, forced.stderr
+    assert ("on scan lines but not in their order (profiles at constant y, rows sorted by it): "
+            "rebuilt a 60 x 80 grid") in forced.stderr
+    grid = mio.grid_from_scanlines(mio.read(tmp_path / "sparse.xyz").points, order="line")
+    labels = mio.read(tmp_path / "f" / "sparse.labels.xyz").fields["label"].reshape(-1)
+    api = miem.detect(grid)
+    _, index = mio.grid_from_scanlines(mio.read(tmp_path / "sparse.xyz").points, order="line",
+                                       return_index=True)
+    np.testing.assert_array_equal(labels, api.labels.reshape(-1)[index])
 
 
 def test_points_on_scan_lines_in_any_order_get_their_grid(files: dict, tmp_path: Path) -> None:

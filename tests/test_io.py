@@ -527,6 +527,26 @@ def test_rebuilt_grid_of_a_jittered_or_random_cloud_is_refused() -> None:
         mio._rebuild_grid(rng.uniform(0, 10, (500, 3)))
 
 
+def test_forced_rebuild_of_sparse_shuffled_profiles_takes_the_fullest_grid() -> None:
+    # --layout scanlines (force): 60 % of a 30 x 40 scan's points gone, shuffled: no order
+    # gives half a grid, so without force there is none; with it the fullest below that bound,
+    # the one by line position (file order spreads the points over one profile each)
+    rng = np.random.default_rng(5)
+    y, x = np.mgrid[0:30, 0:40] * 0.1
+    pts = np.stack([x, y, rng.normal(0, 0.01, x.shape)], axis=-1).reshape(-1, 3)
+    kept = pts[rng.random(len(pts)) < 0.4]
+    kept = kept[rng.permutation(len(kept))]
+    with pytest.raises(ValueError):
+        mio._rebuild_grid(kept, step=0.1)
+    grid, index, order, la = mio._rebuild_grid(kept, force=True, step=0.1)
+    assert (order, la) == ("line", 1) and grid.shape == (30, 40, 3)
+    want = np.full((30 * 40, 3), np.nan)
+    rows = np.rint(kept[:, 1] / 0.1).astype(int) * 40 + np.rint(kept[:, 0] / 0.1).astype(int)
+    want[rows] = kept
+    np.testing.assert_array_equal(grid.reshape(-1, 3), want)
+    np.testing.assert_array_equal(index, rows)
+
+
 def test_rebuilt_grid_of_profiles_at_constant_x() -> None:
     # a scanner moving along x: profiles at constant x (0.1 / 0.2 / 1.0 mm apart), points
     # 0.05 mm apart along y. Without axes given, the command line's rebuild finds that layout,

@@ -1231,12 +1231,14 @@ def _rebuild_grid(points: np.ndarray, force: bool = False,
     read the other way its uneven profile spacing leaves empty columns). An order whose cheap
     look at a sample says no is not tried: file order when consecutive points do not mostly
     stay on their line (`_in_scan_order`), line order when the line coordinates are nearly all
-    distinct (`_few_lines`). With `force`, when none gives a grid, the first layout's in file
-    order whatever its fill. Returns (grid, index, the order taken, the line axis); raises the
-    first ValueError when there is no grid. (The fill bound caps the grid at N / _MIN_FILL
-    cells, so no attempt allocates a grid of one profile per point.)"""
+    distinct (`_few_lines`). With `force`, when none gives a grid, the fullest grid that any
+    order and layout gave below that bound (down to `_FORCE_FILL`), else the first layout's in
+    file order. Returns (grid, index, the order taken, the line axis); raises the first
+    ValueError when there is no grid. (The fill bound caps the grid at N / _MIN_FILL cells, N /
+    _FORCE_FILL with `force`, so no attempt allocates a grid of one profile per point.)"""
     n = int(np.isfinite(points).all(axis=1).sum()) if points.ndim == 2 else 0
-    cap = min(kw.pop("max_cells", 200_000_000), max(1, int(n / _MIN_FILL)))
+    cap = min(kw.pop("max_cells", 200_000_000),
+              max(1, int(n / (_FORCE_FILL if force else _MIN_FILL))))
     la, aa = kw.pop("line_axis", None), kw.pop("along_axis", None)
     if la is None and aa is None:
         layouts = [(1, 0), (0, 1)]
@@ -1249,6 +1251,7 @@ def _rebuild_grid(points: np.ndarray, force: bool = False,
     samples = {"file": _sample_rows(points, _LOOK, even=False),
                "line": _sample_rows(points, _LOOK, even=True)}
     first: ValueError | None = None
+    under: tuple | None = None  # (fill, grid, index, order, line axis): the fullest below bound
     for order in ("file", "line"):
         s = samples[order]
         best: tuple | None = None  # (fill, grid, index, line axis)
@@ -1276,12 +1279,16 @@ def _rebuild_grid(points: np.ndarray, force: bool = False,
                 first = first or ValueError(
                     f"a grid rebuilt from the scan lines would be only {fill:.0%} filled "
                     f"({grid.shape[0]} x {grid.shape[1]})")
+                if force and (under is None or fill > under[0]):
+                    under = (fill, grid, index, order, la)
             elif order == "file":
                 return grid, index, order, la  # the scanner's own sequence
             elif best is None or fill > best[0]:
                 best = (fill, grid, index, la)  # sorted: the layout that fills its grid best
         if best is not None:
             return best[1], best[2], order, best[3]
+    if force and under is not None:  # the fullest grid any order and layout gave
+        return under[1], under[2], under[3], under[4]
     if force:
         la, aa = given
         grid, index = grid_from_scanlines(points, return_index=True, line_axis=la,
@@ -1371,6 +1378,9 @@ def _on_scan_lines(points: np.ndarray, sample: int = 1 << 14) -> str:
 
 # A rebuilt grid is used (without force) when at least this share of its cells holds a point.
 _MIN_FILL = 0.5
+# With force (--layout scanlines), the fullest grid of at least this fill when none reaches
+# _MIN_FILL (sparse profiles: a scan with most returns missing).
+_FORCE_FILL = 0.05
 
 
 # ---------------------------------------------------------------------------------------------
