@@ -105,12 +105,10 @@ def test_sparse_profiles_get_the_advice_in_options(tmp_path: Path) -> None:
     assert forced.returncode == 0, forced.stderr
     assert ("on scan lines but not in their order (profiles at constant y, rows sorted by it): "
             "rebuilt a 60 x 80 grid") in forced.stderr
-    grid = mio.grid_from_scanlines(mio.read(tmp_path / "sparse.xyz").points, order="line")
+    grid, index = mio.grid_from_scanlines(mio.read(tmp_path / "sparse.xyz").points,
+                                          order="line", return_index=True)
     labels = mio.read(tmp_path / "f" / "sparse.labels.xyz").fields["label"].reshape(-1)
-    api = miem.detect(grid)
-    _, index = mio.grid_from_scanlines(mio.read(tmp_path / "sparse.xyz").points, order="line",
-                                       return_index=True)
-    np.testing.assert_array_equal(labels, api.labels.reshape(-1)[index])
+    np.testing.assert_array_equal(labels, miem.detect(grid).labels.reshape(-1)[index])
 
 
 def test_points_on_scan_lines_in_any_order_get_their_grid(files: dict, tmp_path: Path) -> None:

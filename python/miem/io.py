@@ -1287,9 +1287,9 @@ def _rebuild_grid(points: np.ndarray, force: bool = False,
                 best = (fill, grid, index, la)  # sorted: the layout that fills its grid best
         if best is not None:
             return best[1], best[2], order, best[3]
-    if force and under is not None:  # the fullest grid any order and layout gave
-        return under[1], under[2], under[3], under[4]
     if force:
+        if under is not None:  # the fullest grid any order and layout gave
+            return under[1], under[2], under[3], under[4]
         la, aa = given
         grid, index = grid_from_scanlines(points, return_index=True, line_axis=la,
                                           along_axis=aa, **kw)
