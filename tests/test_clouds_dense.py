@@ -36,10 +36,14 @@ def with_blob(pts: np.ndarray, n: int, seed: int = 1) -> np.ndarray:
     return np.concatenate([pts[:half], blob, pts[half:]])
 
 
-def exact_mean_others(pts: np.ndarray, radius: float) -> float:
+def exact_others(pts: np.ndarray, radius: float) -> np.ndarray:
+    """Each finite point's count of other finite points within `radius` (k-d tree)."""
     fin = pts[np.isfinite(pts).all(axis=1)]
-    counts = cKDTree(fin).query_ball_point(fin, radius, return_length=True) - 1
-    return float(counts.mean())
+    return cKDTree(fin).query_ball_point(fin, radius, return_length=True) - 1
+
+
+def exact_mean_others(pts: np.ndarray, radius: float) -> float:
+    return float(exact_others(pts, radius).mean())
 
 
 def test_even_cloud_gets_no_advice():
@@ -59,13 +63,14 @@ def test_dense_blob_is_advised_with_its_count(entry):
     with pytest.warns(UserWarning, match="dense for its radius") as rec:
         res = fn(pts, num_threads=2)
     radius = res.params["radius"]
-    exact = exact_mean_others(pts, radius)
+    others = exact_others(pts, radius)
+    exact = float(others.mean())
     assert exact > 500  # the blob's 4,000 points see each other
     msg = str(rec[0].message)
     assert f"radius {radius:.4g}" in msg and "smaller radius" in msg
     est = float(msg.split("about ")[1].split(" others")[0].replace(",", ""))
     assert est == pytest.approx(exact, rel=0.15)
-    share = np.mean(cKDTree(pts).query_ball_point(pts, radius, return_length=True) - 1 > 1000)
+    share = np.mean(others > 1000)
     assert share == pytest.approx(4_000 / len(pts), abs=0.02)  # the blob, and only it
     said = float(msg.split("(")[2].split("% of them")[0]) / 100
     assert said == pytest.approx(share, abs=0.03)

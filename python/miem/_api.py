@@ -429,6 +429,11 @@ def _grid_or_cloud(data: object) -> np.ndarray:
     return _as_float_array(data, "grid")
 
 
+#: How detect's advice on a cloud that looks like a grid goes on after saying so (the command
+#: line replaces what follows with its options: cli._cli_advice).
+_AS_CLOUD = "; it is detected as an unorganized cloud"
+
+
 def detect(
     grid: np.ndarray,
     params: Optional[DetectParams] = None,
@@ -522,9 +527,8 @@ def detect(
         if why:
             warnings.warn(
                 f"detect: this ({arr.shape[0]}, 3) cloud looks like a flattened organized scan "
-                f"({why}); it is detected as an unorganized cloud. Pass shape=(H, W) to keep "
-                "its grid, or rebuild one with miem.io.grid_from_scanlines",
-                UserWarning, stacklevel=2)
+                f"({why}){_AS_CLOUD}. Pass shape=(H, W) to keep its grid, or rebuild one with "
+                "miem.io.grid_from_scanlines", UserWarning, stacklevel=2)
         else:
             from .io import _on_scan_lines
 
@@ -532,10 +536,9 @@ def detect(
             if why:
                 warnings.warn(
                     f"detect: this ({arr.shape[0]}, 3) cloud looks like a profiler scan whose "
-                    f"points are not in scan-line order ({why}); it is detected as an "
-                    "unorganized cloud. Rebuild its grid with miem.io.grid_from_scanlines("
-                    "points, order='line') for the organized detector",
-                    UserWarning, stacklevel=2)
+                    f"points are not in scan-line order ({why}){_AS_CLOUD}. Rebuild its grid "
+                    "with miem.io.grid_from_scanlines(points, order='line') for the organized "
+                    "detector", UserWarning, stacklevel=2)
     if arr.ndim == 2 and arr.shape[1] == 3:
         from ._unorganized import _detect_cloud
 

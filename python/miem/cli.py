@@ -74,6 +74,27 @@ def _cli_words(message: str) -> str:
     return re.sub(r"\bpass (--[\w-]+)", r"use \1", out)
 
 
+# The scan-line options, which the messages about rebuilding a grid name.
+_LINE_OPTIONS = "--line-step, --line-axis, --along-axis, --line-tol"
+
+
+def _cli_advice(message: str, layout: str | None) -> str:
+    """A warning of miem.detect in the command line's words (`_cli_words`): its radius is
+    ``--radius``, and its advice on a cloud that looks like a grid (keep it with ``shape=``,
+    rebuild it with ``grid_from_scanlines``) becomes the layout options (`layout`: the
+    ``--layout`` given)."""
+    from ._api import _AS_CLOUD
+
+    text = _cli_words(message).replace("a smaller radius", "a smaller --radius")
+    looks, sep, _ = text.partition(_AS_CLOUD)
+    if not sep:
+        return text
+    return looks + sep + (
+        ", as --layout cloud asks; drop it to rebuild its grid" if layout == "cloud" else
+        f": no grid could be rebuilt from its scan lines; see {_LINE_OPTIONS} or --layout "
+        "scanlines")
+
+
 # The detection options are generated from the fields of miem.DetectParams (miem/params.py):
 # every field organized detection honours is an option, with its unit, help and default there.
 
@@ -536,8 +557,8 @@ def _load(path: Path, args: argparse.Namespace) -> _Loaded:
             if args.layout == "scanlines":
                 raise _Failure(
                     f"{path}: the file is unorganized ({n:,} points) and no grid could be "
-                    f"rebuilt from its scan lines: {_cli_words(str(exc))}; see --line-step, "
-                    "--line-axis, --along-axis, --line-tol, or --layout cloud"
+                    f"rebuilt from its scan lines: {_cli_words(str(exc))}; see {_LINE_OPTIONS}, "
+                    "or --layout cloud"
                 ) from exc
             why = "its points are not on scan lines (in file order or by line position)"
     _say(args, f"{path.name}: unorganized ({n:,} points), {why}: cloud detector")
@@ -582,14 +603,7 @@ def _detect(loaded: _Loaded, kwargs: dict[str, Any], path: Path,
         if not issubclass(w.category, UserWarning):
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
             continue
-        text = _cli_words(str(w.message)).replace("a smaller radius", "a smaller --radius")
-        looks, sep, _ = text.partition("; it is detected as an unorganized cloud")
-        if sep:  # the API's advice on a grid (shape=, grid_from_scanlines) in options
-            text = looks + sep + (
-                ", as --layout cloud asks; drop it to rebuild its grid"
-                if getattr(args, "layout", None) == "cloud" else
-                ": no grid could be rebuilt from its scan lines; see --line-step, --line-axis, "
-                "--along-axis, --line-tol or --layout scanlines")
+        text = _cli_advice(str(w.message), getattr(args, "layout", None))
         print(f"miem: warning: {path.name}: {text}", file=sys.stderr)
     return res
 
