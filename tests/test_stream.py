@@ -348,6 +348,20 @@ def test_stream_runs_the_edge_test_as_batch(kw: dict) -> None:
     assert_same_defects(defects, want.defects, want.labels)
 
 
+@pytest.mark.parametrize("num_threads", [1, 2, 3])
+def test_stream_splits_a_push_among_threads_with_batch_results(num_threads: int) -> None:
+    """num_threads splits a push's column work (edge-test tiles and height strips of 128
+    points) among threads: labels, heights and defects still equal batch detection's."""
+    grid = make_outline_scan(420, 300, 5)  # 3 tile columns, the outline in the third
+    want = miem.detect(grid)
+    assert (want.labels != miem.detect(grid, edge_tolerance=None).labels).any()
+    defects: list = []
+    got, heights = stream_both(ProfileStream(300, num_threads=num_threads), grid, defects)
+    np.testing.assert_array_equal(got, want.labels)
+    assert_heights_equal(heights, want.height)
+    assert_same_defects(defects, want.defects, want.labels)
+
+
 REAL_SCAN = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "second_source.pcd"
 
 
@@ -531,7 +545,8 @@ def test_bad_input_raises_and_leaves_the_stream_unchanged() -> None:
      ({"theta0": "auto"}, "theta0"), ({"edge_tolerance": -3.0}, "edge_tolerance"),
      ({"min_step": "often"}, "min_step"),
      ({"edge_window": 4}, "edge_window"),
-     ({"window": 4}, "window"), ({"edge_extent": -1}, "edge_extent")],
+     ({"window": 4}, "window"), ({"edge_extent": -1}, "edge_extent"),
+     ({"num_threads": 0}, "num_threads"), ({"num_threads": 1.5}, "num_threads")],
 )
 def test_bad_parameters(kwargs: dict, match: str) -> None:
     args = {"width": 10, **kwargs}

@@ -3,7 +3,9 @@
 // scenario (bench/run_cpp.py turns them into bench/results_cpp.md).
 //
 //   miem_bench_stream [--width 3200] [--profiles 100000] [--edge-profiles 3000] [--quick]
-//                     [--only INDEX]
+//                     [--only INDEX] [--threads N]
+// --threads sets DetectParams::num_threads (default 0: all the cores the process may use, so
+// 1 when pinned to one core).
 // Scenarios with the edge test push at most --edge-profiles profiles (far slower per profile).
 // The profiles are measured in the steady state: after 2 lag + 8 profiles of the same part
 // (every stage then runs on each push); the part start's longest push (while min_step "auto"
@@ -169,12 +171,13 @@ void run(const Scenario& sc, std::ptrdiff_t W, std::ptrdiff_t n_profiles, std::p
               "\"mean_us\": %.3f, \"p50_us\": %.3f, \"p99_us\": %.3f, \"p999_us\": %.3f, "
               "\"max_us\": %.3f, \"cpu_p50_us\": %.3f, \"cpu_p99_us\": %.3f, "
               "\"cpu_p999_us\": %.3f, \"cpu_max_us\": %.3f, \"abnormal\": %lld, \"edge\": %lld, "
-              "\"bad_status\": %lld, \"min_step\": %.6g, \"part_start_cpu_max_us\": %.3f}",
+              "\"bad_status\": %lld, \"min_step\": %.6g, \"part_start_cpu_max_us\": %.3f, "
+              "\"threads\": %d}",
               first ? "" : ",\n", sc.name, sizeof(T) == 4 ? "float32" : "float64", W, n_profiles,
               stream.lag(), 1e6 / mean,
               static_cast<double>(n_profiles) / std::max(1e-9, cpu_s - staging_cpu), mean, q(0.5),
               q(0.99), q(0.999), s.back(), qc(0.5), qc(0.99), qc(0.999), sc_.back(), abnormal,
-              edge, statuses, stream.min_step(), start_max_us);
+              edge, statuses, stream.min_step(), start_max_us, sc.params.num_threads);
   std::fflush(stdout);
 }
 
@@ -183,7 +186,7 @@ void run(const Scenario& sc, std::ptrdiff_t W, std::ptrdiff_t n_profiles, std::p
 int main(int argc, char** argv) {
   std::ptrdiff_t W = 3200, n = 100000, n_edge = 3000;
   bool quick = false;
-  int only = -1;
+  int only = -1, threads = 0;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     if (a == "--width" && i + 1 < argc) W = std::atol(argv[++i]);
@@ -191,10 +194,11 @@ int main(int argc, char** argv) {
     else if (a == "--edge-profiles" && i + 1 < argc) n_edge = std::atol(argv[++i]);
     else if (a == "--quick") quick = true;
     else if (a == "--only" && i + 1 < argc) only = std::atoi(argv[++i]);
+    else if (a == "--threads" && i + 1 < argc) threads = std::atoi(argv[++i]);
     else {
       std::fprintf(stderr,
                    "usage: %s [--width N] [--profiles N] [--edge-profiles N] [--quick] "
-                   "[--only INDEX]\n",
+                   "[--only INDEX] [--threads N]\n",
                    argv[0]);
       return 2;
     }
@@ -241,8 +245,9 @@ int main(int argc, char** argv) {
   std::printf("[\n");
   bool first = true;
   for (std::size_t k = 0; k < scenarios.size(); ++k) {
-    const Scenario& sc = scenarios[k];
+    Scenario sc = scenarios[k];
     if (only >= 0 && static_cast<int>(k) != only) continue;
+    sc.params.num_threads = threads;
     const std::ptrdiff_t m = sc.params.edge_test() ? std::min(n, n_edge) : n;
     if (sc.use_float) run<float>(sc, W, m, pool_rows, first);
     else run<double>(sc, W, m, pool_rows, first);

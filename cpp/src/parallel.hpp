@@ -62,6 +62,22 @@ void parallel_ranges(int nt, std::ptrdiff_t n, std::ptrdiff_t align, F f) {
   f(0, std::ptrdiff_t{0}, n);
 }
 
+/// Calls f(i, thread) for each i of [0, n), items handed out one at a time to nt threads (for
+/// items of uneven cost that are independent: which thread runs an item changes nothing).
+/// Allocates nothing (the stream's per-profile work uses it).
+template <typename F>
+void parallel_items(int nt, std::ptrdiff_t n, F f) {
+#ifdef MIEM_HAVE_OPENMP
+  if (nt > 1 && n > 1) {
+#pragma omp parallel for schedule(dynamic, 1) num_threads(static_cast<int>(std::min<std::ptrdiff_t>(nt, n)))
+    for (std::ptrdiff_t i = 0; i < n; ++i) f(i, omp_get_thread_num());
+    return;
+  }
+#endif
+  (void)nt;
+  for (std::ptrdiff_t i = 0; i < n; ++i) f(i, 0);
+}
+
 /// The indices i of [0, n) with keep(i) (which may also update cell i), in increasing order,
 /// into `out` (cleared first): nt threads scan one range each and their lists are joined in
 /// order, so `out` does not depend on nt. For the stages' scans for new ABNORMAL cells or a

@@ -20,6 +20,7 @@
 
 #include "auto_min_step.hpp"
 #include "judge.hpp"
+#include "parallel.hpp"
 #include "pass1_row.hpp"
 
 namespace miem {
@@ -348,6 +349,8 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
     ms_sel_.init(width_, phys_ * width_);
     nan_row_.assign(static_cast<std::size_t>(width_), detail::kNaN);
   }
+  threads_ = static_cast<int>(std::min<std::ptrdiff_t>(
+      (width_ + 127) / 128, detail::thread_count(params_.num_threads, width_, 256)));
   init_stages();
   init_edges();
   init_defects();

@@ -21,6 +21,7 @@
 
 #include "edge_test.hpp"
 #include "miem/stream.hpp"
+#include "parallel.hpp"
 
 namespace miem {
 
@@ -54,7 +55,10 @@ void ProfileStream<T>::init_edges() {
   eorg_ok_.assign(static_cast<std::size_t>(ebands_ * etiles_), 0);
   eorg_missing_.assign(static_cast<std::size_t>(ebands_), 0);
   eones_.assign(static_cast<std::size_t>(W), 1);
-  elab_img_.assign(static_cast<std::size_t>(W), kInvalid);
+  // A pass's tile columns are independent (Jacobi: each reads the labels at the start of the
+  // pass and writes its own images and verdicts), so they split among the threads.
+  elab_img_.assign(static_cast<std::size_t>(threads_ * W), kInvalid);
+  etile_list_.assign(static_cast<std::size_t>(etiles_), 0);
   elab_row_.assign(static_cast<std::size_t>((2 * r + 1) * W), kInvalid);
   emark_.assign(static_cast<std::size_t>(W), 0);
   etd_.assign(static_cast<std::size_t>(W), 0);
@@ -119,11 +123,12 @@ void ProfileStream<T>::edge_labels(std::int64_t row, int pass, std::ptrdiff_t c0
 // the set holds another band, then one grid row at a time. Image rows before `from` are never
 // read (the set's judgments are of rows from + r on): their grid rows add to the column sums
 // only, as batch's rows before its first candidate row (a pass p >= 2, or a tile whose first
-// candidate comes late in the band, catches up without the row prefixes).
+// candidate comes late in the band, catches up without the row prefixes). `labs`: a row of
+// scratch (the calling thread's).
 template <typename T>
 const double* ProfileStream<T>::edge_images(int pass, std::ptrdiff_t t, std::int64_t band,
-                                            std::int64_t upto,
-                                            std::int64_t from) noexcept {
+                                            std::int64_t upto, std::int64_t from,
+                                            std::uint8_t* labs) noexcept {
   const std::ptrdiff_t W = width_, r = params_.edge_window / 2;
   const std::ptrdiff_t C0 = t * kTC, C1 = std::min(W, C0 + kTC);
   const std::ptrdiff_t f0 = std::max<std::ptrdiff_t>(0, C0 - r), f1 = std::min(W, C1 + r);
@@ -142,9 +147,9 @@ const double* ProfileStream<T>::edge_images(int pass, std::ptrdiff_t t, std::int
     next = e0;
   }
   for (; next < upto; ++next) {  // add grid row `next`: image row next + 1
-    edge_labels(next, pass, f0, f1, elab_img_.data());
+    edge_labels(next, pass, f0, f1, labs);
     double* const out = next + 1 < from ? nullptr : img + ((next + 1 - e0) % ek_) * L;
-    detail::edge_image_row(row_view(next), 0, elab_img_.data(), f0, f1, o, col, EC, out, plane);
+    detail::edge_image_row(row_view(next), 0, labs, f0, f1, o, col, EC, out, plane);
   }
   return img;
 }
@@ -178,37 +183,55 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
   for (std::int64_t a = a0; a < upto; ++a) edge_labels(a, pass, 0, W, win + (a - a0) * W);
   const std::uint8_t* lab = win + grow * W;
   std::uint8_t* mark = emark_.data();
-  bool any_mark = false;
+  std::ptrdiff_t* tiles = etile_list_.data();
+  std::ptrdiff_t n_tiles = 0;  // the tile columns with a candidate
   for (std::ptrdiff_t t = 0; t < etiles_; ++t) {
     const std::ptrdiff_t C0 = t * kTC, C1 = std::min(W, C0 + kTC);
     bool any = false;
     for (std::ptrdiff_t c = C0; c < C1 && !any; ++c) {
       any = todo[c] && (lab[c] == kNormal || lab[c] == kEdge);
     }
-    if (!any) continue;
-    const double* img = edge_images(pass, t, band, upto, a0);  // reads image rows a0 on
-    const std::ptrdiff_t f0 = std::max<std::ptrdiff_t>(0, C0 - r);
-    const double* org = eorg_.data() + (b * etiles_ + t) * 3;
-    const Eigen::Vector3d o(org[0], org[1], org[2]);
-    std::fill(mark + C0, mark + C1, std::uint8_t{0});
-    const detail::EdgeImages im{img, ek_ * estride_, estride_, e0, ek_, f0};
-    // (no band cache, unlike batch: kept per tile column over a whole row of tiles it is 11 MB
-    // at 3200 points, read back r + 1 pushes later from beyond the L2 cache; without it a
-    // default push took about 8 % less CPU time, though it runs more instructions)
-    detail::edge_judge_row(gw, grow, row, H, C0, C1, im, o, r, params_.edge_k, win, todo,
-                           mark);
-    for (std::ptrdiff_t c = C0; c < C1 && !any_mark; ++c) any_mark = mark[c] != 0;
+    if (any) tiles[n_tiles++] = t;
   }
   // Pass 1 builds the next band's images alongside over the last 2 r rows before it (its first
   // image row is r rows above the band, final once pass 1 is 2 r rows above it), one row per
-  // push instead of 2 r + 1 at its first row; its
-  // origins are known once a finite cell of the tile is in (else the tile has no candidate).
+  // push instead of 2 r + 1 at its first row; its origins are known once a finite cell of the
+  // tile is in (else the tile has no candidate).
   const std::int64_t R0n = R0 + kTR, e0n = R0n - r;
-  if (pass == 1 && upto > e0n && R0n < H) {
-    const std::ptrdiff_t bn = static_cast<std::ptrdiff_t>((band + 1) % ebands_);
-    for (std::ptrdiff_t t = 0; t < etiles_; ++t) {
-      if (eorg_ok_[static_cast<std::size_t>(bn * etiles_ + t)]) edge_images(1, t, band + 1, upto, 0);
+  const bool next_band = pass == 1 && upto > e0n && R0n < H;
+  const std::ptrdiff_t bn = static_cast<std::ptrdiff_t>((band + 1) % ebands_);
+  // Tile column t (tile list entry i < n_tiles: its verdicts; the next band's images, all t)
+  // on thread `tid`.
+  const auto tile = [&](std::ptrdiff_t i, int tid) {
+    std::uint8_t* labs = elab_img_.data() + tid * W;
+    if (i < n_tiles) {
+      const std::ptrdiff_t t = tiles[i];
+      const std::ptrdiff_t C0 = t * kTC, C1 = std::min(W, C0 + kTC);
+      const double* img = edge_images(pass, t, band, upto, a0, labs);  // image rows a0 on
+      const std::ptrdiff_t f0 = std::max<std::ptrdiff_t>(0, C0 - r);
+      const double* org = eorg_.data() + (b * etiles_ + t) * 3;
+      const Eigen::Vector3d o(org[0], org[1], org[2]);
+      std::fill(mark + C0, mark + C1, std::uint8_t{0});
+      const detail::EdgeImages im{img, ek_ * estride_, estride_, e0, ek_, f0};
+      // (no band cache, unlike batch: kept per tile column over a whole row of tiles it is
+      // 11 MB at 3200 points, read back r + 1 pushes later from beyond the L2 cache; without
+      // it a default push took about 8 % less CPU time, though it runs more instructions)
+      detail::edge_judge_row(gw, grow, row, H, C0, C1, im, o, r, params_.edge_k, win, todo,
+                             mark);
     }
+    if (next_band) {
+      const std::ptrdiff_t t = i < n_tiles ? -1 : i - n_tiles;
+      if (t >= 0 && eorg_ok_[static_cast<std::size_t>(bn * etiles_ + t)]) {
+        edge_images(1, t, band + 1, upto, 0, labs);
+      }
+    }
+  };
+  const std::ptrdiff_t n_work = n_tiles + (next_band ? etiles_ : 0);
+  detail::parallel_items(threads_, n_work, tile);
+  bool any_mark = false;
+  for (std::ptrdiff_t i = 0; i < n_tiles && !any_mark; ++i) {
+    const std::ptrdiff_t C0 = tiles[i] * kTC, C1 = std::min(W, C0 + kTC);
+    for (std::ptrdiff_t c = C0; c < C1 && !any_mark; ++c) any_mark = mark[c] != 0;
   }
   if (pass > 1) {
     std::uint8_t* et = etodo_.data() + s * W;

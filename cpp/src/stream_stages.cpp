@@ -16,6 +16,7 @@
 
 #include "edge_groups.hpp"
 #include "miem/stream.hpp"
+#include "parallel.hpp"
 #include "stages.hpp"
 #include "window_fits.hpp"
 
@@ -70,6 +71,12 @@ MIEM_FIT_CLONES void pass1_verdicts(std::ptrdiff_t n, const std::uint8_t* __rest
 
 }  // namespace
 
+// One thread's doubles of fit_buf_: S, Q, F of a strip, then two rows' relative coordinates.
+template <typename T>
+std::ptrdiff_t ProfileStream<T>::fit_doubles() const noexcept {
+  return (kMoments + 3 + 4) * std::min(width_, kStrip) + 6 * span_;
+}
+
 template <typename T>
 void ProfileStream<T>::init_stages() {
   const std::ptrdiff_t W = width_, n1 = ring_ * W;
@@ -90,8 +97,9 @@ void ProfileStream<T>::init_stages() {
     cs_.assign(static_cast<std::size_t>(2 * strips_ * kMoments * stride_), 0.0);
     origin_.assign(static_cast<std::size_t>(2 * strips_ * 3), 0.0);
     has_origin_.assign(static_cast<std::size_t>(2 * strips_), 0);
-    fit_buf_.assign(static_cast<std::size_t>((kMoments + 3 + 4) * cap + 6 * span_), 0.0);
-    fit_flags_.assign(static_cast<std::size_t>(3 * cap), 0);
+    fit_buf_.assign(static_cast<std::size_t>(threads_ * fit_doubles()), 0.0);
+    fit_flags_.assign(static_cast<std::size_t>(threads_ * 3 * cap), 0);
+    far_row_.assign(static_cast<std::size_t>(W), 0);
   }
   if (htest_ || edge_) {  // region_fits: column sums and classes of a segment and its window
     region_cs_.assign(static_cast<std::size_t>(kMoments * (span_ + 2 * (half_ + 1))), 0.0);
@@ -209,9 +217,11 @@ void ProfileStream<T>::sums_add_row(int set, std::int64_t in, double sign,
   const std::ptrdiff_t W = width_, pad = half_ + 1, plane = phys_ * W;
   const GridView<T> g{xyz_.data() + slot(in) * W, 1, W, W, 1, plane};
   const std::uint8_t* hm = hm_.data() + slot(in) * W;
-  double* x = fit_buf_.data() + (kMoments + 3 + 4) * std::min(W, kStrip);
-  double* xo = x + 3 * span_;  // the row leaving
-  for (std::ptrdiff_t t = 0; t < strips_; ++t) {
+  // Strips are independent (each its own column sums and origin): split among the threads,
+  // each with its own rows of relative coordinates.
+  detail::parallel_items(threads_, strips_, [&](std::ptrdiff_t t, int tid) {
+    double* x = fit_buf_.data() + tid * fit_doubles() + (kMoments + 3 + 4) * std::min(W, kStrip);
+    double* xo = x + 3 * span_;  // the row leaving
     const std::ptrdiff_t tc0 = t * kStrip, tc1 = std::min(W, tc0 + kStrip);
     const std::ptrdiff_t C0 = std::max<std::ptrdiff_t>(0, tc0 - half_);
     const std::ptrdiff_t C1 = std::min<std::ptrdiff_t>(W, tc1 + half_), nc = C1 - C0;
@@ -231,14 +241,14 @@ void ProfileStream<T>::sums_add_row(int set, std::int64_t in, double sign,
     detail::load_rel(g, 0, C0, nc, o[0], o[1], o[2], x, x + span_, x + 2 * span_);
     if (out < 0) {
       detail::add_row_moments(hm + C0, nc, x, x + span_, x + 2 * span_, sign, cs, stride_);
-      continue;
+      return;
     }
     const GridView<T> go{xyz_.data() + slot(out) * W, 1, W, W, 1, plane};
     detail::load_rel(go, 0, C0, nc, o[0], o[1], o[2], xo, xo + span_, xo + 2 * span_);
     detail::move_row_moments(hm + C0, x, x + span_, x + 2 * span_,
                              hm_.data() + slot(out) * W + C0, xo, xo + span_, xo + 2 * span_,
                              nc, cs, stride_);
-  }
+  });
 }
 
 // Height pass 1 on `row` (and the heights of HeightMode::kAll): the window plane of every finite
@@ -272,22 +282,28 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
   if (drop && !move) sums_add_row(cur_, row - h - 1, -1.0, -1);
 
   const std::ptrdiff_t cap = std::min(W, kStrip), s = slot(row);
-  double* S = fit_buf_.data();
-  double* Q = S + kMoments * cap;
-  double* F = Q + 3 * cap;
-  std::uint8_t* okf = fit_flags_.data();
-  std::uint8_t* redo = okf + cap;
-  std::uint8_t* wrow = redo + cap;
   const GridView<T> g{xyz_.data() + s * W, 1, W, W, 1, plane};
   const std::uint8_t* st = state_.data() + s * W;
-  std::uint8_t* hm = hm_.data() + s * W;
+  const std::uint8_t* hm = hm_.data() + s * W;
   double* height = height_.data() + s * W;
-  for (std::ptrdiff_t t = 0; t < strips_; ++t) {
+  // The strips split among the threads, each with its own scratch; a cell too far goes into
+  // far_row_, and the removals (which mark the cells around, in other strips too) follow in
+  // column order.
+  std::uint8_t* far_row = far_row_.data();
+  detail::parallel_items(threads_, strips_, [&](std::ptrdiff_t t, int tid) {
+    double* S = fit_buf_.data() + tid * fit_doubles();
+    double* Q = S + kMoments * cap;
+    double* F = Q + 3 * cap;
+    std::uint8_t* okf = fit_flags_.data() + tid * 3 * cap;
+    std::uint8_t* redo = okf + cap;
+    std::uint8_t* wrow = redo + cap;
     const std::ptrdiff_t tc0 = t * kStrip, tc1 = std::min(W, tc0 + kStrip), n = tc1 - tc0;
     const std::ptrdiff_t C0 = std::max<std::ptrdiff_t>(0, tc0 - h);
     const std::size_t k = static_cast<std::size_t>(cur_ * strips_ + t);
     const double* o = origin_.data() + 3 * k;
     const double* col = cs_.data() + k * kMoments * stride_ + pad + (tc0 - C0);
+    std::uint8_t* far = far_row + tc0;
+    std::fill(far, far + n, std::uint8_t{0});
     std::ptrdiff_t m = 0;
     for (std::ptrdiff_t j = 0; j < n; ++j) {
       const bool finite = st[tc0 + j] != 0;
@@ -295,21 +311,17 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
       m += finite;
       if (!finite) height[tc0 + j] = detail::kNaN;
     }
-    if (m == 0) continue;
+    if (m == 0) return;
     detail::load_rel(g, 0, tc0, n, o[0], o[1], o[2], Q, Q + cap, Q + 2 * cap);
     const detail::RowFits rf =
         detail::row_solve(col, stride_, h, n, cap, wrow, m, S, Q, F, okf, redo);
     if (!rf.compact) {  // the whole span at once: heights, then the verdicts
       const std::ptrdiff_t j0 = rf.j0, j1 = rf.j1;
-      std::uint8_t* far = wrow;  // wrow[j] becomes: cell j is wanted and too far
+      // wrow[j] becomes: cell j is wanted and too far
       pass1_verdicts(j1 - j0, hm + tc0 + j0, rf.S + j0, rf.F + j0, rf.okf + j0, rf.cap,
-                     htest_, params_.height_abs, params_.height_k, height + tc0 + j0, far + j0);
-      if (!htest_) continue;
-      std::uint8_t any = 0;
-      for (std::ptrdiff_t j = j0; j < j1; ++j) any |= far[j];
-      for (std::ptrdiff_t j = any ? j0 : j1; j < j1; ++j)
-        if (far[j]) remove_height(row, tc0 + j, 1);
-      continue;
+                     htest_, params_.height_abs, params_.height_k, height + tc0 + j0, wrow + j0);
+      if (htest_) std::copy(wrow + j0, wrow + j1, far + j0);
+      return;
     }
     std::ptrdiff_t e = 0;
     for (std::ptrdiff_t j = 0; j < n; ++j) {
@@ -317,10 +329,12 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
       const detail::WindowFit f = rf.fit(e++);
       const std::ptrdiff_t c = tc0 + j;
       height[c] = f.ok ? f.height : detail::kNaN;
-      if (htest_ && (hm[c] & (kInPlane | kSCompact)) && detail::height_far(f, params_)) {
-        remove_height(row, c, 1);
-      }
+      far[j] = htest_ && (hm[c] & (kInPlane | kSCompact)) && detail::height_far(f, params_);
     }
+  });
+  if (!htest_) return;
+  for (std::ptrdiff_t c = 0; c < W; ++c) {
+    if (far_row[c]) remove_height(row, c, 1);
   }
 }
 

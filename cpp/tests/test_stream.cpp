@@ -368,6 +368,22 @@ INSTANTIATE_TEST_SUITE_P(Params, StreamEqualsBatch, ::testing::ValuesIn(param_se
 // L = max(H + r, h) + (P - 1) r + h, H = P R + E + P h (P R without the height test): edge
 // pass 1 runs r rows behind the height passes (and h rows behind the newest), pass p r rows
 // behind pass p - 1 (docs/SPEC.md "Streaming").
+// A push's column work (the edge passes' tile columns, height pass 1's strips and its column
+// sums, 128 columns each) is split among num_threads threads: the same labels, heights and
+// defects as batch for every count, on outline scans whose removals cross strip boundaries.
+TEST(Stream, EveryThreadCountEqualsBatch) {
+  const std::ptrdiff_t H = 300, W = 392;  // 4 tile columns, the last one partial
+  for (int nt : {1, 2, 3, 5}) {
+    SCOPED_TRACE("num_threads " + std::to_string(nt));
+    miem::DetectParams p = miem::stream_default_params();
+    p.num_threads = nt;
+    for (std::uint64_t seed : {1u, 2u}) {
+      expect_stream_equals_batch<double>(make_outline_scan(H, W, seed), H, W, p);
+    }
+    expect_stream_equals_batch<float>(make_outline_scan(H, W, 3), H, W, p);
+  }
+}
+
 TEST(Stream, LagFormula) {
   miem::DetectParams p = miem::paper_params();
   EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 20 + 10);  // 10 * (1 + 1) + 21 / 2

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike, DTypeLike
 
 from . import _core
-from ._api import Defect, _as_float_array, _grid_defects, _params_record
+from ._api import Defect, _as_float_array, _grid_defects, _params_record, _threads
 from .params import DetectParams, _int, resolve_params
 
 __all__ = ["ProfileStream", "StreamRow"]
@@ -126,6 +126,10 @@ class ProfileStream:
     dtype : {numpy.float64, numpy.float32}
         Storage type of the coordinates kept for the lag (computation is always float64).
         Profiles of another dtype are converted.
+    num_threads : int, optional
+        Threads of a push (default: all cores). The edge passes' tile columns and height pass
+        1's strips, 128 points each, are split among them (one thread below 256 points per
+        profile); the results never depend on the count.
     **overrides
         Fields of :class:`miem.DetectParams`.
 
@@ -163,11 +167,12 @@ class ProfileStream:
         *,
         preset: Optional[str] = None,
         dtype: DTypeLike = np.float64,
+        num_threads: Optional[int] = None,
         **overrides: Any,
     ) -> None:
         w = _int("width", width, 1)
         p, name = resolve_params(params, preset, overrides, "stream")
-        core_params = p._core_grid(0, "stream")
+        core_params = p._core_grid(_threads(num_threads), "stream")
         try:
             dt = np.dtype(dtype)
         except TypeError:

@@ -157,13 +157,17 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 /// of dropouts (INVALID labels), with StatusCode::kEmptyProfile so the caller knows.
 ///
 /// `T` is the storage type of the coordinates (float or double); every computation is in double.
-/// Not thread-safe: one stream per scanner thread.
+/// Not thread-safe: one stream per scanner thread (a push may use more threads itself:
+/// DetectParams::num_threads).
 template <typename T = double>
 class ProfileStream {
  public:
   /// A stream of profiles of `width` points. Throws std::invalid_argument with the message of
   /// check_stream_params (a bad or unsupported field, width < 1, max_iterations > 254).
-  /// `num_threads` is not used (one stream runs on its caller's thread).
+  /// `params.num_threads` (0: all available) splits a push's column work among threads: the
+  /// edge passes' tile columns and height pass 1's strips (and its column sums), 128 points
+  /// each; one thread below 256 points per profile. The results never depend on it. The
+  /// threads are OpenMP's (a team per calling thread, kept between pushes: no allocation).
   /// Use nothrow::make_stream in code built without exceptions.
   explicit ProfileStream(std::ptrdiff_t width, DetectParams params = stream_default_params());
 
@@ -235,6 +239,7 @@ class ProfileStream {
   void final_row(std::int64_t row) noexcept;
   void remove_height(std::int64_t row, std::ptrdiff_t col, int pass) noexcept;
   void sums_add_row(int set, std::int64_t in, double sign, std::int64_t out) noexcept;
+  std::ptrdiff_t fit_doubles() const noexcept;
   bool final_window_plane(std::int64_t row, std::ptrdiff_t col, Plane* plane) noexcept;
   void mark_stale(std::int64_t row, std::ptrdiff_t col) noexcept;
   GridView<T> row_view(std::int64_t row) const noexcept {
@@ -247,7 +252,7 @@ class ProfileStream {
   void run_edges(bool to_end) noexcept;
   void edge_row(std::int64_t row, int pass) noexcept;
   const double* edge_images(int pass, std::ptrdiff_t tile, std::int64_t band,
-                            std::int64_t upto, std::int64_t from) noexcept;
+                            std::int64_t upto, std::int64_t from, std::uint8_t* labs) noexcept;
   void edge_labels(std::int64_t row, int pass, std::ptrdiff_t c0, std::ptrdiff_t c1,
                    std::uint8_t* out) const noexcept;
   // Defects (stream_defects.cpp).
@@ -266,6 +271,9 @@ class ProfileStream {
   DetectParams params_;
   int reach_ = 0;   // R
   int passes_ = 0;  // max_iterations
+  // Threads of a push's column work (params.num_threads; 1 below 256 points): the edge passes'
+  // tile columns and the height pass 1's strips, of 128 columns each, split among them.
+  int threads_ = 1;
   int alag_ = 0;    // A = passes_ * reach_: rows after which the angle labels are final
   int lag_ = 0;     // L (stream_lag)
   int half_ = 0;    // h = window / 2
@@ -343,6 +351,8 @@ class ProfileStream {
   std::int64_t sums_next_ = 0;            // next row to add
   std::vector<double> fit_buf_;           // S, Q, F and one row's relative coordinates
   std::vector<std::uint8_t> fit_flags_;   // ok, redo, wanted (one strip each)
+  // (fit_buf_ and fit_flags_: one set per thread, sums_add_row's and height_pass1_row's)
+  std::vector<std::uint8_t> far_row_;     // height pass 1: the row's cells to remove
   std::vector<std::uint8_t> want_row_;    // region_fits: the cells of a row to fit
   std::vector<double> region_cs_;         // region_fits: a segment's column sums
   std::vector<std::uint8_t> region_cls_;  // region_fits: one row's classes
@@ -362,7 +372,9 @@ class ProfileStream {
   std::vector<double> eorg_;             // per (band mod ebands_, tile column): the origin
   std::vector<std::uint8_t> eorg_ok_;    // ... found
   std::vector<std::ptrdiff_t> eorg_missing_;  // per band slot: tiles without an origin yet
-  std::vector<std::uint8_t> eones_, elab_img_, elab_row_, emark_, etd_;  // one row each
+  std::vector<std::uint8_t> eones_, elab_row_, emark_, etd_;  // one row each
+  std::vector<std::uint8_t> elab_img_;  // one row per thread (edge_images' labels)
+  std::vector<std::ptrdiff_t> etile_list_;  // a pass's tile columns with a candidate
   // Defects (stream_defects.cpp): open groups as union-find slots over the cells of the last
   // row handed back; their cells in a pool of singly linked members.
   struct DefectSlot {
