@@ -39,8 +39,8 @@ void operator delete[](void* p, std::size_t) noexcept { std::free(p); }
 namespace {
 
 template <typename T>
-void run_without_allocating(const miem::DetectParams& p) {
-  const std::ptrdiff_t H = 600, W = 200;  // edge passes while pushing (lag 223), 2 tile columns
+void run_without_allocating(const miem::DetectParams& p, std::ptrdiff_t W = 200) {
+  const std::ptrdiff_t H = 600;  // edge passes while pushing (lag 223); W 200: 2 tile columns
   const std::vector<double> g = miem::test::make_scan(H, W, 42);
   const std::vector<T> grid(g.begin(), g.end());
   const std::vector<T> nan_row(static_cast<std::size_t>(W * 3), std::numeric_limits<T>::quiet_NaN());
@@ -74,6 +74,12 @@ void run_without_allocating(const miem::DetectParams& p) {
 TEST(StreamAlloc, NoAllocationPerProfileDouble) {
   ASSERT_GT(g_news.load(), -1);
   run_without_allocating<double>(miem::stream_default_params());  // the whole default detector
+}
+
+TEST(StreamAlloc, NoAllocationOnTwoThreads) {  // a push split among threads (W >= 256)
+  miem::DetectParams p = miem::stream_default_params();
+  p.num_threads = 2;
+  run_without_allocating<double>(p, 300);
 }
 
 TEST(StreamAlloc, NoAllocationDefaultFloatAbnormalHeights) {
