@@ -169,7 +169,8 @@ int main(int argc, char** argv) {
   }
 
   // The stream's default: the whole recommended detector (angle, height and edge tests,
-  // min_step "auto", heights, defects).
+  // min_step "auto", heights, defects); a push splits its column work among all cores
+  // (params.num_threads = 0; set 1 to keep the stream on this thread).
   const miem::DetectParams params = miem::stream_default_params();
   std::optional<miem::ProfileStream<float>> stream;
   const miem::Status made = miem::nothrow::make_stream(width, params, &stream);
