@@ -312,9 +312,10 @@ def main() -> None:
         f"### The default stream on 2 threads ({n_edge:,} profiles of {WIDTH} points)",
         "",
         "`DetectParams::num_threads` (Python `num_threads=`; default: all cores) splits a "
-        "push's column work among threads: the edge passes' tile columns and height pass 1's "
-        "strips (and its running sums), 128 points each; the angle passes and the rest stay "
-        "on the caller's thread. Labels, heights and defects are the same for any count "
+        "push's column work among threads: angle pass 1's filter (a column range each), the "
+        "edge passes' tile columns and height pass 1's strips (and its running sums), 128 "
+        "points each; the angle judgments, later passes and the rest stay on the caller's "
+        "thread. Labels, heights and defects are the same for any count "
         "(`cpp/tests/test_stream.cpp`, `tests/test_stream.py`). Wall clock, not pinned, 1 and "
         "2 threads alternated 3 times (the best run of each): on a shared 2-core machine the "
         "second core is not always free, so the speed-up varies from run to run.",

@@ -747,10 +747,9 @@ void ProfileStream<T>::pass1_fast(std::int64_t row) noexcept {
   args.P = xyz_.data() + slot(row) * W;
   args.n = 4 * static_cast<int>(n_scales);
   args.plane = plane;
-  args.c0 = S;
-  args.c1 = W - S;
   args.bits = bits;
-  std::fill(bits + S, bits + W - S, cos0_ > 0.0 ? 0u : ~kBadBit);  // theta0 >= 90: all exact
+  const std::uint8_t* sa[32];
+  const std::uint8_t* sb[32];
   for (int k = 0; k < 4; ++k) {
     for (std::size_t si = 0; si < n_scales; ++si) {
       const std::ptrdiff_t sc = params_.scales[si];
@@ -759,14 +758,29 @@ void ProfileStream<T>::pass1_fast(std::int64_t row) noexcept {
       const int i = k * static_cast<int>(n_scales) + static_cast<int>(si);
       args.A[i] = xyz_.data() + slot(row - dr) * W - dc;
       args.B[i] = xyz_.data() + slot(row + dr) * W + dc;
-      const std::uint8_t* sA = state_.data() + slot(row - dr) * W - dc;
-      const std::uint8_t* sB = state_.data() + slot(row + dr) * W + dc;
-      for (std::ptrdiff_t c = S; c < W - S; ++c) {
+      sa[i] = state_.data() + slot(row - dr) * W - dc;
+      sb[i] = state_.data() + slot(row + dr) * W + dc;
+    }
+  }
+  // The columns S .. W - S - 1 in one contiguous range per thread (each cell's bits its own).
+  const std::ptrdiff_t n = W - 2 * S, parts = threads_;
+  detail::parallel_items(threads_, parts, [&](std::ptrdiff_t part, int) {
+    const std::ptrdiff_t c0 = S + n * part / parts, c1 = S + n * (part + 1) / parts;
+    std::fill(bits + c0, bits + c1, cos0_ > 0.0 ? 0u : ~kBadBit);  // theta0 >= 90: all exact
+    for (int i = 0; i < args.n; ++i) {
+      const std::uint8_t* sA = sa[i];
+      const std::uint8_t* sB = sb[i];
+      for (std::ptrdiff_t c = c0; c < c1; ++c) {
         bits[c] |= static_cast<std::uint32_t>((sA[c] == 0) | (sB[c] == 0)) << 31;
       }
     }
-  }
-  if (cos0_ > 0.0) run_kernel(args);
+    if (cos0_ > 0.0 && c0 < c1) {
+      KernelArgs<T> part_args = args;
+      part_args.c0 = c0;
+      part_args.c1 = c1;
+      run_kernel(part_args);
+    }
+  });
 }
 
 // The exact judgment of a cell of a row where every neighbour at step s exists, computed as

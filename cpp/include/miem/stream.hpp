@@ -164,9 +164,10 @@ class ProfileStream {
  public:
   /// A stream of profiles of `width` points. Throws std::invalid_argument with the message of
   /// check_stream_params (a bad or unsupported field, width < 1, max_iterations > 254).
-  /// `params.num_threads` (0: all available) splits a push's column work among threads: the
-  /// edge passes' tile columns and height pass 1's strips (and its column sums), 128 points
-  /// each; one thread below 256 points per profile. The results never depend on it. The
+  /// `params.num_threads` (0: all available) splits a push's column work among threads: angle
+  /// pass 1's filter (a column range each), the edge passes' tile columns and height pass 1's
+  /// strips (and its column sums), 128 points each; one thread below 256 points per profile.
+  /// The results never depend on it. The
   /// threads are OpenMP's (a team per calling thread, kept between pushes: no allocation).
   /// Use nothrow::make_stream in code built without exceptions.
   explicit ProfileStream(std::ptrdiff_t width, DetectParams params = stream_default_params());
