@@ -558,28 +558,35 @@ TEST(Stream, PushAfterFlushAndReset) {
 // A stream reset in the middle of a part (edge passes, their images and candidates part way
 // through) then run on another part equals batch detection on that part.
 TEST(Stream, ResetMidStreamWithTheEdgeTest) {
-  const std::ptrdiff_t H = 300, W = 150;
-  const miem::DetectParams p = miem::stream_default_params();
-  const std::vector<double> other = make_outline_scan(H, W, 8), g = make_outline_scan(H, W, 9);
-  miem::ProfileStream<> s(W, p);
-  miem::StreamRow row;
-  auto pushed = [](const miem::Status& st) {
-    return st.code == StatusCode::kOk || st.code == StatusCode::kEmptyProfile;  // NaN rows
-  };
-  for (std::ptrdiff_t r = 0; r < 277; ++r) ASSERT_TRUE(pushed(s.push(other.data() + r * W * 3, W, &row)));
-  s.reset();
-  std::vector<std::uint8_t> got;
-  for (std::ptrdiff_t r = 0; r < H; ++r) {
-    ASSERT_TRUE(pushed(s.push(g.data() + r * W * 3, W, &row)));
-    if (row.ready()) got.insert(got.end(), row.labels, row.labels + W);
+  // W 150: one thread; W 300 on 2 threads (three tile columns split among them)
+  for (const std::ptrdiff_t W : {150, 300}) {
+    SCOPED_TRACE("width " + std::to_string(W));
+    const std::ptrdiff_t H = 300;
+    miem::DetectParams p = miem::stream_default_params();
+    p.num_threads = 2;
+    const std::vector<double> other = make_outline_scan(H, W, 8), g = make_outline_scan(H, W, 9);
+    miem::ProfileStream<> s(W, p);
+    miem::StreamRow row;
+    auto pushed = [](const miem::Status& st) {
+      return st.code == StatusCode::kOk || st.code == StatusCode::kEmptyProfile;  // NaN rows
+    };
+    for (std::ptrdiff_t r = 0; r < 277; ++r) {
+      ASSERT_TRUE(pushed(s.push(other.data() + r * W * 3, W, &row)));
+    }
+    s.reset();
+    std::vector<std::uint8_t> got;
+    for (std::ptrdiff_t r = 0; r < H; ++r) {
+      ASSERT_TRUE(pushed(s.push(g.data() + r * W * 3, W, &row)));
+      if (row.ready()) got.insert(got.end(), row.labels, row.labels + W);
+    }
+    while (s.flush(&row)) got.insert(got.end(), row.labels, row.labels + W);
+    const auto view = miem::GridView<double>::dense(g.data(), H, W);
+    miem::DetectParams off = p;
+    off.edge_k = 0.0;
+    const std::vector<std::uint8_t> want = miem::detect_organized(view, p).labels;
+    EXPECT_NE(want, miem::detect_organized(view, off).labels);  // the edge test has work
+    EXPECT_EQ(got, want);
   }
-  while (s.flush(&row)) got.insert(got.end(), row.labels, row.labels + W);
-  const auto view = miem::GridView<double>::dense(g.data(), H, W);
-  miem::DetectParams off = p;
-  off.edge_k = 0.0;
-  const std::vector<std::uint8_t> want = miem::detect_organized(view, p).labels;
-  EXPECT_NE(want, miem::detect_organized(view, off).labels);  // the edge test has work
-  EXPECT_EQ(got, want);
 }
 
 TEST(Stream, StridedProfilesAreRead) {
