@@ -69,7 +69,8 @@ template <typename F>
 void parallel_items(int nt, std::ptrdiff_t n, F f) {
 #ifdef MIEM_HAVE_OPENMP
   if (nt > 1 && n > 1) {
-#pragma omp parallel for schedule(dynamic, 1) num_threads(static_cast<int>(std::min<std::ptrdiff_t>(nt, n)))
+    const int team = static_cast<int>(std::min<std::ptrdiff_t>(nt, n));
+#pragma omp parallel for schedule(dynamic, 1) num_threads(team)
     for (std::ptrdiff_t i = 0; i < n; ++i) f(i, omp_get_thread_num());
     return;
   }

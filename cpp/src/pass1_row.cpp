@@ -8,6 +8,7 @@
 #include "angle_math.hpp"
 #include "judge.hpp"
 #include "min_step_skip.hpp"
+#include "parallel.hpp"
 
 namespace miem::detail {
 
@@ -257,7 +258,7 @@ void pass1_prepare(RowScratch& sc, std::ptrdiff_t W, std::ptrdiff_t depth, bool 
 
 void pass1_row(const Pass1Ring& ring, std::ptrdiff_t r, const DetectParams& p,
                std::uint8_t* labels, std::uint8_t* flags_out, double* angle_row,
-               std::uint8_t* reach) {
+               std::uint8_t* reach, int num_threads) {
   RowScratch& sc = *ring.sc;
   const std::ptrdiff_t W = ring.W, depth = ring.depth, pad = depth, S = ring.stride();
   const double cos0 = std::cos(p.theta0_deg * detail::kDegToRad), c2 = cos0 * cos0;
@@ -268,8 +269,6 @@ void pass1_row(const Pass1Ring& ring, std::ptrdiff_t r, const DetectParams& p,
   const bool has_scale1 = std::find(p.scales.begin(), p.scales.end(), 1) != p.scales.end();
   double *buv = sc.best.data(), *bprod = sc.best.data() + S;
   std::int64_t* bits = sc.bits.data();
-  SideSearch sides[2];
-  std::int64_t ext[kBlock];
   const std::ptrdiff_t n_chunks = (W + kChunk - 1) / kChunk;
   double* speed = sc.speed.data();
   std::int64_t* gaps_before = sc.gaps_before.data();
@@ -290,8 +289,13 @@ void pass1_row(const Pass1Ring& ring, std::ptrdiff_t r, const DetectParams& p,
       chunk_gaps[ch] = gaps_before[b] - gaps_before[a];
     }
   }
-  // Blocks of columns, every (direction, scale) per block: the block's rows stay in L1.
-  for (std::ptrdiff_t b0 = 0; b0 < W; b0 += kBlock) {
+  // Blocks of columns, every (direction, scale) per block: the block's rows stay in L1. The
+  // blocks are independent (each writes its own columns): split among num_threads.
+  const std::ptrdiff_t n_blocks = (W + kBlock - 1) / kBlock;
+  parallel_items(num_threads, n_blocks, [&](std::ptrdiff_t blk, int) {
+    const std::ptrdiff_t b0 = blk * kBlock;
+    SideSearch sides[2];
+    std::int64_t ext[kBlock];
     const std::ptrdiff_t nb = std::min(W, b0 + kBlock) - b0;
     const double *qx = px + b0, *qy = px + S + b0, *qz = px + 2 * S + b0;
     const std::int64_t* near_ok[16];
@@ -395,7 +399,7 @@ void pass1_row(const Pass1Ring& ring, std::ptrdiff_t r, const DetectParams& p,
       }
     }
     if (n_near > 0) near_line(nb, near_ok, n_near, bits + b0);
-  }
+  });
   const std::int64_t* centre_ok = slot_ok(r);
   if (angle_row) angles_line(W, buv, bprod, centre_ok, angle_row);
   // The kernel's verdicts for the whole row (vector code); the caller's scalar judge replaces

@@ -56,8 +56,11 @@ void pass1_load(const Pass1Ring& ring, std::ptrdiff_t rr, const T* x, const T* y
 /// and smallest angle, where given) from the kernel, with min_step (p.min_step >= 0) the rays
 /// each verdict read in `reach` (4 bytes per cell: the row's). The cells the kernel cannot
 /// settle (pass1_needs_judge) get a label too, which the caller's scalar judge replaces.
+/// `num_threads`: the row's blocks of columns split among that many threads (the stream's
+/// push; batch runs rows in parallel and each row on one thread). Results do not depend on it.
 void pass1_row(const Pass1Ring& ring, std::ptrdiff_t r, const DetectParams& p,
-               std::uint8_t* labels, std::uint8_t* flags, double* angle, std::uint8_t* reach);
+               std::uint8_t* labels, std::uint8_t* flags, double* angle, std::uint8_t* reach,
+               int num_threads = 1);
 
 /// Bits of RowScratch::bits per cell: directions available (0-3) and flagged (4-7), a search
 /// the kernel cannot finish (slow), a usable cell within the isolation reach (near).

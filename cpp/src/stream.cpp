@@ -340,6 +340,8 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   p1_miss_.assign(static_cast<std::size_t>(ring_), 0);
   level_.assign(static_cast<std::size_t>(ring_), 0);
   bits_.assign(static_cast<std::size_t>(width_), 0);
+  judge_cols_.assign(static_cast<std::size_t>(width_), 0);
+  judge_out_.assign(static_cast<std::size_t>(width_), 0);
   if (ms_auto_ || params_.min_step >= 0.0) {
     ray_.assign(4 * n1, 0);
   }
@@ -636,6 +638,35 @@ void ProfileStream<T>::run_pass(std::int64_t row, int pass) noexcept {
       lab[c] = l;
     }
   };
+  // The verdicts of the cells judge_cols_[0 .. n) (increasing), on the push's threads, then
+  // applied in column order: a pass's judgments read the cells usable at its start (a cell
+  // removed at this pass still is: Jacobi), so they do not depend on the removals of the same
+  // pass. `keep(c)`: false when the cell keeps its verdict (not judged again).
+  constexpr std::ptrdiff_t kJudgeChunk = 16;
+  auto judge_cells = [&](std::ptrdiff_t n, auto keep) {
+    const std::ptrdiff_t* cols = judge_cols_.data();
+    std::uint8_t* out = judge_out_.data();
+    constexpr std::uint8_t kKeep = 255;
+    const auto verdicts = [&](std::ptrdiff_t chunk, int) {
+      const std::ptrdiff_t i1 = std::min(n, (chunk + 1) * kJudgeChunk);
+      for (std::ptrdiff_t i = chunk * kJudgeChunk; i < i1; ++i) {
+        const std::ptrdiff_t c = cols[i];
+        std::uint8_t flags = 0;
+        double angle = 0.0;
+        out[i] = keep(c) ? judge.judge(r, c, &flags, &angle, ray ? ray + 4 * c : nullptr)
+                         : kKeep;
+      }
+    };
+    detail::parallel_items(n >= 4 * kJudgeChunk ? threads_ : 1,
+                           (n + kJudgeChunk - 1) / kJudgeChunk, verdicts);
+    for (std::ptrdiff_t i = 0; i < n; ++i) {
+      if (out[i] == kAbnormal) {
+        remove(row, cols[i], pass);
+      } else if (out[i] != kKeep) {
+        lab[cols[i]] = out[i];
+      }
+    }
+  };
 
   // Pass 1 by batch detection's row kernel with min_step; without, by the filter below, unless
   // more than 0.5 % of the cells within the largest scale are dropouts: the filter leaves every
@@ -652,16 +683,18 @@ void ProfileStream<T>::run_pass(std::int64_t row, int pass) noexcept {
   if (pass == 1 && kernel) {
     // the row kernel, CellJudge for the cells it cannot settle
     const std::int64_t* ok = pass1_kernel(row);
+    std::ptrdiff_t n = 0;
     for (std::ptrdiff_t c = 0; c < W; ++c) {
       if (st[c] == 0) continue;
       if (detail::pass1_needs_judge(p1_, ok, c)) {
-        judge_cell(c);
+        judge_cols_[static_cast<std::size_t>(n++)] = c;
       } else if (p1_lab_[static_cast<std::size_t>(c)] == kAbnormal) {
         remove(row, c, 1);
       } else {
         lab[c] = p1_lab_[static_cast<std::size_t>(c)];
       }
     }
+    judge_cells(n, [](std::ptrdiff_t) { return true; });
   } else if (pass == 1) {
     const bool fast = fast_ && row >= max_scale_ && row + max_scale_ < pushed_ &&
                       W > 2 * static_cast<std::ptrdiff_t>(max_scale_);
@@ -724,11 +757,13 @@ void ProfileStream<T>::run_pass(std::int64_t row, int pass) noexcept {
     };
     if (row_cand_[s] & bit) {
       std::uint8_t* cand = cand_.data() + s * W;
+      std::ptrdiff_t n = 0;
       for (std::ptrdiff_t c = 0; c < W; ++c) {
         if (!(cand[c] & bit)) continue;
         cand[c] &= static_cast<std::uint8_t>(~bit);
-        if (st[c] == kAlive && (ray == nullptr || reads_removed(c))) judge_cell(c);
+        if (st[c] == kAlive) judge_cols_[static_cast<std::size_t>(n++)] = c;
       }
+      judge_cells(n, [&](std::ptrdiff_t c) { return ray == nullptr || reads_removed(c); });
       row_cand_[s] &= static_cast<std::uint8_t>(~bit);
     }
   }
@@ -839,7 +874,7 @@ const std::int64_t* ProfileStream<T>::pass1_kernel(std::int64_t row) noexcept {
                        1, [st](std::ptrdiff_t c) { return st[c] != 0; });
   }
   detail::pass1_row(ring, static_cast<std::ptrdiff_t>(row), jparams_, p1_lab_.data(), nullptr,
-                    nullptr, use_ray_ ? ray_.data() + 4 * slot(row) * W : nullptr);
+                    nullptr, use_ray_ ? ray_.data() + 4 * slot(row) * W : nullptr, threads_);
   return ring.ok(static_cast<std::ptrdiff_t>(row));
 }
 

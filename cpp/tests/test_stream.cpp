@@ -368,10 +368,11 @@ INSTANTIATE_TEST_SUITE_P(Params, StreamEqualsBatch, ::testing::ValuesIn(param_se
 // L = max(H + r, h) + (P - 1) r + h, H = P R + E + P h (P R without the height test): edge
 // pass 1 runs r rows behind the height passes (and h rows behind the newest), pass p r rows
 // behind pass p - 1 (docs/SPEC.md "Streaming").
-// A push's column work (pass 1's filter by column range; the edge passes' tile columns, height
-// pass 1's strips and its column sums, 128 columns each) is split among num_threads threads:
-// the same labels, heights and defects as batch for every count, on outline scans whose
-// removals cross strip boundaries and on scans with few dropouts (pass 1 by the filter).
+// A push's column work (pass 1's filter by column range or its row kernel by blocks of 256
+// columns; the edge passes' tile columns, height pass 1's strips and its column sums, 128
+// columns each) is split among num_threads threads: the same labels, heights and defects as
+// batch for every count, on outline scans whose removals cross strip boundaries, on scans with
+// few dropouts (pass 1 by the filter) and on jittered profiles (min_step on).
 TEST(Stream, EveryThreadCountEqualsBatch) {
   const std::ptrdiff_t H = 300, W = 392;  // 4 tile columns, the last one partial
   for (int nt : {1, 2, 3, 5}) {
@@ -383,6 +384,9 @@ TEST(Stream, EveryThreadCountEqualsBatch) {
       expect_stream_equals_batch<double>(miem::test::make_scan(H, W, seed), H, W, p);
     }
     expect_stream_equals_batch<float>(make_outline_scan(H, W, 3), H, W, p);
+    // jittered profiles: min_step "auto" turns on, pass 1 by the row kernel's searches
+    const Named jittered{"auto_on", p, H, W, false, false, 0.1};
+    expect_stream_equals_batch<double>(scan_for(jittered, 5), H, W, p);
     miem::DetectParams paper = miem::paper_params();
     paper.num_threads = nt;
     expect_stream_equals_batch<double>(miem::test::make_scan(H, W, 4), H, W, paper);

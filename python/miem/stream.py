@@ -127,9 +127,9 @@ class ProfileStream:
         Storage type of the coordinates kept for the lag (computation is always float64).
         Profiles of another dtype are converted.
     num_threads : int, optional
-        Threads of a push (default: all cores). Angle pass 1's filter, the edge passes' tile
-        columns and height pass 1's strips are split among them (one thread below 256 points
-        per profile); the results never depend on the count.
+        Threads of a push (default: all cores). Angle pass 1, an angle pass's judgments, the
+        edge passes' tile columns and height pass 1's strips are split among them (one thread
+        below 256 points per profile); the results never depend on the count.
     **overrides
         Fields of :class:`miem.DetectParams`.
 

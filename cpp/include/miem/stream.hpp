@@ -165,8 +165,9 @@ class ProfileStream {
   /// A stream of profiles of `width` points. Throws std::invalid_argument with the message of
   /// check_stream_params (a bad or unsupported field, width < 1, max_iterations > 254).
   /// `params.num_threads` (0: all available) splits a push's column work among threads: angle
-  /// pass 1's filter (a column range each), the edge passes' tile columns and height pass 1's
-  /// strips (and its column sums), 128 points each; one thread below 256 points per profile.
+  /// pass 1's filter or row kernel, an angle pass's judgments of a row, the edge passes' tile
+  /// columns and height pass 1's strips (and its column sums); one thread below 256 points per
+  /// profile.
   /// The results never depend on it. The
   /// threads are OpenMP's (a team per calling thread, kept between pushes: no allocation).
   /// Use nothrow::make_stream in code built without exceptions.
@@ -300,6 +301,9 @@ class ProfileStream {
   std::ptrdiff_t p1_depth_ = 0;     // its depth (steps a search reads in the kernel)
   std::int64_t p1_next_ = 0;        // the next row to convert
   std::vector<std::uint8_t> p1_lab_;  // width_: the kernel's labels of the row
+  // width_ each: an angle pass's cells to judge on the push's threads, and their verdicts
+  std::vector<std::ptrdiff_t> judge_cols_;
+  std::vector<std::uint8_t> judge_out_;
   // min_step "auto" (SPEC "min_step='auto'"): decided once the kAutoMinStepRows rows from the
   // first row with a finite cell are in; the stages wait for it (the rows are kept).
   bool ms_auto_ = false;         // params_.min_step_auto
