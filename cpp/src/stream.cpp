@@ -628,18 +628,22 @@ void ProfileStream<T>::run_pass(std::int64_t row, int pass) noexcept {
   const std::uint8_t* st = state_.data() + s * W;
   std::uint8_t* lab = labels_.data() + s * W;
   std::uint8_t* ray = use_ray_ ? ray_.data() + 4 * s * W : nullptr;
-  auto judge_cell = [&](std::ptrdiff_t c) {
+  // A cell's verdict (CellJudge), and the verdict taken: ABNORMAL removes the cell.
+  auto verdict = [&](std::ptrdiff_t c) {
     std::uint8_t flags = 0;
     double angle = 0.0;
-    const std::uint8_t l = judge.judge(r, c, &flags, &angle, ray ? ray + 4 * c : nullptr);
+    return judge.judge(r, c, &flags, &angle, ray ? ray + 4 * c : nullptr);
+  };
+  auto take = [&](std::ptrdiff_t c, std::uint8_t l) {
     if (l == kAbnormal) {
       remove(row, c, pass);
     } else {
       lab[c] = l;
     }
   };
+  auto judge_cell = [&](std::ptrdiff_t c) { take(c, verdict(c)); };
   // The verdicts of the cells judge_cols_[0 .. n) (increasing), on the push's threads, then
-  // applied in column order: a pass's judgments read the cells usable at its start (a cell
+  // taken in column order: a pass's judgments read the cells usable at its start (a cell
   // removed at this pass still is: Jacobi), so they do not depend on the removals of the same
   // pass. `keep(c)`: false when the cell keeps its verdict (not judged again).
   constexpr std::ptrdiff_t kJudgeChunk = 16;
@@ -650,21 +654,13 @@ void ProfileStream<T>::run_pass(std::int64_t row, int pass) noexcept {
     const auto verdicts = [&](std::ptrdiff_t chunk, int) {
       const std::ptrdiff_t i1 = std::min(n, (chunk + 1) * kJudgeChunk);
       for (std::ptrdiff_t i = chunk * kJudgeChunk; i < i1; ++i) {
-        const std::ptrdiff_t c = cols[i];
-        std::uint8_t flags = 0;
-        double angle = 0.0;
-        out[i] = keep(c) ? judge.judge(r, c, &flags, &angle, ray ? ray + 4 * c : nullptr)
-                         : kKeep;
+        out[i] = keep(cols[i]) ? verdict(cols[i]) : kKeep;
       }
     };
     detail::parallel_items(n >= 4 * kJudgeChunk ? threads_ : 1,
                            (n + kJudgeChunk - 1) / kJudgeChunk, verdicts);
     for (std::ptrdiff_t i = 0; i < n; ++i) {
-      if (out[i] == kAbnormal) {
-        remove(row, cols[i], pass);
-      } else if (out[i] != kKeep) {
-        lab[cols[i]] = out[i];
-      }
+      if (out[i] != kKeep) take(cols[i], out[i]);
     }
   };
 

@@ -200,31 +200,30 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
   const std::int64_t R0n = R0 + kTR, e0n = R0n - r;
   const bool next_band = pass == 1 && upto > e0n && R0n < H;
   const std::ptrdiff_t bn = static_cast<std::ptrdiff_t>((band + 1) % ebands_);
-  // Tile column t (tile list entry i < n_tiles: its verdicts; the next band's images, all t)
-  // on thread `tid`.
+  // Work item i on thread `tid`: the verdicts of tile column tiles[i] (i < n_tiles), else the
+  // next band's images of tile column i - n_tiles.
   const auto tile = [&](std::ptrdiff_t i, int tid) {
     std::uint8_t* labs = elab_img_.data() + tid * W;
-    if (i < n_tiles) {
-      const std::ptrdiff_t t = tiles[i];
-      const std::ptrdiff_t C0 = t * kTC, C1 = std::min(W, C0 + kTC);
-      const double* img = edge_images(pass, t, band, upto, a0, labs);  // image rows a0 on
-      const std::ptrdiff_t f0 = std::max<std::ptrdiff_t>(0, C0 - r);
-      const double* org = eorg_.data() + (b * etiles_ + t) * 3;
-      const Eigen::Vector3d o(org[0], org[1], org[2]);
-      std::fill(mark + C0, mark + C1, std::uint8_t{0});
-      const detail::EdgeImages im{img, ek_ * estride_, estride_, e0, ek_, f0};
-      // (no band cache, unlike batch: kept per tile column over a whole row of tiles it is
-      // 11 MB at 3200 points, read back r + 1 pushes later from beyond the L2 cache; without
-      // it a default push took about 8 % less CPU time, though it runs more instructions)
-      detail::edge_judge_row(gw, grow, row, H, C0, C1, im, o, r, params_.edge_k, win, todo,
-                             mark);
-    }
-    if (next_band) {
-      const std::ptrdiff_t t = i < n_tiles ? -1 : i - n_tiles;
-      if (t >= 0 && eorg_ok_[static_cast<std::size_t>(bn * etiles_ + t)]) {
+    if (i >= n_tiles) {
+      const std::ptrdiff_t t = i - n_tiles;
+      if (eorg_ok_[static_cast<std::size_t>(bn * etiles_ + t)]) {
         edge_images(1, t, band + 1, upto, 0, labs);
       }
+      return;
     }
+    const std::ptrdiff_t t = tiles[i];
+    const std::ptrdiff_t C0 = t * kTC, C1 = std::min(W, C0 + kTC);
+    const double* img = edge_images(pass, t, band, upto, a0, labs);  // image rows a0 on
+    const std::ptrdiff_t f0 = std::max<std::ptrdiff_t>(0, C0 - r);
+    const double* org = eorg_.data() + (b * etiles_ + t) * 3;
+    const Eigen::Vector3d o(org[0], org[1], org[2]);
+    std::fill(mark + C0, mark + C1, std::uint8_t{0});
+    const detail::EdgeImages im{img, ek_ * estride_, estride_, e0, ek_, f0};
+    // (no band cache, unlike batch: kept per tile column over a whole row of tiles it is 11 MB
+    // at 3200 points, read back r + 1 pushes later from beyond the L2 cache; without it a
+    // default push took about 8 % less CPU time, though it runs more instructions)
+    detail::edge_judge_row(gw, grow, row, H, C0, C1, im, o, r, params_.edge_k, win, todo,
+                           mark);
   };
   const std::ptrdiff_t n_work = n_tiles + (next_band ? etiles_ : 0);
   detail::parallel_items(threads_, n_work, tile);

@@ -167,9 +167,8 @@ class ProfileStream {
   /// `params.num_threads` (0: all available) splits a push's column work among threads: angle
   /// pass 1's filter or row kernel, an angle pass's judgments of a row, the edge passes' tile
   /// columns and height pass 1's strips (and its column sums); one thread below 256 points per
-  /// profile.
-  /// The results never depend on it. The
-  /// threads are OpenMP's (a team per calling thread, kept between pushes: no allocation).
+  /// profile, at most one per 128. The results never depend on it. The threads are OpenMP's
+  /// (a team per calling thread, kept between pushes: no allocation).
   /// Use nothrow::make_stream in code built without exceptions.
   explicit ProfileStream(std::ptrdiff_t width, DetectParams params = stream_default_params());
 
@@ -273,8 +272,8 @@ class ProfileStream {
   DetectParams params_;
   int reach_ = 0;   // R
   int passes_ = 0;  // max_iterations
-  // Threads of a push's column work (params.num_threads; 1 below 256 points): the edge passes'
-  // tile columns and the height pass 1's strips, of 128 columns each, split among them.
+  // Threads of a push's column work (params.num_threads; 1 below 256 points, at most one per
+  // 128 columns: an edge-test tile column or a height strip each).
   int threads_ = 1;
   int alag_ = 0;    // A = passes_ * reach_: rows after which the angle labels are final
   int lag_ = 0;     // L (stream_lag)
