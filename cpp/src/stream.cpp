@@ -684,10 +684,8 @@ void ProfileStream<T>::run_pass(std::int64_t row, int pass) noexcept {
       if (st[c] == 0) continue;
       if (detail::pass1_needs_judge(p1_, ok, c)) {
         judge_cols_[static_cast<std::size_t>(n++)] = c;
-      } else if (p1_lab_[static_cast<std::size_t>(c)] == kAbnormal) {
-        remove(row, c, 1);
       } else {
-        lab[c] = p1_lab_[static_cast<std::size_t>(c)];
+        take(c, p1_lab_[static_cast<std::size_t>(c)]);
       }
     }
     judge_cells(n, [](std::ptrdiff_t) { return true; });
@@ -721,12 +719,7 @@ void ProfileStream<T>::run_pass(std::int64_t row, int pass) noexcept {
           judge_cell(c);  // next to a dropout
           continue;
         }
-        const std::uint8_t l = exact_label(row, c, b);
-        if (l == kAbnormal) {
-          remove(row, c, 1);
-        } else {
-          lab[c] = l;
-        }
+        take(c, exact_label(row, c, b));
       }
     }
   } else {
