@@ -4,8 +4,9 @@ Usage: ``python bench/run_cpp.py [--quick] [--build-dir DIR] [--profiles N]``.
 
 * Streaming (``miem_bench_stream``): ``miem::ProfileStream`` on profiles of 3200 points, pinned
   to one core: profiles/s and per-push latency percentiles; then the same through the Python
-  wrapper ``miem.ProfileStream``; then the default on 1 and on 2 threads (``num_threads``: a
-  push's column work split among them), not pinned, alternated.
+  wrapper ``miem.ProfileStream``; then the default, and the default with min_step on, on 1 and
+  on 2 threads (``num_threads``: a push's column work split among them), not pinned,
+  alternated.
 * Organized detection against PCL 1.13 (``miem_bench_pcl``, built only where ``libpcl-dev`` is
   installed; not part of CI): the same organized cloud, one thread each.
 
@@ -277,13 +278,12 @@ def main() -> None:
     except ImportError as exc:  # the Python package is not installed
         py_row = None
         print(f"Python side skipped: {exc}")
-    # the default, and the default on jittered profiles (min_step on): indices as printed
-    picks = {"default preset, 0.1% dropouts": "default preset",
-             "default preset, min_step on (profiles jittered 0.02 mm)":
-                 "default preset, min_step on"}
-    threads = thread_rows(bench, n_edge, {label: i for i, r in enumerate(stream_rows)
-                                          for name, label in picks.items()
-                                          if r["scenario"] == name})
+    # the default, and the default on jittered profiles (min_step on), by their --only index
+    index = {r["scenario"]: i for i, r in enumerate(stream_rows)}
+    threads = thread_rows(bench, n_edge, {
+        "default preset": index["default preset, 0.1% dropouts"],
+        "default preset, min_step on":
+            index["default preset, min_step on (profiles jittered 0.02 mm)"]})
     pcl_rows = None
     if (bench / "miem_bench_pcl").exists():
         cmd = [str(bench / "miem_bench_pcl")] + (["--quick"] if args.quick else [])

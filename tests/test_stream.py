@@ -350,8 +350,8 @@ def test_stream_runs_the_edge_test_as_batch(kw: dict) -> None:
 
 @pytest.mark.parametrize("num_threads", [1, 2, 3])
 def test_stream_splits_a_push_among_threads_with_batch_results(num_threads: int) -> None:
-    """num_threads splits a push's column work (edge-test tiles and height strips of 128
-    points) among threads: labels, heights and defects still equal batch detection's."""
+    """num_threads splits a push's column work (the angle passes, edge-test tiles and height
+    strips) among threads: labels, heights and defects still equal batch detection's."""
     grid = make_outline_scan(420, 300, 5)  # 3 tile columns, the outline in the third
     want = miem.detect(grid)
     assert (want.labels != miem.detect(grid, edge_tolerance=None).labels).any()

@@ -245,8 +245,8 @@ int main(int argc, char** argv) {
   std::printf("[\n");
   bool first = true;
   for (std::size_t k = 0; k < scenarios.size(); ++k) {
-    Scenario sc = scenarios[k];
     if (only >= 0 && static_cast<int>(k) != only) continue;
+    Scenario sc = scenarios[k];
     sc.params.num_threads = threads;
     const std::ptrdiff_t m = sc.params.edge_test() ? std::min(n, n_edge) : n;
     if (sc.use_float) run<float>(sc, W, m, pool_rows, first);

@@ -71,10 +71,16 @@ MIEM_FIT_CLONES void pass1_verdicts(std::ptrdiff_t n, const std::uint8_t* __rest
 
 }  // namespace
 
-// One thread's doubles of fit_buf_: S, Q, F of a strip, then two rows' relative coordinates.
+// One thread's doubles of fit_buf_: S, Q, F of a strip (fit_strip_doubles), then two rows'
+// relative coordinates (sums_add_row's).
+template <typename T>
+std::ptrdiff_t ProfileStream<T>::fit_strip_doubles() const noexcept {
+  return (kMoments + 3 + 4) * std::min(width_, kStrip);
+}
+
 template <typename T>
 std::ptrdiff_t ProfileStream<T>::fit_doubles() const noexcept {
-  return (kMoments + 3 + 4) * std::min(width_, kStrip) + 6 * span_;
+  return fit_strip_doubles() + 6 * span_;
 }
 
 template <typename T>
@@ -220,7 +226,7 @@ void ProfileStream<T>::sums_add_row(int set, std::int64_t in, double sign,
   // Strips are independent (each its own column sums and origin): split among the threads,
   // each with its own rows of relative coordinates.
   detail::parallel_items(threads_, strips_, [&](std::ptrdiff_t t, int tid) {
-    double* x = fit_buf_.data() + tid * fit_doubles() + (kMoments + 3 + 4) * std::min(W, kStrip);
+    double* x = fit_buf_.data() + tid * fit_doubles() + fit_strip_doubles();
     double* xo = x + 3 * span_;  // the row leaving
     const std::ptrdiff_t tc0 = t * kStrip, tc1 = std::min(W, tc0 + kStrip);
     const std::ptrdiff_t C0 = std::max<std::ptrdiff_t>(0, tc0 - half_);

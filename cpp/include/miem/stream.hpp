@@ -240,7 +240,8 @@ class ProfileStream {
   void final_row(std::int64_t row) noexcept;
   void remove_height(std::int64_t row, std::ptrdiff_t col, int pass) noexcept;
   void sums_add_row(int set, std::int64_t in, double sign, std::int64_t out) noexcept;
-  std::ptrdiff_t fit_doubles() const noexcept;
+  std::ptrdiff_t fit_doubles() const noexcept;  // one thread's share of fit_buf_
+  std::ptrdiff_t fit_strip_doubles() const noexcept;  // its S, Q and F
   bool final_window_plane(std::int64_t row, std::ptrdiff_t col, Plane* plane) noexcept;
   void mark_stale(std::int64_t row, std::ptrdiff_t col) noexcept;
   GridView<T> row_view(std::int64_t row) const noexcept {
