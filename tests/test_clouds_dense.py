@@ -115,3 +115,23 @@ def test_command_line_says_it_in_its_words(tmp_path, capsys):
     assert line.startswith("miem: warning: dense.pcd: detect: this (20900, 3) cloud")
     assert line.endswith("or pass a smaller --radius")
     assert "UserWarning" not in err
+
+
+def test_dask_cloud_gets_the_same_advice():
+    # miem.dask.detect_points estimates on the same rows, read from the chunks that hold them
+    da = pytest.importorskip("dask.array")
+    import miem.dask as mdask
+
+    pts = with_blob(sheet(16_900), 4_000)
+    with pytest.warns(UserWarning, match="dense for its radius") as whole:
+        miem.detect(pts, num_threads=2)
+    with pytest.warns(UserWarning, match="dense for its radius") as parts:
+        res = mdask.detect_points(da.from_array(pts, chunks=6_000), num_threads=2)
+    assert str(parts[0].message) == str(whole[0].message)
+    assert parts[0].filename == __file__  # it points at the caller's line
+    # an even cloud, float32 or float64: no advice
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for dt in (np.float32, np.float64):
+            mdask.detect_points(da.from_array(sheet(20_000).astype(dt), chunks=7_000))
+    assert res.params["radius"] > 0

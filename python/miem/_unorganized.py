@@ -385,13 +385,23 @@ _DENSE_SAMPLE = 1 << 14
 def _dense_advice(arr: np.ndarray, radius: float, nt: int) -> str:
     """Why detecting `arr` at `radius` costs far more than an even scan, or "": the mean count
     of other points within `radius` and the share above 1,000, estimated on an even sample of
-    the rows (each sampled point's count among the sample, times rows / sample) when that mean
-    is above _DENSE_MEAN."""
-    n = arr.shape[0]
+    the rows (:func:`_dense_sample`, :func:`_dense_estimate`)."""
+    idx = _dense_sample(arr.shape[0])
+    return "" if idx is None else _dense_estimate(arr[idx], arr.shape[0], radius, nt)
+
+
+def _dense_sample(n: int) -> Optional[np.ndarray]:
+    """The rows the dense-cluster estimate reads in a cloud of n rows (an even sample of at
+    most _DENSE_SAMPLE), or None below _DENSE_MIN_POINTS rows (no advice)."""
     if n < _DENSE_MIN_POINTS:
-        return ""
-    m = min(n, _DENSE_SAMPLE)
-    sample = arr[np.linspace(0, n - 1, m).astype(np.int64)]
+        return None
+    return np.linspace(0, n - 1, min(n, _DENSE_SAMPLE)).astype(np.int64)
+
+
+def _dense_estimate(sample: np.ndarray, n: int, radius: float, nt: int) -> str:
+    """_dense_advice from the sampled rows of a cloud of n rows: each sampled point's count
+    among the sample, times rows / sample, when their mean is above _DENSE_MEAN."""
+    m = sample.shape[0]
     sample = sample[np.isfinite(sample).all(axis=1)]
     if sample.shape[0] < 2:
         return ""
@@ -402,6 +412,16 @@ def _dense_advice(arr: np.ndarray, radius: float, nt: int) -> str:
     return (f"its points have about {mean:,.0f} others each within radius {radius:.4g} "
             f"({np.mean(others > 1000):.0%} of them more than 1,000), where an even scan has "
             "about 50 at the default radius")
+
+
+def _dense_warning(n: int, why: str, stacklevel: int) -> None:
+    """The dense-cluster advice as a UserWarning (nothing when `why` is empty)."""
+    if why:
+        warnings.warn(
+            f"detect: this ({n}, 3) cloud is dense for its radius: {why}. The "
+            "cloud detector's time grows with the points in each ball: drop dense clusters "
+            "(such as returns around the scanner), or pass a smaller radius",
+            UserWarning, stacklevel=stacklevel + 1)
 
 
 def _detect_cloud(arr: np.ndarray, p: DetectParams, name: str, nt: int,
@@ -431,13 +451,8 @@ def _detect_cloud(arr: np.ndarray, p: DetectParams, name: str, nt: int,
         spacing=float(spacing), height_radius=float(height_radius_u), merged=int(merged),
         edge_radius=float(edge_radius_u) if edge_radius_u > 0 else p.cloud.edge_radius,
     )
-    why = _dense_advice(arr, float(radius_u), nt) if advise else ""
-    if why:
-        warnings.warn(
-            f"detect: this ({arr.shape[0]}, 3) cloud is dense for its radius: {why}. The "
-            "cloud detector's time grows with the points in each ball: drop dense clusters "
-            "(such as returns around the scanner), or pass a smaller radius",
-            UserWarning, stacklevel=3)
+    if advise:
+        _dense_warning(arr.shape[0], _dense_advice(arr, float(radius_u), nt), stacklevel=3)
     return PointsDetectResult(
         labels=labels, flags=flags, angle=angle, height=height,
         plane=None if plane_t is None else _plane(plane_t),

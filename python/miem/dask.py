@@ -1020,6 +1020,22 @@ def _tile_summary(t: dict) -> dict:
     return {"whole": t["whole"], "open": t["open"], "n": int(t["index"].size)}
 
 
+def _advise_dense(points: da.Array, radius: float, num_threads: Optional[int]) -> None:
+    """miem.detect's dense-cluster advice (a UserWarning) for a Dask cloud: the same estimate,
+    on the same even sample of rows, read from the chunks that hold them."""
+    from miem._api import _threads
+    from miem._unorganized import _dense_estimate, _dense_sample, _dense_warning
+
+    idx = _dense_sample(points.shape[0])
+    if idx is None:
+        return
+    sample = np.asarray(points[idx].compute())
+    if sample.dtype not in (np.float32, np.float64):
+        sample = sample.astype(np.float64)
+    why = _dense_estimate(sample, points.shape[0], float(radius), _threads(num_threads))
+    _dense_warning(points.shape[0], why, stacklevel=3)
+
+
 def detect_points(points: Any, *, tile: Optional[float] = None, num_threads: Optional[int] = 1,
                   **kwargs: Any) -> DaskPointsResult:
     """MIEM on an unorganized cloud held as a Dask array ``(N, 3)``, tile by tile, exactly as
@@ -1072,6 +1088,7 @@ def detect_points(points: Any, *, tile: Optional[float] = None, num_threads: Opt
     if need_spacing:
         kwargs["spacing"] = _cloud_spacing(points, lo3, hi3, params["merge_distance"])
         params, _ = _probe_points(kwargs)
+    _advise_dense(points, params["radius"], num_threads)
     pad = points_halo(params)
     sentinels = _sentinels(lo3, hi3, 2 * (pad + params["radius"] + params["link"]) + 1.0,
                            points.dtype)
