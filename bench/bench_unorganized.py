@@ -254,10 +254,10 @@ def real_lines(o3d, repeats: int) -> list[str]:
              "`remove_statistical_outlier(20, 2.0)` (all cores) on the same finite points, best "
              f"of {repeats}. A cloud's cost grows with the points in its balls (radius 5 x "
              "spacing, the height and edge tests twice that): 'points per ball' is the count at "
-             "`radius`, mean and largest. 'miem detect FILE' is what the command line runs: the "
-             "grid rebuilt from the scan lines where the points lie on them "
-             "(`miem.io.grid_from_scanlines`; rebuild and grid detection timed together), "
-             "else the cloud detector.", "",
+             "`radius`, mean and largest. 'miem detect FILE' is what the command line runs, and "
+             "`miem.detect(points, layout=\"auto\")`: the grid rebuilt from the scan lines "
+             "where the points lie on them (`miem.io.grid_from_scanlines`; rebuild and grid "
+             "detection timed together), else the cloud detector.", "",
              "| file | points | miem path | points per ball: mean / max | miem detect (s) | "
              "Open3D SOR (s) | SOR / miem | miem detect FILE (s) | SOR / that |",
              "|---|---|---|---|---|---|---|---|---|"]
@@ -274,17 +274,15 @@ def real_lines(o3d, repeats: int) -> list[str]:
 
 
 def rebuilt_detect(points: np.ndarray, repeats: int) -> float | None:
-    """Seconds for what `miem detect FILE` runs on an unorganized file whose points lie on scan
-    lines: the grid rebuilt (`miem.io._rebuild_grid`, the command line's own) and detected
-    (2 threads); None when the points give no grid (the command line runs the cloud detector)."""
+    """Seconds for ``miem.detect(points, layout="auto")`` (2 threads) on an unorganized file
+    whose points lie on scan lines: the grid rebuilt (as `miem detect FILE` does) and detected;
+    None when the points give no grid (then it runs the cloud detector, as the command line)."""
     import miem
-    import miem.io as mio
+    from miem._layout import rebuild
 
-    try:
-        mio._rebuild_grid(points)
-    except ValueError:
+    if rebuild(points, "auto") is None:  # (the check that detect makes first)
         return None
-    return best_of(lambda: miem.detect(mio._rebuild_grid(points)[0], num_threads=2), repeats)[0]
+    return best_of(lambda: miem.detect(points, layout="auto", num_threads=2), repeats)[0]
 
 
 def accuracy_lines() -> list[str]:

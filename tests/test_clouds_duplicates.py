@@ -106,7 +106,7 @@ def test_flattened_grid_keeps_its_grid_with_shape_and_warns_without() -> None:
     kept = miem.detect(flat, shape=(40, 50))
     np.testing.assert_array_equal(kept.labels, grid.labels)
     assert kept.labels.shape == (40, 50)
-    with pytest.warns(UserWarning, match="scan-line order.*shape="):
+    with pytest.warns(UserWarning, match="scan-line order.*shape=.*layout='auto'"):
         miem.detect(flat)
     finite = flat[np.isfinite(flat).all(axis=1)]
     with pytest.warns(UserWarning, match="scan-line order"):
@@ -116,7 +116,7 @@ def test_flattened_grid_keeps_its_grid_with_shape_and_warns_without() -> None:
 
     shuffled = finite[rng.permutation(len(finite))]  # on its scan lines, not in their order
     with pytest.warns(UserWarning, match=r"not in scan-line order \(\d+ y positions.*"
-                                         r"order='line'"):
+                                         r"layout='auto'"):
         res = miem.detect(shuffled)
     assert res.labels.shape == (len(finite),)  # still the cloud detector
     jittered = shuffled.copy()

@@ -79,14 +79,14 @@ def _as_cloud(points: np.ndarray) -> np.ndarray:
 
 
 def _regridded(points: np.ndarray) -> np.ndarray:
-    """The same shuffled points, rebuilt into a grid as ``miem detect`` does with an
-    unorganized file (``miem.io._rebuild_grid``: file order, else sorted by y), detected with
-    the defaults."""
-    import miem.io as mio
+    """The same shuffled points through ``miem.detect(points, layout="auto")``: the grid
+    rebuilt from their scan lines as ``miem detect`` does with an unorganized file (file
+    order, else sorted by y), detected with the defaults, labels per input row."""
 
     def run(p: np.ndarray) -> np.ndarray:
-        grid, index, _, _ = mio._rebuild_grid(p)
-        return miem.detect(grid).labels.reshape(-1)[index]
+        res = miem.detect(p, layout="auto")
+        assert res.params.get("layout") == "scanlines", "the scan's grid was not rebuilt"
+        return res.labels
 
     return _on_shuffled(points, run)
 
@@ -94,7 +94,8 @@ def _regridded(points: np.ndarray) -> np.ndarray:
 #: The real scan also as a cloud: what a user without the scan's grid (a merged or resampled
 #: cloud) gets from the same scan; and its shuffled points as ``miem detect`` reads a file.
 REAL_CONTENDERS = {**CONTENDERS, "recommended, as a cloud": _as_cloud,
-                   "recommended, shuffled, grid rebuilt by line position": _regridded}
+                   "recommended, shuffled, layout='auto' (grid rebuilt by line position)":
+                       _regridded}
 
 
 def region_counts(flagged: np.ndarray, region: np.ndarray, heights: np.ndarray,

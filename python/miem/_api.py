@@ -441,6 +441,7 @@ def detect(
     preset: Optional[str] = None,
     num_threads: Optional[int] = None,
     shape: Optional[Sequence[int]] = None,
+    layout: Optional[str] = None,
     **overrides: Any,
 ) -> DetectResult:
     """Find abnormal points in a scan with MIEM: an organized grid or an unorganized cloud.
@@ -464,12 +465,13 @@ def detect(
     ``theta0=80``) replace single fields.
 
     An unorganized cloud (``(N, 3)`` points, or an ``open3d.geometry.PointCloud``) goes to
-    :func:`miem.detect_points`; per-point arrays then have shape ``(N,)``. Clouds do not
-    implement the grid-only fields (``max_gap``, ``window``, ``max_reach``, ``theta0="auto"``
-    and the height test): any value but the neutral one is a ValueError (so
-    ``preset="recommended"`` on a cloud is refused for its height test), and the default for
-    clouds is the recommended angle test without the height test (:func:`miem.default_params`).
-    Grids reject the cloud-only ``radius``, ``K`` and ``link``.
+    :func:`miem.detect_points`; per-point arrays then have shape ``(N,)``. Clouds run the same
+    preset with their own neighbourhoods (``docs/SPEC.md`` "Unorganized clouds") and refuse the
+    grid-only fields (``max_gap``, ``window``, ``max_reach``, ``edge_window``,
+    ``theta0="auto"``); grids refuse the cloud part's own (``radius``, ``K``, ``link``,
+    ``min_group``, ...: :class:`miem.DetectParams`). A cloud
+    whose points lie on a profiler's scan lines (an export without its grid, in scan order or
+    not) is better detected as the grid rebuilt from them: ``layout="auto"``.
 
     Parameters
     ----------
@@ -485,10 +487,20 @@ def detect(
     shape : (int, int), optional
         An organized scan that arrives flattened (an ``(H*W, 3)`` array, e.g. an Open3D cloud
         read from an organized PCD): its ``(H, W)``, so that it keeps its grid and gets the
-        organized detector. Without it, an ``(N, 3)`` array is an unorganized cloud; a warning
-        says when one looks like a flattened grid (rows in scan-line order) or like a
-        profiler scan in another order (rebuild it with
-        ``miem.io.grid_from_scanlines(points, order="line")``).
+        organized detector. Without it (and without ``layout``), an ``(N, 3)`` array is an
+        unorganized cloud; a warning says when one looks like a flattened grid (rows in
+        scan-line order) or like a profiler scan in another order.
+    layout : {"auto", "scanlines", "cloud"}, optional
+        For an ``(N, 3)`` array, as ``miem detect FILE --layout``: ``"auto"`` rebuilds the grid
+        of the points' scan lines when they lie on them (``miem.io.grid_from_scanlines``, in
+        file order or by line position, both horizontal layouts tried; at least half its cells
+        filled) and runs the organized detector on it, else the cloud detector;
+        ``"scanlines"`` always rebuilds (a ValueError when no grid can be); ``"cloud"`` is the
+        cloud detector without advice. A rebuilt grid's result is per input row, like a
+        cloud's: each row gets its cell's label, flags, angle and height (rows not in the
+        grid, the non-finite ones: INVALID, NaN), defects list input rows, ``degenerate`` is
+        None, and ``params`` adds ``layout="scanlines"``, ``grid_shape``, ``scan_order``
+        (``"file"`` or ``"line"``) and ``line_axis``. Not with ``shape`` nor for a grid.
     **overrides
         Fields of :class:`miem.DetectParams` that replace those of ``params`` / the preset.
 
@@ -518,32 +530,51 @@ def detect(
     >>> miem.detect(grid, preset="paper").params["theta0"]
     75.0
     """
+    from . import _layout
+
     arr = _grid_or_cloud(grid)
     nt = _threads(num_threads)
+    _layout.check_layout(layout, arr, shape)
     if shape is not None:
         arr = _with_shape(arr, shape)
-    elif arr.ndim == 2 and arr.shape[1] == 3:
-        why = _looks_like_grid(arr)
-        if why:
-            warnings.warn(
-                f"detect: this ({arr.shape[0]}, 3) cloud looks like a flattened organized scan "
-                f"({why}){_AS_CLOUD}. Pass shape=(H, W) to keep its grid, or rebuild one with "
-                "miem.io.grid_from_scanlines", UserWarning, stacklevel=2)
-        else:
-            from .io import _on_scan_lines
-
-            why = _on_scan_lines(arr)
-            if why:
-                warnings.warn(
-                    f"detect: this ({arr.shape[0]}, 3) cloud looks like a profiler scan whose "
-                    f"points are not in scan-line order ({why}){_AS_CLOUD}. Rebuild its grid "
-                    "with miem.io.grid_from_scanlines(points, order='line') for the organized "
-                    "detector", UserWarning, stacklevel=2)
+    elif layout in ("auto", "scanlines"):
+        built = _layout.rebuild(arr, layout)
+        if built is not None:
+            return _layout.detect_rebuilt(
+                arr, *built, lambda g: _detect_grid(g, params, preset, overrides, nt))
+    elif layout is None and arr.ndim == 2 and arr.shape[1] == 3:
+        _advise_layout(arr)
     if arr.ndim == 2 and arr.shape[1] == 3:
         from ._unorganized import _detect_cloud
 
         p, name = resolve_params(params, preset, overrides, "cloud")
         return _detect_cloud(arr, p, name, nt, advise=True)
+    return _detect_grid(arr, params, preset, overrides, nt)
+
+
+def _advise_layout(arr: np.ndarray) -> None:
+    """detect's warning when an ``(N, 3)`` array given without ``layout`` looks like a
+    flattened grid or a profiler scan in another order (its advice after _AS_CLOUD)."""
+    why = _looks_like_grid(arr)
+    if why:
+        warnings.warn(
+            f"detect: this ({arr.shape[0]}, 3) cloud looks like a flattened organized scan "
+            f"({why}){_AS_CLOUD}. Pass shape=(H, W) to keep its grid, or layout='auto' to "
+            "rebuild it from its scan lines", UserWarning, stacklevel=3)
+        return
+    from .io import _on_scan_lines
+
+    why = _on_scan_lines(arr)
+    if why:
+        warnings.warn(
+            f"detect: this ({arr.shape[0]}, 3) cloud looks like a profiler scan whose "
+            f"points are not in scan-line order ({why}){_AS_CLOUD}. Pass layout='auto' to "
+            "rebuild its grid for the organized detector", UserWarning, stacklevel=3)
+
+
+def _detect_grid(arr: np.ndarray, params: Any, preset: Optional[str], overrides: dict,
+                 nt: int) -> DetectResult:
+    """detect on an organized grid (``arr``: the caller's array, not yet checked)."""
     p, name = resolve_params(params, preset, overrides, "grid")
     core_params = p._core_grid(nt)
     if arr.ndim != 3 or arr.shape[2] != 3:

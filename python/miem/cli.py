@@ -662,13 +662,11 @@ def _json_vec(v: np.ndarray) -> list[float | None]:
 
 def _defect_rows(loaded: _Loaded, result: Any) -> list[dict[str, Any]]:
     """Defects as plain dicts; indices refer to the points of the labelled output cloud."""
+    from ._layout import cell_rows
+
     flat = loaded.grid.reshape(-1, 3)
     height = np.asarray(result.height).reshape(-1)
-    inverse = None
-    if loaded.index is not None:
-        inverse = np.full(flat.shape[0], -1, dtype=np.int64)
-        ok = loaded.index >= 0
-        inverse[loaded.index[ok]] = np.flatnonzero(ok)
+    inverse = None if loaded.index is None else cell_rows(loaded.index, flat.shape[0])
     rows = []
     for d in result.defects:
         cells = np.asarray(d.indices, dtype=np.int64)
@@ -754,16 +752,12 @@ def _output_fields(loaded: _Loaded, result: Any) -> tuple[np.ndarray, dict[str, 
     if loaded.index is None:
         fields.update(res)
         return loaded.data.points, fields
-    index = loaded.index
-    ok = index >= 0
+    from ._api import Label
+    from ._layout import on_points
+
     for k, v in res.items():
-        flat = v.reshape(-1)
-        if v.dtype.kind == "f":
-            out = np.full(index.shape, np.nan, dtype=v.dtype)
-        else:
-            out = np.full(index.shape, 3 if k == "label" else 0, dtype=v.dtype)
-        out[ok] = flat[index[ok]]
-        fields[k] = out
+        fill = np.nan if v.dtype.kind == "f" else (Label.INVALID if k == "label" else 0)
+        fields[k] = on_points(v, loaded.index, fill)
     return loaded.data.points, fields
 
 
