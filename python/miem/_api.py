@@ -560,7 +560,7 @@ def _advise_layout(arr: np.ndarray) -> None:
         warnings.warn(
             f"detect: this ({arr.shape[0]}, 3) cloud looks like a flattened organized scan "
             f"({why}){_AS_CLOUD}. Pass shape=(H, W) to keep its grid, or layout='auto' to "
-            "rebuild it from its scan lines", UserWarning, stacklevel=3)
+            "rebuild it where its points lie on scan lines", UserWarning, stacklevel=3)
         return
     from .io import _on_scan_lines
 
