@@ -541,7 +541,7 @@ def detect(
         built = _layout.rebuild(arr, layout)
         if built is not None:
             return _layout.detect_rebuilt(
-                arr, *built, lambda g: _detect_grid(g, params, preset, overrides, nt))
+                *built, lambda g: _detect_grid(g, params, preset, overrides, nt))
     elif layout is None and arr.ndim == 2 and arr.shape[1] == 3:
         _advise_layout(arr)
     if arr.ndim == 2 and arr.shape[1] == 3:

@@ -50,10 +50,11 @@ def rebuild(arr: np.ndarray, layout: str) -> Optional[tuple[np.ndarray, np.ndarr
     return grid, index, info
 
 
-def on_points(values: np.ndarray, index: np.ndarray, fill: Any) -> np.ndarray:
-    """Per-cell `values` (H, W) as per-row values for the rows `index` points at (flat cells;
-    `fill` where -1)."""
+def on_points(values: np.ndarray, index: np.ndarray, label: bool = False) -> np.ndarray:
+    """Per-cell `values` (H, W) as per-row values for the rows `index` points at (flat cells);
+    a row in no cell (-1) gets what a dropout gets: NaN, INVALID for `label`s, else 0."""
     flat = np.asarray(values).reshape(-1)
+    fill = np.nan if flat.dtype.kind == "f" else (Label.INVALID if label else 0)
     out = np.full(index.shape, fill, dtype=flat.dtype)
     ok = index >= 0
     out[ok] = flat[index[ok]]
@@ -68,9 +69,10 @@ def cell_rows(index: np.ndarray, cells: int) -> np.ndarray:
     return rows
 
 
-def detect_rebuilt(arr: np.ndarray, grid: np.ndarray, index: np.ndarray, info: dict,
+def detect_rebuilt(grid: np.ndarray, index: np.ndarray, info: dict,
                    detect_grid: Callable[[np.ndarray], DetectResult]) -> DetectResult:
-    """detect_grid on the rebuilt `grid`, as a per-row result of `arr`: labels, flags, angle
+    """detect_grid on the rebuilt `grid`, as a per-row result of the cloud (`index`: each row's
+    flat cell, -1 for none, as :func:`rebuild` gives it): labels, flags, angle
     and height of each row's cell (INVALID, 0, NaN, NaN for rows not in the grid: non-finite
     ones), defects with the rows of their cells (``indices``, ``cells = indices[:, None]``),
     the grid result's params plus `info`. No ``degenerate`` mask (the organized detector has
@@ -87,10 +89,9 @@ def detect_rebuilt(arr: np.ndarray, grid: np.ndarray, index: np.ndarray, info: d
                               peak_height=d.peak_height, mean_height=d.mean_height,
                               extent=d.extent, kind=d.kind))
     return PointsDetectResult(
-        labels=on_points(res.labels, index, np.uint8(Label.INVALID)),
-        flags=on_points(res.flags, index, np.uint8(0)),
-        angle=on_points(res.angle, index, np.nan),
-        height=on_points(res.height, index, np.nan),
+        labels=on_points(res.labels, index, label=True),
+        flags=on_points(res.flags, index), angle=on_points(res.angle, index),
+        height=on_points(res.height, index),
         plane=res.plane, iterations=res.iterations, defects=defects,
         params={**res.params, **info}, degenerate=None,
     )

@@ -752,12 +752,10 @@ def _output_fields(loaded: _Loaded, result: Any) -> tuple[np.ndarray, dict[str, 
     if loaded.index is None:
         fields.update(res)
         return loaded.data.points, fields
-    from ._api import Label
     from ._layout import on_points
 
     for k, v in res.items():
-        fill = np.nan if v.dtype.kind == "f" else (Label.INVALID if k == "label" else 0)
-        fields[k] = on_points(v, loaded.index, fill)
+        fields[k] = on_points(v, loaded.index, label=k == "label")
     return loaded.data.points, fields
 
 
