@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import os
 import sys
+import warnings
 from pathlib import Path
 
 import miem
@@ -729,3 +730,29 @@ def test_scan_data_properties() -> None:
     scan = mio.ScanData(points=g, organized=True)
     assert scan.shape == (4, 5)
     assert scan.n_finite == 18
+
+
+def test_scan_data_goes_where_its_points_go(tmp_path: Path) -> None:
+    # miem.detect(miem.io.read(path)): a ScanData is its points array, for a grid and a cloud
+    from miem import simulate
+
+    scan = simulate.make_scan(shape=(40, 60), surface="tilted", noise=0.01, dropout=0.02,
+                              defects={"spike": 3}, seed=7)
+    mio.write(tmp_path / "grid.pcd", scan.points)
+    flat = scan.points.reshape(-1, 3)
+    mio.write(tmp_path / "cloud.ply", flat[np.isfinite(flat).all(axis=1)])
+    for name in ("grid.pcd", "cloud.ply"):
+        data = mio.read(tmp_path / name)
+        assert np.asarray(data) is data.points  # no copy
+        copied = np.array(data, dtype=np.float32, copy=True)
+        assert copied.dtype == np.float32 and not np.shares_memory(copied, data.points)
+        np.testing.assert_array_equal(copied, data.points.astype(np.float32))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # the cloud's scan-line advice
+            got, want = miem.detect(data, num_threads=1), miem.detect(data.points, num_threads=1)
+        np.testing.assert_array_equal(got.labels, want.labels)
+        np.testing.assert_array_equal(miem.fit_plane(data).normal,
+                                      miem.fit_plane(data.points).normal)
+    # a grid file's labels are the scan's own
+    np.testing.assert_array_equal(miem.detect(mio.read(tmp_path / "grid.pcd")).labels,
+                                  miem.detect(scan.points).labels)

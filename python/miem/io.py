@@ -140,6 +140,13 @@ class ScanData:
         """Number of points with three finite coordinates."""
         return int(np.count_nonzero(np.isfinite(self.points).all(axis=-1)))
 
+    def __array__(self, dtype: Any = None, copy: bool | None = None) -> np.ndarray:
+        """``points``, so that a ScanData goes wherever a point array does
+        (``miem.detect(miem.io.read(path))``, ``np.asarray(scan)``)."""
+        if copy:
+            return np.array(self.points, dtype=dtype, copy=True)
+        return np.asarray(self.points, dtype=dtype)
+
 
 # ---------------------------------------------------------------------------------------------
 # helpers
