@@ -556,20 +556,18 @@ def _advise_layout(arr: np.ndarray) -> None:
     """detect's warning when an ``(N, 3)`` array given without ``layout`` looks like a
     flattened grid or a profiler scan in another order (its advice after _AS_CLOUD)."""
     why = _looks_like_grid(arr)
-    if why:
-        warnings.warn(
-            f"detect: this ({arr.shape[0]}, 3) cloud looks like a flattened organized scan "
-            f"({why}){_AS_CLOUD}. Pass shape=(H, W) to keep its grid, or layout='auto' to "
-            "rebuild it where its points lie on scan lines", UserWarning, stacklevel=3)
-        return
-    from .io import _on_scan_lines
+    what = "a flattened organized scan"
+    advice = ("Pass shape=(H, W) to keep its grid, or layout='auto' to rebuild it where its "
+              "points lie on scan lines")
+    if not why:
+        from .io import _on_scan_lines
 
-    why = _on_scan_lines(arr)
+        why = _on_scan_lines(arr)
+        what = "a profiler scan whose points are not in scan-line order"
+        advice = "Pass layout='auto' to rebuild its grid for the organized detector"
     if why:
-        warnings.warn(
-            f"detect: this ({arr.shape[0]}, 3) cloud looks like a profiler scan whose "
-            f"points are not in scan-line order ({why}){_AS_CLOUD}. Pass layout='auto' to "
-            "rebuild its grid for the organized detector", UserWarning, stacklevel=3)
+        warnings.warn(f"detect: this ({arr.shape[0]}, 3) cloud looks like {what} "
+                      f"({why}){_AS_CLOUD}. {advice}", UserWarning, stacklevel=3)
 
 
 def _detect_grid(arr: np.ndarray, params: Any, preset: Optional[str], overrides: dict,
