@@ -2485,7 +2485,10 @@ def _cloud_edge_pass(
     evals = evals.reshape(m, -1, 3)
     n = np.maximum(cnt, 1.0)
     h = -np.einsum("ijk,ijk->ij", nrm, cen)  # u . (P - centroid), centroid = P + cen
-    rms = np.sqrt(np.maximum(evals[:, :, 0], 0.0) / n)
+    # l0 at most _FLAT_L0 l2 is round-off (an exactly flat support, such as 3 points): 0, so
+    # that best and clean do not depend on it
+    l0 = evals[:, :, 0]
+    rms = np.sqrt(np.where(l0 > _FLAT_L0 * evals[:, :, 2], l0, 0.0) / n)
     spread = np.sqrt((evals[:, :, 1] + evals[:, :, 2]) / n)
     tol = np.maximum(k * rms, _HEIGHT_RMS_FLOOR * spread)
     best = np.min(np.where(valid, rms, np.inf), axis=1)
@@ -2539,6 +2542,11 @@ def _cloud_edge_pass(
         lip[lip] = _cloud_lips(labels, pi, pj, w, a, b, lip, raised[lip], h[lip], nrm[lip],
                                tol[lip], r_edge)
     return (out & (proud | hang | lip)) | across
+
+
+#: Cloud edge test sectors (SPEC "Unorganized clouds: edge test" step 3): a smallest eigenvalue
+#: at most this times the largest is round-off, its rms 0.
+_FLAT_L0 = 1e-12
 
 
 #: Cloud hanging rule (SPEC "Unorganized clouds: edge test" step 5): the surface beyond a
