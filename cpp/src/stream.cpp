@@ -787,9 +787,8 @@ void ProfileStream<T>::pass1_fast(std::int64_t row) noexcept {
     }
   }
   // The columns S .. W - S - 1 in one contiguous range per thread (each cell's bits its own).
-  const std::ptrdiff_t n = W - 2 * S, parts = threads_;
-  detail::parallel_items(threads_, parts, [&](std::ptrdiff_t part, int) {
-    const std::ptrdiff_t c0 = S + n * part / parts, c1 = S + n * (part + 1) / parts;
+  detail::parallel_ranges(threads_, W - 2 * S, 1, [&](int, std::ptrdiff_t i0, std::ptrdiff_t i1) {
+    const std::ptrdiff_t c0 = S + i0, c1 = S + i1;
     std::fill(bits + c0, bits + c1, cos0_ > 0.0 ? 0u : ~kBadBit);  // theta0 >= 90: all exact
     for (int i = 0; i < args.n; ++i) {
       const std::uint8_t* sA = sa[i];
