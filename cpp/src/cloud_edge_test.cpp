@@ -20,7 +20,6 @@ namespace {
 
 constexpr int kSectors = 16;  // 8 quarter-disk and 8 half-disk sectors
 constexpr double kRmsFloor = 1e-9;      // of the tolerance, as the height test's
-constexpr double kFlatL0 = 1e-12;  // l0 <= this l2: round-off (an exactly flat support), rms 0
 constexpr double kSuspect = 1.5;        // candidates: surroundings rms above 1.5 x the median
 constexpr double kEmpty = 0.35;  // empty: fewer returns than 0.35 of a full sector (tune split)
 // ... and, as the opposite of a hanging point, below 0.3: a face falling away steeper than 45
@@ -400,9 +399,7 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
     const double n = static_cast<double>(lp[s].n);
     const Eigen::Vector3d& ev = lp[s].eigenvalues;
     h[s] = -lp[s].normal.dot(lp[s].mean);  // u . (P - centroid), centroid = P + mean
-    // l0 at most 1e-12 l2 is round-off (an exactly flat support, such as 3 points): 0, so
-    // that best and clean do not depend on it
-    rms[s] = ev(0) > kFlatL0 * ev(2) ? std::sqrt(ev(0) / n) : 0.0;
+    rms[s] = ev(0) > detail::kEdgeFlatL0 * ev(2) ? std::sqrt(ev(0) / n) : 0.0;
     floor[s] = kRmsFloor * std::sqrt((ev(1) + ev(2)) / n);
     tol[s] = std::max(e.k * rms[s], floor[s]);
     best = std::min(best, rms[s]);

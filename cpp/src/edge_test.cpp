@@ -101,7 +101,10 @@ MIEM_EDGE_CLONES void side_lows(std::ptrdiff_t m, std::ptrdiff_t cap, double n_m
     const double c1 = (a * b + b * c + a * c) - (d * d + e * e + f * f);
     const double det = a * b * c + 2.0 * d * e * f - a * e * e - b * f * f - c * d * d;
     const double x1 = (tr > 0.0 && c1 > 0.0 && det > 0.0) ? det / (c1 > 0.0 ? c1 : 1.0) : 0.0;
-    lowb[i] = use ? x1 / nn : std::numeric_limits<double>::infinity();
+    // a side that may be exactly flat (l0 <= kEdgeFlatL0 l2 needs x1 <= l0 <= kEdgeFlatL0 tr,
+    // as l2 <= tr; twice that for the solver's rounding of l2) may have rms 0: bound 0
+    const double low = x1 > 2.0 * kEdgeFlatL0 * tr ? x1 / nn : 0.0;
+    lowb[i] = use ? low : std::numeric_limits<double>::infinity();
   }
 }
 
@@ -117,7 +120,7 @@ inline __attribute__((always_inline)) void side_plane(
   const double sg = orient_sign(nx, ny, nz);
   ox = nx * sg, oy = ny * sg, oz = nz * sg;  // orient_normal
   h = ((px - cx) * ox + (py - cy) * oy) + (pz - cz) * oz;  // dot3(pt - centroid, normal)
-  rms = std::sqrt((l0 < 0.0 ? 0.0 : l0) / nn);  // std::max(l0, 0.0)
+  rms = l0 > kEdgeFlatL0 * l2 ? std::sqrt(l0 / nn) : 0.0;  // round-off l0: an exact plane
   const double floor = kRoundOff * std::sqrt((l1 + l2) / nn), kr = k * rms;
   tol = kr < floor ? floor : kr;  // std::max(k rms, floor)
 }

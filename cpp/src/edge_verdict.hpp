@@ -14,6 +14,10 @@ namespace miem::detail {
 
 /// A clean side: its rms is at most this times the smallest rms of the valid sides.
 constexpr double kEdgeCleanRatio = 2.0;
+/// A side whose smallest eigenvalue is at most this times its largest has rms 0 (SPEC "Edge
+/// test" step 3, "Unorganized clouds: edge test" step 3): its l0 is round-off (an exactly flat
+/// support: a noise-free plane, 3 points), so `best` and *clean* do not compare specks of it.
+constexpr double kEdgeFlatL0 = 1e-12;
 /// A grid side whose plane is steeper than 70 degrees (oriented normal's z below cos 70) is
 /// *steep* (SPEC "Edge test" step 4): never clean; as an opposite side its centroid counts.
 constexpr double kEdgeSteepCos = 0.3420201433256687;

@@ -1024,6 +1024,10 @@ def _edge_sides(r: int) -> tuple[tuple[int, int, int, int], ...]:
 #: A sub-window is *clean* when its rms is at most this times the smallest rms of the cell's
 #: sub-windows (a sub-window straddling a feature line has a far larger rms).
 _EDGE_CLEAN_RATIO = 2.0
+#: Edge test sides and sectors (SPEC "Edge test" and "Unorganized clouds: edge test", step 3):
+#: a smallest eigenvalue at most this times the largest is round-off (an exactly flat support:
+#: a noise-free plane, 3 points), its rms 0.
+_FLAT_L0 = 1e-12
 #: A sub-window's support is on a line in (x, y) when the determinant of its (x, y) scatter is
 #: at most this times its trace squared (SPEC "Edge test" step 3).
 _EDGE_LINE_TOL = 1e-6
@@ -1094,7 +1098,11 @@ def _side_fits(
         ok &= (evals[:, 2] > 0.0) & ~(evals[:, 1] <= _EIGEN_RANK_TOL * evals[:, 2])
         nrm = _orient(evecs[:, :, 0])
         hs[k] = np.where(ok, _dot3(pt - cen, nrm), np.nan)
-        rms[k] = np.where(ok, np.sqrt(np.maximum(evals[:, 0], 0.0) / nn), np.nan)
+        # l0 at most _FLAT_L0 l2 is round-off (an exactly flat support): 0, so that best and
+        # clean do not compare specks of it
+        l0 = evals[:, 0]
+        rms[k] = np.where(ok, np.sqrt(np.where(l0 > _FLAT_L0 * evals[:, 2], l0, 0.0) / nn),
+                          np.nan)
         spread[k] = np.where(ok, np.sqrt((evals[:, 1] + evals[:, 2]) / nn), np.nan)
         valid[k] = ok
         normals[k] = nrm
@@ -2485,9 +2493,7 @@ def _cloud_edge_pass(
     evals = evals.reshape(m, -1, 3)
     n = np.maximum(cnt, 1.0)
     h = -np.einsum("ijk,ijk->ij", nrm, cen)  # u . (P - centroid), centroid = P + cen
-    # l0 at most _FLAT_L0 l2 is round-off (an exactly flat support, such as 3 points): 0, so
-    # that best and clean do not depend on it
-    l0 = evals[:, :, 0]
+    l0 = evals[:, :, 0]  # l0 <= _FLAT_L0 l2: rms 0, as the grid's sides (_side_fits)
     rms = np.sqrt(np.where(l0 > _FLAT_L0 * evals[:, :, 2], l0, 0.0) / n)
     spread = np.sqrt((evals[:, :, 1] + evals[:, :, 2]) / n)
     tol = np.maximum(k * rms, _HEIGHT_RMS_FLOOR * spread)
@@ -2543,10 +2549,6 @@ def _cloud_edge_pass(
                                tol[lip], r_edge)
     return (out & (proud | hang | lip)) | across
 
-
-#: Cloud edge test sectors (SPEC "Unorganized clouds: edge test" step 3): a smallest eigenvalue
-#: at most this times the largest is round-off, its rms 0.
-_FLAT_L0 = 1e-12
 
 
 #: Cloud hanging rule (SPEC "Unorganized clouds: edge test" step 5): the surface beyond a
