@@ -129,6 +129,10 @@ def test_dask_cloud_gets_the_same_advice():
         res = mdask.detect_points(da.from_array(pts, chunks=6_000), num_threads=2)
     assert str(parts[0].message) == str(whole[0].message)
     assert parts[0].filename == __file__  # it points at the caller's line
+    with pytest.warns(UserWarning, match="dense for its radius") as routed:
+        mdask.detect(da.from_array(pts, chunks=6_000), num_threads=2, tile=40.0)
+    assert str(routed[0].message) == str(whole[0].message)
+    assert routed[0].filename == __file__  # through miem.dask.detect too
     # an even cloud, float32 or float64: no advice
     with warnings.catch_warnings():
         warnings.simplefilter("error")

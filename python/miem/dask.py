@@ -475,7 +475,8 @@ def detect(grid: Any, *args: Any, num_threads: Optional[int] = 1, strict: bool =
     bytes per point, until the median is found), then the blocks are detected with that value.
     """
     if getattr(grid, "ndim", None) == 2 and grid.shape[-1] == 3 and not args:  # a cloud
-        return detect_points(grid, num_threads=num_threads, **kwargs)  # type: ignore[return-value]
+        tile = kwargs.pop("tile", None)  # detect_points' own argument
+        return _detect_points(grid, tile, num_threads, kwargs)  # type: ignore[return-value]
     grid = _as_grid(grid)
     kwargs = dict(kwargs, num_threads=num_threads)
     params = _probe_params(args, kwargs)
@@ -1033,7 +1034,7 @@ def _advise_dense(points: da.Array, radius: float, num_threads: Optional[int]) -
     if sample.dtype not in (np.float32, np.float64):
         sample = sample.astype(np.float64)
     why = _dense_estimate(sample, points.shape[0], float(radius), _threads(num_threads))
-    _dense_warning(points.shape[0], why, stacklevel=3)
+    _dense_warning(points.shape[0], why, stacklevel=4)  # at the caller of detect(_points)
 
 
 def detect_points(points: Any, *, tile: Optional[float] = None, num_threads: Optional[int] = 1,
@@ -1070,6 +1071,13 @@ def detect_points(points: Any, *, tile: Optional[float] = None, num_threads: Opt
     -------
     DaskPointsResult
     """
+    return _detect_points(points, tile, num_threads, kwargs)
+
+
+def _detect_points(points: Any, tile: Optional[float], num_threads: Optional[int],
+                   kwargs: dict) -> DaskPointsResult:
+    """detect_points' work, for it and for :func:`detect` on a cloud (one frame deeper than
+    either's caller: the dense-cluster warning points at that caller's line)."""
     if not isinstance(points, da.Array):
         points = da.from_array(np.asarray(points))
     if points.ndim != 2 or points.shape[1] != 3:
