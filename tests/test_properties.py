@@ -275,7 +275,11 @@ def test_labels_invariant_under_the_grid_symmetries(grid, params, how):
 @given(grids(), grid_params(), st.sampled_from([2.0**-30, 0.125, 8.0, 2.0**40]))
 def test_power_of_two_scaling_scales_heights_exactly(grid, params, s):
     """Multiplying coordinates and lengths by a power of two is exact in floating point, so the
-    labels are identical and every height is multiplied by exactly that factor."""
+    labels are identical and every height is multiplied by exactly that factor. Not where a
+    product underflows: coordinates as small as 1e-308 (a slope hypothesis drew) have
+    subnormal squares and scaled heights, which round."""
+    mag = np.abs(grid[np.isfinite(grid)])
+    hypothesis.assume(np.all((mag == 0.0) | (mag >= 1e-100)))
     res = miem.detect(grid, **params)
     other = miem.detect(grid * s, **_scale_lengths(params, s))
     np.testing.assert_array_equal(other.labels, res.labels)
