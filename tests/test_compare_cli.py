@@ -132,3 +132,26 @@ def test_compare_reads_points_on_scan_lines_in_any_order(tmp_path) -> None:
     np.save(tmp_path / "jittered.npy", jittered)
     _, points, index = _scan(tmp_path / "jittered.npy")
     assert index is None and points.shape == (len(flat), 3)
+
+
+def test_cli_compare_says_when_peaks_reach_the_coverage(tmp_path, capsys) -> None:
+    # a bump 4 tall on a plane: its points above the coverage (max(10 x 0.2, 10 x 0.25) = 2.5)
+    # have no reference point within reach, so its defect's peak stops just under 2.5
+    yy, xx = np.mgrid[0:60, 0:60] * 0.25
+    r = np.hypot(xx - 7.5, yy - 7.5)
+    bump = np.where(r < 2.0, 4.0 * (1 - (r / 2.0) ** 2), 0.0)
+    np.save(tmp_path / "part.npy", np.dstack([xx, yy, bump]))
+    np.save(tmp_path / "golden.npy", np.dstack([xx, yy, 0 * xx]).reshape(-1, 3))
+    base = ["compare", str(tmp_path / "part.npy"), str(tmp_path / "golden.npy"), "-o",
+            str(tmp_path / "o"), "--no-register", "--no-agreement", "--no-plot"]
+    assert main(base) == 0
+    err = capsys.readouterr().err
+    doc = json.loads((tmp_path / "o" / "part.compare.json").read_text())
+    peak = max(d["peak_deviation"] for d in doc["defects"])
+    assert 0.95 * 2.5 <= peak <= 2.5  # cut off by the coverage, as the note says
+    assert "miem: note: 1 defect peaks within 5 % of the coverage (2.5 mm)" in err
+    assert main(base + ["--coverage", "10"]) == 0
+    err = capsys.readouterr().err
+    doc = json.loads((tmp_path / "o" / "part.compare.json").read_text())
+    assert max(d["peak_deviation"] for d in doc["defects"]) == pytest.approx(4.0, abs=0.05)
+    assert "coverage" not in err

@@ -277,6 +277,23 @@ def _print(args: argparse.Namespace, scan_path: Path, ref_path: Path, n: int, re
             cx = " ".join(f"{v:.3f}" for v in r["centroid"])
             print(f"  {r['id']:>4} {r['kind']:<8} {r['count']:>7,} {r['peak_deviation']:>+10.3f} "
                   f"{r['extent']:>8.3f}  {cx}")
+    clipped = _at_coverage(rows, p["coverage"])
+    if clipped:
+        what = "defects peak" if clipped > 1 else "defect peaks"
+        print(f"miem: note: {clipped:,} {what} within "
+              f"{100 * (1 - _CLIPPED):.0f} % of the coverage ({p['coverage']:.3g} {u}): the "
+              f"material may stand further out, where no reference point is within reach; "
+              f"measure it with a larger --coverage", file=sys.stderr)
     if res.agreement is not None:
         print(f"agreement with MIEM: {res.agreement.summary()}")
     print(f"total {seconds:.1f} s")
+
+
+#: A defect whose |peak| reaches this fraction of the coverage is probably cut off by it: a
+#: point's deviation never exceeds its distance to the reference, at most the coverage.
+_CLIPPED = 0.95
+
+
+def _at_coverage(rows: list, coverage: float) -> int:
+    """How many defects peak at the coverage's edge (their true peak may lie beyond it)."""
+    return sum(abs(r["peak_deviation"]) >= _CLIPPED * coverage for r in rows)
