@@ -319,8 +319,9 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
     }
     if (m == 0) return;
     detail::load_rel(g, 0, tc0, n, o[0], o[1], o[2], Q, Q + cap, Q + 2 * cap);
-    const detail::RowFits rf =
-        detail::row_solve(col, stride_, h, n, cap, wrow, m, S, Q, F, okf, redo);
+    const detail::RowFits rf = detail::row_solve(
+        col, stride_, h, n, cap, wrow, m, S, Q, F, okf, redo,
+        [&](std::ptrdiff_t j) { return window_refit(row, tc0 + j, 1); });
     if (!rf.compact) {  // the whole span at once: heights, then the verdicts
       const std::ptrdiff_t j0 = rf.j0, j1 = rf.j1;
       // wrow[j] becomes: cell j is wanted and too far
@@ -370,6 +371,27 @@ void ProfileStream<T>::window_fit(std::int64_t row, std::ptrdiff_t col, int pass
   const GridView<T> sub{xyz_.data() + slot(r0) * W + c0, static_cast<std::ptrdiff_t>(r1 - r0 + 1),
                         nc, W, 1, phys_ * W};
   fit(sub, local_.data(), static_cast<std::ptrdiff_t>(row - r0), col - c0);
+}
+
+// The window fit of cell (row, col) over the classes of height pass `pass` (as window_fit's),
+// directly (detail::direct_fit_by): for the running sums' fits that cancellation spoils
+// (detail::kRefitRatio). Reads the rows in place, so the threads of height pass 1 may call it.
+template <typename T>
+detail::WindowFit ProfileStream<T>::window_refit(std::int64_t row, std::ptrdiff_t col,
+                                                 int pass) const noexcept {
+  const std::ptrdiff_t W = width_;
+  const std::int64_t r0 = std::max<std::int64_t>(0, row - half_);
+  const std::int64_t r1 = std::min<std::int64_t>(pushed_ - 1, row + half_);
+  const bool lines = pass != kNever;
+  const auto class_of = [&](std::ptrdiff_t rr, std::ptrdiff_t cc) -> std::uint8_t {
+    const std::ptrdiff_t i = slot(r0 + rr) * W + cc;
+    const std::uint8_t b = hm_[i];
+    return ((b & kInPlane) && hs_[i] >= pass) ? kInPlane : ((lines && (b & kLine)) ? kLine : 0);
+  };
+  // Rows r0..r1 are consecutive in memory (the ring's extension, see phys_).
+  const GridView<T> g{xyz_.data() + slot(r0) * W, static_cast<std::ptrdiff_t>(r1 - r0 + 1), W, W,
+                      1, phys_ * W};
+  return detail::direct_fit_by(g, class_of, static_cast<std::ptrdiff_t>(row - r0), col, half_);
 }
 
 // Height pass `pass` >= 2 on `row`: the candidates whose window a removal of the pass before
@@ -519,6 +541,7 @@ void ProfileStream<T>::region_fits(std::int64_t row, int pass, Visit visit) noex
     for (std::ptrdiff_t j = 0; j < seg; ++j) wrow[j] = want[ca + j];
     detail::load_rel(g0, 0, ca, seg, o.x(), o.y(), o.z(), Q, Q + cap, Q + 2 * cap);
     detail::row_fits(cs + pad + (ca - C0), stride, h, seg, cap, wrow, m, S, Q, F, okf, redo,
+                     [&](std::ptrdiff_t j) { return window_refit(row, ca + j, pass); },
                      [&](std::ptrdiff_t j, const detail::WindowFit& f) { visit(ca + j, f); });
   }
 }

@@ -458,17 +458,55 @@ struct RowFits {
   }
 };
 
+/// A window plane the sums lose to cancellation: its l1 at most this times the sums' second
+/// moments about their origin (s_xx + s_yy + s_zz). The sums hold the moments relative to a
+/// point of the tile, up to the tile's size away, and M = Q - n m m^T cancels their leading
+/// digits; a support nearly on a line (three cells of one row beside a dropout) leaves an l1
+/// smaller than that round-off, and its plane (nearly vertical) tilts by up to 1e-6. Such a
+/// window is fitted again directly (direct_fit_by), as the reference fits it.
+inline constexpr double kRefitRatio = 1e-7;
+
+/// The solved entries [e0, e1) of row_solve whose sums lost the plane (kRefitRatio): their fit
+/// from refit(j) (j: the segment's column of entry e; compact, the e-th wanted one from j0).
+template <typename Refit>
+void refit_cancelled(std::ptrdiff_t e0, std::ptrdiff_t e1, bool compact, std::ptrdiff_t j0,
+                     const std::uint8_t* wrow, std::ptrdiff_t cap, double* S, double* F,
+                     std::uint8_t* okf, std::uint8_t* redo, Refit refit) {
+  const double *s4 = S + 4 * cap, *s7 = S + 7 * cap, *s9 = S + 9 * cap, *l1 = F + 2 * cap;
+  std::uint8_t any = 0;  // nearly always none: one vector pass
+  for (std::ptrdiff_t e = e0; e < e1; ++e) {
+    any |= static_cast<std::uint8_t>(okf[e] & (l1[e] <= kRefitRatio * (s4[e] + s7[e] + s9[e])));
+  }
+  if (!any) return;
+  std::ptrdiff_t j = j0 - 1;
+  for (std::ptrdiff_t e = e0; e < e1; ++e) {
+    if (compact) {
+      for (++j; !wrow[j];) ++j;  // the e-th wanted column
+    } else {
+      j = e;
+    }
+    if (!(okf[e] && l1[e] <= kRefitRatio * (s4[e] + s7[e] + s9[e]))) continue;
+    const WindowFit f = refit(j);
+    okf[e] = f.ok ? 1 : 0;
+    redo[e] = 0;
+    F[e] = f.ok ? f.height : 0.0;
+    F[cap + e] = f.l0, F[2 * cap + e] = f.l1, F[3 * cap + e] = f.l2;
+  }
+}
+
 /// The window fits of the wanted cells of one row segment of `ncols` cells from the column sums
 /// of the window's rows: `col` + k * stride + j is moment k of the segment's column j, with
 /// `half` + 1 valid (or zero-padded) columns on either side. wrow[j]: fit cell j (m of them);
 /// Q (3 x cap, SoA): the cells relative to the sums' origin, overwritten. S (kMoments x cap),
 /// F (4 x cap), ok and redo (cap each) are scratch. Calls visit(j, fit) in ascending j.
 /// Shared by the batch window sweep below and the stream's running sums. row_solve: the same
-/// fits left in the scratch (RowFits) for a caller that reads a whole row at once.
-inline RowFits row_solve(const double* col, std::ptrdiff_t stride, std::ptrdiff_t half,
-                         std::ptrdiff_t ncols, std::ptrdiff_t cap, const std::uint8_t* wrow,
-                         std::ptrdiff_t m, double* S, double* Q, double* F, std::uint8_t* okf,
-                         std::uint8_t* redo) {
+/// fits left in the scratch (RowFits) for a caller that reads a whole row at once. refit(j):
+/// cell j's window fitted directly, for the cells whose sums lose the plane (refit_cancelled).
+template <typename Refit>
+RowFits row_solve(const double* col, std::ptrdiff_t stride, std::ptrdiff_t half,
+                  std::ptrdiff_t ncols, std::ptrdiff_t cap, const std::uint8_t* wrow,
+                  std::ptrdiff_t m, double* S, double* Q, double* F, std::uint8_t* okf,
+                  std::uint8_t* redo, Refit refit) {
   // The wanted cells' span [j0, j1): a later height pass wants the cells around a removed one.
   std::ptrdiff_t j0 = 0, j1 = ncols;
   while (j0 < j1 && !wrow[j0]) ++j0;
@@ -519,14 +557,17 @@ inline RowFits row_solve(const double* col, std::ptrdiff_t stride, std::ptrdiff_
     }
     if (nr > 0) flush();
   }
+  refit_cancelled(e0, e1, compact, j0, wrow, cap, S, F, okf, redo, refit);
   return RowFits{S, F, okf, redo, cap, compact, j0, j1};
 }
 
-template <typename Visit>
+template <typename Refit, typename Visit>
 void row_fits(const double* col, std::ptrdiff_t stride, std::ptrdiff_t half, std::ptrdiff_t ncols,
               std::ptrdiff_t cap, const std::uint8_t* wrow, std::ptrdiff_t m, double* S,
-              double* Q, double* F, std::uint8_t* okf, std::uint8_t* redo, Visit visit) {
-  const RowFits rf = row_solve(col, stride, half, ncols, cap, wrow, m, S, Q, F, okf, redo);
+              double* Q, double* F, std::uint8_t* okf, std::uint8_t* redo, Refit refit,
+              Visit visit) {
+  const RowFits rf =
+      row_solve(col, stride, half, ncols, cap, wrow, m, S, Q, F, okf, redo, refit);
   std::ptrdiff_t k2 = 0;
   for (std::ptrdiff_t j = 0; j < ncols; ++j) {
     if (!wrow[j]) continue;
@@ -534,38 +575,57 @@ void row_fits(const double* col, std::ptrdiff_t stride, std::ptrdiff_t half, std
   }
 }
 
-/// The window fit of one cell from its window's cells directly (sums relative to the cell).
-template <typename T>
-WindowFit direct_fit(const GridView<T>& g, const std::uint8_t* cls, std::ptrdiff_t r,
-                     std::ptrdiff_t c, std::ptrdiff_t half) {
-  const std::ptrdiff_t W = g.cols;
+/// The window fit of one cell from its window's cells directly, in two passes: the mean of the
+/// plane's cells relative to the cell, then their moments about that mean, so no cancellation
+/// (as the reference's fit). class_of(rr, cc): the class byte of cell (rr, cc) of g.
+template <typename T, typename ClassOf>
+WindowFit direct_fit_by(const GridView<T>& g, ClassOf class_of, std::ptrdiff_t r,
+                        std::ptrdiff_t c, std::ptrdiff_t half) {
+  const std::ptrdiff_t r0 = std::max<std::ptrdiff_t>(0, r - half);
+  const std::ptrdiff_t r1 = std::min(g.rows - 1, r + half);
+  const std::ptrdiff_t c0 = std::max<std::ptrdiff_t>(0, c - half);
+  const std::ptrdiff_t c1 = std::min(g.cols - 1, c + half);
   const Eigen::Vector3d o = g(r, c);
   double s[kMoments] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
-  for (std::ptrdiff_t rr = std::max<std::ptrdiff_t>(0, r - half);
-       rr <= std::min(g.rows - 1, r + half); ++rr) {
-    for (std::ptrdiff_t cc = std::max<std::ptrdiff_t>(0, c - half); cc <= std::min(W - 1, c + half);
-         ++cc) {
-      const std::uint8_t k = cls[rr * W + cc];
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  for (std::ptrdiff_t rr = r0; rr <= r1; ++rr) {
+    for (std::ptrdiff_t cc = c0; cc <= c1; ++cc) {
+      const std::uint8_t k = class_of(rr, cc);
       if (k & kInPlane) {
-        const Eigen::Vector3d q = g(rr, cc) - o;
         s[0] += 1.0;
-        s[1] += q.x();
-        s[2] += q.y();
-        s[3] += q.z();
-        s[4] += q.x() * q.x();
-        s[5] += q.x() * q.y();
-        s[6] += q.x() * q.z();
-        s[7] += q.y() * q.y();
-        s[8] += q.y() * q.z();
-        s[9] += q.z() * q.z();
+        sum += g(rr, cc) - o;
       } else if (k & kLine) {
         s[10] += 1.0;
       }
     }
   }
-  WindowFit f = fit_from_sums(s, Eigen::Vector3d::Zero());
+  const Eigen::Vector3d mean = s[0] > 0.0 ? Eigen::Vector3d(sum / s[0]) : sum;
+  for (std::ptrdiff_t rr = r0; rr <= r1 && s[0] >= 3.0; ++rr) {
+    for (std::ptrdiff_t cc = c0; cc <= c1; ++cc) {
+      if (!(class_of(rr, cc) & kInPlane)) continue;
+      const Eigen::Vector3d q = g(rr, cc) - o - mean;
+      s[4] += q.x() * q.x();
+      s[5] += q.x() * q.y();
+      s[6] += q.x() * q.z();
+      s[7] += q.y() * q.y();
+      s[8] += q.y() * q.z();
+      s[9] += q.z() * q.z();
+    }
+  }
+  // the moments are about the mean (s[1..3] = 0): the cell lies at -mean from it
+  WindowFit f = fit_from_sums(s, -mean);
   f.edges = s[10];
   return f;
+}
+
+/// direct_fit_by over a class array `cls` laid out as g (g.cols per row).
+template <typename T>
+WindowFit direct_fit(const GridView<T>& g, const std::uint8_t* cls, std::ptrdiff_t r,
+                     std::ptrdiff_t c, std::ptrdiff_t half) {
+  const std::ptrdiff_t W = g.cols;
+  return direct_fit_by(
+      g, [cls, W](std::ptrdiff_t rr, std::ptrdiff_t cc) { return cls[rr * W + cc]; }, r, c,
+      half);
 }
 
 /// window_fits (below) with the rows swept by the sums handed over whole: visit_row(i0, ncols,
@@ -708,7 +768,8 @@ void window_fits_rows(const GridView<T>& g, const std::uint8_t* cls, int window,
         std::copy(x + 2 * span, x + 2 * span + nq, Q + 2 * cap);
       }
       const RowFits rf =
-          row_solve(cs + pad + (tc0 - C0), stride, half, ncols, cap, wrow, m, S, Q, F, okf, redo);
+          row_solve(cs + pad + (tc0 - C0), stride, half, ncols, cap, wrow, m, S, Q, F, okf, redo,
+                    [&](std::ptrdiff_t j) { return direct_fit(g, cls, r, tc0 + j, half); });
       visit_row(r * W + tc0, ncols, static_cast<const std::uint8_t*>(wrow), rf);
     }
   }

@@ -34,6 +34,8 @@ struct StreamRow {
 };
 
 namespace detail {
+struct WindowFit;  // window_fits.hpp
+
 /// min_step "auto" (docs/SPEC.md "min_step='auto'") decided in resumable steps over rows that
 /// arrive one at a time: the streaming detector's form (auto_min_step.cpp), so that no push
 /// pays the whole decision. Exact medians by radix selection over the doubles' 64-bit
@@ -266,6 +268,7 @@ class ProfileStream {
   void report(std::int32_t root) noexcept;
   template <typename Fit>
   void window_fit(std::int64_t row, std::ptrdiff_t col, int pass, Fit fit) noexcept;
+  detail::WindowFit window_refit(std::int64_t row, std::ptrdiff_t col, int pass) const noexcept;
   template <typename Visit>
   void region_fits(std::int64_t row, int pass, Visit visit) noexcept;
 
