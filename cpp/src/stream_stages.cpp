@@ -41,6 +41,13 @@ constexpr std::uint8_t kNever = 255;  // hs_: not removed by the height test
 
 constexpr std::uint8_t want_bit(int pass) { return (pass & 1) ? kSWantOdd : kSWantEven; }
 
+// A cell's class in height pass `pass` (kNever: the final labels) from its bits b and removal
+// pass hs: in the plane while NORMAL at the pass's start (Jacobi), else a feature-line count
+// when `lines`.
+constexpr std::uint8_t pass_class(std::uint8_t b, std::uint8_t hs, int pass, bool lines) {
+  return ((b & kInPlane) && hs >= pass) ? kInPlane : ((lines && (b & kLine)) ? kLine : 0);
+}
+
 // Height pass 1 on a row span of n cells from row_solve's fits (RowFits, not compact): the
 // height of each wanted cell (w[j] != 0; NaN without a plane) and, with `test`, w[j] = 1 where
 // the cell is a candidate (NORMAL or compact EDGE, by its bits hm[j]) the verdict
@@ -362,9 +369,7 @@ void ProfileStream<T>::window_fit(std::int64_t row, std::ptrdiff_t col, int pass
     const std::uint8_t* hm = hm_.data() + slot(rr) * W;
     const std::uint8_t* hs = hs_.data() + slot(rr) * W;
     for (std::ptrdiff_t cc = c0; cc <= c1; ++cc) {
-      const std::uint8_t b = hm[cc];
-      *loc++ = ((b & kInPlane) && hs[cc] >= pass) ? kInPlane
-                                                  : ((lines && (b & kLine)) ? kLine : 0);
+      *loc++ = pass_class(hm[cc], hs[cc], pass, lines);
     }
   }
   // Rows r0..r1 are consecutive in memory (the ring's extension, see phys_).
@@ -385,8 +390,7 @@ detail::WindowFit ProfileStream<T>::window_refit(std::int64_t row, std::ptrdiff_
   const bool lines = pass != kNever;
   const auto class_of = [&](std::ptrdiff_t rr, std::ptrdiff_t cc) -> std::uint8_t {
     const std::ptrdiff_t i = slot(r0 + rr) * W + cc;
-    const std::uint8_t b = hm_[i];
-    return ((b & kInPlane) && hs_[i] >= pass) ? kInPlane : ((lines && (b & kLine)) ? kLine : 0);
+    return pass_class(hm_[i], hs_[i], pass, lines);
   };
   // Rows r0..r1 are consecutive in memory (the ring's extension, see phys_).
   const GridView<T> g{xyz_.data() + slot(r0) * W, static_cast<std::ptrdiff_t>(r1 - r0 + 1), W, W,
@@ -530,9 +534,7 @@ void ProfileStream<T>::region_fits(std::int64_t row, int pass, Visit visit) noex
       const std::uint8_t* hm = hm_.data() + slot(rr) * W + C0;
       const std::uint8_t* hs = hs_.data() + slot(rr) * W + C0;
       for (std::ptrdiff_t j = 0; j < nc; ++j) {
-        const std::uint8_t b = hm[j];
-        cl[j] = ((b & kInPlane) && hs[j] >= pass) ? kInPlane
-                                                  : ((lines && (b & kLine)) ? kLine : 0);
+        cl[j] = pass_class(hm[j], hs[j], pass, lines);
       }
       const GridView<T> g{xyz_.data() + slot(rr) * W, 1, W, W, 1, plane};
       detail::load_rel(g, 0, C0, nc, o.x(), o.y(), o.z(), x, x + span_, x + 2 * span_);

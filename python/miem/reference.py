@@ -2550,7 +2550,6 @@ def _cloud_edge_pass(
     return (out & (proud | hang | lip)) | across
 
 
-
 #: Cloud hanging rule (SPEC "Unorganized clouds: edge test" step 5): the surface beyond a
 #: hanging point lies more than this times as deep below it as it lies below the top.
 _CLOUD_HANG_SHELF = 2.0
