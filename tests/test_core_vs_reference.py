@@ -299,3 +299,24 @@ def test_window_planes_the_sums_lose_are_fitted_directly() -> None:
     rows = [r for p in g if (r := stream.push(p)) is not None] + list(stream.flush())
     np.testing.assert_allclose(np.stack([r.heights for r in rows]), oracle.height, rtol=0,
                                atol=1e-12, equal_nan=True)
+
+
+def test_a_window_plane_without_a_unique_normal_does_not_exist() -> None:
+    """SPEC "Height": a window plane exists only where l1 - l0 > 1e-6 l2. A noise-free 3 x 3
+    window (equal steps in x and y) around a pit the angle test leaves NORMAL has l0 = l1 by
+    symmetry: any vertical plane through the pit fits it equally, and the core and NumPy
+    picked different ones (heights 0.25 against -0.25; hypothesis found it)."""
+    yy, xx = np.mgrid[0:12, 0:3] * 0.25
+    z = np.zeros(xx.shape)
+    z[5, 1], z[10, 1] = 2.82, -1.84
+    g = np.dstack([xx, yy, z])
+    kw = {"theta0": 40.0, "scales": (2,), "max_gap": 0, "max_iterations": 1, "window": 5,
+          "height_tolerance": None, "edge_extent": 0}
+    oracle = ref.detect(g, **kw)
+    assert oracle.labels[10, 1] == miem.NORMAL  # the pit is in the window planes
+    assert np.isnan(oracle.height[11]).all()  # the 3 x 3 window at the grid's end: l0 = l1
+    for nt in (1, 2):
+        core = miem.detect(g, num_threads=nt, **kw)
+        np.testing.assert_array_equal(core.labels, oracle.labels)
+        np.testing.assert_allclose(core.height, oracle.height, rtol=0, atol=1e-12,
+                                   equal_nan=True)

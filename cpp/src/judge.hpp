@@ -166,6 +166,14 @@ class CellJudge {
   double min_step_;
 };
 
+/// A window plane (SPEC "Height") exists only where its normal is unique: l1 - l0 above this
+/// times l2. Equal smallest eigenvalues (a noise-free 3 x 3 window around a pit as deep as the
+/// window is wide: l0 = l1) leave any normal in their plane, and an l1 within round-off of
+/// the 1e-12 rank limit (three collinear cells) is no rank at all: either way the core's solver
+/// and NumPy's pick different planes. Above the Newton solver's accuracy at a double root
+/// (about sqrt(eps) = 1.5e-8 of l2), far below any measured surface's l1 - l0.
+inline constexpr double kWindowUnique = 1e-6;
+
 // Eigen fit of the NORMAL cells in the window around (r, c), computed directly (two-pass).
 template <typename T>
 PlaneStatus window_plane(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t r,
@@ -190,7 +198,10 @@ PlaneStatus window_plane(const GridView<T>& g, const std::uint8_t* labels, std::
         const Eigen::Vector3d q = g(rr, cc) - m.mean;
         m.scatter.noalias() += q * q.transpose();
       }
-  return eigen_plane_from_moments(m, out);
+  const PlaneStatus st = eigen_plane_from_moments(m, out);
+  if (st != PlaneStatus::kOk) return st;
+  const Eigen::Vector3d& ev = out->eigenvalues;
+  return ev(1) - ev(0) > kWindowUnique * ev(2) ? st : PlaneStatus::kDegenerate;
 }
 
 }  // namespace miem::detail

@@ -125,8 +125,10 @@ inline __attribute__((always_inline)) void solve_fits_body(std::ptrdiff_t m, std
       f0[i] = x[t];
       f1[i] = l1;
       f2[i] = hi;
-      okd[t] = (n >= 3.0) & (tr[t] > 0.0) & (nb > 0.0) & (hi > 0.0) & (l1 > 1e-12 * hi) ? 1.0
-                                                                                          : 0.0;
+      okd[t] = (n >= 3.0) & (tr[t] > 0.0) & (nb > 0.0) & (hi > 0.0) & (l1 > 1e-12 * hi) &
+                       (l1 - x[t] > kWindowUnique * hi)
+                   ? 1.0
+                   : 0.0;
       redod[t] = (live[t] != 0.0) & (n >= 3.0) ? 1.0 : 0.0;
     }
     for (std::ptrdiff_t t = 0; t < nb_; ++t) {
@@ -167,7 +169,7 @@ inline WindowFit fit_from_sums(const double* s, const Eigen::Vector3d& q) {
   M(2, 2) = s[9] - n * mean.z() * mean.z();
   Eigen::Vector3d nv;
   if (smallest_eigenpair(M, &fit.l0, &fit.l1, &fit.l2, &nv) && fit.l2 > 0.0 &&
-      fit.l1 > 1e-12 * fit.l2) {
+      fit.l1 > 1e-12 * fit.l2 && fit.l1 - fit.l0 > kWindowUnique * fit.l2) {
     fit.ok = true;
     fit.n = n;
     const Eigen::Vector3d o = orient_normal(nv);
@@ -466,17 +468,20 @@ struct RowFits {
 /// window is fitted again directly (direct_fit_by), as the reference fits it.
 inline constexpr double kRefitRatio = 1e-7;
 
-/// The solved entries [e0, e1) of row_solve whose sums lost the plane (kRefitRatio): their fit
+/// The solved entries [e0, e1) of row_solve whose sums lost the plane (kRefitRatio; at least 3
+/// cells, whether the sums found a plane or not: cancellation may decide either): their fit
 /// from refit(j) (j: the segment's column of entry e; compact, the e-th wanted one from j0).
 template <typename Refit>
 void refit_cancelled(std::ptrdiff_t e0, std::ptrdiff_t e1, bool compact, std::ptrdiff_t j0,
                      const std::uint8_t* wrow, std::ptrdiff_t cap, double* S, double* F,
                      std::uint8_t* okf, std::uint8_t* redo, Refit refit) {
-  const double *s4 = S + 4 * cap, *s7 = S + 7 * cap, *s9 = S + 9 * cap, *l1 = F + 2 * cap;
+  const double *s0 = S, *s4 = S + 4 * cap, *s7 = S + 7 * cap, *s9 = S + 9 * cap;
+  const double* l1 = F + 2 * cap;
+  const auto lost = [&](std::ptrdiff_t e) {
+    return (s0[e] >= 3.0) & (l1[e] <= kRefitRatio * (s4[e] + s7[e] + s9[e]));
+  };
   std::uint8_t any = 0;  // nearly always none: one vector pass
-  for (std::ptrdiff_t e = e0; e < e1; ++e) {
-    any |= static_cast<std::uint8_t>(okf[e] & (l1[e] <= kRefitRatio * (s4[e] + s7[e] + s9[e])));
-  }
+  for (std::ptrdiff_t e = e0; e < e1; ++e) any |= static_cast<std::uint8_t>(lost(e));
   if (!any) return;
   std::ptrdiff_t j = j0 - 1;
   for (std::ptrdiff_t e = e0; e < e1; ++e) {
@@ -485,7 +490,7 @@ void refit_cancelled(std::ptrdiff_t e0, std::ptrdiff_t e1, bool compact, std::pt
     } else {
       j = e;
     }
-    if (!(okf[e] && l1[e] <= kRefitRatio * (s4[e] + s7[e] + s9[e]))) continue;
+    if (!lost(e)) continue;
     const WindowFit f = refit(j);
     okf[e] = f.ok ? 1 : 0;
     redo[e] = 0;

@@ -71,6 +71,10 @@ DIRECTIONS: tuple[tuple[int, int], ...] = ((0, 1), (1, 0), (1, 1), (1, -1))
 
 # Degeneracy thresholds of SPEC.md ("Plane fit").
 _EIGEN_RANK_TOL = 1e-12
+#: A window plane (SPEC "Height") exists only where its normal is unique: ``l1 - l0`` above this
+#: times ``l2`` (equal smallest eigenvalues leave any normal in their plane; an ``l1`` within
+#: round-off of the rank limit is no rank; above the core's accuracy at a double root).
+_WINDOW_UNIQUE = 1e-6
 _LSTSQ_DET_TOL = 1e-12
 
 # Upper bound on the number of window entries (cells x window^2) processed at once by the
@@ -652,6 +656,7 @@ def _window_planes(
         evals, evecs = np.linalg.eigh(scatter)
         l1, l2 = evals[:, 1], evals[:, 2]
         good = (l2 > 0.0) & ~(l1 <= _EIGEN_RANK_TOL * l2)
+        good &= evals[:, 1] - evals[:, 0] > _WINDOW_UNIQUE * l2  # a unique normal
         if not good.any():
             continue
         nrm = _orient(evecs[good, :, 0])
