@@ -399,7 +399,7 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
     const double n = static_cast<double>(lp[s].n);
     const Eigen::Vector3d& ev = lp[s].eigenvalues;
     h[s] = -lp[s].normal.dot(lp[s].mean);  // u . (P - centroid), centroid = P + mean
-    rms[s] = ev(0) > detail::kEdgeFlatL0 * ev(2) ? std::sqrt(ev(0) / n) : 0.0;
+    rms[s] = detail::edge_side_rms(ev(0), ev(2), n);
     floor[s] = kRmsFloor * std::sqrt((ev(1) + ev(2)) / n);
     tol[s] = std::max(e.k * rms[s], floor[s]);
     best = std::min(best, rms[s]);

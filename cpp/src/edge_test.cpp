@@ -120,7 +120,7 @@ inline __attribute__((always_inline)) void side_plane(
   const double sg = orient_sign(nx, ny, nz);
   ox = nx * sg, oy = ny * sg, oz = nz * sg;  // orient_normal
   h = ((px - cx) * ox + (py - cy) * oy) + (pz - cz) * oz;  // dot3(pt - centroid, normal)
-  rms = l0 > kEdgeFlatL0 * l2 ? std::sqrt(l0 / nn) : 0.0;  // round-off l0: an exact plane
+  rms = edge_side_rms(l0, l2, nn);
   const double floor = kRoundOff * std::sqrt((l1 + l2) / nn), kr = k * rms;
   tol = kr < floor ? floor : kr;  // std::max(k rms, floor)
 }

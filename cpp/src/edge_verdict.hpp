@@ -18,6 +18,11 @@ constexpr double kEdgeCleanRatio = 2.0;
 /// test" step 3, "Unorganized clouds: edge test" step 3): its l0 is round-off (an exactly flat
 /// support: a noise-free plane, 3 points), so `best` and *clean* do not compare specks of it.
 constexpr double kEdgeFlatL0 = 1e-12;
+
+/// A side's rms from the eigenvalues l0 <= l2 of its n-point support (kEdgeFlatL0).
+inline __attribute__((always_inline)) double edge_side_rms(double l0, double l2, double n) {
+  return l0 > kEdgeFlatL0 * l2 ? std::sqrt(l0 / n) : 0.0;
+}
 /// A grid side whose plane is steeper than 70 degrees (oriented normal's z below cos 70) is
 /// *steep* (SPEC "Edge test" step 4): never clean; as an opposite side its centroid counts.
 constexpr double kEdgeSteepCos = 0.3420201433256687;

@@ -174,6 +174,13 @@ class CellJudge {
 /// (about sqrt(eps) = 1.5e-8 of l2), far below any measured surface's l1 - l0.
 inline constexpr double kWindowUnique = 1e-6;
 
+/// A window plane exists (SPEC "Height"): l2 > 0, the rank (l1 > 1e-12 l2, SPEC "Plane fit")
+/// and a unique normal (kWindowUnique). Branch-free, for the vector loops too.
+inline __attribute__((always_inline)) bool window_plane_exists(double l0, double l1,
+                                                               double l2) {
+  return (l2 > 0.0) & (l1 > 1e-12 * l2) & (l1 - l0 > kWindowUnique * l2);
+}
+
 // Eigen fit of the NORMAL cells in the window around (r, c), computed directly (two-pass).
 template <typename T>
 PlaneStatus window_plane(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t r,
@@ -201,7 +208,7 @@ PlaneStatus window_plane(const GridView<T>& g, const std::uint8_t* labels, std::
   const PlaneStatus st = eigen_plane_from_moments(m, out);
   if (st != PlaneStatus::kOk) return st;
   const Eigen::Vector3d& ev = out->eigenvalues;
-  return ev(1) - ev(0) > kWindowUnique * ev(2) ? st : PlaneStatus::kDegenerate;
+  return window_plane_exists(ev(0), ev(1), ev(2)) ? st : PlaneStatus::kDegenerate;
 }
 
 }  // namespace miem::detail

@@ -328,7 +328,7 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
     detail::load_rel(g, 0, tc0, n, o[0], o[1], o[2], Q, Q + cap, Q + 2 * cap);
     const detail::RowFits rf = detail::row_solve(
         col, stride_, h, n, cap, wrow, m, S, Q, F, okf, redo,
-        [&](std::ptrdiff_t j) { return window_refit(row, tc0 + j, 1); });
+        [&](std::ptrdiff_t j) { return window_direct_fit(row, tc0 + j, 1); });
     if (!rf.compact) {  // the whole span at once: heights, then the verdicts
       const std::ptrdiff_t j0 = rf.j0, j1 = rf.j1;
       // wrow[j] becomes: cell j is wanted and too far
@@ -353,7 +353,8 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
 }
 
 // The window of cell (row, col) with the classes of height pass `pass` (kNever: the final
-// labels, for the heights), handed to fit(sub-grid, classes, r, c) as a grid of its own.
+// labels, for the heights), copied and handed to fit(sub-grid, classes, r, c) as a grid of its
+// own (final_window_plane's window_plane reads it as labels).
 template <typename T>
 template <typename Fit>
 void ProfileStream<T>::window_fit(std::int64_t row, std::ptrdiff_t col, int pass,
@@ -378,12 +379,13 @@ void ProfileStream<T>::window_fit(std::int64_t row, std::ptrdiff_t col, int pass
   fit(sub, local_.data(), static_cast<std::ptrdiff_t>(row - r0), col - c0);
 }
 
-// The window fit of cell (row, col) over the classes of height pass `pass` (as window_fit's),
-// directly (detail::direct_fit_by): for the running sums' fits that cancellation spoils
-// (detail::kRefitRatio). Reads the rows in place, so the threads of height pass 1 may call it.
+// The window fit of cell (row, col) over the classes of height pass `pass` (kNever: the final
+// labels), directly (detail::direct_fit_by): for the few cells of a segment, and for the running
+// sums' fits that cancellation spoils (detail::kRefitRatio). Reads the rows in place, so the
+// threads of height pass 1 may call it.
 template <typename T>
-detail::WindowFit ProfileStream<T>::window_refit(std::int64_t row, std::ptrdiff_t col,
-                                                 int pass) const noexcept {
+detail::WindowFit ProfileStream<T>::window_direct_fit(std::int64_t row, std::ptrdiff_t col,
+                                                      int pass) const noexcept {
   const std::ptrdiff_t W = width_;
   const std::int64_t r0 = std::max<std::int64_t>(0, row - half_);
   const std::int64_t r1 = std::min<std::int64_t>(pushed_ - 1, row + half_);
@@ -516,10 +518,7 @@ void ProfileStream<T>::region_fits(std::int64_t row, int pass, Visit visit) noex
     if (m * side <= seg + 2 * h) {  // few cells: each window directly
       for (std::ptrdiff_t q = ca; q <= cb; ++q) {
         if (!want[q]) continue;
-        window_fit(row, q, pass, [&](const GridView<T>& g, const std::uint8_t* cls,
-                                     std::ptrdiff_t r, std::ptrdiff_t cc) {
-          visit(q, detail::direct_fit(g, cls, r, cc, half_));
-        });
+        visit(q, window_direct_fit(row, q, pass));
       }
       continue;
     }
@@ -543,7 +542,7 @@ void ProfileStream<T>::region_fits(std::int64_t row, int pass, Visit visit) noex
     for (std::ptrdiff_t j = 0; j < seg; ++j) wrow[j] = want[ca + j];
     detail::load_rel(g0, 0, ca, seg, o.x(), o.y(), o.z(), Q, Q + cap, Q + 2 * cap);
     detail::row_fits(cs + pad + (ca - C0), stride, h, seg, cap, wrow, m, S, Q, F, okf, redo,
-                     [&](std::ptrdiff_t j) { return window_refit(row, ca + j, pass); },
+                     [&](std::ptrdiff_t j) { return window_direct_fit(row, ca + j, pass); },
                      [&](std::ptrdiff_t j, const detail::WindowFit& f) { visit(ca + j, f); });
   }
 }

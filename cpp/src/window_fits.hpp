@@ -125,8 +125,7 @@ inline __attribute__((always_inline)) void solve_fits_body(std::ptrdiff_t m, std
       f0[i] = x[t];
       f1[i] = l1;
       f2[i] = hi;
-      okd[t] = (n >= 3.0) & (tr[t] > 0.0) & (nb > 0.0) & (hi > 0.0) & (l1 > 1e-12 * hi) &
-                       (l1 - x[t] > kWindowUnique * hi)
+      okd[t] = (n >= 3.0) & (tr[t] > 0.0) & (nb > 0.0) & window_plane_exists(x[t], l1, hi)
                    ? 1.0
                    : 0.0;
       redod[t] = (live[t] != 0.0) & (n >= 3.0) ? 1.0 : 0.0;
@@ -168,8 +167,8 @@ inline WindowFit fit_from_sums(const double* s, const Eigen::Vector3d& q) {
   M(1, 2) = M(2, 1) = s[8] - n * mean.y() * mean.z();
   M(2, 2) = s[9] - n * mean.z() * mean.z();
   Eigen::Vector3d nv;
-  if (smallest_eigenpair(M, &fit.l0, &fit.l1, &fit.l2, &nv) && fit.l2 > 0.0 &&
-      fit.l1 > 1e-12 * fit.l2 && fit.l1 - fit.l0 > kWindowUnique * fit.l2) {
+  if (smallest_eigenpair(M, &fit.l0, &fit.l1, &fit.l2, &nv) &&
+      window_plane_exists(fit.l0, fit.l1, fit.l2)) {
     fit.ok = true;
     fit.n = n;
     const Eigen::Vector3d o = orient_normal(nv);

@@ -1045,6 +1045,13 @@ _EDGE_STEEP_COS = 0.3420201433256687  # cos(70 degrees)
 _EDGE_OPPOSITE = ((0, 1), (2, 3), (4, 7), (5, 6))
 
 
+def _edge_rms(evals: NDArray[np.float64], n: NDArray[np.float64]) -> NDArray[np.float64]:
+    """A side's or sector's rms from its eigenvalues ``(..., 3)`` and point count: 0 where
+    ``l0 <= _FLAT_L0 l2`` (round-off: an exactly flat support)."""
+    l0 = evals[..., 0]
+    return np.sqrt(np.where(l0 > _FLAT_L0 * evals[..., 2], l0, 0.0) / n)
+
+
 def _side_fits(
     grid: NDArray[np.float64],
     support: NDArray[np.bool_],
@@ -1103,11 +1110,7 @@ def _side_fits(
         ok &= (evals[:, 2] > 0.0) & ~(evals[:, 1] <= _EIGEN_RANK_TOL * evals[:, 2])
         nrm = _orient(evecs[:, :, 0])
         hs[k] = np.where(ok, _dot3(pt - cen, nrm), np.nan)
-        # l0 at most _FLAT_L0 l2 is round-off (an exactly flat support): 0, so that best and
-        # clean do not compare specks of it
-        l0 = evals[:, 0]
-        rms[k] = np.where(ok, np.sqrt(np.where(l0 > _FLAT_L0 * evals[:, 2], l0, 0.0) / nn),
-                          np.nan)
+        rms[k] = np.where(ok, _edge_rms(evals, nn), np.nan)
         spread[k] = np.where(ok, np.sqrt((evals[:, 1] + evals[:, 2]) / nn), np.nan)
         valid[k] = ok
         normals[k] = nrm
@@ -2498,8 +2501,7 @@ def _cloud_edge_pass(
     evals = evals.reshape(m, -1, 3)
     n = np.maximum(cnt, 1.0)
     h = -np.einsum("ijk,ijk->ij", nrm, cen)  # u . (P - centroid), centroid = P + cen
-    l0 = evals[:, :, 0]  # l0 <= _FLAT_L0 l2: rms 0, as the grid's sides (_side_fits)
-    rms = np.sqrt(np.where(l0 > _FLAT_L0 * evals[:, :, 2], l0, 0.0) / n)
+    rms = _edge_rms(evals, n)
     spread = np.sqrt((evals[:, :, 1] + evals[:, :, 2]) / n)
     tol = np.maximum(k * rms, _HEIGHT_RMS_FLOOR * spread)
     best = np.min(np.where(valid, rms, np.inf), axis=1)

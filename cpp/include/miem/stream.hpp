@@ -268,7 +268,8 @@ class ProfileStream {
   void report(std::int32_t root) noexcept;
   template <typename Fit>
   void window_fit(std::int64_t row, std::ptrdiff_t col, int pass, Fit fit) noexcept;
-  detail::WindowFit window_refit(std::int64_t row, std::ptrdiff_t col, int pass) const noexcept;
+  detail::WindowFit window_direct_fit(std::int64_t row, std::ptrdiff_t col,
+                                      int pass) const noexcept;
   template <typename Visit>
   void region_fits(std::int64_t row, int pass, Visit visit) noexcept;
 
