@@ -177,7 +177,7 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
   };
   if (p.theta0_auto) {
     // Angle survey (independent of theta0), then theta0 = clip(180 - 6 sigma, 75, 170) with
-    // sigma = median(180 - angle) / 0.6745.
+    // sigma = median(180 - angle) / 0.6745, 180 - angle below kAutoTheta0Straight read as 0.
     double* ang = out.angle_deg;
     if (ang == nullptr) {
       ws.height_scratch.resize(static_cast<std::size_t>(N));
@@ -187,7 +187,10 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
     pass1(ang);
     ws.survey.clear();
     for (std::ptrdiff_t i = 0; i < N; ++i)
-      if (usable[i] && std::isfinite(ang[i])) ws.survey.push_back(180.0 - ang[i]);
+      if (usable[i] && std::isfinite(ang[i])) {
+        const double dev = 180.0 - ang[i];
+        ws.survey.push_back(dev < kAutoTheta0Straight ? 0.0 : dev);
+      }
     double theta0 = 75.0;
     if (!ws.survey.empty()) {
       const std::size_t m = ws.survey.size(), mid = m / 2;

@@ -57,6 +57,7 @@ import dask.array as da
 from dask import delayed
 
 import miem
+from miem import _core
 from miem._api import ABNORMAL, Defect
 
 __all__ = ["DaskDetectResult", "DaskPointsResult", "auto_min_step", "auto_theta0", "detect",
@@ -491,13 +492,16 @@ def detect(grid: Any, *args: Any, num_threads: Optional[int] = 1, strict: bool =
 
 
 def _survey_block(ext: np.ndarray, home_slice: tuple, kwargs: dict, sep: int) -> np.ndarray:
-    """The bit patterns of ``180 - angle`` (>= 0, so they order like the values) of the home
-    cells' pass-1 angles, as theta0="auto" surveys them (docs/SPEC.md)."""
+    """The bit patterns of ``180 - angle`` (>= 0, so they order like the values; 0 below the
+    straight-triple round-off) of the home cells' pass-1 angles, as theta0="auto" surveys them
+    (docs/SPEC.md)."""
     ext = np.asarray(ext)
     res, _ = _run_padded(ext, kwargs, sep)
     ang = res.angle[home_slice]
     keep = np.isfinite(ext[home_slice]).all(axis=-1) & np.isfinite(ang)
-    return np.ascontiguousarray(180.0 - ang[keep]).view(np.uint64)
+    dev = 180.0 - ang[keep]
+    dev[dev < _core.AUTO_THETA0_STRAIGHT] = 0.0
+    return np.ascontiguousarray(dev).view(np.uint64)
 
 
 def _hist(bits: np.ndarray, prefix: int, shift: int) -> np.ndarray:
@@ -656,8 +660,6 @@ def _nn_tile(pieces: list, box: tuple, merge: float, pad: float,
              sentinels: np.ndarray) -> np.ndarray:
     """The bit patterns of the distinct-point spacings (SPEC "Spacing") of a tile's home points,
     from the tile and the points within `pad` of it: exact up to `pad`, +inf beyond."""
-    from . import _core
-
     pieces = [p for p in pieces if p is not None]
     if not pieces:
         return np.zeros(0, np.uint64)

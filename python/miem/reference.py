@@ -20,8 +20,8 @@ Floating-point conventions (so that a careful core can match bit for bit where i
   ``cos >= threshold`` with ``cos = clip(u.v / sqrt((u.u) * (v.v)), -1, 1)``;
 * the ``min_step`` test is ``sqrt(dx*dx + dy*dy + dz*dz) >= s * min_step`` (a real square root,
   not a comparison of squares);
-* ``theta0="auto"``: ``angle = degrees(arccos(cos))`` as above, ``dev = 180.0 - angle``,
-  ``sigma = median(dev) / 0.6745`` (``np.median``), ``theta0 = min(max(180.0 - 6.0 * sigma,
+* ``theta0="auto"``: ``angle = degrees(arccos(cos))`` as above, ``dev = 180.0 - angle``
+  (0 where below ``1e-3``), ``sigma = median(dev) / 0.6745`` (``np.median``), ``theta0 = min(max(180.0 - 6.0 * sigma,
   75.0), 170.0)``, then the threshold cosine as above;
 * height test: ``h = n . P + d`` with ``d = -n . centroid`` of the window plane; absolute form
   ``|h| > t``; rms form ``|h| > k * sqrt(max(l0, 0) / n)`` and
@@ -857,6 +857,7 @@ _AUTO_K = 6.0
 _AUTO_MIN = 75.0
 _AUTO_MAX = 170.0
 _AUTO_MAD = 0.6745
+_AUTO_STRAIGHT = 1e-3  # degrees: a smaller 180 - angle is a straight triple's round-off, read as 0
 # Height test, rms form: |h| must also exceed this times sqrt((l1 + l2) / n) (round-off floor):
 # clouds 1e-9; grids 1e-6, above the resolution of a window's l0 (the window sums' round-off),
 # so that on a noise-free surface (float32 quantisation only) the verdict is not decided by
@@ -926,6 +927,7 @@ def _auto_theta0(
     if a.size == 0:
         return _AUTO_MIN
     dev = 180.0 - a
+    dev[dev < _AUTO_STRAIGHT] = 0.0
     sigma = float(np.median(dev)) / _AUTO_MAD
     return min(max(180.0 - _AUTO_K * sigma, _AUTO_MIN), _AUTO_MAX)
 

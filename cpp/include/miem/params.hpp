@@ -28,6 +28,10 @@ struct FieldInfo {
   const char* help;  ///< one sentence for users: what it does, its range, what "off" is
 };
 
+/// theta0_auto's survey reads 180 - angle below this many degrees as 0: a straight triple's
+/// angle is round-off, which differs between implementations (SPEC "theta0='auto'").
+inline constexpr double kAutoTheta0Straight = 1e-3;
+
 /// The angle test and its iteration: shared by organized batch detection, the profile stream
 /// and unorganized clouds.
 struct AngleParams {

@@ -114,6 +114,7 @@ py::tuple detect_organized(const py::array& grid, const miem::DetectParams& p) {
 PYBIND11_MODULE(_core, m) {
   m.doc() = "miem C++ core (private; use the miem package)";
   m.attr("__version__") = miem::version();
+  m.attr("AUTO_THETA0_STRAIGHT") = miem::kAutoTheta0Straight;
 #ifdef MIEM_HAVE_OPENMP
   m.attr("openmp") = true;
 #else
