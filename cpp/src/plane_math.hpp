@@ -29,6 +29,21 @@ inline double orient_sign(double nx, double ny, double nz) noexcept {
                                      : (ny < 0.0 ? -1.0 : 1.0);
 }
 
+/// A unit vector of the null space of M - x I for a symmetric M (an eigenvector of M when x is
+/// an eigenvalue well apart from the other two): the largest cross product of two of its rows.
+/// Returns false when all three vanish.
+inline bool eigenvector_of(const Eigen::Matrix3d& M, double x, Eigen::Vector3d* v) {
+  const double a = M(0, 0), b = M(1, 1), c = M(2, 2), d = M(0, 1), e = M(1, 2), f = M(0, 2);
+  const Eigen::Vector3d r0(a - x, d, f), r1(d, b - x, e), r2(f, e, c - x);
+  const Eigen::Vector3d c01 = r0.cross(r1), c02 = r0.cross(r2), c12 = r1.cross(r2);
+  const double n01 = c01.squaredNorm(), n02 = c02.squaredNorm(), n12 = c12.squaredNorm();
+  const Eigen::Vector3d& best = n01 >= n02 ? (n01 >= n12 ? c01 : c12) : (n02 >= n12 ? c02 : c12);
+  const double nb = std::max(n01, std::max(n02, n12));
+  if (!(nb > 0.0)) return false;
+  *v = best / std::sqrt(nb);
+  return true;
+}
+
 /// Eigenvalues l0 <= l1 <= l2 of a symmetric positive semi-definite M and the unit eigenvector
 /// of l0 (unoriented). Returns false when M is zero.
 inline bool smallest_eigenpair(const Eigen::Matrix3d& M, double* l0, double* l1, double* l2,
@@ -55,14 +70,7 @@ inline bool smallest_eigenpair(const Eigen::Matrix3d& M, double* l0, double* l1,
   *l0 = x;
   *l2 = hi;
   *l1 = hi > 0.0 ? p / hi : 0.0;
-  const Eigen::Vector3d r0(a - x, d, f), r1(d, b - x, e), r2(f, e, c - x);
-  const Eigen::Vector3d c01 = r0.cross(r1), c02 = r0.cross(r2), c12 = r1.cross(r2);
-  const double n01 = c01.squaredNorm(), n02 = c02.squaredNorm(), n12 = c12.squaredNorm();
-  const Eigen::Vector3d& best = n01 >= n02 ? (n01 >= n12 ? c01 : c12) : (n02 >= n12 ? c02 : c12);
-  const double nb = std::max(n01, std::max(n02, n12));
-  if (!(nb > 0.0)) return false;
-  *normal = best / std::sqrt(nb);
-  return true;
+  return eigenvector_of(M, x, normal);
 }
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
