@@ -570,6 +570,57 @@ inline PlaneStatus plane_from_sums(const OffsetSums& s, LocalPlane* out) {
   return PlaneStatus::kOk;
 }
 
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+#define MIEM_CLOUD_CLONES __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
+#else
+#define MIEM_CLOUD_CLONES
+#endif
+
+// cone_hits for K directions (a constant: the direction loop unrolled, the neighbour loop
+// vectorised; each neighbour on its own, so any vector width gives the same bits).
+template <int K>
+inline __attribute__((always_inline)) void cone_hits_k(
+    std::size_t n, const double* __restrict wx, const double* __restrict wy,
+    const double* __restrict wz, double nx, double ny, double nz, const double* dx,
+    const double* dy, const double* dz, double cos_half, double* __restrict tl,
+    std::int64_t* __restrict hits) {
+  for (std::size_t m = 0; m < n; ++m) {
+    const double wn = (wx[m] * nx + wy[m] * ny) + wz[m] * nz;
+    const double tx = wx[m] - wn * nx, ty = wy[m] - wn * ny, tz = wz[m] - wn * nz;
+    const double tlen = std::sqrt((tx * tx + ty * ty) + tz * tz);
+    const double lim = tlen * cos_half;
+    std::int64_t h = 0;
+    for (int k = 0; k < K; ++k) {
+      const double td = (tx * dx[k] + ty * dy[k]) + tz * dz[k];
+      const std::int64_t pos = td >= lim;
+      const std::int64_t neg = (pos ^ 1) & static_cast<std::int64_t>(-td >= lim);
+      h |= (pos << (2 * k)) | (neg << (2 * k + 1));
+    }
+    tl[m] = tlen;
+    hits[m] = tlen > 0.0 ? h : 0;
+  }
+}
+
+// Each of n neighbours' (offsets w from the point) tangent-plane length |t|, t = w - (w . nrm)
+// nrm, and the (direction, side) cones it falls in, t . (g d_k) >= |t| cos_half, as bits 2k
+// (g = +1) and 2k + 1 (g = -1) of hits[m] (none where |t| = 0), for K directions d (SPEC
+// "Unorganized clouds"). Branch-free: which cone is unpredictable.
+MIEM_CLOUD_CLONES inline void cone_hits(int K, std::size_t n, const double* wx,
+                                        const double* wy, const double* wz, double nx,
+                                        double ny, double nz, const double* dx,
+                                        const double* dy, const double* dz, double cos_half,
+                                        double* tl, std::int64_t* hits) {
+  switch (K) {
+    case 2: cone_hits_k<2>(n, wx, wy, wz, nx, ny, nz, dx, dy, dz, cos_half, tl, hits); break;
+    case 3: cone_hits_k<3>(n, wx, wy, wz, nx, ny, nz, dx, dy, dz, cos_half, tl, hits); break;
+    case 4: cone_hits_k<4>(n, wx, wy, wz, nx, ny, nz, dx, dy, dz, cos_half, tl, hits); break;
+    case 5: cone_hits_k<5>(n, wx, wy, wz, nx, ny, nz, dx, dy, dz, cos_half, tl, hits); break;
+    case 6: cone_hits_k<6>(n, wx, wy, wz, nx, ny, nz, dx, dy, dz, cos_half, tl, hits); break;
+    case 7: cone_hits_k<7>(n, wx, wy, wz, nx, ny, nz, dx, dy, dz, cos_half, tl, hits); break;
+    default: cone_hits_k<8>(n, wx, wy, wz, nx, ny, nz, dx, dy, dz, cos_half, tl, hits); break;
+  }
+}
+
 // Per-thread scratch of the judge.
 struct JudgeScratch {
   Gather gather;
@@ -578,7 +629,7 @@ struct JudgeScratch {
   std::vector<std::uint64_t> best_key;  // per (direction, side, scale) slot: bits of its d2
   std::vector<int> best_m;      // position in `sel` of the slot's neighbour, -1: none
   std::vector<double> tlen;     // per selected neighbour: tangent-plane length
-  std::vector<std::uint16_t> hits;  // per selected neighbour: its (direction, side) cones
+  std::vector<std::int64_t> hits;  // per selected neighbour: its (direction, side) cones
 };
 
 // The judgment of SPEC.md "Unorganized clouds" for one point against a fixed usable set.
@@ -630,14 +681,11 @@ class PointJudge {
     // neighbour beyond the scale's step, (2s - 1) * min_step (SPEC "Unorganized clouds").
     js.tlen.resize(s.n);
     js.hits.resize(s.n);
-    switch (K_) {  // the direction count as a constant: the cone loop unrolled
-      case 2: cone_hits<2>(s, n, d, js); break;
-      case 3: cone_hits<3>(s, n, d, js); break;
-      case 4: cone_hits<4>(s, n, d, js); break;
-      case 5: cone_hits<5>(s, n, d, js); break;
-      case 6: cone_hits<6>(s, n, d, js); break;
-      case 7: cone_hits<7>(s, n, d, js); break;
-      default: cone_hits<8>(s, n, d, js); break;
+    {
+      double dx[kMaxDirections], dy[kMaxDirections], dz[kMaxDirections];
+      for (int k = 0; k < K_; ++k) dx[k] = d[k].x(), dy[k] = d[k].y(), dz[k] = d[k].z();
+      cone_hits(K_, s.n, wx, wy, wz, n.x(), n.y(), n.z(), dx, dy, dz, cos_half_,
+                js.tlen.data(), js.hits.data());
     }
     js.best_key.assign(slots, ~std::uint64_t{0});
     switch (S) {  // the scale count as a constant where it is small: the slot loop unrolled
@@ -681,78 +729,6 @@ class PointJudge {
   }
 
  private:
-  // Each selected neighbour's tangent-plane length and the (direction, side) cones it falls in,
-  // as bits 2k (g = +1) and 2k + 1 (g = -1) of hits[m] (branch-free: which cone is
-  // unpredictable), for K directions d[0..K).
-  template <int K>
-  void cone_hits(const Selection& s, const Eigen::Vector3d& n, const Eigen::Vector3d* d,
-                 JudgeScratch& js) const {
-    const double* __restrict wx = s.wx.data();
-    const double* __restrict wy = s.wy.data();
-    const double* __restrict wz = s.wz.data();
-    double* __restrict tl = js.tlen.data();
-    std::uint16_t* __restrict hits = js.hits.data();
-    const double nx = n.x(), ny = n.y(), nz = n.z(), cos_half = cos_half_;
-    double dx[K], dy[K], dz[K];
-    for (int k = 0; k < K; ++k) {
-      dx[k] = d[k].x();
-      dy[k] = d[k].y();
-      dz[k] = d[k].z();
-    }
-    const std::size_t n_sel = s.n;
-    std::size_t m = 0;
-#ifdef __SSE2__
-    // Two neighbours at a time, one per half of a register: the same operations in the same
-    // order as the scalar loop below, so the same bits.
-    {
-      const __m128d vnx = _mm_set1_pd(nx), vny = _mm_set1_pd(ny), vnz = _mm_set1_pd(nz);
-      const __m128d vch = _mm_set1_pd(cos_half), sign = _mm_set1_pd(-0.0);
-      for (; m + 1 < n_sel; m += 2) {
-        const __m128d ax = _mm_loadu_pd(wx + m), ay = _mm_loadu_pd(wy + m),
-                      az = _mm_loadu_pd(wz + m);
-        const __m128d wn = _mm_add_pd(_mm_add_pd(_mm_mul_pd(ax, vnx), _mm_mul_pd(ay, vny)),
-                                      _mm_mul_pd(az, vnz));
-        const __m128d tx = _mm_sub_pd(ax, _mm_mul_pd(wn, vnx));
-        const __m128d ty = _mm_sub_pd(ay, _mm_mul_pd(wn, vny));
-        const __m128d tz = _mm_sub_pd(az, _mm_mul_pd(wn, vnz));
-        const __m128d tlen = _mm_sqrt_pd(
-            _mm_add_pd(_mm_add_pd(_mm_mul_pd(tx, tx), _mm_mul_pd(ty, ty)), _mm_mul_pd(tz, tz)));
-        const __m128d lim = _mm_mul_pd(tlen, vch);
-        unsigned h0 = 0, h1 = 0;
-        for (int k = 0; k < K; ++k) {
-          const __m128d td = _mm_add_pd(
-              _mm_add_pd(_mm_mul_pd(tx, _mm_set1_pd(dx[k])), _mm_mul_pd(ty, _mm_set1_pd(dy[k]))),
-              _mm_mul_pd(tz, _mm_set1_pd(dz[k])));
-          const __m128d pos = _mm_cmpge_pd(td, lim);
-          const __m128d neg = _mm_andnot_pd(pos, _mm_cmpge_pd(_mm_xor_pd(td, sign), lim));
-          const unsigned pm = static_cast<unsigned>(_mm_movemask_pd(pos));
-          const unsigned nm = static_cast<unsigned>(_mm_movemask_pd(neg));
-          h0 |= ((pm & 1u) << (2 * k)) | ((nm & 1u) << (2 * k + 1));
-          h1 |= ((pm >> 1) << (2 * k)) | ((nm >> 1) << (2 * k + 1));
-        }
-        _mm_storeu_pd(tl + m, tlen);
-        hits[m] = static_cast<std::uint16_t>(tl[m] > 0.0 ? h0 : 0u);
-        hits[m + 1] = static_cast<std::uint16_t>(tl[m + 1] > 0.0 ? h1 : 0u);
-      }
-    }
-#endif
-    for (; m < n_sel; ++m) {
-      const double wn = wx[m] * nx + wy[m] * ny + wz[m] * nz;
-      const double tx = wx[m] - wn * nx, ty = wy[m] - wn * ny, tz = wz[m] - wn * nz;
-      const double tlen = std::sqrt(tx * tx + ty * ty + tz * tz);
-      const double lim = tlen * cos_half;
-      unsigned h = 0;
-      for (int k = 0; k < K; ++k) {
-        const double td = tx * dx[k] + ty * dy[k] + tz * dz[k];
-        const bool pos = td >= lim;
-        const bool neg = !pos & (-td >= lim);
-        h |= (static_cast<unsigned>(pos) << (2 * k)) | (static_cast<unsigned>(neg) << (2 * k + 1));
-      }
-      tl[m] = tlen;
-      hits[m] = static_cast<std::uint16_t>(tlen > 0.0 ? h : 0u);
-    }
-  }
-
   // Per (direction, side, scale) slot: the nearest (then smallest index) neighbour of the
   // slot's cone beyond the scale's step, into js.best_m (updated with masks: which neighbour
   // is nearer is unpredictable). d2 >= 0, so its bit pattern orders as the value. SC: the
@@ -761,7 +737,7 @@ class PointJudge {
   void nearest_slots(const Selection& s, JudgeScratch& js, int S_run) const {
     const int S = SC > 0 ? SC : S_run;
     const double* __restrict tl = js.tlen.data();
-    const std::uint16_t* __restrict hits = js.hits.data();
+    const std::int64_t* __restrict hits = js.hits.data();
     const double* __restrict sd2 = s.d2.data();
     const std::uint32_t* __restrict sid = s.id.data();
     std::uint64_t* __restrict bkey = js.best_key.data();
@@ -769,7 +745,7 @@ class PointJudge {
     const double* __restrict step = step_.data();
     const int n_sel = static_cast<int>(s.n);
     for (int m = 0; m < n_sel; ++m) {
-      unsigned h = hits[m];
+      unsigned h = static_cast<unsigned>(hits[m]);
       if (h == 0) continue;
       const double tlen = tl[m];
       std::uint64_t key;
@@ -810,13 +786,13 @@ class PointJudge {
       bi[q] = -1;
     }
     const double* __restrict tl = js.tlen.data();
-    const std::uint16_t* __restrict hits = js.hits.data();
+    const std::int64_t* __restrict hits = js.hits.data();
     const double* __restrict sd2 = s.d2.data();
     const std::uint32_t* __restrict sid = s.id.data();
     const __m128d vstep = _mm_loadu_pd(step_.data());
     const int n_sel = static_cast<int>(s.n);
     for (int m = 0; m < n_sel; ++m) {
-      unsigned h = hits[m];
+      unsigned h = static_cast<unsigned>(hits[m]);
       if (h == 0) continue;
       const __m128d key = _mm_set1_pd(sd2[m]);
       const __m128d far = _mm_cmple_pd(vstep, _mm_set1_pd(tl[m]));  // tlen >= step[si]
