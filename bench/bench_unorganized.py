@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import warnings
@@ -35,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import interleaved  # noqa: E402
+from common import cpu_name, interleaved  # noqa: E402
 
 
 def best_of(fn, repeats: int) -> tuple:
@@ -182,7 +181,8 @@ def profile_lines(now: dict) -> list[str]:
              "CPU seconds on 1 thread and wall seconds on 2 threads (shared machine: compare "
              "the CPU column). "
              + ("'before' is main at fbc6d8f (the build before the #11 speed work, with only the "
-                f"stage clock added), measured by `--save-profile` on {before['when']}."
+                f"stage clock added), measured by `--save-profile` on {before['when']} "
+                f"(on {before.get('cpu', 'a CPU it did not record')}; now on {cpu_name()})."
                 if before else "No 'before' profile of this cloud size "
                 "(bench/results_unorganized_profile_before.json, made with the default --n)."), ""]
     names = list(now["stages"])
@@ -430,7 +430,7 @@ def run(n: int, repeats: int, accuracy: bool = True) -> str:
         f"user gets: `miem.detect(points)` (preset {preset!r}: radius 5 x spacing = "
         f"{radius:.4f} mm, ~{np.mean(mu.estimate_normals(pts, radius).count):.0f} points per "
         "neighbourhood), normals at that radius for both libraries. "
-        f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, shared machine "
+        f"{cpu_name()}, {os.cpu_count()} cores, shared machine "
         f"(load average {os.getloadavg()[0]:.1f} at the start): read ratios, not seconds. Best "
         f"of {repeats} (miem's normals: best of {2 * repeats}, 1 and 2 threads alternated; "
         f"Open3D: best of {max(1, min(repeats, 2))})."
@@ -500,6 +500,7 @@ def main(argv=None) -> int:
 
         prof = stage_profile(scan_cloud(args.n), args.repeats)
         prof["when"] = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+        prof["cpu"] = cpu_name()
         args.save_profile.write_text(json.dumps(prof, indent=1) + "\n")
         print(json.dumps(prof, indent=1))
         return 0
