@@ -6,6 +6,7 @@
 #include <cmath>
 
 #include "cloud_stages.hpp"
+#include "edge_verdict.hpp"
 
 namespace miem::cloud {
 
@@ -162,7 +163,7 @@ inline bool too_far(const Gather& g, const Gather& lines, const std::uint8_t* ro
   const double n = static_cast<double>(lp.n);
   const Eigen::Vector3d& ev = lp.eigenvalues;
   const double rms = std::sqrt(std::max(ev(0), 0.0) / n);
-  if (rms_out != nullptr) *rms_out = rms;
+  if (rms_out != nullptr) *rms_out = detail::edge_side_rms(ev(0), ev(2), n);  // 0: exactly flat
   if (t.abs > 0.0 && h > t.abs) return flag();
   if (!(t.k > 0.0) && !(t.iso_k > 0.0)) return false;
   // The common case first: below every multiple of the rms in use (the isolated-point rule

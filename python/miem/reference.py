@@ -21,8 +21,8 @@ Floating-point conventions (so that a careful core can match bit for bit where i
 * the ``min_step`` test is ``sqrt(dx*dx + dy*dy + dz*dz) >= s * min_step`` (a real square root,
   not a comparison of squares);
 * ``theta0="auto"``: ``angle = degrees(arccos(cos))`` as above, ``dev = 180.0 - angle``
-  (0 where below ``1e-3``), ``sigma = median(dev) / 0.6745`` (``np.median``), ``theta0 = min(max(180.0 - 6.0 * sigma,
-  75.0), 170.0)``, then the threshold cosine as above;
+  (0 where below ``1e-3``), ``sigma = median(dev) / 0.6745`` (``np.median``),
+  ``theta0 = min(max(180.0 - 6.0 * sigma, 75.0), 170.0)``, then the threshold cosine as above;
 * height test: ``h = n . P + d`` with ``d = -n . centroid`` of the window plane; absolute form
   ``|h| > t``; rms form ``|h| > k * sqrt(max(l0, 0) / n)`` and
   ``|h| > 1e-6 * sqrt((l1 + l2) / n)``, ``n`` the number of NORMAL cells in the window.
@@ -2312,8 +2312,9 @@ def _cloud_height_pass(
     mode, value = tolerance
     n = np.maximum(cnt, 1).astype(np.float64)
     rms = np.sqrt(np.maximum(evals[:, 0], 0.0) / n)
-    if stats is not None:  # the surroundings' rms where the test gave a verdict (edge test)
-        stats[:] = np.where(exists, rms, np.nan)
+    if stats is not None:  # the surroundings' rms where the test gave a verdict (edge test),
+        # 0 where exactly flat (round-off, as a sector's)
+        stats[:] = np.where(exists, _edge_rms(evals, n), np.nan)
     floor = _HEIGHT_RMS_FLOOR * np.sqrt((evals[:, 1] + evals[:, 2]) / n)
     if mode == "abs":
         out = exists & (absh > value)
