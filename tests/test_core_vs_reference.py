@@ -238,10 +238,10 @@ def test_height_over_a_single_row_window_is_by_geometry(dy, z, cell, height) -> 
         assert res.height[cell] == pytest.approx(height, abs=1e-9)
 
 
-# A hypothesis draw (seed 15, 1,500 examples): a noise-free sloped plane with five spikes. Its
+# A hypothesis draw (seed 15, 1,500 examples): a noise-free sloped plane with four spikes. Its
 # 30 finite angles have an even count whose middle pair is a straight triple (cell (1, 11)) and
-# 2.39 degrees; that triple's 180 - angle came out 0 in the core and 8.5e-7 in NumPy (a cosine
-# one ulp from -1), so theta0 differed by 3.8e-6 degrees.
+# 2.39 degrees. That cell has two straight pairs, cosines -1 and -1 + 1 ulp: the core kept the
+# first (180 - angle = 0), NumPy the larger (8.5e-7), so theta0 differed by 3.8e-6 degrees.
 STRAIGHT_MEDIAN_Z = [
     [0.0, 3.8168448431082913e-02, 9.8209062743646824e-02, 1.5824967705621074e-01,
      2.1829029136877465e-01, 2.7833090568133856e-01, 3.3837151999390247e-01,

@@ -25,6 +25,7 @@
 #include "miem/unorganized.hpp"
 #include "parallel.hpp"
 #include "plane_math.hpp"
+#include "vector_clones.hpp"
 
 namespace miem::cloud {
 
@@ -570,12 +571,6 @@ inline PlaneStatus plane_from_sums(const OffsetSums& s, LocalPlane* out) {
   return PlaneStatus::kOk;
 }
 
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define MIEM_CLOUD_CLONES __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
-#else
-#define MIEM_CLOUD_CLONES
-#endif
-
 // cone_hits for K directions (a constant: the direction loop unrolled, the neighbour loop
 // vectorised; each neighbour on its own, so any vector width gives the same bits).
 template <int K>
@@ -605,11 +600,10 @@ inline __attribute__((always_inline)) void cone_hits_k(
 // nrm, and the (direction, side) cones it falls in, t . (g d_k) >= |t| cos_half, as bits 2k
 // (g = +1) and 2k + 1 (g = -1) of hits[m] (none where |t| = 0), for K directions d (SPEC
 // "Unorganized clouds"). Branch-free: which cone is unpredictable.
-MIEM_CLOUD_CLONES inline void cone_hits(int K, std::size_t n, const double* wx,
-                                        const double* wy, const double* wz, double nx,
-                                        double ny, double nz, const double* dx,
-                                        const double* dy, const double* dz, double cos_half,
-                                        double* tl, std::int64_t* hits) {
+MIEM_CLONES inline void cone_hits(int K, std::size_t n, const double* wx, const double* wy,
+                                  const double* wz, double nx, double ny, double nz,
+                                  const double* dx, const double* dy, const double* dz,
+                                  double cos_half, double* tl, std::int64_t* hits) {
   switch (K) {
     case 2: cone_hits_k<2>(n, wx, wy, wz, nx, ny, nz, dx, dy, dz, cos_half, tl, hits); break;
     case 3: cone_hits_k<3>(n, wx, wy, wz, nx, ny, nz, dx, dy, dz, cos_half, tl, hits); break;

@@ -19,6 +19,7 @@
 #include "miem/plane.hpp"
 #include "parallel.hpp"
 #include "plane_math.hpp"
+#include "vector_clones.hpp"
 
 namespace miem::detail {
 
@@ -38,12 +39,6 @@ inline std::ptrdiff_t offset(int code, std::ptrdiff_t r) {
 }
 
 using Side = EdgeSide;
-
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define MIEM_EDGE_CLONES __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
-#else
-#define MIEM_EDGE_CLONES
-#endif
 
 // One side's moments (n and the sums of moment q at mm[q * cap]) to what the planes need:
 // nn = max(n, 1), the centroid, the centred scatter (a, b, c, d, e, f as smallest_eigenpairs_long
@@ -66,10 +61,10 @@ inline __attribute__((always_inline)) void side_moment(const double* mm, std::pt
 
 // Sub-window moments (SoA, moment q at mm + q * cap) to what the planes need (side_moment),
 // and whether the side is empty (INVALID count). Vectorised.
-MIEM_EDGE_CLONES void side_moments(std::ptrdiff_t m, std::ptrdiff_t cap, double n_min,
-                                   const double* __restrict mm, double* __restrict nnb,
-                                   double* __restrict ceb, double* __restrict Mb,
-                                   double* __restrict useb, double* __restrict emptyb) {
+MIEM_CLONES void side_moments(std::ptrdiff_t m, std::ptrdiff_t cap, double n_min,
+                              const double* __restrict mm, double* __restrict nnb,
+                              double* __restrict ceb, double* __restrict Mb,
+                              double* __restrict useb, double* __restrict emptyb) {
 #pragma GCC ivdep
   for (std::ptrdiff_t e = 0; e < m; ++e) {
     double nn, cx, cy, cz, M[6];
@@ -89,8 +84,8 @@ MIEM_EDGE_CLONES void side_moments(std::ptrdiff_t m, std::ptrdiff_t cap, double 
 // (and l0 >= 0); division and sqrt round monotonically. Sides without support get +inf (never
 // valid). Straight from the sub-window sums (side_moment), storing nothing else: most cells
 // solve one side only, whose moments side_moments gives afterwards. Vectorised.
-MIEM_EDGE_CLONES void side_lows(std::ptrdiff_t m, std::ptrdiff_t cap, double n_min,
-                                const double* __restrict mm, double* __restrict lowb) {
+MIEM_CLONES void side_lows(std::ptrdiff_t m, std::ptrdiff_t cap, double n_min,
+                           const double* __restrict mm, double* __restrict lowb) {
 #pragma GCC ivdep
   for (std::ptrdiff_t i = 0; i < m; ++i) {
     double nn, cx, cy, cz, M[6];
@@ -126,12 +121,11 @@ inline __attribute__((always_inline)) void side_plane(
 }
 
 // side_plane for m sides (SoA; P: the cell of each side, relative to the origin). Vectorised.
-MIEM_EDGE_CLONES void side_planes(std::ptrdiff_t m, std::ptrdiff_t cap, double k,
-                                  const double* __restrict useb,
-                                  const double* __restrict okb,
-                                  const double* __restrict Eb, const double* __restrict nnb,
-                                  const double* __restrict ceb, const double* __restrict P,
-                                  double* __restrict validb, double* __restrict F) {
+MIEM_CLONES void side_planes(std::ptrdiff_t m, std::ptrdiff_t cap, double k,
+                             const double* __restrict useb, const double* __restrict okb,
+                             const double* __restrict Eb, const double* __restrict nnb,
+                             const double* __restrict ceb, const double* __restrict P,
+                             double* __restrict validb, double* __restrict F) {
 #pragma GCC ivdep
   for (std::ptrdiff_t e = 0; e < m; ++e) {
     side_plane(useb[e] != 0.0, okb[e] != 0.0, Eb[e], Eb[cap + e], Eb[2 * cap + e],
@@ -145,8 +139,8 @@ MIEM_EDGE_CLONES void side_planes(std::ptrdiff_t m, std::ptrdiff_t cap, double k
 // bound, the first among equal ones (as `if (low[s] < low[best]) best = s` in side order), and
 // that bound. Branch-free and vectorised over the cells: which side wins is data-dependent, so
 // a branch per side mispredicts.
-MIEM_EDGE_CLONES void best_sides(int m, const double* const* low,
-                                 std::int64_t* __restrict sb, double* __restrict low1) {
+MIEM_CLONES void best_sides(int m, const double* const* low, std::int64_t* __restrict sb,
+                            double* __restrict low1) {
   const double *__restrict l0 = low[0], *__restrict l1 = low[1], *__restrict l2 = low[2];
   const double *__restrict l3 = low[3], *__restrict l4 = low[4], *__restrict l5 = low[5];
   const double *__restrict l6 = low[6], *__restrict l7 = low[7];
@@ -169,11 +163,10 @@ MIEM_EDGE_CLONES void best_sides(int m, const double* const* low,
 // h, rms, tol, normal) is clean, rms <= kEdgeCleanRatio x sqrt(the smallest bound low1) <=
 // 2 best, valid, not steep, not empty (an empty side: hanging?), solved without the scalar
 // redo, and the cell fits it: fits = 1, else 0. Vectorised.
-MIEM_EDGE_CLONES void fits_clean_side(int m, std::ptrdiff_t cap, const double* __restrict redo,
-                                      const double* __restrict valid,
-                                      const double* __restrict empty,
-                                      const double* __restrict low1, const double* __restrict F,
-                                      double* __restrict fits) {
+MIEM_CLONES void fits_clean_side(int m, std::ptrdiff_t cap, const double* __restrict redo,
+                                 const double* __restrict valid, const double* __restrict empty,
+                                 const double* __restrict low1, const double* __restrict F,
+                                 double* __restrict fits) {
 #pragma GCC ivdep
   for (int j = 0; j < m; ++j) {
     const bool clean = F[cap + j] <= kEdgeCleanRatio * std::sqrt(low1[j]);
@@ -186,9 +179,9 @@ MIEM_EDGE_CLONES void fits_clean_side(int m, std::ptrdiff_t cap, const double* _
 // Rectangle sums of one side for m consecutive cells, all kM moment planes (`plane` apart in
 // the images, `cap` apart in out): out[j] = a[j] - b[j] - c[j] + d[j], the corner formula of the
 // general path. Vectorised.
-MIEM_EDGE_CLONES void rect_sums(int m, std::ptrdiff_t plane, std::ptrdiff_t cap,
-                                const double* a, const double* b, const double* c,
-                                const double* d, double* __restrict out) {
+MIEM_CLONES void rect_sums(int m, std::ptrdiff_t plane, std::ptrdiff_t cap, const double* a,
+                           const double* b, const double* c, const double* d,
+                           double* __restrict out) {
   for (int q = 0; q < kM; ++q) {
     const double *__restrict aq = a + q * plane, *__restrict bq = b + q * plane;
     const double *__restrict cq = c + q * plane, *__restrict dq = d + q * plane;
@@ -385,8 +378,8 @@ bool is_lip(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
 namespace {
 
 // s[j] += u[j] (v null) or u[j] * v[j], j < n: column sums, vectorised over the columns.
-MIEM_EDGE_CLONES void column_add(std::ptrdiff_t n, double* __restrict s,
-                                 const double* __restrict u, const double* __restrict v) {
+MIEM_CLONES void column_add(std::ptrdiff_t n, double* __restrict s, const double* __restrict u,
+                            const double* __restrict v) {
   if (v == nullptr) {
     for (std::ptrdiff_t j = 0; j < n; ++j) s[j] += u[j];
   } else {

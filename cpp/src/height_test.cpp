@@ -16,6 +16,7 @@
 #include "edge_groups.hpp"
 #include "parallel.hpp"
 #include "stages.hpp"
+#include "vector_clones.hpp"
 
 namespace miem::detail {
 
@@ -59,11 +60,11 @@ void mark_compact_edges(const std::uint8_t* labels, std::ptrdiff_t H, std::ptrdi
 // The height passes' verdict (height_verdict) on a whole row segment of wanted cells wrow[j]
 // from row_solve's fits (RowFits, not compact): kHFresh, kHMark where too far, and the height
 // when `height` is not null. Straight-line code (vectorised).
-MIEM_FIT_CLONES void height_row(std::ptrdiff_t n, const std::uint8_t* __restrict wrow,
-                                const double* __restrict S, const double* __restrict F,
-                                const std::uint8_t* __restrict okf, std::ptrdiff_t cap,
-                                double height_abs, double height_k, double* __restrict height,
-                                std::uint8_t* __restrict hm) {
+MIEM_CLONES void height_row(std::ptrdiff_t n, const std::uint8_t* __restrict wrow,
+                            const double* __restrict S, const double* __restrict F,
+                            const std::uint8_t* __restrict okf, std::ptrdiff_t cap,
+                            double height_abs, double height_k, double* __restrict height,
+                            std::uint8_t* __restrict hm) {
   const double* __restrict fh = F;
   const double* __restrict f0 = F + cap;
   const double* __restrict f1 = F + 2 * cap;

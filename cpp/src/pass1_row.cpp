@@ -9,6 +9,7 @@
 #include "judge.hpp"
 #include "min_step_skip.hpp"
 #include "parallel.hpp"
+#include "vector_clones.hpp"
 
 namespace miem::detail {
 
@@ -27,12 +28,6 @@ namespace {
 // bound, no usable cell within the isolation reach) fall back to the scalar judge.
 constexpr std::ptrdiff_t kBlock = 256;  // columns per block of the row kernel
 constexpr std::ptrdiff_t kChunk = 32;   // lanes per min_step search
-
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define MIEM_CLONES __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
-#else
-#define MIEM_CLONES
-#endif
 
 constexpr std::int64_t kFlagShift = kPass1FlagShift, kSlowBit = kPass1SlowBit,
                        kNearBit = kPass1NearBit;

@@ -12,6 +12,7 @@
 #include <Eigen/Geometry>  // cross
 
 #include "miem/plane.hpp"
+#include "vector_clones.hpp"
 
 namespace miem::detail {
 
@@ -72,12 +73,6 @@ inline bool smallest_eigenpair(const Eigen::Matrix3d& M, double* l0, double* l1,
   *l1 = hi > 0.0 ? p / hi : 0.0;
   return eigenvector_of(M, x, normal);
 }
-
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define MIEM_EIG_CLONES __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
-#else
-#define MIEM_EIG_CLONES
-#endif
 
 // One Newton step of smallest_eigenpair on the characteristic cubic, masked by `live`.
 inline __attribute__((always_inline)) void newton_step(double& x, double& live, double tr,
@@ -140,11 +135,9 @@ inline __attribute__((always_inline)) void eigen_finish(double a, double b, doub
 /// (on the real scan almost never), within 8 nearly always; flat ones end within 3 or 4.
 /// ok and redo as 1.0 / 0.0 (doubles: a byte per lane would make the vectoriser take 32 lanes
 /// at a time, and the edge test's blocks of 16 would run scalar).
-MIEM_EIG_CLONES inline void smallest_eigenpairs_long(std::ptrdiff_t m, std::ptrdiff_t cap,
-                                                     const double* __restrict M,
-                                                     double* __restrict out,
-                                                     double* __restrict ok,
-                                                     double* __restrict redo) {
+MIEM_CLONES inline void smallest_eigenpairs_long(std::ptrdiff_t m, std::ptrdiff_t cap,
+                                                 const double* __restrict M, double* __restrict out,
+                                                 double* __restrict ok, double* __restrict redo) {
   constexpr std::ptrdiff_t kB = 128;
   for (std::ptrdiff_t b0 = 0; b0 < m; b0 += kB) {
     const std::ptrdiff_t n = std::min(kB, m - b0);

@@ -19,6 +19,7 @@
 #include "parallel.hpp"
 #include "stages.hpp"
 #include "window_fits.hpp"
+#include "vector_clones.hpp"
 
 namespace miem {
 
@@ -53,11 +54,11 @@ constexpr std::uint8_t pass_class(std::uint8_t b, std::uint8_t hs, int pass, boo
 // the cell is a candidate (NORMAL or compact EDGE, by its bits hm[j]) the verdict
 // (height_verdict) finds too far, else 0. Straight-line code (vectorised), as the batch's
 // height_row: a cell's verdict and height are those of the one-cell path (RowFits::fit).
-MIEM_FIT_CLONES void pass1_verdicts(std::ptrdiff_t n, const std::uint8_t* __restrict hm,
-                                    const double* __restrict S, const double* __restrict F,
-                                    const std::uint8_t* __restrict okf, std::ptrdiff_t cap,
-                                    bool test, double height_abs, double height_k,
-                                    double* __restrict height, std::uint8_t* __restrict w) {
+MIEM_CLONES void pass1_verdicts(std::ptrdiff_t n, const std::uint8_t* __restrict hm,
+                                const double* __restrict S, const double* __restrict F,
+                                const std::uint8_t* __restrict okf, std::ptrdiff_t cap, bool test,
+                                double height_abs, double height_k, double* __restrict height,
+                                std::uint8_t* __restrict w) {
   const double* __restrict fh = F;
   for (std::ptrdiff_t j = 0; j < n; ++j) {
     const double h = okf[j] != 0 ? fh[j] : detail::kNaN;

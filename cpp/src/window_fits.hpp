@@ -23,12 +23,7 @@
 #include "miem/views.hpp"
 #include "parallel.hpp"
 #include "plane_math.hpp"
-
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define MIEM_FIT_CLONES __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
-#else
-#define MIEM_FIT_CLONES
-#endif
+#include "vector_clones.hpp"
 
 namespace miem::detail {
 
@@ -137,18 +132,16 @@ inline __attribute__((always_inline)) void solve_fits_body(std::ptrdiff_t m, std
   }
 }
 
-MIEM_FIT_CLONES inline void solve_fits(std::ptrdiff_t m, std::ptrdiff_t cap,
-                                       const double* __restrict S, const double* __restrict Q,
-                                       double* __restrict F, std::uint8_t* __restrict ok,
-                                       std::uint8_t* __restrict redo) {
+MIEM_CLONES inline void solve_fits(std::ptrdiff_t m, std::ptrdiff_t cap, const double* __restrict S,
+                                   const double* __restrict Q, double* __restrict F,
+                                   std::uint8_t* __restrict ok, std::uint8_t* __restrict redo) {
   solve_fits_body<false>(m, cap, S, Q, F, ok, redo);
 }
 
-MIEM_FIT_CLONES inline void solve_fits_exact(std::ptrdiff_t m, std::ptrdiff_t cap,
-                                             const double* __restrict S,
-                                             const double* __restrict Q, double* __restrict F,
-                                             std::uint8_t* __restrict ok,
-                                             std::uint8_t* __restrict redo) {
+MIEM_CLONES inline void solve_fits_exact(std::ptrdiff_t m, std::ptrdiff_t cap,
+                                         const double* __restrict S, const double* __restrict Q,
+                                         double* __restrict F, std::uint8_t* __restrict ok,
+                                         std::uint8_t* __restrict redo) {
   solve_fits_body<true>(m, cap, S, Q, F, ok, redo);
 }
 
@@ -204,11 +197,9 @@ inline __attribute__((always_inline)) void class_weights(const std::uint8_t* __r
   }
 }
 
-MIEM_FIT_CLONES inline void add_row_sums(const std::uint8_t* __restrict cl, std::ptrdiff_t n,
-                                         const double* __restrict px,
-                                         const double* __restrict py,
-                                         const double* __restrict pz, double sign,
-                                         MIEM_SUM_PARAMS) {
+MIEM_CLONES inline void add_row_sums(const std::uint8_t* __restrict cl, std::ptrdiff_t n,
+                                     const double* __restrict px, const double* __restrict py,
+                                     const double* __restrict pz, double sign, MIEM_SUM_PARAMS) {
   for (std::ptrdiff_t j0 = 0; j0 < n; j0 += kSumChunk) {
     const std::ptrdiff_t m = std::min(kSumChunk, n - j0);
     double wi[kSumChunk], li[kSumChunk];
@@ -234,11 +225,10 @@ MIEM_FIT_CLONES inline void add_row_sums(const std::uint8_t* __restrict cl, std:
   }
 }
 
-MIEM_FIT_CLONES inline void move_row_sums(
+MIEM_CLONES inline void move_row_sums(
     const std::uint8_t* __restrict ca, const double* __restrict ax, const double* __restrict ay,
     const double* __restrict az, const std::uint8_t* __restrict cb, const double* __restrict bx,
-    const double* __restrict by, const double* __restrict bz, std::ptrdiff_t n,
-    MIEM_SUM_PARAMS) {
+    const double* __restrict by, const double* __restrict bz, std::ptrdiff_t n, MIEM_SUM_PARAMS) {
   for (std::ptrdiff_t j0 = 0; j0 < n; j0 += kSumChunk) {
     const std::ptrdiff_t m = std::min(kSumChunk, n - j0);
     double wa[kSumChunk], la[kSumChunk], wb[kSumChunk], lb[kSumChunk];
@@ -289,9 +279,9 @@ inline void move_row_moments(const std::uint8_t* ca, const double* ax, const dou
 // n points stored x, y, z, x, y, z, ... (a dense grid's row) as SoA coordinates relative to
 // (ox, oy, oz): load_rel's arithmetic in vector code (the interleaved loads vectorise in the
 // AVX2 clones; the generic loop below runs one point at a time).
-MIEM_FIT_CLONES inline void load_rel_xyz(const double* __restrict p, std::ptrdiff_t n, double ox,
-                                         double oy, double oz, double* __restrict x,
-                                         double* __restrict y, double* __restrict z) {
+MIEM_CLONES inline void load_rel_xyz(const double* __restrict p, std::ptrdiff_t n, double ox,
+                                     double oy, double oz, double* __restrict x,
+                                     double* __restrict y, double* __restrict z) {
   for (std::ptrdiff_t j = 0; j < n; ++j) {
     x[j] = p[3 * j] - ox;
     y[j] = p[3 * j + 1] - oy;
@@ -301,10 +291,10 @@ MIEM_FIT_CLONES inline void load_rel_xyz(const double* __restrict p, std::ptrdif
 
 // The same for n points stored as three planes, x at p, y at p + yo, z at p + 2 yo (the
 // stream's ring).
-MIEM_FIT_CLONES inline void load_rel_planes(const double* __restrict p, std::ptrdiff_t yo,
-                                            std::ptrdiff_t n, double ox, double oy, double oz,
-                                            double* __restrict x, double* __restrict y,
-                                            double* __restrict z) {
+MIEM_CLONES inline void load_rel_planes(const double* __restrict p, std::ptrdiff_t yo,
+                                        std::ptrdiff_t n, double ox, double oy, double oz,
+                                        double* __restrict x, double* __restrict y,
+                                        double* __restrict z) {
   const double* __restrict py = p + yo;
   const double* __restrict pz = p + 2 * yo;
   for (std::ptrdiff_t j = 0; j < n; ++j) {
@@ -352,9 +342,9 @@ void load_rel(const GridView<T>& g, std::ptrdiff_t r, std::ptrdiff_t c0, std::pt
 /// vector (the last vector's fourth lane repeats moment 10 and is not stored), 4 columns a step:
 /// the columns' differences are loaded per moment, transposed to per column, added in turn and
 /// transposed back. Each moment's additions are the scalar chain's, in its order: the same bits.
-MIEM_FIT_CLONES inline void box_sums(const double* __restrict col, std::ptrdiff_t stride,
-                                     std::ptrdiff_t half, std::ptrdiff_t n, std::ptrdiff_t cap,
-                                     double* __restrict S) {
+MIEM_CLONES inline void box_sums(const double* __restrict col, std::ptrdiff_t stride,
+                                 std::ptrdiff_t half, std::ptrdiff_t n, std::ptrdiff_t cap,
+                                 double* __restrict S) {
   typedef double V __attribute__((vector_size(32)));
   typedef long long M __attribute__((vector_size(32)));
   const M lo = {0, 4, 2, 6}, hi = {1, 5, 3, 7}, first = {0, 1, 4, 5}, second = {2, 3, 6, 7};
@@ -424,8 +414,7 @@ MIEM_FIT_CLONES inline void box_sums(const double* __restrict col, std::ptrdiff_
 
 /// The cell counts of n window sums (a: NORMAL cells, b: feature-line cells) rounded to whole
 /// numbers (sums of +-1, whole already; std::round in vector code).
-MIEM_FIT_CLONES inline void round_counts(std::ptrdiff_t n, double* __restrict a,
-                                         double* __restrict b) {
+MIEM_CLONES inline void round_counts(std::ptrdiff_t n, double* __restrict a, double* __restrict b) {
   for (std::ptrdiff_t j = 0; j < n; ++j) {
     a[j] = std::round(a[j]);
     b[j] = std::round(b[j]);
