@@ -655,8 +655,8 @@ def _window_planes(
         scatter = dev @ dev.transpose(0, 2, 1)
         evals, evecs = np.linalg.eigh(scatter)
         l1, l2 = evals[:, 1], evals[:, 2]
-        good = (l2 > 0.0) & ~(l1 <= _EIGEN_RANK_TOL * l2)
-        good &= evals[:, 1] - evals[:, 0] > _WINDOW_UNIQUE * l2  # a unique normal
+        # a plane (SPEC "Plane fit") with a unique normal (SPEC "Height")
+        good = (l2 > 0.0) & ~(l1 <= _EIGEN_RANK_TOL * l2) & (l1 - evals[:, 0] > _WINDOW_UNIQUE * l2)
         if not good.any():
             continue
         nrm = _orient(evecs[good, :, 0])
