@@ -20,6 +20,10 @@
 #ifdef __SSE2__
 #include <emmintrin.h>
 #endif
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
+#include <immintrin.h>
+#define MIEM_SELECT_AVX512 1
+#endif
 
 #include "miem/neighbor_grid.hpp"
 #include "miem/unorganized.hpp"
@@ -154,6 +158,60 @@ inline Four d2_four(const double* gx, const double* gy, const double* gz, std::s
 }
 #endif
 
+#ifdef MIEM_SELECT_AVX512
+// Whether this CPU runs the AVX-512 selection loop below (decided once).
+inline bool select_avx512() {
+  static const bool has =
+      __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl");
+  return has;
+}
+
+// One list of select8's kept candidates: their positions and how many there are.
+struct Kept {
+  std::uint32_t* pos;
+  std::size_t m;
+};
+
+// The selection loop of select and ball_sums, eight candidates at a time (the last ones
+// masked): each candidate's squared distance from (px, py, pz) (d2_pair's operations in its
+// order: the same bits) stored at all + k, and the positions of the kept ones (d2 <= r2)
+// appended to `out` ascending, by a register compress and a full store (room for 8 entries
+// past the last kept one: 8 past the candidates). With `in` (ball_sums): those with
+// d2 <= in2 go to `in` instead.
+__attribute__((target("avx512f,avx512vl"))) inline void select8(
+    const double* gx, const double* gy, const double* gz, std::size_t n, double px, double py,
+    double pz, double r2, double in2, double* all, Kept& out, Kept* in) {
+  const __m512d vpx = _mm512_set1_pd(px), vpy = _mm512_set1_pd(py), vpz = _mm512_set1_pd(pz);
+  const __m512d vr2 = _mm512_set1_pd(r2), vin2 = _mm512_set1_pd(in2);
+  const __m256i step = _mm256_set1_epi32(8);
+  __m256i vk = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  const auto keep = [](Kept& to, __mmask8 mask, __m256i k)
+                        __attribute__((target("avx512f,avx512vl"))) {
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(to.pos + to.m),
+                        _mm256_maskz_compress_epi32(mask, k));
+    to.m += static_cast<std::size_t>(__builtin_popcount(mask));
+  };
+  for (std::size_t k = 0; k < n; k += 8) {
+    const __mmask8 live = n - k >= 8 ? 0xFF : static_cast<__mmask8>((1u << (n - k)) - 1u);
+    const __m512d dx = _mm512_sub_pd(_mm512_maskz_loadu_pd(live, gx + k), vpx);
+    const __m512d dy = _mm512_sub_pd(_mm512_maskz_loadu_pd(live, gy + k), vpy);
+    const __m512d dz = _mm512_sub_pd(_mm512_maskz_loadu_pd(live, gz + k), vpz);
+    const __m512d d2 = _mm512_add_pd(_mm512_add_pd(_mm512_mul_pd(dx, dx), _mm512_mul_pd(dy, dy)),
+                                     _mm512_mul_pd(dz, dz));
+    _mm512_mask_storeu_pd(all + k, live, d2);
+    const __mmask8 ball = live & _mm512_cmp_pd_mask(d2, vr2, _CMP_LE_OQ);
+    if (in == nullptr) {
+      keep(out, ball, vk);
+    } else {
+      const __mmask8 inner = ball & _mm512_cmp_pd_mask(d2, vin2, _CMP_LE_OQ);
+      keep(out, ball & static_cast<__mmask8>(~inner), vk);
+      keep(*in, inner, vk);
+    }
+    vk = _mm256_add_epi32(vk, step);
+  }
+}
+#endif
+
 // Calls f(position in order(), index) for every point of `box`, in cell-key order.
 template <typename T, typename F>
 void for_each_in_box(const NeighborGrid<T>& grid, const CellBox& box, F&& f) {
@@ -193,10 +251,11 @@ void gather_split(const NeighborGrid<T>& grid, const CellBox& box, ClassOf&& cla
 
 // Select the gathered points within r of p (excluding index `self`, pass -1 to keep it), in
 // gather order. Two loops: every candidate's squared distance and the positions of the kept ones
-// (a branch-free compaction, four at a time with SSE2), then their offsets.
+// (a branch-free compaction, eight at a time with AVX-512 where the CPU has it, else four at a
+// time with SSE2), then their offsets.
 inline void select(const Gather& g, const Eigen::Vector3d& p, double r2, std::int64_t self,
                    Selection& s) {
-  s.reserve(g.n + 1);
+  s.reserve(g.n + 8);  // (select8 stores 8 entries at a time)
   const double* __restrict gx = g.x.data();
   const double* __restrict gy = g.y.data();
   const double* __restrict gz = g.z.data();
@@ -206,6 +265,13 @@ inline void select(const Gather& g, const Eigen::Vector3d& p, double r2, std::in
   const double px = p.x(), py = p.y(), pz = p.z();
   const std::size_t n = g.n;
   std::size_t m = 0, k = 0;
+#ifdef MIEM_SELECT_AVX512
+  if (select_avx512()) {
+    Kept kept{pos, 0};
+    select8(gx, gy, gz, n, px, py, pz, r2, 0.0, all, kept, nullptr);
+    m = kept.m, k = n;
+  }
+#endif
 #ifdef __SSE2__
   {
     // Four candidates at a time (two registers), compacted by table.
@@ -509,7 +575,7 @@ inline OffsetSums offset_sums(const Gather& g, const std::uint32_t* __restrict p
 // sqrt(in2) (`inner`) and the others (`ring`); in gather order. The ball's are ring + inner.
 inline void ball_sums(const Gather& g, const Eigen::Vector3d& p, double r2, double in2,
                       Selection& s, OffsetSums* ring, OffsetSums* inner) {
-  s.reserve(g.n + 1);
+  s.reserve(g.n + 8);  // (select8 stores 8 entries at a time)
   const double* __restrict gx = g.x.data();
   const double* __restrict gy = g.y.data();
   const double* __restrict gz = g.z.data();
@@ -519,8 +585,16 @@ inline void ball_sums(const Gather& g, const Eigen::Vector3d& p, double r2, doub
   const double px = p.x(), py = p.y(), pz = p.z();
   const std::size_t n = g.n;
   // One pass: each candidate's squared distance, then its position appended to the ring or
-  // the inner list (branch-free: which one is unpredictable).
+  // the inner list (branch-free: which one is unpredictable): select8 where the CPU has
+  // AVX-512, else four at a time with SSE2.
   std::size_t m_out = 0, m_in = 0, k = 0;
+#ifdef MIEM_SELECT_AVX512
+  if (select_avx512()) {
+    Kept out{out_pos, 0}, in{in_pos, 0};
+    select8(gx, gy, gz, n, px, py, pz, r2, in2, all, out, &in);
+    m_out = out.m, m_in = in.m, k = n;
+  }
+#endif
 #ifdef __SSE2__
   {
     // Four candidates at a time (two registers), compacted by table.
