@@ -1,0 +1,131 @@
+// The clouds' neighbour selection (cpp/src/cloud_kernels.hpp): select and ball_sums (eight
+// candidates at a time with AVX-512 where the CPU has it, else four with SSE2) against the rule
+// written out one candidate at a time: squared distance (dx^2 + dy^2) + dz^2, kept when <= r^2,
+// inner when also <= in^2, positions ascending; every length of the last, masked block, and
+// candidates exactly on both radii.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <random>
+#include <vector>
+
+#include "cloud_kernels.hpp"
+
+namespace {
+
+using miem::cloud::Gather;
+using miem::cloud::OffsetSums;
+using miem::cloud::Selection;
+
+double d2_of(const Gather& g, std::size_t k, const Eigen::Vector3d& p) {
+  const double dx = g.x[k] - p.x(), dy = g.y[k] - p.y(), dz = g.z[k] - p.z();
+  return dx * dx + dy * dy + dz * dz;
+}
+
+bool same_bits(double a, double b) { return std::memcmp(&a, &b, sizeof a) == 0; }
+
+// n candidates around p within about 1.5 r; every third one exactly r (or `in`) away along an
+// axis from p = 0, so that its squared distance is exactly r * r (in * in).
+Gather candidates(std::size_t n, double r, double in, std::mt19937& rng) {
+  std::uniform_real_distribution<double> u(-1.5 * r, 1.5 * r);
+  Gather g;
+  for (std::size_t k = 0; k < n; ++k) {
+    Eigen::Vector3d q(u(rng), u(rng), 0.1 * u(rng));
+    if (k % 3 == 1) q = Eigen::Vector3d(k % 2 ? r : -r, 0.0, 0.0);
+    if (k % 6 == 2) q = Eigen::Vector3d(0.0, k % 4 ? in : -in, 0.0);
+    g.push(q, static_cast<std::uint32_t>(1000 + 7 * k));
+  }
+  return g;
+}
+
+TEST(CloudSelect, SelectKeepsTheCandidatesWithinTheRadiusInOrder) {
+  std::mt19937 rng(11);
+  const double r = 0.75, in = 0.5;
+  const Eigen::Vector3d p = Eigen::Vector3d::Zero();
+  Selection s;
+  for (std::size_t n = 0; n <= 70; ++n) {
+    const Gather g = candidates(n, r, in, rng);
+    for (const std::int64_t self : {std::int64_t{-1}, std::int64_t{1000 + 7 * 3}}) {
+      miem::cloud::select(g, p, r * r, self, s);
+      std::size_t m = 0;
+      for (std::size_t k = 0; k < n; ++k) {
+        const double d2 = d2_of(g, k, p);
+        if (!(d2 <= r * r) || static_cast<std::int64_t>(g.id[k]) == self) continue;
+        ASSERT_LT(m, s.n) << "n " << n;
+        EXPECT_EQ(s.id[m], g.id[k]) << "n " << n << " kept " << m;
+        EXPECT_TRUE(same_bits(s.d2[m], d2));
+        EXPECT_TRUE(same_bits(s.wx[m], g.x[k] - p.x()));
+        EXPECT_TRUE(same_bits(s.wz[m], g.z[k] - p.z()));
+        ++m;
+      }
+      EXPECT_EQ(s.n, m) << "n " << n;
+    }
+  }
+}
+
+TEST(CloudSelect, BallSumsSplitsTheBallAtTheInnerRadius) {
+  std::mt19937 rng(12);
+  const double r = 0.75, in = 0.5;
+  const Eigen::Vector3d p = Eigen::Vector3d::Zero();
+  Selection s;
+  for (std::size_t n = 0; n <= 70; ++n) {
+    const Gather g = candidates(n, r, in, rng);
+    OffsetSums ring, inner;
+    miem::cloud::ball_sums(g, p, r * r, in * in, s, &ring, &inner);
+    std::vector<std::uint32_t> want_ring, want_inner;
+    double sum_x = 0.0, sum_zz = 0.0;
+    for (std::size_t k = 0; k < n; ++k) {
+      const double d2 = d2_of(g, k, p);
+      EXPECT_TRUE(same_bits(s.all_d2[k], d2)) << "n " << n << " candidate " << k;
+      if (!(d2 <= r * r)) continue;
+      (d2 <= in * in ? want_inner : want_ring).push_back(static_cast<std::uint32_t>(k));
+      if (d2 > in * in) {
+        sum_x += g.x[k];
+        sum_zz += g.z[k] * g.z[k];
+      }
+    }
+    ASSERT_EQ(ring.n, static_cast<double>(want_ring.size())) << "n " << n;
+    ASSERT_EQ(inner.n, static_cast<double>(want_inner.size())) << "n " << n;
+    for (std::size_t q = 0; q < want_ring.size(); ++q) EXPECT_EQ(s.pos[q], want_ring[q]);
+    for (std::size_t q = 0; q < want_inner.size(); ++q) EXPECT_EQ(s.id[q], want_inner[q]);
+    EXPECT_NEAR(ring.x, sum_x, 1e-12);
+    EXPECT_NEAR(ring.zz, sum_zz, 1e-12);
+  }
+}
+
+#ifdef MIEM_SELECT_AVX512
+TEST(CloudSelect, TheAvx512LoopGivesTheScalarPositionsAndBits) {
+  if (!miem::cloud::select_avx512()) GTEST_SKIP() << "this CPU has no AVX-512";
+  std::mt19937 rng(13);
+  const double r = 0.75, in = 0.5;
+  const Eigen::Vector3d p(0.25, -0.125, 0.0625);
+  for (const std::size_t n : {std::size_t{0}, std::size_t{1}, std::size_t{7}, std::size_t{8},
+                              std::size_t{9}, std::size_t{63}, std::size_t{1001}}) {
+    const Gather g = candidates(n, r, in, rng);
+    std::vector<double> all(n + 8);
+    std::vector<std::uint32_t> out(n + 8), inn(n + 8);
+    miem::cloud::Kept a{out.data(), 0}, b{inn.data(), 0};
+    miem::cloud::select8(g.x.data(), g.y.data(), g.z.data(), n, p.x(), p.y(), p.z(), r * r,
+                         in * in, all.data(), a, &b);
+    std::size_t mo = 0, mi = 0;
+    for (std::size_t k = 0; k < n; ++k) {
+      const double d2 = d2_of(g, k, p);
+      EXPECT_TRUE(same_bits(all[k], d2));
+      if (!(d2 <= r * r)) continue;
+      if (d2 <= in * in) {
+        ASSERT_LT(mi, b.m);
+        EXPECT_EQ(inn[mi++], k);
+      } else {
+        ASSERT_LT(mo, a.m);
+        EXPECT_EQ(out[mo++], k);
+      }
+    }
+    EXPECT_EQ(a.m, mo) << "n " << n;
+    EXPECT_EQ(b.m, mi) << "n " << n;
+  }
+}
+#endif
+
+}  // namespace
