@@ -237,8 +237,8 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
         JudgeScratch& js = scratch[tid];
         gather_split(grid, cell_box(grid, cell, t.radius), class_of, js.gather, js.aside);
         for (std::uint32_t k = b; k < e; ++k) {
-          if (k + 4 < e) {  // a later point's outputs: input order, random in a shuffled cloud
-            const std::uint32_t f = order[k + 4];
+          if (k + kPrefetchAhead < e) {  // a later point's outputs (cloud_stages.hpp)
+            const std::uint32_t f = order[k + kPrefetchAhead];
             if (t.height != nullptr) __builtin_prefetch(t.height + f, 1);
             if (t.first_rms != nullptr) __builtin_prefetch(t.first_rms + f, 1);
             if (t.have != nullptr) __builtin_prefetch(t.have + f, 1);

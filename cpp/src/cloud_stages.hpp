@@ -13,6 +13,10 @@ namespace miem::cloud {
 /// Saturation value of the neighbour counts passed to floating_points.
 inline constexpr std::uint16_t kCountSaturated = 0xFFFF;
 
+/// A pass over a cell's points (grid order) prefetches the per-point outputs of the point this
+/// many places on: they are indexed by input order, so a shuffled cloud scatters them.
+inline constexpr std::uint32_t kPrefetchAhead = 4;
+
 /// Usable points (labels NORMAL or EDGE) whose group, usable points linked by distance <=
 /// `radius`, has fewer than `min_group` points; ascending. Bounded searches from the points with
 /// fewer than `min_group - 1` usable neighbours, so the cost is small when few are.

@@ -250,8 +250,8 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
     gather_box(grid, cell_box(grid, cell, radius), every, js.gather);  // all usable in pass 1
     const std::uint32_t e = grid.cell_begin(cell + 1);
     for (std::uint32_t k = grid.cell_begin(cell); k < e; ++k) {
-      if (k + 4 < e) {  // the outputs of a later point: in input order, random in a shuffled cloud
-        const std::uint32_t f = order[k + 4];
+      if (k + kPrefetchAhead < e) {  // a later point's outputs (cloud_stages.hpp)
+        const std::uint32_t f = order[k + kPrefetchAhead];
         __builtin_prefetch(labels + f, 1);
         __builtin_prefetch(degenerate + f, 1);
         if (out.flags) __builtin_prefetch(out.flags + f, 1);
