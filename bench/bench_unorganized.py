@@ -355,22 +355,19 @@ def run(n: int, repeats: int, accuracy: bool = True) -> str:
         cpu[f"{contender}|{op}"] = c
         return t
 
-    # A thread speed-up is a ratio of two timings: measure them alternately, best of
-    # 2 x repeats each, so a burst of load on the shared machine hits both sides alike.
-    pair = interleaved([lambda nt=nt: mu.estimate_normals(pts, radius, num_threads=nt)
-                        for nt in (1, 2)], 2 * repeats)
-    for nt, (t, c) in zip((1, 2), pair):
-        rows.append((f"miem, {nt} thread" + ("s" if nt > 1 else ""),
-                     "estimate_normals(radius)", t, c))
-        cpu[f"{rows[-1][0]}|estimate_normals(radius)"] = c
-    t_n1, t_n2 = pair[0][0], pair[1][0]
-    pair = interleaved([lambda nt=nt: miem.detect(pts, num_threads=nt) for nt in (1, 2)],
-                       2 * repeats)  # (alternated, as the normals above)
-    for nt, (t, c) in zip((1, 2), pair):
-        rows.append((f"miem, {nt} thread" + ("s" if nt > 1 else ""),
-                     f"detect(points) (defaults: preset {preset!r})", t, c))
-        cpu[f"{rows[-1][0]}|{rows[-1][1]}"] = c
-    t_d1, t_d2 = pair[0][0], pair[1][0]
+    def add_threads(op: str, fn) -> tuple[float, float]:
+        # A thread speed-up is a ratio of two timings: fn(1) and fn(2) measured alternately,
+        # best of 2 x repeats each, so a burst of load on the shared machine hits both alike.
+        pair = interleaved([lambda nt=nt: fn(nt) for nt in (1, 2)], 2 * repeats)
+        for nt, (t, c) in zip((1, 2), pair):
+            rows.append((f"miem, {nt} thread" + ("s" if nt > 1 else ""), op, t, c))
+            cpu[f"{rows[-1][0]}|{op}"] = c
+        return pair[0][0], pair[1][0]
+
+    t_n1, t_n2 = add_threads("estimate_normals(radius)",
+                             lambda nt: mu.estimate_normals(pts, radius, num_threads=nt))
+    t_d1, t_d2 = add_threads(f"detect(points) (defaults: preset {preset!r})",
+                             lambda nt: miem.detect(pts, num_threads=nt))
     if preset != "recommended":
         add("miem, 2 threads", "detect(points, preset='recommended')",
             lambda: miem.detect(pts, preset="recommended", num_threads=2))
