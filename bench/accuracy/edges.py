@@ -279,13 +279,15 @@ def write(syn: dict, rl: dict | None, seconds: float, old: dict) -> None:
     RESULTS.write_text("\n".join(lines) + "\n")
 
 
-#: Deviation bands (mm) of by_deviation: a BURR cell stands more than 0.25 mm out.
-DEV_BANDS = ((0.25, 0.3), (0.3, 0.5), (0.5, 1.0), (1.0, np.inf))
+#: The real scan's burr cells more than this far out (mm) are scored apart too (big_cells).
+BIG_MM = 1.0
+#: Deviation bands (mm) of by_deviation, from where a BURR cell starts (real_truth's doc, step 4).
+DEV_BANDS = ((rt.THRESHOLD + rt.BAND, 0.3), (0.3, 0.5), (0.5, BIG_MM), (BIG_MM, np.inf))
 
 
 @dataclass(frozen=True)
 class Big:
-    """The real scan's BURR cells more than 1 mm out, and their largest 8-connected part."""
+    """The real scan's BURR cells more than BIG_MM out, and their largest 8-connected part."""
 
     cells: np.ndarray  # bool (H, W)
     rows: int  # profiles holding one
@@ -295,7 +297,7 @@ class Big:
 
 
 def big_cells(tr: rt.RealTruth) -> Big:
-    big = (tr.classes == rt.BURR) & (np.nan_to_num(tr.dev, nan=-np.inf) > 1.0)
+    big = (tr.classes == rt.BURR) & (np.nan_to_num(tr.dev, nan=-np.inf) > BIG_MM)
     ridge = max(rt._components(big), key=len)
     rows = ridge // tr.classes.shape[1]
     lo, hi = np.percentile(tr.dev.reshape(-1)[ridge], [5, 95])
@@ -304,7 +306,7 @@ def big_cells(tr: rt.RealTruth) -> Big:
 
 
 def without_big(labels: np.ndarray, tr: rt.RealTruth, big: Big) -> tuple[float, float]:
-    """Recall and precision of ABNORMAL with the cells more than 1 mm out left out."""
+    """Recall and precision of ABNORMAL with the cells more than BIG_MM out left out."""
     f = labels == miem.ABNORMAL
     burr = (tr.classes == rt.BURR) & ~big.cells
     tp, fn, fp = (f & burr).sum(), (~f & burr).sum(), (f & (tr.classes == rt.CLEAN)).sum()
@@ -313,7 +315,7 @@ def without_big(labels: np.ndarray, tr: rt.RealTruth, big: Big) -> tuple[float, 
 
 def by_deviation(rl: dict, tr: rt.RealTruth) -> list[str]:
     """Recall of each contender per band of the BURR cells' deviation, and recall / precision
-    with the cells deviating more than 1 mm left out (don't care): most of those lie on one
+    with the cells deviating more than BIG_MM left out (don't care): most of those lie on one
     ridge, which carries much of the headline recall."""
     burr, big = tr.classes == rt.BURR, big_cells(tr)
     dev = np.nan_to_num(tr.dev, nan=-np.inf)
@@ -322,14 +324,15 @@ def by_deviation(rl: dict, tr: rt.RealTruth) -> list[str]:
     out = ["### Recall by deviation (local-offset truth)", "",
            f"BURR cells per band of their deviation from the golden sample: "
            f"{', '.join(f'{n} {int(c.sum())}' for n, c in zip(names, cells))}. The "
-           f"{int(big.cells.sum())} cells above 1 mm lie in {big.rows} profiles, "
+           f"{int(big.cells.sum())} cells above {BIG_MM:g} mm lie in {big.rows} profiles, "
            f"{big.ridge.size} of them in one 8-connected part over profiles {big.ridge_rows[0]}-"
            f"{big.ridge_rows[1]}: a ridge along the step between the two plates standing "
            f"{big.ridge_dev[0]:.1f}-{big.ridge_dev[1]:.1f} mm (5th-95th percentile) above the "
            "golden sample (a burr, or a difference between the two parts: the golden sample "
-           "cannot tell). The last two columns leave the cells above 1 mm out (don't care).", "",
+           f"cannot tell). The last two columns leave the cells above {BIG_MM:g} mm out (don't "
+           "care).", "",
            "| contender | " + " | ".join(f"recall {n}" for n in names)
-           + " | without > 1 mm: recall | precision |",
+           + f" | without > {BIG_MM:g} mm: recall | precision |",
            "|---|" + "---|" * (len(names) + 2)]
     for name, (_, _, _, labels, _) in rl.items():
         f = labels == miem.ABNORMAL
@@ -413,19 +416,21 @@ def update_readme(rl: dict) -> None:
     n_burr = int((tr.classes == rt.BURR).sum())
     found = (f & big.cells).sum() / max(1, big.cells.sum())
     r, _ = without_big(rl["recommended"][3], tr, big)
-    intro = (f"Of the scan's {n_burr:,} burr cells, {int(big.cells.sum()):,} stand more than 1 mm "
+    intro = (f"Of the scan's {n_burr:,} burr cells, {int(big.cells.sum()):,} stand more than "
+             f"{BIG_MM:g} mm "
              f"above the golden sample, {big.ridge.size:,} of them on one ridge "
              f"{big.ridge_dev[0]:.1f}-{big.ridge_dev[1]:.1f} mm tall along the step between the "
              f"two plates (profiles {big.ridge_rows[0]}-{big.ridge_rows[1]}): a burr, or a "
              "difference between the two parts, which the golden sample cannot tell apart. The "
              f"recommended settings find {100 * found:.0f} % of those cells, so they carry much of "
-             "the recall. The column \"without the cells > 1 mm\" scores the rest (0.25-1 mm "
-             f"above the golden sample), where they find {100 * r:.0f} %; "
+             f"the recall. The column \"without the cells > {BIG_MM:g} mm\" scores the rest "
+             f"({DEV_BANDS[0][0]:g}-{BIG_MM:g} mm above the golden sample), where they find "
+             f"{100 * r:.0f} %; "
              "`bench/accuracy/results_edges.md` gives the recall per deviation band.")
     rows = [*textwrap.wrap(intro, 96), "",
             "| settings | burr cells found (recall) | precision | burr regions found | "
-            "absolute truth: recall / precision | without the cells > 1 mm: recall / precision "
-            "| EDGE on flat surface |",
+            f"absolute truth: recall / precision | without the cells > {BIG_MM:g} mm: recall / "
+            "precision | EDGE on flat surface |",
             "|---|---|---|---|---|---|---|"]
     for name, (s, edge_share, _, labels, a) in rl.items():
         wr, wp = without_big(labels, tr, big)
