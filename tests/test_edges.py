@@ -681,6 +681,58 @@ def test_stream_hangs_ledges_as_batch() -> None:
     np.testing.assert_array_equal(stream_labels(grid, p), want.labels)
 
 
+def _jittered_profiles(seed: int, rows: int = 100,
+                       cols: int = 240) -> tuple[np.ndarray, np.ndarray]:
+    """A profiler's scan of a gently curved sheet (0.05 mm along, 0.1 mm across), noise 0.002 mm,
+    every profile offset in z by N(0, 0.02 mm) (profile-to-profile jitter, ten times the noise),
+    1 um z steps, with spikes and pits 0.3-1.3 mm (the truth: those cells)."""
+    rng = np.random.default_rng(seed)
+    c = np.arange(cols) * 0.05
+    off = 0.02 * rng.standard_normal(rows)
+    g = np.empty((rows, cols, 3))
+    for r in range(rows):
+        z = (2.0 * np.exp(-(c - 0.025 * cols) ** 2 / 2000.0) + 0.05 * np.sin(2 * np.pi * r / 1024)
+             + rng.normal(0.0, 0.002, cols) + off[r])
+        g[r, :, 0], g[r, :, 1], g[r, :, 2] = c, r * 0.1, np.round(z * 1000.0) / 1000.0
+    truth = np.zeros((rows, cols), dtype=bool)
+    for sign, rate in ((1.0, 0.0002), (-1.0, 0.0001)):
+        m = rng.random((rows, cols)) < rate
+        g[..., 2][m] += sign * (0.3 + rng.random(int(m.sum())))
+        truth |= m
+    return g, truth
+
+
+def test_edge_tolerance_floor_from_min_step() -> None:
+    """SPEC "Edge test" step 3: with a min_step in use, no sub-window's tolerance is below
+    min_step / 2. On profiles jittered by ten times their noise, an up or down sub-window (a
+    few profiles, not P's) that happens to fit its profiles closely had an rms far below the
+    scan's noise across profiles, and whole profiles offset by a few jitter sigmas stood
+    "proud" of it: 346 false alarms on this scan without the floor, none with it, every spike
+    and pit still found; core == reference (1 and 2 threads, float32), stream == batch."""
+    g, truth = _jittered_profiles(22)
+    pre = miem.detect(g, edge_tolerance=None)
+    ms = pre.params["min_step"]
+    assert ms is not None and 0.05 < ms < 0.12  # "auto": 4 x the jitter's sigma (about 0.08)
+    kw = {"window": 15, "tolerance": 4.0, "max_iterations": 10}
+    without = ref.edge_test(g, pre.labels, min_step=None, **kw)[0]
+    with_floor = ref.edge_test(g, pre.labels, min_step=ms, **kw)[0]
+    assert ((without == miem.ABNORMAL) & ~truth).sum() > 100  # the profiles that stood proud
+    res = miem.detect(g)
+    assert res.params["min_step"] == ms and res.params["edge_tolerance"] == 4.0
+    np.testing.assert_array_equal(res.labels, with_floor)
+    abnormal = res.labels == miem.ABNORMAL
+    assert not (abnormal & ~truth).any() and abnormal[truth].all()
+    oracle = ref.detect(g, preset="recommended")
+    np.testing.assert_array_equal(res.labels, oracle.labels)
+    np.testing.assert_array_equal(miem.detect(g, num_threads=2).labels, oracle.labels)
+    f32 = g.astype(np.float32)
+    np.testing.assert_array_equal(miem.detect(f32).labels,
+                                  ref.detect(f32, preset="recommended").labels)
+    np.testing.assert_array_equal(stream_labels(g, miem.default_params("stream")), res.labels)
+    # a min_step given as a length sets the floor alike (miem.dask gives its blocks one)
+    np.testing.assert_array_equal(miem.detect(g, min_step=ms).labels, res.labels)
+
+
 def _stacked_edge_scan(n_rows: int, n_cols: int) -> np.ndarray:
     """Edge scenes (220 x 256 cells each) side by side and stacked into one continuous tall scan,
     far from the scanner's origin (x + 300 mm): its moments, summed over the whole grid, would

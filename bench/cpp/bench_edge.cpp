@@ -59,12 +59,12 @@ int main(int argc, char** argv) {
       have = static_cast<bool>(f);
     }
   }
+  miem::DetectParams eff = p;  // min_step "auto" resolved: the stages and the edge test's floor
+  if (eff.min_step_auto) {
+    eff.min_step = miem::detail::auto_min_step(g, ws.survey, threads);
+    eff.min_step_auto = false;
+  }
   if (!have) {
-    miem::DetectParams eff = p;
-    if (eff.min_step_auto) {
-      eff.min_step = miem::detail::auto_min_step(g, ws.survey, threads);
-      eff.min_step_auto = false;
-    }
     miem::detail::angle_passes(g, eff, out, ws);
     if (eff.height_test()) miem::detail::height_test(g, eff, labels.data(), height.data(), ws);
     if (!cache.empty()) {
@@ -78,7 +78,8 @@ int main(int argc, char** argv) {
   for (int rep = 0; rep < reps; ++rep) {
     labels = before;
     const double t0 = now();
-    passes = miem::detail::edge_passes(g, labels.data(), p.edge_window, p.edge_k,
+    passes = miem::detail::edge_passes(g, labels.data(), p.edge_window,
+                                         miem::detail::edge_tol(p.edge_k, eff.min_step),
                                        p.max_iterations, threads, ws.edge_sums, ws.edge_flags);
     best = std::min(best, now() - t0);
   }

@@ -114,7 +114,8 @@ double run_stages(const miem::GridView<double>& g, const miem::DetectParams& p,
   if (ht) miem::detail::height_test(g, eff, out.labels, out.height, ws);
   at(3);
   if (eff.edge_test()) {
-    miem::detail::edge_passes(g, out.labels, eff.edge_window, eff.edge_k, eff.max_iterations,
+    miem::detail::edge_passes(g, out.labels, eff.edge_window,
+                              miem::detail::edge_tol(eff.edge_k, eff.min_step), eff.max_iterations,
                               nt, ws.edge_sums, ws.edge_flags);
   }
   at(4);

@@ -108,7 +108,7 @@ MIEM_CLONES void side_lows(std::ptrdiff_t m, std::ptrdiff_t cap, double n_min,
 // scalar redo so that both give the same bits.
 inline __attribute__((always_inline)) void side_plane(
     bool use, bool solved, double l0, double l1, double l2, double nx, double ny, double nz,
-    double nn, double cx, double cy, double cz, double px, double py, double pz, double k,
+    double nn, double cx, double cy, double cz, double px, double py, double pz, EdgeTol et,
     double& valid, double& h, double& rms, double& tol, double& ox, double& oy,
     double& oz) {
   valid = use & solved & (l2 > 0.0) & !(l1 <= kRankTol * l2) ? 1.0 : 0.0;
@@ -116,12 +116,13 @@ inline __attribute__((always_inline)) void side_plane(
   ox = nx * sg, oy = ny * sg, oz = nz * sg;  // orient_normal
   h = ((px - cx) * ox + (py - cy) * oy) + (pz - cz) * oz;  // dot3(pt - centroid, normal)
   rms = edge_side_rms(l0, l2, nn);
-  const double floor = kRoundOff * std::sqrt((l1 + l2) / nn), kr = k * rms;
-  tol = kr < floor ? floor : kr;  // std::max(k rms, floor)
+  const double round_off = kRoundOff * std::sqrt((l1 + l2) / nn), kr = et.k * rms;
+  const double floor = round_off < et.floor ? et.floor : round_off;
+  tol = kr < floor ? floor : kr;  // std::max(k rms, round-off floor, et.floor)
 }
 
 // side_plane for m sides (SoA; P: the cell of each side, relative to the origin). Vectorised.
-MIEM_CLONES void side_planes(std::ptrdiff_t m, std::ptrdiff_t cap, double k,
+MIEM_CLONES void side_planes(std::ptrdiff_t m, std::ptrdiff_t cap, EdgeTol et,
                              const double* __restrict useb, const double* __restrict okb,
                              const double* __restrict Eb, const double* __restrict nnb,
                              const double* __restrict ceb, const double* __restrict P,
@@ -130,7 +131,7 @@ MIEM_CLONES void side_planes(std::ptrdiff_t m, std::ptrdiff_t cap, double k,
   for (std::ptrdiff_t e = 0; e < m; ++e) {
     side_plane(useb[e] != 0.0, okb[e] != 0.0, Eb[e], Eb[cap + e], Eb[2 * cap + e],
                Eb[3 * cap + e], Eb[4 * cap + e], Eb[5 * cap + e], nnb[e], ceb[e], ceb[cap + e],
-               ceb[2 * cap + e], P[e], P[cap + e], P[2 * cap + e], k, validb[e], F[e],
+               ceb[2 * cap + e], P[e], P[cap + e], P[2 * cap + e], et, validb[e], F[e],
                F[cap + e], F[2 * cap + e], F[3 * cap + e], F[4 * cap + e], F[5 * cap + e]);
   }
 }
@@ -513,7 +514,7 @@ bool is_spike(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t g
 template <typename T>
 void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr,
                     std::ptrdiff_t H, std::ptrdiff_t C0, std::ptrdiff_t C1,
-                    const EdgeImages& im, const Eigen::Vector3d& o, std::ptrdiff_t r, double k,
+                    const EdgeImages& im, const Eigen::Vector3d& o, std::ptrdiff_t r, EdgeTol et,
                     const std::uint8_t* lab, const std::uint8_t* todo, std::uint8_t* mark,
                     const EdgeBandCache* cache) {
   const std::ptrdiff_t W = g.cols, f0 = im.f0, plane = im.plane;
@@ -730,7 +731,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       }
       side_moments(m, kChunk, n_min, mm1, nn1, ce1, M1, use1, empty1);
       smallest_eigenpairs_long(m, kChunk, M1, E1, ok1, redo1);
-      side_planes(m, kChunk, k, use1, ok1, E1, nn1, ce1, Pc, valid1, F1);
+      side_planes(m, kChunk, et, use1, ok1, E1, nn1, ce1, Pc, valid1, F1);
       double fits[kChunk];
       fits_clean_side(m, kChunk, redo1, valid1, empty1, low1, F1, fits);
       for (int j = 0; j < m; ++j) {
@@ -783,7 +784,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       const int ms = 8 * m;
       side_moments(ms, kCap, n_min, mm, nnb, ceb, Mb, useb, emptyb);
       smallest_eigenpairs_long(ms, kCap, Mb, Eb, okb, redob);
-      side_planes(ms, kCap, k, useb, okb, Eb, nnb, ceb, P, validb, F);
+      side_planes(ms, kCap, et, useb, okb, Eb, nnb, ceb, P, validb, F);
       for (int e = 0; e < ms; ++e) {
         if (!redob[e] || !useb[e]) continue;  // Newton needs more steps: the scalar routine
         Eigen::Matrix3d M;
@@ -797,7 +798,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
         Eigen::Vector3d nv = Eigen::Vector3d::Zero();
         const bool solved = smallest_eigenpair(M, &l0, &l1, &l2, &nv);
         side_plane(true, solved, l0, l1, l2, nv.x(), nv.y(), nv.z(), nnb[e], ceb[e],
-                   ceb[kCap + e], ceb[2 * kCap + e], P[e], P[kCap + e], P[2 * kCap + e], k,
+                   ceb[kCap + e], ceb[2 * kCap + e], P[e], P[kCap + e], P[2 * kCap + e], et,
                    validb[e], F[e], F[kCap + e], F[2 * kCap + e], F[3 * kCap + e],
                    F[4 * kCap + e], F[5 * kCap + e]);
       }
@@ -849,7 +850,7 @@ namespace {
 // gives the same bits), and they stay small: sums cumulated over a whole tall grid lose the
 // precision that the smallest eigenvalue needs.
 template <typename T>
-int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
+int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol et,
                int max_iterations, int num_threads, std::vector<double>& scratch,
                CellBytes& flags) {
   constexpr std::ptrdiff_t kTileRows = kEdgeTileRows, kTileCols = kEdgeTileCols;
@@ -943,7 +944,7 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
       const EdgeImages im{S, plane, L, e0, ER + 1, f0};
       cache.clear();
       for (std::ptrdiff_t rr = rfirst; rr <= rlast; ++rr) {  // (rows without a candidate: none)
-        edge_judge_row(g, rr, rr, H, C0, clast + 1, im, o, r, k, labels, todo + rr * W,
+        edge_judge_row(g, rr, rr, H, C0, clast + 1, im, o, r, et, labels, todo + rr * W,
                        mark + rr * W, &cache);
       }
     }
@@ -1002,15 +1003,15 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
 }  // namespace
 
 template <typename T>
-int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
+int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol et,
                 int max_iterations, int num_threads, std::vector<double>& scratch,
                 CellBytes& flags) {
-  return run_passes(g, labels, window, k, max_iterations, num_threads, scratch, flags);
+  return run_passes(g, labels, window, et, max_iterations, num_threads, scratch, flags);
 }
 
-template int edge_passes<float>(const GridView<float>&, std::uint8_t*, int, double, int, int,
+template int edge_passes<float>(const GridView<float>&, std::uint8_t*, int, EdgeTol, int, int,
                                 std::vector<double>&, CellBytes&);
-template int edge_passes<double>(const GridView<double>&, std::uint8_t*, int, double, int, int,
+template int edge_passes<double>(const GridView<double>&, std::uint8_t*, int, EdgeTol, int, int,
                                  std::vector<double>&, CellBytes&);
 
 #define MIEM_EDGE_ROWS(T)                                                                     \
@@ -1020,7 +1021,7 @@ template int edge_passes<double>(const GridView<double>&, std::uint8_t*, int, do
   template void edge_judge_row<T>(const GridView<T>&, std::ptrdiff_t, std::ptrdiff_t,            \
                                   std::ptrdiff_t, std::ptrdiff_t, std::ptrdiff_t,               \
                                   const EdgeImages&, const Eigen::Vector3d&, std::ptrdiff_t,    \
-                                  double, const std::uint8_t*, const std::uint8_t*,             \
+                                  EdgeTol, const std::uint8_t*, const std::uint8_t*,            \
                                   std::uint8_t*, const EdgeBandCache*);
 MIEM_EDGE_ROWS(float)
 MIEM_EDGE_ROWS(double)

@@ -13,13 +13,27 @@
 
 namespace miem::detail {
 
+/// The edge test's tolerance (SPEC "Edge test", step 3): a sub-window's t = max(k x rms,
+/// round-off floor, `floor`), `floor` = min_step / 2 when a min_step is in use (given, or
+/// "auto" resolved to one: twice the z noise it measured), else 0.
+struct EdgeTol {
+  double k;
+  double floor;
+};
+
+/// The tolerance for edge_k `k` and the min_step in use (< 0: off).
+inline EdgeTol edge_tol(double k, double min_step) noexcept {
+  return {k, min_step > 0.0 ? 0.5 * min_step : 0.0};
+}
+
 /// Runs edge passes on `labels` (H x W, row-major, as left by the height passes): candidate
-/// cells become ABNORMAL. `window` odd >= 3 (sub-window half-size window / 2), `k` > 0 the
-/// tolerance in rms units, at most `max_iterations` passes. Returns the number of passes run.
-/// The result does not depend on `num_threads`. `scratch` and `flags` are reused between calls
-/// (grown only when a grid needs more: no allocation for grids no larger than before).
+/// cells become ABNORMAL. `window` odd >= 3 (sub-window half-size window / 2), `et` the
+/// tolerance (et.k > 0 in rms units; edge_tol), at most `max_iterations` passes. Returns the
+/// number of passes run. The result does not depend on `num_threads`. `scratch` and `flags`
+/// are reused between calls (grown only when a grid needs more: no allocation for grids no
+/// larger than before).
 template <typename T>
-int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, double k,
+int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol et,
                 int max_iterations, int num_threads, std::vector<double>& scratch,
                 CellBytes& flags);
 
@@ -81,7 +95,7 @@ struct EdgeBandCache {
 template <typename T>
 void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr,
                     std::ptrdiff_t H, std::ptrdiff_t C0, std::ptrdiff_t C1,
-                    const EdgeImages& im, const Eigen::Vector3d& o, std::ptrdiff_t r, double k,
+                    const EdgeImages& im, const Eigen::Vector3d& o, std::ptrdiff_t r, EdgeTol et,
                     const std::uint8_t* lab, const std::uint8_t* todo, std::uint8_t* mark,
                     const EdgeBandCache* cache = nullptr);
 

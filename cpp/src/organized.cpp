@@ -64,7 +64,8 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
   }
   const bool edge_test = p.edge_test();
   if (edge_test) {  // SPEC "Edge test": after the height passes
-    summary.iterations += detail::edge_passes(g, labels, p.edge_window, p.edge_k,
+    summary.iterations += detail::edge_passes(g, labels, p.edge_window,
+                                              detail::edge_tol(p.edge_k, p.min_step),
                                               p.max_iterations, p.num_threads, ws_.edge_sums,
                                               ws_.edge_flags);
   }

@@ -99,7 +99,7 @@ TEST_P(EdgeBands, GroupingDoesNotChangeVerdicts) {
   const Case cs = GetParam();
   const Scene s = make_scene(cs.H, cs.W, cs.seed);
   const std::ptrdiff_t H = cs.H, W = cs.W, r = cs.r;
-  const double k = 2.5;
+  const miem::detail::EdgeTol k{2.5, 0.0};
   const auto g = miem::GridView<double>::dense(s.xyz.data(), H, W);
   const Images img = build_images(g, s.labels.data());
   const std::vector<std::uint8_t> ones(static_cast<std::size_t>(W), 1);

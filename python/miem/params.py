@@ -316,7 +316,8 @@ _SPELLED: Dict[str, Tuple[_Spelled, ...]] = {
             "edge_tolerance", "edge_k", "k x rms",
             "edge test (SPEC 'Edge test', beyond the paper, after the height test): a point "
             "standing proud of a feature line or the scan's outline by more than k times the "
-            "rms of its one-sided sub-window plane becomes ABNORMAL; None: off"),
+            "rms of its one-sided sub-window plane (at least min_step / 2 with a min_step) "
+            "becomes ABNORMAL; None: off"),
     ),
     "cloud": (
         _Spelled("K", ("num_directions",), "directions", "tangent-plane directions tested, 2-8",

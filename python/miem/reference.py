@@ -1414,9 +1414,11 @@ def _edge_pass(
     candidates: NDArray[np.bool_],
     window: int,
     k: float,
+    floor: float = 0.0,
 ) -> NDArray[np.bool_]:
     """One edge pass (SPEC "Edge test"): the candidate cells that become ABNORMAL, tile by
-    tile (each tile's sums over the tile and ``r`` cells around it, from its own origin)."""
+    tile (each tile's sums over the tile and ``r`` cells around it, from its own origin);
+    ``floor`` the least tolerance (``min_step / 2``, step 3)."""
     cells = candidates & ((labels == NORMAL) | (labels == EDGE))
     out = np.zeros_like(cells)
     hh, ww = cells.shape
@@ -1433,7 +1435,7 @@ def _edge_pass(
             sel = np.zeros((e1 - e0, f1 - f0), dtype=bool)
             sel[t0 - e0:t1 - e0, u0 - f0:u1 - f0] = cells[t0:t1, u0:u1]
             lab = labels[e0:e1, f0:f1]
-            part = _edge_verdicts(grid[e0:e1, f0:f1], lab, sel, r, k, origin)
+            part = _edge_verdicts(grid[e0:e1, f0:f1], lab, sel, r, k, origin, floor)
             out[e0:e1, f0:f1] |= part
     return out
 
@@ -1444,14 +1446,16 @@ def _clean_sides(
     valid: NDArray[np.bool_],
     nrm: NDArray[np.float64],
     k: float,
+    floor: float = 0.0,
 ) -> tuple[NDArray[np.bool_], NDArray[np.bool_], NDArray[np.float64]]:
     """SPEC "Edge test" steps 3-4 on :func:`_side_fits`' results: which sub-windows are valid
     and not steep (``level``), which are *clean* (level, rms at most twice the best level
-    one's) and each one's tolerance ``t`` (with its round-off floor, as the height test's)."""
+    one's) and each one's tolerance ``t`` (with its round-off floor, as the height test's, and
+    at least ``floor``: half the min_step in use)."""
     level = valid & (nrm[..., 2] >= _EDGE_STEEP_COS)
     best = np.min(np.where(level, rms, np.inf), axis=0)
     clean = level & (rms <= _EDGE_CLEAN_RATIO * best)
-    return level, clean, np.maximum(k * rms, _HEIGHT_RMS_FLOOR * spread)
+    return level, clean, np.maximum(np.maximum(k * rms, _HEIGHT_RMS_FLOOR * spread), floor)
 
 
 def _edge_verdicts(
@@ -1461,12 +1465,14 @@ def _edge_verdicts(
     r: int,
     k: float,
     origin: NDArray[np.float64],
+    floor: float = 0.0,
 ) -> NDArray[np.bool_]:
-    """Steps 4-7 of the edge test for the cells of ``cells`` (sums relative to ``origin``)."""
+    """Steps 4-7 of the edge test for the cells of ``cells`` (sums relative to ``origin``;
+    ``floor``: the least tolerance, step 3)."""
     out = np.zeros_like(cells)
     h, rms, spread, valid, nrm, cen, empty = _side_fits(
         grid, labels == NORMAL, labels == INVALID, cells, r, origin)
-    level, clean, tol = _clean_sides(rms, spread, valid, nrm, k)
+    level, clean, tol = _clean_sides(rms, spread, valid, nrm, k, floor)
     fits = clean & ~(np.abs(h) > tol)
     # P stands proud (outward, above the plane) of a clean side whose opposite side has no
     # support (an outline) or falls away below that plane (a convex edge, a wall top).
@@ -1513,19 +1519,22 @@ def edge_test(
     window: int,
     tolerance: float,
     max_iterations: int,
+    min_step: float | None = None,
 ) -> tuple[NDArray[np.uint8], int]:
     """Edge passes on top of the angle and height passes (SPEC "Edge test").
 
-    ``labels`` (H, W) are those after the height passes; returns the new labels and the number
-    of edge passes run.
+    ``labels`` (H, W) are those after the height passes; ``min_step`` the one in use (None:
+    off; with one, no sub-window's tolerance is below ``min_step / 2``, step 3); returns the
+    new labels and the number of edge passes run.
     """
+    floor = 0.5 * min_step if min_step is not None and min_step > 0 else 0.0
     labels = labels.copy()
     todo = (labels == NORMAL) | (labels == EDGE)
     passes = 0
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         for _ in range(max_iterations):
             passes += 1
-            new = _edge_pass(grid, labels, todo, window, tolerance)
+            new = _edge_pass(grid, labels, todo, window, tolerance, floor)
             labels[new] = ABNORMAL
             if not new.any():
                 break
@@ -1790,7 +1799,7 @@ def detect(
 
     if edge_k is not None:  # SPEC "Edge test": after the height passes
         labels, edge_passes = edge_test(g, labels, window=edge_win, tolerance=float(edge_k),
-                                        max_iterations=iters)
+                                        max_iterations=iters, min_step=step)
         passes += edge_passes
         abnormal = labels == ABNORMAL
 

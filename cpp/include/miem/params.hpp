@@ -110,8 +110,8 @@ struct GridParams {
                 "at most this long are compact (a defect's halo) and height-tested too; longer "
                 "ones are feature lines (>= 0)"}, &GridParams::edge_extent);
     v(FieldInfo{"edge_k", "k x rms", "edge test (SPEC 'Edge test'): a point proud of a feature "
-                "line or outline by more than k times its sub-window plane's rms is ABNORMAL; "
-                "0: off"}, &GridParams::edge_k);
+                "line or outline by more than k times its sub-window plane's rms (at least "
+                "min_step / 2 with a min_step) is ABNORMAL; 0: off"}, &GridParams::edge_k);
     v(FieldInfo{"edge_window", "cells", "with the edge test: side of its one-sided sub-windows "
                 "(odd >= 3)"}, &GridParams::edge_window);
   }
