@@ -200,7 +200,9 @@ ALLOWED = {
     "dask.py": {"edge_tolerance", "edge_radius", "radius", "min_step", "link", "height_radius",
                 "spacing", "edge_extent", "height_tolerance", "min_step_auto", "theta0_auto",
                 "scales", "max_gap", "max_reach", "window", "max_iterations", "edge_window",
-                "theta0", "min_group", "merge_distance"},
+                "theta0", "min_group", "merge_distance",
+                # the other length resolved on the driver, as min_step
+                "z_resolution", "z_resolution_auto"},
     "cli.py": set(),
 }
 

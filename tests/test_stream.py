@@ -460,16 +460,20 @@ def test_lag_formula() -> None:
     # the default: min_step "auto", so R = 1 + 2 (scales, max_gap) + 32 (max_reach)
     assert ProfileStream(10).lag == (10 * 35 + 12 + 1 + 10 * 10 + 7) + 9 * 7 + 10 == 543
     assert ProfileStream(10, edge_tolerance=None).lag == 10 * 35 + 12 + 1 + 11 * 10 == 473
-    assert ProfileStream(10, min_step=None).lag == (10 * 3 + 12 + 1 + 10 * 10 + 7) + 9 * 7 + 10
+    off = {"min_step": None, "z_resolution": None}  # neither waits for the 256 sample rows
+    assert ProfileStream(10, **off).lag == (10 * 3 + 12 + 1 + 10 * 10 + 7) + 9 * 7 + 10 == 223
     assert ProfileStream(10, preset="paper").lag == 10 * 2 + 10
-    assert ProfileStream(10, min_step=None, max_iterations=3, window=7, edge_extent=4,
-                         edge_window=9).lag == (3 * 3 + 4 + 1 + 3 * 3 + 4) + 2 * 4 + 3
-    assert ProfileStream(10, min_step=None, height_tolerance=None, edge_tolerance=None,
-                         window=9).lag == 10 * 3 + 4
+    assert ProfileStream(10, max_iterations=3, window=7, edge_extent=4, edge_window=9,
+                         **off).lag == (3 * 3 + 4 + 1 + 3 * 3 + 4) + 2 * 4 + 3
+    assert ProfileStream(10, height_tolerance=None, edge_tolerance=None, window=9,
+                         **off).lag == 10 * 3 + 4
     # min_step "auto": at least the 256 rows it reads
     assert ProfileStream(10, max_iterations=3, window=7, edge_extent=4, edge_window=9).lag == \
         max((3 * 35 + 4 + 3 * 3 + 4) + 2 * 4 + 3, 256) == 256
     assert ProfileStream(10, preset="paper", min_step="auto").lag == max(10 * 34 + 10, 256)
+    # z_resolution "auto" (measured on the same rows) too
+    assert ProfileStream(10, min_step=None).lag == max(223, 256)
+    assert ProfileStream(10, preset="paper", z_resolution="auto").lag == 256
 
 
 @pytest.mark.parametrize(

@@ -64,6 +64,10 @@ int main(int argc, char** argv) {
     eff.min_step = miem::detail::auto_min_step(g, ws.survey, threads);
     eff.min_step_auto = false;
   }
+  if (eff.z_resolution_auto) {
+    eff.z_resolution = miem::detail::auto_z_resolution(g);
+    eff.z_resolution_auto = false;
+  }
   if (!have) {
     miem::detail::angle_passes(g, eff, out, ws);
     if (eff.height_test()) miem::detail::height_test(g, eff, labels.data(), height.data(), ws);
@@ -79,7 +83,7 @@ int main(int argc, char** argv) {
     labels = before;
     const double t0 = now();
     passes = miem::detail::edge_passes(g, labels.data(), p.edge_window,
-                                         miem::detail::edge_tol(p.edge_k, eff.min_step),
+                                         miem::detail::edge_tol(eff.edge_k, eff.min_step, eff.z_resolution),
                                        p.max_iterations, threads, ws.edge_sums, ws.edge_flags);
     best = std::min(best, now() - t0);
   }

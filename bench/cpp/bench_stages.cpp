@@ -107,6 +107,10 @@ double run_stages(const miem::GridView<double>& g, const miem::DetectParams& p,
     eff.min_step = miem::detail::auto_min_step(g, ws.survey, nt);
     eff.min_step_auto = false;
   }
+  if (eff.z_resolution_auto) {
+    eff.z_resolution = miem::detail::auto_z_resolution(g);
+    eff.z_resolution_auto = false;
+  }
   at(1);
   miem::detail::angle_passes(g, eff, out, ws);
   at(2);
@@ -115,7 +119,8 @@ double run_stages(const miem::GridView<double>& g, const miem::DetectParams& p,
   at(3);
   if (eff.edge_test()) {
     miem::detail::edge_passes(g, out.labels, eff.edge_window,
-                              miem::detail::edge_tol(eff.edge_k, eff.min_step), eff.max_iterations,
+                              miem::detail::edge_tol(eff.edge_k, eff.min_step, eff.z_resolution),
+                              eff.max_iterations,
                               nt, ws.edge_sums, ws.edge_flags);
   }
   at(4);

@@ -63,8 +63,8 @@ void mark_compact_edges(const std::uint8_t* labels, std::ptrdiff_t H, std::ptrdi
 MIEM_CLONES void height_row(std::ptrdiff_t n, const std::uint8_t* __restrict wrow,
                             const double* __restrict S, const double* __restrict F,
                             const std::uint8_t* __restrict okf, std::ptrdiff_t cap,
-                            double height_abs, double height_k, double* __restrict height,
-                            std::uint8_t* __restrict hm) {
+                            double height_abs, double height_k, double z_floor,
+                            double* __restrict height, std::uint8_t* __restrict hm) {
   const double* __restrict fh = F;
   const double* __restrict f0 = F + cap;
   const double* __restrict f1 = F + 2 * cap;
@@ -73,7 +73,7 @@ MIEM_CLONES void height_row(std::ptrdiff_t n, const std::uint8_t* __restrict wro
   for (std::ptrdiff_t j = 0; j < n; ++j) {
     const bool w = wrow[j] != 0;
     const bool far = height_verdict(okf[j] != 0, sl[j], fh[j], S[j], f0[j], f1[j], f2[j],
-                                    height_abs, height_k);
+                                    height_abs, height_k, z_floor);
     const std::uint8_t b = static_cast<std::uint8_t>(hm[j] | kHFresh | (far ? kHMark : 0));
     hm[j] = w ? b : hm[j];
   }
@@ -124,7 +124,8 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
           if (!rf.compact) {  // the span of the wanted cells, [j0, j1)
             const std::ptrdiff_t j0 = rf.j0;
             height_row(rf.j1 - j0, wrow + j0, rf.S + j0, rf.F + j0, rf.okf + j0, rf.cap,
-                       p.height_abs, p.height_k, height ? height + i0 + j0 : nullptr,
+                       p.height_abs, p.height_k, z_floor(p.z_resolution),
+                       height ? height + i0 + j0 : nullptr,
                        hm + i0 + j0);
             return;
           }

@@ -8,6 +8,7 @@
 #include <string>
 
 #include "auto_min_step.hpp"
+#include "z_resolution.hpp"
 #include "edge_test.hpp"
 #include "stages.hpp"
 
@@ -44,6 +45,10 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
     eff_.min_step = detail::auto_min_step(g, ws_.survey, eff_.num_threads);
     eff_.min_step_auto = false;
   }
+  if (eff_.z_resolution_auto) {  // SPEC "z_resolution"
+    eff_.z_resolution = detail::auto_z_resolution(g);
+    eff_.z_resolution_auto = false;
+  }
   const DetectParams& p = eff_;
   const std::size_t N = static_cast<std::size_t>(g.rows * g.cols);
   std::uint8_t* labels = out.labels;
@@ -57,6 +62,7 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
   summary.iterations = detail::angle_passes(g, eff_, out, ws_);
   summary.theta0_deg = p.theta0_deg;
   summary.min_step = p.min_step;
+  summary.z_resolution = p.z_resolution;
   const bool height_test = p.height_abs > 0.0 || p.height_k > 0.0;
   if (height_test) {
     const bool keep = p.height_mode == HeightMode::kAll;
@@ -65,7 +71,7 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
   const bool edge_test = p.edge_test();
   if (edge_test) {  // SPEC "Edge test": after the height passes
     summary.iterations += detail::edge_passes(g, labels, p.edge_window,
-                                              detail::edge_tol(p.edge_k, p.min_step),
+                                              detail::edge_tol(p.edge_k, p.min_step, p.z_resolution),
                                               p.max_iterations, p.num_threads, ws_.edge_sums,
                                               ws_.edge_flags);
   }

@@ -94,6 +94,11 @@ Status GridParams::check() const noexcept {
   if (edge_window < 3 || edge_window % 2 == 0) {
     return bad("edge_window: must be an odd integer >= 3");
   }
+  if (!std::isfinite(z_resolution)) return bad("z_resolution: must be finite (negative = off)");
+  if (z_resolution_auto && z_resolution >= 0.0) {
+    return bad("z_resolution: a length with z_resolution_auto on; set z_resolution_auto = false "
+               "to use it");
+  }
   return kOkStatus;
 }
 
@@ -170,6 +175,7 @@ DetectParams paper_params() {
   p.edge_extent = 0;
   p.min_step_auto = false;
   p.edge_k = 0.0;
+  p.z_resolution_auto = false;
   return p;
 }
 

@@ -18,6 +18,7 @@
 #include "miem/plane.hpp"
 #include "miem/views.hpp"
 #include "window_fits.hpp"
+#include "z_resolution.hpp"
 
 namespace miem::detail {
 
@@ -38,23 +39,24 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
 inline __attribute__((always_inline)) bool height_verdict(bool ok, double edges, double height,
                                                           double n, double l0, double l1,
                                                           double l2, double height_abs,
-                                                          double height_k) {
+                                                          double height_k, double z_floor) {
   const double ah = std::abs(height);
   // |h| > k rms and |h| > 1e-6 sqrt((l1 + l2) / n), rms = sqrt(max(l0, 0) / n), squared. The
   // floor lies above the round-off of l0 from window sums (SPEC "height_tolerance"), so that a
   // noise-free surface's verdict is not decided by rounding, which differs between sums formed
-  // in another order (the stream, other tiles).
+  // in another order (the stream, other tiles). In the rms form also |h| > z_floor (1.5 x the
+  // scan's z step, SPEC "z_resolution"; 0 without one).
   const double h2n = ah * ah * n;
   return ok & !((height_abs > 0.0) & (edges > 0.0)) &
          (((height_abs > 0.0) & (ah > height_abs)) |
           ((height_k > 0.0) & (h2n > height_k * height_k * std::max(l0, 0.0)) &
-           (h2n > 1e-12 * (l1 + l2))));
+           (h2n > 1e-12 * (l1 + l2)) & (ah > z_floor)));
 }
 
-/// height_verdict of one WindowFit.
+/// height_verdict of one WindowFit, with `p`'s z_resolution resolved (not auto).
 inline bool height_far(const WindowFit& f, const DetectParams& p) {
   return height_verdict(f.ok, f.edges, f.height, f.n, f.l0, f.l1, f.l2, p.height_abs,
-                        p.height_k);
+                        p.height_k, z_floor(p.z_resolution));
 }
 
 /// Bits of ws.hmask after height_test.

@@ -19,6 +19,7 @@
 #endif
 
 #include "auto_min_step.hpp"
+#include "z_resolution.hpp"
 #include "judge.hpp"
 #include "parallel.hpp"
 #include "pass1_row.hpp"
@@ -257,7 +258,8 @@ long long stream_lag(const DetectParams& p) noexcept {
     lag = std::max(lagh + r, h) + (P - 1) * r + h;
   }
   // min_step "auto": nothing runs before the rows it reads are in
-  return p.min_step_auto ? std::max<long long>(lag, detail::kAutoMinStepRows) : lag;
+  return p.min_step_auto || p.z_resolution_auto ? std::max<long long>(lag, detail::kAutoMinStepRows)
+                                                : lag;
 }
 
 Status check_stream_params(std::ptrdiff_t width, const DetectParams& p) noexcept {
@@ -283,7 +285,8 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   max_scale_ = *std::max_element(params_.scales.begin(), params_.scales.end());
   const int min_scale = *std::min_element(params_.scales.begin(), params_.scales.end());
   ms_auto_ = params_.min_step_auto;
-  ms_wait_ = ms_auto_;
+  sample_ = ms_auto_ || params_.z_resolution_auto;
+  ms_wait_ = sample_;
   reach_ = static_cast<int>(stream_reach(params_));
   passes_ = params_.max_iterations;
   alag_ = passes_ * reach_;
@@ -304,7 +307,7 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
        static_cast<long long>(alag_) + reach_,
        edge_ ? static_cast<long long>(lag_) + 64 + params_.edge_window : 0LL});
   // min_step "auto": the stages fall behind by at most kMsBacklog rows while it is decided
-  ring_ = static_cast<std::ptrdiff_t>(back) + 2 + (ms_auto_ ? kMsBacklog : 0);
+  ring_ = static_cast<std::ptrdiff_t>(back) + 2 + (sample_ ? kMsBacklog : 0);
   // Any ext_ + 1 consecutive rows form one GridView: a judgment's rows, a window, the rows an
   // edge verdict reads.
   ext_ = std::max<std::ptrdiff_t>(
@@ -320,6 +323,7 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   fast_ok_ = min_scale <= 1 + params_.max_gap && params_.scales.size() <= 7;
   jparams_ = params_;
   jparams_.min_step_auto = false;
+  jparams_.z_resolution_auto = false;  // -1 (off) until measured with min_step "auto"
   if (max_scale_ <= 64) {
     // pass 1's row kernel: its ring sized for the deepest search it may run (min_step given or
     // "auto"), so that use_min_step, which sets the depth in use, never allocates
@@ -346,7 +350,7 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
     ray_.assign(4 * n1, 0);
   }
   use_ray_ = min_step_ >= 0.0 && !ray_.empty();
-  if (ms_auto_) {
+  if (sample_) {
     ms_rows_.assign(static_cast<std::size_t>(detail::kAutoMinStepRows), nullptr);
     ms_sel_.init(width_, phys_ * width_);
     nan_row_.assign(static_cast<std::size_t>(width_), detail::kNaN);
@@ -395,6 +399,10 @@ void ProfileStream<T>::min_step_row(std::int64_t row) noexcept {
   const std::int64_t k = row - ms_first_;
   if (k < detail::kAutoMinStepRows) {
     ms_rows_[static_cast<std::size_t>(k)] = xyz_.data() + slot(row) * width_;
+    if (params_.z_resolution_auto) {  // SPEC "z_resolution": over the same rows
+      zq_ = detail::fold_z_steps(ms_rows_[static_cast<std::size_t>(k)], width_, 1,
+                                 phys_ * width_, zq_);
+    }
     ms_sel_.add_row(ms_rows_.data(), static_cast<std::ptrdiff_t>(k + 1));
     if (k + 1 < detail::kAutoMinStepRows) return;
     ms_sel_.close(ms_rows_.data());
@@ -405,10 +413,17 @@ void ProfileStream<T>::min_step_row(std::int64_t row) noexcept {
   const std::int64_t visits = ms_sel_.visits_left();
   if (ms_sel_.step(ms_rows_.data(), static_cast<std::ptrdiff_t>(std::max<std::int64_t>(
                                         kMsChunk, (visits + pushes - 1) / pushes)))) {
-    use_min_step(ms_sel_.value());
+    use_min_step(ms_auto_ ? ms_sel_.value() : params_.min_step);
+    use_z_resolution();
     ms_wait_ = false;
     ms_next_ = ms_first_;
   }
+}
+
+// z_resolution "auto" decided with min_step: the smallest z step of the rows min_step read.
+template <typename T>
+void ProfileStream<T>::use_z_resolution() noexcept {
+  if (params_.z_resolution_auto) jparams_.z_resolution = std::isfinite(zq_) ? zq_ : -1.0;
 }
 
 // At the flush: min_step "auto" decided on the rows pushed (fewer than it reads when the stream
@@ -418,7 +433,8 @@ void ProfileStream<T>::min_step_finish() noexcept {
   if (ms_wait_ && ms_first_ >= 0) {
     if (!ms_sel_.closed()) ms_sel_.close(ms_rows_.data());
     ms_sel_.step(ms_rows_.data(), ms_sel_.visits_left());
-    use_min_step(ms_sel_.value());
+    use_min_step(ms_auto_ ? ms_sel_.value() : params_.min_step);
+    use_z_resolution();
     ms_wait_ = false;
     ms_next_ = ms_first_;
   }
@@ -457,11 +473,11 @@ void ProfileStream<T>::reset() noexcept {
   finished_ = false;
   ms_first_ = -1;
   ms_next_ = -1;
-  ms_wait_ = ms_auto_;
-  if (ms_auto_) {
-    use_min_step(-1.0);
-    ms_sel_.reset();
-  }
+  ms_wait_ = sample_;
+  if (ms_auto_) use_min_step(-1.0);
+  if (sample_) ms_sel_.reset();
+  zq_ = std::numeric_limits<double>::infinity();
+  if (params_.z_resolution_auto) jparams_.z_resolution = -1.0;
   p1_next_ = 0;
   reset_stages();
   reset_defects();

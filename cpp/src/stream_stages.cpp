@@ -57,7 +57,8 @@ constexpr std::uint8_t pass_class(std::uint8_t b, std::uint8_t hs, int pass, boo
 MIEM_CLONES void pass1_verdicts(std::ptrdiff_t n, const std::uint8_t* __restrict hm,
                                 const double* __restrict S, const double* __restrict F,
                                 const std::uint8_t* __restrict okf, std::ptrdiff_t cap, bool test,
-                                double height_abs, double height_k, double* __restrict height,
+                                double height_abs, double height_k, double z_floor,
+                                double* __restrict height,
                                 std::uint8_t* __restrict w) {
   const double* __restrict fh = F;
   for (std::ptrdiff_t j = 0; j < n; ++j) {
@@ -72,7 +73,7 @@ MIEM_CLONES void pass1_verdicts(std::ptrdiff_t n, const std::uint8_t* __restrict
   for (std::ptrdiff_t j = 0; j < n; ++j) {
     const bool cand = (hm[j] & (kInPlane | kSCompact)) != 0;
     const bool far = detail::height_verdict(okf[j] != 0, sl[j], fh[j], S[j], f0[j], f1[j],
-                                            f2[j], height_abs, height_k);
+                                            f2[j], height_abs, height_k, z_floor);
     w[j] = static_cast<std::uint8_t>((w[j] != 0) & cand & far);
   }
 }
@@ -334,7 +335,8 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
       const std::ptrdiff_t j0 = rf.j0, j1 = rf.j1;
       // wrow[j] becomes: cell j is wanted and too far
       pass1_verdicts(j1 - j0, hm + tc0 + j0, rf.S + j0, rf.F + j0, rf.okf + j0, rf.cap,
-                     htest_, params_.height_abs, params_.height_k, height + tc0 + j0, wrow + j0);
+                     htest_, params_.height_abs, params_.height_k,
+                     detail::z_floor(jparams_.z_resolution), height + tc0 + j0, wrow + j0);
       if (htest_) std::copy(wrow + j0, wrow + j1, far + j0);
       return;
     }
@@ -344,7 +346,7 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
       const detail::WindowFit f = rf.fit(e++);
       const std::ptrdiff_t c = tc0 + j;
       height[c] = f.ok ? f.height : detail::kNaN;
-      far[j] = htest_ && (hm[c] & (kInPlane | kSCompact)) && detail::height_far(f, params_);
+      far[j] = htest_ && (hm[c] & (kInPlane | kSCompact)) && detail::height_far(f, jparams_);
     }
   });
   if (!htest_) return;
@@ -420,7 +422,7 @@ void ProfileStream<T>::height_pass_row(std::int64_t row, int pass) noexcept {
   // Jacobi: every verdict of the row first (the removals below change later rows' windows only
   // through hs_, which this pass reads as ">= pass")
   region_fits(row, pass, [&](std::ptrdiff_t c, const detail::WindowFit& f) {
-    if (detail::height_far(f, params_)) remove_height(row, c, pass);
+    if (detail::height_far(f, jparams_)) remove_height(row, c, pass);
   });
 }
 

@@ -412,7 +412,9 @@ TEST(Stream, LagFormula) {
   EXPECT_EQ(miem::ProfileStream<>(16).lag(), (10 * 35 + 12 + 1 + 10 * 10 + 7) + 9 * 7 + 10);
   EXPECT_EQ(miem::stream_lag(miem::stream_default_params()), 543);
   p = miem::stream_default_params();
-  p.min_step_auto = false;  // min_step off: R = 3
+  p.min_step_auto = false;  // min_step off: R = 3, but z_resolution "auto" waits for 256 rows
+  EXPECT_EQ(miem::stream_lag(p), 256);
+  p.z_resolution_auto = false;  // neither: no wait
   EXPECT_EQ(miem::stream_lag(p), (10 * 3 + 12 + 1 + 10 * 10 + 7) + 9 * 7 + 10);
   p.max_iterations = 3;
   p.window = 7;

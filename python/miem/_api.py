@@ -581,7 +581,7 @@ def _detect_grid(arr: np.ndarray, params: Any, preset: Optional[str], overrides:
         raise ValueError(f"grid: need at least 3 points, got {arr.shape[0] * arr.shape[1]}")
 
     (labels, flags, angle, height, plane_t, iterations, raw, theta0_used,
-     min_step_used) = _core.detect_organized(arr, core_params)
+     min_step_used, z_resolution_used) = _core.detect_organized(arr, core_params)
     defects = _grid_defects(raw, arr.shape[1])
     return DetectResult(
         labels=labels, flags=flags, angle=angle, height=height,
@@ -590,7 +590,10 @@ def _detect_grid(arr: np.ndarray, params: Any, preset: Optional[str], overrides:
         params=_params_record(p, name, "grid", theta0=float(theta0_used),
                               theta0_auto=bool(core_params.theta0_auto),
                               min_step=None if min_step_used < 0 else float(min_step_used),
-                              min_step_auto=bool(core_params.min_step_auto)),
+                              min_step_auto=bool(core_params.min_step_auto),
+                              z_resolution=(None if z_resolution_used < 0
+                                            else float(z_resolution_used)),
+                              z_resolution_auto=bool(core_params.z_resolution_auto)),
     )
 
 

@@ -60,21 +60,27 @@ import miem
 from miem import _core
 from miem._api import ABNORMAL, Defect
 
-__all__ = ["DaskDetectResult", "DaskPointsResult", "auto_min_step", "auto_theta0", "detect",
-           "detect_points", "grid_halo", "points_halo"]
+__all__ = ["DaskDetectResult", "DaskPointsResult", "auto_min_step", "auto_theta0",
+           "auto_z_resolution", "detect", "detect_points", "grid_halo", "points_halo"]
 
 _LABEL_KEYS = ("labels", "flags", "angle", "height")
 _DTYPES = {"labels": np.uint8, "flags": np.uint8, "angle": np.float64, "height": np.float64}
 
 
 def _resolve_min_step(grid: "da.Array", args: tuple, kwargs: dict, params: dict) -> tuple:
-    """min_step="auto" resolved first (:func:`auto_min_step`: its 256 rows) and given to every
-    block as the length (or None) it resolves to; params record it as auto."""
-    if not params.get("min_step_auto"):
+    """min_step="auto" and z_resolution="auto" resolved first (:func:`auto_min_step`,
+    :func:`auto_z_resolution`: their 256 rows) and given to every block as the length (or None)
+    each resolves to; params record them as auto."""
+    auto = {}
+    if params.get("min_step_auto"):
+        auto["min_step"] = auto_min_step(grid)
+    if params.get("z_resolution_auto"):
+        auto["z_resolution"] = auto_z_resolution(grid)
+    if not auto:
         return kwargs, params
-    kwargs = dict(kwargs, min_step=auto_min_step(grid))
+    kwargs = dict(kwargs, **auto)
     kw = {k: v for k, v in kwargs.items() if k != "_args"}
-    return kwargs, dict(_probe_params(args, kw), min_step_auto=True)
+    return kwargs, dict(_probe_params(args, kw), **{f"{k}_auto": True for k in auto})
 
 
 def _probe_params(args: tuple, kwargs: dict) -> dict:
@@ -94,10 +100,11 @@ _TILE = (64, 128)
 
 #: Grid parameters whose reach grid_halo knows: every field organized detection reads
 #: (generated from miem.DetectParams, hence from the C++ field table), what it derives
-#: (theta0_auto; min_step_auto: min_step is resolved first on its 256 rows, auto_min_step)
+#: (theta0_auto; min_step_auto and z_resolution_auto: resolved first on their 256 rows)
 #: and the preset's name. A new grid field is known here at once: a field that reaches farther
 #: than grid_halo's formula must widen it (tests/test_config.py runs every field on blocks).
-_GRID_KNOWN = {"preset", "theta0_auto", "min_step_auto", *miem.DetectParams.fields("grid")}
+_GRID_KNOWN = {"preset", "theta0_auto", "min_step_auto", "z_resolution_auto",
+               *miem.DetectParams.fields("grid")}
 
 
 def grid_halo(params: dict, strict: bool = False) -> int:
@@ -592,14 +599,7 @@ def auto_min_step(grid: Any, **compute_kwargs: Any) -> Optional[float]:
     from .reference import AUTO_MIN_STEP_ROWS
 
     grid = _as_grid(grid)
-    first, start = None, 0
-    for h in grid.chunks[0]:  # in order: a scan seldom starts with a block of dropouts only
-        rows = da.isfinite(grid[start:start + h]).all(axis=-1).any(axis=1)
-        hit = np.flatnonzero(np.asarray(dask.compute(rows, **compute_kwargs)[0]))
-        if hit.size:
-            first = start + int(hit[0])
-            break
-        start += h
+    first = _first_data_row(grid, compute_kwargs)
     if first is None:
         return None
     grid = grid[first:first + AUTO_MIN_STEP_ROWS].persist(**compute_kwargs)
@@ -608,6 +608,42 @@ def auto_min_step(grid: Any, **compute_kwargs: Any) -> Optional[float]:
               for r0, r1, c0, c1 in _homes(grid)]
     med = sel.medians(sel.min_step_survey, blocks, 4, **compute_kwargs)
     return sel.min_step_from_medians(med)
+
+
+def _first_data_row(grid: "da.Array", compute_kwargs: dict) -> Optional[int]:
+    """The first row with a finite cell (row blocks read in order until one has one), or None."""
+    start = 0
+    for h in grid.chunks[0]:  # in order: a scan seldom starts with a block of dropouts only
+        rows = da.isfinite(grid[start:start + h]).all(axis=-1).any(axis=1)
+        hit = np.flatnonzero(np.asarray(dask.compute(rows, **compute_kwargs)[0]))
+        if hit.size:
+            return start + int(hit[0])
+        start += h
+    return None
+
+
+def auto_z_resolution(grid: Any, **compute_kwargs: Any) -> Optional[float]:
+    """z_resolution="auto" of ``miem.detect`` on a Dask-held grid (docs/SPEC.md
+    "z_resolution"): the smallest non-zero z difference of finite neighbours along the
+    profiles of the 256 rows from the first row with a finite cell, computed by the core on
+    those rows (brought to this process: 256 rows of the grid).
+
+    Returns
+    -------
+    float or None
+        The z step, or None (no two neighbours with different z there).
+    """
+    from .reference import AUTO_MIN_STEP_ROWS
+
+    grid = _as_grid(grid)
+    first = _first_data_row(grid, compute_kwargs)
+    if first is None:
+        return None
+    rows = dask.compute(grid[first:first + AUTO_MIN_STEP_ROWS], **compute_kwargs)[0]
+    # as miem.detect reads it (float32 kept, other numbers as float64), in a fresh aligned copy
+    rows = np.array(rows, dtype=np.float32 if rows.dtype == np.float32 else np.float64)
+    q = _core.auto_z_resolution(rows)
+    return None if q < 0 else float(q)
 
 
 def _build(grid: "da.Array", kwargs: dict, params: dict, halo: int,

@@ -10,8 +10,8 @@ checked by the C++ ``check()`` (whose message starts with the field's name). The
 C++ presets (``paper_params()``, ``paper_points_params()``; the defaults are default-constructed
 C++ parameters). Only the fields whose Python spelling differs from C++ are written out here
 (``_SPELLED``): ``theta0`` (degrees or ``"auto"``: ``theta0_deg`` + ``theta0_auto``),
-``min_directions`` (None for all: 0), grid ``min_step`` (a length, ``"auto"`` or None:
-``min_step`` + ``min_step_auto``), ``heights`` (``"all"`` / ``"abnormal"``: ``height_mode``),
+``min_directions`` (None for all: 0), grid ``min_step`` and ``z_resolution`` (a length,
+``"auto"`` or None: the length + its ``_auto`` flag), ``heights`` (``"all"`` / ``"abnormal"``: ``height_mode``),
 ``height_tolerance`` (a length or ``"<k>rms"``: ``height_abs`` + ``height_k``),
 ``edge_tolerance`` and ``isolated_tolerance`` (None for off: ``edge_k`` / ``isolated_k`` 0) and
 cloud ``K`` (``num_directions``).
@@ -193,21 +193,28 @@ def _min_directions_to(v: Any) -> Dict[str, Any]:
     return {"min_directions": 0 if v is None else _int("min_directions", v, 1)}
 
 
-def _grid_min_step_to(v: Any) -> Dict[str, Any]:
-    if isinstance(v, str):
-        if v != "auto":
-            raise ValueError(f"min_step: expected a length >= 0, 'auto' or None, got {v!r}")
-        return {"min_step_auto": True, "min_step": -1.0}
-    if v is None:
-        return {"min_step_auto": False, "min_step": -1.0}
-    m = _real("min_step", v)
-    if m < 0:
-        raise ValueError(f"min_step: expected a length >= 0, 'auto' or None, got {m}")
-    return {"min_step_auto": False, "min_step": m}
+def _auto_length(name: str) -> Tuple[Callable[[Any], Dict[str, Any]],
+                                       Callable[[Dict[str, Any]], Any]]:
+    """The spelling of a grid length that may be measured (C++ ``name`` < 0: off, and
+    ``name + "_auto"``): a length >= 0, ``"auto"`` or None; to the core and back."""
+    flag = name + "_auto"
 
+    def to(v: Any) -> Dict[str, Any]:
+        if isinstance(v, str):
+            if v != "auto":
+                raise ValueError(f"{name}: expected a length >= 0, 'auto' or None, got {v!r}")
+            return {flag: True, name: -1.0}
+        if v is None:
+            return {flag: False, name: -1.0}
+        m = _real(name, v)
+        if m < 0:
+            raise ValueError(f"{name}: expected a length >= 0, 'auto' or None, got {m}")
+        return {flag: False, name: m}
 
-def _grid_min_step_from(c: Dict[str, Any]) -> Any:
-    return "auto" if c["min_step_auto"] else (None if c["min_step"] < 0 else c["min_step"])
+    def back(c: Dict[str, Any]) -> Any:
+        return "auto" if c[flag] else (None if c[name] < 0 else c[name])
+
+    return to, back
 
 
 _HEIGHT_MODES = {"all": _core.HeightMode.ALL, "abnormal": _core.HeightMode.ABNORMAL}
@@ -306,7 +313,7 @@ _SPELLED: Dict[str, Tuple[_Spelled, ...]] = {
             "minimum neighbour distance in the scan's units, so that every direction sees the "
             "same physical scale; 'auto': from the scan's spacing and profile noise over the "
             "first 256 rows with data (SPEC \"min_step='auto'\"; result.params holds the value "
-            "used); None: off", "LENGTH|auto", _grid_min_step_to, _grid_min_step_from,
+            "used); None: off", "LENGTH|auto", *_auto_length("min_step"),
             (), Union[None, float, str]),
         _heights(),
         _height_tolerance(
@@ -318,6 +325,14 @@ _SPELLED: Dict[str, Tuple[_Spelled, ...]] = {
             "standing proud of a feature line or the scan's outline by more than k times the "
             "rms of its one-sided sub-window plane (at least min_step / 2 with a min_step) "
             "becomes ABNORMAL; None: off"),
+        _Spelled(
+            "z_resolution", ("z_resolution", "z_resolution_auto"), "length",
+            "the scan's z step (quantisation): the height test's k x rms and the edge test's "
+            "tolerances are at least 1.5 times it, so that a cell one step off a level surface "
+            "is not a defect; 'auto': the smallest non-zero z difference of neighbours along "
+            "the profiles of the rows min_step 'auto' reads (SPEC \"z_resolution\"; "
+            "result.params holds the value used); None: off", "LENGTH|auto",
+            *_auto_length("z_resolution"), (), Union[None, float, str]),
     ),
     "cloud": (
         _Spelled("K", ("num_directions",), "directions", "tangent-plane directions tested, 2-8",

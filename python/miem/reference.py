@@ -819,6 +819,7 @@ _DEFAULTS: dict[str, Any] = {
     "edge_extent": 0,
     "edge_tolerance": None,
     "edge_window": 15,
+    "z_resolution": None,
 }
 
 #: Presets of :func:`detect` (SPEC "Presets"): name -> parameter values. Explicit keyword
@@ -836,6 +837,7 @@ _PRESETS: dict[str, dict[str, Any]] = {
         "edge_extent": 0,
         "edge_tolerance": None,
         "edge_window": 15,
+        "z_resolution": None,
     },
     "recommended": {
         "theta0": 90.0,
@@ -849,6 +851,7 @@ _PRESETS: dict[str, dict[str, Any]] = {
         "edge_extent": 12,
         "edge_tolerance": 4.0,
         "edge_window": 15,
+        "z_resolution": "auto",
     },
 }
 
@@ -995,10 +998,12 @@ def _height_pass(
     line_mask: NDArray[np.bool_],
     window: int,
     tolerance: tuple[str, float],
+    z_floor: float = 0.0,
 ) -> NDArray[np.bool_]:
     """One height pass (SPEC "height_tolerance"): the NORMAL and compact-EDGE cells that become
     ABNORMAL. With an absolute tolerance a cell with a feature-line EDGE cell in its window is
-    not tested (in the rms form the bend the window straddles raises the rms)."""
+    not tested (in the rms form the bend the window straddles raises the rms). In the rms form
+    ``|h|`` must also exceed ``z_floor`` (1.5 x the z resolution, SPEC "z_resolution")."""
     height, _, evals, count = _window_planes(grid, normal_mask, normal_mask | compact_mask,
                                              window)
     exists = (normal_mask | compact_mask) & np.isfinite(height)
@@ -1011,7 +1016,7 @@ def _height_pass(
     n = np.maximum(count, 1).astype(np.float64)
     rms = np.sqrt(np.maximum(evals[..., 0], 0.0) / n)
     floor = _GRID_HEIGHT_RMS_FLOOR * np.sqrt((evals[..., 1] + evals[..., 2]) / n)
-    return exists & (absh > value * rms) & (absh > floor)
+    return exists & (absh > value * rms) & (absh > floor) & (absh > z_floor)
 
 
 # --------------------------------------------------------------------------------------------
@@ -1520,14 +1525,17 @@ def edge_test(
     tolerance: float,
     max_iterations: int,
     min_step: float | None = None,
+    z_resolution: float | None = None,
 ) -> tuple[NDArray[np.uint8], int]:
     """Edge passes on top of the angle and height passes (SPEC "Edge test").
 
-    ``labels`` (H, W) are those after the height passes; ``min_step`` the one in use (None:
-    off; with one, no sub-window's tolerance is below ``min_step / 2``, step 3); returns the
-    new labels and the number of edge passes run.
+    ``labels`` (H, W) are those after the height passes; ``min_step`` and ``z_resolution`` the
+    ones in use (None: off; no sub-window's tolerance is below ``min_step / 2`` nor below
+    ``1.5 z_resolution``, step 3); returns the new labels and the number of edge passes run.
     """
-    floor = 0.5 * min_step if min_step is not None and min_step > 0 else 0.0
+    floor = max(0.5 * min_step if min_step is not None and min_step > 0 else 0.0,
+                _Z_RESOLUTION_FACTOR * z_resolution
+                if z_resolution is not None and z_resolution > 0 else 0.0)
     labels = labels.copy()
     todo = (labels == NORMAL) | (labels == EDGE)
     passes = 0
@@ -1574,6 +1582,25 @@ def _auto_min_step(g: NDArray[np.float64], finite: NDArray[np.bool_]) -> float |
         return None
     m = 4.0 * max(noise)
     return m if m > min(spacing) else None
+
+
+#: The rms tolerances' floor in z steps (SPEC "z_resolution").
+_Z_RESOLUTION_FACTOR = 1.5
+
+
+def _auto_z_resolution(g: NDArray[np.float64], finite: NDArray[np.bool_]) -> float | None:
+    """SPEC "z_resolution" (reference): over the rows min_step="auto" reads (the first
+    AUTO_MIN_STEP_ROWS from the first row with a finite cell), the smallest non-zero
+    ``|z[r, c + 1] - z[r, c]|`` of finite neighbours; None when there is none."""
+    rows = np.flatnonzero(finite.any(axis=1))
+    if rows.size == 0:
+        return None
+    first = int(rows[0])
+    z = g[first:first + AUTO_MIN_STEP_ROWS, :, 2]
+    ok = finite[first:first + AUTO_MIN_STEP_ROWS]
+    d = np.abs(z[:, 1:] - z[:, :-1])[ok[:, 1:] & ok[:, :-1]]
+    d = d[d > 0.0]
+    return float(d.min()) if d.size else None
 
 
 def _validate_detect_params(
@@ -1626,6 +1653,7 @@ def detect(
     edge_extent: int = _UNSET,
     edge_tolerance: float | None = _UNSET,
     edge_window: int = _UNSET,
+    z_resolution: float | str | None = _UNSET,
     preset: str | None = None,
 ) -> RefResult:
     """Detect abnormal points in an organized scan (MIEM, reference implementation).
@@ -1678,6 +1706,9 @@ def detect(
     edge_window : int, optional
         Side, in cells, of the edge test's sub-windows (half-size ``edge_window // 2``); odd
         ``>= 3``. Default 11.
+    z_resolution : float, "auto" or None, optional
+        The scan's z step: the height test's rms form and the edge test need more than
+        ``1.5 z_resolution`` (SPEC "z_resolution"); ``"auto"`` measures it. Default None.
     preset : {None, "recommended", "paper"}, optional
         Named parameter set; ``"paper"`` is the paper's method exactly (the defaults shown),
         None means ``"recommended"``.
@@ -1709,6 +1740,7 @@ def detect(
             "edge_extent": edge_extent,
             "edge_tolerance": edge_tolerance,
             "edge_window": edge_window,
+            "z_resolution": z_resolution,
         },
     )
     auto = isinstance(opts["theta0"], str) and opts["theta0"] == "auto"
@@ -1738,6 +1770,11 @@ def detect(
     edge_win = _check_int("edge_window", opts["edge_window"], 3)
     if edge_win % 2 == 0:
         raise ValueError(f"edge_window: expected an odd integer >= 3, got {edge_win}")
+    zres = opts["z_resolution"]
+    zres_auto = isinstance(zres, str) and zres == "auto"
+    if not (zres is None or zres_auto or (_is_real(zres) and math.isfinite(float(zres))
+                                          and float(zres) >= 0.0)):
+        raise ValueError(f"z_resolution: expected a length >= 0, 'auto' or None, got {zres!r}")
     arr = _as_points_array("grid", grid)
     if arr.ndim != 3 or arr.shape[2] != 3:
         raise ValueError(f"grid: expected shape (H, W, 3), got {arr.shape}")
@@ -1748,6 +1785,10 @@ def detect(
     # Dropouts become NaN so that no inf - inf arithmetic happens below; they are never read
     # as neighbours (not usable) and are reported INVALID.
     g[~finite] = np.nan
+    if zres_auto:  # SPEC "z_resolution"
+        zres = _auto_z_resolution(g, finite)
+    zres = None if zres is None else float(zres)
+    z_floor = _Z_RESOLUTION_FACTOR * zres if zres is not None and zres > 0 else 0.0
 
     h, w = finite.shape
     labels = np.full((h, w), INVALID, dtype=np.uint8)
@@ -1790,7 +1831,8 @@ def detect(
                 passes += 1
                 compact = _compact_edges(labels == EDGE, extent, bridge, gap)
                 new_abn = _height_pass(
-                    g, labels == NORMAL, compact, (labels == EDGE) & ~compact, win, tolerance
+                    g, labels == NORMAL, compact, (labels == EDGE) & ~compact, win, tolerance,
+                    z_floor,
                 )
                 labels[new_abn] = ABNORMAL
                 abnormal |= new_abn
@@ -1799,7 +1841,7 @@ def detect(
 
     if edge_k is not None:  # SPEC "Edge test": after the height passes
         labels, edge_passes = edge_test(g, labels, window=edge_win, tolerance=float(edge_k),
-                                        max_iterations=iters, min_step=step)
+                                        max_iterations=iters, min_step=step, z_resolution=zres)
         passes += edge_passes
         abnormal = labels == ABNORMAL
 
@@ -1827,6 +1869,8 @@ def detect(
         ),
         "edge_tolerance": None if edge_k is None else float(edge_k),
         "edge_window": edge_win,
+        "z_resolution": zres,
+        "z_resolution_auto": zres_auto,
     }
     return RefResult(
         labels=labels,

@@ -93,14 +93,15 @@ class ProfileStream:
         L = P R + E + (P + 1) h            (height test on;  L = P R + h without it)
         L = max(H + r, h) + (P - 1) r + h  (with the edge test; H = P R + E + P h, or P R
                                             without the height test)
-        L = max(L, 256)                    (with min_step="auto")
+        L = max(L, 256)                    (with min_step or z_resolution "auto")
 
     with ``R = max(scales) + max_gap`` (``+ max_reach`` with ``min_step``, a length or
     ``"auto"``) the rows one angle judgment reads, ``P = max_iterations``,
     ``E = edge_extent + max_gap`` (the rows that decide whether an EDGE group is compact),
     ``h = window // 2`` and ``r = edge_window // 2`` (each edge pass runs row by row, ``r``
     profiles behind the one before): (10 * 35 + 13 + 10 * 10 + 7) + 9 * 7 + 10 = 543 profiles
-    with the defaults, 223 with ``min_step=None``, 10 * 2 + 10 = 30 with ``preset="paper"``.
+    with the defaults, 256 with ``min_step=None`` (223 with ``z_resolution=None`` too),
+    10 * 2 + 10 = 30 with ``preset="paper"``.
     ``min_step="auto"`` is decided on the 256 profiles from the first one with a finite point
     (docs/SPEC.md "min_step='auto'"), the value :func:`miem.detect` resolves on the same rows:
     the stream waits for them and decides it over the next pushes (48 at the defaults, each
@@ -191,7 +192,7 @@ class ProfileStream:
         edge = None if gp.edge_tolerance is None else (a.max_iterations, gp.edge_window // 2)
         _check_storage(w, dt, int(_core.stream_lag(core_params)), max(a.scales) + gp.max_gap
                        + (0 if gp.min_step is None else gp.max_reach), gp.window // 2, edge,
-                       304 if gp.min_step == "auto" else 0,  # stream.cpp kMsBacklog
+                       304 if "auto" in (gp.min_step, gp.z_resolution) else 0,  # kMsBacklog
                        gp.min_step is not None)  # stream.hpp ray_
         try:
             self._core = cls(w, core_params)

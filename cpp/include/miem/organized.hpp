@@ -139,6 +139,7 @@ struct DetectSummary {
   int iterations = 0;                ///< angle passes plus height passes
   double theta0_deg = 0.0;           ///< the threshold used (differs from params with auto)
   double min_step = -1.0;            ///< the min_step used (< 0: off; from the grid with auto)
+  double z_resolution = -1.0;        ///< the z_resolution used (< 0: off; from the grid with auto)
   std::optional<Plane> plane;        ///< the MIEM plane (eigen fit of non-ABNORMAL points)
   std::vector<Defect> defects;       ///< ordered by |peak_height| descending
 };
@@ -167,7 +168,7 @@ class OrganizedDetector {
 
  private:
   DetectParams params_;
-  DetectParams eff_;  // params_ with theta0 and min_step resolved (theta0_auto, min_step_auto)
+  DetectParams eff_;  // params_ with theta0, min_step and z_resolution resolved (the *_auto)
   detail::Workspace ws_;
 };
 
@@ -179,6 +180,12 @@ class OrganizedDetector {
 /// itself on the same rows.)
 template <typename T>
 double auto_min_step(const GridView<T>& grid);
+
+/// SPEC "z_resolution": the z_resolution that GridParams::z_resolution_auto gives on `grid`
+/// (scan units): the smallest non-zero |z difference| of finite neighbours along the profiles
+/// (columns c, c + 1) of the rows auto_min_step reads; -1 when there is none.
+template <typename T>
+double auto_z_resolution(const GridView<T>& grid);
 
 /// One-call organized detection with owned outputs.
 template <typename T>

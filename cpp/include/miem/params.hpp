@@ -76,6 +76,10 @@ struct GridParams {
   int edge_extent = 12;           ///< cells: height test also on EDGE groups this compact
   double edge_k = 4.0;            ///< multiple of the sub-window rms: > 0 edge test (SPEC "Edge test")
   int edge_window = 15;           ///< cells: edge test sub-window side (odd >= 3; half-size / 2)
+  double z_resolution = -1.0;     ///< length: the scan's z step; < 0 off; the rms tolerances of
+                                  ///< the height and edge tests are at least 1.5 x this
+  bool z_resolution_auto = true;  ///< z_resolution measured on the min_step sample rows
+                                  ///< (SPEC "z_resolution"); then z_resolution must stay < 0
 
   /// True when the height test is on (height_abs > 0 or height_k > 0).
   bool height_test() const noexcept { return height_abs > 0.0 || height_k > 0.0; }
@@ -84,7 +88,8 @@ struct GridParams {
   bool edge_test() const noexcept { return edge_k > 0.0; }
 
   /// Every field's range (min_step finite and < 0 with min_step_auto, height_abs / height_k
-  /// finite, edge_extent >= 0, edge_k finite >= 0, edge_window odd >= 3, ...).
+  /// finite, edge_extent >= 0, edge_k finite >= 0, edge_window odd >= 3, z_resolution finite
+  /// and < 0 with z_resolution_auto, ...).
   Status check() const noexcept;
 
   /// Calls v(FieldInfo, &GridParams::member) for every field, in declaration order.
@@ -114,6 +119,12 @@ struct GridParams {
                 "min_step / 2 with a min_step) is ABNORMAL; 0: off"}, &GridParams::edge_k);
     v(FieldInfo{"edge_window", "cells", "with the edge test: side of its one-sided sub-windows "
                 "(odd >= 3)"}, &GridParams::edge_window);
+    v(FieldInfo{"z_resolution", "length", "the scan's z step (quantisation): the height test's "
+                "k x rms and the edge test's tolerances are at least 1.5 times it; < 0: off"},
+      &GridParams::z_resolution);
+    v(FieldInfo{"z_resolution_auto", "", "z_resolution measured on the grid (SPEC "
+                "\"z_resolution\"); z_resolution must then be < 0"},
+      &GridParams::z_resolution_auto);
   }
 };
 

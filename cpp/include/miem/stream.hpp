@@ -5,6 +5,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <limits>
 #include <optional>
 #include <vector>
 
@@ -88,8 +89,10 @@ DetectParams stream_default_params();
 ///     L = P R + E + (P + 1) h   with the height test,   L = P R + h   without;
 ///     L = max(H + r, h) + (P - 1) r + h   with the edge test, H = P R + E + P h (P R without
 ///         the height test): each edge pass runs row by row, r rows behind the one before;
-///     L = max(L, 256)   with min_step_auto (the rows it is decided from must be in).
-/// Defaults: (10 * 35 + 13 + 10 * 10 + 7) + 9 * 7 + 10 = 543 (223 with min_step off).
+///     L = max(L, 256)   with min_step_auto or z_resolution_auto (the rows they are decided
+///                       from must be in).
+/// Defaults: (10 * 35 + 13 + 10 * 10 + 7) + 9 * 7 + 10 = 543 (256 with min_step off, 223 with
+/// z_resolution off too).
 /// Assumes valid parameters.
 long long stream_lag(const DetectParams& params) noexcept;
 
@@ -125,7 +128,8 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 ///     pushes' stages catch up, at least 3 rows a push, by the push that hands back the first
 ///     of those rows (docs/SPEC.md "Streaming"): no push carries the whole decision.
 /// So row i is final once row i + L has arrived, L = stream_lag(params) (543 profiles with
-/// the defaults, 223 with min_step off, 473 without the edge test; 20 + 10 with preset
+/// the defaults, 256 with min_step off (223 with z_resolution off too), 473 without the edge
+/// test; 20 + 10 with preset
 /// "paper"). Each cell keeps the
 /// pass that removed it (angle, height, edge), so a judgment at pass p sees exactly the cells of pass p - 1 even where rows around it have run
 /// pass p already. A lower max_iterations (most scans settle in 2-3 passes) or edge_extent
@@ -219,6 +223,7 @@ class ProfileStream {
     return static_cast<std::ptrdiff_t>(row % ring_);
   }
   void use_min_step(double min_step) noexcept;
+  void use_z_resolution() noexcept;
   void min_step_row(std::int64_t row) noexcept;
   void min_step_finish() noexcept;
   void catch_up(std::int64_t last) noexcept;
@@ -311,11 +316,13 @@ class ProfileStream {
   // min_step "auto" (SPEC "min_step='auto'"): decided once the kAutoMinStepRows rows from the
   // first row with a finite cell are in; the stages wait for it (the rows are kept).
   bool ms_auto_ = false;         // params_.min_step_auto
+  bool sample_ = false;          // min_step or z_resolution "auto": the stages wait for its rows
   bool ms_wait_ = false;         // not decided yet
   std::int64_t ms_first_ = -1;   // the first row with a finite cell (-1: none yet)
   double min_step_ = -1.0;       // the min_step in use (-1: off)
   int mark_reach_ = 0;           // R of one judgment with that min_step
-  DetectParams jparams_;         // params_ with min_step resolved: the judges'
+  DetectParams jparams_;         // params_ with min_step and z_resolution resolved: the judges'
+  double zq_ = std::numeric_limits<double>::infinity();  // z_resolution "auto": smallest step
   std::vector<const T*> ms_rows_;       // the rows it reads
   detail::MinStepSelection<T> ms_sel_;  // its selection, a few rows per push
   std::int64_t ms_next_ = -1;           // decided: the next row the stages catch up on (-1:

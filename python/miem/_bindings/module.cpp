@@ -90,6 +90,14 @@ py::array_t<double> scan_line(const py::array& line, int step) {
   return out;
 }
 
+double auto_z_resolution(const py::array& grid) {
+  require_float(grid, "grid");
+  if (grid.ndim() != 3 || grid.shape(2) != 3) {
+    throw std::invalid_argument("grid: expected shape (H, W, 3)");
+  }
+  return with_grid(grid, [](const auto& v) { return miem::auto_z_resolution(v); });
+}
+
 py::tuple detect_organized(const py::array& grid, const miem::DetectParams& p) {
   require_float(grid, "grid");
   if (grid.ndim() != 3 || grid.shape(2) != 3) {
@@ -106,7 +114,7 @@ py::tuple detect_organized(const py::array& grid, const miem::DetectParams& p) {
   py::list defects = defect_list(s.defects);
   py::object plane = plane_or_none(s.plane);
   return py::make_tuple(labels, flags, angle, height, plane, s.iterations, defects,
-                        s.theta0_deg, s.min_step);
+                        s.theta0_deg, s.min_step, s.z_resolution);
 }
 
 }  // namespace
@@ -128,6 +136,7 @@ PYBIND11_MODULE(_core, m) {
   m.def("scan_line_angles", &scan_line<false>, py::arg("line"), py::arg("step"));
   m.def("scan_line_heights", &scan_line<true>, py::arg("line"), py::arg("step"));
   m.def("detect_organized", &detect_organized, py::arg("grid"), py::arg("params"));
+  m.def("auto_z_resolution", &auto_z_resolution, py::arg("grid"));
   void bind_params(py::module_ & m);  // python/miem/_bindings/params.cpp
   bind_params(m);
   void bind_unorganized(py::module_ & m);  // python/miem/_bindings/unorganized.cpp
