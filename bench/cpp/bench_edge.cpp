@@ -59,13 +59,13 @@ int main(int argc, char** argv) {
       have = static_cast<bool>(f);
     }
   }
-  miem::DetectParams eff = p;  // min_step "auto" resolved: the stages and the edge test's floor
+  miem::DetectParams eff = p;  // min_step, z_resolution "auto" resolved (stages, floors)
   if (eff.min_step_auto) {
     eff.min_step = miem::detail::auto_min_step(g, ws.survey, threads);
     eff.min_step_auto = false;
   }
   if (eff.z_resolution_auto) {
-    eff.z_resolution = miem::detail::auto_z_resolution(g);
+    eff.z_resolution = miem::auto_z_resolution(g);
     eff.z_resolution_auto = false;
   }
   if (!have) {
@@ -82,9 +82,10 @@ int main(int argc, char** argv) {
   for (int rep = 0; rep < reps; ++rep) {
     labels = before;
     const double t0 = now();
-    passes = miem::detail::edge_passes(g, labels.data(), p.edge_window,
-                                         miem::detail::edge_tol(eff.edge_k, eff.min_step, eff.z_resolution),
-                                       p.max_iterations, threads, ws.edge_sums, ws.edge_flags);
+    const miem::detail::EdgeTol et =
+        miem::detail::edge_tol(eff.edge_k, eff.min_step, eff.z_resolution);
+    passes = miem::detail::edge_passes(g, labels.data(), p.edge_window, et, p.max_iterations,
+                                       threads, ws.edge_sums, ws.edge_flags);
     best = std::min(best, now() - t0);
   }
   unsigned long long sum = 0, nab0 = 0, nab = 0;

@@ -108,7 +108,7 @@ double run_stages(const miem::GridView<double>& g, const miem::DetectParams& p,
     eff.min_step_auto = false;
   }
   if (eff.z_resolution_auto) {
-    eff.z_resolution = miem::detail::auto_z_resolution(g);
+    eff.z_resolution = miem::auto_z_resolution(g);
     eff.z_resolution_auto = false;
   }
   at(1);

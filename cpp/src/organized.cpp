@@ -46,7 +46,7 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
     eff_.min_step_auto = false;
   }
   if (eff_.z_resolution_auto) {  // SPEC "z_resolution"
-    eff_.z_resolution = detail::auto_z_resolution(g);
+    eff_.z_resolution = auto_z_resolution(g);
     eff_.z_resolution_auto = false;
   }
   const DetectParams& p = eff_;
@@ -70,10 +70,9 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
   }
   const bool edge_test = p.edge_test();
   if (edge_test) {  // SPEC "Edge test": after the height passes
-    summary.iterations += detail::edge_passes(g, labels, p.edge_window,
-                                              detail::edge_tol(p.edge_k, p.min_step, p.z_resolution),
-                                              p.max_iterations, p.num_threads, ws_.edge_sums,
-                                              ws_.edge_flags);
+    const detail::EdgeTol et = detail::edge_tol(p.edge_k, p.min_step, p.z_resolution);
+    summary.iterations += detail::edge_passes(g, labels, p.edge_window, et, p.max_iterations,
+                                              p.num_threads, ws_.edge_sums, ws_.edge_flags);
   }
   summary.plane = detail::miem_plane(g, labels, p.num_threads, ws_);
   // heights() re-fits the windows the edge test changed and reuses the height test's others

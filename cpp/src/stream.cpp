@@ -257,9 +257,9 @@ long long stream_lag(const DetectParams& p) noexcept {
     const long long r = p.edge_window / 2;
     lag = std::max(lagh + r, h) + (P - 1) * r + h;
   }
-  // min_step "auto": nothing runs before the rows it reads are in
-  return p.min_step_auto || p.z_resolution_auto ? std::max<long long>(lag, detail::kAutoMinStepRows)
-                                                : lag;
+  // min_step or z_resolution "auto": nothing runs before the sample rows they read are in
+  const bool sample = p.min_step_auto || p.z_resolution_auto;
+  return sample ? std::max<long long>(lag, detail::kAutoMinStepRows) : lag;
 }
 
 Status check_stream_params(std::ptrdiff_t width, const DetectParams& p) noexcept {
@@ -323,7 +323,7 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   fast_ok_ = min_scale <= 1 + params_.max_gap && params_.scales.size() <= 7;
   jparams_ = params_;
   jparams_.min_step_auto = false;
-  jparams_.z_resolution_auto = false;  // -1 (off) until measured with min_step "auto"
+  jparams_.z_resolution_auto = false;  // with "auto": -1 (off) until the sample rows are in
   if (max_scale_ <= 64) {
     // pass 1's row kernel: its ring sized for the deepest search it may run (min_step given or
     // "auto"), so that use_min_step, which sets the depth in use, never allocates
@@ -420,7 +420,7 @@ void ProfileStream<T>::min_step_row(std::int64_t row) noexcept {
   }
 }
 
-// z_resolution "auto" decided with min_step: the smallest z step of the rows min_step read.
+// z_resolution "auto" decided with min_step: the smallest z step of the sample rows.
 template <typename T>
 void ProfileStream<T>::use_z_resolution() noexcept {
   if (params_.z_resolution_auto) jparams_.z_resolution = std::isfinite(zq_) ? zq_ : -1.0;

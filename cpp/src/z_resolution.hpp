@@ -45,9 +45,6 @@ double fold_z_steps(const T* row, std::ptrdiff_t n, std::ptrdiff_t cell_stride,
   return q;
 }
 
-/// The z_resolution GridParams::z_resolution_auto resolves to on `g`, or -1 (no pair of finite
-/// neighbours with different z in the rows min_step="auto" reads).
-template <typename T>
-double auto_z_resolution(const GridView<T>& g);
-
 }  // namespace miem::detail
+
+// (miem::auto_z_resolution, miem/organized.hpp, folds the rows min_step="auto" reads.)

@@ -67,7 +67,7 @@ _LABEL_KEYS = ("labels", "flags", "angle", "height")
 _DTYPES = {"labels": np.uint8, "flags": np.uint8, "angle": np.float64, "height": np.float64}
 
 
-def _resolve_min_step(grid: "da.Array", args: tuple, kwargs: dict, params: dict) -> tuple:
+def _resolve_auto_lengths(grid: "da.Array", args: tuple, kwargs: dict, params: dict) -> tuple:
     """min_step="auto" and z_resolution="auto" resolved first (:func:`auto_min_step`,
     :func:`auto_z_resolution`: their 256 rows) and given to every block as the length (or None)
     each resolves to; params record them as auto."""
@@ -488,7 +488,7 @@ def detect(grid: Any, *args: Any, num_threads: Optional[int] = 1, strict: bool =
     grid = _as_grid(grid)
     kwargs = dict(kwargs, num_threads=num_threads)
     params = _probe_params(args, kwargs)
-    kwargs, params = _resolve_min_step(grid, args, kwargs, params)
+    kwargs, params = _resolve_auto_lengths(grid, args, kwargs, params)
     if args:  # positional parameters (a parameter set) go to every block as given
         kwargs = dict(kwargs, _args=args)
     if params.get("theta0_auto"):
@@ -557,7 +557,7 @@ def auto_theta0(grid: Any, kwargs: Optional[dict] = None, params: Optional[dict]
         kw = dict(kwargs)
         args = kw.pop("_args", ())
         params = _probe_params(args, kw)
-        kwargs, params = _resolve_min_step(grid, args, kwargs, params)
+        kwargs, params = _resolve_auto_lengths(grid, args, kwargs, params)
     survey = dict(kwargs, theta0=75.0, max_iterations=1, height_tolerance=None,
                   edge_tolerance=None, heights="abnormal")
     halo = grid_halo(dict(params, max_iterations=1, height_tolerance=None)) - \

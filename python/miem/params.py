@@ -11,15 +11,17 @@ C++ presets (``paper_params()``, ``paper_points_params()``; the defaults are def
 C++ parameters). Only the fields whose Python spelling differs from C++ are written out here
 (``_SPELLED``): ``theta0`` (degrees or ``"auto"``: ``theta0_deg`` + ``theta0_auto``),
 ``min_directions`` (None for all: 0), grid ``min_step`` and ``z_resolution`` (a length,
-``"auto"`` or None: the length + its ``_auto`` flag), ``heights`` (``"all"`` / ``"abnormal"``: ``height_mode``),
+``"auto"`` or None: the length + its ``_auto`` flag), ``heights`` (``"all"`` /
+``"abnormal"``: ``height_mode``),
 ``height_tolerance`` (a length or ``"<k>rms"``: ``height_abs`` + ``height_k``),
 ``edge_tolerance`` and ``isolated_tolerance`` (None for off: ``edge_k`` / ``isolated_k`` 0) and
 cloud ``K`` (``num_directions``).
 
 A detector reads ``angle`` and its own part, and a keyword override names a field of those parts
 (``miem.detect(grid, window=15)``, ``miem.detect(points, radius=2.0)``); a field of another part
-is refused with a ValueError naming it. ``ProfileStream`` refuses ``min_step="auto"`` (it
-needs the whole scan; give the length a first scan resolves).
+is refused with a ValueError naming it. ``ProfileStream`` refuses ``theta0="auto"`` (the
+median of the whole scan's angles); ``min_step`` and ``z_resolution`` ``"auto"`` it measures on
+its first 256 profiles with data, as batch detection does.
 The command line's detection options, ``--config`` files, ``miem config`` and ``miem.dask``'s
 known fields are generated from these fields.
 """
