@@ -115,6 +115,15 @@ def test_stream_measures_it_as_batch(min_step: object) -> None:
     np.testing.assert_array_equal(stream_labels(g, p), want.labels)
     s = miem.ProfileStream(g.shape[1], params=p)
     assert s.lag >= 256  # it waits for the rows it measures the step on
+    for row in g[:255]:
+        s.push(row)
+    assert s.z_resolution is None  # not decided yet
+    for row in g[255:]:
+        s.push(row)
+    list(s.flush())  # decided by then (else over the pushes after the 256 rows)
+    assert s.z_resolution == want.params["z_resolution"]
+    assert miem.ProfileStream(8, z_resolution=None).z_resolution is None
+    assert miem.ProfileStream(8, z_resolution=0.02).z_resolution == 0.02
 
 
 def test_dask_resolves_it_on_the_driver() -> None:

@@ -220,6 +220,13 @@ class ProfileStream:
         return self._core.min_step
 
     @property
+    def z_resolution(self) -> Optional[float]:
+        """The z step the height and edge tests allow for (scan units, docs/SPEC.md
+        "z_resolution"), None when off; with ``z_resolution="auto"`` None until the same 256
+        profiles are in (or the flush), then the value :func:`miem.detect` resolves on them."""
+        return self._core.z_resolution
+
+    @property
     def dtype(self) -> np.dtype:
         """Storage dtype of the coordinates."""
         return self._dtype

@@ -187,8 +187,13 @@ class ProfileStream {
   /// The min_step the stream judges with (scan units; -1: off). With min_step_auto: -1 until
   /// decided (min_step_decided()), then the value batch detection resolves on the rows pushed.
   double min_step() const noexcept { return min_step_; }
-  /// False while min_step "auto" waits for its rows (SPEC "min_step='auto'"), else true.
+  /// False while min_step or z_resolution "auto" waits for its rows (SPEC "min_step='auto'",
+  /// "z_resolution"), else true.
   bool min_step_decided() const noexcept { return !ms_wait_; }
+  /// The z_resolution the height and edge tests use (scan units; -1: off). With
+  /// z_resolution_auto: -1 until decided (min_step_decided()), then the value batch detection
+  /// resolves on the rows pushed.
+  double z_resolution() const noexcept { return jparams_.z_resolution; }
   /// The parameters.
   const DetectParams& params() const noexcept { return params_; }
   /// Profiles accepted since construction or reset.

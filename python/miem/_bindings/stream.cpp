@@ -74,6 +74,11 @@ class PyProfileStream {
     return stream_.min_step();
   }
   bool min_step_decided() const { return stream_.min_step_decided(); }
+  // The z_resolution in use: None while "auto" waits for its rows (-1 until then) or when off.
+  std::optional<double> z_resolution() const {
+    if (stream_.z_resolution() < 0.0) return std::nullopt;
+    return stream_.z_resolution();
+  }
 
  private:
   // A stream is one sequence of profiles: push/flush/reset from two threads at once would
@@ -134,7 +139,8 @@ void bind_one(py::module_& m, const char* name) {
       .def_property_readonly("rows_emitted", &PyProfileStream<T>::rows_emitted)
       .def_property_readonly("finished", &PyProfileStream<T>::finished)
       .def_property_readonly("min_step", &PyProfileStream<T>::min_step)
-      .def_property_readonly("min_step_decided", &PyProfileStream<T>::min_step_decided);
+      .def_property_readonly("min_step_decided", &PyProfileStream<T>::min_step_decided)
+      .def_property_readonly("z_resolution", &PyProfileStream<T>::z_resolution);
 }
 
 }  // namespace
