@@ -1423,7 +1423,7 @@ def _edge_pass(
 ) -> NDArray[np.bool_]:
     """One edge pass (SPEC "Edge test"): the candidate cells that become ABNORMAL, tile by
     tile (each tile's sums over the tile and ``r`` cells around it, from its own origin);
-    ``floor`` the least tolerance (``min_step / 2``, step 3)."""
+    ``floor`` the least tolerance (``min_step / 2``, ``1.5 z_resolution``: step 3)."""
     cells = candidates & ((labels == NORMAL) | (labels == EDGE))
     out = np.zeros_like(cells)
     hh, ww = cells.shape
@@ -1456,7 +1456,7 @@ def _clean_sides(
     """SPEC "Edge test" steps 3-4 on :func:`_side_fits`' results: which sub-windows are valid
     and not steep (``level``), which are *clean* (level, rms at most twice the best level
     one's) and each one's tolerance ``t`` (with its round-off floor, as the height test's, and
-    at least ``floor``: half the min_step in use)."""
+    at least ``floor``: :func:`edge_test`'s from the min_step and z resolution in use)."""
     level = valid & (nrm[..., 2] >= _EDGE_STEEP_COS)
     best = np.min(np.where(level, rms, np.inf), axis=0)
     clean = level & (rms <= _EDGE_CLEAN_RATIO * best)
