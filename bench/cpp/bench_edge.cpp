@@ -13,7 +13,6 @@
 #include <vector>
 
 #include "miem/organized.hpp"
-#include "../../cpp/src/auto_min_step.hpp"
 #include "../../cpp/src/edge_test.hpp"
 #include "../../cpp/src/stages.hpp"
 
@@ -60,14 +59,7 @@ int main(int argc, char** argv) {
     }
   }
   miem::DetectParams eff = p;  // min_step, z_resolution "auto" resolved (stages, floors)
-  if (eff.min_step_auto) {
-    eff.min_step = miem::detail::auto_min_step(g, ws.survey, threads);
-    eff.min_step_auto = false;
-  }
-  if (eff.z_resolution_auto) {
-    eff.z_resolution = miem::auto_z_resolution(g);
-    eff.z_resolution_auto = false;
-  }
+  miem::detail::resolve_auto_lengths(g, eff, ws.survey, threads);
   if (!have) {
     miem::detail::angle_passes(g, eff, out, ws);
     if (eff.height_test()) miem::detail::height_test(g, eff, labels.data(), height.data(), ws);

@@ -36,7 +36,6 @@
 #include <vector>
 
 #include "miem/organized.hpp"
-#include "../../cpp/src/auto_min_step.hpp"
 #include "../../cpp/src/edge_test.hpp"
 #include "../../cpp/src/stages.hpp"
 
@@ -103,14 +102,7 @@ double run_stages(const miem::GridView<double>& g, const miem::DetectParams& p,
                   const miem::OrganizedOutput& out, miem::detail::Workspace& ws, int nt, At at) {
   miem::DetectParams eff = p;
   at(0);
-  if (eff.min_step_auto) {
-    eff.min_step = miem::detail::auto_min_step(g, ws.survey, nt);
-    eff.min_step_auto = false;
-  }
-  if (eff.z_resolution_auto) {
-    eff.z_resolution = miem::auto_z_resolution(g);
-    eff.z_resolution_auto = false;
-  }
+  miem::detail::resolve_auto_lengths(g, eff, ws.survey, nt);
   at(1);
   miem::detail::angle_passes(g, eff, out, ws);
   at(2);

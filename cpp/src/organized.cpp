@@ -7,8 +7,6 @@
 #include <stdexcept>
 #include <string>
 
-#include "auto_min_step.hpp"
-#include "z_resolution.hpp"
 #include "edge_test.hpp"
 #include "stages.hpp"
 
@@ -41,14 +39,7 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
   // same windows, so the scratch the window sizes is bounded by the grid (README "Guarantees").
   const std::ptrdiff_t cover = 2 * std::max(g.rows, g.cols) + 1;
   if (eff_.window > cover) eff_.window = static_cast<int>(cover);
-  if (eff_.min_step_auto) {  // SPEC "min_step='auto'", before the angle passes
-    eff_.min_step = detail::auto_min_step(g, ws_.survey, eff_.num_threads);
-    eff_.min_step_auto = false;
-  }
-  if (eff_.z_resolution_auto) {  // SPEC "z_resolution"
-    eff_.z_resolution = auto_z_resolution(g);
-    eff_.z_resolution_auto = false;
-  }
+  detail::resolve_auto_lengths(g, eff_, ws_.survey, eff_.num_threads);
   const DetectParams& p = eff_;
   const std::size_t N = static_cast<std::size_t>(g.rows * g.cols);
   std::uint8_t* labels = out.labels;

@@ -16,11 +16,28 @@
 
 #include "miem/organized.hpp"
 #include "miem/plane.hpp"
+#include "auto_min_step.hpp"
 #include "miem/views.hpp"
 #include "window_fits.hpp"
 #include "z_resolution.hpp"
 
 namespace miem::detail {
+
+/// min_step and z_resolution "auto" resolved on `g` before the stages (SPEC "min_step='auto'",
+/// "z_resolution"): eff's lengths set, their _auto flags cleared. `survey` is auto_min_step's
+/// reusable buffer, `threads` its threads (the value does not depend on them).
+template <typename T>
+void resolve_auto_lengths(const GridView<T>& g, DetectParams& eff, std::vector<double>& survey,
+                          int threads) {
+  if (eff.min_step_auto) {
+    eff.min_step = auto_min_step(g, survey, threads);
+    eff.min_step_auto = false;
+  }
+  if (eff.z_resolution_auto) {
+    eff.z_resolution = miem::auto_z_resolution(g);
+    eff.z_resolution_auto = false;
+  }
+}
 
 /// Finiteness and the angle passes. Writes labels (and flags / angles where wanted); leaves
 /// ws.usable with bit 0 set on the finite, non-ABNORMAL cells. Resolves eff.theta0_deg when
