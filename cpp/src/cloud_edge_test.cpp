@@ -462,16 +462,12 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
   std::vector<std::uint8_t> first_verdict(first_here ? cand.size() : 0, 0);
   const double fr2 = e.radius * e.radius;
   {
-    // Visited in the grid's cell order (z, y, x; 21 bits each), not the input's, which a
-    // shuffled cloud scatters: one candidate's gather then touches the cells the last one did.
-    // Only the speed depends on the order: each candidate has its own slot.
+    // Visited in the grid's cell order (its cell key), not the input's, which a shuffled cloud
+    // scatters: one candidate's gather then touches the cells the last one did. Only the speed
+    // depends on the order: each candidate has its own slot.
     std::vector<std::pair<std::uint64_t, std::uint32_t>> by_cell(cand.size());
     for (std::ptrdiff_t c = 0; c < nc; ++c) {
-      const Eigen::Vector3d p = points[cand[c]];
-      const CellBox b = grid.box_around(p, p, 0.0);
-      const auto bits = [](std::int64_t v) { return static_cast<std::uint64_t>(v) & 0x1FFFFF; };
-      by_cell[c] = {bits(b.lo[2]) << 42 | bits(b.lo[1]) << 21 | bits(b.lo[0]),
-                    static_cast<std::uint32_t>(c)};
+      by_cell[c] = {grid.key_of(points[cand[c]]), static_cast<std::uint32_t>(c)};
     }
     std::sort(by_cell.begin(), by_cell.end());
     const int ntc = std::min(nt, detail::thread_count(num_threads, nc, 256));

@@ -63,7 +63,7 @@ void mark_compact_edges(const std::uint8_t* labels, std::ptrdiff_t H, std::ptrdi
 MIEM_CLONES void height_row(std::ptrdiff_t n, const std::uint8_t* __restrict wrow,
                             const double* __restrict S, const double* __restrict F,
                             const std::uint8_t* __restrict okf, std::ptrdiff_t cap,
-                            double height_abs, double height_k, double z_floor,
+                            double height_abs, double height_k, double z_min,
                             double* __restrict height, std::uint8_t* __restrict hm) {
   const double* __restrict fh = F;
   const double* __restrict f0 = F + cap;
@@ -73,7 +73,7 @@ MIEM_CLONES void height_row(std::ptrdiff_t n, const std::uint8_t* __restrict wro
   for (std::ptrdiff_t j = 0; j < n; ++j) {
     const bool w = wrow[j] != 0;
     const bool far = height_verdict(okf[j] != 0, sl[j], fh[j], S[j], f0[j], f1[j], f2[j],
-                                    height_abs, height_k, z_floor);
+                                    height_abs, height_k, z_min);
     const std::uint8_t b = static_cast<std::uint8_t>(hm[j] | kHFresh | (far ? kHMark : 0));
     hm[j] = w ? b : hm[j];
   }

@@ -143,15 +143,10 @@ NeighborGrid<T>::NeighborGrid(const PointsView<T>& points, double cell_size, int
       if (p.allFinite()) ids[k++] = static_cast<std::uint32_t>(i);
     }
   }
-  const std::uint64_t nx = static_cast<std::uint64_t>(dims_[0]);
-  const std::uint64_t ny = static_cast<std::uint64_t>(dims_[1]);
   std::uint64_t max_key = 0;
 #pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1) reduction(max : max_key)
   for (std::ptrdiff_t k = 0; k < n_finite; ++k) {
-    const Eigen::Vector3d p = points[ids[k]];
-    const std::uint64_t key = static_cast<std::uint64_t>(coord(p.x(), 0)) +
-                              nx * (static_cast<std::uint64_t>(coord(p.y(), 1)) +
-                                    ny * static_cast<std::uint64_t>(coord(p.z(), 2)));
+    const std::uint64_t key = key_of(points[ids[k]]);
     keys[k] = key;
     max_key = std::max(max_key, key);
   }

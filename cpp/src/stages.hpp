@@ -56,18 +56,18 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
 inline __attribute__((always_inline)) bool height_verdict(bool ok, double edges, double height,
                                                           double n, double l0, double l1,
                                                           double l2, double height_abs,
-                                                          double height_k, double z_floor) {
+                                                          double height_k, double z_min) {
   const double ah = std::abs(height);
   // |h| > k rms and |h| > 1e-6 sqrt((l1 + l2) / n), rms = sqrt(max(l0, 0) / n), squared. The
   // floor lies above the round-off of l0 from window sums (SPEC "height_tolerance"), so that a
   // noise-free surface's verdict is not decided by rounding, which differs between sums formed
-  // in another order (the stream, other tiles). In the rms form also |h| > z_floor (1.5 x the
-  // scan's z step, SPEC "z_resolution"; 0 without one).
+  // in another order (the stream, other tiles). In the rms form also |h| > z_min (z_floor: 1.5 x
+  // the scan's z step, SPEC "z_resolution"; 0 without one).
   const double h2n = ah * ah * n;
   return ok & !((height_abs > 0.0) & (edges > 0.0)) &
          (((height_abs > 0.0) & (ah > height_abs)) |
           ((height_k > 0.0) & (h2n > height_k * height_k * std::max(l0, 0.0)) &
-           (h2n > 1e-12 * (l1 + l2)) & (ah > z_floor)));
+           (h2n > 1e-12 * (l1 + l2)) & (ah > z_min)));
 }
 
 /// height_verdict of one WindowFit, with `p`'s z_resolution resolved (not auto).

@@ -350,10 +350,10 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
     ray_.assign(4 * n1, 0);
   }
   use_ray_ = min_step_ >= 0.0 && !ray_.empty();
-  if (sample_) {
+  if (sample_) nan_row_.assign(static_cast<std::size_t>(width_), detail::kNaN);
+  if (ms_auto_) {
     ms_rows_.assign(static_cast<std::size_t>(detail::kAutoMinStepRows), nullptr);
     ms_sel_.init(width_, phys_ * width_);
-    nan_row_.assign(static_cast<std::size_t>(width_), detail::kNaN);
   }
   threads_ = static_cast<int>(std::min<std::ptrdiff_t>(
       (width_ + 127) / 128, detail::thread_count(params_.num_threads, width_, 256)));
@@ -398,11 +398,15 @@ template <typename T>
 void ProfileStream<T>::min_step_row(std::int64_t row) noexcept {
   const std::int64_t k = row - ms_first_;
   if (k < detail::kAutoMinStepRows) {
-    ms_rows_[static_cast<std::size_t>(k)] = xyz_.data() + slot(row) * width_;
+    const T* xyz = xyz_.data() + slot(row) * width_;
     if (params_.z_resolution_auto) {  // SPEC "z_resolution": over the same rows
-      zq_ = detail::fold_z_steps(ms_rows_[static_cast<std::size_t>(k)], width_, 1,
-                                 phys_ * width_, zq_);
+      zq_ = detail::fold_z_steps(xyz, width_, 1, phys_ * width_, zq_);
     }
+    if (!ms_auto_) {  // z_resolution alone: known once its rows are in
+      if (k + 1 == detail::kAutoMinStepRows) decide(params_.min_step);
+      return;
+    }
+    ms_rows_[static_cast<std::size_t>(k)] = xyz;
     ms_sel_.add_row(ms_rows_.data(), static_cast<std::ptrdiff_t>(k + 1));
     if (k + 1 < detail::kAutoMinStepRows) return;
     ms_sel_.close(ms_rows_.data());
@@ -413,17 +417,18 @@ void ProfileStream<T>::min_step_row(std::int64_t row) noexcept {
   const std::int64_t visits = ms_sel_.visits_left();
   if (ms_sel_.step(ms_rows_.data(), static_cast<std::ptrdiff_t>(std::max<std::int64_t>(
                                         kMsChunk, (visits + pushes - 1) / pushes)))) {
-    use_min_step(ms_auto_ ? ms_sel_.value() : params_.min_step);
-    use_z_resolution();
-    ms_wait_ = false;
-    ms_next_ = ms_first_;
+    decide(ms_sel_.value());
   }
 }
 
-// z_resolution "auto" decided with min_step: the smallest z step of the sample rows.
+// The sample rows decided: min_step (`min_step`: its value, or the one given) and z_resolution
+// "auto" (the smallest z step of those rows) in use, and the stages catch up from ms_first_.
 template <typename T>
-void ProfileStream<T>::use_z_resolution() noexcept {
+void ProfileStream<T>::decide(double min_step) noexcept {
+  use_min_step(min_step);
   if (params_.z_resolution_auto) jparams_.z_resolution = std::isfinite(zq_) ? zq_ : -1.0;
+  ms_wait_ = false;
+  ms_next_ = ms_first_;
 }
 
 // At the flush: min_step "auto" decided on the rows pushed (fewer than it reads when the stream
@@ -431,12 +436,13 @@ void ProfileStream<T>::use_z_resolution() noexcept {
 template <typename T>
 void ProfileStream<T>::min_step_finish() noexcept {
   if (ms_wait_ && ms_first_ >= 0) {
-    if (!ms_sel_.closed()) ms_sel_.close(ms_rows_.data());
-    ms_sel_.step(ms_rows_.data(), ms_sel_.visits_left());
-    use_min_step(ms_auto_ ? ms_sel_.value() : params_.min_step);
-    use_z_resolution();
-    ms_wait_ = false;
-    ms_next_ = ms_first_;
+    double min_step = params_.min_step;
+    if (ms_auto_) {
+      if (!ms_sel_.closed()) ms_sel_.close(ms_rows_.data());
+      ms_sel_.step(ms_rows_.data(), ms_sel_.visits_left());
+      min_step = ms_sel_.value();
+    }
+    decide(min_step);
   }
   if (ms_next_ >= 0) catch_up(pushed_ - 1);
 }
@@ -474,8 +480,10 @@ void ProfileStream<T>::reset() noexcept {
   ms_first_ = -1;
   ms_next_ = -1;
   ms_wait_ = sample_;
-  if (ms_auto_) use_min_step(-1.0);
-  if (sample_) ms_sel_.reset();
+  if (ms_auto_) {
+    use_min_step(-1.0);
+    ms_sel_.reset();
+  }
   zq_ = std::numeric_limits<double>::infinity();
   if (params_.z_resolution_auto) jparams_.z_resolution = -1.0;
   p1_next_ = 0;

@@ -57,7 +57,7 @@ constexpr std::uint8_t pass_class(std::uint8_t b, std::uint8_t hs, int pass, boo
 MIEM_CLONES void pass1_verdicts(std::ptrdiff_t n, const std::uint8_t* __restrict hm,
                                 const double* __restrict S, const double* __restrict F,
                                 const std::uint8_t* __restrict okf, std::ptrdiff_t cap, bool test,
-                                double height_abs, double height_k, double z_floor,
+                                double height_abs, double height_k, double z_min,
                                 double* __restrict height,
                                 std::uint8_t* __restrict w) {
   const double* __restrict fh = F;
@@ -73,7 +73,7 @@ MIEM_CLONES void pass1_verdicts(std::ptrdiff_t n, const std::uint8_t* __restrict
   for (std::ptrdiff_t j = 0; j < n; ++j) {
     const bool cand = (hm[j] & (kInPlane | kSCompact)) != 0;
     const bool far = detail::height_verdict(okf[j] != 0, sl[j], fh[j], S[j], f0[j], f1[j],
-                                            f2[j], height_abs, height_k, z_floor);
+                                            f2[j], height_abs, height_k, z_min);
     w[j] = static_cast<std::uint8_t>((w[j] != 0) & cand & far);
   }
 }

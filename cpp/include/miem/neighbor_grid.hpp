@@ -169,6 +169,14 @@ class NeighborGrid {
     const T* p = sorted_.data() + 3 * static_cast<std::size_t>(k);
     return {static_cast<double>(p[0]), static_cast<double>(p[1]), static_cast<double>(p[2])};
   }
+  /// The key of the cell holding `p` (clamped to the grid): cells, and order(), ascend by it.
+  std::uint64_t key_of(const Eigen::Vector3d& p) const {
+    const std::uint64_t nx = static_cast<std::uint64_t>(dims_[0]);
+    const std::uint64_t ny = static_cast<std::uint64_t>(dims_[1]);
+    return static_cast<std::uint64_t>(coord(p.x(), 0)) +
+           nx * (static_cast<std::uint64_t>(coord(p.y(), 1)) +
+                 ny * static_cast<std::uint64_t>(coord(p.z(), 2)));
+  }
   /// The cell coordinates of an occupied cell.
   void cell_coords(std::ptrdiff_t cell, std::int64_t out[3]) const {
     const std::uint64_t nx = static_cast<std::uint64_t>(dims_[0]);
