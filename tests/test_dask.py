@@ -191,9 +191,10 @@ def test_auto_theta0_equals_whole_grid(client, kw: dict) -> None:
 
 def test_strict_halo_and_pickled_blocks(client) -> None:
     params = miem.detect(scene(8, 8), preset="recommended").params
-    # angle passes, height passes (window 21, edge_extent 12), edge passes (edge_window 15)
-    assert mdask.grid_halo(params, strict=True) == 10 * 3 + 10 * (127 + 10) + 10 * (127 + 7) + 10
-    assert mdask.grid_halo(params) == 10 * 3 + 10 * (10 + 12 + 1) + 10 * 7 + 10
+    # angle passes, height passes (window 21, edge_extent 12), edge passes and their step 9
+    # (edge_window 15)
+    assert mdask.grid_halo(params, strict=True) == 10 * 3 + 10 * (127 + 10) + 11 * (127 + 7) + 10
+    assert mdask.grid_halo(params) == 10 * 3 + 10 * (10 + 12 + 1) + 11 * 7 + 10
     assert mdask.grid_halo(miem.detect(scene(8, 8), preset="paper").params, strict=True) == 30
     g = scene(150, 90, borders_r=(50, 100), seed=7)
     check_equal(g, (50, 90), preset="recommended", strict=True)

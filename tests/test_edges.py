@@ -733,6 +733,41 @@ def test_edge_tolerance_floor_from_min_step() -> None:
     np.testing.assert_array_equal(miem.detect(g, min_step=ms).labels, res.labels)
 
 
+def test_feature_line_cells_back_at_a_wall_foot() -> None:
+    """SPEC "Edge test" step 9: at the foot of a wall (a 1-3 mm drop at 0.05 mm steps, at an
+    angle to the grid) the angle test sees a floor cell whose return lies a little low as a pit
+    (every direction crossing the wall gives just under 90 degrees, theta0 = 90): 79
+    designed-edge cells ABNORMAL without step 9. They lie on the floor's plane, beside the
+    wall's feature line: step 9 gives them back (EDGE), no burr cell among them, every burr cell
+    found before still found. Core == reference (1 and 2 threads, float32), stream == batch."""
+    sc = edge_scenes.make_edge_scene("edge_wall", 9012, step=0.05, noise=0.005)
+    g = sc.points
+    pre = ref.detect(g, preset="recommended", edge_tolerance=None)  # after the height passes
+    kw = {"window": 15, "tolerance": 4.0, "max_iterations": 10,
+          "min_step": pre.params["min_step"], "z_resolution": pre.params["z_resolution"]}
+    before = ref.edge_test(g, pre.labels, **kw)[0]  # lines=None: no step 9
+    oracle = ref.detect(g, preset="recommended")
+    edge, burr = sc.truth == edge_scenes.EDGE, sc.truth == edge_scenes.DEFECT
+    was, now = before == miem.ABNORMAL, oracle.labels == miem.ABNORMAL
+    assert (was & edge).sum() > 50 and (now & edge).sum() <= 2
+    back = was & ~now
+    assert back.sum() > 50 and not (back & burr).any()
+    assert (oracle.labels[back] == miem.EDGE).all() and not (now & ~was).any()
+    assert (now & burr).sum() == (was & burr).sum() > 0
+    for nt in (1, 2):
+        np.testing.assert_array_equal(miem.detect(g, num_threads=nt).labels, oracle.labels)
+    f32 = g.astype(np.float32)
+    np.testing.assert_array_equal(miem.detect(f32).labels,
+                                  ref.detect(f32, preset="recommended").labels)
+    np.testing.assert_array_equal(stream_labels(g, miem.default_params("stream")), oracle.labels)
+    # without the height test every EDGE cell is a feature line for step 9: batch == stream
+    off = miem.default_params("stream").replace(height_tolerance=None)
+    got = miem.detect(g, params=off)
+    np.testing.assert_array_equal(got.labels, ref.detect(g, preset="recommended",
+                                                         height_tolerance=None).labels)
+    np.testing.assert_array_equal(stream_labels(g, off), got.labels)
+
+
 def _stacked_edge_scan(n_rows: int, n_cols: int) -> np.ndarray:
     """Edge scenes (220 x 256 cells each) side by side and stacked into one continuous tall scan,
     far from the scanner's origin (x + 300 mm): its moments, summed over the whole grid, would

@@ -282,7 +282,7 @@ def test_stream_parts_switch_the_pass1_kernel_depth() -> None:
 def test_stream_spreads_the_min_step_decision(lead: int, kw: dict) -> None:
     """min_step="auto" ON (jittered profiles): the stream decides it over several pushes
     (SPEC "Streaming": rounds 1-3 of the selection 16 rows a push after row F + 255, so with
-    the default lag of 543 the value is known at push F + 255 + 47, not before), and it is the
+    the default lag of 550 the value is known at push F + 255 + 47, not before), and it is the
     value batch detection resolves (``res.params["min_step"]``); with a lag of 256 (no pushes
     to spare) the push of row F + 255 decides it. Labels and heights equal batch's."""
     grid = jittered(make_full_scan(lead + 620, 60, 41), 0.1, lead, 9)
@@ -293,8 +293,8 @@ def test_stream_spreads_the_min_step_decision(lead: int, kw: dict) -> None:
     step = want.params["min_step"]
     assert isinstance(step, float) and step > 0  # auto min_step is on here
     stream = ProfileStream(60, params=p)
-    rounds = 3 * 256 // 16 if stream.lag == 543 else 1  # pushes rounds 1-3 take
-    assert stream.lag in (543, 256)
+    rounds = 3 * 256 // 16 if stream.lag == 550 else 1  # pushes rounds 1-3 take
+    assert stream.lag in (550, 256)
     got = np.full(grid.shape[:2], 99, dtype=np.uint8)
     heights = np.full(grid.shape[:2], -1e300)
     for r in range(grid.shape[0]):
@@ -329,7 +329,7 @@ def make_outline_scan(h: int, w: int, seed: int) -> np.ndarray:
 @pytest.mark.parametrize("kw", [{}, {"edge_window": 9, "max_iterations": 4},
                                 {"edge_tolerance": 2.5, "edge_window": 5, "window": 9}])
 def test_stream_runs_the_edge_test_as_batch(kw: dict) -> None:
-    """The edge test in the stream (lag max(H + r, h) + (P - 1) r + h): labels, heights and
+    """The edge test in the stream (lag max(H + 2 r, h) + (P - 1) r + h): labels, heights and
     defects equal batch detection's on a scan whose outline carries burrs the edge test finds."""
     grid = make_outline_scan(420, 60, 3)
     p = miem.default_params("stream").replace(**kw)
@@ -340,7 +340,7 @@ def test_stream_runs_the_edge_test_as_batch(kw: dict) -> None:
     r, P, h = p.grid.edge_window // 2, p.angle.max_iterations, p.grid.window // 2
     R = max(p.angle.scales) + p.grid.max_gap + p.grid.max_reach  # min_step "auto"
     lag_h = P * R + p.grid.edge_extent + p.grid.max_gap + P * h
-    assert stream.lag == max(max(lag_h + r, h) + (P - 1) * r + h, 256)
+    assert stream.lag == max(max(lag_h + 2 * r, h) + (P - 1) * r + h, 256)
     defects: list = []
     got, heights = stream_both(stream, grid, defects)
     np.testing.assert_array_equal(got, want.labels)
@@ -456,23 +456,24 @@ def test_extreme_height_tolerance_labels_equal_and_heights_up_to_orientation() -
 
 def test_lag_formula() -> None:
     """L = P R + E + (P + 1) h with the height test (E = edge_extent + max_gap), P R + h without; with the edge test
-    max(H + r, h) + (P - 1) r + h, H = P R + E + P h (docs/SPEC.md)."""
+    max(H + 2 r, h) + (P - 1) r + h, H = P R + E + P h (docs/SPEC.md: step 9 r rows behind
+    the height passes, pass 1 r rows behind step 9)."""
     # the default: min_step "auto", so R = 1 + 2 (scales, max_gap) + 32 (max_reach)
-    assert ProfileStream(10).lag == (10 * 35 + 12 + 1 + 10 * 10 + 7) + 9 * 7 + 10 == 543
+    assert ProfileStream(10).lag == (10 * 35 + 12 + 1 + 10 * 10 + 2 * 7) + 9 * 7 + 10 == 550
     assert ProfileStream(10, edge_tolerance=None).lag == 10 * 35 + 12 + 1 + 11 * 10 == 473
     off = {"min_step": None, "z_resolution": None}  # neither waits for the 256 sample rows
-    assert ProfileStream(10, **off).lag == (10 * 3 + 12 + 1 + 10 * 10 + 7) + 9 * 7 + 10 == 223
+    assert ProfileStream(10, **off).lag == (10 * 3 + 12 + 1 + 10 * 10 + 2 * 7) + 9 * 7 + 10 == 230
     assert ProfileStream(10, preset="paper").lag == 10 * 2 + 10
     assert ProfileStream(10, max_iterations=3, window=7, edge_extent=4, edge_window=9,
-                         **off).lag == (3 * 3 + 4 + 1 + 3 * 3 + 4) + 2 * 4 + 3
+                         **off).lag == (3 * 3 + 4 + 1 + 3 * 3 + 2 * 4) + 2 * 4 + 3
     assert ProfileStream(10, height_tolerance=None, edge_tolerance=None, window=9,
                          **off).lag == 10 * 3 + 4
     # min_step "auto": at least the 256 rows it reads
     assert ProfileStream(10, max_iterations=3, window=7, edge_extent=4, edge_window=9).lag == \
-        max((3 * 35 + 4 + 3 * 3 + 4) + 2 * 4 + 3, 256) == 256
+        max((3 * 35 + 4 + 3 * 3 + 2 * 4) + 2 * 4 + 3, 256) == 256
     assert ProfileStream(10, preset="paper", min_step="auto").lag == max(10 * 34 + 10, 256)
     # z_resolution "auto" (measured on the same rows) too
-    assert ProfileStream(10, min_step=None).lag == max(223, 256)
+    assert ProfileStream(10, min_step=None).lag == max(230, 256)
     assert ProfileStream(10, preset="paper", z_resolution="auto").lag == 256
 
 

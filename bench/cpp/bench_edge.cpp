@@ -1,6 +1,7 @@
-// The edge test alone (cpp/src/edge_test.hpp edge_passes), for profiling it (callgrind
-// --toggle-collect='*edge_passes*') and timing it: the stages before it run once (or their
-// labels come from LABELS, written there on the first run), then edge_passes REPEATS times.
+// The edge test alone (cpp/src/stages.hpp edge_stage: step 9 and edge_passes), for profiling
+// it (callgrind --toggle-collect='*edge_passes*') and timing it: the stages before it run once
+// (or their labels and window classes come from LABELS, written there on the first run), then
+// edge_stage REPEATS times.
 //
 // Usage: miem_bench_edge GRID.f64 ROWS COLS REPEATS [LABELS] [THREADS]
 // GRID.f64 is ROWS x COLS x 3 doubles (numpy tofile); the recommended preset. Prints the best
@@ -13,7 +14,6 @@
 #include <vector>
 
 #include "miem/organized.hpp"
-#include "../../cpp/src/edge_test.hpp"
 #include "../../cpp/src/stages.hpp"
 
 namespace {
@@ -54,7 +54,9 @@ int main(int argc, char** argv) {
   if (!cache.empty()) {
     std::ifstream f(cache, std::ios::binary);
     if (f) {
+      ws.cls.resize(N);
       f.read(reinterpret_cast<char*>(labels.data()), static_cast<std::streamsize>(N));
+      f.read(reinterpret_cast<char*>(ws.cls.data()), static_cast<std::streamsize>(N));
       have = static_cast<bool>(f);
     }
   }
@@ -66,6 +68,7 @@ int main(int argc, char** argv) {
     if (!cache.empty()) {
       std::ofstream f(cache, std::ios::binary);
       f.write(reinterpret_cast<const char*>(labels.data()), static_cast<std::streamsize>(N));
+      f.write(reinterpret_cast<const char*>(ws.cls.data()), static_cast<std::streamsize>(N));
     }
   }
   const std::vector<std::uint8_t> before = labels;
@@ -74,10 +77,7 @@ int main(int argc, char** argv) {
   for (int rep = 0; rep < reps; ++rep) {
     labels = before;
     const double t0 = now();
-    const miem::detail::EdgeTol et =
-        miem::detail::edge_tol(eff.edge_k, eff.min_step, eff.z_resolution);
-    passes = miem::detail::edge_passes(g, labels.data(), p.edge_window, et, p.max_iterations,
-                                       threads, ws.edge_sums, ws.edge_flags);
+    passes = miem::detail::edge_stage(g, eff, labels.data(), eff.height_test(), ws);
     best = std::min(best, now() - t0);
   }
   unsigned long long sum = 0, nab0 = 0, nab = 0;

@@ -109,12 +109,7 @@ double run_stages(const miem::GridView<double>& g, const miem::DetectParams& p,
   const bool ht = eff.height_test();
   if (ht) miem::detail::height_test(g, eff, out.labels, out.height, ws);
   at(3);
-  if (eff.edge_test()) {
-    miem::detail::edge_passes(g, out.labels, eff.edge_window,
-                              miem::detail::edge_tol(eff.edge_k, eff.min_step, eff.z_resolution),
-                              eff.max_iterations,
-                              nt, ws.edge_sums, ws.edge_flags);
-  }
+  if (eff.edge_test()) miem::detail::edge_stage(g, eff, out.labels, ht, ws);
   at(4);
   (void)miem::detail::miem_plane(g, out.labels, nt, ws);
   at(5);

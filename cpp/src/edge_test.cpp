@@ -19,6 +19,7 @@
 #include "miem/plane.hpp"
 #include "parallel.hpp"
 #include "plane_math.hpp"
+#include "stages.hpp"
 #include "vector_clones.hpp"
 
 namespace miem::detail {
@@ -516,7 +517,8 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
                     std::ptrdiff_t H, std::ptrdiff_t C0, std::ptrdiff_t C1,
                     const EdgeImages& im, const Eigen::Vector3d& o, std::ptrdiff_t r, EdgeTol et,
                     const std::uint8_t* lab, const std::uint8_t* todo, std::uint8_t* mark,
-                    const EdgeBandCache* cache) {
+                    const EdgeBandCache* cache, EdgeJudgment judge) {
+  const bool fit_only = judge == EdgeJudgment::kFitsGround;  // step 9: any label, fits only
   const std::ptrdiff_t W = g.cols, f0 = im.f0, plane = im.plane;
   const double n_min = static_cast<double>(std::max<std::ptrdiff_t>(3, (r * r) / 2));
   const double* const S = im.data;
@@ -591,7 +593,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       nb = 0, ib = 0;
       for (std::ptrdiff_t c = cc; c < bend; ++c) {  // (branch-free)
         bcand[nb] = c;
-        nb += todo[c] & ((lrow[c] == kNormal) | (lrow[c] == kEdge));
+        nb += todo[c] & (fit_only | (lrow[c] == kNormal) | (lrow[c] == kEdge));
       }
       banded = false;
       if (rows_inside && bw >= 16) {
@@ -737,11 +739,11 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       for (int j = 0; j < m; ++j) {
         const std::ptrdiff_t i = cols[j];
         if (!use1[j]) {  // no side with support: none to fit or stand proud of; a fin?
-          mark[i] = is_fin(g, lab, grow, cols[j], r) ? 1 : 0;
+          mark[i] = !fit_only && is_fin(g, lab, grow, cols[j], r) ? 1 : 0;
           continue;
         }
-        if (fits[j] != 0.0) {
-          mark[i] = 0;
+        if (fits[j] != 0.0) {  // (a side with a return)
+          mark[i] = fit_only ? 1 : 0;
           continue;
         }
         keep[nf] = j;
@@ -830,6 +832,10 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
             fits_ground = fits_ground || !x.empty;
           }
         }
+        if (fit_only) {
+          mark[i] = fits_ground ? 1 : 0;
+          continue;
+        }
         bool abnormal = !fits && (edge_proud(sd, best, [](int s) { return kOpposite[s]; }) ||
                                   is_fin(g, lab, grow, cols[j], r) ||
                                   is_lip(g, lab, grow, cols[j], r, sd, best));
@@ -852,7 +858,7 @@ namespace {
 template <typename T>
 int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol et,
                int max_iterations, int num_threads, std::vector<double>& scratch,
-               CellBytes& flags) {
+               CellBytes& flags, const std::uint8_t* lines) {
   constexpr std::ptrdiff_t kTileRows = kEdgeTileRows, kTileCols = kEdgeTileCols;
   const std::ptrdiff_t H = g.rows, W = g.cols, N = H * W, r = window / 2;
   const std::ptrdiff_t ER = std::min(H, kTileRows + 2 * r), EC = std::min(W, kTileCols + 2 * r);
@@ -873,17 +879,13 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol e
   std::uint8_t* const todo = flags.data();
   std::uint8_t* const mark = todo + N;
   const int ntn = thread_count(num_threads, N);  // the per-cell scans
-  parallel_ranges(ntn, N, 64, [&](int, std::ptrdiff_t i0, std::ptrdiff_t i1) {
-    for (std::ptrdiff_t i = i0; i < i1; ++i) todo[i] = labels[i] == kNormal || labels[i] == kEdge;
-  });
-  std::vector<std::int64_t> added;  // a pass's new ABNORMAL cells
   // the tiles with a todo cell (the others are skipped: no scan of their cells), and a pass's
   // such tiles in order; a tile's marks are read only while it has its flag
   std::vector<std::uint8_t> tile_todo(static_cast<std::size_t>(tiles_r * tiles_c), 1);
-  std::vector<std::int64_t> active;
-  int passes = 0;
-  for (int it = 0; it < max_iterations; ++it) {
-    ++passes;
+  // One pass over the tiles with tile_todo: the verdicts (or, for step 9, the fits) of the
+  // todo cells into mark.
+  const auto judge_tiles = [&](EdgeJudgment judge) {
+    const bool any_label = judge == EdgeJudgment::kFitsGround;
 #pragma omp parallel for schedule(dynamic, 1) num_threads(nt) if (nt > 1)
     for (std::ptrdiff_t tile = 0; tile < tiles_r * tiles_c; ++tile) {
       if (!tile_todo[static_cast<std::size_t>(tile)]) continue;
@@ -903,7 +905,8 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol e
         std::fill(mark + rr * W + C0, mark + rr * W + C1, std::uint8_t{0});
         std::ptrdiff_t cc = C1 - 1;  // the row's last candidate (from the end: often C1 - 1)
         for (const std::ptrdiff_t i = rr * W; cc >= C0; --cc) {
-          if (todo[i + cc] && (labels[i + cc] == kNormal || labels[i + cc] == kEdge)) break;
+          const std::uint8_t l = labels[i + cc];
+          if (todo[i + cc] && (any_label || l == kNormal || l == kEdge)) break;
         }
         if (cc < C0) continue;
         if (rfirst < 0) rfirst = rr;
@@ -945,9 +948,49 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol e
       cache.clear();
       for (std::ptrdiff_t rr = rfirst; rr <= rlast; ++rr) {  // (rows without a candidate: none)
         edge_judge_row(g, rr, rr, H, C0, clast + 1, im, o, r, et, labels, todo + rr * W,
-                       mark + rr * W, &cache);
+                       mark + rr * W, &cache, judge);
       }
     }
+  };
+  if (lines != nullptr) {  // step 9: ABNORMAL cells beside a feature line that fit a clean side
+    std::fill(tile_todo.begin(), tile_todo.end(), std::uint8_t{0});
+    std::memset(todo, 0, static_cast<std::size_t>(N));
+    std::vector<std::int64_t> back;  // the candidates
+    for (std::ptrdiff_t i = 0; i < N; ++i) {
+      const void* next = std::memchr(labels + i, kAbnormal, static_cast<std::size_t>(N - i));
+      if (next == nullptr) break;  // (ABNORMAL cells are few: memchr skips the rest)
+      i = static_cast<const std::uint8_t*>(next) - labels;
+      const std::ptrdiff_t rr = i / W, cc = i % W;
+      bool near = false;
+      for (std::ptrdiff_t a = std::max<std::ptrdiff_t>(0, rr - 1); a <= std::min(H - 1, rr + 1);
+           ++a) {
+        for (std::ptrdiff_t b = std::max<std::ptrdiff_t>(0, cc - 1); b <= std::min(W - 1, cc + 1);
+             ++b) {
+          near = near || (lines[a * W + b] & kLine) != 0;
+        }
+      }
+      if (!near) continue;
+      todo[i] = 1;
+      tile_todo[static_cast<std::size_t>((rr / kTileRows) * tiles_c + cc / kTileCols)] = 1;
+      back.push_back(i);
+    }
+    if (!back.empty()) {
+      judge_tiles(EdgeJudgment::kFitsGround);
+      for (const std::int64_t i : back) {
+        if (mark[i]) labels[i] = kEdge;
+      }
+    }
+    std::fill(tile_todo.begin(), tile_todo.end(), std::uint8_t{1});
+  }
+  parallel_ranges(ntn, N, 64, [&](int, std::ptrdiff_t i0, std::ptrdiff_t i1) {
+    for (std::ptrdiff_t i = i0; i < i1; ++i) todo[i] = labels[i] == kNormal || labels[i] == kEdge;
+  });
+  std::vector<std::int64_t> added;  // a pass's new ABNORMAL cells
+  std::vector<std::int64_t> active;
+  int passes = 0;
+  for (int it = 0; it < max_iterations; ++it) {
+    ++passes;
+    judge_tiles(EdgeJudgment::kVerdict);
     // the flagged tiles' rows (unit u: row u % kTileRows of tile active[u / kTileRows]):
     // their todo cleared, their marks made ABNORMAL and collected (per thread, joined in order)
     active.clear();
@@ -1005,14 +1048,31 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol e
 template <typename T>
 int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol et,
                 int max_iterations, int num_threads, std::vector<double>& scratch,
-                CellBytes& flags) {
-  return run_passes(g, labels, window, et, max_iterations, num_threads, scratch, flags);
+                CellBytes& flags, const std::uint8_t* lines) {
+  return run_passes(g, labels, window, et, max_iterations, num_threads, scratch, flags, lines);
 }
 
+template <typename T>
+int edge_stage(const GridView<T>& g, const DetectParams& p, std::uint8_t* labels,
+               bool height_test, Workspace& ws) {
+  const std::size_t N = static_cast<std::size_t>(g.rows * g.cols);
+  if (!height_test) {  // step 9's feature lines: every EDGE cell
+    ws.cls.resize(N);
+    for (std::size_t i = 0; i < N; ++i) ws.cls[i] = labels[i] == kEdge ? kLine : 0;
+  }
+  return edge_passes(g, labels, p.edge_window, edge_tol(p.edge_k, p.min_step, p.z_resolution),
+                     p.max_iterations, p.num_threads, ws.edge_sums, ws.edge_flags,
+                     ws.cls.data());
+}
+
+template int edge_stage<float>(const GridView<float>&, const DetectParams&, std::uint8_t*, bool,
+                               Workspace&);
+template int edge_stage<double>(const GridView<double>&, const DetectParams&, std::uint8_t*,
+                                bool, Workspace&);
 template int edge_passes<float>(const GridView<float>&, std::uint8_t*, int, EdgeTol, int, int,
-                                std::vector<double>&, CellBytes&);
+                                std::vector<double>&, CellBytes&, const std::uint8_t*);
 template int edge_passes<double>(const GridView<double>&, std::uint8_t*, int, EdgeTol, int, int,
-                                 std::vector<double>&, CellBytes&);
+                                 std::vector<double>&, CellBytes&, const std::uint8_t*);
 
 #define MIEM_EDGE_ROWS(T)                                                                     \
   template void edge_image_row<T>(const GridView<T>&, std::ptrdiff_t, const std::uint8_t*,      \
@@ -1022,7 +1082,7 @@ template int edge_passes<double>(const GridView<double>&, std::uint8_t*, int, Ed
                                   std::ptrdiff_t, std::ptrdiff_t, std::ptrdiff_t,               \
                                   const EdgeImages&, const Eigen::Vector3d&, std::ptrdiff_t,    \
                                   EdgeTol, const std::uint8_t*, const std::uint8_t*,            \
-                                  std::uint8_t*, const EdgeBandCache*);
+                                  std::uint8_t*, const EdgeBandCache*, EdgeJudgment);
 MIEM_EDGE_ROWS(float)
 MIEM_EDGE_ROWS(double)
 #undef MIEM_EDGE_ROWS

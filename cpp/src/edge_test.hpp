@@ -30,14 +30,20 @@ inline EdgeTol edge_tol(double k, double min_step, double z_resolution) noexcept
 
 /// Runs edge passes on `labels` (H x W, row-major, as left by the height passes): candidate
 /// cells become ABNORMAL. `window` odd >= 3 (sub-window half-size window / 2), `et` the
-/// tolerance (et.k > 0 in rms units; edge_tol), at most `max_iterations` passes. Returns the
-/// number of passes run. The result does not depend on `num_threads`. `scratch` and `flags`
-/// are reused between calls (grown only when a grid needs more: no allocation for grids no
-/// larger than before).
+/// tolerance (et.k > 0 in rms units; edge_tol), at most `max_iterations` passes. `lines`
+/// (H x W, or null: no step 9): bit kLine at the feature-line EDGE cells, whose ABNORMAL
+/// neighbours that fit a clean side with a return become EDGE before pass 1 (SPEC step 9).
+/// Returns the number of passes run. The result does not depend on `num_threads`. `scratch`
+/// and `flags` are reused between calls (grown only when a grid needs more: no allocation for
+/// grids no larger than before).
 template <typename T>
 int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol et,
                 int max_iterations, int num_threads, std::vector<double>& scratch,
-                CellBytes& flags);
+                CellBytes& flags, const std::uint8_t* lines = nullptr);
+
+/// What edge_judge_row gives a cell: the pass's verdict (mark 1: it becomes ABNORMAL), or for
+/// step 9 whether it fits a clean sub-window that is not empty (mark 1: it does).
+enum class EdgeJudgment : std::uint8_t { kVerdict, kFitsGround };
 
 /// The edge test's integral images hold, per cell, these moments: n, x, y, z, xx, xy, xz, yy,
 /// yz, zz of the support (NORMAL cells, relative to the tile's origin) and the INVALID count.
@@ -87,7 +93,8 @@ struct EdgeBandCache {
 
 /// One edge pass's verdicts (SPEC "Edge test") on grid row rr, columns C0 .. C1 - 1 of one
 /// tile: each cell c with todo[c] and a NORMAL or EDGE label gets mark[c] = 1 when it becomes
-/// ABNORMAL, else 0 (other cells untouched). g holds at least the grid rows within r of rr
+/// ABNORMAL, else 0 (other cells untouched); with `judge` kFitsGround, each cell with todo[c]
+/// (any label) gets mark[c] = 1 when it fits a clean sub-window that is not empty. g holds at least the grid rows within r of rr
 /// (rows max(0, rr - r) .. min(H, rr + r + 1) - 1: a neighbourhood, or the whole grid), the
 /// cell's row being g's row `grow`; `lab` the labels at the start of the pass of g's cells
 /// (row-major, g.cols a row: the grid's width); todo and mark are rr's row. H: the grid's rows
@@ -99,6 +106,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
                     std::ptrdiff_t H, std::ptrdiff_t C0, std::ptrdiff_t C1,
                     const EdgeImages& im, const Eigen::Vector3d& o, std::ptrdiff_t r, EdgeTol et,
                     const std::uint8_t* lab, const std::uint8_t* todo, std::uint8_t* mark,
-                    const EdgeBandCache* cache = nullptr);
+                    const EdgeBandCache* cache = nullptr,
+                    EdgeJudgment judge = EdgeJudgment::kVerdict);
 
 }  // namespace miem::detail

@@ -7,7 +7,6 @@
 #include <stdexcept>
 #include <string>
 
-#include "edge_test.hpp"
 #include "stages.hpp"
 
 namespace miem {
@@ -59,12 +58,7 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
     const bool keep = p.height_mode == HeightMode::kAll;
     summary.iterations += detail::height_test(g, p, labels, keep ? height : nullptr, ws_);
   }
-  const bool edge_test = p.edge_test();
-  if (edge_test) {  // SPEC "Edge test": after the height passes
-    const detail::EdgeTol et = detail::edge_tol(p.edge_k, p.min_step, p.z_resolution);
-    summary.iterations += detail::edge_passes(g, labels, p.edge_window, et, p.max_iterations,
-                                              p.num_threads, ws_.edge_sums, ws_.edge_flags);
-  }
+  if (p.edge_test()) summary.iterations += detail::edge_stage(g, p, labels, height_test, ws_);
   summary.plane = detail::miem_plane(g, labels, p.num_threads, ws_);
   // heights() re-fits the windows the edge test changed and reuses the height test's others
   detail::heights(g, p, labels, height, height_test, ws_);

@@ -3,6 +3,7 @@
 //   angle_passes.cpp  finiteness, pass 1, theta0 "auto", later passes (pass1_row.cpp: pass
 //                     1's row kernel, which ProfileStream runs too with min_step)
 //   height_test.cpp   compact EDGE groups and the height passes (beyond the paper)
+//   edge_test.cpp     the edge test: step 9, then the edge passes (beyond the paper)
 //   miem_plane.cpp    the MIEM plane of the non-ABNORMAL points
 //   heights.cpp       the local height of each point over its window plane
 //   defects.cpp       8-connected ABNORMAL groups and their summaries
@@ -95,6 +96,13 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
 
 /// The MIEM plane: eigen fit of the finite, non-ABNORMAL cells (row moments merged in a fixed
 /// tree order, so the same for any thread count).
+/// SPEC "Edge test", after the height passes: step 9 beside the feature lines (the kLine cells
+/// of ws.cls as the height test leaves it when `height_test`, else every EDGE cell), then the
+/// edge passes. Returns the number of passes.
+template <typename T>
+int edge_stage(const GridView<T>& g, const DetectParams& p, std::uint8_t* labels,
+               bool height_test, Workspace& ws);
+
 template <typename T>
 std::optional<Plane> miem_plane(const GridView<T>& g, const std::uint8_t* labels,
                                 int num_threads, Workspace& ws);

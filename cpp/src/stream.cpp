@@ -252,10 +252,11 @@ long long stream_lag(const DetectParams& p) noexcept {
       P * reach + (p.height_test() ? p.edge_extent + p.max_gap + P * h : 0);
   long long lag = lagh + h;
   if (p.edge_test()) {
-    // edge pass 1 runs r rows behind the height passes, once the rows within h are in (its
-    // removals mark the heights there stale); pass p r rows behind pass p - 1
+    // step 9 runs r rows behind the height passes, edge pass 1 r rows behind it, once the rows
+    // within h are in (its removals mark the heights there stale); pass p r rows behind pass
+    // p - 1
     const long long r = p.edge_window / 2;
-    lag = std::max(lagh + r, h) + (P - 1) * r + h;
+    lag = std::max(lagh + 2 * r, h) + (P - 1) * r + h;
   }
   // min_step or z_resolution "auto": nothing runs before the sample rows they read are in
   const bool sample = p.min_step_auto || p.z_resolution_auto;

@@ -44,8 +44,9 @@ void ProfileStream<T>::init_edges() {
   epass_.assign(static_cast<std::size_t>(ring_ * W), 0);
   etodo_.assign(static_cast<std::size_t>(ring_ * W), 0);
   etodo_row_.assign(static_cast<std::size_t>(ring_), 0);
-  // pass 1 has two sets (even and odd bands: the next band's images are built alongside)
-  const std::ptrdiff_t sets = static_cast<std::ptrdiff_t>(passes_) + 1;
+  // pass 1 has two sets (even and odd bands: the next band's images are built alongside), and
+  // step 9 (pass 0 here) one after pass passes_'s
+  const std::ptrdiff_t sets = static_cast<std::ptrdiff_t>(passes_) + 2;
   eimg_.assign(static_cast<std::size_t>(sets * etiles_ * eper_), 0.0);
   eimg_band_.assign(static_cast<std::size_t>(sets * etiles_), -1);
   eimg_next_.assign(static_cast<std::size_t>(sets * etiles_), 0);
@@ -134,7 +135,8 @@ const double* ProfileStream<T>::edge_images(int pass, std::ptrdiff_t t, std::int
   const std::ptrdiff_t f0 = std::max<std::ptrdiff_t>(0, C0 - r), f1 = std::min(W, C1 + r);
   const std::ptrdiff_t EC = f1 - f0, L = estride_, plane = ek_ * L;
   const std::int64_t e0 = std::max<std::int64_t>(0, band * kTR - r);
-  const std::ptrdiff_t id = (pass == 1 ? (band & 1) : pass) * etiles_ + t;
+  const std::ptrdiff_t set = pass == 0 ? passes_ + 1 : (pass == 1 ? (band & 1) : pass);
+  const std::ptrdiff_t id = set * etiles_ + t;
   double* img = eimg_.data() + id * eper_;
   double* col = img + kQ * plane;
   const double* org = eorg_.data() + ((band % ebands_) * etiles_ + t) * 3;
@@ -147,28 +149,32 @@ const double* ProfileStream<T>::edge_images(int pass, std::ptrdiff_t t, std::int
     next = e0;
   }
   for (; next < upto; ++next) {  // add grid row `next`: image row next + 1
-    edge_labels(next, pass, f0, f1, labs);
+    edge_labels(next, std::max(pass, 1), f0, f1, labs);  // (step 9 changes no image)
     double* const out = next + 1 < from ? nullptr : img + ((next + 1 - e0) % ek_) * L;
     detail::edge_image_row(row_view(next), 0, labs, f0, f1, o, col, EC, out, plane);
   }
   return img;
 }
 
-// Edge pass `pass` on `row`: tile by tile, the images brought down to the row's judgment
-// (started at the tile's first image row when the pass first needs them), the verdicts, then
-// the removals.
+// Edge pass `pass` on `row` (pass 0: step 9, the ABNORMAL cells beside a feature line that
+// fit a clean side with a return back to EDGE): tile by tile, the images brought down to the
+// row's judgment (started at the tile's first image row when the pass first needs them), the
+// verdicts, then the removals.
 template <typename T>
 void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
   const std::ptrdiff_t W = width_, s = slot(row), r = params_.edge_window / 2;
   const std::uint8_t bit = static_cast<std::uint8_t>(1u << (pass & 1));
   const std::uint8_t* todo = eones_.data();
+  const std::int64_t H = pushed_;
   if (pass > 1) {
     if (!(etodo_row_[static_cast<std::size_t>(s)] & bit)) return;
     const std::uint8_t* et = etodo_.data() + s * W;
     for (std::ptrdiff_t c = 0; c < W; ++c) etd_[static_cast<std::size_t>(c)] = (et[c] & bit) != 0;
     todo = etd_.data();
+  } else if (pass == 0) {
+    if (!restore_candidates(row)) return;
+    todo = etd_.data();
   }
-  const std::int64_t H = pushed_;
   const std::int64_t band = row / kTR, R0 = band * kTR;
   const std::int64_t e0 = std::max<std::int64_t>(0, R0 - r);
   const std::ptrdiff_t b = static_cast<std::ptrdiff_t>(band % ebands_);
@@ -189,7 +195,7 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
     const std::ptrdiff_t C0 = t * kTC, C1 = std::min(W, C0 + kTC);
     bool any = false;
     for (std::ptrdiff_t c = C0; c < C1 && !any; ++c) {
-      any = todo[c] && (lab[c] == kNormal || lab[c] == kEdge);
+      any = todo[c] && (pass == 0 || lab[c] == kNormal || lab[c] == kEdge);
     }
     if (any) tiles[n_tiles++] = t;
   }
@@ -223,7 +229,9 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
     // at 3200 points, read back r + 1 pushes later from beyond the L2 cache; without it a
     // default push took about 8 % less CPU time, though it runs more instructions)
     const detail::EdgeTol et = detail::edge_tol(params_.edge_k, min_step_, jparams_.z_resolution);
-    detail::edge_judge_row(gw, grow, row, H, C0, C1, im, o, r, et, win, todo, mark);
+    detail::edge_judge_row(gw, grow, row, H, C0, C1, im, o, r, et, win, todo, mark, nullptr,
+                           pass == 0 ? detail::EdgeJudgment::kFitsGround
+                                     : detail::EdgeJudgment::kVerdict);
   };
   const std::ptrdiff_t n_work = n_tiles + (next_band ? etiles_ : 0);
   detail::parallel_items(threads_, n_work, tile);
@@ -238,6 +246,13 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
     etodo_row_[static_cast<std::size_t>(s)] &= static_cast<std::uint8_t>(~bit);
   }
   if (!any_mark) return;
+  if (pass == 0) {  // step 9: back to EDGE (no image, height or later candidate changes)
+    std::uint8_t* labs = labels_.data() + s * W;
+    for (std::ptrdiff_t c = 0; c < W; ++c) {
+      if (todo[c] && mark[c]) labs[c] = kEdge;
+    }
+    return;
+  }
   const std::uint8_t nbit = static_cast<std::uint8_t>(1u << ((pass + 1) & 1));
   const std::int64_t a1 = std::min<std::int64_t>(H - 1, row + r);
   std::uint8_t* labs = labels_.data() + s * W;
@@ -265,16 +280,47 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
   }
 }
 
+// Step 9's candidates of `row` into etd_: its ABNORMAL cells with a feature-line EDGE cell
+// among their 8 neighbours (the height test's kLine; without it, EDGE after the angle passes).
+// Returns whether there is one.
+template <typename T>
+bool ProfileStream<T>::restore_candidates(std::int64_t row) noexcept {
+  const std::ptrdiff_t W = width_;
+  const std::uint8_t* lab = labels_.data() + slot(row) * W;
+  std::uint8_t* td = etd_.data();
+  const std::int64_t a0 = std::max<std::int64_t>(0, row - 1);
+  const std::int64_t a1 = std::min<std::int64_t>(pushed_ - 1, row + 1);
+  bool any = false;
+  for (std::ptrdiff_t c = 0; c < W; ++c) {
+    bool near = false;
+    if (lab[c] == kAbnormal) {
+      const std::ptrdiff_t b0 = std::max<std::ptrdiff_t>(0, c - 1), b1 = std::min(W - 1, c + 1);
+      for (std::int64_t a = a0; a <= a1 && !near; ++a) {
+        for (std::ptrdiff_t b = b0; b <= b1; ++b) near = near || feature_line(a, b);
+      }
+    }
+    td[c] = near ? 1 : 0;
+    any = any || near;
+  }
+  return any;
+}
+
 // Runs the edge passes as far as their inputs are final (all rows at the end of the stream).
 template <typename T>
 void ProfileStream<T>::run_edges(bool to_end) noexcept {
   const std::int64_t last = pushed_ - 1, r = params_.edge_window / 2;
   const std::int64_t ready = to_end ? last : last - lagh_;  // height-final through this row
+  // step 9 (pass 0): the height passes final r rows below (its sub-windows; the feature lines
+  // of the rows beside it are final before)
+  for (std::int64_t& y = enext_[0]; y <= last; ++y) {
+    if (!to_end && y + r > ready) break;
+    edge_row(y, 0);
+  }
   for (std::int64_t& y = enext_[1]; y <= last; ++y) {
     if (!to_end) {
-      // the height passes final r rows below; the rows within h pushed (a removal marks
-      // their heights stale)
-      if (y + r > ready || y + half_ > last) break;
+      // step 9 done r rows below (the labels a judgment reads); the rows within h pushed (a
+      // removal marks their heights stale)
+      if (y + r >= enext_[0] || y + half_ > last) break;
     }
     edge_row(y, 1);
   }

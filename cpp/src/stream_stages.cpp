@@ -224,6 +224,14 @@ void ProfileStream<T>::compact_row(std::int64_t row) noexcept {
   }
 }
 
+// A feature-line EDGE cell (edge test step 9): EDGE of a group that is not compact, or
+// without the height test EDGE after the angle passes.
+template <typename T>
+bool ProfileStream<T>::feature_line(std::int64_t row, std::ptrdiff_t col) const noexcept {
+  const std::uint8_t b = hm_[static_cast<std::size_t>(slot(row) * width_ + col)];
+  return (b & (htest_ ? kLine : kSEdge)) != 0;
+}
+
 // Adds (sign 1) or removes (sign -1) the window classes of row `in` to the column sums of `set`;
 // with `out` >= 0, adds row `in` and removes row `out` in one pass (move_row_moments).
 template <typename T>
@@ -574,7 +582,8 @@ bool ProfileStream<T>::final_window_plane(std::int64_t row, std::ptrdiff_t col,
   template void ProfileStream<T>::run_stages(bool) noexcept;                               \
   template bool ProfileStream<T>::final_window_plane(std::int64_t, std::ptrdiff_t,          \
                                                      Plane*) noexcept;                       \
-  template void ProfileStream<T>::mark_stale(std::int64_t, std::ptrdiff_t) noexcept;
+  template void ProfileStream<T>::mark_stale(std::int64_t, std::ptrdiff_t) noexcept;         \
+  template bool ProfileStream<T>::feature_line(std::int64_t, std::ptrdiff_t) const noexcept;
 MIEM_STREAM_STAGES(float)
 MIEM_STREAM_STAGES(double)
 #undef MIEM_STREAM_STAGES

@@ -227,8 +227,9 @@ std::vector<Named> param_sets() {
   // Several edge-test tiles across (128 columns each, the last one partial and empty), the
   // outline 4 columns into the third tile: sub-windows read the tile's images r columns left.
   v.push_back({"edge_wide_tiles", miem::stream_default_params(), 300, 392, true});
-  // A short lag (H + r < h): tiles whose origin (first finite cell) lies deep in their band.
+  // A short lag (H + 2 r < h): tiles whose origin (first finite cell) lies deep in their band.
   p.max_iterations = 2;
+  p.edge_window = 5;
   v.push_back({"edge_late_origin", p, 330, 300, true, true});
 
   p = miem::paper_params();
@@ -365,9 +366,9 @@ INSTANTIATE_TEST_SUITE_P(Params, StreamEqualsBatch, ::testing::ValuesIn(param_se
                          [](const auto& info) { return std::string(info.param.name); });
 
 // L = P R + E + (P + 1) h with the height test, P R + h without; with the edge test
-// L = max(H + r, h) + (P - 1) r + h, H = P R + E + P h (P R without the height test): edge
-// pass 1 runs r rows behind the height passes (and h rows behind the newest), pass p r rows
-// behind pass p - 1 (docs/SPEC.md "Streaming").
+// L = max(H + 2 r, h) + (P - 1) r + h, H = P R + E + P h (P R without the height test): the
+// edge test's step 9 runs r rows behind the height passes, edge pass 1 r rows behind it (and h
+// rows behind the newest), pass p r rows behind pass p - 1 (docs/SPEC.md "Streaming").
 // A push's column work (pass 1's filter by column range or its row kernel by blocks of 256
 // columns; the edge passes' tile columns, height pass 1's strips and its column sums, 128
 // columns each) is split among num_threads threads: the same labels, heights and defects as
@@ -408,29 +409,29 @@ TEST(Stream, LagFormula) {
   EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 10 * (1 + 1 + 5) + 10);
   // The default: with the edge test (r = 15 / 2) and min_step "auto" (R = 1 + 2 + 32: its
   // value is not known before 256 rows are in; E = edge_extent 12 + max_gap 1: EDGE groups
-  // link across a dropout): 483 + 7 + 9 * 7 + 10.
-  EXPECT_EQ(miem::ProfileStream<>(16).lag(), (10 * 35 + 12 + 1 + 10 * 10 + 7) + 9 * 7 + 10);
-  EXPECT_EQ(miem::stream_lag(miem::stream_default_params()), 543);
+  // link across a dropout): 463 + 2 * 7 + 9 * 7 + 10.
+  EXPECT_EQ(miem::ProfileStream<>(16).lag(), (10 * 35 + 12 + 1 + 10 * 10 + 2 * 7) + 9 * 7 + 10);
+  EXPECT_EQ(miem::stream_lag(miem::stream_default_params()), 550);
   p = miem::stream_default_params();
   p.min_step_auto = false;  // min_step off: R = 3, but z_resolution "auto" waits for 256 rows
   EXPECT_EQ(miem::stream_lag(p), 256);
   p.z_resolution_auto = false;  // neither: no wait
-  EXPECT_EQ(miem::stream_lag(p), (10 * 3 + 12 + 1 + 10 * 10 + 7) + 9 * 7 + 10);
+  EXPECT_EQ(miem::stream_lag(p), (10 * 3 + 12 + 1 + 10 * 10 + 2 * 7) + 9 * 7 + 10);
   p.max_iterations = 3;
   p.window = 7;
   p.edge_window = 9;
-  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), (3 * 3 + 12 + 1 + 3 * 3 + 4) + 2 * 4 + 3);
+  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), (3 * 3 + 12 + 1 + 3 * 3 + 2 * 4) + 2 * 4 + 3);
   p.min_step_auto = true;  // max(L, 256): nothing runs before the 256 rows min_step reads
   EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 256);
   p.max_reach = 200;
-  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), (3 * 203 + 12 + 1 + 3 * 3 + 4) + 2 * 4 + 3);
+  EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), (3 * 203 + 12 + 1 + 3 * 3 + 2 * 4) + 2 * 4 + 3);
   p.min_step_auto = false;
   miem::DetectParams q = miem::paper_params();  // the edge test without the height test
   q.edge_k = 3.0;
-  q.max_iterations = 40;  // H + r = 40 * 2 + 7
-  EXPECT_EQ(miem::ProfileStream<>(16, q).lag(), 87 + 39 * 7 + 10);
+  q.max_iterations = 40;  // H + 2 r = 40 * 2 + 2 * 7
+  EXPECT_EQ(miem::ProfileStream<>(16, q).lag(), 94 + 39 * 7 + 10);
   q.max_iterations = 1;
-  q.edge_window = 3;  // H + r = 2 + 1 < h = 10: the rows within h of a removal must be in
+  q.edge_window = 3;  // H + 2 r = 2 + 2 < h = 10: the rows within h of a removal must be in
   EXPECT_EQ(miem::ProfileStream<>(16, q).lag(), 10 + 0 + 10);
   p.edge_k = 0.0;  // the edge test off: P R + E + (P + 1) h
   EXPECT_EQ(miem::ProfileStream<>(16, p).lag(), 3 * 3 + 12 + 1 + 4 * 3);

@@ -1425,6 +1425,19 @@ def _edge_pass(
     tile (each tile's sums over the tile and ``r`` cells around it, from its own origin);
     ``floor`` the least tolerance (``min_step / 2``, ``1.5 z_resolution``: step 3)."""
     cells = candidates & ((labels == NORMAL) | (labels == EDGE))
+    return _tiled(grid, labels, cells, window, lambda g, lab, sel, r, origin: _edge_verdicts(
+        g, lab, sel, r, k, origin, floor))
+
+
+def _tiled(
+    grid: NDArray[np.float64],
+    labels: NDArray[np.uint8],
+    cells: NDArray[np.bool_],
+    window: int,
+    verdicts: Any,
+) -> NDArray[np.bool_]:
+    """``verdicts(grid, labels, cells, r, origin)`` of the ``cells``, tile by tile (SPEC "Edge
+    test" step 3: each tile's sums over the tile and ``r`` cells around it, from its origin)."""
     out = np.zeros_like(cells)
     hh, ww = cells.shape
     r = window // 2
@@ -1439,9 +1452,27 @@ def _edge_pass(
             e0, e1, f0, f1 = max(0, t0 - r), min(hh, t1 + r), max(0, u0 - r), min(ww, u1 + r)
             sel = np.zeros((e1 - e0, f1 - f0), dtype=bool)
             sel[t0 - e0:t1 - e0, u0 - f0:u1 - f0] = cells[t0:t1, u0:u1]
-            lab = labels[e0:e1, f0:f1]
-            part = _edge_verdicts(grid[e0:e1, f0:f1], lab, sel, r, k, origin, floor)
-            out[e0:e1, f0:f1] |= part
+            out[e0:e1, f0:f1] |= verdicts(grid[e0:e1, f0:f1], labels[e0:e1, f0:f1], sel, r,
+                                          origin)
+    return out
+
+
+def _fits_ground(
+    grid: NDArray[np.float64],
+    labels: NDArray[np.uint8],
+    cells: NDArray[np.bool_],
+    r: int,
+    k: float,
+    origin: NDArray[np.float64],
+    floor: float = 0.0,
+) -> NDArray[np.bool_]:
+    """The cells of ``cells`` that fit a clean sub-window that is not empty (SPEC "Edge test"
+    steps 2-4; step 9's verdict)."""
+    out = np.zeros_like(cells)
+    h, rms, spread, valid, nrm, _, empty = _side_fits(
+        grid, labels == NORMAL, labels == INVALID, cells, r, origin)
+    _, clean, tol = _clean_sides(rms, spread, valid, nrm, k, floor)
+    out[cells] = (clean & ~(np.abs(h) > tol) & ~empty).any(axis=0)
     return out
 
 
@@ -1526,20 +1557,29 @@ def edge_test(
     max_iterations: int,
     min_step: float | None = None,
     z_resolution: float | None = None,
+    lines: NDArray[np.bool_] | None = None,
 ) -> tuple[NDArray[np.uint8], int]:
     """Edge passes on top of the angle and height passes (SPEC "Edge test").
 
     ``labels`` (H, W) are those after the height passes; ``min_step`` and ``z_resolution`` the
     ones in use (None: off; no sub-window's tolerance is below ``min_step / 2`` nor below
-    ``1.5 z_resolution``, step 3); returns the new labels and the number of edge passes run.
+    ``1.5 z_resolution``, step 3); ``lines`` the feature-line EDGE cells (step 9: the ABNORMAL
+    cells beside them that fit a clean side with a return become EDGE before pass 1; None:
+    no such step); returns the new labels and the number of edge passes run.
     """
     floor = max(0.5 * min_step if min_step is not None and min_step > 0 else 0.0,
                 _Z_RESOLUTION_FACTOR * z_resolution
                 if z_resolution is not None and z_resolution > 0 else 0.0)
     labels = labels.copy()
-    todo = (labels == NORMAL) | (labels == EDGE)
     passes = 0
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        if lines is not None:  # step 9
+            near = _box_count(lines, 3) > 0
+            back = _tiled(grid, labels, near & (labels == ABNORMAL), window,
+                          lambda g, lab, sel, r, origin: _fits_ground(
+                              g, lab, sel, r, tolerance, origin, floor))
+            labels[back] = EDGE
+        todo = (labels == NORMAL) | (labels == EDGE)
         for _ in range(max_iterations):
             passes += 1
             new = _edge_pass(grid, labels, todo, window, tolerance, floor)
@@ -1840,8 +1880,14 @@ def detect(
                     break
 
     if edge_k is not None:  # SPEC "Edge test": after the height passes
+        # step 9's feature lines: the EDGE groups that are not compact (every EDGE cell
+        # without the height test; the height passes change no feature-line cell)
+        lines = labels == EDGE
+        if tolerance is not None:
+            lines &= ~_compact_edges(lines, extent, bridge, gap)
         labels, edge_passes = edge_test(g, labels, window=edge_win, tolerance=float(edge_k),
-                                        max_iterations=iters, min_step=step, z_resolution=zres)
+                                        max_iterations=iters, min_step=step, z_resolution=zres,
+                                        lines=lines)
         passes += edge_passes
         abnormal = labels == ABNORMAL
 

@@ -91,16 +91,17 @@ class ProfileStream:
     The lag (docs/SPEC.md "Streaming") is::
 
         L = P R + E + (P + 1) h            (height test on;  L = P R + h without it)
-        L = max(H + r, h) + (P - 1) r + h  (with the edge test; H = P R + E + P h, or P R
-                                            without the height test)
+        L = max(H + 2 r, h) + (P - 1) r + h  (with the edge test; H = P R + E + P h, or P R
+                                             without the height test)
         L = max(L, 256)                    (with min_step or z_resolution "auto")
 
     with ``R = max(scales) + max_gap`` (``+ max_reach`` with ``min_step``, a length or
     ``"auto"``) the rows one angle judgment reads, ``P = max_iterations``,
     ``E = edge_extent + max_gap`` (the rows that decide whether an EDGE group is compact),
-    ``h = window // 2`` and ``r = edge_window // 2`` (each edge pass runs row by row, ``r``
-    profiles behind the one before): (10 * 35 + 13 + 10 * 10 + 7) + 9 * 7 + 10 = 543 profiles
-    with the defaults, 256 with ``min_step=None`` (223 with ``z_resolution=None`` too),
+    ``h = window // 2`` and ``r = edge_window // 2`` (the edge test's step 9 runs row by row
+    ``r`` profiles behind the height passes, each edge pass ``r`` profiles behind the one
+    before): (10 * 35 + 13 + 10 * 10 + 2 * 7) + 9 * 7 + 10 = 550 profiles
+    with the defaults, 256 with ``min_step=None`` (230 with ``z_resolution=None`` too),
     10 * 2 + 10 = 30 with ``preset="paper"``.
     ``min_step="auto"`` is decided on the 256 profiles from the first one with a finite point
     (docs/SPEC.md "min_step='auto'"), the value :func:`miem.detect` resolves on the same rows:
@@ -158,7 +159,7 @@ class ProfileStream:
     ...         print(done.row, hit, done.heights[hit])
     10 [30] [3.]
     >>> stream.lag, len(stream.flush())              # the last `lag` rows
-    (543, 543)
+    (550, 550)
     """
 
     def __init__(

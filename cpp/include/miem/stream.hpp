@@ -87,11 +87,12 @@ DetectParams stream_default_params();
 /// back final), with R = max(scales) + max_gap (+ max_reach with min_step, given or "auto"),
 /// h = window / 2, P = max_iterations, E = edge_extent + max_gap, r = edge_window / 2:
 ///     L = P R + E + (P + 1) h   with the height test,   L = P R + h   without;
-///     L = max(H + r, h) + (P - 1) r + h   with the edge test, H = P R + E + P h (P R without
-///         the height test): each edge pass runs row by row, r rows behind the one before;
+///     L = max(H + 2 r, h) + (P - 1) r + h   with the edge test, H = P R + E + P h (P R without
+///         the height test): its step 9 runs row by row r rows behind the height passes, and
+///         each edge pass r rows behind the one before;
 ///     L = max(L, 256)   with min_step_auto or z_resolution_auto (the rows they are decided
 ///                       from must be in).
-/// Defaults: (10 * 35 + 13 + 10 * 10 + 7) + 9 * 7 + 10 = 543 (256 with min_step off, 223 with
+/// Defaults: (10 * 35 + 13 + 10 * 10 + 2 * 7) + 9 * 7 + 10 = 550 (256 with min_step off, 230 with
 /// z_resolution off too).
 /// Assumes valid parameters.
 long long stream_lag(const DetectParams& params) noexcept;
@@ -127,8 +128,8 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 ///     1-3 visit the 256 rows again 16 a push (48 pushes at the defaults), then the waiting
 ///     pushes' stages catch up, at least 3 rows a push, by the push that hands back the first
 ///     of those rows (docs/SPEC.md "Streaming"): no push carries the whole decision.
-/// So row i is final once row i + L has arrived, L = stream_lag(params) (543 profiles with
-/// the defaults, 256 with min_step off (223 with z_resolution off too), 473 without the edge
+/// So row i is final once row i + L has arrived, L = stream_lag(params) (550 profiles with
+/// the defaults, 256 with min_step off (230 with z_resolution off too), 473 without the edge
 /// test; 20 + 10 with preset
 /// "paper"). Each cell keeps the
 /// pass that removed it (angle, height, edge), so a judgment at pass p sees exactly the cells of pass p - 1 even where rows around it have run
@@ -265,6 +266,8 @@ class ProfileStream {
   void edge_push_row(std::int64_t row) noexcept;
   void run_edges(bool to_end) noexcept;
   void edge_row(std::int64_t row, int pass) noexcept;
+  bool restore_candidates(std::int64_t row) noexcept;
+  bool feature_line(std::int64_t row, std::ptrdiff_t col) const noexcept;
   const double* edge_images(int pass, std::ptrdiff_t tile, std::int64_t band,
                             std::int64_t upto, std::int64_t from, std::uint8_t* labs) noexcept;
   void edge_labels(std::int64_t row, int pass, std::ptrdiff_t c0, std::ptrdiff_t c1,
@@ -389,7 +392,7 @@ class ProfileStream {
   std::ptrdiff_t etiles_ = 0, ek_ = 0, estride_ = 0, eper_ = 0, ebands_ = 0;
   std::vector<double> eimg_;
   std::vector<std::int64_t> eimg_band_, eimg_next_;
-  std::vector<std::int64_t> enext_;      // [p]: next row of edge pass p (1..passes_)
+  std::vector<std::int64_t> enext_;      // [p]: next row of edge pass p (1..passes_; 0: step 9)
   std::vector<double> eorg_;             // per (band mod ebands_, tile column): the origin
   std::vector<std::uint8_t> eorg_ok_;    // ... found
   std::vector<std::ptrdiff_t> eorg_missing_;  // per band slot: tiles without an origin yet
