@@ -961,15 +961,10 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol e
       if (next == nullptr) break;  // (ABNORMAL cells are few: memchr skips the rest)
       i = static_cast<const std::uint8_t*>(next) - labels;
       const std::ptrdiff_t rr = i / W, cc = i % W;
-      bool near = false;
-      for (std::ptrdiff_t a = std::max<std::ptrdiff_t>(0, rr - 1); a <= std::min(H - 1, rr + 1);
-           ++a) {
-        for (std::ptrdiff_t b = std::max<std::ptrdiff_t>(0, cc - 1); b <= std::min(W - 1, cc + 1);
-             ++b) {
-          near = near || (lines[a * W + b] & kLine) != 0;
-        }
-      }
-      if (!near) continue;
+      const auto line = [&](std::ptrdiff_t a, std::ptrdiff_t b) {
+        return (lines[a * W + b] & kLine) != 0;
+      };
+      if (!beside_line(line, rr, cc, H, W)) continue;
       todo[i] = 1;
       tile_todo[static_cast<std::size_t>((rr / kTileRows) * tiles_c + cc / kTileCols)] = 1;
       back.push_back(i);

@@ -41,6 +41,19 @@ int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol 
                 int max_iterations, int num_threads, std::vector<double>& scratch,
                 CellBytes& flags, const std::uint8_t* lines = nullptr);
 
+/// Step 9's candidates: does cell (r, c) of an H x W grid have a feature-line cell (line(a, b)
+/// true; the cell itself, ABNORMAL, is none) among its 8 neighbours?
+template <typename Line>
+bool beside_line(const Line& line, std::int64_t r, std::ptrdiff_t c, std::int64_t H,
+                 std::ptrdiff_t W) {
+  for (std::int64_t a = std::max<std::int64_t>(0, r - 1); a <= std::min(H - 1, r + 1); ++a) {
+    for (std::ptrdiff_t b = std::max<std::ptrdiff_t>(0, c - 1); b <= std::min(W - 1, c + 1); ++b) {
+      if (line(a, b)) return true;
+    }
+  }
+  return false;
+}
+
 /// What edge_judge_row gives a cell: the pass's verdict (mark 1: it becomes ABNORMAL), or for
 /// step 9 whether it fits a clean sub-window that is not empty (mark 1: it does).
 enum class EdgeJudgment : std::uint8_t { kVerdict, kFitsGround };

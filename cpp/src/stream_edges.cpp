@@ -186,7 +186,8 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
   const GridView<T> gw{xyz_.data() + slot(a0) * W, static_cast<std::ptrdiff_t>(upto - a0), W, W,
                        1, phys_ * W};
   std::uint8_t* const win = elab_row_.data();
-  for (std::int64_t a = a0; a < upto; ++a) edge_labels(a, pass, 0, W, win + (a - a0) * W);
+  const int seen = std::max(pass, 1);  // (step 9 judges the labels before pass 1 too)
+  for (std::int64_t a = a0; a < upto; ++a) edge_labels(a, seen, 0, W, win + (a - a0) * W);
   const std::uint8_t* lab = win + grow * W;
   std::uint8_t* mark = emark_.data();
   std::ptrdiff_t* tiles = etile_list_.data();
@@ -288,17 +289,10 @@ bool ProfileStream<T>::restore_candidates(std::int64_t row) noexcept {
   const std::ptrdiff_t W = width_;
   const std::uint8_t* lab = labels_.data() + slot(row) * W;
   std::uint8_t* td = etd_.data();
-  const std::int64_t a0 = std::max<std::int64_t>(0, row - 1);
-  const std::int64_t a1 = std::min<std::int64_t>(pushed_ - 1, row + 1);
+  const auto line = [this](std::int64_t a, std::ptrdiff_t b) { return feature_line(a, b); };
   bool any = false;
   for (std::ptrdiff_t c = 0; c < W; ++c) {
-    bool near = false;
-    if (lab[c] == kAbnormal) {
-      const std::ptrdiff_t b0 = std::max<std::ptrdiff_t>(0, c - 1), b1 = std::min(W - 1, c + 1);
-      for (std::int64_t a = a0; a <= a1 && !near; ++a) {
-        for (std::ptrdiff_t b = b0; b <= b1; ++b) near = near || feature_line(a, b);
-      }
-    }
+    const bool near = lab[c] == kAbnormal && detail::beside_line(line, row, c, pushed_, W);
     td[c] = near ? 1 : 0;
     any = any || near;
   }
