@@ -1457,25 +1457,6 @@ def _tiled(
     return out
 
 
-def _fits_ground(
-    grid: NDArray[np.float64],
-    labels: NDArray[np.uint8],
-    cells: NDArray[np.bool_],
-    r: int,
-    k: float,
-    origin: NDArray[np.float64],
-    floor: float = 0.0,
-) -> NDArray[np.bool_]:
-    """The cells of ``cells`` that fit a clean sub-window that is not empty (SPEC "Edge test"
-    steps 2-4; step 9's verdict)."""
-    out = np.zeros_like(cells)
-    h, rms, spread, valid, nrm, _, empty = _side_fits(
-        grid, labels == NORMAL, labels == INVALID, cells, r, origin)
-    _, clean, tol = _clean_sides(rms, spread, valid, nrm, k, floor)
-    out[cells] = (clean & ~(np.abs(h) > tol) & ~empty).any(axis=0)
-    return out
-
-
 def _clean_sides(
     rms: NDArray[np.float64],
     spread: NDArray[np.float64],
@@ -1502,14 +1483,19 @@ def _edge_verdicts(
     k: float,
     origin: NDArray[np.float64],
     floor: float = 0.0,
+    fits_only: bool = False,
 ) -> NDArray[np.bool_]:
     """Steps 4-7 of the edge test for the cells of ``cells`` (sums relative to ``origin``;
-    ``floor``: the least tolerance, step 3)."""
+    ``floor``: the least tolerance, step 3); with ``fits_only``, step 9's verdict instead: the
+    cells that fit a clean sub-window that is not empty."""
     out = np.zeros_like(cells)
     h, rms, spread, valid, nrm, cen, empty = _side_fits(
         grid, labels == NORMAL, labels == INVALID, cells, r, origin)
     level, clean, tol = _clean_sides(rms, spread, valid, nrm, k, floor)
     fits = clean & ~(np.abs(h) > tol)
+    if fits_only:
+        out[cells] = (fits & ~empty).any(axis=0)
+        return out
     # P stands proud (outward, above the plane) of a clean side whose opposite side has no
     # support (an outline) or falls away below that plane (a convex edge, a wall top).
     proud = np.zeros(h.shape[1], dtype=bool)
@@ -1576,8 +1562,8 @@ def edge_test(
         if lines is not None:  # step 9
             near = _box_count(lines, 3) > 0
             back = _tiled(grid, labels, near & (labels == ABNORMAL), window,
-                          lambda g, lab, sel, r, origin: _fits_ground(
-                              g, lab, sel, r, tolerance, origin, floor))
+                          lambda g, lab, sel, r, origin: _edge_verdicts(
+                              g, lab, sel, r, tolerance, origin, floor, fits_only=True))
             labels[back] = EDGE
         todo = (labels == NORMAL) | (labels == EDGE)
         for _ in range(max_iterations):
