@@ -107,7 +107,8 @@ struct EdgeBandCache {
 /// One edge pass's verdicts (SPEC "Edge test") on grid row rr, columns C0 .. C1 - 1 of one
 /// tile: each cell c with todo[c] and a NORMAL or EDGE label gets mark[c] = 1 when it becomes
 /// ABNORMAL, else 0 (other cells untouched); with `judge` kFitsGround, each cell with todo[c]
-/// (any label) gets mark[c] = 1 when it fits a clean sub-window that is not empty. g holds at least the grid rows within r of rr
+/// (any label) gets mark[c] = 1 when it fits a clean sub-window that is not empty (step 9).
+/// g holds at least the grid rows within r of rr
 /// (rows max(0, rr - r) .. min(H, rr + r + 1) - 1: a neighbourhood, or the whole grid), the
 /// cell's row being g's row `grow`; `lab` the labels at the start of the pass of g's cells
 /// (row-major, g.cols a row: the grid's width); todo and mark are rr's row. H: the grid's rows

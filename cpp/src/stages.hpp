@@ -94,8 +94,6 @@ template <typename T>
 int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* labels,
                 double* height, Workspace& ws);
 
-/// The MIEM plane: eigen fit of the finite, non-ABNORMAL cells (row moments merged in a fixed
-/// tree order, so the same for any thread count).
 /// SPEC "Edge test", after the height passes: step 9 beside the feature lines (the kLine cells
 /// of ws.cls as the height test leaves it when `height_test`, else every EDGE cell), then the
 /// edge passes. Returns the number of passes.
@@ -103,6 +101,8 @@ template <typename T>
 int edge_stage(const GridView<T>& g, const DetectParams& p, std::uint8_t* labels,
                bool height_test, Workspace& ws);
 
+/// The MIEM plane: eigen fit of the finite, non-ABNORMAL cells (row moments merged in a fixed
+/// tree order, so the same for any thread count).
 template <typename T>
 std::optional<Plane> miem_plane(const GridView<T>& g, const std::uint8_t* labels,
                                 int num_threads, Workspace& ws);
