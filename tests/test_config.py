@@ -201,8 +201,8 @@ ALLOWED = {
                 "spacing", "edge_extent", "height_tolerance", "min_step_auto", "theta0_auto",
                 "scales", "max_gap", "max_reach", "window", "max_iterations", "edge_window",
                 "theta0", "min_group", "merge_distance",
-                # the other length resolved on the driver, as min_step
-                "z_resolution", "z_resolution_auto"},
+                # the other lengths resolved on the driver, as min_step
+                "z_resolution", "z_resolution_auto", "z_noise", "z_noise_auto"},
     "cli.py": set(),
 }
 

@@ -68,10 +68,12 @@ def test_default_is_the_recommended_preset_on_every_path() -> None:
     cs, cd = core.stream_default_params(), core.DetectParams()
     for name in ("theta0_deg", "scales", "height_k", "height_abs", "edge_extent", "window",
                  "max_iterations", "max_gap", "edge_k", "edge_window", "min_step_auto",
-                 "min_step", "max_reach", "z_resolution_auto", "z_resolution"):
+                 "min_step", "max_reach", "z_resolution_auto", "z_resolution", "z_noise_auto",
+                 "z_noise"):
         assert getattr(cs, name) == getattr(cd, name), name
     assert (cs.min_step_auto, cs.min_step) == (True, -1.0)
     assert (cs.z_resolution_auto, cs.z_resolution) == (True, -1.0)
+    assert (cs.z_noise_auto, cs.z_noise) == (True, -1.0)
 
 
 def test_presets_are_the_accuracy_benchmark_and_the_reference() -> None:
@@ -130,7 +132,7 @@ OTHER = {
     "height_tolerance": 0.05, "edge_extent": 4, "radius": 1.2, "K": 6, "link": 0.9,
     "min_group": 5, "height_radius": 2.0, "merge_distance": 0.01, "spacing": 0.35,
     "edge_tolerance": 8.0, "edge_window": 7, "edge_radius": 2.5, "isolated_tolerance": 2.0,
-    "z_resolution": 0.02,
+    "z_resolution": 0.02, "z_noise": 0.03,
 }
 ALL_FIELDS = {name for path in miem.params.PATHS for name in miem.DetectParams.fields(path)}
 

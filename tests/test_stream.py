@@ -461,7 +461,7 @@ def test_lag_formula() -> None:
     # the default: min_step "auto", so R = 1 + 2 (scales, max_gap) + 32 (max_reach)
     assert ProfileStream(10).lag == (10 * 35 + 12 + 1 + 10 * 10 + 2 * 7) + 9 * 7 + 10 == 550
     assert ProfileStream(10, edge_tolerance=None).lag == 10 * 35 + 12 + 1 + 11 * 10 == 473
-    off = {"min_step": None, "z_resolution": None}  # neither waits for the 256 sample rows
+    off = {"min_step": None, "z_resolution": None, "z_noise": None}  # none waits for its rows
     assert ProfileStream(10, **off).lag == (10 * 3 + 12 + 1 + 10 * 10 + 2 * 7) + 9 * 7 + 10 == 230
     assert ProfileStream(10, preset="paper").lag == 10 * 2 + 10
     assert ProfileStream(10, max_iterations=3, window=7, edge_extent=4, edge_window=9,
@@ -472,8 +472,10 @@ def test_lag_formula() -> None:
     assert ProfileStream(10, max_iterations=3, window=7, edge_extent=4, edge_window=9).lag == \
         max((3 * 35 + 4 + 3 * 3 + 2 * 4) + 2 * 4 + 3, 256) == 256
     assert ProfileStream(10, preset="paper", min_step="auto").lag == max(10 * 34 + 10, 256)
-    # z_resolution "auto" (measured on the same rows) too
+    # z_resolution and z_noise "auto" (measured on the same rows) too
     assert ProfileStream(10, min_step=None).lag == max(230, 256)
+    assert ProfileStream(10, min_step=None, z_resolution=None).lag == 256
+    assert ProfileStream(10, preset="paper", z_noise="auto").lag == 256
     assert ProfileStream(10, preset="paper", z_resolution="auto").lag == 256
 
 

@@ -430,8 +430,9 @@ bool band_medians(const GridView<T>& g, int nt, Counts& count, Mids& mids,
   return true;
 }
 
-// min_step from the four medians' middle values (squared distances, |second differences|).
-double from_medians(const Counts& count, const Mids& mids) {
+// min_step and the z noise from the four medians' middle values (squared distances, |second
+// differences|).
+AutoSurvey from_medians(const Counts& count, const Mids& mids) {
   std::array<double, kQ> med{};
   for (int q = 0; q < kQ; ++q) {
     if (count[q] == 0) continue;
@@ -449,9 +450,9 @@ double from_medians(const Counts& count, const Mids& mids) {
     noise = any ? std::max(noise, sigma) : sigma;
     any = true;
   }
-  if (!any) return -1.0;
+  if (!any) return {};
   const double m = 4.0 * noise;
-  return m > spacing ? m : -1.0;
+  return {m > spacing ? m : -1.0, noise};
 }
 
 inline std::uint64_t bits64(double v) {  // non-negative doubles order like their patterns
@@ -480,10 +481,10 @@ GridView<T> min_step_rows(const GridView<T>& g) {
 }
 
 template <typename T>
-double auto_min_step(const GridView<T>& grid, std::vector<double>& scratch, int num_threads) {
+AutoSurvey auto_survey(const GridView<T>& grid, std::vector<double>& scratch, int num_threads) {
   const GridView<T> g = min_step_rows(grid);
   const std::ptrdiff_t H = g.rows, W = g.cols;
-  if (H < 1 || W < 1) return -1.0;
+  if (H < 1 || W < 1) return {};
   const int nt = std::max(1, std::min<int>(thread_count(num_threads, H * W),
                                            static_cast<int>(H)));
   Counts count{};
@@ -515,7 +516,7 @@ void MinStepSelection<T>::reset() noexcept {
   std::fill(hist_.begin(), hist_.begin() + static_cast<std::ptrdiff_t>(kQ * kRadixBins), 0u);
   rows_ = next_ = 0;
   round_ = 0;
-  value_ = -1.0;
+  value_ = noise_ = -1.0;
 }
 
 template <typename T>
@@ -604,7 +605,9 @@ void MinStepSelection<T>::finish() noexcept {
     std::memcpy(&v, &prefix_[s], sizeof v);
     mids[s / 2][s % 2] = v;
   }
-  value_ = from_medians(count, mids);  // -1 (off) without values
+  const AutoSurvey v = from_medians(count, mids);  // -1 (off) without values
+  value_ = v.min_step;
+  noise_ = v.noise;
   round_ = 4;
 }
 
@@ -620,8 +623,8 @@ template GridView<float> min_step_rows<float>(const GridView<float>&);
 template GridView<double> min_step_rows<double>(const GridView<double>&);
 template class MinStepSelection<float>;
 template class MinStepSelection<double>;
-template double auto_min_step<float>(const GridView<float>&, std::vector<double>&, int);
-template double auto_min_step<double>(const GridView<double>&, std::vector<double>&, int);
+template AutoSurvey auto_survey<float>(const GridView<float>&, std::vector<double>&, int);
+template AutoSurvey auto_survey<double>(const GridView<double>&, std::vector<double>&, int);
 
 }  // namespace detail
 
@@ -631,7 +634,15 @@ double auto_min_step(const GridView<T>& grid) {
   return detail::auto_min_step(grid, buf, 1);
 }
 
+template <typename T>
+double auto_z_noise(const GridView<T>& grid) {
+  std::vector<double> buf;
+  return detail::auto_survey(grid, buf, 1).noise;
+}
+
 template double auto_min_step<float>(const GridView<float>&);
 template double auto_min_step<double>(const GridView<double>&);
+template double auto_z_noise<float>(const GridView<float>&);
+template double auto_z_noise<double>(const GridView<double>&);
 
 }  // namespace miem

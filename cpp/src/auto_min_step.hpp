@@ -11,11 +11,24 @@
 
 namespace miem::detail {
 
-/// The min_step GridParams::min_step_auto resolves to on `g` (scan units), or -1 (off).
-/// `scratch` is reused between calls (the few values near the medians). The value does not
-/// depend on `num_threads` (0: all available).
+/// What the sample rows give (SPEC "min_step='auto'", "z_noise"): the min_step
+/// GridParams::min_step_auto resolves to and the z noise sigma GridParams::z_noise_auto resolves
+/// to (scan units; -1: off, or no pair or triple to measure).
+struct AutoSurvey {
+  double min_step = -1.0;
+  double noise = -1.0;
+};
+
+/// The survey of `g`'s sample rows. `scratch` is reused between calls (the few values near the
+/// medians). The values do not depend on `num_threads` (0: all available).
 template <typename T>
-double auto_min_step(const GridView<T>& g, std::vector<double>& scratch, int num_threads = 1);
+AutoSurvey auto_survey(const GridView<T>& g, std::vector<double>& scratch, int num_threads = 1);
+
+/// auto_survey(...).min_step.
+template <typename T>
+double auto_min_step(const GridView<T>& g, std::vector<double>& scratch, int num_threads = 1) {
+  return auto_survey(g, scratch, num_threads).min_step;
+}
 
 /// The rows min_step="auto" reads: the first kAutoMinStepRows rows from the first row that has
 /// a finite cell (fewer at the grid's end; none when no cell is finite). SPEC "min_step='auto'".

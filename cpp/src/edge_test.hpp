@@ -16,16 +16,18 @@
 namespace miem::detail {
 
 /// The edge test's tolerance (SPEC "Edge test", step 3): a sub-window's t = max(k x rms,
-/// round-off floor, `floor`), `floor` the larger of min_step / 2 when a min_step is in use
-/// (given, or "auto" resolved to one: twice the z noise it measured) and z_floor(z_resolution).
+/// round-off floor, `floor`), `floor` the largest of min_step / 2 when a min_step is in use
+/// (given, or "auto" resolved to one: twice the z noise it measured), 2 z_noise and
+/// z_floor(z_resolution).
 struct EdgeTol {
   double k;
   double floor;
 };
 
-/// The tolerance for edge_k `k`, the min_step and the z_resolution in use (< 0: off).
-inline EdgeTol edge_tol(double k, double min_step, double z_resolution) noexcept {
-  return {k, std::max(min_step > 0.0 ? 0.5 * min_step : 0.0, z_floor(z_resolution))};
+/// The tolerance for edge_k `k` and the min_step, z_resolution and z_noise in use (< 0: off).
+inline EdgeTol edge_tol(double k, double min_step, double z_resolution, double z_noise) noexcept {
+  return {k, std::max({min_step > 0.0 ? 0.5 * min_step : 0.0, z_noise > 0.0 ? 2.0 * z_noise : 0.0,
+                       z_floor(z_resolution)})};
 }
 
 /// Runs edge passes on `labels` (H x W, row-major, as left by the height passes): candidate

@@ -53,6 +53,7 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
   summary.theta0_deg = p.theta0_deg;
   summary.min_step = p.min_step;
   summary.z_resolution = p.z_resolution;
+  summary.z_noise = p.z_noise;
   const bool height_test = p.height_abs > 0.0 || p.height_k > 0.0;
   if (height_test) {
     const bool keep = p.height_mode == HeightMode::kAll;

@@ -99,6 +99,10 @@ Status GridParams::check() const noexcept {
     return bad("z_resolution: a length with z_resolution_auto on; set z_resolution_auto = false "
                "to use it");
   }
+  if (!std::isfinite(z_noise)) return bad("z_noise: must be finite (negative = off)");
+  if (z_noise_auto && z_noise >= 0.0) {
+    return bad("z_noise: a length with z_noise_auto on; set z_noise_auto = false to use it");
+  }
   return kOkStatus;
 }
 
@@ -176,6 +180,7 @@ DetectParams paper_params() {
   p.min_step_auto = false;
   p.edge_k = 0.0;
   p.z_resolution_auto = false;
+  p.z_noise_auto = false;
   return p;
 }
 

@@ -24,15 +24,18 @@
 
 namespace miem::detail {
 
-/// min_step and z_resolution "auto" resolved on `g` before the stages (SPEC "min_step='auto'",
-/// "z_resolution"): eff's lengths set, their _auto flags cleared. `survey` is auto_min_step's
-/// reusable buffer, `threads` its threads (the value does not depend on them).
+/// min_step, z_noise and z_resolution "auto" resolved on `g` before the stages (SPEC
+/// "min_step='auto'", "z_noise", "z_resolution"): eff's lengths set, their _auto flags cleared.
+/// `survey` is auto_survey's reusable buffer, `threads` its threads (the values do not depend
+/// on them).
 template <typename T>
 void resolve_auto_lengths(const GridView<T>& g, DetectParams& eff, std::vector<double>& survey,
                           int threads) {
-  if (eff.min_step_auto) {
-    eff.min_step = auto_min_step(g, survey, threads);
-    eff.min_step_auto = false;
+  if (eff.min_step_auto || eff.z_noise_auto) {  // (one survey gives both)
+    const AutoSurvey s = auto_survey(g, survey, threads);
+    if (eff.min_step_auto) eff.min_step = s.min_step;
+    if (eff.z_noise_auto) eff.z_noise = s.noise;
+    eff.min_step_auto = eff.z_noise_auto = false;
   }
   if (eff.z_resolution_auto) {
     eff.z_resolution = miem::auto_z_resolution(g);

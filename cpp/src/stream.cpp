@@ -258,8 +258,9 @@ long long stream_lag(const DetectParams& p) noexcept {
     const long long r = p.edge_window / 2;
     lag = std::max(lagh + 2 * r, h) + (P - 1) * r + h;
   }
-  // min_step or z_resolution "auto": nothing runs before the sample rows they read are in
-  const bool sample = p.min_step_auto || p.z_resolution_auto;
+  // min_step, z_resolution or z_noise "auto": nothing runs before the sample rows they read
+  // are in
+  const bool sample = p.min_step_auto || p.z_resolution_auto || p.z_noise_auto;
   return sample ? std::max<long long>(lag, detail::kAutoMinStepRows) : lag;
 }
 
@@ -286,7 +287,8 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   max_scale_ = *std::max_element(params_.scales.begin(), params_.scales.end());
   const int min_scale = *std::min_element(params_.scales.begin(), params_.scales.end());
   ms_auto_ = params_.min_step_auto;
-  sample_ = ms_auto_ || params_.z_resolution_auto;
+  sel_ = ms_auto_ || params_.z_noise_auto;
+  sample_ = sel_ || params_.z_resolution_auto;
   ms_wait_ = sample_;
   reach_ = static_cast<int>(stream_reach(params_));
   passes_ = params_.max_iterations;
@@ -325,6 +327,7 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   jparams_ = params_;
   jparams_.min_step_auto = false;
   jparams_.z_resolution_auto = false;  // with "auto": -1 (off) until the sample rows are in
+  jparams_.z_noise_auto = false;
   if (max_scale_ <= 64) {
     // pass 1's row kernel: its ring sized for the deepest search it may run (min_step given or
     // "auto"), so that use_min_step, which sets the depth in use, never allocates
@@ -352,7 +355,7 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   }
   use_ray_ = min_step_ >= 0.0 && !ray_.empty();
   if (sample_) nan_row_.assign(static_cast<std::size_t>(width_), detail::kNaN);
-  if (ms_auto_) {
+  if (sel_) {
     ms_rows_.assign(static_cast<std::size_t>(detail::kAutoMinStepRows), nullptr);
     ms_sel_.init(width_, phys_ * width_);
   }
@@ -403,8 +406,8 @@ void ProfileStream<T>::min_step_row(std::int64_t row) noexcept {
     if (params_.z_resolution_auto) {  // SPEC "z_resolution": over the same rows
       zq_ = detail::fold_z_steps(xyz, width_, 1, phys_ * width_, zq_);
     }
-    if (!ms_auto_) {  // z_resolution alone: known once its rows are in
-      if (k + 1 == detail::kAutoMinStepRows) decide(params_.min_step);
+    if (!sel_) {  // z_resolution alone: known once its rows are in
+      if (k + 1 == detail::kAutoMinStepRows) decide(params_.min_step, params_.z_noise);
       return;
     }
     ms_rows_[static_cast<std::size_t>(k)] = xyz;
@@ -418,15 +421,17 @@ void ProfileStream<T>::min_step_row(std::int64_t row) noexcept {
   const std::int64_t visits = ms_sel_.visits_left();
   if (ms_sel_.step(ms_rows_.data(), static_cast<std::ptrdiff_t>(std::max<std::int64_t>(
                                         kMsChunk, (visits + pushes - 1) / pushes)))) {
-    decide(ms_sel_.value());
+    decide(ms_auto_ ? ms_sel_.value() : params_.min_step, ms_sel_.noise());
   }
 }
 
-// The sample rows decided: min_step (`min_step`: its value, or the one given) and z_resolution
-// "auto" (the smallest z step of those rows) in use, and the stages catch up from ms_first_.
+// The sample rows decided: min_step (`min_step`: its value, or the one given), z_noise "auto"
+// (`z_noise`: the selection's sigma) and z_resolution "auto" (the smallest z step of those
+// rows) in use, and the stages catch up from ms_first_.
 template <typename T>
-void ProfileStream<T>::decide(double min_step) noexcept {
+void ProfileStream<T>::decide(double min_step, double z_noise) noexcept {
   use_min_step(min_step);
+  if (params_.z_noise_auto) jparams_.z_noise = z_noise;
   if (params_.z_resolution_auto) jparams_.z_resolution = std::isfinite(zq_) ? zq_ : -1.0;
   ms_wait_ = false;
   ms_next_ = ms_first_;
@@ -437,13 +442,14 @@ void ProfileStream<T>::decide(double min_step) noexcept {
 template <typename T>
 void ProfileStream<T>::min_step_finish() noexcept {
   if (ms_wait_ && ms_first_ >= 0) {
-    double min_step = params_.min_step;
-    if (ms_auto_) {
+    double min_step = params_.min_step, z_noise = params_.z_noise;
+    if (sel_) {
       if (!ms_sel_.closed()) ms_sel_.close(ms_rows_.data());
       ms_sel_.step(ms_rows_.data(), ms_sel_.visits_left());
-      min_step = ms_sel_.value();
+      if (ms_auto_) min_step = ms_sel_.value();
+      z_noise = ms_sel_.noise();
     }
-    decide(min_step);
+    decide(min_step, z_noise);
   }
   if (ms_next_ >= 0) catch_up(pushed_ - 1);
 }
@@ -481,10 +487,9 @@ void ProfileStream<T>::reset() noexcept {
   ms_first_ = -1;
   ms_next_ = -1;
   ms_wait_ = sample_;
-  if (ms_auto_) {
-    use_min_step(-1.0);
-    ms_sel_.reset();
-  }
+  if (ms_auto_) use_min_step(-1.0);
+  if (sel_) ms_sel_.reset();
+  if (params_.z_noise_auto) jparams_.z_noise = -1.0;
   zq_ = std::numeric_limits<double>::infinity();
   if (params_.z_resolution_auto) jparams_.z_resolution = -1.0;
   p1_next_ = 0;

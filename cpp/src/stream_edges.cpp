@@ -229,7 +229,8 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
     // (no band cache, unlike batch: kept per tile column over a whole row of tiles it is 11 MB
     // at 3200 points, read back r + 1 pushes later from beyond the L2 cache; without it a
     // default push took about 8 % less CPU time, though it runs more instructions)
-    const detail::EdgeTol et = detail::edge_tol(params_.edge_k, min_step_, jparams_.z_resolution);
+    const detail::EdgeTol et = detail::edge_tol(params_.edge_k, min_step_, jparams_.z_resolution,
+                                                jparams_.z_noise);
     detail::edge_judge_row(gw, grow, row, H, C0, C1, im, o, r, et, win, todo, mark, nullptr,
                            pass == 0 ? detail::EdgeJudgment::kFitsGround
                                      : detail::EdgeJudgment::kVerdict);

@@ -415,7 +415,9 @@ TEST(Stream, LagFormula) {
   p = miem::stream_default_params();
   p.min_step_auto = false;  // min_step off: R = 3, but z_resolution "auto" waits for 256 rows
   EXPECT_EQ(miem::stream_lag(p), 256);
-  p.z_resolution_auto = false;  // neither: no wait
+  p.z_resolution_auto = false;  // z_noise "auto" still waits
+  EXPECT_EQ(miem::stream_lag(p), 256);
+  p.z_noise_auto = false;  // none: no wait
   EXPECT_EQ(miem::stream_lag(p), (10 * 3 + 12 + 1 + 10 * 10 + 2 * 7) + 9 * 7 + 10);
   p.max_iterations = 3;
   p.window = 7;

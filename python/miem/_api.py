@@ -510,7 +510,8 @@ def detect(
         For an unorganized cloud, a :class:`miem.PointsDetectResult` (adds ``degenerate``).
         ``params`` records every field used, ``preset`` (its name, ``"custom"`` for ``params``)
         and, with ``theta0="auto"``, the threshold found (``theta0``, ``theta0_auto``); with
-        ``min_step="auto"``, the value used (``min_step``, None when off; ``min_step_auto``).
+        ``min_step="auto"``, the value used (``min_step``, None when off; ``min_step_auto``);
+        likewise ``z_resolution`` and ``z_noise``.
 
     Raises
     ------
@@ -581,7 +582,7 @@ def _detect_grid(arr: np.ndarray, params: Any, preset: Optional[str], overrides:
         raise ValueError(f"grid: need at least 3 points, got {arr.shape[0] * arr.shape[1]}")
 
     (labels, flags, angle, height, plane_t, iterations, raw, theta0_used,
-     min_step_used, z_resolution_used) = _core.detect_organized(arr, core_params)
+     min_step_used, z_resolution_used, z_noise_used) = _core.detect_organized(arr, core_params)
     defects = _grid_defects(raw, arr.shape[1])
     return DetectResult(
         labels=labels, flags=flags, angle=angle, height=height,
@@ -593,7 +594,9 @@ def _detect_grid(arr: np.ndarray, params: Any, preset: Optional[str], overrides:
                               min_step_auto=bool(core_params.min_step_auto),
                               z_resolution=(None if z_resolution_used < 0
                                             else float(z_resolution_used)),
-                              z_resolution_auto=bool(core_params.z_resolution_auto)),
+                              z_resolution_auto=bool(core_params.z_resolution_auto),
+                              z_noise=None if z_noise_used < 0 else float(z_noise_used),
+                              z_noise_auto=bool(core_params.z_noise_auto)),
     )
 
 

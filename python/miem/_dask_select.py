@@ -119,10 +119,9 @@ def min_step_survey(ext: np.ndarray, home: tuple) -> list:
     return out
 
 
-def min_step_from_medians(med: list) -> "float | None":
-    """min_step="auto" from the medians (distance, noise) along and across: ``4 max(sigma)``
-    when that exceeds ``min(spacing)``, else None; an axis without pairs or triples counts
-    not."""
+def _spacing_noise(med: list) -> "tuple[float | None, float | None]":
+    """min(spacing) and max(sigma) of the medians (distance, noise) along and across; an axis
+    without pairs or triples counts not."""
     spacing = noise = None
     for dist, nz in ((med[0], med[1]), (med[2], med[3])):
         if dist is None or nz is None:
@@ -130,7 +129,19 @@ def min_step_from_medians(med: list) -> "float | None":
         sigma = 1.4826 * nz / np.sqrt(6.0)
         spacing = dist if spacing is None else min(spacing, dist)
         noise = sigma if noise is None else max(noise, sigma)
+    return spacing, noise
+
+
+def min_step_from_medians(med: list) -> "float | None":
+    """min_step="auto" from the medians: ``4 max(sigma)`` when that exceeds ``min(spacing)``,
+    else None."""
+    spacing, noise = _spacing_noise(med)
     if noise is None:
         return None
     m = 4.0 * noise
     return float(m) if m > spacing else None
+
+
+def noise_from_medians(med: list) -> "float | None":
+    """z_noise="auto" from the medians: ``max(sigma)`` (None without an axis)."""
+    return None if (v := _spacing_noise(med)[1]) is None else float(v)

@@ -60,7 +60,7 @@ import miem
 from miem import _core
 from miem._api import ABNORMAL, Defect
 
-__all__ = ["DaskDetectResult", "DaskPointsResult", "auto_min_step", "auto_theta0",
+__all__ = ["DaskDetectResult", "DaskPointsResult", "auto_min_step", "auto_theta0", "auto_z_noise",
            "auto_z_resolution", "detect", "detect_points", "grid_halo", "points_halo"]
 
 _LABEL_KEYS = ("labels", "flags", "angle", "height")
@@ -68,12 +68,18 @@ _DTYPES = {"labels": np.uint8, "flags": np.uint8, "angle": np.float64, "height":
 
 
 def _resolve_auto_lengths(grid: "da.Array", args: tuple, kwargs: dict, params: dict) -> tuple:
-    """min_step="auto" and z_resolution="auto" resolved first (:func:`auto_min_step`,
-    :func:`auto_z_resolution`: their 256 rows) and given to every block as the length (or None)
-    each resolves to; params record them as auto."""
+    """min_step, z_noise and z_resolution "auto" resolved first (:func:`auto_min_step`,
+    :func:`auto_z_noise`, :func:`auto_z_resolution`: their 256 rows) and given to every block
+    as the length (or None) each resolves to; params record them as auto."""
+    from . import _dask_select as sel
+
     auto = {}
-    if params.get("min_step_auto"):
-        auto["min_step"] = auto_min_step(grid)
+    if params.get("min_step_auto") or params.get("z_noise_auto"):
+        med = _survey_medians(_as_grid(grid), {})  # (one survey gives both)
+        if params.get("min_step_auto"):
+            auto["min_step"] = None if med is None else sel.min_step_from_medians(med)
+        if params.get("z_noise_auto"):
+            auto["z_noise"] = None if med is None else sel.noise_from_medians(med)
     if params.get("z_resolution_auto"):
         auto["z_resolution"] = auto_z_resolution(grid)
     if not auto:
@@ -100,10 +106,11 @@ _TILE = (64, 128)
 
 #: Grid parameters whose reach grid_halo knows: every field organized detection reads
 #: (generated from miem.DetectParams, hence from the C++ field table), what it derives
-#: (theta0_auto; min_step_auto and z_resolution_auto: resolved first on their 256 rows)
+#: (theta0_auto; min_step_auto, z_noise_auto and z_resolution_auto: resolved first on their
+#: 256 rows)
 #: and the preset's name. A new grid field is known here at once: a field that reaches farther
 #: than grid_halo's formula must widen it (tests/test_config.py runs every field on blocks).
-_GRID_KNOWN = {"preset", "theta0_auto", "min_step_auto", "z_resolution_auto",
+_GRID_KNOWN = {"preset", "theta0_auto", "min_step_auto", "z_resolution_auto", "z_noise_auto",
                *miem.DetectParams.fields("grid")}
 
 
@@ -599,9 +606,33 @@ def auto_min_step(grid: Any, **compute_kwargs: Any) -> Optional[float]:
     """
     from . import _dask_select as sel
 
+    med = _survey_medians(_as_grid(grid), compute_kwargs)
+    return None if med is None else sel.min_step_from_medians(med)
+
+
+def auto_z_noise(grid: Any, **compute_kwargs: Any) -> Optional[float]:
+    """z_noise="auto" of ``miem.detect`` on a Dask-held grid (docs/SPEC.md "z_noise"): the
+    larger robust sigma along and across of the survey :func:`auto_min_step` runs.
+
+    Returns
+    -------
+    float or None
+        The z noise, or None (no row with data, or no axis to measure).
+    """
+    from . import _dask_select as sel
+
+    med = _survey_medians(_as_grid(grid), compute_kwargs)
+    return None if med is None else sel.noise_from_medians(med)
+
+
+def _survey_medians(grid: "da.Array", compute_kwargs: dict) -> Optional[list]:
+    """The four medians of min_step="auto"'s survey over the 256 rows from the first with a
+    finite cell (None without one): blocks read with two more rows and columns, radix
+    selection in four rounds, the rows held on the workers between rounds."""
+    from . import _dask_select as sel
+
     from .reference import AUTO_MIN_STEP_ROWS
 
-    grid = _as_grid(grid)
     first = _first_data_row(grid, compute_kwargs)
     if first is None:
         return None
@@ -609,8 +640,7 @@ def auto_min_step(grid: Any, **compute_kwargs: Any) -> Optional[float]:
     H, W = grid.shape[:2]
     blocks = [(grid[r0:min(H, r1 + 2), c0:min(W, c1 + 2)], (r1 - r0, c1 - c0))
               for r0, r1, c0, c1 in _homes(grid)]
-    med = sel.medians(sel.min_step_survey, blocks, 4, **compute_kwargs)
-    return sel.min_step_from_medians(med)
+    return sel.medians(sel.min_step_survey, blocks, 4, **compute_kwargs)
 
 
 def _first_data_row(grid: "da.Array", compute_kwargs: dict) -> Optional[int]:

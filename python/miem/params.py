@@ -10,8 +10,8 @@ checked by the C++ ``check()`` (whose message starts with the field's name). The
 C++ presets (``paper_params()``, ``paper_points_params()``; the defaults are default-constructed
 C++ parameters). Only the fields whose Python spelling differs from C++ are written out here
 (``_SPELLED``): ``theta0`` (degrees or ``"auto"``: ``theta0_deg`` + ``theta0_auto``),
-``min_directions`` (None for all: 0), grid ``min_step`` and ``z_resolution`` (a length,
-``"auto"`` or None: the length + its ``_auto`` flag), ``heights`` (``"all"`` /
+``min_directions`` (None for all: 0), grid ``min_step``, ``z_resolution`` and ``z_noise`` (a
+length, ``"auto"`` or None: the length + its ``_auto`` flag), ``heights`` (``"all"`` /
 ``"abnormal"``: ``height_mode``),
 ``height_tolerance`` (a length or ``"<k>rms"``: ``height_abs`` + ``height_k``),
 ``edge_tolerance`` and ``isolated_tolerance`` (None for off: ``edge_k`` / ``isolated_k`` 0) and
@@ -20,8 +20,8 @@ cloud ``K`` (``num_directions``).
 A detector reads ``angle`` and its own part, and a keyword override names a field of those parts
 (``miem.detect(grid, window=15)``, ``miem.detect(points, radius=2.0)``); a field of another part
 is refused with a ValueError naming it. ``ProfileStream`` refuses ``theta0="auto"`` (the
-median of the whole scan's angles); ``min_step`` and ``z_resolution`` ``"auto"`` it measures on
-its first 256 profiles with data, as batch detection does.
+median of the whole scan's angles); ``min_step``, ``z_resolution`` and ``z_noise`` ``"auto"``
+it measures on its first 256 profiles with data, as batch detection does.
 The command line's detection options, ``--config`` files, ``miem config`` and ``miem.dask``'s
 known fields are generated from these fields.
 """
@@ -325,8 +325,8 @@ _SPELLED: Dict[str, Tuple[_Spelled, ...]] = {
             "edge_tolerance", "edge_k", "k x rms",
             "edge test (SPEC 'Edge test', beyond the paper, after the height test): a point "
             "standing proud of a feature line or the scan's outline by more than k times the "
-            "rms of its one-sided sub-window plane (at least min_step / 2 with a min_step) "
-            "becomes ABNORMAL; None: off"),
+            "rms of its one-sided sub-window plane (at least min_step / 2 with a min_step, "
+            "2 z_noise) becomes ABNORMAL; None: off"),
         _Spelled(
             "z_resolution", ("z_resolution", "z_resolution_auto"), "length",
             "the scan's z step (quantisation): the height test's k x rms and the edge test's "
@@ -335,6 +335,15 @@ _SPELLED: Dict[str, Tuple[_Spelled, ...]] = {
             "the profiles of the rows min_step 'auto' reads (SPEC \"z_resolution\"; "
             "result.params holds the value used); None: off", "LENGTH|auto",
             *_auto_length("z_resolution"), (), Union[None, float, str]),
+        _Spelled(
+            "z_noise", ("z_noise", "z_noise_auto"), "length",
+            "the scan's z noise sigma, profile jitter included: the edge test's tolerances are "
+            "at least 2 times it, so that a profile offset by its scanner's jitter does not "
+            "stand proud of a few profiles that happen to agree; 'auto': measured as min_step "
+            "'auto' measures it (the larger robust sigma of the second differences along and "
+            "across the profiles of its rows; SPEC \"z_noise\"; result.params holds the value "
+            "used); None: off", "LENGTH|auto", *_auto_length("z_noise"), (),
+            Union[None, float, str]),
     ),
     "cloud": (
         _Spelled("K", ("num_directions",), "directions", "tangent-plane directions tested, 2-8",

@@ -820,6 +820,7 @@ _DEFAULTS: dict[str, Any] = {
     "edge_tolerance": None,
     "edge_window": 15,
     "z_resolution": None,
+    "z_noise": None,
 }
 
 #: Presets of :func:`detect` (SPEC "Presets"): name -> parameter values. Explicit keyword
@@ -838,6 +839,7 @@ _PRESETS: dict[str, dict[str, Any]] = {
         "edge_tolerance": None,
         "edge_window": 15,
         "z_resolution": None,
+        "z_noise": None,
     },
     "recommended": {
         "theta0": 90.0,
@@ -852,6 +854,7 @@ _PRESETS: dict[str, dict[str, Any]] = {
         "edge_tolerance": 4.0,
         "edge_window": 15,
         "z_resolution": "auto",
+        "z_noise": "auto",
     },
 }
 
@@ -1544,18 +1547,20 @@ def edge_test(
     min_step: float | None = None,
     z_resolution: float | None = None,
     lines: NDArray[np.bool_] | None = None,
+    z_noise: float | None = None,
 ) -> tuple[NDArray[np.uint8], int]:
     """Edge passes on top of the angle and height passes (SPEC "Edge test").
 
-    ``labels`` (H, W) are those after the height passes; ``min_step`` and ``z_resolution`` the
-    ones in use (None: off; no sub-window's tolerance is below ``min_step / 2`` nor below
-    ``1.5 z_resolution``, step 3); ``lines`` the feature-line EDGE cells (step 9: the ABNORMAL
+    ``labels`` (H, W) are those after the height passes; ``min_step``, ``z_resolution`` and
+    ``z_noise`` the ones in use (None: off; no sub-window's tolerance is below ``min_step / 2``,
+    ``1.5 z_resolution`` or ``2 z_noise``, step 3); ``lines`` the feature-line EDGE cells (step 9: the ABNORMAL
     cells beside them that fit a clean side with a return become EDGE before pass 1; None:
     no such step); returns the new labels and the number of edge passes run.
     """
     floor = max(0.5 * min_step if min_step is not None and min_step > 0 else 0.0,
                 _Z_RESOLUTION_FACTOR * z_resolution
-                if z_resolution is not None and z_resolution > 0 else 0.0)
+                if z_resolution is not None and z_resolution > 0 else 0.0,
+                2.0 * z_noise if z_noise is not None and z_noise > 0 else 0.0)
     labels = labels.copy()
     passes = 0
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
@@ -1582,14 +1587,17 @@ def edge_test(
 AUTO_MIN_STEP_ROWS = 256
 
 
-def _auto_min_step(g: NDArray[np.float64], finite: NDArray[np.bool_]) -> float | None:
-    """SPEC "min_step='auto'" (reference): over the first AUTO_MIN_STEP_ROWS rows from the first
-    row with a finite cell, per grid axis, the median distance of finite neighbour pairs and
-    the robust z noise ``1.4826 median|z[i-1] - 2 z[i] + z[i+1]| / sqrt(6)`` of finite triples;
-    ``4 * max(noise)`` when above ``min(spacing)``, else None."""
+def _auto_survey(
+    g: NDArray[np.float64], finite: NDArray[np.bool_]
+) -> tuple[float | None, float | None]:
+    """SPEC "min_step='auto'" and "z_noise" (reference): over the first AUTO_MIN_STEP_ROWS rows
+    from the first row with a finite cell, per grid axis, the median distance of finite
+    neighbour pairs and the robust z noise ``1.4826 median|z[i-1] - 2 z[i] + z[i+1]| / sqrt(6)``
+    of finite triples; returns (min_step: ``4 * max(noise)`` when above ``min(spacing)``, else
+    None; z_noise: ``max(noise)``), (None, None) without an axis to measure."""
     rows = np.flatnonzero(finite.any(axis=1))
     if rows.size == 0:
-        return None
+        return None, None
     first = int(rows[0])  # the first AUTO_MIN_STEP_ROWS rows from the first with a finite cell
     g, finite = g[first:first + AUTO_MIN_STEP_ROWS], finite[first:first + AUTO_MIN_STEP_ROWS]
     spacing, noise = [], []
@@ -1605,9 +1613,14 @@ def _auto_min_step(g: NDArray[np.float64], finite: NDArray[np.bool_]) -> float |
             spacing.append(float(np.median(dist)))
             noise.append(1.4826 * float(np.median(d2)) / math.sqrt(6.0))
     if not spacing:
-        return None
+        return None, None
     m = 4.0 * max(noise)
-    return m if m > min(spacing) else None
+    return (m if m > min(spacing) else None), max(noise)
+
+
+def _auto_min_step(g: NDArray[np.float64], finite: NDArray[np.bool_]) -> float | None:
+    """min_step="auto" (:func:`_auto_survey`)."""
+    return _auto_survey(g, finite)[0]
 
 
 #: The rms tolerances' floor in z steps (SPEC "z_resolution").
@@ -1680,6 +1693,7 @@ def detect(
     edge_tolerance: float | None = _UNSET,
     edge_window: int = _UNSET,
     z_resolution: float | str | None = _UNSET,
+    z_noise: float | str | None = _UNSET,
     preset: str | None = None,
 ) -> RefResult:
     """Detect abnormal points in an organized scan (MIEM, reference implementation).
@@ -1735,6 +1749,9 @@ def detect(
     z_resolution : float, "auto" or None, optional
         The scan's z step: the height test's rms form and the edge test need more than
         ``1.5 z_resolution`` (SPEC "z_resolution"); ``"auto"`` measures it. Default None.
+    z_noise : float, "auto" or None, optional
+        The scan's z noise sigma: the edge test's tolerances are at least ``2 z_noise`` (SPEC
+        "z_noise"); ``"auto"`` measures it as ``min_step="auto"`` does. Default None.
     preset : {None, "recommended", "paper"}, optional
         Named parameter set; ``"paper"`` is the paper's method exactly (the defaults shown),
         None means ``"recommended"``.
@@ -1767,15 +1784,26 @@ def detect(
             "edge_tolerance": edge_tolerance,
             "edge_window": edge_window,
             "z_resolution": z_resolution,
+            "z_noise": z_noise,
         },
     )
     auto = isinstance(opts["theta0"], str) and opts["theta0"] == "auto"
     step_auto = isinstance(opts["min_step"], str) and opts["min_step"] == "auto"
-    if step_auto:
+    noise = opts["z_noise"]
+    noise_auto = isinstance(noise, str) and noise == "auto"
+    if not (noise is None or noise_auto or (_is_real(noise) and math.isfinite(float(noise))
+                                            and float(noise) >= 0.0)):
+        raise ValueError(f"z_noise: expected a length >= 0, 'auto' or None, got {noise!r}")
+    if step_auto or noise_auto:  # one survey gives both (SPEC "min_step='auto'", "z_noise")
         arr0 = np.asarray(_as_points_array("grid", grid), dtype=np.float64)
         if arr0.ndim != 3 or arr0.shape[2] != 3:
             raise ValueError(f"grid: expected shape (H, W, 3), got {arr0.shape}")
-        opts["min_step"] = _auto_min_step(arr0, np.all(np.isfinite(arr0), axis=2))
+        survey = _auto_survey(arr0, np.all(np.isfinite(arr0), axis=2))
+        if step_auto:
+            opts["min_step"] = survey[0]
+        if noise_auto:
+            noise = survey[1]
+    noise = None if noise is None else float(noise)
     (theta0_deg, scale_tuple, gap, step, min_dir, iters, win, reach) = _validate_detect_params(
         _DEFAULTS["theta0"] if auto else opts["theta0"],
         opts["scales"],
@@ -1873,7 +1901,7 @@ def detect(
             lines &= ~_compact_edges(lines, extent, bridge, gap)
         labels, edge_passes = edge_test(g, labels, window=edge_win, tolerance=float(edge_k),
                                         max_iterations=iters, min_step=step, z_resolution=zres,
-                                        lines=lines)
+                                        z_noise=noise, lines=lines)
         passes += edge_passes
         abnormal = labels == ABNORMAL
 
@@ -1903,6 +1931,8 @@ def detect(
         "edge_window": edge_win,
         "z_resolution": zres,
         "z_resolution_auto": zres_auto,
+        "z_noise": noise,
+        "z_noise_auto": noise_auto,
     }
     return RefResult(
         labels=labels,

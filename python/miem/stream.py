@@ -93,7 +93,7 @@ class ProfileStream:
         L = P R + E + (P + 1) h            (height test on;  L = P R + h without it)
         L = max(H + 2 r, h) + (P - 1) r + h  (with the edge test; H = P R + E + P h, or P R
                                              without the height test)
-        L = max(L, 256)                    (with min_step or z_resolution "auto")
+        L = max(L, 256)                    (with min_step, z_resolution or z_noise "auto")
 
     with ``R = max(scales) + max_gap`` (``+ max_reach`` with ``min_step``, a length or
     ``"auto"``) the rows one angle judgment reads, ``P = max_iterations``,
@@ -101,7 +101,8 @@ class ProfileStream:
     ``h = window // 2`` and ``r = edge_window // 2`` (the edge test's step 9 runs row by row
     ``r`` profiles behind the height passes, each edge pass ``r`` profiles behind the one
     before): (10 * 35 + 13 + 10 * 10 + 2 * 7) + 9 * 7 + 10 = 550 profiles
-    with the defaults, 256 with ``min_step=None`` (230 with ``z_resolution=None`` too),
+    with the defaults, 256 with ``min_step=None`` (230 with ``z_resolution=None`` and
+    ``z_noise=None`` too),
     10 * 2 + 10 = 30 with ``preset="paper"``.
     ``min_step="auto"`` is decided on the 256 profiles from the first one with a finite point
     (docs/SPEC.md "min_step='auto'"), the value :func:`miem.detect` resolves on the same rows:
@@ -193,7 +194,8 @@ class ProfileStream:
         edge = None if gp.edge_tolerance is None else (a.max_iterations, gp.edge_window // 2)
         _check_storage(w, dt, int(_core.stream_lag(core_params)), max(a.scales) + gp.max_gap
                        + (0 if gp.min_step is None else gp.max_reach), gp.window // 2, edge,
-                       304 if "auto" in (gp.min_step, gp.z_resolution) else 0,  # kMsBacklog
+                       304 if "auto" in (gp.min_step, gp.z_resolution, gp.z_noise) else 0,
+                       # (kMsBacklog)
                        gp.min_step is not None)  # stream.hpp ray_
         try:
             self._core = cls(w, core_params)
@@ -226,6 +228,14 @@ class ProfileStream:
         "z_resolution"), None when off; with ``z_resolution="auto"`` None until the same 256
         profiles are in (or the flush), then the value :func:`miem.detect` resolves on them."""
         return self._core.z_resolution
+
+    @property
+    def z_noise(self) -> Optional[float]:
+        """The z noise sigma under which the edge test's tolerances do not go (half of them;
+        scan units, docs/SPEC.md "z_noise"), None when off; with ``z_noise="auto"`` None until
+        the same 256 profiles are in (or the flush), then the value :func:`miem.detect`
+        resolves on them."""
+        return self._core.z_noise
 
     @property
     def dtype(self) -> np.dtype:

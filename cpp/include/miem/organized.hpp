@@ -140,6 +140,7 @@ struct DetectSummary {
   double theta0_deg = 0.0;           ///< the threshold used (differs from params with auto)
   double min_step = -1.0;            ///< the min_step used (< 0: off; from the grid with auto)
   double z_resolution = -1.0;        ///< the z_resolution used (< 0: off; from the grid with auto)
+  double z_noise = -1.0;             ///< the z_noise used (< 0: off; from the grid with auto)
   std::optional<Plane> plane;        ///< the MIEM plane (eigen fit of non-ABNORMAL points)
   std::vector<Defect> defects;       ///< ordered by |peak_height| descending
 };
@@ -168,7 +169,7 @@ class OrganizedDetector {
 
  private:
   DetectParams params_;
-  DetectParams eff_;  // params_ with theta0, min_step and z_resolution resolved (the *_auto)
+  DetectParams eff_;  // params_ with theta0, min_step, z_resolution, z_noise resolved (*_auto)
   detail::Workspace ws_;
 };
 
@@ -180,6 +181,13 @@ class OrganizedDetector {
 /// itself on the same rows.)
 template <typename T>
 double auto_min_step(const GridView<T>& grid);
+
+/// SPEC "z_noise": the z_noise that GridParams::z_noise_auto gives on `grid` (scan units): the
+/// larger robust sigma of the second differences along and across the profiles of the rows
+/// auto_min_step reads (min_step "auto" is 4 times it when that exceeds the spacing); -1 when
+/// there is none.
+template <typename T>
+double auto_z_noise(const GridView<T>& grid);
 
 /// SPEC "z_resolution": the z_resolution that GridParams::z_resolution_auto gives on `grid`
 /// (scan units): the smallest non-zero |z difference| of finite neighbours along the profiles

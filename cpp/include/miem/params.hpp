@@ -80,6 +80,10 @@ struct GridParams {
                                   ///< the height and edge tests are at least 1.5 x this
   bool z_resolution_auto = true;  ///< z_resolution measured on the min_step sample rows
                                   ///< (SPEC "z_resolution"); then z_resolution must stay < 0
+  double z_noise = -1.0;          ///< length: the scan's z noise sigma; < 0 off; the edge test's
+                                  ///< tolerances are at least 2 x this
+  bool z_noise_auto = true;       ///< z_noise measured as min_step "auto" measures its sigma
+                                  ///< (SPEC "z_noise"); then z_noise must stay < 0
 
   /// True when the height test is on (height_abs > 0 or height_k > 0).
   bool height_test() const noexcept { return height_abs > 0.0 || height_k > 0.0; }
@@ -88,8 +92,8 @@ struct GridParams {
   bool edge_test() const noexcept { return edge_k > 0.0; }
 
   /// Every field's range (min_step finite and < 0 with min_step_auto, height_abs / height_k
-  /// finite, edge_extent >= 0, edge_k finite >= 0, edge_window odd >= 3, z_resolution finite
-  /// and < 0 with z_resolution_auto, ...).
+  /// finite, edge_extent >= 0, edge_k finite >= 0, edge_window odd >= 3, z_resolution and
+  /// z_noise finite and < 0 with their _auto, ...).
   Status check() const noexcept;
 
   /// Calls v(FieldInfo, &GridParams::member) for every field, in declaration order.
@@ -116,7 +120,7 @@ struct GridParams {
                 "ones are feature lines (>= 0)"}, &GridParams::edge_extent);
     v(FieldInfo{"edge_k", "k x rms", "edge test (SPEC 'Edge test'): a point proud of a feature "
                 "line or outline by more than k times its sub-window plane's rms (at least "
-                "min_step / 2 with a min_step) is ABNORMAL; 0: off"}, &GridParams::edge_k);
+                "min_step / 2 with a min_step, 2 z_noise) is ABNORMAL; 0: off"}, &GridParams::edge_k);
     v(FieldInfo{"edge_window", "cells", "with the edge test: side of its one-sided sub-windows "
                 "(odd >= 3)"}, &GridParams::edge_window);
     v(FieldInfo{"z_resolution", "length", "the scan's z step (quantisation): the height test's "
@@ -125,6 +129,10 @@ struct GridParams {
     v(FieldInfo{"z_resolution_auto", "", "z_resolution measured on the grid (SPEC "
                 "\"z_resolution\"); z_resolution must then be < 0"},
       &GridParams::z_resolution_auto);
+    v(FieldInfo{"z_noise", "length", "the scan's z noise (sigma, profile jitter included): the "
+                "edge test's tolerances are at least 2 times it; < 0: off"}, &GridParams::z_noise);
+    v(FieldInfo{"z_noise_auto", "", "z_noise measured on the grid as min_step 'auto' measures "
+                "it (SPEC \"z_noise\"); z_noise must then be < 0"}, &GridParams::z_noise_auto);
   }
 };
 

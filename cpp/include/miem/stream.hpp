@@ -65,6 +65,8 @@ class MinStepSelection {
   std::ptrdiff_t visits_left() const noexcept;
   /// The min_step (scan units; -1: off), once done().
   double value() const noexcept { return value_; }
+  /// The z noise sigma of the same medians (SPEC "z_noise"; -1: none), once done().
+  double noise() const noexcept { return noise_; }
 
  private:
   void finish() noexcept;
@@ -75,7 +77,7 @@ class MinStepSelection {
   std::size_t count_[4] = {};        // values per quantity
   std::size_t rank_[8] = {};         // per pick (2 per quantity): the rank within its prefix
   std::uint64_t prefix_[8] = {};     // ... the bits found so far
-  double value_ = -1.0;
+  double value_ = -1.0, noise_ = -1.0;
 };
 }  // namespace detail
 
@@ -90,10 +92,10 @@ DetectParams stream_default_params();
 ///     L = max(H + 2 r, h) + (P - 1) r + h   with the edge test, H = P R + E + P h (P R without
 ///         the height test): its step 9 runs row by row r rows behind the height passes, and
 ///         each edge pass r rows behind the one before;
-///     L = max(L, 256)   with min_step_auto or z_resolution_auto (the rows they are decided
-///                       from must be in).
-/// Defaults: (10 * 35 + 13 + 10 * 10 + 2 * 7) + 9 * 7 + 10 = 550 (256 with min_step off, 230 with
-/// z_resolution off too).
+///     L = max(L, 256)   with min_step_auto, z_resolution_auto or z_noise_auto (the rows
+///                       they are decided from must be in).
+/// Defaults: (10 * 35 + 13 + 10 * 10 + 2 * 7) + 9 * 7 + 10 = 550 (256 with min_step off, 230
+/// with z_resolution and z_noise off too).
 /// Assumes valid parameters.
 long long stream_lag(const DetectParams& params) noexcept;
 
@@ -129,7 +131,8 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 ///     pushes' stages catch up, at least 3 rows a push, by the push that hands back the first
 ///     of those rows (docs/SPEC.md "Streaming"): no push carries the whole decision.
 /// So row i is final once row i + L has arrived, L = stream_lag(params) (550 profiles with
-/// the defaults, 256 with min_step off (230 with z_resolution off too), 473 without the edge
+/// the defaults, 256 with min_step off (230 with z_resolution and z_noise off too), 473 without
+/// the edge
 /// test; 20 + 10 with preset
 /// "paper"). Each cell keeps the
 /// pass that removed it (angle, height, edge), so a judgment at pass p sees exactly the cells of pass p - 1 even where rows around it have run
@@ -188,13 +191,15 @@ class ProfileStream {
   /// The min_step the stream judges with (scan units; -1: off). With min_step_auto: -1 until
   /// decided (min_step_decided()), then the value batch detection resolves on the rows pushed.
   double min_step() const noexcept { return min_step_; }
-  /// False while min_step or z_resolution "auto" waits for its rows (SPEC "min_step='auto'",
-  /// "z_resolution"), else true.
+  /// False while min_step, z_resolution or z_noise "auto" waits for its rows (SPEC
+  /// "min_step='auto'", "z_resolution", "z_noise"), else true.
   bool min_step_decided() const noexcept { return !ms_wait_; }
   /// The z_resolution the height and edge tests use (scan units; -1: off). With
   /// z_resolution_auto: -1 until decided (min_step_decided()), then the value batch detection
   /// resolves on the rows pushed.
   double z_resolution() const noexcept { return jparams_.z_resolution; }
+  /// The z_noise in use (SPEC "z_noise"): -1 while "auto" waits for its sample rows, or off.
+  double z_noise() const noexcept { return jparams_.z_noise; }
   /// The parameters.
   const DetectParams& params() const noexcept { return params_; }
   /// Profiles accepted since construction or reset.
@@ -229,7 +234,7 @@ class ProfileStream {
     return static_cast<std::ptrdiff_t>(row % ring_);
   }
   void use_min_step(double min_step) noexcept;
-  void decide(double min_step) noexcept;
+  void decide(double min_step, double z_noise) noexcept;
   void min_step_row(std::int64_t row) noexcept;
   void min_step_finish() noexcept;
   void catch_up(std::int64_t last) noexcept;
@@ -324,7 +329,9 @@ class ProfileStream {
   // min_step "auto" (SPEC "min_step='auto'"): decided once the kAutoMinStepRows rows from the
   // first row with a finite cell are in; the stages wait for it (the rows are kept).
   bool ms_auto_ = false;         // params_.min_step_auto
-  bool sample_ = false;          // min_step or z_resolution "auto": the stages wait for its rows
+  bool sel_ = false;             // the selection runs: min_step or z_noise "auto"
+  bool sample_ = false;          // min_step, z_resolution or z_noise "auto": the stages wait for
+                                 // its rows
   bool ms_wait_ = false;         // not decided yet
   std::int64_t ms_first_ = -1;   // the first row with a finite cell (-1: none yet)
   double min_step_ = -1.0;       // the min_step in use (-1: off)

@@ -114,7 +114,7 @@ py::tuple detect_organized(const py::array& grid, const miem::DetectParams& p) {
   py::list defects = defect_list(s.defects);
   py::object plane = plane_or_none(s.plane);
   return py::make_tuple(labels, flags, angle, height, plane, s.iterations, defects,
-                        s.theta0_deg, s.min_step, s.z_resolution);
+                        s.theta0_deg, s.min_step, s.z_resolution, s.z_noise);
 }
 
 }  // namespace

@@ -79,6 +79,11 @@ class PyProfileStream {
     if (stream_.z_resolution() < 0.0) return std::nullopt;
     return stream_.z_resolution();
   }
+  // The z_noise in use: None while "auto" waits for its rows (-1 until then) or when off.
+  std::optional<double> z_noise() const {
+    if (stream_.z_noise() < 0.0) return std::nullopt;
+    return stream_.z_noise();
+  }
 
  private:
   // A stream is one sequence of profiles: push/flush/reset from two threads at once would
@@ -140,7 +145,8 @@ void bind_one(py::module_& m, const char* name) {
       .def_property_readonly("finished", &PyProfileStream<T>::finished)
       .def_property_readonly("min_step", &PyProfileStream<T>::min_step)
       .def_property_readonly("min_step_decided", &PyProfileStream<T>::min_step_decided)
-      .def_property_readonly("z_resolution", &PyProfileStream<T>::z_resolution);
+      .def_property_readonly("z_resolution", &PyProfileStream<T>::z_resolution)
+      .def_property_readonly("z_noise", &PyProfileStream<T>::z_noise);
 }
 
 }  // namespace
