@@ -14,9 +14,10 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import miem  # noqa: E402
-from miem import _core  # noqa: E402
 from miem import reference as ref  # noqa: E402
 from miem.params import resolve_params  # noqa: E402
+from auto_lengths import (assert_core_is_reference, assert_dask_resolves,  # noqa: E402
+                          assert_given_none_and_bad, assert_stream_measures)
 from stream_batch import stream_labels  # noqa: E402
 
 
@@ -55,14 +56,9 @@ def test_jittered_profiles_stay_clean_and_core_equals_reference() -> None:
     assert not (res.labels == miem.ABNORMAL).any()  # a defect-free sheet
     off = ref.detect(g, z_noise=None)  # the reference without the floor
     assert (off.labels == miem.ABNORMAL).sum() > 20  # offset profiles stood proud
+    assert ref.detect(g).params["z_noise"] == res.params["z_noise"]
     for kw in ({}, {"z_noise": None}):
-        oracle = ref.detect(g, **kw)
-        assert oracle.params["z_noise"] == (None if kw else res.params["z_noise"])
-        for nt in (1, 2):
-            np.testing.assert_array_equal(miem.detect(g, num_threads=nt, **kw).labels,
-                                          oracle.labels)
-        f32 = g.astype(np.float32)
-        np.testing.assert_array_equal(miem.detect(f32, **kw).labels, ref.detect(f32, **kw).labels)
+        assert_core_is_reference(g, **kw)
 
 
 def test_defects_are_still_found_and_min_step_on_gives_the_same_floor() -> None:
@@ -86,22 +82,9 @@ def test_defects_are_still_found_and_min_step_on_gives_the_same_floor() -> None:
 
 def test_given_length_none_and_bad_values() -> None:
     g = _jittered_sheet(seed=5)
-    auto = miem.detect(g)
-    given = miem.detect(g, z_noise=auto.params["z_noise"])
-    np.testing.assert_array_equal(given.labels, auto.labels)
-    assert not given.params["z_noise_auto"]
-    assert miem.detect(g, preset="paper").params["z_noise"] is None
-    assert miem.detect(g, preset="paper", z_noise="auto").params["z_noise"] == auto.params[
-        "z_noise"]
-    for bad in (-0.01, float("nan"), "often", [0.01]):
-        with pytest.raises(ValueError, match="z_noise"):
-            miem.detect(g, z_noise=bad)
-    p = _core.DetectParams()
-    p.z_noise = 0.01  # a length with z_noise_auto still on
-    code, msg = p.check()
-    assert code != 0 and msg.startswith("z_noise")
-    with pytest.raises(ValueError, match="z_noise"):
-        _core.detect_organized(g, p)
+    assert_given_none_and_bad(g, "z_noise")
+    assert miem.detect(g, preset="paper", z_noise="auto").params["z_noise"] == miem.detect(
+        g).params["z_noise"]
     flat = np.dstack([*np.meshgrid(np.arange(2.0), np.arange(2.0)), np.zeros((2, 2))])
     assert miem.detect(flat).params["z_noise"] is None  # no triple along or across
 
@@ -114,31 +97,10 @@ def test_stream_measures_it_as_batch(kw: dict) -> None:
     want = miem.detect(g, params=p)
     assert (want.labels == miem.ABNORMAL).sum() == 1
     np.testing.assert_array_equal(stream_labels(g, p), want.labels)
-    s = miem.ProfileStream(g.shape[1], params=p)
-    assert s.lag >= 256  # it waits for the rows it measures the noise on
-    for row in g[:255]:
-        s.push(row)
-    assert s.z_noise is None  # not decided yet
-    for row in g[255:]:
-        s.push(row)
-    list(s.flush())
-    assert s.z_noise == want.params["z_noise"]
-    assert miem.ProfileStream(8, z_noise=None).z_noise is None
-    assert miem.ProfileStream(8, z_noise=0.02).z_noise == 0.02
+    assert_stream_measures(g, p, "z_noise", want.params["z_noise"])
 
 
 def test_dask_resolves_it_from_the_min_step_survey() -> None:
-    mdask = pytest.importorskip("miem.dask")
-    import dask
-    import dask.array as da
-
     g = _jittered_sheet(rows=300, seed=7)
     g[:3] = np.nan
-    want = miem.detect(g)
-    arr = da.from_array(g, chunks=(128, 64, 3))
-    with dask.config.set(scheduler="sync"):
-        assert mdask.auto_z_noise(arr) == want.params["z_noise"]
-        res = mdask.detect(arr)
-        labels = res.labels.compute()
-    assert res.params["z_noise"] == want.params["z_noise"] and res.params["z_noise_auto"]
-    np.testing.assert_array_equal(labels, want.labels)
+    assert_dask_resolves(g, "z_noise")

@@ -16,6 +16,8 @@ import miem  # noqa: E402
 from miem import _core  # noqa: E402
 from miem import reference as ref  # noqa: E402
 from miem.params import resolve_params  # noqa: E402
+from auto_lengths import (assert_core_is_reference, assert_dask_resolves,  # noqa: E402
+                          assert_given_none_and_bad, assert_stream_measures)
 from stream_batch import stream_labels  # noqa: E402
 
 Q = 0.01  # z stored in 0.01 mm steps (a CSV written to two decimals)
@@ -43,12 +45,7 @@ def test_auto_is_the_step_and_quantised_level_surface_stays_clean() -> None:
     off = ref.detect(g, z_resolution=None)  # the reference, without the floor
     assert (off.labels == miem.ABNORMAL).sum() > 20  # the cells one step off were "defects"
     for kw in ({}, {"z_resolution": None}):
-        oracle = ref.detect(g, **kw)
-        for nt in (1, 2):
-            np.testing.assert_array_equal(miem.detect(g, num_threads=nt, **kw).labels,
-                                          oracle.labels)
-        f32 = g.astype(np.float32)
-        np.testing.assert_array_equal(miem.detect(f32, **kw).labels, ref.detect(f32, **kw).labels)
+        assert_core_is_reference(g, **kw)
 
 
 def test_defects_above_the_step_are_still_found() -> None:
@@ -87,21 +84,7 @@ def test_auto_reads_the_min_step_rows_only_and_ignores_unquantised_data() -> Non
 
 
 def test_given_length_none_and_bad_values() -> None:
-    g = _level_sheet(seed=4)
-    auto = miem.detect(g)
-    given = miem.detect(g, z_resolution=auto.params["z_resolution"])
-    np.testing.assert_array_equal(given.labels, auto.labels)
-    assert not given.params["z_resolution_auto"]
-    assert miem.detect(g, preset="paper").params["z_resolution"] is None
-    for bad in (-0.01, float("nan"), "often", [0.01]):
-        with pytest.raises(ValueError, match="z_resolution"):
-            miem.detect(g, z_resolution=bad)
-    p = _core.DetectParams()
-    p.z_resolution = 0.01  # a length with z_resolution_auto still on
-    code, msg = p.check()
-    assert code != 0 and msg.startswith("z_resolution")
-    with pytest.raises(ValueError, match="z_resolution"):
-        _core.detect_organized(g, p)
+    assert_given_none_and_bad(_level_sheet(seed=4), "z_resolution")
 
 
 @pytest.mark.parametrize("min_step", ["auto", None])
@@ -113,32 +96,10 @@ def test_stream_measures_it_as_batch(min_step: object) -> None:
     assert want.params["z_resolution"] == pytest.approx(Q, abs=1e-12)
     assert (want.labels == miem.ABNORMAL).sum() == 1
     np.testing.assert_array_equal(stream_labels(g, p), want.labels)
-    s = miem.ProfileStream(g.shape[1], params=p)
-    assert s.lag >= 256  # it waits for the rows it measures the step on
-    for row in g[:255]:
-        s.push(row)
-    assert s.z_resolution is None  # not decided yet
-    for row in g[255:]:
-        s.push(row)
-    list(s.flush())  # decided by then (else over the pushes after the 256 rows)
-    assert s.z_resolution == want.params["z_resolution"]
-    assert miem.ProfileStream(8, z_resolution=None).z_resolution is None
-    assert miem.ProfileStream(8, z_resolution=0.02).z_resolution == 0.02
+    assert_stream_measures(g, p, "z_resolution", want.params["z_resolution"])
 
 
 def test_dask_resolves_it_on_the_driver() -> None:
-    mdask = pytest.importorskip("miem.dask")
-    import dask
-    import dask.array as da
-
     g = _level_sheet(rows=300, seed=6)
     g[:3] = np.nan
-    want = miem.detect(g)
-    arr = da.from_array(g, chunks=(128, 64, 3))
-    with dask.config.set(scheduler="sync"):
-        assert mdask.auto_z_resolution(arr) == want.params["z_resolution"]
-        res = mdask.detect(arr)
-        labels = res.labels.compute()
-    assert res.params["z_resolution_auto"]
-    assert res.params["z_resolution"] == want.params["z_resolution"]
-    np.testing.assert_array_equal(labels, want.labels)
+    assert_dask_resolves(g, "z_resolution")
