@@ -1055,7 +1055,7 @@ int edge_stage(const GridView<T>& g, const DetectParams& p, std::uint8_t* labels
     ws.cls.resize(N);
     for (std::size_t i = 0; i < N; ++i) ws.cls[i] = labels[i] == kEdge ? kLine : 0;
   }
-  return edge_passes(g, labels, p.edge_window, edge_tol(p.edge_k, p.min_step, p.z_resolution, p.z_noise),
+  return edge_passes(g, labels, p.edge_window, edge_tol(p),
                      p.max_iterations, p.num_threads, ws.edge_sums, ws.edge_flags,
                      ws.cls.data());
 }

@@ -24,10 +24,11 @@ struct EdgeTol {
   double floor;
 };
 
-/// The tolerance for edge_k `k` and the min_step, z_resolution and z_noise in use (< 0: off).
-inline EdgeTol edge_tol(double k, double min_step, double z_resolution, double z_noise) noexcept {
-  return {k, std::max({min_step > 0.0 ? 0.5 * min_step : 0.0, z_noise > 0.0 ? 2.0 * z_noise : 0.0,
-                       z_floor(z_resolution)})};
+/// The tolerance of `p` (its edge_k; its min_step, z_resolution and z_noise resolved, not
+/// "auto": the ones in use, < 0 off).
+inline EdgeTol edge_tol(const DetectParams& p) noexcept {
+  return {p.edge_k, std::max({p.min_step > 0.0 ? 0.5 * p.min_step : 0.0,
+                              p.z_noise > 0.0 ? 2.0 * p.z_noise : 0.0, z_floor(p.z_resolution)})};
 }
 
 /// Runs edge passes on `labels` (H x W, row-major, as left by the height passes): candidate

@@ -407,7 +407,7 @@ void ProfileStream<T>::min_step_row(std::int64_t row) noexcept {
       zq_ = detail::fold_z_steps(xyz, width_, 1, phys_ * width_, zq_);
     }
     if (!sel_) {  // z_resolution alone: known once its rows are in
-      if (k + 1 == detail::kAutoMinStepRows) decide(params_.min_step, params_.z_noise);
+      if (k + 1 == detail::kAutoMinStepRows) decide();
       return;
     }
     ms_rows_[static_cast<std::size_t>(k)] = xyz;
@@ -421,17 +421,17 @@ void ProfileStream<T>::min_step_row(std::int64_t row) noexcept {
   const std::int64_t visits = ms_sel_.visits_left();
   if (ms_sel_.step(ms_rows_.data(), static_cast<std::ptrdiff_t>(std::max<std::int64_t>(
                                         kMsChunk, (visits + pushes - 1) / pushes)))) {
-    decide(ms_auto_ ? ms_sel_.value() : params_.min_step, ms_sel_.noise());
+    decide();
   }
 }
 
-// The sample rows decided: min_step (`min_step`: its value, or the one given), z_noise "auto"
-// (`z_noise`: the selection's sigma) and z_resolution "auto" (the smallest z step of those
-// rows) in use, and the stages catch up from ms_first_.
+// The sample rows decided (the selection done when it runs): min_step and z_noise "auto" from
+// the selection, z_resolution "auto" the smallest z step of those rows, in use; the stages
+// catch up from ms_first_.
 template <typename T>
-void ProfileStream<T>::decide(double min_step, double z_noise) noexcept {
-  use_min_step(min_step);
-  if (params_.z_noise_auto) jparams_.z_noise = z_noise;
+void ProfileStream<T>::decide() noexcept {
+  if (ms_auto_) use_min_step(ms_sel_.value());
+  if (params_.z_noise_auto) jparams_.z_noise = ms_sel_.noise();
   if (params_.z_resolution_auto) jparams_.z_resolution = std::isfinite(zq_) ? zq_ : -1.0;
   ms_wait_ = false;
   ms_next_ = ms_first_;
@@ -442,14 +442,11 @@ void ProfileStream<T>::decide(double min_step, double z_noise) noexcept {
 template <typename T>
 void ProfileStream<T>::min_step_finish() noexcept {
   if (ms_wait_ && ms_first_ >= 0) {
-    double min_step = params_.min_step, z_noise = params_.z_noise;
     if (sel_) {
       if (!ms_sel_.closed()) ms_sel_.close(ms_rows_.data());
       ms_sel_.step(ms_rows_.data(), ms_sel_.visits_left());
-      if (ms_auto_) min_step = ms_sel_.value();
-      z_noise = ms_sel_.noise();
     }
-    decide(min_step, z_noise);
+    decide();
   }
   if (ms_next_ >= 0) catch_up(pushed_ - 1);
 }

@@ -186,8 +186,10 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
   const GridView<T> gw{xyz_.data() + slot(a0) * W, static_cast<std::ptrdiff_t>(upto - a0), W, W,
                        1, phys_ * W};
   std::uint8_t* const win = elab_row_.data();
-  const int seen = std::max(pass, 1);  // (step 9 judges the labels before pass 1 too)
-  for (std::int64_t a = a0; a < upto; ++a) edge_labels(a, seen, 0, W, win + (a - a0) * W);
+  // (step 9 reads no label of the window: its candidates are todo's, its verdict the fits)
+  for (std::int64_t a = a0; pass > 0 && a < upto; ++a) {
+    edge_labels(a, pass, 0, W, win + (a - a0) * W);
+  }
   const std::uint8_t* lab = win + grow * W;
   std::uint8_t* mark = emark_.data();
   std::ptrdiff_t* tiles = etile_list_.data();
@@ -209,6 +211,7 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
   const std::ptrdiff_t bn = static_cast<std::ptrdiff_t>((band + 1) % ebands_);
   // Work item i on thread `tid`: the verdicts of tile column tiles[i] (i < n_tiles), else the
   // next band's images of tile column i - n_tiles.
+  const detail::EdgeTol et = detail::edge_tol(jparams_);  // min_step etc. as decided
   const auto tile = [&](std::ptrdiff_t i, int tid) {
     std::uint8_t* labs = elab_img_.data() + tid * W;
     if (i >= n_tiles) {
@@ -229,8 +232,6 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
     // (no band cache, unlike batch: kept per tile column over a whole row of tiles it is 11 MB
     // at 3200 points, read back r + 1 pushes later from beyond the L2 cache; without it a
     // default push took about 8 % less CPU time, though it runs more instructions)
-    const detail::EdgeTol et = detail::edge_tol(params_.edge_k, min_step_, jparams_.z_resolution,
-                                                jparams_.z_noise);
     detail::edge_judge_row(gw, grow, row, H, C0, C1, im, o, r, et, win, todo, mark, nullptr,
                            pass == 0 ? detail::EdgeJudgment::kFitsGround
                                      : detail::EdgeJudgment::kVerdict);

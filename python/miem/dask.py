@@ -73,15 +73,17 @@ def _resolve_auto_lengths(grid: "da.Array", args: tuple, kwargs: dict, params: d
     as the length (or None) each resolves to; params record them as auto."""
     from . import _dask_select as sel
 
-    auto = {}
-    if params.get("min_step_auto") or params.get("z_noise_auto"):
-        med = _survey_medians(_as_grid(grid), {})  # (one survey gives both)
-        if params.get("min_step_auto"):
+    auto: dict = {}
+    wanted = [k for k in ("min_step", "z_noise", "z_resolution") if params.get(f"{k}_auto")]
+    rows = _sample_rows(_as_grid(grid), {}) if wanted else None  # (found once for all three)
+    if "min_step" in wanted or "z_noise" in wanted:
+        med = None if rows is None else _survey_medians(rows, {})  # (one survey gives both)
+        if "min_step" in wanted:
             auto["min_step"] = None if med is None else sel.min_step_from_medians(med)
-        if params.get("z_noise_auto"):
+        if "z_noise" in wanted:
             auto["z_noise"] = None if med is None else sel.noise_from_medians(med)
-    if params.get("z_resolution_auto"):
-        auto["z_resolution"] = auto_z_resolution(grid)
+    if "z_resolution" in wanted:
+        auto["z_resolution"] = None if rows is None else _z_resolution_of(rows, {})
     if not auto:
         return kwargs, params
     kwargs = dict(kwargs, **auto)
@@ -606,8 +608,9 @@ def auto_min_step(grid: Any, **compute_kwargs: Any) -> Optional[float]:
     """
     from . import _dask_select as sel
 
-    med = _survey_medians(_as_grid(grid), compute_kwargs)
-    return None if med is None else sel.min_step_from_medians(med)
+    rows = _sample_rows(_as_grid(grid), compute_kwargs)
+    return None if rows is None else sel.min_step_from_medians(_survey_medians(rows,
+                                                                               compute_kwargs))
 
 
 def auto_z_noise(grid: Any, **compute_kwargs: Any) -> Optional[float]:
@@ -621,25 +624,30 @@ def auto_z_noise(grid: Any, **compute_kwargs: Any) -> Optional[float]:
     """
     from . import _dask_select as sel
 
-    med = _survey_medians(_as_grid(grid), compute_kwargs)
-    return None if med is None else sel.noise_from_medians(med)
+    rows = _sample_rows(_as_grid(grid), compute_kwargs)
+    return None if rows is None else sel.noise_from_medians(_survey_medians(rows,
+                                                                            compute_kwargs))
 
 
-def _survey_medians(grid: "da.Array", compute_kwargs: dict) -> Optional[list]:
-    """The four medians of min_step="auto"'s survey over the 256 rows from the first with a
-    finite cell (None without one): blocks read with two more rows and columns, radix
-    selection in four rounds, the rows held on the workers between rounds."""
-    from . import _dask_select as sel
-
+def _sample_rows(grid: "da.Array", compute_kwargs: dict) -> Optional["da.Array"]:
+    """The rows the "auto" lengths read: the 256 from the first row with a finite cell, held
+    on the workers (None when no cell is finite)."""
     from .reference import AUTO_MIN_STEP_ROWS
 
     first = _first_data_row(grid, compute_kwargs)
     if first is None:
         return None
-    grid = grid[first:first + AUTO_MIN_STEP_ROWS].persist(**compute_kwargs)
-    H, W = grid.shape[:2]
-    blocks = [(grid[r0:min(H, r1 + 2), c0:min(W, c1 + 2)], (r1 - r0, c1 - c0))
-              for r0, r1, c0, c1 in _homes(grid)]
+    return grid[first:first + AUTO_MIN_STEP_ROWS].persist(**compute_kwargs)
+
+
+def _survey_medians(rows: "da.Array", compute_kwargs: dict) -> list:
+    """The four medians of min_step="auto"'s survey over the sample rows: blocks read with two
+    more rows and columns, radix selection in four rounds."""
+    from . import _dask_select as sel
+
+    H, W = rows.shape[:2]
+    blocks = [(rows[r0:min(H, r1 + 2), c0:min(W, c1 + 2)], (r1 - r0, c1 - c0))
+              for r0, r1, c0, c1 in _homes(rows)]
     return sel.medians(sel.min_step_survey, blocks, 4, **compute_kwargs)
 
 
@@ -666,16 +674,16 @@ def auto_z_resolution(grid: Any, **compute_kwargs: Any) -> Optional[float]:
     float or None
         The z step, or None (no two neighbours with different z there).
     """
-    from .reference import AUTO_MIN_STEP_ROWS
+    rows = _sample_rows(_as_grid(grid), compute_kwargs)
+    return None if rows is None else _z_resolution_of(rows, compute_kwargs)
 
-    grid = _as_grid(grid)
-    first = _first_data_row(grid, compute_kwargs)
-    if first is None:
-        return None
-    rows = dask.compute(grid[first:first + AUTO_MIN_STEP_ROWS], **compute_kwargs)[0]
+
+def _z_resolution_of(rows: "da.Array", compute_kwargs: dict) -> Optional[float]:
+    """z_resolution="auto" on the sample rows, by the core (the rows brought here)."""
+    local = dask.compute(rows, **compute_kwargs)[0]
     # as miem.detect reads it (float32 kept, other numbers as float64), in a fresh aligned copy
-    rows = np.array(rows, dtype=np.float32 if rows.dtype == np.float32 else np.float64)
-    q = _core.auto_z_resolution(rows)
+    local = np.array(local, dtype=np.float32 if local.dtype == np.float32 else np.float64)
+    q = _core.auto_z_resolution(local)
     return None if q < 0 else float(q)
 
 

@@ -195,10 +195,9 @@ def _min_directions_to(v: Any) -> Dict[str, Any]:
     return {"min_directions": 0 if v is None else _int("min_directions", v, 1)}
 
 
-def _auto_length(name: str) -> Tuple[Callable[[Any], Dict[str, Any]],
-                                       Callable[[Dict[str, Any]], Any]]:
-    """The spelling of a grid length that may be measured (C++ ``name`` < 0: off, and
-    ``name + "_auto"``): a length >= 0, ``"auto"`` or None; to the core and back."""
+def _auto_length(name: str, help: str) -> _Spelled:
+    """A grid length that may be measured (C++ ``name`` < 0: off, and ``name + "_auto"``),
+    spelled as a length >= 0, ``"auto"`` or None."""
     flag = name + "_auto"
 
     def to(v: Any) -> Dict[str, Any]:
@@ -216,7 +215,8 @@ def _auto_length(name: str) -> Tuple[Callable[[Any], Dict[str, Any]],
     def back(c: Dict[str, Any]) -> Any:
         return "auto" if c[flag] else (None if c[name] < 0 else c[name])
 
-    return to, back
+    return _Spelled(name, (name, flag), "length", help, "LENGTH|auto", to, back, (),
+                    Union[None, float, str])
 
 
 _HEIGHT_MODES = {"all": _core.HeightMode.ALL, "abnormal": _core.HeightMode.ABNORMAL}
@@ -310,13 +310,12 @@ def _height_tolerance(help: str) -> _Spelled:
 _SPELLED: Dict[str, Tuple[_Spelled, ...]] = {
     "angle": (_theta0(), _min_directions()),
     "grid": (
-        _Spelled(
-            "min_step", ("min_step", "min_step_auto"), "length",
+        _auto_length(
+            "min_step",
             "minimum neighbour distance in the scan's units, so that every direction sees the "
             "same physical scale; 'auto': from the scan's spacing and profile noise over the "
             "first 256 rows with data (SPEC \"min_step='auto'\"; result.params holds the value "
-            "used); None: off", "LENGTH|auto", *_auto_length("min_step"),
-            (), Union[None, float, str]),
+            "used); None: off"),
         _heights(),
         _height_tolerance(
             "height test (beyond the paper): a NORMAL point farther than this from its local "
@@ -327,23 +326,21 @@ _SPELLED: Dict[str, Tuple[_Spelled, ...]] = {
             "standing proud of a feature line or the scan's outline by more than k times the "
             "rms of its one-sided sub-window plane (at least min_step / 2 with a min_step, "
             "2 z_noise) becomes ABNORMAL; None: off"),
-        _Spelled(
-            "z_resolution", ("z_resolution", "z_resolution_auto"), "length",
+        _auto_length(
+            "z_resolution",
             "the scan's z step (quantisation): the height test's k x rms and the edge test's "
             "tolerances are at least 1.5 times it, so that a cell one step off a level surface "
             "is not a defect; 'auto': the smallest non-zero z difference of neighbours along "
             "the profiles of the rows min_step 'auto' reads (SPEC \"z_resolution\"; "
-            "result.params holds the value used); None: off", "LENGTH|auto",
-            *_auto_length("z_resolution"), (), Union[None, float, str]),
-        _Spelled(
-            "z_noise", ("z_noise", "z_noise_auto"), "length",
+            "result.params holds the value used); None: off"),
+        _auto_length(
+            "z_noise",
             "the scan's z noise sigma, profile jitter included: the edge test's tolerances are "
             "at least 2 times it, so that a profile offset by its scanner's jitter does not "
             "stand proud of a few profiles that happen to agree; 'auto': measured as min_step "
             "'auto' measures it (the larger robust sigma of the second differences along and "
             "across the profiles of its rows; SPEC \"z_noise\"; result.params holds the value "
-            "used); None: off", "LENGTH|auto", *_auto_length("z_noise"), (),
-            Union[None, float, str]),
+            "used); None: off"),
     ),
     "cloud": (
         _Spelled("K", ("num_directions",), "directions", "tangent-plane directions tested, 2-8",

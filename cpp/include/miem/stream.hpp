@@ -234,7 +234,7 @@ class ProfileStream {
     return static_cast<std::ptrdiff_t>(row % ring_);
   }
   void use_min_step(double min_step) noexcept;
-  void decide(double min_step, double z_noise) noexcept;
+  void decide() noexcept;
   void min_step_row(std::int64_t row) noexcept;
   void min_step_finish() noexcept;
   void catch_up(std::int64_t last) noexcept;
