@@ -512,6 +512,97 @@ bool is_spike(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t g
   return median < kEdgeSpikeIso * std::abs(x.h) && !edge_spike_corner(res, x.h);
 }
 
+// SPEC "Edge test" step 1: drops the quiet cells from cells[0 .. m) (NORMAL or EDGE cells of
+// row rr, ascending columns) and returns how many are left, in order. Quiet: the cell's window
+// (rows and columns within r) lies inside the grid and holds only NORMAL and INVALID cells,
+// fewer than n_min INVALID, and the NORMAL ones other than the cell fit a plane whose rms is at
+// most kQuietRough x the tolerance floor with the cell within kQuietH rms of it. Such a cell
+// lies on a smooth surface away from any feature line, flagged cell or outline, where the
+// passes have nothing to find. The formulas are miem.reference._edge_candidates'.
+constexpr double kQuietH = 3.0, kQuietRough = 0.75;
+template <typename T>
+int drop_quiet(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr, std::ptrdiff_t H,
+               const EdgeImages& im, const Eigen::Vector3d& o, std::ptrdiff_t r, double floor,
+               double n_min, const std::uint8_t* lrow, std::ptrdiff_t* cells, int m) {
+  const std::ptrdiff_t W = g.cols;
+  if (m == 0 || rr - r < 0 || rr + r + 1 > H) return m;  // the grid border: every cell judged
+  constexpr int kCap = 64;  // (edge_judge_row's blocks: at most kEdgeBandCells cells)
+  double mm[kM * kCap], Mq[6 * kCap] = {}, E[6 * kCap], ok[kCap], redo[kCap];
+  double pb[3 * kCap], own[kCap], quiet[kCap];
+  const auto srow = [&im](std::ptrdiff_t s) { return ((s - im.first) % im.rows) * im.stride; };
+  const std::ptrdiff_t top = srow(rr - r), bottom = srow(rr + r + 1);
+  const double* const S = im.data;
+  // the window sums: one rectangle per cell (consecutive cells inside the grid: vectorised)
+  if (cells[m - 1] - cells[0] + 1 == m && cells[0] - r >= 0 && cells[m - 1] + r + 1 <= W) {
+    const std::ptrdiff_t x0 = cells[0] - r - im.f0, x1 = cells[0] + r + 1 - im.f0;
+    rect_sums(m, im.plane, kCap, S + bottom + x1, S + top + x1, S + bottom + x0, S + top + x0,
+              mm);
+  } else {
+    for (int j = 0; j < m; ++j) {
+      const std::ptrdiff_t c = cells[j];
+      const std::ptrdiff_t x0 = std::max<std::ptrdiff_t>(c - r, 0) - im.f0;
+      const std::ptrdiff_t x1 = std::min<std::ptrdiff_t>(c + r + 1, W) - im.f0;
+      for (int q = 0; q < kM; ++q) {
+        const double* Sq = S + q * im.plane;
+        mm[q * kCap + j] = Sq[bottom + x1] - Sq[top + x1] - Sq[bottom + x0] + Sq[top + x0];
+      }
+    }
+  }
+  for (int j = 0; j < m; ++j) {
+    const std::ptrdiff_t c = cells[j];
+    const Eigen::Vector3d p = g(grow, c) - o;
+    pb[j] = p.x(), pb[kCap + j] = p.y(), pb[2 * kCap + j] = p.z();
+    own[j] = lrow[c] == kNormal ? 1.0 : 0.0;  // the cell itself is not in its plane's support
+    quiet[j] = c - r >= 0 && c + r + 1 <= W ? 1.0 : 0.0;
+  }
+  const double area = static_cast<double>((2 * r + 1) * (2 * r + 1));
+#pragma GCC ivdep
+  for (int j = 0; j < m; ++j) {
+    const double w = own[j], px = pb[j], py = pb[kCap + j], pz = pb[2 * kCap + j];
+    const double e = mm[10 * kCap + j], n = mm[j] - w;
+    // only NORMAL and INVALID cells (the cell's own count included), few INVALID, a plane
+    quiet[j] = quiet[j] != 0.0 && mm[j] + e >= area && e < n_min && n >= 3.0 ? 1.0 : 0.0;
+    const double nn = n < 1.0 ? 1.0 : n;
+    const double cx = (mm[kCap + j] - w * px) / nn, cy = (mm[2 * kCap + j] - w * py) / nn;
+    const double cz = (mm[3 * kCap + j] - w * pz) / nn;
+    mm[j] = nn, mm[kCap + j] = cx, mm[2 * kCap + j] = cy, mm[3 * kCap + j] = cz;
+    Mq[j] = (mm[4 * kCap + j] - w * (px * px)) - nn * cx * cx;
+    Mq[kCap + j] = (mm[7 * kCap + j] - w * (py * py)) - nn * cy * cy;
+    Mq[2 * kCap + j] = (mm[9 * kCap + j] - w * (pz * pz)) - nn * cz * cz;
+    Mq[3 * kCap + j] = (mm[5 * kCap + j] - w * (px * py)) - nn * cx * cy;
+    Mq[4 * kCap + j] = (mm[8 * kCap + j] - w * (py * pz)) - nn * cy * cz;
+    Mq[5 * kCap + j] = (mm[6 * kCap + j] - w * (px * pz)) - nn * cx * cz;
+  }
+  smallest_eigenpairs_long(m, kCap, Mq, E, ok, redo);
+  for (int j = 0; j < m; ++j) {  // lanes the vector loop did not finish (rare)
+    if (quiet[j] == 0.0 || redo[j] == 0.0) continue;
+    Eigen::Matrix3d M;
+    M << Mq[j], Mq[3 * kCap + j], Mq[5 * kCap + j], Mq[3 * kCap + j], Mq[kCap + j],
+        Mq[4 * kCap + j], Mq[5 * kCap + j], Mq[4 * kCap + j], Mq[2 * kCap + j];
+    Eigen::Vector3d u = Eigen::Vector3d::Zero();
+    ok[j] = smallest_eigenpair(M, E + j, E + kCap + j, E + 2 * kCap + j, &u) ? 1.0 : 0.0;
+    E[3 * kCap + j] = u.x(), E[4 * kCap + j] = u.y(), E[5 * kCap + j] = u.z();
+  }
+#pragma GCC ivdep
+  for (int j = 0; j < m; ++j) {
+    const double l0 = E[j], l1 = E[kCap + j], l2 = E[2 * kCap + j];
+    const double rms = edge_side_rms(l0, l2, mm[j]);
+    const double h = std::abs((pb[j] - mm[kCap + j]) * E[3 * kCap + j] +
+                              (pb[kCap + j] - mm[2 * kCap + j]) * E[4 * kCap + j] +
+                              (pb[2 * kCap + j] - mm[3 * kCap + j]) * E[5 * kCap + j]);
+    quiet[j] = quiet[j] != 0.0 && ok[j] != 0.0 && l2 > 0.0 && !(l1 <= kRankTol * l2) &&
+                       h <= kQuietH * rms && rms <= kQuietRough * floor
+                   ? 1.0
+                   : 0.0;
+  }
+  int kept = 0;
+  for (int j = 0; j < m; ++j) {
+    cells[kept] = cells[j];
+    kept += quiet[j] != 0.0 ? 0 : 1;
+  }
+  return kept;
+}
+
 template <typename T>
 void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr,
                     std::ptrdiff_t H, std::ptrdiff_t C0, std::ptrdiff_t C1,
@@ -595,6 +686,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
         bcand[nb] = c;
         nb += todo[c] & (fit_only | (lrow[c] == kNormal) | (lrow[c] == kEdge));
       }
+      if (!fit_only) nb = drop_quiet(g, grow, rr, H, im, o, r, et.floor, n_min, lrow, bcand, nb);
       banded = false;
       if (rows_inside && bw >= 16) {
         const std::ptrdiff_t n = nb, first = nb ? bcand[0] : -1, last = nb ? bcand[nb - 1] : -1;

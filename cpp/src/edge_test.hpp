@@ -108,8 +108,9 @@ struct EdgeBandCache {
 };
 
 /// One edge pass's verdicts (SPEC "Edge test") on grid row rr, columns C0 .. C1 - 1 of one
-/// tile: each cell c with todo[c] and a NORMAL or EDGE label gets mark[c] = 1 when it becomes
-/// ABNORMAL, else 0 (other cells untouched); with `judge` kFitsGround, each cell with todo[c]
+/// tile: each cell c with todo[c] and a NORMAL or EDGE label that is not quiet (step 1) gets
+/// mark[c] = 1 when it becomes ABNORMAL, else 0 (other cells untouched: the callers clear mark
+/// first); with `judge` kFitsGround, each cell with todo[c]
 /// (any label) gets mark[c] = 1 when it fits a clean sub-window that is not empty (step 9).
 /// g holds at least the grid rows within r of rr
 /// (rows max(0, rr - r) .. min(H, rr + r + 1) - 1: a neighbourhood, or the whole grid), the

@@ -1062,6 +1062,86 @@ def _edge_rms(evals: NDArray[np.float64], n: NDArray[np.float64]) -> NDArray[np.
     return np.sqrt(np.where(l0 > _FLAT_L0 * evals[..., 2], l0, 0.0) / n)
 
 
+def _moment_images(
+    grid: NDArray[np.float64],
+    support: NDArray[np.bool_],
+    invalid: NDArray[np.bool_],
+    origin: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """Integral images ``(H + 1, W + 1, 11)`` of the edge test's moments (SPEC "Edge test" step
+    3): n, x, y, z, xx, xy, xz, yy, yz, zz of the ``support`` cells relative to ``origin``,
+    and the ``invalid`` count; a rectangle's sums are ``s[r1, c1] - s[r0, c1] - s[r1, c0] +
+    s[r0, c0]``."""
+    hh, ww = support.shape
+    p = np.where(support[..., None], grid - origin, 0.0)
+    terms = _moment_terms(p)
+    terms[..., 0] = support
+    terms = np.concatenate([terms, invalid[..., None]], axis=-1)
+    s = np.zeros((hh + 1, ww + 1, 11))
+    s[1:, 1:] = np.cumsum(np.cumsum(terms, axis=0), axis=1)
+    return s
+
+
+def _moment_terms(p: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Per point ``(..., 3)``: 1, x, y, z, xx, xy, xz, yy, yz, zz (the edge test's moments)."""
+    terms = [np.ones(p.shape[:-1])] + [p[..., a] for a in range(3)]
+    terms += [p[..., a] * p[..., b] for a in range(3) for b in range(a, 3)]
+    return np.stack(terms, axis=-1)
+
+
+def _scatter(m: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
+    """From moment sums ``(N, >= 10)`` (n, x, y, z, xx, xy, xz, yy, yz, zz): ``max(n, 1)``, the
+    centroid and the centred scatter ``(N, 3, 3)``."""
+    nn = np.maximum(m[:, 0], 1.0)
+    cen = m[:, 1:4] / nn[:, None]
+    cov = np.empty((m.shape[0], 3, 3))
+    idx = 4
+    for a in range(3):
+        for b in range(a, 3):
+            cov[:, a, b] = cov[:, b, a] = m[:, idx] - nn * cen[:, a] * cen[:, b]
+            idx += 1
+    return nn, cen, cov
+
+
+def _edge_candidates(
+    grid: NDArray[np.float64],
+    labels: NDArray[np.uint8],
+    cells: NDArray[np.bool_],
+    r: int,
+    origin: NDArray[np.float64],
+    floor: float,
+) -> NDArray[np.bool_]:
+    """SPEC "Edge test" step 1: which NORMAL or EDGE cells of ``cells`` (row-major, ``(N,)``)
+    the pass judges. A cell is left out when its window (rows and columns within ``r``) lies
+    inside the grid, holds only NORMAL and INVALID cells, fewer than ``n_min`` INVALID ones,
+    and its NORMAL cells other than it fit a plane (SPEC "Plane fit") with ``rms <=
+    _EDGE_QUIET_ROUGH * floor`` and the cell within ``_EDGE_QUIET_H * rms`` of it."""
+    hh, ww = labels.shape
+    support = labels == NORMAL
+    s = _moment_images(grid, support, labels == INVALID, origin)
+    rr, cc = np.nonzero(cells)
+    r0, r1 = rr - r, rr + r + 1
+    c0, c1 = cc - r, cc + r + 1
+    inside = (r0 >= 0) & (r1 <= hh) & (c0 >= 0) & (c1 <= ww)
+    r0, r1, c0, c1 = np.clip(r0, 0, hh), np.clip(r1, 0, hh), np.clip(c0, 0, ww), np.clip(c1, 0, ww)
+    m = s[r1, c1] - s[r0, c1] - s[r1, c0] + s[r0, c0]
+    n_min = max(3, (r * r) // 2)
+    area = (2 * r + 1) ** 2
+    quiet = inside & (m[:, 0] + m[:, 10] >= area) & (m[:, 10] < n_min)
+    pt = grid[rr, cc] - origin
+    own = support[rr, cc]  # the cell itself is not in its plane's support
+    m[own, :10] -= _moment_terms(pt[own])
+    quiet &= m[:, 0] >= 3
+    nn, cen, cov = _scatter(m)
+    cov[~quiet] = np.eye(3)
+    evals, evecs = np.linalg.eigh(cov)
+    quiet &= (evals[:, 2] > 0.0) & ~(evals[:, 1] <= _EIGEN_RANK_TOL * evals[:, 2])
+    rms = _edge_rms(evals, nn)
+    h = np.abs(_dot3(pt - cen, evecs[:, :, 0]))
+    quiet &= (h <= _EDGE_QUIET_H * rms) & (rms <= _EDGE_QUIET_ROUGH * floor)
+    return ~quiet
+
+
 def _side_fits(
     grid: NDArray[np.float64],
     support: NDArray[np.bool_],
@@ -1078,12 +1158,7 @@ def _side_fits(
     row-major order.
     """
     hh, ww = support.shape
-    p = np.where(support[..., None], grid - origin, 0.0)
-    terms = [support.astype(np.float64)] + [p[..., a] for a in range(3)]
-    terms += [p[..., a] * p[..., b] for a in range(3) for b in range(a, 3)]
-    terms.append(invalid.astype(np.float64))
-    s = np.zeros((hh + 1, ww + 1, 11))
-    s[1:, 1:] = np.cumsum(np.cumsum(np.stack(terms, axis=-1), axis=0), axis=1)
+    s = _moment_images(grid, support, invalid, origin)
     rr, cc = np.nonzero(cells)
     pt = grid[rr, cc] - origin
     n_min = max(3, (r * r) // 2)
@@ -1100,17 +1175,8 @@ def _side_fits(
         c0 = np.clip(cc + b0, 0, ww)
         c1 = np.clip(cc + b1 + 1, 0, ww)
         m = s[r1, c1] - s[r0, c1] - s[r1, c0] + s[r0, c0]
-        n = m[:, 0]
-        ok = n >= n_min
-        nn = np.maximum(n, 1.0)
-        cen = m[:, 1:4] / nn[:, None]
-        cov = np.empty((rr.size, 3, 3))
-        idx = 4
-        for a in range(3):
-            for b in range(a, 3):
-                cov[:, a, b] = cov[:, b, a] = m[:, idx] - nn * cen[:, a] * cen[:, b]
-                idx += 1
-        # (idx == 10: the INVALID count)
+        ok = m[:, 0] >= n_min
+        nn, cen, cov = _scatter(m)
         # support on a line in (x, y) (one row or column of cells): no plane (its normal would
         # be horizontal and its smallest eigenvalue round-off)
         a, b, d = cov[:, 0, 0], cov[:, 1, 1], cov[:, 0, 1]
@@ -1128,6 +1194,11 @@ def _side_fits(
         empty[k] = m[:, 10] >= n_min
     return hs, rms, spread, valid, normals, centroids, empty
 
+
+#: A quiet cell (SPEC "Edge test" step 1), not judged: within this many rms of its window's
+#: plane, whose rms is at most _EDGE_QUIET_ROUGH times the tolerance floor.
+_EDGE_QUIET_H = 3.0
+_EDGE_QUIET_ROUGH = 0.75
 
 #: The edge test's tiles (SPEC "Edge test" step 3): rows x columns, fixed in grid coordinates.
 _EDGE_TILE = (64, 128)
@@ -1492,6 +1563,11 @@ def _edge_verdicts(
     ``floor``: the least tolerance, step 3); with ``fits_only``, step 9's verdict instead: the
     cells that fit a clean sub-window that is not empty."""
     out = np.zeros_like(cells)
+    if not fits_only:
+        cells = cells.copy()
+        cells[cells] = _edge_candidates(grid, labels, cells, r, origin, floor)
+        if not cells.any():
+            return out
     h, rms, spread, valid, nrm, cen, empty = _side_fits(
         grid, labels == NORMAL, labels == INVALID, cells, r, origin)
     level, clean, tol = _clean_sides(rms, spread, valid, nrm, k, floor)
