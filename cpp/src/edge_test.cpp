@@ -573,6 +573,9 @@ int drop_quiet(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr, std
     Mq[4 * kCap + j] = (mm[8 * kCap + j] - w * (py * pz)) - nn * cy * cz;
     Mq[5 * kCap + j] = (mm[6 * kCap + j] - w * (px * pz)) - nn * cx * cz;
   }
+  double any = 0.0;
+  for (int j = 0; j < m; ++j) any += quiet[j];
+  if (any == 0.0) return m;  // none can be quiet (near a feature line, an outline): no solve
   smallest_eigenpairs_long(m, kCap, Mq, E, ok, redo);
   for (int j = 0; j < m; ++j) {  // lanes the vector loop did not finish (rare)
     if (quiet[j] == 0.0 || redo[j] == 0.0) continue;
