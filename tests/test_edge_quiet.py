@@ -20,7 +20,7 @@ def _scene() -> tuple[np.ndarray, np.ndarray]:
     x, y = np.meshgrid(np.arange(w) * 0.1, np.arange(h) * 0.1)
     z = 0.02 * x + rng.normal(0.0, 0.002, (h, w))
     z += np.where(x > 4.0, 0.5 * (x - 4.0) ** 2, 0.0)  # a bend from column 40 on
-    z[20, 10] += 0.012  # a low bump: 6 sigma, under the height test's reach
+    z[20, 10] += 0.012  # a low bump: 6 sigma of the noise
     g = np.stack([x, y, z], axis=-1)
     labels = np.zeros((h, w), dtype=np.uint8)
     g[8:14, 25:31] = np.nan  # 36 dropouts: >= n_min (4 at r = 3) in the windows around it
