@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 from miem import _core
 from miem import reference as ref
+from miem.params import resolve_params
+from stream_batch import stream_labels
 
 
 def assert_core_is_reference(g: np.ndarray, **kw) -> None:
@@ -21,9 +23,16 @@ def assert_core_is_reference(g: np.ndarray, **kw) -> None:
     np.testing.assert_array_equal(miem.detect(f32, **kw).labels, ref.detect(f32, **kw).labels)
 
 
-def assert_stream_measures(g: np.ndarray, p: miem.DetectParams, name: str, want: float) -> None:
-    """ProfileStream's property `name` is None until the 256 sample rows are in, then `want`
-    (batch's value); None when off, a given length as given."""
+def assert_stream_measures(g: np.ndarray, kw: dict, name: str) -> miem.DetectResult:
+    """With the stream's defaults and the overrides `kw`, on a scan with one spike: the stream's
+    labels are batch's (one ABNORMAL cell), and its property `name` is None until the 256
+    sample rows are in, then batch's value; None when off, a given length as given. Returns
+    batch's result."""
+    p, _ = resolve_params(miem.default_params("stream"), None, kw, "stream")
+    batch = miem.detect(g, params=p)
+    assert (batch.labels == miem.ABNORMAL).sum() == 1
+    np.testing.assert_array_equal(stream_labels(g, p), batch.labels)
+    want = batch.params[name]
     s = miem.ProfileStream(g.shape[1], params=p)
     assert s.lag >= 256  # it waits for the rows it measures on
     for row in g[:255]:
@@ -35,6 +44,7 @@ def assert_stream_measures(g: np.ndarray, p: miem.DetectParams, name: str, want:
     assert getattr(s, name) == want
     assert getattr(miem.ProfileStream(8, **{name: None}), name) is None
     assert getattr(miem.ProfileStream(8, **{name: 0.02}), name) == 0.02
+    return batch
 
 
 def assert_dask_resolves(g: np.ndarray, name: str) -> None:

@@ -527,8 +527,8 @@ int drop_quiet(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr, std
   const std::ptrdiff_t W = g.cols;
   if (m == 0 || rr - r < 0 || rr + r + 1 > H) return m;  // the grid border: every cell judged
   constexpr int kCap = 64;  // (edge_judge_row's blocks: at most kEdgeBandCells cells)
-  double mm[kM * kCap], Mq[6 * kCap] = {}, E[6 * kCap], ok[kCap], redo[kCap];
-  double pb[3 * kCap], own[kCap], quiet[kCap];
+  double mm[kM * kCap], Mq[6 * kCap], E[6 * kCap], ok[kCap], redo[kCap];
+  double pb[3 * kCap], own[kCap], quiet[kCap], nnb[kCap], ceb[3 * kCap], useb[kCap], emptyb[kCap];
   const auto srow = [&im](std::ptrdiff_t s) { return ((s - im.first) % im.rows) * im.stride; };
   const std::ptrdiff_t top = srow(rr - r), bottom = srow(rr + r + 1);
   const double* const S = im.data;
@@ -562,17 +562,12 @@ int drop_quiet(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr, std
     const double e = mm[10 * kCap + j], n = mm[j] - w;
     // only NORMAL and INVALID cells (the cell's own count included), few INVALID, a plane
     quiet[j] = quiet[j] != 0.0 && mm[j] + e >= area && e < n_min && n >= 3.0 ? 1.0 : 0.0;
-    const double nn = n < 1.0 ? 1.0 : n;
-    const double cx = (mm[kCap + j] - w * px) / nn, cy = (mm[2 * kCap + j] - w * py) / nn;
-    const double cz = (mm[3 * kCap + j] - w * pz) / nn;
-    mm[j] = nn, mm[kCap + j] = cx, mm[2 * kCap + j] = cy, mm[3 * kCap + j] = cz;
-    Mq[j] = (mm[4 * kCap + j] - w * (px * px)) - nn * cx * cx;
-    Mq[kCap + j] = (mm[7 * kCap + j] - w * (py * py)) - nn * cy * cy;
-    Mq[2 * kCap + j] = (mm[9 * kCap + j] - w * (pz * pz)) - nn * cz * cz;
-    Mq[3 * kCap + j] = (mm[5 * kCap + j] - w * (px * py)) - nn * cx * cy;
-    Mq[4 * kCap + j] = (mm[8 * kCap + j] - w * (py * pz)) - nn * cy * cz;
-    Mq[5 * kCap + j] = (mm[6 * kCap + j] - w * (px * pz)) - nn * cx * cz;
+    // the support without the cell itself (w = 0 when it is EDGE: not in the sums)
+    const double v[10] = {1.0, px, py, pz, px * px, px * py, px * pz, py * py, py * pz, pz * pz};
+    for (int q = 0; q < 10; ++q) mm[q * kCap + j] -= w * v[q];
   }
+  // centroid and centred scatter as for the sub-windows (`useb`, `emptyb`: not used here)
+  side_moments(m, kCap, 3.0, mm, nnb, ceb, Mq, useb, emptyb);
   double any = 0.0;
   for (int j = 0; j < m; ++j) any += quiet[j];
   if (any == 0.0) return m;  // none can be quiet (near a feature line, an outline): no solve
@@ -589,10 +584,10 @@ int drop_quiet(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr, std
 #pragma GCC ivdep
   for (int j = 0; j < m; ++j) {
     const double l0 = E[j], l1 = E[kCap + j], l2 = E[2 * kCap + j];
-    const double rms = edge_side_rms(l0, l2, mm[j]);
-    const double h = std::abs((pb[j] - mm[kCap + j]) * E[3 * kCap + j] +
-                              (pb[kCap + j] - mm[2 * kCap + j]) * E[4 * kCap + j] +
-                              (pb[2 * kCap + j] - mm[3 * kCap + j]) * E[5 * kCap + j]);
+    const double rms = edge_side_rms(l0, l2, nnb[j]);
+    const double h = std::abs((pb[j] - ceb[j]) * E[3 * kCap + j] +
+                              (pb[kCap + j] - ceb[kCap + j]) * E[4 * kCap + j] +
+                              (pb[2 * kCap + j] - ceb[2 * kCap + j]) * E[5 * kCap + j]);
     quiet[j] = quiet[j] != 0.0 && ok[j] != 0.0 && l2 > 0.0 && !(l1 <= kRankTol * l2) &&
                        h <= kQuietH * rms && rms <= kQuietRough * floor
                    ? 1.0
