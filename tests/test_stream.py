@@ -158,11 +158,13 @@ def test_stream_equals_detect_full_detector(preset: str, variant: int, dtype) ->
 
 
 # Pass 1 runs batch detection's row kernel (cpp/src/pass1_row.hpp) on the stream's own ring of
-# converted rows, CellJudge for what it cannot settle: always with min_step, and without it where
-# more than 0.5 % of the rows around are dropouts (elsewhere a filter, and CellJudge next to each
-# dropout). Spacing 0.25 mm along the profiles: min_step 1.6 mm puts the scale-2 and -3
-# neighbours 13 and 20 steps out, past the kernel's 16 (CellJudge's), scale 1 within it; theta0
-# above 90 flags the flat surface (with neighbours that far, 150 degrees flags a few percent).
+# converted rows, CellJudge for what it cannot settle, with min_step. Without it, a filter: with
+# max_gap >= 1 and the smallest scale at most max_gap it takes the cell one step further for a
+# dropout (CellJudge where that one is missing too); otherwise CellJudge next to each dropout,
+# and the row kernel where more than 0.5 % of the rows around are dropouts. Spacing 0.25 mm
+# along the profiles: min_step 1.6 mm puts the scale-2 and -3 neighbours 13 and 20 steps out,
+# past the kernel's 16 (CellJudge's), scale 1 within it; theta0 above 90 flags the flat surface
+# (with neighbours that far, 150 degrees flags a few percent).
 PASS1_VARIANTS = [
     {"min_step": 0.3}, {"min_step": 0.3, "theta0": 60.0}, {"min_step": 0.3, "theta0": 120.0},
     {"min_step": 1.6, "scales": (1, 2, 3), "theta0": 150.0},

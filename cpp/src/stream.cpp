@@ -55,11 +55,19 @@ struct UsableAtPass {
 // order, so every cell that could be flagged is marked and then judged exactly.
 // Cells [c0, c1) of one row; P, A[i], B[i]: x at [c], y at [c + plane], z at [c + 2 plane];
 // A[i][c], B[i][c] are the two neighbours of cell c for (direction, scale) i.
+// With `gap` (max_gap >= 1), a neighbour cell at step s that is not usable (its state SA[i][c],
+// SB[i][c] is 0) stands aside for the cell one step further, A2[i][c], B2[i][c]: SPEC's search
+// ends there when that one is usable (the caller sends the cells where neither is to CellJudge).
 template <typename T>
 struct KernelArgs {
   const T* P;
   const T* A[32];
   const T* B[32];
+  const T* A2[32];
+  const T* B2[32];
+  const std::uint8_t* SA[32];
+  const std::uint8_t* SB[32];
+  bool gap;
   int n;  // (direction, scale) pairs
   std::ptrdiff_t plane, c0, c1;
   std::uint32_t* bits;  // bit i: (direction, scale) i may be flagged
@@ -74,8 +82,8 @@ void kernel_scalar(const KernelArgs<T>& a, std::ptrdiff_t c) {
   for (; c < a.c1; ++c) {
     const double px = a.P[c], py = a.P[pl + c], pz = a.P[2 * pl + c];
     for (int i = 0; i < a.n; ++i) {
-      const T* A = a.A[i];
-      const T* B = a.B[i];
+      const T* A = a.gap && a.SA[i][c] == 0 ? a.A2[i] : a.A[i];
+      const T* B = a.gap && a.SB[i][c] == 0 ? a.B2[i] : a.B[i];
       const double ux = A[c] - px, uy = A[pl + c] - py, uz = A[2 * pl + c] - pz;
       const double vx = B[c] - px, vy = B[pl + c] - py, vz = B[2 * pl + c] - pz;
       const double x = ux * vx, y = uy * vy, z = uz * vz;
@@ -134,6 +142,14 @@ __attribute__((target("avx2"))) inline __m256d load4(const float* p) {
   return _mm256_cvtps_pd(_mm_loadu_ps(p));
 }
 
+// All-ones lanes where the state byte is 0 (the cell is not usable), of 4 consecutive cells.
+__attribute__((target("avx2"))) inline __m256d missing4(const std::uint8_t* st) {
+  std::int32_t w;
+  std::memcpy(&w, st, sizeof w);
+  const __m128i zero = _mm_cmpeq_epi8(_mm_cvtsi32_si128(w), _mm_setzero_si128());
+  return _mm256_castsi256_pd(_mm256_cvtepi8_epi64(zero));
+}
+
 template <typename T>
 __attribute__((target("avx2"))) void kernel_avx2(const KernelArgs<T>& a) {
   const std::ptrdiff_t pl = a.plane;
@@ -145,12 +161,26 @@ __attribute__((target("avx2"))) void kernel_avx2(const KernelArgs<T>& a) {
     for (int i = 0; i < a.n; ++i) {
       const T* A = a.A[i];
       const T* B = a.B[i];
-      const __m256d x =
-          _mm256_mul_pd(_mm256_sub_pd(load4(A + c), px), _mm256_sub_pd(load4(B + c), px));
-      const __m256d y = _mm256_mul_pd(_mm256_sub_pd(load4(A + pl + c), py),
-                                      _mm256_sub_pd(load4(B + pl + c), py));
-      const __m256d z = _mm256_mul_pd(_mm256_sub_pd(load4(A + 2 * pl + c), pz),
-                                      _mm256_sub_pd(load4(B + 2 * pl + c), pz));
+      __m256d ax = load4(A + c), ay = load4(A + pl + c), az = load4(A + 2 * pl + c);
+      __m256d bx = load4(B + c), by = load4(B + pl + c), bz = load4(B + 2 * pl + c);
+      if (a.gap) {  // lanes whose step-s cell is not usable: the next one's coordinates
+        const __m256d ma = missing4(a.SA[i] + c), mb = missing4(a.SB[i] + c);
+        if (_mm256_movemask_pd(ma) != 0) {
+          const T* A2 = a.A2[i];
+          ax = _mm256_blendv_pd(ax, load4(A2 + c), ma);
+          ay = _mm256_blendv_pd(ay, load4(A2 + pl + c), ma);
+          az = _mm256_blendv_pd(az, load4(A2 + 2 * pl + c), ma);
+        }
+        if (_mm256_movemask_pd(mb) != 0) {
+          const T* B2 = a.B2[i];
+          bx = _mm256_blendv_pd(bx, load4(B2 + c), mb);
+          by = _mm256_blendv_pd(by, load4(B2 + pl + c), mb);
+          bz = _mm256_blendv_pd(bz, load4(B2 + 2 * pl + c), mb);
+        }
+      }
+      const __m256d x = _mm256_mul_pd(_mm256_sub_pd(ax, px), _mm256_sub_pd(bx, px));
+      const __m256d y = _mm256_mul_pd(_mm256_sub_pd(ay, py), _mm256_sub_pd(by, py));
+      const __m256d z = _mm256_mul_pd(_mm256_sub_pd(az, pz), _mm256_sub_pd(bz, pz));
       const __m256d d = _mm256_add_pd(_mm256_add_pd(x, y), z);
       const __m256d mag =
           _mm256_add_pd(_mm256_add_pd(_mm256_and_pd(x, abs_mask), _mm256_and_pd(y, abs_mask)),
@@ -175,6 +205,8 @@ void run_kernel(const KernelArgs<T>& a) {
   static const bool has_avx2 = __builtin_cpu_supports("avx2");
   if (has_avx2) {
     kernel_avx2(a);
+  } else if (a.gap) {
+    kernel_scalar(a, a.c0);
   } else {
     kernel_sse2(a);
   }
@@ -324,6 +356,10 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   // The kernel needs the scale-s cells to stand for the neighbours (no min_step), some of them
   // inside the isolation reach (so "not isolated" is implied), and one bit per (direction, scale).
   fast_ok_ = min_scale <= 1 + params_.max_gap && params_.scales.size() <= 7;
+  // A dropout at step s: the kernel takes the cell at s + 1 (SPEC's search with max_gap >= 1),
+  // which keeps "not isolated" implied when the smallest scale's s + 1 is within its reach.
+  p1_gap_ = params_.max_gap >= 1 && min_scale <= params_.max_gap;
+  fedge_ = max_scale_ + (p1_gap_ ? 1 : 0);
   jparams_ = params_;
   jparams_.min_step_auto = false;
   jparams_.z_resolution_auto = false;  // with "auto": -1 (off) until the sample rows are in
@@ -691,12 +727,13 @@ void ProfileStream<T>::run_pass(std::int64_t row, int pass) noexcept {
     }
   };
 
-  // Pass 1 by batch detection's row kernel with min_step; without, by the filter below, unless
-  // more than 0.5 % of the cells within the largest scale are dropouts: the filter leaves every
-  // cell with a missing neighbour (about 16 per dropout) to CellJudge. (The kernel took 8 %
-  // more of a default push than the filter on a clean scan, and 5-12 % less at 1 % dropouts.)
+  // Pass 1 by batch detection's row kernel with min_step; without, by the filter below. Without
+  // p1_gap_, the filter leaves every cell with a missing neighbour (about 16 per dropout) to
+  // CellJudge: then the row kernel runs where more than 0.5 % of the cells within the largest
+  // scale are dropouts. (It took 8 % more of a default push than the filter on a clean scan,
+  // and 5-12 % less at 1 % dropouts.)
   bool kernel = p1_kernel_;
-  if (pass == 1 && !kernel && fast_ && !p1_lab_.empty()) {
+  if (pass == 1 && !kernel && fast_ && !p1_gap_ && !p1_lab_.empty()) {
     std::int64_t miss = 0;
     const std::int64_t a = std::max<std::int64_t>(0, row - max_scale_);
     const std::int64_t b = std::min<std::int64_t>(pushed_ - 1, row + max_scale_);
@@ -717,15 +754,15 @@ void ProfileStream<T>::run_pass(std::int64_t row, int pass) noexcept {
     }
     judge_cells(n, [](std::ptrdiff_t) { return true; });
   } else if (pass == 1) {
-    const bool fast = fast_ && row >= max_scale_ && row + max_scale_ < pushed_ &&
-                      W > 2 * static_cast<std::ptrdiff_t>(max_scale_);
+    const bool fast = fast_ && row >= fedge_ && row + fedge_ < pushed_ &&
+                      W > 2 * static_cast<std::ptrdiff_t>(fedge_);
     if (!fast) {
       for (std::ptrdiff_t c = 0; c < W; ++c)
         if (st[c] != 0) judge_cell(c);
     } else {
       // The kernel marks the few cells that need more than "NORMAL" (set at push).
       pass1_fast(row);
-      const std::ptrdiff_t S = max_scale_;
+      const std::ptrdiff_t S = fedge_;
       for (std::ptrdiff_t c = 0; c < S; ++c)
         if (st[c] != 0) judge_cell(c);
       for (std::ptrdiff_t c = W - S; c < W; ++c)
@@ -788,19 +825,23 @@ void ProfileStream<T>::run_pass(std::int64_t row, int pass) noexcept {
 
 // Pass 1 filter of one row where every neighbour cell exists: marks in bits_ the cells that
 // might be flagged in some direction (the kernel) and, with kBadBit, the cells with a missing
-// neighbour (next to a dropout), which CellJudge itself judges. Every other cell is NORMAL.
+// neighbour (next to a dropout; with p1_gap_, missing at steps s and s + 1), which CellJudge
+// itself judges. Every other cell is NORMAL.
 template <typename T>
 void ProfileStream<T>::pass1_fast(std::int64_t row) noexcept {
-  const std::ptrdiff_t W = width_, S = max_scale_, plane = phys_ * W;
+  const std::ptrdiff_t W = width_, S = fedge_, plane = phys_ * W;
   std::uint32_t* bits = bits_.data();
   const std::size_t n_scales = params_.scales.size();
   KernelArgs<T> args{};
+  args.gap = p1_gap_;
   args.P = xyz_.data() + slot(row) * W;
   args.n = 4 * static_cast<int>(n_scales);
   args.plane = plane;
   args.bits = bits;
   const std::uint8_t* sa[32];
   const std::uint8_t* sb[32];
+  const std::uint8_t* sa2[32];
+  const std::uint8_t* sb2[32];
   for (int k = 0; k < 4; ++k) {
     for (std::size_t si = 0; si < n_scales; ++si) {
       const std::ptrdiff_t sc = params_.scales[si];
@@ -811,6 +852,14 @@ void ProfileStream<T>::pass1_fast(std::int64_t row) noexcept {
       args.B[i] = xyz_.data() + slot(row + dr) * W + dc;
       sa[i] = state_.data() + slot(row - dr) * W - dc;
       sb[i] = state_.data() + slot(row + dr) * W + dc;
+      // the cells one step further (p1_gap_; rows and columns within fedge_ of the row)
+      const std::ptrdiff_t dr2 = kDirRow[k] * (sc + 1), dc2 = kDirCol[k] * (sc + 1);
+      args.A2[i] = xyz_.data() + slot(row - dr2) * W - dc2;
+      args.B2[i] = xyz_.data() + slot(row + dr2) * W + dc2;
+      args.SA[i] = sa[i];
+      args.SB[i] = sb[i];
+      sa2[i] = state_.data() + slot(row - dr2) * W - dc2;
+      sb2[i] = state_.data() + slot(row + dr2) * W + dc2;
     }
   }
   // The columns S .. W - S - 1 in one contiguous range per thread (each cell's bits its own).
@@ -820,6 +869,15 @@ void ProfileStream<T>::pass1_fast(std::int64_t row) noexcept {
     for (int i = 0; i < args.n; ++i) {
       const std::uint8_t* sA = sa[i];
       const std::uint8_t* sB = sb[i];
+      if (p1_gap_) {  // no neighbour within steps s .. s + 1
+        const std::uint8_t* sA2 = sa2[i];
+        const std::uint8_t* sB2 = sb2[i];
+        for (std::ptrdiff_t c = c0; c < c1; ++c) {
+          bits[c] |= static_cast<std::uint32_t>(((sA[c] | sA2[c]) == 0) |
+                                                ((sB[c] | sB2[c]) == 0)) << 31;
+        }
+        continue;
+      }
       for (std::ptrdiff_t c = c0; c < c1; ++c) {
         bits[c] |= static_cast<std::uint32_t>((sA[c] == 0) | (sB[c] == 0)) << 31;
       }
@@ -833,7 +891,8 @@ void ProfileStream<T>::pass1_fast(std::int64_t row) noexcept {
   });
 }
 
-// The exact judgment of a cell of a row where every neighbour at step s exists, computed as
+// The exact judgment of a cell of a row where every neighbour exists at step s (or, with
+// p1_gap_, at s + 1 where the step-s cell is a dropout), computed as
 // CellJudge computes it (dot3, the same evaluation order); `b` holds the (direction, scale)
 // pairs that the filter could not rule out.
 template <typename T>
@@ -853,6 +912,13 @@ std::uint8_t ProfileStream<T>::exact_label(std::int64_t row, std::ptrdiff_t c,
       const std::ptrdiff_t dr = kDirRow[k] * sc, dc = kDirCol[k] * sc;
       const T* a = xyz_.data() + slot(row - dr) * W + (c - dc);
       const T* bb = xyz_.data() + slot(row + dr) * W + (c + dc);
+      if (p1_gap_) {  // a step-s cell that is not usable: the next one (pass1_fast)
+        const std::ptrdiff_t dr2 = kDirRow[k] * (sc + 1), dc2 = kDirCol[k] * (sc + 1);
+        if (state_[static_cast<std::size_t>(slot(row - dr) * W + (c - dc))] == 0)
+          a = xyz_.data() + slot(row - dr2) * W + (c - dc2);
+        if (state_[static_cast<std::size_t>(slot(row + dr) * W + (c + dc))] == 0)
+          bb = xyz_.data() + slot(row + dr2) * W + (c + dc2);
+      }
       const Eigen::Vector3d u = Eigen::Vector3d(static_cast<double>(a[0]),
                                                 static_cast<double>(a[plane]),
                                                 static_cast<double>(a[2 * plane])) - P;

@@ -154,11 +154,14 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 /// gets.)
 ///
 /// Speed: without min_step, pass 1 runs a vectorised filter over the whole row (SSE2, or AVX2
-/// where the CPU has it) and judges exactly only the few cells that might be flagged, the batch
-/// detector's judge taking the cells next to a dropout; where more than 0.5 % of the rows
-/// around are dropouts, and always with min_step, it runs batch detection's vectorised row
-/// kernel instead (neighbour searches across dropouts and to s min_step in SIMD lanes), the
-/// judge taking only the searches it cannot finish. A later pass re-judges a cell only when its
+/// where the CPU has it) and judges exactly only the few cells that might be flagged. Next to
+/// a dropout, with max_gap >= 1 and the smallest scale at most max_gap (the default), the
+/// filter takes the cell one step further, as the neighbour search does, and the batch
+/// detector's judge takes only the cells with no neighbour within those two steps; otherwise
+/// the judge takes every cell next to a dropout, and where more than 0.5 % of the rows around
+/// are dropouts the stream runs batch detection's vectorised row kernel instead (neighbour
+/// searches across dropouts and to s min_step in SIMD lanes), as it always does with min_step,
+/// the judge taking only the searches it cannot finish. A later pass re-judges a cell only when its
 /// last verdict read a cell removed at the pass before (with min_step: 4 bytes per kept cell,
 /// how far each verdict read along each ray). bench/RESULTS.md has the figures.
 ///
@@ -314,6 +317,8 @@ class ProfileStream {
   int max_scale_ = 1;
   bool fast_ok_ = false;  // the scales allow pass 1's vectorised kernel (without min_step)
   bool fast_ = false;     // pass 1 may use the vectorised kernel
+  bool p1_gap_ = false;   // its neighbour at step s + 1 stands in for a dropout at s
+  std::ptrdiff_t fedge_ = 0;  // rows and columns within fedge_ of the border: CellJudge
   // Pass 1 runs batch detection's row kernel (src/pass1_row.hpp) with min_step, and without it
   // next to dropouts, on its own ring of converted rows: each row converted once, when the
   // first row within p1_depth_ of it that runs the kernel is judged (rows are judged in order).
