@@ -339,6 +339,14 @@ def test_cloud_refusals() -> None:
         mdask.detect_points(pts, spacing=-1.0)
     with pytest.raises(ValueError, match="new_rule: miem.dask does not know"):
         mdask._refuse_unknown({"new_rule": 2, "off_rule": 0, "radius": 1.0}, {"radius"})
+    # miem.detect's layout= and shape=: named, with what to do instead (no rebuild in miem.dask)
+    grid = da.from_array(np.zeros((8, 9, 3)), chunks=(4, 9, 3))
+    for f, data in ((mdask.detect, pts), (mdask.detect, grid), (mdask.detect_points, pts)):
+        for kw in ({"layout": "auto"}, {"shape": (20, 20)}):
+            name = next(iter(kw))
+            with pytest.raises(ValueError, match=rf"^{name}: miem.dask.detect(_points)? does "
+                                                 r"not take it: .*miem.io.grid_from_scanlines"):
+                f(data, **kw)
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])

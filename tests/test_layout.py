@@ -119,3 +119,15 @@ def test_bad_layouts_are_refused():
         miem.detect(grid, layout="auto")
     with pytest.raises(ValueError, match="shape= already gives the grid"):
         miem.detect(grid.reshape(-1, 3), layout="auto", shape=(60, 80))
+
+
+def test_detect_points_refuses_detects_layout_and_shape():
+    """detect_points is the cloud detector: miem.detect's layout= and shape= are a ValueError
+    naming the argument and saying where it belongs (not 'unknown detection parameter')."""
+    _, pts, _ = scan_and_cloud()
+    for kw in ({"layout": "auto"}, {"layout": "cloud"}, {"shape": (60, 80)}):
+        name = next(iter(kw))
+        with pytest.raises(ValueError, match=rf"^{name}: detect_points does not take it: it "
+                                             r"runs the cloud detector; miem.detect\(points, "
+                                             r"layout='auto'\) rebuilds"):
+            miem.detect_points(pts, **kw)

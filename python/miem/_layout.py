@@ -31,6 +31,29 @@ def check_layout(layout: Optional[str], arr: np.ndarray, shape: Any) -> None:
                          f"{arr.shape} (a grid is detected as it is)")
 
 
+#: What each caller that takes neither ``layout`` nor ``shape`` says instead (refuse_layout).
+_INSTEAD = {
+    "detect_points": "it runs the cloud detector; miem.detect(points, layout='auto') rebuilds "
+                     "the grid of a cloud on scan lines, miem.detect(points, shape=(H, W)) keeps "
+                     "a flattened grid",
+    "miem.dask.detect": "it detects a cloud tile by tile and a grid as it is; give it the grid "
+                        "(miem.io.grid_from_scanlines rebuilds one from scan lines, "
+                        "points.reshape(H, W, 3) restores a flattened one)",
+    "miem.dask.detect_points": "it runs the cloud detector tile by tile; give miem.dask.detect "
+                               "the grid instead (miem.io.grid_from_scanlines rebuilds one "
+                               "from scan lines, points.reshape(H, W, 3) restores a flattened "
+                               "one)",
+}
+
+
+def refuse_layout(caller: str, kwargs: dict) -> None:
+    """A ValueError naming ``layout`` or ``shape`` when ``kwargs`` has either: ``caller`` (a key
+    of _INSTEAD) does not take them, and says what does."""
+    for name in ("layout", "shape"):
+        if name in kwargs:
+            raise ValueError(f"{name}: {caller} does not take it: {_INSTEAD[caller]}")
+
+
 def rebuild(arr: np.ndarray, layout: str) -> Optional[tuple[np.ndarray, np.ndarray, dict]]:
     """The grid of `arr`'s scan lines, the flat cell of each row (-1: not in the grid) and what
     the rebuild found (recorded in the result's params), as ``miem detect FILE`` finds it

@@ -345,8 +345,9 @@ def detect_points(
     Raises
     ------
     ValueError
-        Wrong shape or dtype, fewer than 3 distinct finite points (all points one point), or a
-        parameter out of range.
+        Wrong shape or dtype, fewer than 3 distinct finite points (all points one point), a
+        parameter out of range, or ``layout`` / ``shape`` (:func:`miem.detect`'s: this is
+        the cloud detector).
 
     Examples
     --------
@@ -367,6 +368,9 @@ def detect_points(
     ``radius = 5 * spacing`` holds ~20 points on a uniformly random cloud (with 3 spacings,
     ~5 % of such points had fewer than 3 neighbours and their removal cascaded).
     """
+    from ._layout import refuse_layout
+
+    refuse_layout("detect_points", overrides)
     arr = _points(points)
     p, name = resolve_params(params, preset, overrides, "cloud")
     return _detect_cloud(arr, p, name, _threads(num_threads), advise=True)

@@ -59,6 +59,7 @@ from dask import delayed
 import miem
 from miem import _core
 from miem._api import ABNORMAL, Defect
+from miem._layout import refuse_layout
 
 __all__ = ["DaskDetectResult", "DaskPointsResult", "auto_min_step", "auto_theta0", "auto_z_noise",
            "auto_z_resolution", "detect", "detect_points", "grid_halo", "points_halo"]
@@ -486,7 +487,8 @@ def detect(grid: Any, *args: Any, num_threads: Optional[int] = 1, strict: bool =
     ------
     ValueError
         Bad shape or parameters (the messages of ``miem.detect``). A cloud ``(N, 3)`` goes to
-        :func:`detect_points` (as ``miem.detect`` routes it).
+        :func:`detect_points` (as ``miem.detect`` routes it). ``miem.detect``'s ``layout``
+        and ``shape`` are refused: no grid is rebuilt here, so pass the grid itself.
 
     Notes
     -----
@@ -494,6 +496,7 @@ def detect(grid: Any, *args: Any, num_threads: Optional[int] = 1, strict: bool =
     first (when ``detect`` is called; the pass-1 angles are held in the cluster's memory, 8
     bytes per point, until the median is found), then the blocks are detected with that value.
     """
+    refuse_layout("miem.dask.detect", kwargs)
     if getattr(grid, "ndim", None) == 2 and grid.shape[-1] == 3 and not args:  # a cloud
         tile = kwargs.pop("tile", None)  # detect_points' own argument
         return _detect_points(grid, tile, num_threads, kwargs)  # type: ignore[return-value]
@@ -1150,6 +1153,7 @@ def detect_points(points: Any, *, tile: Optional[float] = None, num_threads: Opt
     -------
     DaskPointsResult
     """
+    refuse_layout("miem.dask.detect_points", kwargs)
     return _detect_points(points, tile, num_threads, kwargs)
 
 
