@@ -317,12 +317,9 @@ def profiler_grid(h: int, w: int, seed: int = 0) -> np.ndarray:
     return grid
 
 
-# The commit before the vectorised min_step search (issue 17, priority 1): its binary runs the
-# min_step scans in the same run as today's.
-MIN_STEP_BASE = ("cd0cfef", "2026-12-02, before the min_step row skip (the searches along a "
-                 "row pass over the steps a path-length bound shows surely near) and before the "
-                 "edge test's lip and hanging-ledge rules (which change labels on the real scan "
-                 "and add to its edge test)")
+# The previous landed main (stop 41): its binary runs the min_step scans in the same run as
+# today's (the min_step searches 64 lanes at a time since; the labels are the same).
+MIN_STEP_BASE = ("5dc5f9e", "2026-12-05, before the min_step searches ran 64 lanes at a time")
 
 
 def min_step_times(build_dir: Path, side: int, repeats: int, build_bases: bool = True):
