@@ -838,8 +838,8 @@ void ProfileStream<T>::pass1_fast(std::int64_t row) noexcept {
   args.n = 4 * static_cast<int>(n_scales);
   args.plane = plane;
   args.bits = bits;
-  const std::uint8_t* sa[32];
-  const std::uint8_t* sb[32];
+  // the states of the cells one step further: the step-s ones themselves without p1_gap_ (so
+  // "no neighbour within s .. s + 1" is "none at s")
   const std::uint8_t* sa2[32];
   const std::uint8_t* sb2[32];
   for (int k = 0; k < 4; ++k) {
@@ -850,14 +850,14 @@ void ProfileStream<T>::pass1_fast(std::int64_t row) noexcept {
       const int i = k * static_cast<int>(n_scales) + static_cast<int>(si);
       args.A[i] = xyz_.data() + slot(row - dr) * W - dc;
       args.B[i] = xyz_.data() + slot(row + dr) * W + dc;
-      sa[i] = state_.data() + slot(row - dr) * W - dc;
-      sb[i] = state_.data() + slot(row + dr) * W + dc;
-      // the cells one step further (p1_gap_; rows and columns within fedge_ of the row)
+      args.SA[i] = state_.data() + slot(row - dr) * W - dc;
+      args.SB[i] = state_.data() + slot(row + dr) * W + dc;
+      sa2[i] = args.SA[i], sb2[i] = args.SB[i];
+      if (!p1_gap_) continue;
+      // the cells one step further (rows and columns within fedge_ of the row)
       const std::ptrdiff_t dr2 = kDirRow[k] * (sc + 1), dc2 = kDirCol[k] * (sc + 1);
       args.A2[i] = xyz_.data() + slot(row - dr2) * W - dc2;
       args.B2[i] = xyz_.data() + slot(row + dr2) * W + dc2;
-      args.SA[i] = sa[i];
-      args.SB[i] = sb[i];
       sa2[i] = state_.data() + slot(row - dr2) * W - dc2;
       sb2[i] = state_.data() + slot(row + dr2) * W + dc2;
     }
@@ -866,20 +866,11 @@ void ProfileStream<T>::pass1_fast(std::int64_t row) noexcept {
   detail::parallel_ranges(threads_, W - 2 * S, 1, [&](int, std::ptrdiff_t i0, std::ptrdiff_t i1) {
     const std::ptrdiff_t c0 = S + i0, c1 = S + i1;
     std::fill(bits + c0, bits + c1, cos0_ > 0.0 ? 0u : ~kBadBit);  // theta0 >= 90: all exact
-    for (int i = 0; i < args.n; ++i) {
-      const std::uint8_t* sA = sa[i];
-      const std::uint8_t* sB = sb[i];
-      if (p1_gap_) {  // no neighbour within steps s .. s + 1
-        const std::uint8_t* sA2 = sa2[i];
-        const std::uint8_t* sB2 = sb2[i];
-        for (std::ptrdiff_t c = c0; c < c1; ++c) {
-          bits[c] |= static_cast<std::uint32_t>(((sA[c] | sA2[c]) == 0) |
-                                                ((sB[c] | sB2[c]) == 0)) << 31;
-        }
-        continue;
-      }
+    for (int i = 0; i < args.n; ++i) {  // no neighbour within steps s .. s + 1 (p1_gap_)
+      const std::uint8_t *sA = args.SA[i], *sB = args.SB[i], *sA2 = sa2[i], *sB2 = sb2[i];
       for (std::ptrdiff_t c = c0; c < c1; ++c) {
-        bits[c] |= static_cast<std::uint32_t>((sA[c] == 0) | (sB[c] == 0)) << 31;
+        bits[c] |= static_cast<std::uint32_t>(((sA[c] | sA2[c]) == 0) |
+                                              ((sB[c] | sB2[c]) == 0)) << 31;
       }
     }
     if (cos0_ > 0.0 && c0 < c1) {

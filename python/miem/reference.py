@@ -36,7 +36,7 @@ import numbers
 import re
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Optional
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -1110,15 +1110,18 @@ def _edge_candidates(
     r: int,
     origin: NDArray[np.float64],
     floor: float,
+    images: Optional[NDArray[np.float64]] = None,
 ) -> NDArray[np.bool_]:
     """SPEC "Edge test" step 1: which NORMAL or EDGE cells of ``cells`` (row-major, ``(N,)``)
     the pass judges. A cell is left out when its window (rows and columns within ``r``) lies
     inside the grid, holds only NORMAL and INVALID cells, fewer than ``n_min`` INVALID ones,
     and its NORMAL cells other than it fit a plane (SPEC "Plane fit") with ``rms <=
-    _EDGE_QUIET_ROUGH * floor`` and the cell within ``_EDGE_QUIET_H * rms`` of it."""
+    _EDGE_QUIET_ROUGH * floor`` and the cell within ``_EDGE_QUIET_H * rms`` of it.
+    ``images``: the pass's ``_moment_images`` of the NORMAL and INVALID cells, when the caller
+    has them."""
     hh, ww = labels.shape
     support = labels == NORMAL
-    s = _moment_images(grid, support, labels == INVALID, origin)
+    s = _moment_images(grid, support, labels == INVALID, origin) if images is None else images
     rr, cc = np.nonzero(cells)
     r0, r1 = rr - r, rr + r + 1
     c0, c1 = cc - r, cc + r + 1
@@ -1149,16 +1152,18 @@ def _side_fits(
     cells: NDArray[np.bool_],
     r: int,
     origin: NDArray[np.float64],
+    images: Optional[NDArray[np.float64]] = None,
 ) -> tuple[NDArray[np.float64], ...]:
     """Height and rms of every cell of ``cells`` against the plane of the ``support`` cells of
-    each of its 8 sub-windows (SPEC "Edge test"), from integral images of the moments.
+    each of its 8 sub-windows (SPEC "Edge test"), from integral images of the moments
+    (``images``: ``_moment_images`` of these arguments, when the caller has them).
 
     Returns ``h``, ``rms``, ``spread = sqrt((l1 + l2) / n)``, ``valid``, the normals, centroids
     and ``empty``, of shape ``(8, N)`` (``(8, N, 3)``) for the ``N`` cells of ``cells`` in
     row-major order.
     """
     hh, ww = support.shape
-    s = _moment_images(grid, support, invalid, origin)
+    s = _moment_images(grid, support, invalid, origin) if images is None else images
     rr, cc = np.nonzero(cells)
     pt = grid[rr, cc] - origin
     n_min = max(3, (r * r) // 2)
@@ -1563,13 +1568,15 @@ def _edge_verdicts(
     ``floor``: the least tolerance, step 3); with ``fits_only``, step 9's verdict instead: the
     cells that fit a clean sub-window that is not empty."""
     out = np.zeros_like(cells)
+    support, invalid = labels == NORMAL, labels == INVALID
+    images = _moment_images(grid, support, invalid, origin)  # the pass's, for steps 1 and 3
     if not fits_only:
         cells = cells.copy()
-        cells[cells] = _edge_candidates(grid, labels, cells, r, origin, floor)
+        cells[cells] = _edge_candidates(grid, labels, cells, r, origin, floor, images)
         if not cells.any():
             return out
     h, rms, spread, valid, nrm, cen, empty = _side_fits(
-        grid, labels == NORMAL, labels == INVALID, cells, r, origin)
+        grid, support, invalid, cells, r, origin, images)
     level, clean, tol = _clean_sides(rms, spread, valid, nrm, k, floor)
     fits = clean & ~(np.abs(h) > tol)
     if fits_only:
