@@ -290,6 +290,50 @@ def test_lip_at_a_concave_feature_needs_a_dip_then_a_rise() -> None:
     assert z[20, 18] - z[20, 20] > 0.05 and z[20, 23] > 0.05
 
 
+def _steep_valley_lip_z(beyond: float, h: int = 40, w: int = 40) -> tuple[np.ndarray, np.ndarray]:
+    """Sheet (z = 0) up to a 45-degree concave crease whose first cell, column 20, lies
+    ``beyond`` mm up (the crease line between the columns); a lip 0.12 mm tall on column 19,
+    rows 12-27, the last cell before it; returns z and the lip mask."""
+    cols = np.arange(w)[None, :].repeat(h, 0)
+    z = _noise((h, w)) + np.where(cols >= 20, beyond + (cols - 20) * 0.1, 0.0)
+    lip = np.zeros((h, w), bool)
+    lip[12:28, 19] = True
+    return z + 0.12 * lip, lip
+
+
+def test_lip_dips_at_itself_before_a_steep_valley() -> None:
+    """SPEC "Edge test" step 6, lips at a concave feature, the dip at P itself: on a coarse
+    scan of a steep concave crease the first cell beyond the lip has climbed already, so no
+    cell beyond lies D lower than the lip, but the lip stands above the chord between its
+    neighbours. By hand (11-cell sub-windows, 8 rms ~ 0.016 = t: D = max(2 t, half the lip's
+    height) = 0.06 mm; P = column 19 over its left side's plane z = 0): the first cell beyond,
+    column 20, lies 0.12 - 0.07 = 0.05 below P (not D: from there the surface rises, so no
+    cell beyond dips by D; but more than 2 t), the chord from column 18 (0.12 below P) to
+    column 20 passes 0.085 below P (> D); the last cell beyond, column 24, lies 0.47 above the
+    left side's plane (the rise). Must not fire when the first cell beyond lies level with
+    the lip (0.12: no dip at P, as at a terrace's edge or on a fillet)."""
+    z, lip = _steep_valley_lip_z(0.07)
+    t = 8 * 0.002
+    assert 0.12 - 0.07 < 0.06 < (0.12 + 0.05) / 2 and 0.05 > 2 * t * 1.4
+    rows = slice(17, 23)  # whose sub-windows lie within the lip's rows 12-27 (r = 5)
+    for beyond, fires in ((0.07, True), (0.12, False)):
+        g = _grid(_steep_valley_lip_z(beyond)[0])
+        labels = np.zeros(lip.shape, np.uint8)
+        out = ref.edge_test(g, labels, window=11, tolerance=8.0, max_iterations=1)[0]
+        new = out == ref.ABNORMAL
+        assert new[rows, 19].all() == fires and new[rows].any() == fires, beyond
+        assert not (new & ~lip).any(), beyond
+    # the detector, core and reference, batch and stream: the lip and nothing else
+    g = _grid(z)
+    kw = {"preset": "recommended", "edge_tolerance": 8.0, "edge_window": 11}
+    want = ref.detect(g, **kw).labels
+    flagged = want == ref.ABNORMAL
+    assert flagged[rows, 19].all() and not (flagged & ~lip).any()
+    np.testing.assert_array_equal(miem.detect(g, **kw).labels, want)
+    p = miem.default_params("stream").replace(edge_tolerance=8.0, edge_window=11)
+    np.testing.assert_array_equal(stream_labels(g, p), miem.detect(g, params=p).labels)
+
+
 def _fin_z(h: int = 40, w: int = 40, diagonal: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Sheet with a fin 1.5 mm tall and 4 cells (0.4 mm) wide standing on it, along the rows
     (or along a diagonal); returns z and the fin mask."""
@@ -538,6 +582,8 @@ def _core_scenes() -> list:
     z, _ = _valley_lip_z(30.0, 140, 150)  # a lip at a concave crease (step 6), across tiles
     z[60:75, 17:20] += 0.05
     out.append(("valley lip", _grid(z.T.copy())))
+    z, _ = _steep_valley_lip_z(0.07, 140, 150)  # a lip whose dip is at itself (step 6)
+    out.append(("steep valley lip", _grid(z)))
     return out
 
 

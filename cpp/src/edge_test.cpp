@@ -348,16 +348,37 @@ bool is_hanging(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t
   return false;
 }
 
+// The nearest ground cell (NORMAL or EDGE) P + j (dr, dc), j = 1..r inside the grid, seen from
+// P = (rr, cc) along the unit normal u: its height s = u . (x - P) and its distance w along
+// u's plane. False when there is none. miem.reference._nearest_ground.
+template <typename T>
+bool nearest_ground(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
+                    std::ptrdiff_t cc, std::ptrdiff_t r, std::ptrdiff_t dr, std::ptrdiff_t dc,
+                    const Eigen::Vector3d& u, double& s, double& w) {
+  const std::ptrdiff_t H = g.rows, W = g.cols;
+  for (std::ptrdiff_t j = 1; j <= r; ++j) {
+    const std::ptrdiff_t a = rr + j * dr, b = cc + j * dc;
+    if (a < 0 || a >= H || b < 0 || b >= W) return false;
+    const std::uint8_t l = labels[a * W + b];
+    if (l != kNormal && l != kEdge) continue;
+    const Eigen::Vector3d v = g(a, b) - g(rr, cc);
+    s = dot3(v, u);
+    w = std::sqrt(std::max(dot3(v, v) - s * s, 0.0));
+    return true;
+  }
+  return false;
+}
+
 // SPEC "Edge test" step 6, lips at a concave feature: P (candidate (rr, cc), its 8 sides `sd`,
 // `best` their smallest rms; the caller has found that P fits no clean side) lies above a clean
-// side x, and along the cells
-// P + j d beyond P away from x (j = 1..r, ground cells only: NORMAL or EDGE), with
-// D = max(kEdgeLipTol x tol, kEdgeLipDip x h), the surface first dips (a cell lower than P
-// along x's normal by more than D), then rises (the last of these ground cells, after the dip,
-// lies above x's plane by more than D): a lip before a concave crease or step, not a fillet
-// (no dip), a terrace's edge (its next cells level with P), a bead on a plane or a fin beyond
-// P (no lasting rise) nor a profile offset of a few rms. The formulas are
-// miem.reference._lips'.
+// side x, and along the cells P + j d beyond P away from x (j = 1..r, ground cells only: NORMAL
+// or EDGE), with D = max(kEdgeLipTol x tol, kEdgeLipDip x h), the surface first dips (a cell
+// lower than P along x's normal by more than D; or P itself, above the chord from the nearest
+// ground cell towards x to the first one beyond P by more than D, that first one lower than P
+// by more than kEdgeLipTol x tol), then rises (the last of these ground cells, after the dip,
+// lies above x's plane by more than D): a lip before a concave crease or step, not a fillet (no
+// dip), a terrace's edge (its next cells level with P), a bead on a plane or a fin beyond P (no
+// lasting rise) nor a profile offset of a few rms. The formulas are miem.reference._lips'.
 template <typename T>
 bool is_lip(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
             std::ptrdiff_t cc, std::ptrdiff_t r, const Side (&sd)[8], double best) {
@@ -365,7 +386,14 @@ bool is_lip(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
     const Side& x = sd[s];
     if (!edge_clean(x, best) || !(x.h > x.tol)) continue;
     const double dip = std::max(kEdgeLipTol * x.tol, kEdgeLipDip * x.h);
-    bool dipped = false, risen = false;  // risen: the last ground cell so far, after a dip, high
+    // the dip at P: above the chord from the ground before P (towards x) to the first beyond
+    const int dr = kHangDirs[s][0], dc = kHangDirs[s][1];
+    double sq = 0.0, wq = 0.0, s1 = 0.0, w1 = 0.0;
+    const bool chord = nearest_ground(g, labels, rr, cc, r, -dr, -dc, x.normal, sq, wq) &&
+                       nearest_ground(g, labels, rr, cc, r, dr, dc, x.normal, s1, w1) &&
+                       s1 < -kEdgeLipTol * x.tol && wq + w1 > 0.0 &&
+                       -(sq * w1 + s1 * wq) / (wq + w1) > dip;
+    bool dipped = chord, risen = false;  // risen: the last ground cell so far, after a dip, high
     beyond(g, labels, rr, cc, r, s, x.normal, [&](double d) {
       risen = dipped && x.h + d > dip;
       dipped = dipped || d < -dip;

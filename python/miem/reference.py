@@ -1400,6 +1400,39 @@ _EDGE_LIP_TOL = 2.0
 _EDGE_LIP_DIP = 0.5
 
 
+def _nearest_ground(
+    grid: NDArray[np.float64],
+    labels: NDArray[np.uint8],
+    cells: NDArray[np.bool_],
+    r: int,
+    step: tuple[int, int],
+    u: NDArray[np.float64],
+) -> tuple[NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64]]:
+    """For the cells P of ``cells`` (row-major): is there a ground cell (NORMAL or EDGE)
+    ``x = P + j step``, ``j = 1..r`` inside the grid (the walk stops at the border), and for
+    the nearest one ``s = u . (x - P)`` and ``w``, its distance from P along ``u``'s plane
+    (``sqrt(|x - P|^2 - s^2)``); 0 where there is none."""
+    hh, ww = labels.shape
+    ground = (labels == NORMAL) | (labels == EDGE)
+    rr, cc = np.nonzero(cells)
+    p = grid[rr, cc]
+    found = np.zeros(rr.size, dtype=bool)
+    walking = np.ones(rr.size, dtype=bool)  # inside the grid, no ground cell yet
+    s = np.zeros(rr.size)
+    w = np.zeros(rr.size)
+    for j in range(1, r + 1):
+        r1, c1 = rr + j * step[0], cc + j * step[1]
+        walking &= (r1 >= 0) & (r1 < hh) & (c1 >= 0) & (c1 < ww)
+        hit = walking.copy()
+        hit[walking] = ground[r1[walking], c1[walking]]
+        v = grid[r1[hit], c1[hit]] - p[hit]
+        s[hit] = _dot3(v, u[hit])
+        w[hit] = np.sqrt(np.maximum(_dot3(v, v) - s[hit] * s[hit], 0.0))
+        found |= hit
+        walking &= ~hit
+    return found, s, w
+
+
 def _lips(
     grid: NDArray[np.float64],
     labels: NDArray[np.uint8],
@@ -1416,15 +1449,23 @@ def _lips(
     away from ``a`` (``j = 1..r``, ground cells only: NORMAL or EDGE), with
     ``D = max(_EDGE_LIP_TOL t, _EDGE_LIP_DIP h)`` (``t``, ``h``: ``a``'s tolerance and P's
     height over ``a``'s plane), first a *dip* (a cell lower than P along ``a``'s normal by more
-    than ``D``), then a *rise*: the last of these ground cells, after the dip, lies above
-    ``a``'s plane by more than ``D`` (the surface goes on rising, unlike a fin beyond P)."""
+    than ``D``; or P itself: above the chord from the nearest ground cell towards ``a`` to the
+    first one beyond P by more than ``D``, that first one lower than P by more than ``t``), then
+    a *rise*: the last of these ground cells, after the dip, lies above ``a``'s plane by more
+    than ``D`` (the surface goes on rising, unlike a fin beyond P)."""
     out = np.zeros(lip.shape[1], dtype=bool)
     for k in range(len(_HANG_DIRECTIONS)):
         if not lip[k].any():
             continue
         hk = h[k]
         dip = np.maximum(_EDGE_LIP_TOL * tol[k], _EDGE_LIP_DIP * hk)
-        dipped = np.zeros(out.size, dtype=bool)  # a dip among the ground cells so far
+        dr, dc = _HANG_DIRECTIONS[k]
+        okq, sq, wq = _nearest_ground(grid, labels, cells, r, (-dr, -dc), normals[k])
+        ok1, s1, w1 = _nearest_ground(grid, labels, cells, r, (dr, dc), normals[k])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            chord = (sq * w1 + s1 * wq) / (wq + w1)  # the chord's height at P
+            # a dip at P itself (a lip whose next cells already climb the concave side)
+            dipped = okq & ok1 & (s1 < -_EDGE_LIP_TOL * tol[k]) & (wq + w1 > 0.0) & (-chord > dip)
         risen = np.zeros(out.size, dtype=bool)  # the last ground cell so far: after a dip, high
         for hit, d in _beyond(grid, labels, cells, r, k, normals[k]):
             risen[hit] = dipped[hit] & (hk[hit] + d[hit] > dip[hit])
