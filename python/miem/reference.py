@@ -1450,9 +1450,9 @@ def _lips(
     ``D = max(_EDGE_LIP_TOL t, _EDGE_LIP_DIP h)`` (``t``, ``h``: ``a``'s tolerance and P's
     height over ``a``'s plane), first a *dip* (a cell lower than P along ``a``'s normal by more
     than ``D``; or P itself: above the chord from the nearest ground cell towards ``a`` to the
-    first one beyond P by more than ``D``, that first one lower than P by more than ``t``), then
-    a *rise*: the last of these ground cells, after the dip, lies above ``a``'s plane by more
-    than ``D`` (the surface goes on rising, unlike a fin beyond P)."""
+    first one beyond P by more than ``D``, that first one lower than P by more than ``2 t``),
+    then a *rise*: the last of these ground cells, after the dip, lies above ``a``'s plane by
+    more than ``D`` (the surface goes on rising, unlike a fin beyond P)."""
     out = np.zeros(lip.shape[1], dtype=bool)
     for k in range(len(_HANG_DIRECTIONS)):
         if not lip[k].any():
@@ -1465,7 +1465,8 @@ def _lips(
         with np.errstate(invalid="ignore", divide="ignore"):
             chord = (sq * w1 + s1 * wq) / (wq + w1)  # the chord's height at P
             # a dip at P itself (a lip whose next cells already climb the concave side)
-            dipped = okq & ok1 & (s1 < -_EDGE_LIP_TOL * tol[k]) & (wq + w1 > 0.0) & (-chord > dip)
+            dipped = (okq & ok1 & (s1 < -_EDGE_LIP_TOL * tol[k]) & (wq + w1 > 0.0)
+                      & (-chord > dip))
         risen = np.zeros(out.size, dtype=bool)  # the last ground cell so far: after a dip, high
         for hit, d in _beyond(grid, labels, cells, r, k, normals[k]):
             risen[hit] = dipped[hit] & (hk[hit] + d[hit] > dip[hit])
