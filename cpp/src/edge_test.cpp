@@ -273,20 +273,32 @@ constexpr double kHangShelf = 2.0;
 constexpr int kHangDirs[8][2] = {{0, 1},  {0, -1}, {1, 0},  {-1, 0},
                                  {1, 1},  {1, -1}, {-1, 1}, {-1, -1}};  // side -> towards P
 
-// The ground cells (NORMAL or EDGE) beyond P = (rr, cc) away from side s, P + j d for j = 1..r
-// inside the grid, in order (a hanging cell's shelf, a lip's dip and rise): visit(u . (x - P))
-// for each. miem.reference._beyond.
+// The ground cells (NORMAL or EDGE) x = P + j (dr, dc) from P = (rr, cc), j = 1..r inside the
+// grid, in order: visit(x - P) for each while it returns true. miem.reference._ground_line.
 template <typename T, typename Visit>
-void beyond(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
-            std::ptrdiff_t cc, std::ptrdiff_t r, int s, const Eigen::Vector3d& u, Visit&& visit) {
-  const std::ptrdiff_t H = g.rows, W = g.cols, dr = kHangDirs[s][0], dc = kHangDirs[s][1];
+void ground_line(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
+                 std::ptrdiff_t cc, std::ptrdiff_t r, std::ptrdiff_t dr, std::ptrdiff_t dc,
+                 Visit&& visit) {
+  const std::ptrdiff_t H = g.rows, W = g.cols;
   const Eigen::Vector3d p = g(rr, cc);
   for (std::ptrdiff_t j = 1; j <= r; ++j) {
     const std::ptrdiff_t a = rr + j * dr, b = cc + j * dc;
     if (a < 0 || a >= H || b < 0 || b >= W) break;
     const std::uint8_t l = labels[a * W + b];
-    if (l == kNormal || l == kEdge) visit(dot3(g(a, b) - p, u));
+    if ((l == kNormal || l == kEdge) && !visit(Eigen::Vector3d(g(a, b) - p))) break;
   }
+}
+
+// The ground cells beyond P = (rr, cc) away from side s, in order (a hanging cell's shelf, a
+// lip's dip and rise): visit(u . (x - P)) for each. miem.reference._beyond.
+template <typename T, typename Visit>
+void beyond(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
+            std::ptrdiff_t cc, std::ptrdiff_t r, int s, const Eigen::Vector3d& u, Visit&& visit) {
+  ground_line(g, labels, rr, cc, r, kHangDirs[s][0], kHangDirs[s][1],
+              [&](const Eigen::Vector3d& v) {
+                visit(dot3(v, u));
+                return true;
+              });
 }
 
 template <typename T>
@@ -348,25 +360,21 @@ bool is_hanging(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t
   return false;
 }
 
-// The nearest ground cell (NORMAL or EDGE) P + j (dr, dc), j = 1..r inside the grid, seen from
-// P = (rr, cc) along the unit normal u: its height s = u . (x - P) and its distance w along
-// u's plane. False when there is none. miem.reference._nearest_ground.
+// The nearest ground cell x along (dr, dc) from P = (rr, cc) (ground_line), seen along the
+// unit normal u: its height s = u . (x - P) and its distance w along u's plane. False when
+// there is none. miem.reference._nearest_ground.
 template <typename T>
 bool nearest_ground(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
                     std::ptrdiff_t cc, std::ptrdiff_t r, std::ptrdiff_t dr, std::ptrdiff_t dc,
                     const Eigen::Vector3d& u, double& s, double& w) {
-  const std::ptrdiff_t H = g.rows, W = g.cols;
-  for (std::ptrdiff_t j = 1; j <= r; ++j) {
-    const std::ptrdiff_t a = rr + j * dr, b = cc + j * dc;
-    if (a < 0 || a >= H || b < 0 || b >= W) return false;
-    const std::uint8_t l = labels[a * W + b];
-    if (l != kNormal && l != kEdge) continue;
-    const Eigen::Vector3d v = g(a, b) - g(rr, cc);
+  bool found = false;
+  ground_line(g, labels, rr, cc, r, dr, dc, [&](const Eigen::Vector3d& v) {
     s = dot3(v, u);
     w = std::sqrt(std::max(dot3(v, v) - s * s, 0.0));
-    return true;
-  }
-  return false;
+    found = true;
+    return false;
+  });
+  return found;
 }
 
 // SPEC "Edge test" step 6, lips at a concave feature: P (candidate (rr, cc), its 8 sides `sd`,

@@ -823,6 +823,12 @@ void ProfileStream<T>::run_pass(std::int64_t row, int pass) noexcept {
   level_[s] = static_cast<std::uint8_t>(pass);
 }
 
+template <typename T>
+std::ptrdiff_t ProfileStream<T>::step_offset(std::int64_t row, int k, std::ptrdiff_t step,
+                                             int sign) const noexcept {
+  return slot(row + sign * kDirRow[k] * step) * width_ + sign * kDirCol[k] * step;
+}
+
 // Pass 1 filter of one row where every neighbour cell exists: marks in bits_ the cells that
 // might be flagged in some direction (the kernel) and, with kBadBit, the cells with a missing
 // neighbour (next to a dropout; with p1_gap_, missing at steps s and s + 1), which CellJudge
@@ -845,21 +851,18 @@ void ProfileStream<T>::pass1_fast(std::int64_t row) noexcept {
   for (int k = 0; k < 4; ++k) {
     for (std::size_t si = 0; si < n_scales; ++si) {
       const std::ptrdiff_t sc = params_.scales[si];
-      const std::ptrdiff_t dr = kDirRow[k] * sc, dc = kDirCol[k] * sc;
-      // A[c] = cell (row - dr, c - dc), B[c] = cell (row + dr, c + dc).
+      // A[c] = the cell sc steps back along direction k from (row, c), B[c] sc steps on
       const int i = k * static_cast<int>(n_scales) + static_cast<int>(si);
-      args.A[i] = xyz_.data() + slot(row - dr) * W - dc;
-      args.B[i] = xyz_.data() + slot(row + dr) * W + dc;
-      args.SA[i] = state_.data() + slot(row - dr) * W - dc;
-      args.SB[i] = state_.data() + slot(row + dr) * W + dc;
+      const std::ptrdiff_t a = step_offset(row, k, sc, -1), b = step_offset(row, k, sc, 1);
+      args.A[i] = xyz_.data() + a, args.B[i] = xyz_.data() + b;
+      args.SA[i] = state_.data() + a, args.SB[i] = state_.data() + b;
       sa2[i] = args.SA[i], sb2[i] = args.SB[i];
       if (!p1_gap_) continue;
       // the cells one step further (rows and columns within fedge_ of the row)
-      const std::ptrdiff_t dr2 = kDirRow[k] * (sc + 1), dc2 = kDirCol[k] * (sc + 1);
-      args.A2[i] = xyz_.data() + slot(row - dr2) * W - dc2;
-      args.B2[i] = xyz_.data() + slot(row + dr2) * W + dc2;
-      sa2[i] = state_.data() + slot(row - dr2) * W - dc2;
-      sb2[i] = state_.data() + slot(row + dr2) * W + dc2;
+      const std::ptrdiff_t a2 = step_offset(row, k, sc + 1, -1);
+      const std::ptrdiff_t b2 = step_offset(row, k, sc + 1, 1);
+      args.A2[i] = xyz_.data() + a2, args.B2[i] = xyz_.data() + b2;
+      sa2[i] = state_.data() + a2, sb2[i] = state_.data() + b2;
     }
   }
   // The columns S .. W - S - 1 in one contiguous range per thread (each cell's bits its own).
@@ -900,16 +903,13 @@ std::uint8_t ProfileStream<T>::exact_label(std::int64_t row, std::ptrdiff_t c,
     for (std::size_t si = 0; si < n_scales; ++si) {
       const int i = k * static_cast<int>(n_scales) + static_cast<int>(si);
       const std::ptrdiff_t sc = params_.scales[si];
-      const std::ptrdiff_t dr = kDirRow[k] * sc, dc = kDirCol[k] * sc;
-      const T* a = xyz_.data() + slot(row - dr) * W + (c - dc);
-      const T* bb = xyz_.data() + slot(row + dr) * W + (c + dc);
+      std::ptrdiff_t oa = step_offset(row, k, sc, -1) + c, ob = step_offset(row, k, sc, 1) + c;
       if (p1_gap_) {  // a step-s cell that is not usable: the next one (pass1_fast)
-        const std::ptrdiff_t dr2 = kDirRow[k] * (sc + 1), dc2 = kDirCol[k] * (sc + 1);
-        if (state_[static_cast<std::size_t>(slot(row - dr) * W + (c - dc))] == 0)
-          a = xyz_.data() + slot(row - dr2) * W + (c - dc2);
-        if (state_[static_cast<std::size_t>(slot(row + dr) * W + (c + dc))] == 0)
-          bb = xyz_.data() + slot(row + dr2) * W + (c + dc2);
+        if (state_[static_cast<std::size_t>(oa)] == 0) oa = step_offset(row, k, sc + 1, -1) + c;
+        if (state_[static_cast<std::size_t>(ob)] == 0) ob = step_offset(row, k, sc + 1, 1) + c;
       }
+      const T* a = xyz_.data() + oa;
+      const T* bb = xyz_.data() + ob;
       const Eigen::Vector3d u = Eigen::Vector3d(static_cast<double>(a[0]),
                                                 static_cast<double>(a[plane]),
                                                 static_cast<double>(a[2 * plane])) - P;

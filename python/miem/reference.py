@@ -1364,6 +1364,30 @@ def _hang_conditions(
     return steep, low < -_HANG_SHELF * depth
 
 
+def _ground_line(
+    grid: NDArray[np.float64],
+    labels: NDArray[np.uint8],
+    cells: NDArray[np.bool_],
+    r: int,
+    step: tuple[int, int],
+) -> Iterator[tuple[NDArray[np.bool_], NDArray[np.float64]]]:
+    """The ground cells (NORMAL or EDGE) ``x = P + j step`` from the cells P of ``cells``
+    (row-major), ``j = 1..r`` in order: per ``j``, which P have one there (inside the grid; a
+    straight line that leaves the grid does not come back) and ``x - P`` (NaN where none)."""
+    hh, ww = labels.shape
+    ground = (labels == NORMAL) | (labels == EDGE)
+    rr, cc = np.nonzero(cells)
+    p = grid[rr, cc]
+    for j in range(1, r + 1):
+        r1, c1 = rr + j * step[0], cc + j * step[1]
+        ok = (r1 >= 0) & (r1 < hh) & (c1 >= 0) & (c1 < ww)
+        hit = np.zeros(rr.size, dtype=bool)
+        hit[ok] = ground[r1[ok], c1[ok]]
+        v = np.full((rr.size, 3), np.nan)
+        v[hit] = grid[r1[hit], c1[hit]] - p[hit]
+        yield hit, v
+
+
 def _beyond(
     grid: NDArray[np.float64],
     labels: NDArray[np.uint8],
@@ -1376,18 +1400,9 @@ def _beyond(
     ``x = P + j d`` for ``j = 1..r`` in order (SPEC "Edge test" step 6: a hanging cell's shelf,
     a lip's dip and rise): per ``j``, which P have one there (NORMAL or EDGE, inside the grid)
     and its ``u . (x - P)`` (NaN where none)."""
-    hh, ww = labels.shape
-    dr, dc = _HANG_DIRECTIONS[k]
-    ground = (labels == NORMAL) | (labels == EDGE)
-    rr, cc = np.nonzero(cells)
-    p = grid[rr, cc]
-    for j in range(1, r + 1):
-        r1, c1 = rr + j * dr, cc + j * dc
-        ok = (r1 >= 0) & (r1 < hh) & (c1 >= 0) & (c1 < ww)
-        hit = np.zeros(rr.size, dtype=bool)
-        hit[ok] = ground[r1[ok], c1[ok]]
-        d = np.full(rr.size, np.nan)
-        d[hit] = _dot3(grid[r1[hit], c1[hit]] - p[hit], u[hit])
+    for hit, v in _ground_line(grid, labels, cells, r, _HANG_DIRECTIONS[k]):
+        d = np.full(hit.size, np.nan)
+        d[hit] = _dot3(v[hit], u[hit])
         yield hit, d
 
 
@@ -1408,28 +1423,18 @@ def _nearest_ground(
     step: tuple[int, int],
     u: NDArray[np.float64],
 ) -> tuple[NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64]]:
-    """For the cells P of ``cells`` (row-major): is there a ground cell (NORMAL or EDGE)
-    ``x = P + j step``, ``j = 1..r`` inside the grid (the walk stops at the border), and for
-    the nearest one ``s = u . (x - P)`` and ``w``, its distance from P along ``u``'s plane
-    (``sqrt(|x - P|^2 - s^2)``); 0 where there is none."""
-    hh, ww = labels.shape
-    ground = (labels == NORMAL) | (labels == EDGE)
-    rr, cc = np.nonzero(cells)
-    p = grid[rr, cc]
-    found = np.zeros(rr.size, dtype=bool)
-    walking = np.ones(rr.size, dtype=bool)  # inside the grid, no ground cell yet
-    s = np.zeros(rr.size)
-    w = np.zeros(rr.size)
-    for j in range(1, r + 1):
-        r1, c1 = rr + j * step[0], cc + j * step[1]
-        walking &= (r1 >= 0) & (r1 < hh) & (c1 >= 0) & (c1 < ww)
-        hit = walking.copy()
-        hit[walking] = ground[r1[walking], c1[walking]]
-        v = grid[r1[hit], c1[hit]] - p[hit]
-        s[hit] = _dot3(v, u[hit])
-        w[hit] = np.sqrt(np.maximum(_dot3(v, v) - s[hit] * s[hit], 0.0))
-        found |= hit
-        walking &= ~hit
+    """For the cells P of ``cells`` (row-major): is there a ground cell along ``step``
+    (:func:`_ground_line`), and for the nearest one ``x``, ``s = u . (x - P)`` and ``w``, its
+    distance from P along ``u``'s plane (``sqrt(|x - P|^2 - s^2)``); 0 where there is none."""
+    n = int(cells.sum())
+    found = np.zeros(n, dtype=bool)
+    s = np.zeros(n)
+    w = np.zeros(n)
+    for hit, v in _ground_line(grid, labels, cells, r, step):
+        new = hit & ~found
+        s[new] = _dot3(v[new], u[new])
+        w[new] = np.sqrt(np.maximum(_dot3(v[new], v[new]) - s[new] * s[new], 0.0))
+        found |= new
     return found, s, w
 
 

@@ -245,6 +245,10 @@ class ProfileStream {
   void advance(std::int64_t row) noexcept;
   void run_pass(std::int64_t row, int pass) noexcept;
   void pass1_fast(std::int64_t row) noexcept;
+  // Ring offset (cells) of the cell `step` cells from (row, column 0) along direction k, on
+  // side `sign` (-1 or +1): pass 1's neighbour of column c is at this offset + c.
+  std::ptrdiff_t step_offset(std::int64_t row, int k, std::ptrdiff_t step,
+                             int sign) const noexcept;
   std::uint8_t exact_label(std::int64_t row, std::ptrdiff_t col, std::uint32_t bits) const noexcept;
   const std::int64_t* pass1_kernel(std::int64_t row) noexcept;
   std::ptrdiff_t pass1_depth(bool min_step) const noexcept;
