@@ -208,6 +208,8 @@ BASES = [
     ("cd0cfef", "2026-12-02, before the vectorised window sums, the masked MIEM-plane "
      "moments and the min_step row skip", "recommended", "recommended"),
     ("c5b2e81", "2026-12-05, before the edge test's quiet cells", "recommended", "recommended"),
+    ("9503cd4", "2026-12-05, before the quiet cells from the height test's planes",
+     "recommended", "recommended"),
 ]
 
 

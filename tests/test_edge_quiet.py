@@ -1,5 +1,5 @@
 """Quiet cells of the edge test (SPEC "Edge test" step 1): the reference's rule against a direct
-fit of each cell's window, and the core against the reference where the rule decides."""
+fit of each cell's height window, and the core against the reference where the rule decides."""
 
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ import numpy as np
 import miem
 from miem import reference as ref
 
-R = 3  # a 7 x 7 window: small scenes reach its interior
+R = 3  # the edge test's half-size: a 7 x 7 sub-window square
+WINDOW = 9  # the height test's window: q = max(3, 4) = 4
 FLOOR = 0.01
 
 
@@ -30,64 +31,65 @@ def _scene() -> tuple[np.ndarray, np.ndarray]:
     return g, labels
 
 
-def _direct(g: np.ndarray, labels: np.ndarray, r: int, floor: float) -> tuple:
-    """Each NORMAL or EDGE cell: quiet per SPEC step 1 by a plane fitted to its window's cells
-    one at a time (np.linalg.eigh of the centred scatter); and how close it is to a threshold."""
+def _direct(g: np.ndarray, labels: np.ndarray, r: int, window: int, floor: float) -> tuple:
+    """Each NORMAL cell: quiet per SPEC step 1 by a plane fitted to its height window's NORMAL
+    cells one at a time (np.linalg.eigh of the centred scatter); and how close it is to a
+    threshold."""
     h, w = labels.shape
+    q, hw = max(r, window // 2), window // 2
     n_min = max(3, r * r // 2)
     quiet = np.zeros((h, w), dtype=bool)
     margin = np.full((h, w), np.inf)
-    for a in range(h):
-        for b in range(w):
-            if labels[a, b] not in (miem.NORMAL, miem.EDGE):
+    for a in range(q, h - q):
+        for b in range(q, w - q):
+            if labels[a, b] != miem.NORMAL:
                 continue
-            if a < r or b < r or a + r >= h or b + r >= w:
-                continue
-            win = labels[a - r:a + r + 1, b - r:b + r + 1]
+            win = labels[a - q:a + q + 1, b - q:b + q + 1]
             if np.any((win == miem.EDGE) | (win == miem.ABNORMAL)):
                 continue
             if (win == miem.INVALID).sum() >= n_min:
                 continue
-            sel = win == miem.NORMAL
-            sel[r, r] = False
-            q = g[a - r:a + r + 1, b - r:b + r + 1][sel]
-            m = q.mean(axis=0)
-            ev, vec = np.linalg.eigh((q - m).T @ (q - m))
-            rms = np.sqrt(ev[0] / len(q)) if ev[0] > 1e-12 * ev[2] else 0.0
+            sel = labels[a - hw:a + hw + 1, b - hw:b + hw + 1] == miem.NORMAL  # the cell too
+            p = g[a - hw:a + hw + 1, b - hw:b + hw + 1][sel]
+            m = p.mean(axis=0)
+            ev, vec = np.linalg.eigh((p - m).T @ (p - m))
+            if not (ev[2] > 0 and ev[1] - ev[0] > 1e-6 * ev[2]):  # a unique normal
+                continue
+            rms = np.sqrt(max(ev[0], 0.0) / len(p))
             dist = abs((g[a, b] - m) @ vec[:, 0])
-            quiet[a, b] = dist <= 3.0 * rms and rms <= 0.75 * floor
-            margin[a, b] = min(abs(dist - 3.0 * rms), abs(rms - 0.75 * floor))
+            quiet[a, b] = dist <= 4.0 * rms and rms <= 0.75 * floor
+            margin[a, b] = min(abs(dist - 4.0 * rms), abs(rms - 0.75 * floor))
     return quiet, margin
 
 
 def test_quiet_cells_are_a_direct_window_fit() -> None:
     g, labels = _scene()
-    cells = (labels == miem.NORMAL) | (labels == miem.EDGE)
-    fin = np.isfinite(g).all(axis=-1)
-    origin = g[np.unravel_index(np.argmax(fin), fin.shape)]
-    judged = np.zeros_like(cells)
-    judged[cells] = ref._edge_candidates(g, labels, cells, R, origin, FLOOR)
-    quiet, margin = _direct(g, labels, R, FLOOR)
+    got = ref._quiet_cells(g, labels, R, WINDOW, FLOOR)
+    quiet, margin = _direct(g, labels, R, WINDOW, FLOOR)
     sure = margin > 1e-9
-    np.testing.assert_array_equal(judged[cells & sure], ~quiet[cells & sure])
-    assert (cells & ~sure).sum() < 5
-    # by geometry: the flat sheet's interior is mostly quiet; the bump, the bend (its curvature
-    # 1 / mm: a 0.7 mm window's plane misses it by more than the floor), the cells around the
-    # EDGE, ABNORMAL and dropout cells and the border are judged
-    assert quiet[5:35, 4:22].mean() > 0.9
-    assert judged[20, 10]
-    assert judged[10:30, 45:57].all()
-    near = np.zeros_like(cells)
-    near[27:34, 17:24] = near[27:34, 29:36] = near[6:16, 23:33] = True  # 4+ dropouts
-    assert judged[near & cells].all()
-    assert judged[:R].all() and judged[:, -R:].all()
+    np.testing.assert_array_equal(got[sure], quiet[sure])
+    assert (~sure).sum() < 5
+    # by geometry: the flat sheet's interior is mostly quiet; the bump (6 sigma off the plane),
+    # the bend (its curvature 1 / mm: a 0.9 mm window's plane misses it by more than the
+    # floor), the cells within q = 4 of the EDGE, ABNORMAL and dropout cells and the border are
+    # not
+    assert quiet[5:25, 5:22].mean() > 0.9
+    assert not got[20, 10]
+    assert not got[10:30, 45:56].any()
+    near = np.zeros_like(got)
+    near[26:35, 16:25] = near[26:35, 28:37] = True
+    assert not got[near].any()
+    assert not got[5:17, 22:34].any()  # 4+ dropouts in the window (or dropouts themselves)
+    assert not got[:4].any() and not got[:, -4:].any()
+    # no floor: nothing is quiet
+    assert not ref._quiet_cells(g, labels, R, WINDOW, 0.0).any()
 
 
 def test_core_judges_what_the_reference_judges() -> None:
     """A low pit on a flat sheet that only step 7 finds (the height test leaves it: under a
     loose tolerance) is not quiet (off its window's plane); nor are a burr on a bend that the
     angle test leaves NORMAL (a rough window). The core and the reference agree on every label,
-    and the quiet cells around change nothing."""
+    and the quiet cells change nothing: the reference judging every cell gives the same."""
     h, w = 60, 70
     rng = np.random.default_rng(11)
     x, y = np.meshgrid(np.arange(w) * 0.1, np.arange(h) * 0.1)
@@ -105,3 +107,18 @@ def test_core_judges_what_the_reference_judges() -> None:
         np.testing.assert_array_equal(core.labels, oracle.labels)
     no_edge = ref.detect(g, edge_tolerance=None, **kw)
     assert no_edge.labels[20, 20] != miem.ABNORMAL  # the edge test found it
+    # the quiet cells: most of the sheet; judging them too changes no label
+    p = oracle.params
+    before = no_edge.labels
+    assert not (before == miem.EDGE).any()  # (no feature line: step 9 has nothing to do)
+    lengths = {k: p[k] for k in ("min_step", "z_resolution", "z_noise")}
+    floor = max(0.5 * (p["min_step"] or 0.0), 1.5 * (p["z_resolution"] or 0.0),
+                2.0 * (p["z_noise"] or 0.0))
+    quiet = ref._quiet_cells(g, before, 7, 21, floor)
+    assert quiet[31:50, 10:30].mean() > 0.9  # the flat sheet away from the pit
+    assert not quiet[20, 20] and not quiet[40:46, 55].any()
+    every = ref.edge_test(g, before, window=15, tolerance=4.0, max_iterations=10, **lengths)[0]
+    some = ref.edge_test(g, before, window=15, tolerance=4.0, max_iterations=10,
+                         height_window=21, **lengths)[0]
+    np.testing.assert_array_equal(some, every)
+    np.testing.assert_array_equal(some, oracle.labels)

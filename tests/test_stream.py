@@ -7,6 +7,7 @@ from pathlib import Path
 import miem
 import numpy as np
 import pytest
+from miem import reference as ref
 from miem.stream import ProfileStream, StreamRow
 
 
@@ -329,10 +330,15 @@ def make_outline_scan(h: int, w: int, seed: int) -> np.ndarray:
 
 
 @pytest.mark.parametrize("kw", [{}, {"edge_window": 9, "max_iterations": 4},
-                                {"edge_tolerance": 2.5, "edge_window": 5, "window": 9}])
+                                {"edge_tolerance": 2.5, "edge_window": 5, "window": 9},
+                                # pass 1's quiet cells read further than 2 r (q = h = 10 > 6);
+                                # no "auto" length: the lag is not 256
+                                {"edge_window": 7, "max_iterations": 3, "min_step": None,
+                                 "z_resolution": None, "z_noise": 0.003}])
 def test_stream_runs_the_edge_test_as_batch(kw: dict) -> None:
-    """The edge test in the stream (lag max(H + 2 r, h) + (P - 1) r + h): labels, heights and
-    defects equal batch detection's on a scan whose outline carries burrs the edge test finds."""
+    """The edge test in the stream (lag max(H + max(2 r, q), h) + (P - 1) r + h): labels, heights
+    and defects equal batch detection's on a scan whose outline carries burrs the edge test
+    finds."""
     grid = make_outline_scan(420, 60, 3)
     p = miem.default_params("stream").replace(**kw)
     want = miem.detect(grid, params=p)
@@ -340,14 +346,66 @@ def test_stream_runs_the_edge_test_as_batch(kw: dict) -> None:
     assert (want.labels == miem.ABNORMAL).sum() > (without.labels == miem.ABNORMAL).sum()
     stream = ProfileStream(60, params=p)
     r, P, h = p.grid.edge_window // 2, p.angle.max_iterations, p.grid.window // 2
-    R = max(p.angle.scales) + p.grid.max_gap + p.grid.max_reach  # min_step "auto"
+    auto = p.grid.min_step == "auto"
+    R = max(p.angle.scales) + p.grid.max_gap + (p.grid.max_reach if auto else 0)
     lag_h = P * R + p.grid.edge_extent + p.grid.max_gap + P * h
-    assert stream.lag == max(max(lag_h + 2 * r, h) + (P - 1) * r + h, 256)
+    lag = max(lag_h + max(2 * r, r, h), h) + (P - 1) * r + h
+    assert stream.lag == (max(lag, 256) if auto or p.grid.z_noise == "auto" else lag)
     defects: list = []
     got, heights = stream_both(stream, grid, defects)
     np.testing.assert_array_equal(got, want.labels)
     assert_heights_equal(heights, want.height)
     assert_same_defects(defects, want.defects, want.labels)
+
+
+@pytest.mark.parametrize("kw", [{}, {"edge_window": 7, "max_iterations": 3, "min_step": None,
+                                     "z_resolution": None, "z_noise": 0.003},
+                                {"edge_window": 7, "height_tolerance": None}])
+def test_stream_judges_the_cells_that_are_not_quiet(kw: dict) -> None:
+    """Edge pass 1 of the stream judges exactly the NORMAL and EDGE cells the reference finds
+    not quiet (SPEC "Edge test" step 1) on the labels after step 9, also where the quiet
+    cells' windows (q = h = 10) reach beyond the 2 r rows step 9 and pass 1 read; none is
+    quiet without the height test."""
+    rng = np.random.default_rng(8)
+    h, w = 300, 120
+    r_, c_ = np.mgrid[0:h, 0:w]
+    z = 0.01 * r_ * 0.2 + rng.normal(0.0, 0.003, (h, w)) + 0.5 * (r_ > 200)  # a sheet, a step
+    z[rng.integers(0, h, 12), rng.integers(0, 80, 12)] += 0.2  # spikes
+    for _ in range(12):  # low bump clusters: the height passes peel them over several passes
+        r0, c0 = rng.integers(0, h), rng.integers(0, 80)
+        for _ in range(rng.integers(1, 4)):
+            rr, cc = r0 + rng.integers(-3, 4), c0 + rng.integers(-3, 4)
+            s = rng.uniform(0.4, 1.2)
+            z += rng.uniform(0.02, 0.2) * np.exp(-((r_ - rr) ** 2 + (c_ - cc) ** 2) / (2 * s * s))
+    g = np.stack([c_ * 0.25, r_ * 0.2, z], axis=-1)
+    g[:, 80:] = np.nan  # an outline with burrs on it
+    for r0 in (20, 90, 150, 240):
+        g[r0:r0 + 5, 79, 2] += 0.08
+    g[rng.random((h, w)) < 0.005] = np.nan
+    grid = g
+    p = miem.default_params("stream").replace(**kw)
+    stream = ProfileStream(w, params=p)
+    stream_all(stream, grid)
+    res = miem.detect(grid, params=p, edge_tolerance=None)  # labels after the height passes
+    q = res.params
+    r, window = p.grid.edge_window // 2, p.grid.window
+    floor = max(0.5 * (q["min_step"] or 0.0), 1.5 * (q["z_resolution"] or 0.0),
+                2.0 * (q["z_noise"] or 0.0))
+    g = np.asarray(grid, dtype=np.float64)
+    lines = res.labels == miem.EDGE
+    if q["height_tolerance"] is not None:
+        lines &= ~ref._compact_edges(lines, q["edge_extent"],
+                                     ~np.isfinite(g).all(-1) | (res.labels == miem.ABNORMAL),
+                                     q["max_gap"])
+    after9 = ref.edge_test(g, res.labels, window=2 * r + 1, tolerance=p.grid.edge_tolerance,
+                           max_iterations=0, min_step=q["min_step"],
+                           z_resolution=q["z_resolution"], z_noise=q["z_noise"], lines=lines)[0]
+    cand = (after9 == miem.NORMAL) | (after9 == miem.EDGE)
+    if q["height_tolerance"] is not None:
+        quiet = ref._quiet_cells(g, after9, r, window, floor)
+        assert quiet.sum() > 0.2 * cand.sum()
+        cand &= ~quiet
+    assert stream.edge_candidates == cand.sum()
 
 
 @pytest.mark.parametrize("num_threads", [1, 2, 3])
@@ -458,8 +516,9 @@ def test_extreme_height_tolerance_labels_equal_and_heights_up_to_orientation() -
 
 def test_lag_formula() -> None:
     """L = P R + E + (P + 1) h with the height test (E = edge_extent + max_gap), P R + h without; with the edge test
-    max(H + 2 r, h) + (P - 1) r + h, H = P R + E + P h (docs/SPEC.md: step 9 r rows behind
-    the height passes, pass 1 r rows behind step 9)."""
+    max(H + max(2 r, q), h) + (P - 1) r + h, H = P R + E + P h, q = max(r, h) (docs/SPEC.md:
+    step 9 r rows behind the height passes, pass 1 r rows behind step 9 and q behind the height
+    passes: its quiet cells' windows)."""
     # the default: min_step "auto", so R = 1 + 2 (scales, max_gap) + 32 (max_reach)
     assert ProfileStream(10).lag == (10 * 35 + 12 + 1 + 10 * 10 + 2 * 7) + 9 * 7 + 10 == 550
     assert ProfileStream(10, edge_tolerance=None).lag == 10 * 35 + 12 + 1 + 11 * 10 == 473
@@ -468,6 +527,12 @@ def test_lag_formula() -> None:
     assert ProfileStream(10, preset="paper").lag == 10 * 2 + 10
     assert ProfileStream(10, max_iterations=3, window=7, edge_extent=4, edge_window=9,
                          **off).lag == (3 * 3 + 4 + 1 + 3 * 3 + 2 * 4) + 2 * 4 + 3
+    # a height window wider than 2 r: pass 1 waits for the quiet cells' windows (q = h = 10)
+    assert ProfileStream(10, max_iterations=3, window=21, edge_extent=4, edge_window=7,
+                         **off).lag == (3 * 3 + 4 + 1 + 3 * 10) + 10 + 2 * 3 + 10 == 70
+    # without the height test no cell is quiet: 2 r
+    assert ProfileStream(10, max_iterations=3, window=21, height_tolerance=None, edge_window=7,
+                         **off).lag == max(3 * 3 + 2 * 3, 10) + 2 * 3 + 10
     assert ProfileStream(10, height_tolerance=None, edge_tolerance=None, window=9,
                          **off).lag == 10 * 3 + 4
     # min_step "auto": at least the 256 rows it reads

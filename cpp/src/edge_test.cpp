@@ -13,6 +13,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include "edge_quiet.hpp"
 #include "edge_verdict.hpp"
 #include "judge.hpp"
 #include "miem/organized.hpp"
@@ -548,95 +549,6 @@ bool is_spike(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t g
   return median < kEdgeSpikeIso * std::abs(x.h) && !edge_spike_corner(res, x.h);
 }
 
-// SPEC "Edge test" step 1: drops the quiet cells from cells[0 .. m) (NORMAL or EDGE cells of
-// row rr, ascending columns) and returns how many are left, in order. Quiet: the cell's window
-// (rows and columns within r) lies inside the grid and holds only NORMAL and INVALID cells,
-// fewer than n_min INVALID, and the NORMAL ones other than the cell fit a plane whose rms is at
-// most kQuietRough x the tolerance floor with the cell within kQuietH rms of it. Such a cell
-// lies on a smooth surface away from any feature line, flagged cell or outline, where the
-// passes have nothing to find. The formulas are miem.reference._edge_candidates'.
-constexpr double kQuietH = 3.0, kQuietRough = 0.75;
-template <typename T>
-int drop_quiet(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr, std::ptrdiff_t H,
-               const EdgeImages& im, const Eigen::Vector3d& o, std::ptrdiff_t r, double floor,
-               double n_min, const std::uint8_t* lrow, std::ptrdiff_t* cells, int m) {
-  const std::ptrdiff_t W = g.cols;
-  if (m == 0 || rr - r < 0 || rr + r + 1 > H) return m;  // the grid border: every cell judged
-  constexpr int kCap = 64;  // (edge_judge_row's blocks: at most kEdgeBandCells cells)
-  double mm[kM * kCap], Mq[6 * kCap], E[6 * kCap], ok[kCap], redo[kCap];
-  double pb[3 * kCap], own[kCap], quiet[kCap], nnb[kCap], ceb[3 * kCap], useb[kCap], emptyb[kCap];
-  const auto srow = [&im](std::ptrdiff_t s) { return ((s - im.first) % im.rows) * im.stride; };
-  const std::ptrdiff_t top = srow(rr - r), bottom = srow(rr + r + 1);
-  const double* const S = im.data;
-  // the window sums: one rectangle per cell (consecutive cells inside the grid: vectorised)
-  if (cells[m - 1] - cells[0] + 1 == m && cells[0] - r >= 0 && cells[m - 1] + r + 1 <= W) {
-    const std::ptrdiff_t x0 = cells[0] - r - im.f0, x1 = cells[0] + r + 1 - im.f0;
-    rect_sums(m, im.plane, kCap, S + bottom + x1, S + top + x1, S + bottom + x0, S + top + x0,
-              mm);
-  } else {
-    for (int j = 0; j < m; ++j) {
-      const std::ptrdiff_t c = cells[j];
-      const std::ptrdiff_t x0 = std::max<std::ptrdiff_t>(c - r, 0) - im.f0;
-      const std::ptrdiff_t x1 = std::min<std::ptrdiff_t>(c + r + 1, W) - im.f0;
-      for (int q = 0; q < kM; ++q) {
-        const double* Sq = S + q * im.plane;
-        mm[q * kCap + j] = Sq[bottom + x1] - Sq[top + x1] - Sq[bottom + x0] + Sq[top + x0];
-      }
-    }
-  }
-  for (int j = 0; j < m; ++j) {
-    const std::ptrdiff_t c = cells[j];
-    const Eigen::Vector3d p = g(grow, c) - o;
-    pb[j] = p.x(), pb[kCap + j] = p.y(), pb[2 * kCap + j] = p.z();
-    own[j] = lrow[c] == kNormal ? 1.0 : 0.0;  // the cell itself is not in its plane's support
-    quiet[j] = c - r >= 0 && c + r + 1 <= W ? 1.0 : 0.0;
-  }
-  const double area = static_cast<double>((2 * r + 1) * (2 * r + 1));
-#pragma GCC ivdep
-  for (int j = 0; j < m; ++j) {
-    const double w = own[j], px = pb[j], py = pb[kCap + j], pz = pb[2 * kCap + j];
-    const double e = mm[10 * kCap + j], n = mm[j] - w;
-    // only NORMAL and INVALID cells (the cell's own count included), few INVALID, a plane
-    quiet[j] = quiet[j] != 0.0 && mm[j] + e >= area && e < n_min && n >= 3.0 ? 1.0 : 0.0;
-    // the support without the cell itself (w = 0 when it is EDGE: not in the sums)
-    const double v[10] = {1.0, px, py, pz, px * px, px * py, px * pz, py * py, py * pz, pz * pz};
-    for (int q = 0; q < 10; ++q) mm[q * kCap + j] -= w * v[q];
-  }
-  // centroid and centred scatter as for the sub-windows (`useb`, `emptyb`: not used here)
-  side_moments(m, kCap, 3.0, mm, nnb, ceb, Mq, useb, emptyb);
-  double any = 0.0;
-  for (int j = 0; j < m; ++j) any += quiet[j];
-  if (any == 0.0) return m;  // none can be quiet (near a feature line, an outline): no solve
-  smallest_eigenpairs_long(m, kCap, Mq, E, ok, redo);
-  for (int j = 0; j < m; ++j) {  // lanes the vector loop did not finish (rare)
-    if (quiet[j] == 0.0 || redo[j] == 0.0) continue;
-    Eigen::Matrix3d M;
-    M << Mq[j], Mq[3 * kCap + j], Mq[5 * kCap + j], Mq[3 * kCap + j], Mq[kCap + j],
-        Mq[4 * kCap + j], Mq[5 * kCap + j], Mq[4 * kCap + j], Mq[2 * kCap + j];
-    Eigen::Vector3d u = Eigen::Vector3d::Zero();
-    ok[j] = smallest_eigenpair(M, E + j, E + kCap + j, E + 2 * kCap + j, &u) ? 1.0 : 0.0;
-    E[3 * kCap + j] = u.x(), E[4 * kCap + j] = u.y(), E[5 * kCap + j] = u.z();
-  }
-#pragma GCC ivdep
-  for (int j = 0; j < m; ++j) {
-    const double l0 = E[j], l1 = E[kCap + j], l2 = E[2 * kCap + j];
-    const double rms = edge_side_rms(l0, l2, nnb[j]);
-    const double h = std::abs((pb[j] - ceb[j]) * E[3 * kCap + j] +
-                              (pb[kCap + j] - ceb[kCap + j]) * E[4 * kCap + j] +
-                              (pb[2 * kCap + j] - ceb[2 * kCap + j]) * E[5 * kCap + j]);
-    quiet[j] = quiet[j] != 0.0 && ok[j] != 0.0 && l2 > 0.0 && !(l1 <= kRankTol * l2) &&
-                       h <= kQuietH * rms && rms <= kQuietRough * floor
-                   ? 1.0
-                   : 0.0;
-  }
-  int kept = 0;
-  for (int j = 0; j < m; ++j) {
-    cells[kept] = cells[j];
-    kept += quiet[j] != 0.0 ? 0 : 1;
-  }
-  return kept;
-}
-
 template <typename T>
 void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr,
                     std::ptrdiff_t H, std::ptrdiff_t C0, std::ptrdiff_t C1,
@@ -720,7 +632,6 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
         bcand[nb] = c;
         nb += todo[c] & (fit_only | (lrow[c] == kNormal) | (lrow[c] == kEdge));
       }
-      if (!fit_only) nb = drop_quiet(g, grow, rr, H, im, o, r, et.floor, n_min, lrow, bcand, nb);
       banded = false;
       if (rows_inside && bw >= 16) {
         const std::ptrdiff_t n = nb, first = nb ? bcand[0] : -1, last = nb ? bcand[nb - 1] : -1;
@@ -984,7 +895,8 @@ namespace {
 template <typename T>
 int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol et,
                int max_iterations, int num_threads, std::vector<double>& scratch,
-               CellBytes& flags, const std::uint8_t* lines) {
+               CellBytes& flags, const std::uint8_t* lines, const std::uint8_t* planes,
+               std::ptrdiff_t height_half) {
   constexpr std::ptrdiff_t kTileRows = kEdgeTileRows, kTileCols = kEdgeTileCols;
   const std::ptrdiff_t H = g.rows, W = g.cols, N = H * W, r = window / 2;
   const std::ptrdiff_t ER = std::min(H, kTileRows + 2 * r), EC = std::min(W, kTileCols + 2 * r);
@@ -1106,6 +1018,23 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol e
   parallel_ranges(ntn, N, 64, [&](int, std::ptrdiff_t i0, std::ptrdiff_t i1) {
     for (std::ptrdiff_t i = i0; i < i1; ++i) todo[i] = labels[i] == kNormal || labels[i] == kEdge;
   });
+  // pass 1 leaves out the quiet cells (step 1): rows q .. H - q - 1, each thread its rows'
+  // window counts
+  const std::ptrdiff_t q = quiet_half(r, height_half);
+  if (planes != nullptr && H > 2 * q && W > 2 * q) {
+    parallel_ranges(ntn, H - 2 * q, 16, [&](int, std::ptrdiff_t u0, std::ptrdiff_t u1) {
+      std::vector<std::int32_t> buf(static_cast<std::size_t>(4 * W + 2));
+      const QuietCounts qw{buf.data(), buf.data() + W, buf.data() + 2 * W,
+                           buf.data() + 3 * W + 1, W, q, quiet_n_min(r)};
+      qw.clear();
+      for (std::ptrdiff_t a = u0; a < u0 + 2 * q; ++a) qw.add(labels + a * W, 1);
+      for (std::ptrdiff_t x = u0 + q; x < u1 + q; ++x) {
+        qw.add(labels + (x + q) * W, 1);
+        qw.drop(labels + x * W, planes + x * W, kHQuiet, todo + x * W);
+        qw.add(labels + (x - q) * W, -1);
+      }
+    });
+  }
   std::vector<std::int64_t> added;  // a pass's new ABNORMAL cells
   std::vector<std::int64_t> active;
   int passes = 0;
@@ -1169,8 +1098,10 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol e
 template <typename T>
 int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol et,
                 int max_iterations, int num_threads, std::vector<double>& scratch,
-                CellBytes& flags, const std::uint8_t* lines) {
-  return run_passes(g, labels, window, et, max_iterations, num_threads, scratch, flags, lines);
+                CellBytes& flags, const std::uint8_t* lines, const std::uint8_t* planes,
+                int height_half) {
+  return run_passes(g, labels, window, et, max_iterations, num_threads, scratch, flags, lines,
+                    planes, height_half);
 }
 
 template <typename T>
@@ -1181,9 +1112,10 @@ int edge_stage(const GridView<T>& g, const DetectParams& p, std::uint8_t* labels
     ws.cls.resize(N);
     for (std::size_t i = 0; i < N; ++i) ws.cls[i] = labels[i] == kEdge ? kLine : 0;
   }
-  return edge_passes(g, labels, p.edge_window, edge_tol(p),
-                     p.max_iterations, p.num_threads, ws.edge_sums, ws.edge_flags,
-                     ws.cls.data());
+  // the quiet cells' planes: the height test's first pass (none without it)
+  return edge_passes(g, labels, p.edge_window, edge_tol(p), p.max_iterations, p.num_threads,
+                     ws.edge_sums, ws.edge_flags, ws.cls.data(),
+                     height_test ? ws.hmask.data() : nullptr, p.window / 2);
 }
 
 template int edge_stage<float>(const GridView<float>&, const DetectParams&, std::uint8_t*, bool,
@@ -1191,9 +1123,11 @@ template int edge_stage<float>(const GridView<float>&, const DetectParams&, std:
 template int edge_stage<double>(const GridView<double>&, const DetectParams&, std::uint8_t*,
                                 bool, Workspace&);
 template int edge_passes<float>(const GridView<float>&, std::uint8_t*, int, EdgeTol, int, int,
-                                std::vector<double>&, CellBytes&, const std::uint8_t*);
+                                std::vector<double>&, CellBytes&, const std::uint8_t*,
+                                const std::uint8_t*, int);
 template int edge_passes<double>(const GridView<double>&, std::uint8_t*, int, EdgeTol, int, int,
-                                 std::vector<double>&, CellBytes&, const std::uint8_t*);
+                                 std::vector<double>&, CellBytes&, const std::uint8_t*,
+                                 const std::uint8_t*, int);
 
 #define MIEM_EDGE_ROWS(T)                                                                     \
   template void edge_image_row<T>(const GridView<T>&, std::ptrdiff_t, const std::uint8_t*,      \

@@ -14,6 +14,7 @@
 #include <cstring>
 
 #include "edge_groups.hpp"
+#include "edge_test.hpp"
 #include "parallel.hpp"
 #include "stages.hpp"
 #include "vector_clones.hpp"
@@ -58,13 +59,15 @@ void mark_compact_edges(const std::uint8_t* labels, std::ptrdiff_t H, std::ptrdi
 }
 
 // The height passes' verdict (height_verdict) on a whole row segment of wanted cells wrow[j]
-// from row_solve's fits (RowFits, not compact): kHFresh, kHMark where too far, and the height
-// when `height` is not null. Straight-line code (vectorised).
+// from row_solve's fits (RowFits, not compact): kHFresh, kHMark where too far, kHQuiet where
+// the plane is quiet (quiet_plane with `quiet_floor`: the first pass; 0 after it) and the
+// height when `height` is not null. Straight-line code (vectorised).
 MIEM_CLONES void height_row(std::ptrdiff_t n, const std::uint8_t* __restrict wrow,
                             const double* __restrict S, const double* __restrict F,
                             const std::uint8_t* __restrict okf, std::ptrdiff_t cap,
                             double height_abs, double height_k, double z_min,
-                            double* __restrict height, std::uint8_t* __restrict hm) {
+                            double quiet_floor, double* __restrict height,
+                            std::uint8_t* __restrict hm) {
   const double* __restrict fh = F;
   const double* __restrict f0 = F + cap;
   const double* __restrict f1 = F + 2 * cap;
@@ -74,7 +77,9 @@ MIEM_CLONES void height_row(std::ptrdiff_t n, const std::uint8_t* __restrict wro
     const bool w = wrow[j] != 0;
     const bool far = height_verdict(okf[j] != 0, sl[j], fh[j], S[j], f0[j], f1[j], f2[j],
                                     height_abs, height_k, z_min);
-    const std::uint8_t b = static_cast<std::uint8_t>(hm[j] | kHFresh | (far ? kHMark : 0));
+    const bool quiet = quiet_plane(okf[j] != 0, fh[j], S[j], f0[j], f1[j], f2[j], quiet_floor);
+    const std::uint8_t b = static_cast<std::uint8_t>(hm[j] | kHFresh | (far ? kHMark : 0) |
+                                                     (quiet ? kHQuiet : 0));
     hm[j] = w ? b : hm[j];
   }
   if (height != nullptr) {
@@ -110,11 +115,16 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
   }
   int passes = 0;
   std::vector<std::vector<std::int64_t>> parts;  // per thread: new ABNORMAL cells of a pass
+  // the edge test's quiet cells (SPEC "Edge test" step 1) by the first pass's planes: a cell
+  // whose window loses a cell later is not quiet
+  const double floor1 = p.edge_test() ? edge_tol(p).floor : 0.0;
   for (int hp = 0; hp < p.max_iterations; ++hp) {
+    const double quiet_floor = hp == 0 ? floor1 : 0.0;
     auto visit = [&](std::ptrdiff_t i, const WindowFit& f) {
       if (height) height[i] = f.ok ? f.height : kNaN;
       std::uint8_t b = static_cast<std::uint8_t>(hm[i] | kHFresh);
       if (height_far(f, p)) b |= kHMark;
+      if (quiet_plane(f.ok, f.height, f.n, f.l0, f.l1, f.l2, quiet_floor)) b |= kHQuiet;
       hm[i] = b;
     };
     window_fits_rows(
@@ -124,7 +134,7 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
           if (!rf.compact) {  // the span of the wanted cells, [j0, j1)
             const std::ptrdiff_t j0 = rf.j0;
             height_row(rf.j1 - j0, wrow + j0, rf.S + j0, rf.F + j0, rf.okf + j0, rf.cap,
-                       p.height_abs, p.height_k, z_floor(p.z_resolution),
+                       p.height_abs, p.height_k, z_floor(p.z_resolution), quiet_floor,
                        height ? height + i0 + j0 : nullptr,
                        hm + i0 + j0);
             return;

@@ -74,6 +74,20 @@ inline __attribute__((always_inline)) bool height_verdict(bool ok, double edges,
            (h2n > 1e-12 * (l1 + l2)) & (ah > z_min)));
 }
 
+/// SPEC "Edge test" step 1, a quiet cell's plane: its height-window plane (WindowFit's fields,
+/// from the height test's first pass) exists, its rms = sqrt(max(l0, 0) / n) is at most
+/// kQuietRough x `floor` (the edge test's tolerance floor; none is quiet when it is 0) and the
+/// cell lies within kQuietH rms of it, or within the round-off floor 1e-6 sqrt((l1 + l2) / n)
+/// of height_verdict (so that a noise-free surface is not decided by rounding). Branch-free.
+inline constexpr double kQuietH = 4.0, kQuietRough = 0.75;
+inline __attribute__((always_inline)) bool quiet_plane(bool ok, double height, double n,
+                                                       double l0, double l1, double l2,
+                                                       double floor) {
+  const double h2n = height * height * n, l0p = std::max(l0, 0.0);
+  return ok & (floor > 0.0) & (l0p <= kQuietRough * kQuietRough * floor * floor * n) &
+         ((h2n <= kQuietH * kQuietH * l0p) | (h2n <= 1e-12 * (l1 + l2)));
+}
+
 /// height_verdict of one WindowFit, with `p`'s z_resolution resolved (not auto).
 inline bool height_far(const WindowFit& f, const DetectParams& p) {
   return height_verdict(f.ok, f.edges, f.height, f.n, f.l0, f.l1, f.l2, p.height_abs,
@@ -86,13 +100,15 @@ inline constexpr std::uint8_t kHWant = 2;     ///< (internal) evaluate at the ne
 inline constexpr std::uint8_t kHFresh = 4;    ///< height[i] holds the final window height
 inline constexpr std::uint8_t kHMark = 8;     ///< (internal) too far at this pass
 inline constexpr std::uint8_t kHSeen = 16;    ///< (internal) visited by the EDGE grouping
+inline constexpr std::uint8_t kHQuiet = 32;   ///< its first pass's plane is quiet (quiet_plane)
 
 /// Height passes (when p.height_abs > 0 or p.height_k > 0): NORMAL cells and EDGE cells of
 /// compact groups too far from their window plane become ABNORMAL, at most p.max_iterations
 /// passes; a pass re-fits only the cells whose window changed. When `height` is not null it
 /// receives the window height of every fitted cell, and ws.hmask marks with kHFresh the cells
-/// whose height is final. Leaves ws.cls with the window classes of the final labels. Returns
-/// the number of height passes.
+/// whose height is final, and with kHQuiet the NORMAL cells whose plane at the first pass is
+/// quiet (quiet_plane, with the edge test's tolerance floor; none without the edge test). Leaves ws.cls with the window
+/// classes of the final labels. Returns the number of height passes.
 template <typename T>
 int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* labels,
                 double* height, Workspace& ws);

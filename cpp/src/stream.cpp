@@ -284,11 +284,13 @@ long long stream_lag(const DetectParams& p) noexcept {
       P * reach + (p.height_test() ? p.edge_extent + p.max_gap + P * h : 0);
   long long lag = lagh + h;
   if (p.edge_test()) {
-    // step 9 runs r rows behind the height passes, edge pass 1 r rows behind it, once the rows
-    // within h are in (its removals mark the heights there stale); pass p r rows behind pass
-    // p - 1
+    // step 9 runs r rows behind the height passes, edge pass 1 r rows behind it (and, with the
+    // height test, q = max(r, h) rows behind the height passes: its quiet cells' windows),
+    // once the rows within h are in (its removals mark the heights there stale); pass p r rows
+    // behind pass p - 1
     const long long r = p.edge_window / 2;
-    lag = std::max(lagh + 2 * r, h) + (P - 1) * r + h;
+    const long long q = p.height_test() ? std::max(r, h) : 0;
+    lag = std::max(lagh + std::max(2 * r, q), h) + (P - 1) * r + h;
   }
   // min_step, z_resolution or z_noise "auto": nothing runs before the sample rows they read
   // are in

@@ -19,7 +19,9 @@
 #include <algorithm>
 #include <cstring>
 
+#include "edge_quiet.hpp"
 #include "edge_test.hpp"
+#include "stages.hpp"
 #include "miem/stream.hpp"
 #include "parallel.hpp"
 
@@ -44,6 +46,10 @@ void ProfileStream<T>::init_edges() {
   epass_.assign(static_cast<std::size_t>(ring_ * W), 0);
   etodo_.assign(static_cast<std::size_t>(ring_ * W), 0);
   etodo_row_.assign(static_cast<std::size_t>(ring_), 0);
+  if (htest_) {
+    eplane_.assign(static_cast<std::size_t>(ring_ * W), 0);
+    equiet_.assign(static_cast<std::size_t>(4 * W + 2), 0);
+  }
   // pass 1 has two sets (even and odd bands: the next band's images are built alongside), and
   // step 9 (pass 0 here) one after pass passes_'s
   const std::ptrdiff_t sets = static_cast<std::ptrdiff_t>(passes_) + 2;
@@ -70,6 +76,8 @@ void ProfileStream<T>::reset_edges() noexcept {
   if (!edge_) return;
   std::fill(eimg_band_.begin(), eimg_band_.end(), -1);
   std::fill(enext_.begin(), enext_.end(), 0);
+  eq_first_ = eq_next_ = 0;
+  ecand_ = 0;
 }
 
 // At push: the tile origins of the row's band (the first finite cell of each tile, row-major).
@@ -85,6 +93,7 @@ void ProfileStream<T>::edge_push_row(std::int64_t row) noexcept {
   std::memset(eold_.data() + s, 0, static_cast<std::size_t>(W));
   std::memset(epass_.data() + s, 0, static_cast<std::size_t>(W));
   std::memset(etodo_.data() + s, 0, static_cast<std::size_t>(W));
+  if (htest_) std::memset(eplane_.data() + s, 0, static_cast<std::size_t>(W));
   etodo_row_[static_cast<std::size_t>(slot(row))] = 0;
   if (eorg_missing_[static_cast<std::size_t>(b)] == 0) return;
   const GridView<T> g = row_view(row);
@@ -174,6 +183,9 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
   } else if (pass == 0) {
     if (!restore_candidates(row)) return;
     todo = etd_.data();
+  } else if (htest_) {
+    quiet_candidates(row);
+    todo = etd_.data();
   }
   const std::int64_t band = row / kTR, R0 = band * kTR;
   const std::int64_t e0 = std::max<std::int64_t>(0, R0 - r);
@@ -191,6 +203,13 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
     edge_labels(a, pass, 0, W, win + (a - a0) * W);
   }
   const std::uint8_t* lab = win + grow * W;
+  if (pass == 1) {
+    std::ptrdiff_t n = 0;
+    for (std::ptrdiff_t c = 0; c < W; ++c) {
+      n += todo[c] & ((lab[c] == kNormal) | (lab[c] == kEdge));
+    }
+    ecand_ += n;
+  }
   std::uint8_t* mark = emark_.data();
   std::ptrdiff_t* tiles = etile_list_.data();
   std::ptrdiff_t n_tiles = 0;  // the tile columns with a candidate
@@ -301,6 +320,35 @@ bool ProfileStream<T>::restore_candidates(std::int64_t row) noexcept {
   return any;
 }
 
+// Pass 1's candidates of `row` into etd_: every cell but the quiet ones (edge_quiet.hpp), from
+// the window counts of the rows within q at the start of pass 1 (added as pass 1 comes down,
+// removed as they were added: step 9 turns ABNORMAL cells EDGE, both counted alike).
+template <typename T>
+void ProfileStream<T>::quiet_candidates(std::int64_t row) noexcept {
+  const std::ptrdiff_t W = width_, r = params_.edge_window / 2;
+  const std::ptrdiff_t q = detail::quiet_half(r, half_);
+  std::fill(etd_.begin(), etd_.end(), std::uint8_t{1});
+  if (row - q < 0 || row + q >= pushed_) return;  // the window leaves the grid: none quiet
+  std::int32_t* b = equiet_.data();
+  const detail::QuietCounts qc{b, b + W, b + 2 * W, b + 3 * W + 1, W, q, detail::quiet_n_min(r)};
+  std::uint8_t* labs = elab_img_.data();  // (a row of scratch: pass 1 runs after this)
+  const std::int64_t lo = row - q, hi = row + q + 1;
+  if (eq_next_ <= lo || eq_first_ > lo) {  // nothing of the window held: start afresh
+    qc.clear();
+    eq_first_ = eq_next_ = lo;
+  }
+  for (; eq_first_ < lo; ++eq_first_) {
+    edge_labels(eq_first_, 1, 0, W, labs);
+    qc.add(labs, -1);
+  }
+  for (; eq_next_ < hi; ++eq_next_) {
+    edge_labels(eq_next_, 1, 0, W, labs);
+    qc.add(labs, 1);
+  }
+  edge_labels(row, 1, 0, W, labs);
+  qc.drop(labs, eplane_.data() + slot(row) * W, detail::kHQuiet, etd_.data());
+}
+
 // Runs the edge passes as far as their inputs are final (all rows at the end of the stream).
 template <typename T>
 void ProfileStream<T>::run_edges(bool to_end) noexcept {
@@ -317,6 +365,8 @@ void ProfileStream<T>::run_edges(bool to_end) noexcept {
       // step 9 done r rows below (the labels a judgment reads); the rows within h pushed (a
       // removal marks their heights stale)
       if (y + r >= enext_[0] || y + half_ > last) break;
+      // the quiet test's window final (rows within q: within 2 r above, at the defaults)
+      if (htest_ && y + detail::quiet_half(r, half_) > ready) break;
     }
     edge_row(y, 1);
   }

@@ -15,6 +15,7 @@
 #include <cstring>
 
 #include "edge_groups.hpp"
+#include "edge_test.hpp"
 #include "miem/stream.hpp"
 #include "parallel.hpp"
 #include "stages.hpp"
@@ -50,7 +51,8 @@ constexpr std::uint8_t pass_class(std::uint8_t b, std::uint8_t hs, int pass, boo
 }
 
 // Height pass 1 on a row span of n cells from row_solve's fits (RowFits, not compact): the
-// height of each wanted cell (w[j] != 0; NaN without a plane) and, with `test`, w[j] = 1 where
+// height of each wanted cell (w[j] != 0; NaN without a plane), with quiet_floor > 0 kHQuiet in
+// quiet[j] where a NORMAL cell's plane is quiet (else 0), and, with `test`, w[j] = 1 where
 // the cell is a candidate (NORMAL or compact EDGE, by its bits hm[j]) the verdict
 // (height_verdict) finds too far, else 0. Straight-line code (vectorised), as the batch's
 // height_row: a cell's verdict and height are those of the one-cell path (RowFits::fit).
@@ -58,17 +60,25 @@ MIEM_CLONES void pass1_verdicts(std::ptrdiff_t n, const std::uint8_t* __restrict
                                 const double* __restrict S, const double* __restrict F,
                                 const std::uint8_t* __restrict okf, std::ptrdiff_t cap, bool test,
                                 double height_abs, double height_k, double z_min,
-                                double* __restrict height,
-                                std::uint8_t* __restrict w) {
+                                double quiet_floor, double* __restrict height,
+                                std::uint8_t* __restrict quiet, std::uint8_t* __restrict w) {
   const double* __restrict fh = F;
+  const double* __restrict f0 = F + cap;
+  const double* __restrict f1 = F + 2 * cap;
+  const double* __restrict f2 = F + 3 * cap;
   for (std::ptrdiff_t j = 0; j < n; ++j) {
     const double h = okf[j] != 0 ? fh[j] : detail::kNaN;
     height[j] = w[j] != 0 ? h : height[j];
   }
+  if (quiet_floor > 0.0) {  // the edge test's quiet planes of the NORMAL cells (edge_quiet.hpp)
+    for (std::ptrdiff_t j = 0; j < n; ++j) {
+      const bool q = (w[j] != 0) & ((hm[j] & kInPlane) != 0) &
+                     detail::quiet_plane(okf[j] != 0, fh[j], S[j], f0[j], f1[j], f2[j],
+                                         quiet_floor);
+      quiet[j] = q ? detail::kHQuiet : 0;
+    }
+  }
   if (!test) return;
-  const double* __restrict f0 = F + cap;
-  const double* __restrict f1 = F + 2 * cap;
-  const double* __restrict f2 = F + 3 * cap;
   const double* __restrict sl = S + 10 * cap;
   for (std::ptrdiff_t j = 0; j < n; ++j) {
     const bool cand = (hm[j] & (kInPlane | kSCompact)) != 0;
@@ -309,6 +319,9 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
   const std::uint8_t* st = state_.data() + s * W;
   const std::uint8_t* hm = hm_.data() + s * W;
   double* height = height_.data() + s * W;
+  // the edge test's quiet planes (cleared at push; with the height test only)
+  const double quiet_floor = edge_ && htest_ ? detail::edge_tol(jparams_).floor : 0.0;
+  std::uint8_t* quiet = quiet_floor > 0.0 ? eplane_.data() + s * W : nullptr;
   // The strips split among the threads, each with its own scratch; a cell too far goes into
   // far_row_, and the removals (which mark the cells around, in other strips too) follow in
   // column order.
@@ -344,7 +357,8 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
       // wrow[j] becomes: cell j is wanted and too far
       pass1_verdicts(j1 - j0, hm + tc0 + j0, rf.S + j0, rf.F + j0, rf.okf + j0, rf.cap,
                      htest_, params_.height_abs, params_.height_k,
-                     detail::z_floor(jparams_.z_resolution), height + tc0 + j0, wrow + j0);
+                     detail::z_floor(jparams_.z_resolution), quiet_floor, height + tc0 + j0,
+                     quiet ? quiet + tc0 + j0 : nullptr, wrow + j0);
       if (htest_) std::copy(wrow + j0, wrow + j1, far + j0);
       return;
     }
@@ -355,6 +369,10 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
       const std::ptrdiff_t c = tc0 + j;
       height[c] = f.ok ? f.height : detail::kNaN;
       far[j] = htest_ && (hm[c] & (kInPlane | kSCompact)) && detail::height_far(f, jparams_);
+      if (quiet_floor > 0.0 && (hm[c] & kInPlane) &&
+          detail::quiet_plane(f.ok, f.height, f.n, f.l0, f.l1, f.l2, quiet_floor)) {
+        quiet[c] = detail::kHQuiet;
+      }
     }
   });
   if (!htest_) return;

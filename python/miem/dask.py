@@ -135,7 +135,8 @@ def grid_halo(params: dict, strict: bool = False) -> int:
     -------
     int
         ``max_iterations * R (+ max_iterations * (window // 2 + edge_extent) with the height
-        test) (+ (max_iterations + 1) * (edge_window // 2) with the edge test) + window // 2``, with
+        test) (+ max(2 * (edge_window // 2), window // 2 with the height test) + (max_iterations
+        - 1) * (edge_window // 2) with the edge test) + window // 2``, with
         ``R = max(scales) + max_gap (+ max_reach with min_step)``. The edge test's sums are per
         64 x 128 tile too (docs/SPEC.md "Edge test"); ``strict`` covers them as the window sums.
     """
@@ -153,10 +154,13 @@ def grid_halo(params: dict, strict: bool = False) -> int:
         lag += params["max_iterations"] * per_pass
     if params.get("edge_tolerance") is not None:  # the edge passes, after the height passes
         # (and their step 9 before pass 1: the sub-windows again, and the feature lines beside
-        # a cell, which the angle and height passes' reach already covers)
+        # a cell, which the angle and height passes' reach already covers; pass 1's quiet cells
+        # read the labels within max(side, window // 2) with the height test)
         side = params["edge_window"] // 2
-        lag += (params["max_iterations"] + 1) * (max(side, max(_TILE) - 1 + side) if strict
-                                                 else side)
+        if strict:
+            side = max(side, max(_TILE) - 1 + side)
+        quiet = half if params["height_tolerance"] is not None else 0
+        lag += max(2 * side, quiet) + (params["max_iterations"] - 1) * side
     return lag + half
 
 

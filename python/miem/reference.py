@@ -1103,46 +1103,39 @@ def _scatter(m: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
     return nn, cen, cov
 
 
-def _edge_candidates(
+def _quiet_cells(
     grid: NDArray[np.float64],
     labels: NDArray[np.uint8],
-    cells: NDArray[np.bool_],
     r: int,
-    origin: NDArray[np.float64],
+    window: int,
     floor: float,
-    images: Optional[NDArray[np.float64]] = None,
 ) -> NDArray[np.bool_]:
-    """SPEC "Edge test" step 1: which NORMAL or EDGE cells of ``cells`` (row-major, ``(N,)``)
-    the pass judges. A cell is left out when its window (rows and columns within ``r``) lies
-    inside the grid, holds only NORMAL and INVALID cells, fewer than ``n_min`` INVALID ones,
-    and its NORMAL cells other than it fit a plane (SPEC "Plane fit") with ``rms <=
-    _EDGE_QUIET_ROUGH * floor`` and the cell within ``_EDGE_QUIET_H * rms`` of it.
-    ``images``: the pass's ``_moment_images`` of the NORMAL and INVALID cells, when the caller
-    has them."""
+    """SPEC "Edge test" step 1: the quiet cells, which pass 1 leaves out, on the labels at the
+    start of the edge test (``window``: the height test's). A NORMAL cell is quiet when every
+    cell within ``q = max(r, window // 2)`` rows and columns lies inside the grid and is NORMAL
+    or INVALID, fewer than ``n_min`` of them INVALID, and its height-window plane (the NORMAL
+    cells of its window, itself included, as the height test fits them) has ``rms = sqrt(max(l0,
+    0) / n) <= _EDGE_QUIET_ROUGH * floor`` with the cell within ``_EDGE_QUIET_H * rms`` of it, or
+    within the height test's round-off floor ``1e-6 sqrt((l1 + l2) / n)``. None when ``floor``
+    is 0."""
     hh, ww = labels.shape
-    support = labels == NORMAL
-    s = _moment_images(grid, support, labels == INVALID, origin) if images is None else images
-    rr, cc = np.nonzero(cells)
-    r0, r1 = rr - r, rr + r + 1
-    c0, c1 = cc - r, cc + r + 1
-    inside = (r0 >= 0) & (r1 <= hh) & (c0 >= 0) & (c1 <= ww)
-    r0, r1, c0, c1 = np.clip(r0, 0, hh), np.clip(r1, 0, hh), np.clip(c0, 0, ww), np.clip(c1, 0, ww)
-    m = s[r1, c1] - s[r0, c1] - s[r1, c0] + s[r0, c0]
-    n_min = max(3, (r * r) // 2)
-    area = (2 * r + 1) ** 2
-    quiet = inside & (m[:, 0] + m[:, 10] >= area) & (m[:, 10] < n_min)
-    pt = grid[rr, cc] - origin
-    own = support[rr, cc]  # the cell itself is not in its plane's support
-    m[own, :10] -= _moment_terms(pt[own])
-    quiet &= m[:, 0] >= 3
-    nn, cen, cov = _scatter(m)
-    cov[~quiet] = np.eye(3)
-    evals, evecs = np.linalg.eigh(cov)
-    quiet &= (evals[:, 2] > 0.0) & ~(evals[:, 1] <= _EIGEN_RANK_TOL * evals[:, 2])
-    rms = _edge_rms(evals, nn)
-    h = np.abs(_dot3(pt - cen, evecs[:, :, 0]))
-    quiet &= (h <= _EDGE_QUIET_H * rms) & (rms <= _EDGE_QUIET_ROUGH * floor)
-    return ~quiet
+    q = max(r, window // 2)
+    normal = labels == NORMAL
+    if floor <= 0.0 or hh <= 2 * q or ww <= 2 * q:
+        return np.zeros_like(normal)
+    side = 2 * q + 1
+    cand = normal & (_box_count((labels == EDGE) | (labels == ABNORMAL), side) == 0)
+    cand &= _box_count(labels == INVALID, side) < max(3, (r * r) // 2)
+    inside = np.zeros_like(cand)
+    inside[q:hh - q, q:ww - q] = True
+    cand &= inside
+    height, _, evals, count = _window_planes(grid, normal, cand, window)
+    n = count.astype(np.float64)
+    l0 = np.maximum(evals[..., 0], 0.0)
+    h2n = height * height * n
+    with np.errstate(invalid="ignore"):
+        near = (h2n <= _EDGE_QUIET_H ** 2 * l0) | (h2n <= 1e-12 * (evals[..., 1] + evals[..., 2]))
+        return cand & np.isfinite(height) & (l0 <= (_EDGE_QUIET_ROUGH * floor) ** 2 * n) & near
 
 
 def _side_fits(
@@ -1200,9 +1193,9 @@ def _side_fits(
     return hs, rms, spread, valid, normals, centroids, empty
 
 
-#: A quiet cell (SPEC "Edge test" step 1), not judged: within this many rms of its window's
-#: plane, whose rms is at most _EDGE_QUIET_ROUGH times the tolerance floor.
-_EDGE_QUIET_H = 3.0
+#: A quiet cell (SPEC "Edge test" step 1), not judged: within this many rms of its height
+#: window's plane, whose rms is at most _EDGE_QUIET_ROUGH times the tolerance floor.
+_EDGE_QUIET_H = 4.0
 _EDGE_QUIET_ROUGH = 0.75
 
 #: The edge test's tiles (SPEC "Edge test" step 3): rows x columns, fixed in grid coordinates.
@@ -1616,12 +1609,7 @@ def _edge_verdicts(
     cells that fit a clean sub-window that is not empty."""
     out = np.zeros_like(cells)
     support, invalid = labels == NORMAL, labels == INVALID
-    images = _moment_images(grid, support, invalid, origin)  # the pass's, for steps 1 and 3
-    if not fits_only:
-        cells = cells.copy()
-        cells[cells] = _edge_candidates(grid, labels, cells, r, origin, floor, images)
-        if not cells.any():
-            return out
+    images = _moment_images(grid, support, invalid, origin)  # the pass's, for step 3
     h, rms, spread, valid, nrm, cen, empty = _side_fits(
         grid, support, invalid, cells, r, origin, images)
     level, clean, tol = _clean_sides(rms, spread, valid, nrm, k, floor)
@@ -1678,10 +1666,13 @@ def edge_test(
     z_resolution: float | None = None,
     lines: NDArray[np.bool_] | None = None,
     z_noise: float | None = None,
+    height_window: int | None = None,
 ) -> tuple[NDArray[np.uint8], int]:
     """Edge passes on top of the angle and height passes (SPEC "Edge test").
 
-    ``labels`` (H, W) are those after the height passes; ``min_step``, ``z_resolution`` and
+    ``labels`` (H, W) are those after the height passes; ``height_window`` the height test's
+    window when it ran (pass 1 leaves out the quiet cells, step 1; None: no cell is quiet);
+    ``min_step``, ``z_resolution`` and
     ``z_noise`` the ones in use (None: off; no sub-window's tolerance is below ``min_step / 2``,
     ``1.5 z_resolution`` or ``2 z_noise``, step 3); ``lines`` the feature-line EDGE cells (step 9: the ABNORMAL
     cells beside them that fit a clean side with a return become EDGE before pass 1; None:
@@ -1701,6 +1692,8 @@ def edge_test(
                               g, lab, sel, r, tolerance, origin, floor, fits_only=True))
             labels[back] = EDGE
         todo = (labels == NORMAL) | (labels == EDGE)
+        if height_window is not None:
+            todo &= ~_quiet_cells(grid, labels, window // 2, height_window, floor)
         for _ in range(max_iterations):
             passes += 1
             new = _edge_pass(grid, labels, todo, window, tolerance, floor)
@@ -2031,7 +2024,8 @@ def detect(
             lines &= ~_compact_edges(lines, extent, bridge, gap)
         labels, edge_passes = edge_test(g, labels, window=edge_win, tolerance=float(edge_k),
                                         max_iterations=iters, min_step=step, z_resolution=zres,
-                                        z_noise=noise, lines=lines)
+                                        z_noise=noise, lines=lines,
+                                        height_window=win if tolerance is not None else None)
         passes += edge_passes
         abnormal = labels == ABNORMAL
 

@@ -91,8 +91,8 @@ class ProfileStream:
     The lag (docs/SPEC.md "Streaming") is::
 
         L = P R + E + (P + 1) h            (height test on;  L = P R + h without it)
-        L = max(H + 2 r, h) + (P - 1) r + h  (with the edge test; H = P R + E + P h, or P R
-                                             without the height test)
+        L = max(H + max(2 r, q), h) + (P - 1) r + h  (with the edge test; H = P R + E + P h,
+                          q = max(r, h); or H = P R, q = 0 without the height test)
         L = max(L, 256)                    (with min_step, z_resolution or z_noise "auto")
 
     with ``R = max(scales) + max_gap`` (``+ max_reach`` with ``min_step``, a length or
@@ -246,6 +246,13 @@ class ProfileStream:
     def rows_pushed(self) -> int:
         """Profiles pushed since construction or :meth:`reset`."""
         return int(self._core.rows_pushed)
+
+    @property
+    def edge_candidates(self) -> int:
+        """Cells the edge test's first pass has judged since construction or :meth:`reset`: the
+        NORMAL and EDGE cells that are not quiet (docs/SPEC.md "Edge test" step 1), the edge
+        test's work (its cost per profile grows with it); 0 without the edge test."""
+        return int(self._core.edge_candidates)
 
     @property
     def finished(self) -> bool:

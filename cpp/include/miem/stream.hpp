@@ -89,9 +89,10 @@ DetectParams stream_default_params();
 /// back final), with R = max(scales) + max_gap (+ max_reach with min_step, given or "auto"),
 /// h = window / 2, P = max_iterations, E = edge_extent + max_gap, r = edge_window / 2:
 ///     L = P R + E + (P + 1) h   with the height test,   L = P R + h   without;
-///     L = max(H + 2 r, h) + (P - 1) r + h   with the edge test, H = P R + E + P h (P R without
-///         the height test): its step 9 runs row by row r rows behind the height passes, and
-///         each edge pass r rows behind the one before;
+///     L = max(H + max(2 r, q), h) + (P - 1) r + h   with the edge test, H = P R + E + P h
+///         (P R without the height test), q = max(r, h) (0 without the height test): its step
+///         9 runs row by row r rows behind the height passes, pass 1 r rows behind it (and q
+///         behind the height passes: its quiet cells), each pass r rows behind the one before;
 ///     L = max(L, 256)   with min_step_auto, z_resolution_auto or z_noise_auto (the rows
 ///                       they are decided from must be in).
 /// Defaults: (10 * 35 + 13 + 10 * 10 + 2 * 7) + 9 * 7 + 10 = 550 (256 with min_step off, 230
@@ -207,6 +208,9 @@ class ProfileStream {
   const DetectParams& params() const noexcept { return params_; }
   /// Profiles accepted since construction or reset.
   std::int64_t rows_pushed() const noexcept { return pushed_; }
+  /// Cells edge pass 1 has judged since construction or reset(): the NORMAL and EDGE cells
+  /// that are not quiet (docs/SPEC.md "Edge test" step 1). The edge test's work; 0 without it.
+  std::int64_t edge_candidates() const noexcept { return ecand_; }
   /// Rows handed back since construction or reset.
   std::int64_t rows_emitted() const noexcept { return emitted_; }
   /// True after flush() until reset().
@@ -279,6 +283,7 @@ class ProfileStream {
   void run_edges(bool to_end) noexcept;
   void edge_row(std::int64_t row, int pass) noexcept;
   bool restore_candidates(std::int64_t row) noexcept;
+  void quiet_candidates(std::int64_t row) noexcept;
   bool feature_line(std::int64_t row, std::ptrdiff_t col) const noexcept;
   const double* edge_images(int pass, std::ptrdiff_t tile, std::int64_t band,
                             std::int64_t upto, std::int64_t from, std::uint8_t* labs) noexcept;
@@ -402,6 +407,13 @@ class ProfileStream {
   std::vector<std::uint8_t> epass_;  // ring_ rows: the edge pass that removed the cell, 0 none
   std::vector<std::uint8_t> etodo_;  // ring_ rows: bit (p & 1) = judge at edge pass p >= 2
   std::vector<std::uint8_t> etodo_row_;  // ring_ rows: same bits, "the row has any"
+  // Pass 1's quiet cells (edge_quiet.hpp): ring_ rows of kHQuiet where height pass 1's plane
+  // is quiet; the window counts (4 width + 2: inv, bad and two rows of sums) of the rows
+  // [eq_first_, eq_next_) at the start of pass 1.
+  std::vector<std::uint8_t> eplane_;
+  std::vector<std::int32_t> equiet_;
+  std::int64_t eq_first_ = 0, eq_next_ = 0;
+  std::int64_t ecand_ = 0;  // edge_candidates()
   // Per (set, tile column): a ring of ek_ integral-image rows of edge_test.hpp's layout
   // (kEdgeMoments planes of ek_ rows of estride_) and the column sums; the band it was built
   // for and the next grid row to add. Sets: pass 1 even / odd bands, then pass p >= 2 at p.

@@ -66,6 +66,7 @@ class PyProfileStream {
   int lag() const { return stream_.lag(); }
   int reach() const { return stream_.reach(); }
   std::int64_t rows_pushed() const { return stream_.rows_pushed(); }
+  std::int64_t edge_candidates() const { return stream_.edge_candidates(); }
   std::int64_t rows_emitted() const { return stream_.rows_emitted(); }
   bool finished() const { return stream_.finished(); }
   // The min_step in use: None while "auto" waits for its rows or when off.
@@ -141,6 +142,7 @@ void bind_one(py::module_& m, const char* name) {
       .def_property_readonly("lag", &PyProfileStream<T>::lag)
       .def_property_readonly("reach", &PyProfileStream<T>::reach)
       .def_property_readonly("rows_pushed", &PyProfileStream<T>::rows_pushed)
+      .def_property_readonly("edge_candidates", &PyProfileStream<T>::edge_candidates)
       .def_property_readonly("rows_emitted", &PyProfileStream<T>::rows_emitted)
       .def_property_readonly("finished", &PyProfileStream<T>::finished)
       .def_property_readonly("min_step", &PyProfileStream<T>::min_step)
