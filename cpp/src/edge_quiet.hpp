@@ -48,8 +48,12 @@ struct QuietCounts {
     if (W < 2 * q + 1) return;
     std::int32_t* __restrict si = pinv;
     std::int32_t* __restrict sb = pbad;
+    std::int32_t ai = 0, ab = 0;  // (the running sums in registers: no store-to-load chain)
     si[0] = sb[0] = 0;
-    for (std::ptrdiff_t c = 0; c < W; ++c) si[c + 1] = si[c] + inv[c], sb[c + 1] = sb[c] + bad[c];
+    for (std::ptrdiff_t c = 0; c < W; ++c) {
+      ai += inv[c], ab += bad[c];
+      si[c + 1] = ai, sb[c + 1] = ab;
+    }
     for (std::ptrdiff_t c = q; c < W - q; ++c) {  // (branch-free: vectorised)
       const std::int32_t ni = si[c + q + 1] - si[c - q], nb = sb[c + q + 1] - sb[c - q];
       const bool quiet = ((planes[c] & quiet_bit) != 0) & (labels[c] == kNormal) & (nb == 0) &
