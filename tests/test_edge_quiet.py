@@ -47,7 +47,7 @@ def _direct(g: np.ndarray, labels: np.ndarray, r: int, window: int, floor: float
             win = labels[a - q:a + q + 1, b - q:b + q + 1]
             if np.any((win == miem.EDGE) | (win == miem.ABNORMAL)):
                 continue
-            if (win == miem.INVALID).sum() >= n_min:
+            if (labels[a - r:a + r + 1, b - r:b + r + 1] == miem.INVALID).sum() >= n_min:
                 continue
             sel = labels[a - hw:a + hw + 1, b - hw:b + hw + 1] == miem.NORMAL  # the cell too
             p = g[a - hw:a + hw + 1, b - hw:b + hw + 1][sel]
@@ -79,7 +79,12 @@ def test_quiet_cells_are_a_direct_window_fit() -> None:
     near = np.zeros_like(got)
     near[26:35, 16:25] = near[26:35, 28:37] = True
     assert not got[near].any()
-    assert not got[5:17, 22:34].any()  # 4+ dropouts in the window (or dropouts themselves)
+    pad = np.pad(labels == miem.INVALID, R)
+    holes = np.lib.stride_tricks.sliding_window_view(pad, (2 * R + 1, 2 * R + 1)).sum((2, 3))
+    assert (holes >= 4).sum() > 36 and not got[holes >= 4].any()  # 4+ dropouts within r
+    # but dropouts within q and not within r leave a cell quiet (columns 21 and 34: 4 from
+    # the patch, which the q = 4 square reaches, the r = 3 one not)
+    assert quiet[6:16, 21].mean() > 0.7 and quiet[6:16, 34].mean() > 0.7
     assert not got[:4].any() and not got[:, -4:].any()
     # no floor: nothing is quiet
     assert not ref._quiet_cells(g, labels, R, WINDOW, 0.0).any()

@@ -1025,13 +1025,17 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol e
     parallel_ranges(ntn, H - 2 * q, 16, [&](int, std::ptrdiff_t u0, std::ptrdiff_t u1) {
       std::vector<std::int32_t> buf(static_cast<std::size_t>(4 * W + 2));
       const QuietCounts qw{buf.data(), buf.data() + W, buf.data() + 2 * W,
-                           buf.data() + 3 * W + 1, W, q, quiet_n_min(r)};
+                           buf.data() + 3 * W + 1, W, r, q, quiet_n_min(r)};
       qw.clear();
-      for (std::ptrdiff_t a = u0; a < u0 + 2 * q; ++a) qw.add(labels + a * W, 1);
-      for (std::ptrdiff_t x = u0 + q; x < u1 + q; ++x) {
-        qw.add(labels + (x + q) * W, 1);
+      const std::ptrdiff_t x0 = u0 + q;  // the first row: counts of rows x0 - q .. and x0 - r ..
+      for (std::ptrdiff_t a = x0 - q; a < x0 + q; ++a) qw.add_bad(labels + a * W, 1);
+      for (std::ptrdiff_t a = x0 - r; a < x0 + r; ++a) qw.add_inv(labels + a * W, 1);
+      for (std::ptrdiff_t x = x0; x < u1 + q; ++x) {
+        qw.add_bad(labels + (x + q) * W, 1);
+        qw.add_inv(labels + (x + r) * W, 1);
         qw.drop(labels + x * W, planes + x * W, kHQuiet, todo + x * W);
-        qw.add(labels + (x - q) * W, -1);
+        qw.add_bad(labels + (x - q) * W, -1);
+        qw.add_inv(labels + (x - r) * W, -1);
       }
     });
   }

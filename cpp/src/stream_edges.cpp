@@ -330,20 +330,31 @@ void ProfileStream<T>::quiet_candidates(std::int64_t row) noexcept {
   std::fill(etd_.begin(), etd_.end(), std::uint8_t{1});
   if (row - q < 0 || row + q >= pushed_) return;  // the window leaves the grid: none quiet
   std::int32_t* b = equiet_.data();
-  const detail::QuietCounts qc{b, b + W, b + 2 * W, b + 3 * W + 1, W, q, detail::quiet_n_min(r)};
+  const detail::QuietCounts qc{b, b + W, b + 2 * W, b + 3 * W + 1, W, r, q,
+                               detail::quiet_n_min(r)};
   std::uint8_t* labs = elab_img_.data();  // (a row of scratch: pass 1 runs after this)
-  const std::int64_t lo = row - q, hi = row + q + 1;
-  if (eq_next_ <= lo || eq_first_ > lo) {  // nothing of the window held: start afresh
+  if (eq_next_ <= row - q || eq_first_ > row - q) {  // nothing of the window held: afresh
     qc.clear();
-    eq_first_ = eq_next_ = lo;
+    eq_first_ = eq_next_ = row - q;
   }
-  for (; eq_first_ < lo; ++eq_first_) {
-    edge_labels(eq_first_, 1, 0, W, labs);
-    qc.add(labs, -1);
+  // The bad counts hold rows [eq_first_, eq_next_) (row - q .. row + q once moved), the
+  // INVALID counts rows [eq_first_ + q - r, eq_next_ - q + r) from row - r on (row - r ..
+  // row + r): a row of the one comes and goes with the row q - r further in the other.
+  const auto slide = [&](std::int64_t x, std::int32_t sign, bool inv) {
+    edge_labels(x, 1, 0, W, labs);
+    if (inv) {
+      qc.add_inv(labs, sign);
+    } else {
+      qc.add_bad(labs, sign);
+    }
+  };
+  for (; eq_first_ < row - q; ++eq_first_) {
+    slide(eq_first_, -1, false);
+    slide(eq_first_ + q - r, -1, true);
   }
-  for (; eq_next_ < hi; ++eq_next_) {
-    edge_labels(eq_next_, 1, 0, W, labs);
-    qc.add(labs, 1);
+  for (; eq_next_ < row + q + 1; ++eq_next_) {
+    slide(eq_next_, 1, false);
+    if (eq_next_ - q + r >= row - r) slide(eq_next_ - q + r, 1, true);  // (a fresh start)
   }
   edge_labels(row, 1, 0, W, labs);
   qc.drop(labs, eplane_.data() + slot(row) * W, detail::kHQuiet, etd_.data());

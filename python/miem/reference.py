@@ -1113,7 +1113,8 @@ def _quiet_cells(
     """SPEC "Edge test" step 1: the quiet cells, which pass 1 leaves out, on the labels at the
     start of the edge test (``window``: the height test's). A NORMAL cell is quiet when every
     cell within ``q = max(r, window // 2)`` rows and columns lies inside the grid and is NORMAL
-    or INVALID, fewer than ``n_min`` of them INVALID, and its height-window plane (the NORMAL
+    or INVALID, fewer than ``n_min`` of the cells within ``r`` INVALID (no sub-window of step 3
+    is empty), and its height-window plane (the NORMAL
     cells of its window, itself included, as the height test fits them) has ``rms = sqrt(max(l0,
     0) / n) <= _EDGE_QUIET_ROUGH * floor`` with the cell within ``_EDGE_QUIET_H * rms`` of it, or
     within the height test's round-off floor ``1e-6 sqrt((l1 + l2) / n)``. None when ``floor``
@@ -1125,7 +1126,7 @@ def _quiet_cells(
         return np.zeros_like(normal)
     side = 2 * q + 1
     cand = normal & (_box_count((labels == EDGE) | (labels == ABNORMAL), side) == 0)
-    cand &= _box_count(labels == INVALID, side) < max(3, (r * r) // 2)
+    cand &= _box_count(labels == INVALID, 2 * r + 1) < max(3, (r * r) // 2)
     inside = np.zeros_like(cand)
     inside[q:hh - q, q:ww - q] = True
     cand &= inside
