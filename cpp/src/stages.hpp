@@ -107,8 +107,9 @@ inline constexpr std::uint8_t kHQuiet = 32;   ///< its first pass's plane is qui
 /// passes; a pass re-fits only the cells whose window changed. When `height` is not null it
 /// receives the window height of every fitted cell, and ws.hmask marks with kHFresh the cells
 /// whose height is final, and with kHQuiet the NORMAL cells whose plane at the first pass is
-/// quiet (quiet_plane, with the edge test's tolerance floor; none without the edge test). Leaves ws.cls with the window
-/// classes of the final labels. Returns the number of height passes.
+/// quiet (quiet_plane, with the edge test's tolerance floor; none without the edge test).
+/// Leaves ws.cls with the window classes of the final labels. Returns the number of height
+/// passes.
 template <typename T>
 int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* labels,
                 double* height, Workspace& ws);
