@@ -31,26 +31,30 @@ def _scene() -> tuple[np.ndarray, np.ndarray]:
     return g, labels
 
 
-def _direct(g: np.ndarray, labels: np.ndarray, r: int, window: int, floor: float) -> tuple:
+def _direct(g: np.ndarray, labels: np.ndarray, r: int, window: int, floor: float,
+            removed: np.ndarray) -> tuple:
     """Each NORMAL cell: quiet per SPEC step 1 by a plane fitted to its height window's NORMAL
     cells one at a time (np.linalg.eigh of the centred scatter); and how close it is to a
     threshold."""
     h, w = labels.shape
-    q, hw = max(r, window // 2), window // 2
+    hw = window // 2
     n_min = max(3, r * r // 2)
     quiet = np.zeros((h, w), dtype=bool)
     margin = np.full((h, w), np.inf)
-    for a in range(q, h - q):
-        for b in range(q, w - q):
+    for a in range(r, h - r):
+        for b in range(r, w - r):
             if labels[a, b] != miem.NORMAL:
                 continue
-            win = labels[a - q:a + q + 1, b - q:b + q + 1]
+            win = labels[a - r:a + r + 1, b - r:b + r + 1]
             if np.any((win == miem.EDGE) | (win == miem.ABNORMAL)):
                 continue
-            if (labels[a - r:a + r + 1, b - r:b + r + 1] == miem.INVALID).sum() >= n_min:
+            if (win == miem.INVALID).sum() >= n_min:
                 continue
-            sel = labels[a - hw:a + hw + 1, b - hw:b + hw + 1] == miem.NORMAL  # the cell too
-            p = g[a - hw:a + hw + 1, b - hw:b + hw + 1][sel]
+            if removed[max(0, a - hw):a + hw + 1, max(0, b - hw):b + hw + 1].any():
+                continue
+            rows, cols = slice(max(0, a - hw), a + hw + 1), slice(max(0, b - hw), b + hw + 1)
+            sel = labels[rows, cols] == miem.NORMAL  # the cell too
+            p = g[rows, cols][sel]
             m = p.mean(axis=0)
             ev, vec = np.linalg.eigh((p - m).T @ (p - m))
             if not (ev[2] > 0 and ev[1] - ev[0] > 1e-6 * ev[2]):  # a unique normal
@@ -64,30 +68,38 @@ def _direct(g: np.ndarray, labels: np.ndarray, r: int, window: int, floor: float
 
 def test_quiet_cells_are_a_direct_window_fit() -> None:
     g, labels = _scene()
-    got = ref._quiet_cells(g, labels, R, WINDOW, FLOOR)
-    quiet, margin = _direct(g, labels, R, WINDOW, FLOOR)
+    removed = np.zeros(labels.shape, dtype=bool)
+    removed[30, 32] = True  # the ABNORMAL cell, as if the height test had flagged it
+    got = ref._quiet_cells(g, labels, R, WINDOW, FLOOR, removed)
+    quiet, margin = _direct(g, labels, R, WINDOW, FLOOR, removed)
     sure = margin > 1e-9
     np.testing.assert_array_equal(got[sure], quiet[sure])
     assert (~sure).sum() < 5
     # by geometry: the flat sheet's interior is mostly quiet; the bump (6 sigma off the plane),
     # the bend (its curvature 1 / mm: a 0.9 mm window's plane misses it by more than the
-    # floor), the cells within q = 4 of the EDGE, ABNORMAL and dropout cells and the border are
-    # not
+    # floor), the cells within r = 3 of the EDGE and ABNORMAL cells, within h = 4 of the cell
+    # the height test flagged, near the dropouts and the border are not
     assert quiet[5:25, 5:22].mean() > 0.9
     assert not got[20, 10]
     assert not got[10:30, 45:56].any()
     near = np.zeros_like(got)
-    near[26:35, 16:25] = near[26:35, 28:37] = True
+    near[27:34, 17:24] = near[26:35, 28:37] = True
     assert not got[near].any()
+    # the EDGE cell's ring 4 away is quiet (an angle-test flag there is not within r), the
+    # flagged cell's is not (its removal is within h)
+    ring = np.zeros_like(got)
+    ring[26:35, 16:25] = True
+    ring[27:34, 17:24] = False
+    assert quiet[ring].mean() > 0.7 and not got[25:36, 27:38][1:-1, 1:-1].any()
     pad = np.pad(labels == miem.INVALID, R)
     holes = np.lib.stride_tricks.sliding_window_view(pad, (2 * R + 1, 2 * R + 1)).sum((2, 3))
     assert (holes >= 4).sum() > 36 and not got[holes >= 4].any()  # 4+ dropouts within r
     # but dropouts within q and not within r leave a cell quiet (columns 21 and 34: 4 from
     # the patch, which the q = 4 square reaches, the r = 3 one not)
     assert quiet[6:16, 21].mean() > 0.7 and quiet[6:16, 34].mean() > 0.7
-    assert not got[:4].any() and not got[:, -4:].any()
+    assert not got[:R].any() and not got[:, -R:].any() and got[R, 5:20].any()
     # no floor: nothing is quiet
-    assert not ref._quiet_cells(g, labels, R, WINDOW, 0.0).any()
+    assert not ref._quiet_cells(g, labels, R, WINDOW, 0.0, removed).any()
 
 
 def test_core_judges_what_the_reference_judges() -> None:
@@ -119,11 +131,15 @@ def test_core_judges_what_the_reference_judges() -> None:
     lengths = {k: p[k] for k in ("min_step", "z_resolution", "z_noise")}
     floor = max(0.5 * (p["min_step"] or 0.0), 1.5 * (p["z_resolution"] or 0.0),
                 2.0 * (p["z_noise"] or 0.0))
-    quiet = ref._quiet_cells(g, before, 7, 21, floor)
+    removed = np.zeros(g.shape[:2], dtype=bool)  # (nothing the height test flagged: 12 rms)
+    assert (before == miem.ABNORMAL).sum() == (miem.detect(
+        g, height_tolerance=None, edge_tolerance=None, preset="recommended").labels
+        == miem.ABNORMAL).sum()
+    quiet = ref._quiet_cells(g, before, 7, 21, floor, removed)
     assert quiet[31:50, 10:30].mean() > 0.9  # the flat sheet away from the pit
     assert not quiet[20, 20] and not quiet[40:46, 55].any()
     every = ref.edge_test(g, before, window=15, tolerance=4.0, max_iterations=10, **lengths)[0]
     some = ref.edge_test(g, before, window=15, tolerance=4.0, max_iterations=10,
-                         height_window=21, **lengths)[0]
+                         height_window=21, height_removed=removed, **lengths)[0]
     np.testing.assert_array_equal(some, every)
     np.testing.assert_array_equal(some, oracle.labels)

@@ -363,9 +363,9 @@ def test_stream_runs_the_edge_test_as_batch(kw: dict) -> None:
                                 {"edge_window": 7, "height_tolerance": None}])
 def test_stream_judges_the_cells_that_are_not_quiet(kw: dict) -> None:
     """Edge pass 1 of the stream judges exactly the NORMAL and EDGE cells the reference finds
-    not quiet (SPEC "Edge test" step 1) on the labels after step 9, also where the quiet
-    cells' windows (q = h = 10) reach beyond the 2 r rows step 9 and pass 1 read; none is
-    quiet without the height test."""
+    not quiet (SPEC "Edge test" step 1) on the labels after step 9, also where the height
+    passes' removals a quiet cell must not have within h = 10 lie beyond the 2 r rows step 9
+    and pass 1 read; none is quiet without the height test."""
     rng = np.random.default_rng(8)
     h, w = 300, 120
     r_, c_ = np.mgrid[0:h, 0:w]
@@ -402,7 +402,10 @@ def test_stream_judges_the_cells_that_are_not_quiet(kw: dict) -> None:
                            z_resolution=q["z_resolution"], z_noise=q["z_noise"], lines=lines)[0]
     cand = (after9 == miem.NORMAL) | (after9 == miem.EDGE)
     if q["height_tolerance"] is not None:
-        quiet = ref._quiet_cells(g, after9, r, window, floor)
+        angle = miem.detect(grid, params=p, height_tolerance=None, edge_tolerance=None).labels
+        removed = (res.labels == miem.ABNORMAL) & (angle != miem.ABNORMAL)
+        assert removed.sum() > 0
+        quiet = ref._quiet_cells(g, after9, r, window, floor, removed)
         assert quiet.sum() > 0.2 * cand.sum()
         cand &= ~quiet
     assert stream.edge_candidates == cand.sum()

@@ -1,11 +1,10 @@
 // SPEC "Edge test" step 1: the quiet cells, which the edge passes do not judge. A NORMAL cell
-// is quiet when its height-window plane is (kHQuiet: quiet_plane at the height test's first
-// pass, stages.hpp), every cell within q = max(edge_window, window) / 2 rows and columns lies
-// inside the grid and is NORMAL or INVALID, and fewer than n_min of the cells within r =
-// edge_window / 2 are INVALID (no sub-window of the edge test is empty). No cell of
-// such a window changed during the height passes, so the first pass's plane is the window's
-// plane at the start of the edge test. Shared by the batch (edge_test.cpp) and the stream
-// (stream_edges.cpp).
+// is quiet when every cell within r = edge_window / 2 rows and columns lies inside the grid and
+// is NORMAL or INVALID, fewer than n_min of them INVALID (no sub-window is empty), no cell
+// within h = window / 2 became ABNORMAL in the height passes (so its height-window plane is
+// the one the height test's first pass fitted), and that plane is quiet (kHQuiet, kHStale
+// clear: quiet_plane and the height passes' marks, stages.hpp). Shared by the batch
+// (edge_test.cpp) and the stream (stream_edges.cpp).
 #pragma once
 
 #include <algorithm>
@@ -16,16 +15,16 @@
 
 namespace miem::detail {
 
-/// The window condition: per column, the EDGE or ABNORMAL cells (bad) of the 2 q + 1 rows
-/// around a row and the INVALID cells (inv) of the 2 r + 1 rows around it, kept as rows come in
-/// and go out (add_bad, add_inv); pinv and pbad (W + 1 each) are scratch for the sums along a
-/// row. The caller owns the buffers.
+/// The window condition over the 2 r + 1 rows around a row: per column, the INVALID cells
+/// (inv) and the EDGE or ABNORMAL cells (bad) of the rows held, kept as rows come in and go
+/// out; pinv and pbad (W + 1 each) are scratch for the sums along a row. The caller owns the
+/// buffers.
 struct QuietCounts {
   std::int32_t* inv;
   std::int32_t* bad;
   std::int32_t* pinv;
   std::int32_t* pbad;
-  std::ptrdiff_t W, r, q;
+  std::ptrdiff_t W, r;
   std::int32_t n_min;
 
   /// No rows held.
@@ -33,24 +32,21 @@ struct QuietCounts {
     std::fill(inv, inv + W, 0);
     std::fill(bad, bad + W, 0);
   }
-  /// A row of labels in (sign 1) or out (sign -1) of the bad counts, as it was when it came in.
-  void add_bad(const std::uint8_t* labels, std::int32_t sign) const noexcept {
+  /// A row of labels in (sign 1) or out (sign -1), as it was when it came in.
+  void add(const std::uint8_t* labels, std::int32_t sign) const noexcept {
+    std::int32_t* __restrict ni = inv;
     std::int32_t* __restrict nb = bad;
     for (std::ptrdiff_t c = 0; c < W; ++c) {  // (branch-free: vectorised)
       const std::uint8_t l = labels[c];
+      ni[c] += sign * static_cast<std::int32_t>(l == kInvalid);
       nb[c] += sign * static_cast<std::int32_t>((l == kEdge) | (l == kAbnormal));
     }
   }
-  /// The same for the INVALID counts.
-  void add_inv(const std::uint8_t* labels, std::int32_t sign) const noexcept {
-    std::int32_t* __restrict ni = inv;
-    for (std::ptrdiff_t c = 0; c < W; ++c) ni[c] += sign * static_cast<std::int32_t>(labels[c] == kInvalid);
-  }
-  /// The counts held are those around a row inside the grid, `labels` that row's: clears
-  /// todo[c] of its quiet cells (`quiet_bit` in planes[c]).
-  void drop(const std::uint8_t* labels, const std::uint8_t* planes, std::uint8_t quiet_bit,
-            std::uint8_t* todo) const noexcept {
-    if (W < 2 * q + 1) return;
+  /// The rows held are the 2 r + 1 rows around a row inside the grid, `labels` that row's:
+  /// clears todo[c] of its quiet cells, those whose planes[c] & mask == want (the plane's bits).
+  void drop(const std::uint8_t* labels, const std::uint8_t* planes, std::uint8_t mask,
+            std::uint8_t want, std::uint8_t* todo) const noexcept {
+    if (W < 2 * r + 1) return;
     std::int32_t* __restrict si = pinv;
     std::int32_t* __restrict sb = pbad;
     std::int32_t ai = 0, ab = 0;  // (the running sums in registers: no store-to-load chain)
@@ -59,16 +55,17 @@ struct QuietCounts {
       ai += inv[c], ab += bad[c];
       si[c + 1] = ai, sb[c + 1] = ab;
     }
-    for (std::ptrdiff_t c = q; c < W - q; ++c) {  // (branch-free: vectorised)
-      const std::int32_t ni = si[c + r + 1] - si[c - r], nb = sb[c + q + 1] - sb[c - q];
-      const bool quiet = ((planes[c] & quiet_bit) != 0) & (labels[c] == kNormal) & (nb == 0) &
+    for (std::ptrdiff_t c = r; c < W - r; ++c) {  // (branch-free: vectorised)
+      const std::int32_t ni = si[c + r + 1] - si[c - r], nb = sb[c + r + 1] - sb[c - r];
+      const bool quiet = ((planes[c] & mask) == want) & (labels[c] == kNormal) & (nb == 0) &
                          (ni < n_min);
       todo[c] = static_cast<std::uint8_t>(todo[c] & !quiet);
     }
   }
 };
 
-/// The quiet window's half-size q and n_min for edge half-size r and height half-size h.
+/// The rows a quiet cell's test reads around it (its window, the height passes' marks), for
+/// edge half-size r and height half-size h; n_min of edge half-size r.
 inline std::ptrdiff_t quiet_half(std::ptrdiff_t r, std::ptrdiff_t h) { return std::max(r, h); }
 inline std::int32_t quiet_n_min(std::ptrdiff_t r) {
   return static_cast<std::int32_t>(std::max<std::ptrdiff_t>(3, (r * r) / 2));

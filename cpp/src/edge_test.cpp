@@ -895,8 +895,7 @@ namespace {
 template <typename T>
 int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol et,
                int max_iterations, int num_threads, std::vector<double>& scratch,
-               CellBytes& flags, const std::uint8_t* lines, const std::uint8_t* planes,
-               std::ptrdiff_t height_half) {
+               CellBytes& flags, const std::uint8_t* lines, const std::uint8_t* planes) {
   constexpr std::ptrdiff_t kTileRows = kEdgeTileRows, kTileCols = kEdgeTileCols;
   const std::ptrdiff_t H = g.rows, W = g.cols, N = H * W, r = window / 2;
   const std::ptrdiff_t ER = std::min(H, kTileRows + 2 * r), EC = std::min(W, kTileCols + 2 * r);
@@ -1018,24 +1017,19 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol e
   parallel_ranges(ntn, N, 64, [&](int, std::ptrdiff_t i0, std::ptrdiff_t i1) {
     for (std::ptrdiff_t i = i0; i < i1; ++i) todo[i] = labels[i] == kNormal || labels[i] == kEdge;
   });
-  // pass 1 leaves out the quiet cells (step 1): rows q .. H - q - 1, each thread its rows'
+  // pass 1 leaves out the quiet cells (step 1): rows r .. H - r - 1, each thread its rows'
   // window counts
-  const std::ptrdiff_t q = quiet_half(r, height_half);
-  if (planes != nullptr && H > 2 * q && W > 2 * q) {
-    parallel_ranges(ntn, H - 2 * q, 16, [&](int, std::ptrdiff_t u0, std::ptrdiff_t u1) {
+  if (planes != nullptr && H > 2 * r && W > 2 * r) {
+    parallel_ranges(ntn, H - 2 * r, 16, [&](int, std::ptrdiff_t u0, std::ptrdiff_t u1) {
       std::vector<std::int32_t> buf(static_cast<std::size_t>(4 * W + 2));
       const QuietCounts qw{buf.data(), buf.data() + W, buf.data() + 2 * W,
-                           buf.data() + 3 * W + 1, W, r, q, quiet_n_min(r)};
+                           buf.data() + 3 * W + 1, W, r, quiet_n_min(r)};
       qw.clear();
-      const std::ptrdiff_t x0 = u0 + q;  // the first row: counts of rows x0 - q .. and x0 - r ..
-      for (std::ptrdiff_t a = x0 - q; a < x0 + q; ++a) qw.add_bad(labels + a * W, 1);
-      for (std::ptrdiff_t a = x0 - r; a < x0 + r; ++a) qw.add_inv(labels + a * W, 1);
-      for (std::ptrdiff_t x = x0; x < u1 + q; ++x) {
-        qw.add_bad(labels + (x + q) * W, 1);
-        qw.add_inv(labels + (x + r) * W, 1);
-        qw.drop(labels + x * W, planes + x * W, kHQuiet, todo + x * W);
-        qw.add_bad(labels + (x - q) * W, -1);
-        qw.add_inv(labels + (x - r) * W, -1);
+      for (std::ptrdiff_t a = u0; a < u0 + 2 * r; ++a) qw.add(labels + a * W, 1);
+      for (std::ptrdiff_t x = u0 + r; x < u1 + r; ++x) {
+        qw.add(labels + (x + r) * W, 1);
+        qw.drop(labels + x * W, planes + x * W, kHQuiet | kHStale, kHQuiet, todo + x * W);
+        qw.add(labels + (x - r) * W, -1);
       }
     });
   }
@@ -1102,10 +1096,9 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol e
 template <typename T>
 int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol et,
                 int max_iterations, int num_threads, std::vector<double>& scratch,
-                CellBytes& flags, const std::uint8_t* lines, const std::uint8_t* planes,
-                int height_half) {
+                CellBytes& flags, const std::uint8_t* lines, const std::uint8_t* planes) {
   return run_passes(g, labels, window, et, max_iterations, num_threads, scratch, flags, lines,
-                    planes, height_half);
+                    planes);
 }
 
 template <typename T>
@@ -1119,7 +1112,7 @@ int edge_stage(const GridView<T>& g, const DetectParams& p, std::uint8_t* labels
   // the quiet cells' planes: the height test's first pass (none without it)
   return edge_passes(g, labels, p.edge_window, edge_tol(p), p.max_iterations, p.num_threads,
                      ws.edge_sums, ws.edge_flags, ws.cls.data(),
-                     height_test ? ws.hmask.data() : nullptr, p.window / 2);
+                     height_test ? ws.hmask.data() : nullptr);
 }
 
 template int edge_stage<float>(const GridView<float>&, const DetectParams&, std::uint8_t*, bool,
@@ -1128,10 +1121,10 @@ template int edge_stage<double>(const GridView<double>&, const DetectParams&, st
                                 bool, Workspace&);
 template int edge_passes<float>(const GridView<float>&, std::uint8_t*, int, EdgeTol, int, int,
                                 std::vector<double>&, CellBytes&, const std::uint8_t*,
-                                const std::uint8_t*, int);
+                                const std::uint8_t*);
 template int edge_passes<double>(const GridView<double>&, std::uint8_t*, int, EdgeTol, int, int,
                                  std::vector<double>&, CellBytes&, const std::uint8_t*,
-                                 const std::uint8_t*, int);
+                                 const std::uint8_t*);
 
 #define MIEM_EDGE_ROWS(T)                                                                     \
   template void edge_image_row<T>(const GridView<T>&, std::ptrdiff_t, const std::uint8_t*,      \

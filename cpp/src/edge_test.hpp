@@ -36,9 +36,9 @@ inline EdgeTol edge_tol(const DetectParams& p) noexcept {
 /// tolerance (et.k > 0 in rms units; edge_tol), at most `max_iterations` passes. `lines`
 /// (H x W, or null: no step 9): bit kLine at the feature-line EDGE cells, whose ABNORMAL
 /// neighbours that fit a clean side with a return become EDGE before pass 1 (SPEC step 9).
-/// `planes` (H x W, or null: no cell is quiet): bit kHQuiet (stages.hpp) where the cell's
-/// height-window plane (half-size `height_half`) is quiet; pass 1 leaves out the quiet cells
-/// (SPEC step 1, edge_quiet.hpp).
+/// `planes` (H x W, or null: no cell is quiet): the height test's marks (stages.hpp: kHQuiet
+/// where the cell's first height-window plane is quiet, kHStale where a cell within the height
+/// window became ABNORMAL); pass 1 leaves out the quiet cells (SPEC step 1, edge_quiet.hpp).
 /// Returns the number of passes run. The result does not depend on `num_threads`. `scratch`
 /// and `flags` are reused between calls (grown only when a grid needs more: no allocation for
 /// grids no larger than before).
@@ -46,7 +46,7 @@ template <typename T>
 int edge_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol et,
                 int max_iterations, int num_threads, std::vector<double>& scratch,
                 CellBytes& flags, const std::uint8_t* lines = nullptr,
-                const std::uint8_t* planes = nullptr, int height_half = 0);
+                const std::uint8_t* planes = nullptr);
 
 /// Step 9's candidates: does cell (r, c) of an H x W grid have a feature-line cell (line(a, b)
 /// true; the cell itself, ABNORMAL, is none) among its 8 neighbours?

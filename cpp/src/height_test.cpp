@@ -115,8 +115,8 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
   }
   int passes = 0;
   std::vector<std::vector<std::int64_t>> parts;  // per thread: new ABNORMAL cells of a pass
-  // the edge test's quiet cells (SPEC "Edge test" step 1) by the first pass's planes: a cell
-  // whose window loses a cell later is not quiet
+  // the edge test's quiet cells (SPEC "Edge test" step 1) by the first pass's planes (a cell
+  // whose window loses a cell later is marked kHStale)
   const double floor1 = p.edge_test() ? edge_tol(p).floor : 0.0;
   for (int hp = 0; hp < p.max_iterations; ++hp) {
     const double quiet_floor = hp == 0 ? floor1 : 0.0;
@@ -176,7 +176,8 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
     for (const auto& part : parts) ws.fresh.insert(ws.fresh.end(), part.begin(), part.end());
     for (auto& part : parts) part.clear();
     if (ws.fresh.empty()) break;
-    // The windows that changed: re-fit their candidates at the next pass; heights there are stale.
+    // The windows that changed: re-fit their candidates at the next pass; heights there are
+    // stale, and the first pass's planes (kHStale: no quiet cell there, edge_quiet.hpp).
     for (std::int64_t i : ws.fresh) {
       const std::ptrdiff_t r = i / W, c = i % W;
       const std::ptrdiff_t ra = std::max<std::ptrdiff_t>(0, r - half);
@@ -187,7 +188,7 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
         std::uint8_t* __restrict h = hm + rr * W;
         const std::uint8_t* __restrict l = labels + rr * W;
         for (std::ptrdiff_t cc = ca; cc <= cb; ++cc) {  // branch-free: vectorised
-          const std::uint8_t b = static_cast<std::uint8_t>(h[cc] & ~kHFresh);
+          const std::uint8_t b = static_cast<std::uint8_t>((h[cc] & ~kHFresh) | kHStale);
           const bool want = (l[cc] == kNormal) | ((b & kHCompact) != 0);
           h[cc] = static_cast<std::uint8_t>(b | (want ? kHWant : 0));
         }

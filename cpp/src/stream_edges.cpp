@@ -321,43 +321,32 @@ bool ProfileStream<T>::restore_candidates(std::int64_t row) noexcept {
 }
 
 // Pass 1's candidates of `row` into etd_: every cell but the quiet ones (edge_quiet.hpp), from
-// the window counts of the rows within q at the start of pass 1 (added as pass 1 comes down,
-// removed as they were added: step 9 turns ABNORMAL cells EDGE, both counted alike).
+// the window counts of the rows within r at the start of pass 1 (added as pass 1 comes down,
+// removed as they were added: step 9 turns ABNORMAL cells EDGE, both counted alike) and the
+// height passes' marks (eplane_).
 template <typename T>
 void ProfileStream<T>::quiet_candidates(std::int64_t row) noexcept {
   const std::ptrdiff_t W = width_, r = params_.edge_window / 2;
-  const std::ptrdiff_t q = detail::quiet_half(r, half_);
   std::fill(etd_.begin(), etd_.end(), std::uint8_t{1});
-  if (row - q < 0 || row + q >= pushed_) return;  // the window leaves the grid: none quiet
+  if (row - r < 0 || row + r >= pushed_) return;  // the window leaves the grid: none quiet
   std::int32_t* b = equiet_.data();
-  const detail::QuietCounts qc{b, b + W, b + 2 * W, b + 3 * W + 1, W, r, q,
-                               detail::quiet_n_min(r)};
+  const detail::QuietCounts qc{b, b + W, b + 2 * W, b + 3 * W + 1, W, r, detail::quiet_n_min(r)};
   std::uint8_t* labs = elab_img_.data();  // (a row of scratch: pass 1 runs after this)
-  if (eq_next_ <= row - q || eq_first_ > row - q) {  // nothing of the window held: afresh
+  if (eq_next_ <= row - r || eq_first_ > row - r) {  // nothing of the window held: afresh
     qc.clear();
-    eq_first_ = eq_next_ = row - q;
+    eq_first_ = eq_next_ = row - r;
   }
-  // The bad counts hold rows [eq_first_, eq_next_) (row - q .. row + q once moved), the
-  // INVALID counts rows [eq_first_ + q - r, eq_next_ - q + r) from row - r on (row - r ..
-  // row + r): a row of the one comes and goes with the row q - r further in the other.
-  const auto slide = [&](std::int64_t x, std::int32_t sign, bool inv) {
-    edge_labels(x, 1, 0, W, labs);
-    if (inv) {
-      qc.add_inv(labs, sign);
-    } else {
-      qc.add_bad(labs, sign);
-    }
-  };
-  for (; eq_first_ < row - q; ++eq_first_) {
-    slide(eq_first_, -1, false);
-    slide(eq_first_ + q - r, -1, true);
+  for (; eq_first_ < row - r; ++eq_first_) {
+    edge_labels(eq_first_, 1, 0, W, labs);
+    qc.add(labs, -1);
   }
-  for (; eq_next_ < row + q + 1; ++eq_next_) {
-    slide(eq_next_, 1, false);
-    if (eq_next_ - q + r >= row - r) slide(eq_next_ - q + r, 1, true);  // (a fresh start)
+  for (; eq_next_ < row + r + 1; ++eq_next_) {
+    edge_labels(eq_next_, 1, 0, W, labs);
+    qc.add(labs, 1);
   }
   edge_labels(row, 1, 0, W, labs);
-  qc.drop(labs, eplane_.data() + slot(row) * W, detail::kHQuiet, etd_.data());
+  qc.drop(labs, eplane_.data() + slot(row) * W, detail::kHQuiet | detail::kHStale,
+          detail::kHQuiet, etd_.data());
 }
 
 // Runs the edge passes as far as their inputs are final (all rows at the end of the stream).
@@ -376,7 +365,8 @@ void ProfileStream<T>::run_edges(bool to_end) noexcept {
       // step 9 done r rows below (the labels a judgment reads); the rows within h pushed (a
       // removal marks their heights stale)
       if (y + r >= enext_[0] || y + half_ > last) break;
-      // the quiet test's window final (rows within q: within 2 r above, at the defaults)
+      // the quiet test's marks final (the height passes' removals within h: within 2 r above,
+      // at the defaults)
       if (htest_ && y + detail::quiet_half(r, half_) > ready) break;
     }
     edge_row(y, 1);

@@ -51,8 +51,8 @@ constexpr std::uint8_t pass_class(std::uint8_t b, std::uint8_t hs, int pass, boo
 }
 
 // Height pass 1 on a row span of n cells from row_solve's fits (RowFits, not compact): the
-// height of each wanted cell (w[j] != 0; NaN without a plane), with quiet_floor > 0 kHQuiet in
-// quiet[j] where a NORMAL cell's plane is quiet (else 0), and, with `test`, w[j] = 1 where
+// height of each wanted cell (w[j] != 0; NaN without a plane), with quiet_floor > 0 kHQuiet
+// added to quiet[j] where a NORMAL cell's plane is quiet, and, with `test`, w[j] = 1 where
 // the cell is a candidate (NORMAL or compact EDGE, by its bits hm[j]) the verdict
 // (height_verdict) finds too far, else 0. Straight-line code (vectorised), as the batch's
 // height_row: a cell's verdict and height are those of the one-cell path (RowFits::fit).
@@ -75,7 +75,7 @@ MIEM_CLONES void pass1_verdicts(std::ptrdiff_t n, const std::uint8_t* __restrict
       const bool q = (w[j] != 0) & ((hm[j] & kInPlane) != 0) &
                      detail::quiet_plane(okf[j] != 0, fh[j], S[j], f0[j], f1[j], f2[j],
                                          quiet_floor);
-      quiet[j] = q ? detail::kHQuiet : 0;
+      quiet[j] |= q ? detail::kHQuiet : 0;  // (kHStale may be there: a removal above)
     }
   }
   if (!test) return;
@@ -468,6 +468,10 @@ void ProfileStream<T>::remove_height(std::int64_t row, std::ptrdiff_t col, int p
     std::uint8_t* hm = hm_.data() + slot(rr) * W;
     for (std::ptrdiff_t cc = c0; cc <= c1; ++cc) hm[cc] |= bits;
     hrow_[slot(rr)] |= bits & (kSWantEven | kSWantOdd);
+    if (!eplane_.empty()) {  // the edge test's quiet planes there are not the first pass's
+      std::uint8_t* ep = eplane_.data() + slot(rr) * W;
+      for (std::ptrdiff_t cc = c0; cc <= c1; ++cc) ep[cc] |= detail::kHStale;
+    }
   }
 }
 

@@ -1109,26 +1109,27 @@ def _quiet_cells(
     r: int,
     window: int,
     floor: float,
+    removed: NDArray[np.bool_],
 ) -> NDArray[np.bool_]:
     """SPEC "Edge test" step 1: the quiet cells, which pass 1 leaves out, on the labels at the
-    start of the edge test (``window``: the height test's). A NORMAL cell is quiet when every
-    cell within ``q = max(r, window // 2)`` rows and columns lies inside the grid and is NORMAL
-    or INVALID, fewer than ``n_min`` of the cells within ``r`` INVALID (no sub-window of step 3
-    is empty), and its height-window plane (the NORMAL
-    cells of its window, itself included, as the height test fits them) has ``rms = sqrt(max(l0,
-    0) / n) <= _EDGE_QUIET_ROUGH * floor`` with the cell within ``_EDGE_QUIET_H * rms`` of it, or
-    within the height test's round-off floor ``1e-6 sqrt((l1 + l2) / n)``. None when ``floor``
-    is 0."""
+    start of the edge test (``window``: the height test's; ``removed``: the cells its passes
+    made ABNORMAL). A NORMAL cell is quiet when every cell within ``r`` rows and columns lies
+    inside the grid and is NORMAL or INVALID, fewer than ``n_min`` of them INVALID (no
+    sub-window of step 3 is empty), no ``removed`` cell lies within ``window // 2``, and its
+    height-window plane (the NORMAL cells of its window, itself included, as the height test
+    fits them) has ``rms = sqrt(max(l0, 0) / n) <= _EDGE_QUIET_ROUGH * floor`` with the cell
+    within ``_EDGE_QUIET_H * rms`` of it, or within the height test's round-off floor
+    ``1e-6 sqrt((l1 + l2) / n)``. None when ``floor`` is 0."""
     hh, ww = labels.shape
-    q = max(r, window // 2)
     normal = labels == NORMAL
-    if floor <= 0.0 or hh <= 2 * q or ww <= 2 * q:
+    if floor <= 0.0 or hh <= 2 * r or ww <= 2 * r:
         return np.zeros_like(normal)
-    side = 2 * q + 1
+    side = 2 * r + 1
     cand = normal & (_box_count((labels == EDGE) | (labels == ABNORMAL), side) == 0)
-    cand &= _box_count(labels == INVALID, 2 * r + 1) < max(3, (r * r) // 2)
+    cand &= _box_count(labels == INVALID, side) < max(3, (r * r) // 2)
+    cand &= _box_count(removed, 2 * (window // 2) + 1) == 0
     inside = np.zeros_like(cand)
-    inside[q:hh - q, q:ww - q] = True
+    inside[r:hh - r, r:ww - r] = True
     cand &= inside
     height, _, evals, count = _window_planes(grid, normal, cand, window)
     n = count.astype(np.float64)
@@ -1668,11 +1669,13 @@ def edge_test(
     lines: NDArray[np.bool_] | None = None,
     z_noise: float | None = None,
     height_window: int | None = None,
+    height_removed: NDArray[np.bool_] | None = None,
 ) -> tuple[NDArray[np.uint8], int]:
     """Edge passes on top of the angle and height passes (SPEC "Edge test").
 
     ``labels`` (H, W) are those after the height passes; ``height_window`` the height test's
-    window when it ran (pass 1 leaves out the quiet cells, step 1; None: no cell is quiet);
+    window when it ran and ``height_removed`` the cells its passes made ABNORMAL (pass 1 leaves
+    out the quiet cells, step 1; None: no cell is quiet);
     ``min_step``, ``z_resolution`` and
     ``z_noise`` the ones in use (None: off; no sub-window's tolerance is below ``min_step / 2``,
     ``1.5 z_resolution`` or ``2 z_noise``, step 3); ``lines`` the feature-line EDGE cells (step 9: the ABNORMAL
@@ -1694,7 +1697,9 @@ def edge_test(
             labels[back] = EDGE
         todo = (labels == NORMAL) | (labels == EDGE)
         if height_window is not None:
-            todo &= ~_quiet_cells(grid, labels, window // 2, height_window, floor)
+            removed = (np.zeros(labels.shape, dtype=bool) if height_removed is None
+                       else height_removed)
+            todo &= ~_quiet_cells(grid, labels, window // 2, height_window, floor, removed)
         for _ in range(max_iterations):
             passes += 1
             new = _edge_pass(grid, labels, todo, window, tolerance, floor)
@@ -2005,6 +2010,7 @@ def detect(
             # of them, on top of the angle passes. Flags and angles are left as they are.
             # EDGE groups link across dropouts and the angle passes' ABNORMAL cells
             bridge = ~finite | (labels == ABNORMAL)
+            angle_abnormal = labels == ABNORMAL
             for _ in range(iters):
                 passes += 1
                 compact = _compact_edges(labels == EDGE, extent, bridge, gap)
@@ -2026,7 +2032,9 @@ def detect(
         labels, edge_passes = edge_test(g, labels, window=edge_win, tolerance=float(edge_k),
                                         max_iterations=iters, min_step=step, z_resolution=zres,
                                         z_noise=noise, lines=lines,
-                                        height_window=win if tolerance is not None else None)
+                                        height_window=win if tolerance is not None else None,
+                                        height_removed=(labels == ABNORMAL) & ~angle_abnormal
+                                        if tolerance is not None else None)
         passes += edge_passes
         abnormal = labels == ABNORMAL
 
