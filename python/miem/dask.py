@@ -155,7 +155,7 @@ def grid_halo(params: dict, strict: bool = False) -> int:
     if params.get("edge_tolerance") is not None:  # the edge passes, after the height passes
         # (and their step 9 before pass 1: the sub-windows again, and the feature lines beside
         # a cell, which the angle and height passes' reach already covers; pass 1's quiet cells
-        # read the labels within max(side, window // 2) with the height test)
+        # read the height passes' removals within window // 2)
         side = params["edge_window"] // 2
         if strict:
             side = max(side, max(_TILE) - 1 + side)
