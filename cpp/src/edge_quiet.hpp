@@ -18,7 +18,7 @@ namespace miem::detail {
 /// The window condition over the 2 r + 1 rows around a row: per column, the INVALID cells
 /// (inv) and the EDGE or ABNORMAL cells (bad) of the rows held, kept as rows come in and go
 /// out; pinv and pbad (W + 1 each) are scratch for the sums along a row. The caller owns the
-/// buffers.
+/// buffer (over(): ints(W) of them).
 struct QuietCounts {
   std::int32_t* inv;
   std::int32_t* bad;
@@ -26,6 +26,14 @@ struct QuietCounts {
   std::int32_t* pbad;
   std::ptrdiff_t W, r;
   std::int32_t n_min;
+
+  /// The ints a buffer for rows of W cells holds.
+  static constexpr std::ptrdiff_t ints(std::ptrdiff_t W) { return 4 * W + 2; }
+  /// The counts in `buf` (ints(W) of them) for rows of W cells and edge half-size r.
+  static QuietCounts over(std::int32_t* buf, std::ptrdiff_t W, std::ptrdiff_t r) {
+    return {buf, buf + W, buf + 2 * W, buf + 3 * W + 1, W, r,
+            static_cast<std::int32_t>(std::max<std::ptrdiff_t>(3, (r * r) / 2))};
+  }
 
   /// No rows held.
   void clear() const noexcept {
@@ -65,10 +73,7 @@ struct QuietCounts {
 };
 
 /// The rows a quiet cell's test reads around it (its window, the height passes' marks), for
-/// edge half-size r and height half-size h; n_min of edge half-size r.
+/// edge half-size r and height half-size h.
 inline std::ptrdiff_t quiet_half(std::ptrdiff_t r, std::ptrdiff_t h) { return std::max(r, h); }
-inline std::int32_t quiet_n_min(std::ptrdiff_t r) {
-  return static_cast<std::int32_t>(std::max<std::ptrdiff_t>(3, (r * r) / 2));
-}
 
 }  // namespace miem::detail

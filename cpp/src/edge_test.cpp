@@ -1021,9 +1021,8 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol e
   // window counts
   if (planes != nullptr && H > 2 * r && W > 2 * r) {
     parallel_ranges(ntn, H - 2 * r, 16, [&](int, std::ptrdiff_t u0, std::ptrdiff_t u1) {
-      std::vector<std::int32_t> buf(static_cast<std::size_t>(4 * W + 2));
-      const QuietCounts qw{buf.data(), buf.data() + W, buf.data() + 2 * W,
-                           buf.data() + 3 * W + 1, W, r, quiet_n_min(r)};
+      std::vector<std::int32_t> buf(static_cast<std::size_t>(QuietCounts::ints(W)));
+      const QuietCounts qw = QuietCounts::over(buf.data(), W, r);
       qw.clear();
       for (std::ptrdiff_t a = u0; a < u0 + 2 * r; ++a) qw.add(labels + a * W, 1);
       for (std::ptrdiff_t x = u0 + r; x < u1 + r; ++x) {

@@ -19,6 +19,7 @@
 #endif
 
 #include "auto_min_step.hpp"
+#include "edge_quiet.hpp"
 #include "z_resolution.hpp"
 #include "judge.hpp"
 #include "parallel.hpp"
@@ -289,7 +290,7 @@ long long stream_lag(const DetectParams& p) noexcept {
     // once the rows within h are in (its removals mark the heights there stale); pass p r rows
     // behind pass p - 1
     const long long r = p.edge_window / 2;
-    const long long q = p.height_test() ? std::max(r, h) : 0;
+    const long long q = p.height_test() ? detail::quiet_half(r, h) : 0;
     lag = std::max(lagh + std::max(2 * r, q), h) + (P - 1) * r + h;
   }
   // min_step, z_resolution or z_noise "auto": nothing runs before the sample rows they read

@@ -48,7 +48,7 @@ void ProfileStream<T>::init_edges() {
   etodo_row_.assign(static_cast<std::size_t>(ring_), 0);
   if (htest_) {
     eplane_.assign(static_cast<std::size_t>(ring_ * W), 0);
-    equiet_.assign(static_cast<std::size_t>(4 * W + 2), 0);
+    equiet_.assign(static_cast<std::size_t>(detail::QuietCounts::ints(W)), 0);
   }
   // pass 1 has two sets (even and odd bands: the next band's images are built alongside), and
   // step 9 (pass 0 here) one after pass passes_'s
@@ -329,8 +329,7 @@ void ProfileStream<T>::quiet_candidates(std::int64_t row) noexcept {
   const std::ptrdiff_t W = width_, r = params_.edge_window / 2;
   std::fill(etd_.begin(), etd_.end(), std::uint8_t{1});
   if (row - r < 0 || row + r >= pushed_) return;  // the window leaves the grid: none quiet
-  std::int32_t* b = equiet_.data();
-  const detail::QuietCounts qc{b, b + W, b + 2 * W, b + 3 * W + 1, W, r, detail::quiet_n_min(r)};
+  const detail::QuietCounts qc = detail::QuietCounts::over(equiet_.data(), W, r);
   std::uint8_t* labs = elab_img_.data();  // (a row of scratch: pass 1 runs after this)
   if (eq_next_ <= row - r || eq_first_ > row - r) {  // nothing of the window held: afresh
     qc.clear();

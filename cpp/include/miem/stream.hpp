@@ -408,8 +408,8 @@ class ProfileStream {
   std::vector<std::uint8_t> etodo_;  // ring_ rows: bit (p & 1) = judge at edge pass p >= 2
   std::vector<std::uint8_t> etodo_row_;  // ring_ rows: same bits, "the row has any"
   // Pass 1's quiet cells (edge_quiet.hpp): ring_ rows of kHQuiet where height pass 1's plane
-  // is quiet and kHStale where a height removal lies within h; the window counts (4 width + 2:
-  // inv, bad and two rows of sums) of the rows [eq_first_, eq_next_) at the start of pass 1.
+  // is quiet and kHStale where a height removal lies within h; the window counts
+  // (QuietCounts::over) of the rows [eq_first_, eq_next_) at the start of pass 1.
   std::vector<std::uint8_t> eplane_;
   std::vector<std::int32_t> equiet_;
   std::int64_t eq_first_ = 0, eq_next_ = 0;
