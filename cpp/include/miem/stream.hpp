@@ -119,9 +119,11 @@ Status check_stream_params(std::ptrdiff_t width, const DetectParams& params) noe
 ///     rows on either side decide it);
 ///   - height pass 1 runs on row n - P R - E - h by running window sums (h = window / 2), pass
 ///     p on row n - P R - E - p h, only on the cells within h of a cell the pass before removed;
-///   - edge pass 1 runs on row n - H - r (H: the rows after which the height passes' labels
-///     are final; and at most on row n - h, so that the heights its removals make stale are
-///     all in), pass p r rows behind pass p - 1, row by row with batch detection's own per-row
+///   - the edge test's step 9 runs on row n - H - r (H: the rows after which the height
+///     passes' labels are final), edge pass 1 on row n - H - max(2 r, q) (q = max(r, h) with
+///     the height test: its quiet cells read the height passes' removals within h; and at
+///     most on row n - h, so that the heights its removals make stale are all in), pass p r
+///     rows behind pass p - 1, row by row with batch detection's own per-row
 ///     routines on per-tile integral images kept as rings of 2 r + 2 rows: its verdicts are
 ///     those of the whole grid bit for bit (docs/SPEC.md "Streaming");
 ///   - heights are final h rows after the last height pass (and the last edge pass).
