@@ -11,6 +11,7 @@
 #include <cstddef>
 #include <cstdint>
 
+#include "edge_test.hpp"
 #include "miem/organized.hpp"
 
 namespace miem::detail {
@@ -32,7 +33,7 @@ struct QuietCounts {
   /// The counts in `buf` (ints(W) of them) for rows of W cells and edge half-size r.
   static QuietCounts over(std::int32_t* buf, std::ptrdiff_t W, std::ptrdiff_t r) {
     return {buf, buf + W, buf + 2 * W, buf + 3 * W + 1, W, r,
-            static_cast<std::int32_t>(std::max<std::ptrdiff_t>(3, (r * r) / 2))};
+            static_cast<std::int32_t>(edge_n_min(r))};
   }
 
   /// No rows held.

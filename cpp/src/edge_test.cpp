@@ -557,7 +557,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
                     const EdgeBandCache* cache, EdgeJudgment judge) {
   const bool fit_only = judge == EdgeJudgment::kFitsGround;  // step 9: any label, fits only
   const std::ptrdiff_t W = g.cols, f0 = im.f0, plane = im.plane;
-  const double n_min = static_cast<double>(std::max<std::ptrdiff_t>(3, (r * r) / 2));
+  const double n_min = static_cast<double>(edge_n_min(r));
   const double* const S = im.data;
   const std::uint8_t* const lrow = lab + grow * W;  // the cell's row
   const auto srow = [&im](std::ptrdiff_t s) { return ((s - im.first) % im.rows) * im.stride; };

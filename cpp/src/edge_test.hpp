@@ -31,6 +31,13 @@ inline EdgeTol edge_tol(const DetectParams& p) noexcept {
                               p.z_noise > 0.0 ? 2.0 * p.z_noise : 0.0, z_floor(p.z_resolution)})};
 }
 
+/// A sub-window with at least this many INVALID cells has no return there (*empty*), and a
+/// plane needs this much support: SPEC "Edge test" step 3's n_min = max(3, r^2 / 2) for
+/// sub-window half-size r (also the quiet cells' bound on INVALID cells, step 1).
+inline std::ptrdiff_t edge_n_min(std::ptrdiff_t r) noexcept {
+  return std::max<std::ptrdiff_t>(3, (r * r) / 2);
+}
+
 /// Runs edge passes on `labels` (H x W, row-major, as left by the height passes): candidate
 /// cells become ABNORMAL. `window` odd >= 3 (sub-window half-size window / 2), `et` the
 /// tolerance (et.k > 0 in rms units; edge_tol), at most `max_iterations` passes. `lines`

@@ -183,9 +183,6 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
   } else if (pass == 0) {
     if (!restore_candidates(row)) return;
     todo = etd_.data();
-  } else if (htest_) {
-    quiet_candidates(row);
-    todo = etd_.data();
   }
   const std::int64_t band = row / kTR, R0 = band * kTR;
   const std::int64_t e0 = std::max<std::int64_t>(0, R0 - r);
@@ -204,6 +201,10 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
   }
   const std::uint8_t* lab = win + grow * W;
   if (pass == 1) {
+    if (htest_) {  // (from the labels just read: pass 1's, the rows within r)
+      quiet_candidates(row, win, a0);
+      todo = etd_.data();
+    }
     std::ptrdiff_t n = 0;
     for (std::ptrdiff_t c = 0; c < W; ++c) {
       n += todo[c] & ((lab[c] == kNormal) | (lab[c] == kEdge));
@@ -321,30 +322,28 @@ bool ProfileStream<T>::restore_candidates(std::int64_t row) noexcept {
 }
 
 // Pass 1's candidates of `row` into etd_: every cell but the quiet ones (edge_quiet.hpp), from
-// the window counts of the rows within r at the start of pass 1 (added as pass 1 comes down,
-// removed as they were added: step 9 turns ABNORMAL cells EDGE, both counted alike) and the
-// height passes' marks (eplane_).
+// the window counts of the rows within r at the start of pass 1 and the height passes' marks
+// (eplane_). `win` holds those labels of rows a0 .. row + r (edge_row's); a row leaves the
+// counts as it came in (step 9 turns ABNORMAL cells EDGE, both counted alike).
 template <typename T>
-void ProfileStream<T>::quiet_candidates(std::int64_t row) noexcept {
+void ProfileStream<T>::quiet_candidates(std::int64_t row, const std::uint8_t* win,
+                                        std::int64_t a0) noexcept {
   const std::ptrdiff_t W = width_, r = params_.edge_window / 2;
   std::fill(etd_.begin(), etd_.end(), std::uint8_t{1});
   if (row - r < 0 || row + r >= pushed_) return;  // the window leaves the grid: none quiet
   const detail::QuietCounts qc = detail::QuietCounts::over(equiet_.data(), W, r);
-  std::uint8_t* labs = elab_img_.data();  // (a row of scratch: pass 1 runs after this)
+  const auto at = [&](std::int64_t x) { return win + (x - a0) * W; };  // x in [a0, row + r]
   if (eq_next_ <= row - r || eq_first_ > row - r) {  // nothing of the window held: afresh
     qc.clear();
     eq_first_ = eq_next_ = row - r;
   }
-  for (; eq_first_ < row - r; ++eq_first_) {
+  std::uint8_t* labs = elab_img_.data();  // (a row of scratch: the tiles run after this)
+  for (; eq_first_ < row - r; ++eq_first_) {  // (above the window: no longer in win)
     edge_labels(eq_first_, 1, 0, W, labs);
     qc.add(labs, -1);
   }
-  for (; eq_next_ < row + r + 1; ++eq_next_) {
-    edge_labels(eq_next_, 1, 0, W, labs);
-    qc.add(labs, 1);
-  }
-  edge_labels(row, 1, 0, W, labs);
-  qc.drop(labs, eplane_.data() + slot(row) * W, detail::kHQuiet | detail::kHStale,
+  for (; eq_next_ < row + r + 1; ++eq_next_) qc.add(at(eq_next_), 1);
+  qc.drop(at(row), eplane_.data() + slot(row) * W, detail::kHQuiet | detail::kHStale,
           detail::kHQuiet, etd_.data());
 }
 

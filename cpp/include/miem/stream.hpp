@@ -285,7 +285,7 @@ class ProfileStream {
   void run_edges(bool to_end) noexcept;
   void edge_row(std::int64_t row, int pass) noexcept;
   bool restore_candidates(std::int64_t row) noexcept;
-  void quiet_candidates(std::int64_t row) noexcept;
+  void quiet_candidates(std::int64_t row, const std::uint8_t* win, std::int64_t a0) noexcept;
   bool feature_line(std::int64_t row, std::ptrdiff_t col) const noexcept;
   const double* edge_images(int pass, std::ptrdiff_t tile, std::int64_t band,
                             std::int64_t upto, std::int64_t from, std::uint8_t* labs) noexcept;
