@@ -630,6 +630,77 @@ def test_exactly_flat_sides_do_not_decide_by_round_off() -> None:
     assert np.count_nonzero(oracle.labels == miem.ABNORMAL) == 1
 
 
+def _sliver_scene(gap: int) -> np.ndarray:
+    """Sheet (columns 0..19), `gap` columns without return, then a sliver of 2 columns 2 mm
+    above the sheet (a wall top seen across its shadow) and no return beyond."""
+    z = _noise((40, 40))
+    z[:, 20:20 + gap] = np.nan
+    z[:, 20 + gap:22 + gap] += 2.0
+    z[:, 22 + gap:] = np.nan
+    return _grid(z)
+
+
+@pytest.mark.parametrize("walk, attached", [
+    ("P", True), ("IIP", False), ("IHIP", True), ("HIIP", False), ("PII", True), ("HHO", True),
+    ("HIH", True), ("HII", False), ("", True), ("AIIP", True), ("HIIA", False),
+])
+def test_attached_walks_by_hand(walk: str, attached: bool) -> None:
+    """SPEC "Edge test" step 5: P is attached to a side unless 2 INVALID cells in a row come
+    before the first cell on the side's plane on its way there. Walk from P (0.3 above the
+    plane z = 0, tolerance 0.1): P a cell on the plane, H one 0.3 above it, A ABNORMAL on the
+    plane, I no return, O the grid ends."""
+    cells = walk.split("O")[0]
+    z = {"P": 0.0, "H": 0.3, "A": 0.0, "I": np.nan}
+    code = {"P": miem.NORMAL, "H": miem.NORMAL, "A": miem.ABNORMAL, "I": miem.INVALID}
+    # P at the right end of a row; the left side (0) lies along the walk, the right one (1)
+    # beyond the grid at once
+    row = list(reversed(cells))
+    zz = np.array([[z[c] for c in row] + [0.3]])
+    grid = _grid(zz)
+    labels = np.array([[code[c] for c in row] + [miem.NORMAL]], dtype=np.uint8)
+    sel = np.zeros(labels.shape, dtype=bool)
+    sel[0, -1] = True
+    nrm = np.tile([0.0, 0.0, 1.0], (8, 1, 1))
+    cen = np.zeros((8, 1, 3))
+    tol = np.full((8, 1), 0.1)
+    out = ref._attached(grid, labels, sel, 7, np.zeros(3), nrm, cen, tol)
+    assert out.shape == (8, 1)
+    assert out[0, 0] == attached and out[1, 0]
+
+
+@pytest.mark.parametrize("gap", [1, 2, 3])
+def test_sliver_beyond_a_dropout_band_is_no_lip(gap: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A sliver beyond a band of dropouts stands proud of the sheet with nothing beyond it, as a
+    lip before an outline does; across more than one dropout in a row it is not attached to
+    the sheet (SPEC "Edge test" step 5) and stays as the angle and height tests leave it."""
+    pts = _sliver_scene(gap)
+    sliver = np.zeros(pts.shape[:2], dtype=bool)
+    sliver[:, 20 + gap:22 + gap] = True
+    oracle = ref.detect(pts)
+    for nt in (1, 2):
+        np.testing.assert_array_equal(miem.detect(pts, num_threads=nt).labels, oracle.labels)
+    before = miem.detect(pts, edge_tolerance=None).labels
+    assert not (before[sliver] == miem.ABNORMAL).any()
+    if gap == 1:  # one dropout: attached, a lip 2 mm tall at the outline
+        assert (oracle.labels[sliver] == miem.ABNORMAL).all()
+    else:
+        np.testing.assert_array_equal(oracle.labels, before)
+        # without the condition the outline rule flags the whole sliver
+        monkeypatch.setattr(ref, "_attached", lambda grid, labels, cells, *a: np.ones(
+            (8, int(cells.sum())), dtype=bool))
+        assert (ref.detect(pts).labels[sliver] == miem.ABNORMAL).all()
+
+
+def test_stream_leaves_slivers_as_batch() -> None:
+    """The stream reads the same walk (the labels at the start of the pass, rows within r)."""
+    grid = _sliver_scene(3).transpose(1, 0, 2).copy()  # the sliver along the profiles
+    p = miem.default_params("stream")
+    want = miem.detect(grid, params=p)
+    np.testing.assert_array_equal(want.labels, ref.detect(grid).labels)
+    assert not (want.labels[23:25] == miem.ABNORMAL).any()
+    np.testing.assert_array_equal(stream_labels(grid, p), want.labels)
+
+
 def test_lip_before_the_outline_and_only_abnormal_added() -> None:
     pts = _lip_scene()
     base = miem.detect(pts, preset="recommended", edge_tolerance=None)

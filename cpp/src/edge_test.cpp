@@ -274,6 +274,31 @@ constexpr double kHangShelf = 2.0;
 constexpr int kHangDirs[8][2] = {{0, 1},  {0, -1}, {1, 0},  {-1, 0},
                                  {1, 1},  {1, -1}, {-1, 1}, {-1, -1}};  // side -> towards P
 
+// SPEC "Edge test" step 5: is P = (rr, cc) attached to side x (index s)? Along P - j d_s
+// (kHangDirs), j = 1..r inside the grid, no kEdgeAttachGap INVALID cells in a row before the
+// first cell with a return on x's plane (|u . (q - o - m)| <= t; a sliver of returns beyond a
+// dropout band is no material of the side's surface). miem.reference._attached.
+constexpr int kEdgeAttachGap = 2;
+template <typename T>
+bool attached(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
+              std::ptrdiff_t cc, std::ptrdiff_t r, const Eigen::Vector3d& o, const Side& x,
+              int s) {
+  const std::ptrdiff_t H = g.rows, W = g.cols, dr = kHangDirs[s][0], dc = kHangDirs[s][1];
+  int run = 0;
+  for (std::ptrdiff_t j = 1; j <= r; ++j) {
+    const std::ptrdiff_t a = rr - j * dr, b = cc - j * dc;
+    if (a < 0 || a >= H || b < 0 || b >= W) return true;
+    if (labels[a * W + b] == kInvalid) {
+      if (++run >= kEdgeAttachGap) return false;
+      continue;
+    }
+    run = 0;
+    const Eigen::Vector3d q = (g(a, b) - o) - x.centroid;
+    if (!(std::abs(dot3(q, x.normal)) > x.tol)) return true;
+  }
+  return true;
+}
+
 // The ground cells (NORMAL or EDGE) x = P + j (dr, dc) from P = (rr, cc), j = 1..r inside the
 // grid, in order: visit(x - P) for each while it returns true. miem.reference._ground_line.
 template <typename T, typename Visit>
@@ -873,7 +898,11 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
           mark[i] = fits_ground ? 1 : 0;
           continue;
         }
-        bool abnormal = !fits && (edge_proud(sd, best, [](int s) { return kOpposite[s]; }) ||
+        const auto attached_to = [&](int s) {
+          return attached(g, lab, grow, cols[j], r, o, sd[s], s);
+        };
+        bool abnormal = !fits && (edge_proud(sd, best, [](int s) { return kOpposite[s]; },
+                                             attached_to) ||
                                   is_fin(g, lab, grow, cols[j], r) ||
                                   is_lip(g, lab, grow, cols[j], r, sd, best));
         if (!abnormal && !fits_ground) abnormal = is_hanging(g, lab, grow, cols[j], r, sd, best);

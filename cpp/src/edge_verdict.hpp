@@ -41,15 +41,19 @@ inline bool edge_clean(const EdgeSide& x, double best) {
 }
 
 /// SPEC "Edge test" step 5: P stands proud of a clean side whose opposite side
-/// (`opposite(s)`) is empty or falls away below its plane (step 6 flags it when it also fits no
-/// clean side, which the caller checks). `best`: the smallest rms of the valid sides.
-template <int N, typename Opposite>
-inline bool edge_proud(const EdgeSide (&sd)[N], double best, Opposite opposite) {
+/// (`opposite(s)`) is empty or falls away below its plane, and to which P is attached
+/// (`attached(s)`; asked last) (step 6 flags it when it also fits no clean side, which the
+/// caller checks). `best`: the smallest rms of the valid sides.
+template <int N, typename Opposite, typename Attached>
+inline bool edge_proud(const EdgeSide (&sd)[N], double best, Opposite opposite,
+                       Attached attached) {
   for (int s = 0; s < N; ++s) {
     const EdgeSide& x = sd[s];
     if (!edge_clean(x, best) || !(x.h > x.tol)) continue;
     const EdgeSide& y = sd[opposite(s)];
-    if (y.empty || (y.valid && dot3(x.normal, y.centroid - x.centroid) < -x.tol)) return true;
+    if ((y.empty || (y.valid && dot3(x.normal, y.centroid - x.centroid) < -x.tol)) &&
+        attached(s))
+      return true;
   }
   return false;
 }

@@ -1275,6 +1275,46 @@ _HANG_DIRECTIONS = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (1, -1), (-1, 1), 
 _HANG_SHELF = 2.0
 
 
+#: P is *attached* to a sub-window (SPEC "Edge test" step 5) unless, on its way towards it,
+#: this many INVALID cells in a row come before the first cell on the sub-window's plane.
+_EDGE_ATTACH_GAP = 2
+
+
+def _attached(
+    grid: NDArray[np.float64],
+    labels: NDArray[np.uint8],
+    cells: NDArray[np.bool_],
+    r: int,
+    origin: NDArray[np.float64],
+    nrm: NDArray[np.float64],
+    cen: NDArray[np.float64],
+    tol: NDArray[np.float64],
+) -> NDArray[np.bool_]:
+    """(8, N) for the cells of ``cells`` (row-major): is P *attached* to each sub-window (SPEC
+    "Edge test" step 5)? Along ``P - j d``, ``j = 1..r`` inside the grid (``d`` the step from
+    the sub-window towards P, :data:`_HANG_DIRECTIONS`), no ``_EDGE_ATTACH_GAP`` INVALID cells
+    in a row before the first cell with a return on the sub-window's plane (``|u . (q - o -
+    m)| <= t``; ``nrm``, ``cen``, ``tol`` (8, N, ...) its normal, centroid and tolerance)."""
+    hh, ww = labels.shape
+    rr, cc = np.nonzero(cells)
+    out = np.ones((len(_HANG_DIRECTIONS), rr.size), dtype=bool)
+    for k, (dr, dc) in enumerate(_HANG_DIRECTIONS):
+        run = np.zeros(rr.size, dtype=np.int64)
+        done = np.zeros(rr.size, dtype=bool)
+        for j in range(1, r + 1):
+            a, b = rr - j * dr, cc - j * dc
+            inside = (a >= 0) & (a < hh) & (b >= 0) & (b < ww)
+            a, b = np.clip(a, 0, hh - 1), np.clip(b, 0, ww - 1)
+            done |= ~inside
+            ret = labels[a, b] != INVALID
+            run = np.where(ret, 0, run + 1)
+            gap = ~done & (run >= _EDGE_ATTACH_GAP)
+            out[k] &= ~gap
+            on = ret & ~(np.abs(_dot3((grid[a, b] - origin) - cen[k], nrm[k])) > tol[k])
+            done |= gap | on
+    return out
+
+
 def _hanging(
     grid: NDArray[np.float64],
     labels: NDArray[np.uint8],
@@ -1622,6 +1662,7 @@ def _edge_verdicts(
     # P stands proud (outward, above the plane) of a clean side whose opposite side has no
     # support (an outline) or falls away below that plane (a convex edge, a wall top).
     proud = np.zeros(h.shape[1], dtype=bool)
+    attached = _attached(grid, labels, cells, r, origin, nrm, cen, tol)
     # P below a clean side x whose opposite y has no return or is clean with P above it and
     # falls away: P lies between a top and the lower surface beyond (a hanging candidate)
     below = np.zeros_like(clean)
@@ -1629,7 +1670,7 @@ def _edge_verdicts(
         for x, y in ((a, b), (b, a)):
             drop = _dot3(nrm[x], cen[y] - cen[x]) < -tol[x]
             falls = empty[y] | (valid[y] & drop)
-            proud |= clean[x] & (h[x] > tol[x]) & falls
+            proud |= clean[x] & (h[x] > tol[x]) & falls & attached[x]
             beyond = empty[y] | (clean[y] & (h[y] > tol[y]) & drop)
             below[x] = clean[x] & (h[x] < -tol[x]) & beyond
     fin = _fins(grid, labels, cells, r)[cells]  # (SPEC step 6: reach r, inside the tile's frame)
