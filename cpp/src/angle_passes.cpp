@@ -18,48 +18,83 @@ namespace miem::detail {
 
 namespace {
 
-// Row rr of the grid into the kernel's ring (pass1_load), usable: bit 0 of `usable`.
+// GridView::finite of row r's cells as straight-line code (constant strides for the common
+// interleaved xyz layout; the generic strides keep the loop scalar): us[c] 1 or 0 and, with
+// `lb`, the label NORMAL or INVALID. Returns the finite count.
 template <typename T>
-void load_row(const GridView<T>& g, const std::uint8_t* usable, const Pass1Ring& ring,
-              std::ptrdiff_t rr) {
-  const T* base = g.data + rr * g.row_stride;
-  const std::uint8_t* us = usable + rr * g.cols;
-  pass1_load(ring, rr, base, base + g.coord_stride, base + 2 * g.coord_stride, g.col_stride,
-             [us](std::ptrdiff_t c) { return (us[c] & 1) != 0; });
+std::ptrdiff_t finite_row(const GridView<T>& g, std::ptrdiff_t r, std::uint8_t* us,
+                          std::uint8_t* lb) {
+  const T* base = g.data + r * g.row_stride;
+  const std::ptrdiff_t W = g.cols, cs = g.col_stride, ys = g.coord_stride;
+  auto row = [&](auto cs_, auto ys_, auto zs_, auto with_labels) {
+    std::uint8_t* __restrict u = us;
+    std::uint8_t* __restrict l = lb;
+    std::ptrdiff_t nf = 0;
+    for (std::ptrdiff_t c = 0; c < W; ++c) {
+      const T* q = base + c * cs_;
+      const T s = (q[0] - q[0]) + (q[ys_] - q[ys_]) + (q[zs_] - q[zs_]);
+      const bool fin = s == T(0);
+      u[c] = fin;
+      if constexpr (decltype(with_labels)::value) l[c] = fin ? kNormal : kInvalid;
+      nf += fin;
+    }
+    return nf;
+  };
+  using K3 = std::integral_constant<std::ptrdiff_t, 3>;
+  using K1 = std::integral_constant<std::ptrdiff_t, 1>;
+  using K2 = std::integral_constant<std::ptrdiff_t, 2>;
+  using Yes = std::true_type;
+  using No = std::false_type;
+  if (cs == 3 && ys == 1) return lb ? row(K3{}, K1{}, K2{}, Yes{}) : row(K3{}, K1{}, K2{}, No{});
+  return lb ? row(cs, ys, 2 * ys, Yes{}) : row(cs, ys, 2 * ys, No{});
 }
 
 // Judge rows [r_begin, r_end) of pass 1 with the row kernel (pass1_row.hpp), keeping its ring
 // of 2 depth + 1 converted rows (each grid row is converted once; depth = smax + 1, deeper with
-// min_step); the scalar judge decides the cells the kernel cannot settle. With min_step,
-// `reach` (4 bytes per cell) receives the rays read.
-template <typename T, typename Judge>
-void pass1_rows(const GridView<T>& g, const std::uint8_t* usable, const DetectParams& p,
-                int depth, std::ptrdiff_t r_begin, std::ptrdiff_t r_end, detail::RowScratch& sc,
-                const Judge& judge, std::uint8_t* labels, std::uint8_t* flags_out,
-                double* angle_out, std::uint8_t* reach) {
+// min_step). Each row's finiteness is found as it is loaded (pass 0 fused into pass 1: the
+// grid is read once): the block's own rows into `usable` and their labels (NORMAL or INVALID)
+// and zero flags, the rows of the blocks around into sc.fin. The cells the kernel cannot
+// settle are listed in sc.judge for the scalar judge, which may read any row's finiteness:
+// the caller judges them once every block is done. With min_step, `reach` (4 bytes per cell)
+// receives the rays read. Returns the block's finite count.
+template <typename T>
+std::ptrdiff_t pass1_rows(const GridView<T>& g, std::uint8_t* usable, const DetectParams& p,
+                          int depth, std::ptrdiff_t r_begin, std::ptrdiff_t r_end,
+                          detail::RowScratch& sc, std::uint8_t* labels, std::uint8_t* flags_out,
+                          double* angle_out, std::uint8_t* reach) {
   const std::ptrdiff_t H = g.rows, W = g.cols, pad = depth;
   pass1_prepare(sc, W, depth, p.min_step >= 0.0);
+  sc.fin.resize(static_cast<std::size_t>(W));
+  sc.judge.clear();
   const Pass1Ring ring{&sc, H, W, depth};
+  std::ptrdiff_t n_finite = 0;
+  const auto load = [&](std::ptrdiff_t rr) {
+    const bool own = rr >= r_begin && rr < r_end;
+    std::uint8_t* us = own ? usable + rr * W : sc.fin.data();
+    const std::ptrdiff_t nf = finite_row(g, rr, us, own ? labels + rr * W : nullptr);
+    if (own) {
+      n_finite += nf;
+      if (flags_out) std::fill(flags_out + rr * W, flags_out + (rr + 1) * W, std::uint8_t{0});
+    }
+    const T* base = g.data + rr * g.row_stride;
+    pass1_load(ring, rr, base, base + g.coord_stride, base + 2 * g.coord_stride, g.col_stride,
+               [us](std::ptrdiff_t c) { return us[c] != 0; });
+  };
   for (std::ptrdiff_t rr = std::max<std::ptrdiff_t>(0, r_begin - pad);
        rr < std::min(H, r_begin + pad); ++rr) {
-    load_row(g, usable, ring, rr);
+    load(rr);
   }
   for (std::ptrdiff_t r = r_begin; r < r_end; ++r) {
-    if (r + pad < H) load_row(g, usable, ring, r + pad);
+    if (r + pad < H) load(r + pad);
     double* angle_row = angle_out ? angle_out + r * W : nullptr;
     pass1_row(ring, r, p, labels + r * W, flags_out ? flags_out + r * W : nullptr, angle_row,
               reach ? reach + 4 * r * W : nullptr);
     const std::int64_t* centre_ok = ring.ok(r);
     for (std::ptrdiff_t c = 0; c < W; ++c) {
-      if (!pass1_needs_judge(sc, centre_ok, c)) continue;
-      const std::ptrdiff_t i = r * W + c;
-      std::uint8_t fl;
-      double an;
-      labels[i] = judge.judge(r, c, &fl, &an, reach ? reach + 4 * i : nullptr);
-      if (flags_out) flags_out[i] = fl;
-      if (angle_row) angle_row[c] = an;
+      if (pass1_needs_judge(sc, centre_ok, c)) sc.judge.push_back(r * W + c);
     }
   }
+  return n_finite;
 }
 
 }  // namespace
@@ -101,42 +136,25 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
     if (ws.rows.size() < static_cast<std::size_t>(ntk)) ws.rows.resize(ntk);
     for (int t = 0; t < ntk; ++t) ws.rows[t].resize(2 * depth + 2, padded);
   }
-  // Pass 0: finiteness. (The row kernel writes every cell's angle, NaN where there is none.)
+  // Pass 0: finiteness (the row kernel finds it as it loads the rows, pass1_rows). (The row
+  // kernel writes every cell's angle, NaN where there is none.)
   const bool angle_nan = out.angle_deg != nullptr && !row_kernel;
   std::ptrdiff_t n_finite = 0;
+  if (!row_kernel) {
 #pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1) reduction(+ : n_finite)
-  for (std::ptrdiff_t r = 0; r < H; ++r) {
-    const T* base = g.data + r * g.row_stride;
-    const std::ptrdiff_t cs = g.col_stride, ys = g.coord_stride, zs = 2 * g.coord_stride;
-    std::uint8_t* us = usable + r * W;
-    std::uint8_t* lb = labels + r * W;
-    // GridView::finite, as straight-line code; constant strides for the common interleaved
-    // xyz layout (the generic strides keep the loop scalar)
-    auto row = [&](auto cs_, auto ys_, auto zs_) {
-      std::uint8_t* __restrict u = us;
-      std::uint8_t* __restrict l = lb;
-      std::ptrdiff_t nf = 0;
-      for (std::ptrdiff_t c = 0; c < W; ++c) {
-        const T* q = base + c * cs_;
-        const T s = (q[0] - q[0]) + (q[ys_] - q[ys_]) + (q[zs_] - q[zs_]);
-        const bool fin = s == T(0);
-        u[c] = fin;
-        l[c] = fin ? kNormal : kInvalid;
-        nf += fin;
-      }
-      return nf;
-    };
-    using K3 = std::integral_constant<std::ptrdiff_t, 3>;
-    using K1 = std::integral_constant<std::ptrdiff_t, 1>;
-    using K2 = std::integral_constant<std::ptrdiff_t, 2>;
-    n_finite += (cs == 3 && ys == 1) ? row(K3{}, K1{}, K2{}) : row(cs, ys, zs);
-    if (out.flags) std::fill(out.flags + r * W, out.flags + (r + 1) * W, std::uint8_t{0});
-    if (angle_nan) std::fill(out.angle_deg + r * W, out.angle_deg + (r + 1) * W, kNaN);
+    for (std::ptrdiff_t r = 0; r < H; ++r) {
+      n_finite += finite_row(g, r, usable + r * W, labels + r * W);
+      if (out.flags) std::fill(out.flags + r * W, out.flags + (r + 1) * W, std::uint8_t{0});
+      if (angle_nan) std::fill(out.angle_deg + r * W, out.angle_deg + (r + 1) * W, kNaN);
+    }
   }
-  if (n_finite < 3) {
-    throw std::invalid_argument("grid: fewer than 3 finite points (found " +
-                                std::to_string(n_finite) + ")");
-  }
+  const auto check_finite = [&n_finite] {
+    if (n_finite < 3) {
+      throw std::invalid_argument("grid: fewer than 3 finite points (found " +
+                                  std::to_string(n_finite) + ")");
+    }
+  };
+  if (!row_kernel) check_finite();
 
   // With min_step: the rays each cell's verdict read (4 bytes per cell), so that a later pass
   // re-judges only the cells whose verdict a removal can change.
@@ -149,7 +167,8 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
   auto pass1 = [&](double* angle_out) {
     const CellJudge<T> judge(g, usable, p);
     if (row_kernel) {
-#pragma omp parallel num_threads(ntk) if (ntk > 1)
+      std::ptrdiff_t nf = 0;
+#pragma omp parallel num_threads(ntk) if (ntk > 1) reduction(+ : nf)
       {
         int tid = 0;
 #ifdef MIEM_HAVE_OPENMP
@@ -157,9 +176,20 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
 #endif
         // Contiguous row blocks, one per thread: each row is converted once per block.
         const std::ptrdiff_t r0 = H * tid / ntk, r1 = H * (tid + 1) / ntk;
-        pass1_rows(g, usable, p, depth, r0, r1, ws.rows[tid], judge, labels, out.flags,
-                   angle_out, reach);
+        RowScratch& sc = ws.rows[tid];
+        nf += pass1_rows(g, usable, p, depth, r0, r1, sc, labels, out.flags, angle_out, reach);
+#pragma omp barrier
+        // every row's finiteness is known: the scalar judge for the cells the kernel left
+        for (const std::int64_t i : sc.judge) {
+          std::uint8_t fl;
+          double an;
+          labels[i] = judge.judge(i / W, i % W, &fl, &an, reach ? reach + 4 * i : nullptr);
+          if (out.flags) out.flags[i] = fl;
+          if (angle_out) angle_out[i] = an;
+        }
       }
+      n_finite = nf;
+      check_finite();
     } else {
 #pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
       for (std::ptrdiff_t r = 0; r < H; ++r) {

@@ -31,6 +31,10 @@ struct RowScratch {
   // column, and per chunk of columns the largest speed and the unusable cells it may skip
   std::vector<double> speed, chunk_speed;
   std::vector<std::int64_t> gaps_before, chunk_gaps;
+  // batch pass 1: the finiteness of a row of another thread's block, and the cells this
+  // thread's scalar judge decides once every row's finiteness is known
+  std::vector<std::uint8_t> fin;
+  std::vector<std::int64_t> judge;
   void resize(std::ptrdiff_t rows, std::ptrdiff_t cols) {
     const auto n = static_cast<std::size_t>(cols);
     xyz.resize(static_cast<std::size_t>(rows) * 3 * n);
