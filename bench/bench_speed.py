@@ -210,6 +210,8 @@ BASES = [
     ("c5b2e81", "2026-12-05, before the edge test's quiet cells", "recommended", "recommended"),
     ("9503cd4", "2026-12-05, before the quiet cells from the height test's planes",
      "recommended", "recommended"),
+    ("ed7b889", "2026-12-05, before the finiteness pass fused into pass 1 (and the edge "
+     "test's attached condition)", "recommended", "recommended"),
 ]
 
 
