@@ -371,7 +371,7 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
       far[j] = htest_ && (hm[c] & (kInPlane | kSCompact)) && detail::height_far(f, jparams_);
       if (quiet_floor > 0.0 && (hm[c] & kInPlane) &&
           detail::quiet_plane(f.ok, f.height, f.n, f.l0, f.l1, f.l2, quiet_floor)) {
-        quiet[c] = detail::kHQuiet;
+        quiet[c] |= detail::kHQuiet;  // (kHStale may be there: a removal above)
       }
     }
   });
