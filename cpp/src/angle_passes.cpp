@@ -64,7 +64,6 @@ std::ptrdiff_t pass1_rows(const GridView<T>& g, std::uint8_t* usable, const Dete
                           double* angle_out, std::uint8_t* reach) {
   const std::ptrdiff_t H = g.rows, W = g.cols, pad = depth;
   pass1_prepare(sc, W, depth, p.min_step >= 0.0);
-  sc.fin.resize(static_cast<std::size_t>(W));
   sc.judge.clear();
   const Pass1Ring ring{&sc, H, W, depth};
   std::ptrdiff_t n_finite = 0;
@@ -111,9 +110,10 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
 
   const int smax = *std::max_element(p.scales.begin(), p.scales.end());
   const bool has_min_step = p.min_step >= 0.0;
-  // The row kernel keeps 2 depth + 2 padded, converted rows per thread (32 bytes per cell each;
-  // depth = smax + 1, with min_step up to kDeep steps so that the search for a neighbour far
-  // enough runs in the kernel): on a long thin grid (1 x 10^7) that is gigabytes, so it runs
+  // The row kernel keeps 2 depth + 2 padded, converted rows per thread (32 bytes per cell
+  // each) and a row of 25 bytes per cell (the best pair, the bits, a finiteness byte); depth =
+  // smax + 1, with min_step up to kDeep steps so that the search for a neighbour far enough
+  // runs in the kernel. On a long thin grid (1 x 10^7) that is gigabytes, so it runs
   // only while its scratch stays within 8 bytes per grid cell (at least 1 MiB), with no more
   // threads than rows (with min_step, at the shallow depth when the deep one does not fit);
   // beyond, the scalar judge (same labels, SPEC) reads the grid in place (README "Guarantees").
@@ -121,7 +121,7 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
   const int ntk = static_cast<int>(std::min<std::ptrdiff_t>(nt, H));
   auto kernel_fits = [&](int depth) {
     const double padded = static_cast<double>(W + 2 * depth);
-    const double bytes = ntk * padded * (32.0 * (2 * depth + 2) + 24.0);
+    const double bytes = ntk * padded * (32.0 * (2 * depth + 2) + 25.0);
     return smax <= 64 && bytes <= std::max(double(1 << 20), 8.0 * static_cast<double>(N));
   };
   int depth = smax + 1;

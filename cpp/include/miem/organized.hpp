@@ -31,8 +31,8 @@ struct RowScratch {
   // column, and per chunk of columns the largest speed and the unusable cells it may skip
   std::vector<double> speed, chunk_speed;
   std::vector<std::int64_t> gaps_before, chunk_gaps;
-  // batch pass 1: the finiteness of a row of another thread's block, and the cells this
-  // thread's scalar judge decides once every row's finiteness is known
+  // batch pass 1: the finiteness of a row of another thread's block (sized with the rows),
+  // and the cells this thread's scalar judge decides once every row's finiteness is known
   std::vector<std::uint8_t> fin;
   std::vector<std::int64_t> judge;
   void resize(std::ptrdiff_t rows, std::ptrdiff_t cols) {
@@ -41,6 +41,7 @@ struct RowScratch {
     ok.resize(static_cast<std::size_t>(rows) * n);
     best.resize(2 * n);
     bits.resize(n);
+    fin.resize(n);
   }
 };
 
