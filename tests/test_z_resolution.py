@@ -1,6 +1,7 @@
 """SPEC "z_resolution": the rms tolerances of the height and edge tests are at least 1.5 times
 the scan's z step, measured (``"auto"``) as the smallest non-zero z difference of finite
-neighbours along the profiles of the rows min_step="auto" reads."""
+neighbours along the profiles of the rows min_step="auto" reads, or between two z values of the
+finite cells of the first 32 of those rows when that is smaller."""
 
 from __future__ import annotations
 
@@ -72,13 +73,44 @@ def test_auto_reads_the_min_step_rows_only_and_ignores_unquantised_data() -> Non
     fin = np.isfinite(smooth).all(axis=-1)
     smooth[..., 2] = np.where(fin, rng.normal(0.0, 0.002, fin.shape), np.nan)  # not quantised
     pairs = fin[:, 1:] & fin[:, :-1]
-    want = np.abs(np.diff(smooth[..., 2], axis=1))[pairs]
-    want = want[want > 0].min()
+    steps = np.abs(np.diff(smooth[..., 2], axis=1))[pairs]
+    levels = np.sort(smooth[:32, :, 2][fin[:32]])  # the first 32 rows' values, pooled
+    gaps = levels[1:] - levels[:-1]
+    want = min(steps[steps > 0].min(), gaps[gaps > 0].min())
     assert miem.detect(smooth).params["z_resolution"] == want  # a speck far below the noise
     assert want < 1e-5
     flat = np.dstack([*np.meshgrid(np.arange(4.0), np.arange(3.0)), np.zeros((3, 4))])
     assert miem.detect(flat).params["z_resolution"] is None  # no non-zero step at all
     assert _core.auto_z_resolution(flat) == -1.0
+
+
+def _steep_sheet(rows: int = 80, cols: int = 60, seed: int = 7) -> np.ndarray:
+    """A sheet sampled every 0.5 mm both ways, rising 0.3 mm per mm along the profiles, noise
+    0.005 mm, z in 1 um steps: neighbours along a profile differ by 0.15 mm +- the noise, so no
+    two share a level or lie one step apart."""
+    rng = np.random.default_rng(seed)
+    x, y = np.meshgrid(np.arange(cols) * 0.5, np.arange(rows) * 0.5)
+    z = np.round((0.3 * x + rng.normal(0.0, 0.005, (rows, cols))) / 0.001) * 0.001
+    return np.dstack([x, y, z])
+
+
+def test_auto_on_a_steep_coarse_sheet_is_the_step_not_the_slope() -> None:
+    g = _steep_sheet()
+    steps = np.abs(np.diff(g[..., 2], axis=1))
+    assert steps.min() > 0.1  # the neighbours' smallest difference is the slope's
+    levels = np.unique(np.round(g[:32, :, 2] / 0.001))  # integer levels of the first 32 rows
+    assert (np.diff(levels) == 1).any()  # two of their values lie one step apart
+    res = miem.detect(g)
+    assert res.params["z_resolution"] == pytest.approx(0.001, abs=1e-12)
+    # a spike 0.05 mm (10 sigma) proud: found; with the slope's difference as the step (1.5 x
+    # 0.1 mm: the tolerance's floor) it would not be
+    g[40, 30, 2] += 0.05
+    truth = np.zeros(g.shape[:2], dtype=bool)
+    truth[40, 30] = True
+    np.testing.assert_array_equal(miem.detect(g).labels == miem.ABNORMAL, truth)
+    hidden = ref.detect(g, z_resolution=float(steps.min()))
+    assert not (hidden.labels == miem.ABNORMAL).any()
+    assert_core_is_reference(g)
 
 
 def test_given_length_none_and_bad_values() -> None:
@@ -93,7 +125,22 @@ def test_stream_measures_it_as_batch(min_step: object) -> None:
     assert want.params["z_resolution"] == pytest.approx(Q, abs=1e-12)
 
 
-def test_dask_resolves_it_on_the_driver() -> None:
-    g = _level_sheet(rows=300, seed=6)
+def test_stream_measures_it_as_batch_on_a_steep_sheet() -> None:
+    g = _steep_sheet(rows=300, seed=8)
+    g[150, 20, 2] += 0.2  # a spike, after the sample rows
+    want = assert_stream_measures(g, {}, "z_resolution")
+    assert want.params["z_resolution"] == pytest.approx(0.001, abs=1e-12)
+    short = _steep_sheet(rows=20, seed=9)  # fewer rows than the 32 pooled: those pushed
+    s = miem.ProfileStream(short.shape[1])
+    for row in short:
+        s.push(row)
+    list(s.flush())
+    assert s.z_resolution == miem.detect(short).params["z_resolution"]
+    assert s.z_resolution == pytest.approx(0.001, abs=1e-12)
+
+
+@pytest.mark.parametrize("steep", [False, True])
+def test_dask_resolves_it_on_the_driver(steep: bool) -> None:
+    g = _steep_sheet(rows=300, seed=6) if steep else _level_sheet(rows=300, seed=6)
     g[:3] = np.nan
     assert_dask_resolves(g, "z_resolution")

@@ -61,7 +61,7 @@ int main(int argc, char** argv) {
     }
   }
   miem::DetectParams eff = p;  // min_step, z_resolution "auto" resolved (stages, floors)
-  miem::detail::resolve_auto_lengths(g, eff, ws.survey, threads);
+  miem::detail::resolve_auto_lengths(g, eff, ws.survey, ws.zkeys, threads);
   if (!have) {
     miem::detail::angle_passes(g, eff, out, ws);
     if (eff.height_test()) miem::detail::height_test(g, eff, labels.data(), height.data(), ws);

@@ -102,7 +102,7 @@ double run_stages(const miem::GridView<double>& g, const miem::DetectParams& p,
                   const miem::OrganizedOutput& out, miem::detail::Workspace& ws, int nt, At at) {
   miem::DetectParams eff = p;
   at(0);
-  miem::detail::resolve_auto_lengths(g, eff, ws.survey, nt);
+  miem::detail::resolve_auto_lengths(g, eff, ws.survey, ws.zkeys, nt);
   at(1);
   miem::detail::angle_passes(g, eff, out, ws);
   at(2);

@@ -38,7 +38,7 @@ DetectSummary OrganizedDetector::run(const GridView<T>& g, const OrganizedOutput
   // same windows, so the scratch the window sizes is bounded by the grid (README "Guarantees").
   const std::ptrdiff_t cover = 2 * std::max(g.rows, g.cols) + 1;
   if (eff_.window > cover) eff_.window = static_cast<int>(cover);
-  detail::resolve_auto_lengths(g, eff_, ws_.survey, eff_.num_threads);
+  detail::resolve_auto_lengths(g, eff_, ws_.survey, ws_.zkeys, eff_.num_threads);
   const DetectParams& p = eff_;
   const std::size_t N = static_cast<std::size_t>(g.rows * g.cols);
   std::uint8_t* labels = out.labels;

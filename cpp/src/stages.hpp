@@ -26,11 +26,11 @@ namespace miem::detail {
 
 /// min_step, z_noise and z_resolution "auto" resolved on `g` before the stages (SPEC
 /// "min_step='auto'", "z_noise", "z_resolution"): eff's lengths set, their _auto flags cleared.
-/// `survey` is auto_survey's reusable buffer, `threads` its threads (the values do not depend
-/// on them).
+/// `survey` is auto_survey's reusable buffer, `zkeys` z_resolution's, `threads` auto_survey's
+/// threads (the values do not depend on them).
 template <typename T>
 void resolve_auto_lengths(const GridView<T>& g, DetectParams& eff, std::vector<double>& survey,
-                          int threads) {
+                          std::vector<std::uint64_t>& zkeys, int threads) {
   if (eff.min_step_auto || eff.z_noise_auto) {  // (one survey gives both)
     const AutoSurvey s = auto_survey(g, survey, threads);
     if (eff.min_step_auto) eff.min_step = s.min_step;
@@ -38,7 +38,7 @@ void resolve_auto_lengths(const GridView<T>& g, DetectParams& eff, std::vector<d
     eff.min_step_auto = eff.z_noise_auto = false;
   }
   if (eff.z_resolution_auto) {
-    eff.z_resolution = miem::auto_z_resolution(g);
+    eff.z_resolution = z_resolution(g, zkeys);
     eff.z_resolution_auto = false;
   }
 }

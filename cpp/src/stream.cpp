@@ -394,6 +394,9 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   }
   use_ray_ = min_step_ >= 0.0 && !ray_.empty();
   if (sample_) nan_row_.assign(static_cast<std::size_t>(width_), detail::kNaN);
+  if (params_.z_resolution_auto) {
+    zkeys_.assign(static_cast<std::size_t>(2 * detail::kZGapRows * width_), 0);
+  }
   if (sel_) {
     ms_rows_.assign(static_cast<std::size_t>(detail::kAutoMinStepRows), nullptr);
     ms_sel_.init(width_, phys_ * width_);
@@ -444,6 +447,9 @@ void ProfileStream<T>::min_step_row(std::int64_t row) noexcept {
     const T* xyz = xyz_.data() + slot(row) * width_;
     if (params_.z_resolution_auto) {  // SPEC "z_resolution": over the same rows
       zq_ = detail::fold_z_steps(xyz, width_, 1, phys_ * width_, zq_);
+      if (k < detail::kZGapRows) {
+        zn_ += detail::finite_z_keys(xyz, width_, 1, phys_ * width_, zkeys_.data() + zn_);
+      }
     }
     if (!sel_) {  // z_resolution alone: known once its rows are in
       if (k + 1 == detail::kAutoMinStepRows) decide();
@@ -471,7 +477,10 @@ template <typename T>
 void ProfileStream<T>::decide() noexcept {
   if (ms_auto_) use_min_step(ms_sel_.value());
   if (params_.z_noise_auto) jparams_.z_noise = ms_sel_.noise();
-  if (params_.z_resolution_auto) jparams_.z_resolution = std::isfinite(zq_) ? zq_ : -1.0;
+  if (params_.z_resolution_auto) {  // (one sort, once: the pooled values' smallest gap)
+    zq_ = detail::fold_z_gaps(zkeys_.data(), zn_, zq_);
+    jparams_.z_resolution = std::isfinite(zq_) ? zq_ : -1.0;
+  }
   ms_wait_ = false;
   ms_next_ = ms_first_;
 }
@@ -527,6 +536,7 @@ void ProfileStream<T>::reset() noexcept {
   if (sel_) ms_sel_.reset();
   if (params_.z_noise_auto) jparams_.z_noise = -1.0;
   zq_ = std::numeric_limits<double>::infinity();
+  zn_ = 0;
   if (params_.z_resolution_auto) jparams_.z_resolution = -1.0;
   p1_next_ = 0;
   reset_stages();

@@ -4,16 +4,68 @@
 #include "auto_min_step.hpp"
 #include "miem/organized.hpp"
 
+#include <cstdint>
+#include <utility>
+#include <vector>
+
 namespace miem {
+
+namespace detail {
+
+double fold_z_gaps(std::uint64_t* keys, std::ptrdiff_t n, double q) noexcept {
+  // LSD radix sort, a byte a pass (a pass whose byte is the same for every key moves nothing):
+  // std::sort took 3 of the 4.6 ms a 2048-wide grid's survey cost
+  if (n < 2) return q;
+  std::uint64_t *a = keys, *b = keys + n;
+  std::size_t count[8][256] = {};
+  for (std::ptrdiff_t i = 0; i < n; ++i) {
+    for (int d = 0; d < 8; ++d) ++count[d][(a[i] >> (8 * d)) & 0xff];
+  }
+  for (int d = 0; d < 8; ++d) {
+    std::size_t* c = count[d];
+    if (c[(a[0] >> (8 * d)) & 0xff] == static_cast<std::size_t>(n)) continue;
+    std::size_t sum = 0;
+    for (int v = 0; v < 256; ++v) sum += std::exchange(c[v], sum);
+    for (std::ptrdiff_t i = 0; i < n; ++i) b[c[(a[i] >> (8 * d)) & 0xff]++] = a[i];
+    std::swap(a, b);
+  }
+  double prev = z_of_key(a[0]);
+  for (std::ptrdiff_t i = 1; i < n; ++i) {
+    const double v = z_of_key(a[i]);
+    const double d = v - prev;
+    if (d > 0.0 && d < q) q = d;
+    prev = v;
+  }
+  return q;
+}
+
+template <typename T>
+double z_resolution(const GridView<T>& grid, std::vector<std::uint64_t>& keys) {
+  const GridView<T> g = min_step_rows(grid);
+  const std::ptrdiff_t pooled = std::min(g.rows, kZGapRows);
+  if (keys.size() < static_cast<std::size_t>(2 * pooled * g.cols)) {
+    keys.resize(static_cast<std::size_t>(2 * pooled * g.cols));  // keys, the sort's scratch
+  }
+  double q = std::numeric_limits<double>::infinity();
+  std::ptrdiff_t n = 0;
+  for (std::ptrdiff_t r = 0; r < g.rows; ++r) {
+    const T* row = g.data + r * g.row_stride;
+    q = fold_z_steps(row, g.cols, g.col_stride, g.coord_stride, q);
+    if (r < pooled) n += finite_z_keys(row, g.cols, g.col_stride, g.coord_stride, keys.data() + n);
+  }
+  q = fold_z_gaps(keys.data(), n, q);
+  return std::isfinite(q) ? q : -1.0;
+}
+
+template double z_resolution<float>(const GridView<float>&, std::vector<std::uint64_t>&);
+template double z_resolution<double>(const GridView<double>&, std::vector<std::uint64_t>&);
+
+}  // namespace detail
 
 template <typename T>
 double auto_z_resolution(const GridView<T>& grid) {
-  const GridView<T> g = detail::min_step_rows(grid);
-  double q = std::numeric_limits<double>::infinity();
-  for (std::ptrdiff_t r = 0; r < g.rows; ++r) {
-    q = detail::fold_z_steps(g.data + r * g.row_stride, g.cols, g.col_stride, g.coord_stride, q);
-  }
-  return std::isfinite(q) ? q : -1.0;
+  std::vector<std::uint64_t> keys;
+  return detail::z_resolution(grid, keys);
 }
 
 template double auto_z_resolution<float>(const GridView<float>&);

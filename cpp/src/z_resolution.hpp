@@ -1,14 +1,20 @@
 // z_resolution = "auto" (SPEC "z_resolution"): the scan's z step, measured as the smallest
 // non-zero z difference of neighbouring finite cells along the profiles of the rows that
-// min_step="auto" reads. A scanner (or a file format) that stores z in steps of q puts a flat,
-// level surface's cells on one or two levels: a window's rms is then far below q and a cell one
-// step off read as a defect. The rms tolerances of the height and edge tests are at least
-// kZResolutionFactor x q.
+// min_step="auto" reads, or between two z values of the finite cells of the first kZGapRows of
+// those rows if smaller (on a steep or coarsely sampled surface neighbours never share a level,
+// and their smallest difference is the slope's, not the step). A scanner (or a file format) that
+// stores z in steps of q puts a flat, level surface's cells on one or two levels: a window's rms
+// is then far below q and a cell one step off read as a defect. The rms tolerances of the height
+// and edge tests are at least kZResolutionFactor x q.
 #pragma once
 
 #include <cmath>
 #include <cstddef>
+#include <cstdint>
+#include <cstring>
 #include <limits>
+
+#include <vector>
 
 #include "miem/views.hpp"
 
@@ -23,17 +29,25 @@ inline double z_floor(double z_resolution) noexcept {
   return z_resolution > 0.0 ? kZResolutionFactor * z_resolution : 0.0;
 }
 
+/// The first rows of the sample whose z values are pooled (SPEC "z_resolution"): few enough
+/// that sorting them costs little beside the survey.
+constexpr std::ptrdiff_t kZGapRows = 32;
+
+/// Whether the cell at p (x, y, z at p[{0, 1, 2} * coord_stride]) is finite.
+template <typename T>
+bool finite_cell(const T* p, std::ptrdiff_t coord_stride) noexcept {
+  return std::isfinite(static_cast<double>(p[0])) &&
+         std::isfinite(static_cast<double>(p[coord_stride])) &&
+         std::isfinite(static_cast<double>(p[2 * coord_stride]));
+}
+
 /// Folds one row of `n` cells (cell c's x, y, z at row[c * cell_stride + {0, 1, 2} *
 /// coord_stride]) into the running smallest non-zero |z[c + 1] - z[c]| of finite neighbours `q`
 /// (+inf: none yet). The differences are taken in double, so float32 rows give batch's bits.
 template <typename T>
 double fold_z_steps(const T* row, std::ptrdiff_t n, std::ptrdiff_t cell_stride,
                     std::ptrdiff_t coord_stride, double q) noexcept {
-  const auto finite = [&](const T* p) {
-    return std::isfinite(static_cast<double>(p[0])) &&
-           std::isfinite(static_cast<double>(p[coord_stride])) &&
-           std::isfinite(static_cast<double>(p[2 * coord_stride]));
-  };
+  const auto finite = [&](const T* p) { return finite_cell(p, coord_stride); };
   for (std::ptrdiff_t c = 0; c + 1 < n; ++c) {
     const T* a = row + c * cell_stride;
     const T* b = a + cell_stride;
@@ -45,6 +59,41 @@ double fold_z_steps(const T* row, std::ptrdiff_t n, std::ptrdiff_t cell_stride,
   return q;
 }
 
+/// z_resolution "auto" of `grid` (miem::auto_z_resolution; < 0: none), the pooled z values' keys
+/// in `keys` (grown only when a grid needs more).
+template <typename T>
+double z_resolution(const GridView<T>& grid, std::vector<std::uint64_t>& keys);
+
+/// A finite double as an unsigned key in the same order (-0 just below +0), and back.
+inline std::uint64_t z_key(double v) noexcept {
+  std::uint64_t b;
+  std::memcpy(&b, &v, sizeof b);
+  return (b >> 63) ? ~b : b | (std::uint64_t{1} << 63);
+}
+inline double z_of_key(std::uint64_t k) noexcept {
+  const std::uint64_t b = (k >> 63) ? k & ~(std::uint64_t{1} << 63) : ~k;
+  double v;
+  std::memcpy(&v, &b, sizeof v);
+  return v;
+}
+
+/// Writes the keys of the z values (as double) of the finite cells of one row (as fold_z_steps)
+/// to `out`; returns how many.
+template <typename T>
+std::ptrdiff_t finite_z_keys(const T* row, std::ptrdiff_t n, std::ptrdiff_t cell_stride,
+                             std::ptrdiff_t coord_stride, std::uint64_t* out) noexcept {
+  std::ptrdiff_t m = 0;
+  for (std::ptrdiff_t c = 0; c < n; ++c) {
+    const T* a = row + c * cell_stride;
+    if (finite_cell(a, coord_stride)) out[m++] = z_key(static_cast<double>(a[2 * coord_stride]));
+  }
+  return m;
+}
+
+/// Folds the smallest gap between two distinct z values into `q`, from their keys
+/// keys[0 .. n - 1]: sorts them (a radix sort; keys[n .. 2 n - 1] its scratch).
+double fold_z_gaps(std::uint64_t* keys, std::ptrdiff_t n, double q) noexcept;
+
 }  // namespace miem::detail
 
-// (miem::auto_z_resolution, miem/organized.hpp, folds the rows min_step="auto" reads.)
+// (miem::auto_z_resolution, miem/organized.hpp: both folds over the rows min_step="auto" reads.)

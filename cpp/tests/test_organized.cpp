@@ -170,4 +170,27 @@ TEST(Organized, ThrowsOnBadInput) {
   EXPECT_THROW(miem::validate(p), std::invalid_argument);
 }
 
+// SPEC "z_resolution": on a sheet sampled every 0.5 mm and rising 0.15 mm from one cell to the
+// next along the profiles, no two neighbours lie one z step apart; two cells of the first rows do
+// (pooled): "auto" is the 1 um step, not the slope's difference.
+TEST(Organized, AutoZResolutionIsTheStepOnASteepSheet) {
+  const std::ptrdiff_t H = 40, W = 30;
+  std::vector<double> g(static_cast<std::size_t>(H * W * 3));
+  double smallest_step = 1e300;
+  for (std::ptrdiff_t r = 0; r < H; ++r) {
+    for (std::ptrdiff_t c = 0; c < W; ++c) {
+      double* p = &g[static_cast<std::size_t>((r * W + c) * 3)];
+      const long wobble = (r * 7 + c * 13) % 11 - 5;  // -5 .. 5 um, no pattern along a profile
+      p[0] = 0.5 * c, p[1] = 0.5 * r, p[2] = std::round(150.0 * c + wobble + 3.0 * r) * 0.001;
+      if (c > 0) smallest_step = std::min(smallest_step, std::abs(p[2] - p[-1]));
+    }
+  }
+  ASSERT_GT(smallest_step, 0.1);  // what the neighbours alone would say
+  const auto view = miem::GridView<double>::dense(g.data(), H, W);
+  EXPECT_NEAR(miem::auto_z_resolution(view), 0.001, 1e-12);
+  miem::DetectParams p;
+  p.z_resolution_auto = true;
+  EXPECT_NEAR(miem::detect_organized(view, p).summary.z_resolution, 0.001, 1e-12);
+}
+
 }  // namespace

@@ -1755,6 +1755,8 @@ def edge_test(
 #: min_step="auto" reads this many rows from the grid's first row with a finite cell
 #: (SPEC "min_step='auto'"), so that a stream can decide it and batch need not read the scan.
 AUTO_MIN_STEP_ROWS = 256
+# z_resolution="auto": the sample rows whose z values are pooled (SPEC "z_resolution")
+Z_GAP_ROWS = 32
 
 
 def _auto_survey(
@@ -1800,7 +1802,9 @@ _Z_RESOLUTION_FACTOR = 1.5
 def _auto_z_resolution(g: NDArray[np.float64], finite: NDArray[np.bool_]) -> float | None:
     """SPEC "z_resolution" (reference): over the rows min_step="auto" reads (the first
     AUTO_MIN_STEP_ROWS from the first row with a finite cell), the smallest non-zero
-    ``|z[r, c + 1] - z[r, c]|`` of finite neighbours; None when there is none."""
+    ``|z[r, c + 1] - z[r, c]|`` of finite neighbours, and the smallest gap between two distinct
+    z values of the finite cells of the first Z_GAP_ROWS of those rows, whichever is smaller;
+    None when there is neither."""
     rows = np.flatnonzero(finite.any(axis=1))
     if rows.size == 0:
         return None
@@ -1808,6 +1812,8 @@ def _auto_z_resolution(g: NDArray[np.float64], finite: NDArray[np.bool_]) -> flo
     z = g[first:first + AUTO_MIN_STEP_ROWS, :, 2]
     ok = finite[first:first + AUTO_MIN_STEP_ROWS]
     d = np.abs(z[:, 1:] - z[:, :-1])[ok[:, 1:] & ok[:, :-1]]
+    levels = np.unique(z[:Z_GAP_ROWS][ok[:Z_GAP_ROWS]])
+    d = np.concatenate([d, levels[1:] - levels[:-1]])
     d = d[d > 0.0]
     return float(d.min()) if d.size else None
 

@@ -96,6 +96,7 @@ struct Workspace {
   CellBytes hmask;   ///< height stages: compact, want, fresh, mark bits
   std::vector<std::int64_t> fresh, candidates, queue;
   std::vector<double> height_scratch, survey;
+  std::vector<std::uint64_t> zkeys;  ///< z_resolution "auto": the pooled z values' sort keys
   std::vector<double> edge_sums;     ///< edge test: integral images of the support moments
   CellBytes edge_flags;  ///< edge test: candidates and marks of a pass
   std::vector<RowScratch> rows;      ///< per thread
@@ -196,7 +197,8 @@ double auto_z_noise(const GridView<T>& grid);
 
 /// SPEC "z_resolution": the z_resolution that GridParams::z_resolution_auto gives on `grid`
 /// (scan units): the smallest non-zero |z difference| of finite neighbours along the profiles
-/// (columns c, c + 1) of the rows auto_min_step reads; -1 when there is none.
+/// (columns c, c + 1) of the rows auto_min_step reads, or between two z values of the finite
+/// cells of the first 32 of those rows if smaller; -1 when there is none.
 template <typename T>
 double auto_z_resolution(const GridView<T>& grid);
 
