@@ -1,7 +1,8 @@
 """SPEC "z_resolution": the rms tolerances of the height and edge tests are at least 1.5 times
 the scan's z step, measured (``"auto"``) as the smallest non-zero z difference of finite
 neighbours along the profiles of the rows min_step="auto" reads, or between two z values of the
-finite cells of the first 32 of those rows when that is smaller."""
+finite cells among the first 65,536 cells of the first 32 of those rows when that is
+smaller."""
 
 from __future__ import annotations
 
@@ -111,6 +112,19 @@ def test_auto_on_a_steep_coarse_sheet_is_the_step_not_the_slope() -> None:
     hidden = ref.detect(g, z_resolution=float(steps.min()))
     assert not (hidden.labels == miem.ABNORMAL).any()
     assert_core_is_reference(g)
+
+
+@pytest.mark.parametrize("at, want", [(60_000, 0.001), (69_000, 0.2)])
+def test_auto_pools_the_first_65536_cells(at: int, want: float) -> None:
+    """One profile of 70,000 points rising 0.2 mm from one to the next: the neighbours differ
+    by 0.2 mm. A point at `at` lies 1 um above point 5: pooled when among the first 65,536
+    cells, not beyond."""
+    z = 0.2 * np.arange(70_000)
+    z[at] = z[5] + 0.001
+    g = np.dstack([np.arange(70_000) * 0.05, np.zeros(70_000), z])
+    fin = np.isfinite(g).all(axis=-1)
+    assert _core.auto_z_resolution(g) == pytest.approx(want, abs=1e-9)
+    assert ref._auto_z_resolution(g, fin) == pytest.approx(want, abs=1e-9)
 
 
 def test_given_length_none_and_bad_values() -> None:

@@ -395,7 +395,8 @@ ProfileStream<T>::ProfileStream(std::ptrdiff_t width, DetectParams params)
   use_ray_ = min_step_ >= 0.0 && !ray_.empty();
   if (sample_) nan_row_.assign(static_cast<std::size_t>(width_), detail::kNaN);
   if (params_.z_resolution_auto) {
-    zkeys_.assign(static_cast<std::size_t>(2 * detail::kZGapRows * width_), 0);
+    const std::ptrdiff_t pooled = std::min(detail::kZGapRows * width_, detail::kZGapCells);
+    zkeys_.assign(static_cast<std::size_t>(2 * pooled), 0);
   }
   if (sel_) {
     ms_rows_.assign(static_cast<std::size_t>(detail::kAutoMinStepRows), nullptr);
@@ -447,9 +448,8 @@ void ProfileStream<T>::min_step_row(std::int64_t row) noexcept {
     const T* xyz = xyz_.data() + slot(row) * width_;
     if (params_.z_resolution_auto) {  // SPEC "z_resolution": over the same rows
       zq_ = detail::fold_z_steps(xyz, width_, 1, phys_ * width_, zq_);
-      if (k < detail::kZGapRows) {
-        zn_ += detail::finite_z_keys(xyz, width_, 1, phys_ * width_, zkeys_.data() + zn_);
-      }
+      zn_ += detail::finite_z_keys(xyz, detail::z_gap_cells(k, width_), 1, phys_ * width_,
+                                   zkeys_.data() + zn_);
     }
     if (!sel_) {  // z_resolution alone: known once its rows are in
       if (k + 1 == detail::kAutoMinStepRows) decide();

@@ -42,16 +42,16 @@ double fold_z_gaps(std::uint64_t* keys, std::ptrdiff_t n, double q) noexcept {
 template <typename T>
 double z_resolution(const GridView<T>& grid, std::vector<std::uint64_t>& keys) {
   const GridView<T> g = min_step_rows(grid);
-  const std::ptrdiff_t pooled = std::min(g.rows, kZGapRows);
-  if (keys.size() < static_cast<std::size_t>(2 * pooled * g.cols)) {
-    keys.resize(static_cast<std::size_t>(2 * pooled * g.cols));  // keys, the sort's scratch
+  const std::ptrdiff_t pooled = std::min(g.rows * g.cols, kZGapCells);
+  if (keys.size() < static_cast<std::size_t>(2 * pooled)) {
+    keys.resize(static_cast<std::size_t>(2 * pooled));  // keys, the sort's scratch
   }
   double q = std::numeric_limits<double>::infinity();
   std::ptrdiff_t n = 0;
   for (std::ptrdiff_t r = 0; r < g.rows; ++r) {
     const T* row = g.data + r * g.row_stride;
     q = fold_z_steps(row, g.cols, g.col_stride, g.coord_stride, q);
-    if (r < pooled) n += finite_z_keys(row, g.cols, g.col_stride, g.coord_stride, keys.data() + n);
+    n += finite_z_keys(row, z_gap_cells(r, g.cols), g.col_stride, g.coord_stride, keys.data() + n);
   }
   q = fold_z_gaps(keys.data(), n, q);
   return std::isfinite(q) ? q : -1.0;

@@ -8,6 +8,7 @@
 // and edge tests are at least kZResolutionFactor x q.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -29,9 +30,15 @@ inline double z_floor(double z_resolution) noexcept {
   return z_resolution > 0.0 ? kZResolutionFactor * z_resolution : 0.0;
 }
 
-/// The first rows of the sample whose z values are pooled (SPEC "z_resolution"): few enough
-/// that sorting them costs little beside the survey.
-constexpr std::ptrdiff_t kZGapRows = 32;
+/// The cells of the sample whose z values are pooled (SPEC "z_resolution"): the first kZGapCells
+/// cells (row by row) of its first kZGapRows rows, few enough that sorting them costs little
+/// beside the survey (and its buffer stays small on a grid of one long row).
+constexpr std::ptrdiff_t kZGapRows = 32, kZGapCells = 65536;
+
+/// How many cells of sample row k (of `cols` cells) are pooled.
+inline std::ptrdiff_t z_gap_cells(std::ptrdiff_t k, std::ptrdiff_t cols) noexcept {
+  return k < kZGapRows ? std::max<std::ptrdiff_t>(0, std::min(cols, kZGapCells - k * cols)) : 0;
+}
 
 /// Whether the cell at p (x, y, z at p[{0, 1, 2} * coord_stride]) is finite.
 template <typename T>

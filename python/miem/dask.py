@@ -674,8 +674,8 @@ def auto_z_resolution(grid: Any, **compute_kwargs: Any) -> Optional[float]:
     """z_resolution="auto" of ``miem.detect`` on a Dask-held grid (docs/SPEC.md
     "z_resolution"): the smallest non-zero z difference of finite neighbours along the
     profiles of the 256 rows from the first row with a finite cell, or between two z values of
-    the finite cells of the first 32 of those rows if smaller, computed by the core on
-    those rows (brought to this process: 256 rows of the grid).
+    the finite cells of the first 32 of those rows (at most 65,536 cells) if smaller, computed
+    by the core on those rows (brought to this process: 256 rows of the grid).
 
     Returns
     -------

@@ -1755,8 +1755,10 @@ def edge_test(
 #: min_step="auto" reads this many rows from the grid's first row with a finite cell
 #: (SPEC "min_step='auto'"), so that a stream can decide it and batch need not read the scan.
 AUTO_MIN_STEP_ROWS = 256
-# z_resolution="auto": the sample rows whose z values are pooled (SPEC "z_resolution")
+# z_resolution="auto": the sample cells whose z values are pooled (SPEC "z_resolution"): the
+# first Z_GAP_CELLS cells, row by row, of the first Z_GAP_ROWS sample rows
 Z_GAP_ROWS = 32
+Z_GAP_CELLS = 65536
 
 
 def _auto_survey(
@@ -1803,7 +1805,8 @@ def _auto_z_resolution(g: NDArray[np.float64], finite: NDArray[np.bool_]) -> flo
     """SPEC "z_resolution" (reference): over the rows min_step="auto" reads (the first
     AUTO_MIN_STEP_ROWS from the first row with a finite cell), the smallest non-zero
     ``|z[r, c + 1] - z[r, c]|`` of finite neighbours, and the smallest gap between two distinct
-    z values of the finite cells of the first Z_GAP_ROWS of those rows, whichever is smaller;
+    z values of the finite cells among the first Z_GAP_CELLS cells of the first Z_GAP_ROWS of
+    those rows, whichever is smaller;
     None when there is neither."""
     rows = np.flatnonzero(finite.any(axis=1))
     if rows.size == 0:
@@ -1812,7 +1815,8 @@ def _auto_z_resolution(g: NDArray[np.float64], finite: NDArray[np.bool_]) -> flo
     z = g[first:first + AUTO_MIN_STEP_ROWS, :, 2]
     ok = finite[first:first + AUTO_MIN_STEP_ROWS]
     d = np.abs(z[:, 1:] - z[:, :-1])[ok[:, 1:] & ok[:, :-1]]
-    levels = np.unique(z[:Z_GAP_ROWS][ok[:Z_GAP_ROWS]])
+    pooled = z[:Z_GAP_ROWS].reshape(-1)[:Z_GAP_CELLS]  # the first cells, row by row
+    levels = np.unique(pooled[ok[:Z_GAP_ROWS].reshape(-1)[:Z_GAP_CELLS]])
     d = np.concatenate([d, levels[1:] - levels[:-1]])
     d = d[d > 0.0]
     return float(d.min()) if d.size else None

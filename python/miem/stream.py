@@ -32,12 +32,13 @@ def _check_storage(width: int, dtype: np.dtype, lag: int, reach: int, half: int,
     coordinates, state, labels and heights, ``wait`` more for min_step="auto"; with the edge
     test, ``edge = (P, r)``, ``lag + 64 + 2 r + 3`` profiles and the edge test's integral
     images, README "Guarantees"; with min_step, ``rays``, 4 bytes more per kept point; with
-    z_resolution="auto", ``pooled``, the z values of 32 profiles as float64, twice) exceed
+    z_resolution="auto", ``pooled``, 16 bytes per pooled z value: at most 32 profiles and 65,536
+    points) exceed
     half of the machine's memory, so that a typo never gets the process killed for memory."""
     rows = wait + max(2 * reach, 2 * half) + (
         lag + half + 3 if edge is None else max(lag + half + 3, lag + 64 + 2 * edge[1] + 3))
     need = width * rows * (3 * dtype.itemsize + 17 + (4 if rays else 0)) + (
-        width * 32 * 16 if pooled else 0)
+        16 * min(32 * width, 65536) if pooled else 0)
     if edge is not None:  # (P + 1) rings of 2 r + 2 image rows of 11 moments per tile column
         P, r = edge
         cols = min(width, 128 + 2 * r)
@@ -199,7 +200,7 @@ class ProfileStream:
                        304 if "auto" in (gp.min_step, gp.z_resolution, gp.z_noise) else 0,
                        # (kMsBacklog)
                        gp.min_step is not None,  # stream.hpp ray_
-                       gp.z_resolution == "auto")  # stream.hpp zvals_
+                       gp.z_resolution == "auto")  # stream.hpp zkeys_
         try:
             self._core = cls(w, core_params)
         except MemoryError:

@@ -198,7 +198,8 @@ double auto_z_noise(const GridView<T>& grid);
 /// SPEC "z_resolution": the z_resolution that GridParams::z_resolution_auto gives on `grid`
 /// (scan units): the smallest non-zero |z difference| of finite neighbours along the profiles
 /// (columns c, c + 1) of the rows auto_min_step reads, or between two z values of the finite
-/// cells of the first 32 of those rows if smaller; -1 when there is none.
+/// cells among the first 65,536 cells (row by row) of the first 32 of those rows if smaller; -1
+/// when there is none.
 template <typename T>
 double auto_z_resolution(const GridView<T>& grid);
 

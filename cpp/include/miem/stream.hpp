@@ -354,9 +354,9 @@ class ProfileStream {
   int mark_reach_ = 0;           // R of one judgment with that min_step
   DetectParams jparams_;         // params_ with min_step and z_resolution resolved: the judges'
   double zq_ = std::numeric_limits<double>::infinity();  // z_resolution "auto": smallest step
-  std::vector<std::uint64_t> zkeys_;  // its pooled z values' keys (the first rows of the
+  std::vector<std::uint64_t> zkeys_;  // its pooled z values' keys (the first cells of the
                                       // sample), zn_ of them; as many again: the sort's scratch
-  std::ptrdiff_t zn_ = 0;
+  std::ptrdiff_t zn_ = 0;             // (detail::z_gap_cells)
   std::vector<const T*> ms_rows_;       // the rows it reads
   detail::MinStepSelection<T> ms_sel_;  // its selection, a few rows per push
   std::int64_t ms_next_ = -1;           // decided: the next row the stages catch up on (-1:
