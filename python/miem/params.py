@@ -330,9 +330,9 @@ _SPELLED: Dict[str, Tuple[_Spelled, ...]] = {
             "z_resolution",
             "the scan's z step (quantisation): the height test's k x rms and the edge test's "
             "tolerances are at least 1.5 times it, so that a cell one step off a level surface "
-            "is not a defect; 'auto': the smallest non-zero z difference of neighbours along "
-            "the profiles of the rows min_step 'auto' reads, or between two z values of the "
-            "first 32 of those rows (65,536 points at most) if smaller (SPEC \"z_resolution\"; "
+            "is not a defect; 'auto': the smallest non-zero z difference of neighbours, or of "
+            "any two points of the first rows, in the rows min_step 'auto' reads (SPEC "
+            "\"z_resolution\"; "
             "result.params holds the value used); None: off"),
         _auto_length(
             "z_noise",
