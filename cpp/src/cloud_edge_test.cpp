@@ -393,8 +393,13 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
     const double half = full[s / 8] / 2.0;
     empty[s] = finite[s] < kEmpty * full[s / 8];  // (a steep face keeps about half)
     gone[s] = finite[s] < kHangEmpty * full[s / 8];
+    const auto members = [&, s](auto&& fn) {  // the sector's support again (plane_of)
+      for_each_member(ball, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
+        if (in_sector(o, s) && labels[ball.id[k]] == kNormal) fn(wx, wy, wz);
+      });
+    };
     valid[s] = sums[s].n >= std::max(3.0, half) &&
-               plane_from_sums(sums[s], &lp[s]) == PlaneStatus::kOk;
+               plane_of(sums[s], &lp[s], members) == PlaneStatus::kOk;
     if (!valid[s]) continue;
     const double n = static_cast<double>(lp[s].n);
     const Eigen::Vector3d& ev = lp[s].eigenvalues;

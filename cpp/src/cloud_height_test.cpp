@@ -153,12 +153,15 @@ inline bool too_far(const Gather& g, const Gather& lines, const std::uint8_t* ro
   LocalPlane lp;
   auto flag = [&] { return !bead_at(g, lines, s, n_ring, m_in, p, r2, lp, t.spacing); };
   if (height != nullptr) {
-    *height = plane_from_sums(around.plus(inner), &lp) == PlaneStatus::kOk
+    *height = plane_of(around.plus(inner), &lp, ball_offsets(g, p, s, around, inner)) ==
+                      PlaneStatus::kOk
                   ? -lp.normal.dot(lp.mean)
                   : kNaN;
   }
   if (line) return false;
-  if (plane_from_sums(around, &lp) != PlaneStatus::kOk) return false;
+  if (plane_of(around, &lp, ball_offsets(g, p, s, around, inner, false)) != PlaneStatus::kOk) {
+    return false;
+  }
   const double h = std::abs(lp.normal.dot(lp.mean));
   const double n = static_cast<double>(lp.n);
   const Eigen::Vector3d& ev = lp.eigenvalues;

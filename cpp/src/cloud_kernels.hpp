@@ -626,8 +626,12 @@ inline void ball_sums(const Gather& g, const Eigen::Vector3d& p, double r2, doub
 }
 
 // The eigen plane (SPEC "Plane fit") of the offsets summed in `s`: oriented normal, the centroid
-// offset from p, eigenvalues and count (no major direction).
-inline PlaneStatus plane_from_sums(const OffsetSums& s, LocalPlane* out) {
+// offset from p, eigenvalues and count (no major direction). Where the sums lost the plane to
+// cancellation (detail::kRefitRatio: a support nearly on a line, away from p), the scatter is
+// formed again about the mean from the offsets themselves: `each(f)` calls f(wx, wy, wz) for
+// every offset summed in `s`.
+template <typename Each>
+PlaneStatus plane_of(const OffsetSums& s, LocalPlane* out, Each&& each) {
   if (s.n < 3.0) return PlaneStatus::kTooFewPoints;
   const double inv = 1.0 / s.n;
   const double mx = s.x * inv, my = s.y * inv, mz = s.z * inv;
@@ -637,12 +641,38 @@ inline PlaneStatus plane_from_sums(const OffsetSums& s, LocalPlane* out) {
   Eigen::Vector3d ev;
   Eigen::Matrix3d V;
   eigen_sym3(M, ev, V, false);
+  if (ev(1) <= detail::kRefitRatio * (s.xx + s.yy + s.zz)) {  // (rare: one more pass)
+    double a[6] = {};
+    each([&](double wx, double wy, double wz) {
+      const double dx = wx - mx, dy = wy - my, dz = wz - mz;
+      a[0] += dx * dx, a[1] += dx * dy, a[2] += dx * dz;
+      a[3] += dy * dy, a[4] += dy * dz, a[5] += dz * dz;
+    });
+    M << a[0], a[1], a[2], a[1], a[3], a[4], a[2], a[4], a[5];
+    eigen_sym3(M, ev, V, false);
+  }
   if (!(ev(2) > 0.0) || ev(1) <= 1e-12 * ev(2)) return PlaneStatus::kDegenerate;
   out->normal = orient_normal(V.col(0).normalized());
   out->mean = Eigen::Vector3d(mx, my, mz);
   out->eigenvalues = ev;
   out->n = static_cast<std::size_t>(s.n);
   return PlaneStatus::kOk;
+}
+
+// plane_of's visitor of the offsets ball_sums summed into `ring` and (with `inner`) `inner`:
+// g[pos] - p for the positions it listed in s.pos and s.id.
+inline auto ball_offsets(const Gather& g, const Eigen::Vector3d& p, const Selection& s,
+                         const OffsetSums& ring, const OffsetSums& inner, bool with_inner = true) {
+  const std::size_t n_ring = static_cast<std::size_t>(ring.n);
+  const std::size_t n_in = with_inner ? static_cast<std::size_t>(inner.n) : 0;
+  return [&g, &s, p, n_ring, n_in](auto&& f) {
+    for (std::size_t q = 0; q < n_ring; ++q) {
+      f(g.x[s.pos[q]] - p.x(), g.y[s.pos[q]] - p.y(), g.z[s.pos[q]] - p.z());
+    }
+    for (std::size_t q = 0; q < n_in; ++q) {
+      f(g.x[s.id[q]] - p.x(), g.y[s.id[q]] - p.y(), g.z[s.id[q]] - p.z());
+    }
+  };
 }
 
 // cone_hits for K directions (a constant: the direction loop unrolled, the neighbour loop
@@ -960,7 +990,7 @@ inline PlaneStatus height_plane(const Gather& g, const Eigen::Vector3d& p, doubl
                                 Selection& s, LocalPlane* lp) {
   OffsetSums ring, inner;
   ball_sums(g, p, r2, in2, s, &ring, &inner);
-  return plane_from_sums(ring.plus(inner), lp);
+  return plane_of(ring.plus(inner), lp, ball_offsets(g, p, s, ring, inner));
 }
 
 

@@ -16,6 +16,15 @@
 
 namespace miem::detail {
 
+/// A plane that moment sums lose to cancellation: its l1 at most this times the sums' second
+/// moments about their origin (s_xx + s_yy + s_zz). Sums of moments relative to a point away
+/// from the support (a grid window's: a point of its tile; a cloud's surroundings: the query
+/// point) form M = Q - n m m^T, which cancels their leading digits; a support nearly on a line
+/// (three cells of one row beside a dropout, three points of one scan line) leaves an l1
+/// smaller than that round-off, and its plane tilts by up to 1e-6. Such a plane is fitted again
+/// from its support's mean, as the reference fits every plane.
+inline constexpr double kRefitRatio = 1e-7;
+
 /// A unit normal component at most this large in magnitude counts as zero when orienting
 /// (SPEC "Plane fit"): an exactly vertical plane's n_z comes out of any eigen-solver as a
 /// rounding residue of either sign (up to the machine epsilon times l2 / l1, 1e-11 on a window

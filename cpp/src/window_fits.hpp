@@ -448,13 +448,8 @@ struct RowFits {
   }
 };
 
-/// A window plane the sums lose to cancellation: its l1 at most this times the sums' second
-/// moments about their origin (s_xx + s_yy + s_zz). The sums hold the moments relative to a
-/// point of the tile, up to the tile's size away, and M = Q - n m m^T cancels their leading
-/// digits; a support nearly on a line (three cells of one row beside a dropout) leaves an l1
-/// smaller than that round-off, and its plane (nearly vertical) tilts by up to 1e-6. Such a
-/// window is fitted again directly (direct_fit_by), as the reference fits it.
-inline constexpr double kRefitRatio = 1e-7;
+// (kRefitRatio, plane_math.hpp: a window plane the sums lose to cancellation is fitted again
+// directly, direct_fit_by, as the reference fits it.)
 
 /// The solved entries [e0, e1) of row_solve whose sums lost the plane (kRefitRatio; at least 3
 /// cells, whether the sums found a plane or not: cancellation may decide either): their fit
