@@ -1,11 +1,11 @@
 // z_resolution = "auto" (SPEC "z_resolution"): the scan's z step, measured as the smallest
 // non-zero z difference of neighbouring finite cells along the profiles of the rows that
-// min_step="auto" reads, or between two z values of the finite cells of the first kZGapRows of
-// those rows if smaller (on a steep or coarsely sampled surface neighbours never share a level,
-// and their smallest difference is the slope's, not the step). A scanner (or a file format) that
-// stores z in steps of q puts a flat, level surface's cells on one or two levels: a window's rms
-// is then far below q and a cell one step off read as a defect. The rms tolerances of the height
-// and edge tests are at least kZResolutionFactor x q.
+// min_step="auto" reads, or between two z values of the finite cells pooled from their first
+// rows (kZGapRows, kZGapCells) if smaller (on a steep or coarsely sampled surface neighbours
+// never share a level, and their smallest difference is the slope's, not the step). A scanner
+// (or a file format) that stores z in steps of q puts a flat, level surface's cells on one or
+// two levels: a window's rms is then far below q and a cell one step off read as a defect. The
+// rms tolerances of the height and edge tests are at least kZResolutionFactor x q.
 #pragma once
 
 #include <algorithm>
@@ -14,7 +14,6 @@
 #include <cstdint>
 #include <cstring>
 #include <limits>
-
 #include <vector>
 
 #include "miem/views.hpp"

@@ -1755,8 +1755,8 @@ def edge_test(
 #: min_step="auto" reads this many rows from the grid's first row with a finite cell
 #: (SPEC "min_step='auto'"), so that a stream can decide it and batch need not read the scan.
 AUTO_MIN_STEP_ROWS = 256
-# z_resolution="auto": the sample cells whose z values are pooled (SPEC "z_resolution"): the
-# first Z_GAP_CELLS cells, row by row, of the first Z_GAP_ROWS sample rows
+#: z_resolution="auto" pools the z values of the first Z_GAP_CELLS cells, row by row, of the
+#: first Z_GAP_ROWS sample rows (SPEC "z_resolution").
 Z_GAP_ROWS = 32
 Z_GAP_CELLS = 65536
 
@@ -1806,8 +1806,7 @@ def _auto_z_resolution(g: NDArray[np.float64], finite: NDArray[np.bool_]) -> flo
     AUTO_MIN_STEP_ROWS from the first row with a finite cell), the smallest non-zero
     ``|z[r, c + 1] - z[r, c]|`` of finite neighbours, and the smallest gap between two distinct
     z values of the finite cells among the first Z_GAP_CELLS cells of the first Z_GAP_ROWS of
-    those rows, whichever is smaller;
-    None when there is neither."""
+    those rows, whichever is smaller; None when there is neither."""
     rows = np.flatnonzero(finite.any(axis=1))
     if rows.size == 0:
         return None

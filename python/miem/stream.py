@@ -33,8 +33,8 @@ def _check_storage(width: int, dtype: np.dtype, lag: int, reach: int, half: int,
     test, ``edge = (P, r)``, ``lag + 64 + 2 r + 3`` profiles and the edge test's integral
     images, README "Guarantees"; with min_step, ``rays``, 4 bytes more per kept point; with
     z_resolution="auto", ``pooled``, 16 bytes per pooled z value: at most 32 profiles and 65,536
-    points) exceed
-    half of the machine's memory, so that a typo never gets the process killed for memory."""
+    points) exceed half of the machine's memory, so that a typo never gets the process killed
+    for memory."""
     rows = wait + max(2 * reach, 2 * half) + (
         lag + half + 3 if edge is None else max(lag + half + 3, lag + 64 + 2 * edge[1] + 3))
     need = width * rows * (3 * dtype.itemsize + 17 + (4 if rays else 0)) + (
