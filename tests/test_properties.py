@@ -59,6 +59,9 @@ def grids(draw, max_side=22):
         c0 = draw(st.integers(1, w - 1))
         z = z + np.where(xx > c0, (xx - c0) * dx * np.tan(np.radians(draw(st.floats(5, 40)))), 0)
     z = z + rng.normal(0.0, draw(st.sampled_from([0.0, 0.002, 0.01])), z.shape)
+    q = draw(st.sampled_from([None, None, 0.001, 0.01]))  # z stored in steps (z_resolution)
+    if q is not None:
+        z = np.round(z / q) * q
     g = np.dstack([x, y, z])
     for _ in range(draw(st.integers(0, 4))):  # spikes and pits
         g[rng.integers(0, h), rng.integers(0, w), 2] += rng.choice([-1, 1]) * rng.uniform(0.3, 3)
