@@ -395,7 +395,7 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
     gone[s] = finite[s] < kHangEmpty * full[s / 8];
     const auto members = [&, s](auto&& fn) {  // the sector's support again (plane_of)
       for_each_member(ball, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
-        if (in_sector(o, s) && labels[ball.id[k]] == kNormal) fn(wx, wy, wz);
+        if (in_sector(o, s) && labels[ball.id[k]] == kNormal) fn(Eigen::Vector3d(wx, wy, wz));
       });
     };
     valid[s] = sums[s].n >= std::max(3.0, half) &&

@@ -628,8 +628,8 @@ inline void ball_sums(const Gather& g, const Eigen::Vector3d& p, double r2, doub
 // The eigen plane (SPEC "Plane fit") of the offsets summed in `s`: oriented normal, the centroid
 // offset from p, eigenvalues and count (no major direction). Where the sums lost the plane to
 // cancellation (detail::kRefitRatio: a support nearly on a line, away from p), the scatter is
-// formed again about the mean from the offsets themselves: `each(f)` calls f(wx, wy, wz) for
-// every offset summed in `s`.
+// formed again about the mean from the offsets themselves (detail::two_pass_moments): `each(f)`
+// calls f(w) for every offset w summed in `s`.
 template <typename Each>
 PlaneStatus plane_of(const OffsetSums& s, LocalPlane* out, Each&& each) {
   if (s.n < 3.0) return PlaneStatus::kTooFewPoints;
@@ -641,15 +641,8 @@ PlaneStatus plane_of(const OffsetSums& s, LocalPlane* out, Each&& each) {
   Eigen::Vector3d ev;
   Eigen::Matrix3d V;
   eigen_sym3(M, ev, V, false);
-  if (ev(1) <= detail::kRefitRatio * (s.xx + s.yy + s.zz)) {  // (rare: one more pass)
-    double a[6] = {};
-    each([&](double wx, double wy, double wz) {
-      const double dx = wx - mx, dy = wy - my, dz = wz - mz;
-      a[0] += dx * dx, a[1] += dx * dy, a[2] += dx * dz;
-      a[3] += dy * dy, a[4] += dy * dz, a[5] += dz * dz;
-    });
-    M << a[0], a[1], a[2], a[1], a[3], a[4], a[2], a[4], a[5];
-    eigen_sym3(M, ev, V, false);
+  if (ev(1) <= detail::kRefitRatio * (s.xx + s.yy + s.zz)) {  // (rare: two more passes)
+    eigen_sym3(detail::two_pass_moments(each).scatter, ev, V, false);
   }
   if (!(ev(2) > 0.0) || ev(1) <= 1e-12 * ev(2)) return PlaneStatus::kDegenerate;
   out->normal = orient_normal(V.col(0).normalized());
@@ -667,10 +660,10 @@ inline auto ball_offsets(const Gather& g, const Eigen::Vector3d& p, const Select
   const std::size_t n_in = with_inner ? static_cast<std::size_t>(inner.n) : 0;
   return [&g, &s, p, n_ring, n_in](auto&& f) {
     for (std::size_t q = 0; q < n_ring; ++q) {
-      f(g.x[s.pos[q]] - p.x(), g.y[s.pos[q]] - p.y(), g.z[s.pos[q]] - p.z());
+      f(Eigen::Vector3d(g.x[s.pos[q]] - p.x(), g.y[s.pos[q]] - p.y(), g.z[s.pos[q]] - p.z()));
     }
     for (std::size_t q = 0; q < n_in; ++q) {
-      f(g.x[s.id[q]] - p.x(), g.y[s.id[q]] - p.y(), g.z[s.id[q]] - p.z());
+      f(Eigen::Vector3d(g.x[s.id[q]] - p.x(), g.y[s.id[q]] - p.y(), g.z[s.id[q]] - p.z()));
     }
   };
 }

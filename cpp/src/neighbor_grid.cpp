@@ -10,6 +10,7 @@
 #include <string>
 
 #include "parallel.hpp"
+#include "radix_sort.hpp"
 
 namespace miem {
 
@@ -17,48 +18,6 @@ namespace {
 
 constexpr double kInf = std::numeric_limits<double>::infinity();
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-
-// Stable LSD radix sort of `keys` (carrying `ids`), 11 bits per pass; passes over constant digits
-// are skipped. Uses `tmp_keys` / `tmp_ids` as the second buffer.
-void radix_sort(std::vector<std::uint64_t>& keys, std::vector<std::uint32_t>& ids,
-                std::uint64_t max_key) {
-  constexpr int kBits = 11;
-  constexpr std::size_t kBuckets = std::size_t{1} << kBits;
-  const std::size_t n = keys.size();
-  int bits = 0;
-  while (bits < 64 && (max_key >> bits) != 0) ++bits;
-  const int passes = (bits + kBits - 1) / kBits;
-  if (passes == 0 || n < 2) return;
-  std::vector<std::uint32_t> hist(kBuckets * static_cast<std::size_t>(passes), 0);
-  for (std::size_t i = 0; i < n; ++i) {
-    const std::uint64_t k = keys[i];
-    for (int p = 0; p < passes; ++p) ++hist[p * kBuckets + ((k >> (p * kBits)) & (kBuckets - 1))];
-  }
-  std::vector<std::uint64_t> tmp_keys(n);
-  std::vector<std::uint32_t> tmp_ids(n);
-  for (int p = 0; p < passes; ++p) {
-    std::uint32_t* h = hist.data() + p * kBuckets;
-    bool trivial = false;
-    for (std::size_t b = 0; b < kBuckets; ++b) {
-      if (h[b] == n) trivial = true;
-    }
-    if (trivial) continue;
-    std::uint32_t sum = 0;
-    for (std::size_t b = 0; b < kBuckets; ++b) {
-      const std::uint32_t c = h[b];
-      h[b] = sum;
-      sum += c;
-    }
-    const int shift = p * kBits;
-    for (std::size_t i = 0; i < n; ++i) {
-      const std::uint32_t dst = h[(keys[i] >> shift) & (kBuckets - 1)]++;
-      tmp_keys[dst] = keys[i];
-      tmp_ids[dst] = ids[i];
-    }
-    keys.swap(tmp_keys);
-    ids.swap(tmp_ids);
-  }
-}
 
 }  // namespace
 
@@ -150,7 +109,15 @@ NeighborGrid<T>::NeighborGrid(const PointsView<T>& points, double cell_size, int
     keys[k] = key;
     max_key = std::max(max_key, key);
   }
-  radix_sort(keys, ids, max_key);
+  {
+    std::vector<std::uint64_t> tmp_keys(keys.size());
+    std::vector<std::uint32_t> tmp_ids(ids.size());
+    if (detail::radix_sort(keys.data(), ids.data(), tmp_keys.data(), tmp_ids.data(),
+                           keys.size(), max_key)) {
+      keys.swap(tmp_keys);
+      ids.swap(tmp_ids);
+    }
+  }
 
   // Occupied cells and their point ranges.
   std::size_t ncells = 0;
