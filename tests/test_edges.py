@@ -468,6 +468,61 @@ def test_hanging_ledge_goes_on_from_its_drop() -> None:
         assert ((q - first)[2] > np.hypot(*(q - first)[:2])) == (case != "chamfer")
 
 
+def _ledge_z(width: int, h: int = 40, w: int = 40, droop: float = 0.08,
+             floor: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """Sheet ending in a wall ``floor`` mm down at column 20 (0.1 mm grid), with material bent
+    out level beyond it: columns 20 .. 20 + width - 1 of rows 4 .. h - 5 ``droop`` below the
+    top; returns z and the ledge mask."""
+    cols = np.arange(w)[None, :].repeat(h, 0)
+    z = _noise((h, w)) - floor * (cols >= 20)
+    ledge = np.zeros((h, w), bool)
+    ledge[4:h - 4, 20:20 + width] = True
+    z[ledge] = _noise((h, w), seed=4)[ledge] - droop
+    return z, ledge
+
+
+def _without_ledges(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(ref, "_ledges", lambda grid, labels, cells, r, below, *a:
+                        np.zeros(below.shape[1], dtype=bool))
+
+
+def test_ledge_hanging_gently_is_abnormal(monkeypatch: pytest.MonkeyPatch) -> None:
+    """SPEC "Edge test" step 6, ledges: material bent out level 0.08 mm below a wall top
+    (floor 2 mm down), 3 cells wide. Gentler than 45 degrees from the top's last sample
+    (0.08 < 0.1 mm away), so the hanging rule leaves it; the ledge rule flags it: its cells lie
+    level (0.002 mm noise), the top steps down onto them by 0.08 (more than the ledge's
+    steps plus a tolerance), and beyond them the wall drops steeply, 1.9 mm further (more than
+    twice 0.08). Must not fire: one cell wide (a chamfer's single sample), a level band 6
+    cells wide (wider than a burr: a surface of the part), a ledge whose floor lies only
+    1.5 x 0.08 further down (a staircase), nor, in the reference without the rule, on most of
+    the ledge. Core == reference, batch == stream."""
+    g3 = None
+    for width, fires in ((3, True), (1, False), (6, False)):
+        z, ledge = _ledge_z(width)
+        g = _grid(z)
+        core = miem.detect(g).labels == miem.ABNORMAL
+        oracle = ref.detect(g).labels == miem.ABNORMAL
+        np.testing.assert_array_equal(core, oracle, err_msg=str(width))
+        inner = ledge.copy()
+        inner[:11] = inner[29:] = False  # rows whose sub-windows lie within the ledge's rows
+        # (a cell whose neighbours along the row differ by the noise's 4 rms is no ledge: 1 of 57)
+        assert core[inner].mean() >= 0.95 if fires else not core[inner].any(), width
+        assert not (core & ~ledge).any(), width
+        if width == 3:
+            g3 = g
+    # by hand: 0.08 deep, 0.1 mm from the top's last sample (gentler than 45 degrees)
+    p, q = g3[20, 20], g3[20, 19]
+    assert (q - p)[2] < np.hypot(*(q - p)[:2])
+    p = miem.default_params("stream")
+    np.testing.assert_array_equal(stream_labels(g3, p), miem.detect(g3, params=p).labels)
+    z, _ = _ledge_z(3, floor=0.2)  # a staircase: 0.08, then 0.12 further down
+    stairs = ref.detect(_grid(z)).labels
+    _without_ledges(monkeypatch)
+    np.testing.assert_array_equal(ref.detect(_grid(z)).labels, stairs)  # (its ends: other rules)
+    _, ledge = _ledge_z(3)
+    assert (ref.detect(g3).labels == miem.ABNORMAL)[ledge].sum() <= 6
+
+
 def _wall_burr_z(h: int = 50, w: int = 60, row: int = 20) -> tuple[np.ndarray, np.ndarray]:
     """A wall top at ``row`` (floor 3 mm down) with material hanging over it, as on the real
     scan's first wall: three profiles 0.5, 1.0 and 1.5 mm below the top, then two profiles
@@ -577,6 +632,9 @@ def _core_scenes() -> list:
     z[burr] = _noise((140, 150), seed=4)[burr] - 0.25
     z[:, 18:20] += 0.02  # a rounded-up rim: the angle passes label the last samples EDGE
     out.append(("hanging shallow", _grid(z)))
+    z, _ = _ledge_z(3, 140, 150)  # a ledge bent out level (step 6), across tile borders
+    z[60:70, :20] += 0.3
+    out.append(("ledge", _grid(z)))
     z, _ = _wall_burr_z(140, 150, row=62)  # steep sub-windows (step 3), across tile borders
     out.append(("steep", _grid(z)))
     z, _ = _valley_lip_z(30.0, 140, 150)  # a lip at a concave crease (step 6), across tiles

@@ -193,4 +193,39 @@ TEST(Organized, AutoZResolutionIsTheStepOnASteepSheet) {
   EXPECT_NEAR(miem::detect_organized(view, p).summary.z_resolution, 0.001, 1e-12);
 }
 
+// SPEC "Edge test" step 6, ledges: material bent out level 0.08 mm below a wall top (floor 2 mm
+// down, 0.1 mm grid), columns 20-22 of rows 4-35, is ABNORMAL with the default detector: its
+// cells lie level, the top steps down onto them and beyond them the wall drops 1.9 mm. It droops
+// gentler than 45 degrees from the top's last sample (0.08 < 0.1 mm), so only the ledge rule
+// sees it. A level band 6 columns wide (wider than a burr) stays clean.
+TEST(Organized, LedgeBentOutBelowAWallTopIsAbnormal) {
+  const std::ptrdiff_t H = 40, W = 40;
+  for (const std::ptrdiff_t width : {3, 6}) {
+    std::vector<double> g(static_cast<std::size_t>(H * W * 3));
+    for (std::ptrdiff_t r = 0; r < H; ++r) {
+      for (std::ptrdiff_t c = 0; c < W; ++c) {
+        double* p = &g[static_cast<std::size_t>((r * W + c) * 3)];
+        const double wobble = 0.001 * static_cast<double>((r * 7 + c * 13) % 5 - 2);  // +-2 um
+        const bool ledge = r >= 4 && r < H - 4 && c >= 20 && c < 20 + width;
+        p[0] = 0.1 * static_cast<double>(c), p[1] = 0.1 * static_cast<double>(r);
+        p[2] = wobble + (ledge ? -0.08 : (c >= 20 ? -2.0 : 0.0));
+      }
+    }
+    const auto view = miem::GridView<double>::dense(g.data(), H, W);
+    const miem::DetectResult res = miem::detect_organized(view, miem::DetectParams{});
+    int found = 0, inner = 0, outside = 0;
+    for (std::ptrdiff_t r = 0; r < H; ++r) {
+      for (std::ptrdiff_t c = 0; c < W; ++c) {
+        const bool abnormal = res.labels[static_cast<std::size_t>(r * W + c)] == miem::kAbnormal;
+        const bool ledge = r >= 4 && r < H - 4 && c >= 20 && c < 20 + width;
+        if (ledge && r >= 11 && r < H - 11) inner += 1, found += abnormal;
+        if (!ledge) outside += abnormal;
+      }
+    }
+    EXPECT_EQ(outside, 0) << width;
+    if (width == 3) EXPECT_EQ(found, inner);
+    else EXPECT_EQ(found, 0);
+  }
+}
+
 }  // namespace

@@ -1335,6 +1335,82 @@ def _hanging(
     return out
 
 
+#: Ledges (SPEC "Edge test" step 6): a ledge's cells lie level with P within
+#: ``min(_LEDGE_LEVEL * depth, t)`` along the top's normal ...
+_LEDGE_LEVEL = 0.5
+#: ... and the step from the top down onto the ledge exceeds the largest step along the ledge
+#: by more than this times the top's tolerance (on a rounded bend the steps grow outwards).
+_LEDGE_JUMP = 1.0
+#: ... and a ledge holds at most this many cells along that direction, P included (burrs on
+#: edges are 1-4 points wide; a wider level band below a top is a surface of the part).
+_LEDGE_CELLS = 5
+
+
+def _ledges(
+    grid: NDArray[np.float64],
+    labels: NDArray[np.uint8],
+    cells: NDArray[np.bool_],
+    r: int,
+    below: NDArray[np.bool_],
+    h: NDArray[np.float64],
+    nrm: NDArray[np.float64],
+    cen: NDArray[np.float64],
+    tol: NDArray[np.float64],
+    origin: NDArray[np.float64],
+) -> NDArray[np.bool_]:
+    """The cells of ``cells`` (row-major) on a *ledge* (SPEC "Edge test" step 6) below one of
+    the sub-windows marked in ``below`` (8, N; ``h``, ``nrm``, ``cen``, ``tol`` (8, N, ...)
+    each sub-window's height of P, normal, centroid and tolerance): along the sub-window's
+    direction ``d`` the cells level with P (2 to ``_LEDGE_CELLS`` of them, P included) run
+    from a ground cell on its plane, which steps down onto them, to a ground cell that drops
+    steeper than 45 degrees to more than ``_HANG_SHELF`` times P's depth below P."""
+    hh, ww = labels.shape
+    ground = (labels == NORMAL) | (labels == EDGE)
+    rr, cc = np.nonzero(cells)
+    p = grid[rr, cc]
+    out = np.zeros(rr.size, dtype=bool)
+    for k, (dr, dc) in enumerate(_HANG_DIRECTIONS):
+        if not below[k].any():
+            continue
+        u, depth = nrm[k], -h[k]
+        level = np.minimum(_LEDGE_LEVEL * depth, tol[k])
+        widest = np.zeros(rr.size)  # the largest step between consecutive ledge cells
+        ends = []
+        for sign in (-1, 1):  # towards the sub-window (the top), then beyond P
+            going = below[k].copy()
+            run = np.zeros(rr.size, dtype=np.int64)
+            prev = p.copy()
+            end = np.full((rr.size, 3), np.nan)
+            last = np.full((rr.size, 3), np.nan)
+            on_ground = np.zeros(rr.size, dtype=bool)
+            for j in range(1, r + 1):
+                a, b = rr + sign * j * dr, cc + sign * j * dc
+                inside = (a >= 0) & (a < hh) & (b >= 0) & (b < ww)
+                a, b = np.clip(a, 0, hh - 1), np.clip(b, 0, ww - 1)
+                ret = inside & (labels[a, b] != INVALID)
+                x = np.where(ret[:, None], grid[a, b], np.nan)
+                lvl = ret & (np.abs(_dot3(x - p, u)) <= level)
+                stop = going & ~lvl
+                end[stop], last[stop] = x[stop], prev[stop]
+                on_ground |= stop & inside & ground[a, b]
+                on = going & lvl
+                widest[on] = np.maximum(widest[on], np.abs(_dot3(x[on] - prev[on], u[on])))
+                prev[on] = x[on]
+                run += on
+                going &= lvl
+            ends.append((on_ground, end, last, run))
+        (g_in, top, t_last, n_in), (g_out, low, l_last, n_out) = ends
+        on_top = g_in & ~(np.abs(_dot3((top - origin) - cen[k], u)) > tol[k])
+        jump = _dot3(top - t_last, u) > widest + _LEDGE_JUMP * tol[k]
+        w = low - l_last
+        fall = -_dot3(w, u)
+        steep = (fall > 0.0) & (fall * fall > _dot3(w, w) - fall * fall)
+        shelf = g_out & (_dot3(low - p, u) < -_HANG_SHELF * depth)
+        cells_ = n_in + n_out + 1
+        out |= below[k] & on_top & jump & steep & shelf & (cells_ >= 2) & (cells_ <= _LEDGE_CELLS)
+    return out
+
+
 def _hang_conditions(
     grid: NDArray[np.float64],
     labels: NDArray[np.uint8],
@@ -1691,7 +1767,10 @@ def _edge_verdicts(
     if hang.any():
         sel = cells.copy()
         sel[cells] = hang
-        hang[hang] = _hanging(grid, labels, sel, r, below[:, hang], h[:, hang], nrm[:, hang])
+        ledge = clean[:, hang] & (h[:, hang] < -tol[:, hang])
+        hang[hang] = _hanging(grid, labels, sel, r, below[:, hang], h[:, hang], nrm[:, hang]) | \
+            _ledges(grid, labels, sel, r, ledge, h[:, hang], nrm[:, hang], cen[:, hang],
+                    tol[:, hang], origin)
         out[cells] |= hang
     # an isolated spike far off every clean side that no other step flags (step 7)
     out[cells] |= _spikes(grid, labels, cells, origin, h, tol, level, clean, rms, nrm, cen)
