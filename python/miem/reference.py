@@ -1362,8 +1362,9 @@ def _ledges(
     the sub-windows marked in ``below`` (8, N; ``h``, ``nrm``, ``cen``, ``tol`` (8, N, ...)
     each sub-window's height of P, normal, centroid and tolerance): along the sub-window's
     direction ``d`` the cells level with P (2 to ``_LEDGE_CELLS`` of them, P included) run
-    from a ground cell on its plane, which steps down onto them, to a ground cell that drops
-    steeper than 45 degrees to more than ``_HANG_SHELF`` times P's depth below P."""
+    from a ground cell on its plane, which steps down onto them by more than their largest
+    step plus ``_LEDGE_JUMP`` tolerances, to a ground cell that drops steeper than 45 degrees
+    to more than ``_HANG_SHELF`` times P's depth below P."""
     hh, ww = labels.shape
     ground = (labels == NORMAL) | (labels == EDGE)
     rr, cc = np.nonzero(cells)
@@ -1406,8 +1407,8 @@ def _ledges(
         fall = -_dot3(w, u)
         steep = (fall > 0.0) & (fall * fall > _dot3(w, w) - fall * fall)
         shelf = g_out & (_dot3(low - p, u) < -_HANG_SHELF * depth)
-        cells_ = n_in + n_out + 1
-        out |= below[k] & on_top & jump & steep & shelf & (cells_ >= 2) & (cells_ <= _LEDGE_CELLS)
+        width = n_in + n_out + 1  # the level cells, P included
+        out |= below[k] & on_top & jump & steep & shelf & (width >= 2) & (width <= _LEDGE_CELLS)
     return out
 
 
