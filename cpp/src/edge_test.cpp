@@ -269,7 +269,8 @@ bool is_fin(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
 // x's plane than the top's last ground cell (NORMAL or EDGE) towards x is away along that plane
 // (steeper than 45 degrees) or beyond a step steeper than that on a path of ABNORMAL cells from
 // that ground cell, with ground beyond P (within r, away from x) more than kHangShelf times as
-// deep again along x's normal. The formulas are miem.reference._hanging's.
+// deep again along x's normal; or lies on a ledge below x (on_ledge). The formulas are
+// miem.reference._hanging's and _ledges'.
 constexpr double kHangShelf = 2.0;
 constexpr int kHangDirs[8][2] = {{0, 1},  {0, -1}, {1, 0},  {-1, 0},
                                  {1, 1},  {1, -1}, {-1, 1}, {-1, -1}};  // side -> towards P
@@ -327,9 +328,60 @@ void beyond(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
               });
 }
 
+// SPEC "Edge test" step 6, ledges: does P = (rr, cc), below clean side x (index s; o the
+// origin), lie on a ledge? Along x's direction d the cells level with P (within
+// min(kLedgeLevel x depth, tol) along x's normal; 2 to kLedgeCells of them, P included) run
+// from a ground cell on x's plane, which steps down onto them by more than their largest step
+// plus kLedgeJump x tol, to a ground cell that drops steeper than 45 degrees to more than
+// kHangShelf times P's depth below P: material bent out level beyond a wall top, however
+// gently it droops (a rounded bend or a chamfer steepens outwards instead). The formulas are
+// miem.reference._ledges'.
+constexpr double kLedgeLevel = 0.5, kLedgeJump = 1.0;
+constexpr std::ptrdiff_t kLedgeCells = 5;  // at most, P included (burrs: 1-4 points wide)
+template <typename T>
+bool on_ledge(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
+              std::ptrdiff_t cc, std::ptrdiff_t r, const Eigen::Vector3d& o, const Side& x,
+              int s) {
+  const std::ptrdiff_t H = g.rows, W = g.cols;
+  const Eigen::Vector3d p = g(rr, cc);
+  const Eigen::Vector3d& u = x.normal;
+  const double depth = -x.h, level = std::min(kLedgeLevel * depth, x.tol);
+  double widest = 0.0;  // the largest step between consecutive ledge cells
+  // From P along sg d while the cells are level with P: the first other cell (`end`, false
+  // when it is INVALID, outside or not ground) and the ledge cell before it (`last`).
+  const auto walk = [&](std::ptrdiff_t sg, Eigen::Vector3d& end, Eigen::Vector3d& last,
+                        std::ptrdiff_t& run) {
+    last = p;
+    for (std::ptrdiff_t j = 1; j <= r; ++j) {
+      const std::ptrdiff_t a = rr + sg * j * kHangDirs[s][0];
+      const std::ptrdiff_t b = cc + sg * j * kHangDirs[s][1];
+      if (a < 0 || a >= H || b < 0 || b >= W) return false;
+      const std::uint8_t l = labels[a * W + b];
+      if (l == kInvalid) return false;
+      end = g(a, b);
+      if (std::abs(dot3(Eigen::Vector3d(end - p), u)) > level) return l == kNormal || l == kEdge;
+      widest = std::max(widest, std::abs(dot3(Eigen::Vector3d(end - last), u)));
+      last = end;
+      ++run;
+    }
+    return false;
+  };
+  Eigen::Vector3d top, t_last, low, l_last;
+  std::ptrdiff_t run = 0;
+  if (!walk(-1, top, t_last, run) || !walk(1, low, l_last, run)) return false;
+  if (run < 1 || run + 1 > kLedgeCells) return false;
+  if (std::abs(dot3(Eigen::Vector3d((top - o) - x.centroid), u)) > x.tol) return false;
+  if (!(dot3(Eigen::Vector3d(top - t_last), u) > widest + kLedgeJump * x.tol)) return false;
+  const Eigen::Vector3d w = low - l_last;
+  const double fall = -dot3(w, u);
+  return fall > 0.0 && fall * fall > dot3(w, w) - fall * fall &&
+         dot3(Eigen::Vector3d(low - p), u) < -kHangShelf * depth;
+}
+
 template <typename T>
 bool is_hanging(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
-                std::ptrdiff_t cc, std::ptrdiff_t r, const Side (&sd)[8], double best) {
+                std::ptrdiff_t cc, std::ptrdiff_t r, const Eigen::Vector3d& o,
+                const Side (&sd)[8], double best) {
   const auto clean = [&](int s) {
     return edge_clean(sd[s], best);
   };
@@ -343,6 +395,7 @@ bool is_hanging(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t
     const Side& x = sd[s];
     const Side& y = sd[kOpposite[s]];
     if (!clean(s) || !(x.h < -x.tol)) continue;
+    if (on_ledge(g, labels, rr, cc, r, o, x, s)) return true;
     const bool drop = dot3(x.normal, y.centroid - x.centroid) < -x.tol;
     if (!(y.empty || (clean(kOpposite[s]) && y.h > y.tol && drop))) continue;
     const std::ptrdiff_t dr = kHangDirs[s][0], dc = kHangDirs[s][1];
@@ -382,63 +435,6 @@ bool is_hanging(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t
       shelf = shelf || d < -kHangShelf * depth;
     });
     if (shelf) return true;
-  }
-  return false;
-}
-
-// SPEC "Edge test" step 6, ledges: P (candidate (rr, cc), its 8 sides `sd`, `best` their
-// smallest rms, o the origin; the caller has found that P fits no clean side with a return)
-// lies below a clean side x, and along its direction d the cells level with P (within
-// min(kLedgeLevel x depth, tol) along x's normal; 2 to kLedgeCells of them, P included) run
-// from a ground cell on x's plane, which steps down onto them by more than their largest step
-// plus kLedgeJump x tol, to a ground cell that drops steeper than 45 degrees to more than
-// kHangShelf times P's depth below P: material bent out level beyond a wall top, however
-// gently it droops (a rounded bend or a chamfer steepens outwards instead). The formulas are
-// miem.reference._ledges'.
-constexpr double kLedgeLevel = 0.5, kLedgeJump = 1.0;
-constexpr std::ptrdiff_t kLedgeCells = 5;  // at most, P included (burrs: 1-4 points wide)
-template <typename T>
-bool is_ledge(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
-              std::ptrdiff_t cc, std::ptrdiff_t r, const Eigen::Vector3d& o, const Side (&sd)[8],
-              double best) {
-  const std::ptrdiff_t H = g.rows, W = g.cols;
-  const Eigen::Vector3d p = g(rr, cc);
-  for (int s = 0; s < 8; ++s) {
-    const Side& x = sd[s];
-    if (!edge_clean(x, best) || !(x.h < -x.tol)) continue;
-    const Eigen::Vector3d& u = x.normal;
-    const double depth = -x.h, level = std::min(kLedgeLevel * depth, x.tol);
-    double widest = 0.0;  // the largest step between consecutive ledge cells
-    // From P along sg d while the cells are level with P: the first other cell (`end`, false
-    // when it is INVALID, outside or not ground) and the ledge cell before it (`last`).
-    const auto walk = [&](std::ptrdiff_t sg, Eigen::Vector3d& end, Eigen::Vector3d& last,
-                          std::ptrdiff_t& run) {
-      last = p;
-      for (std::ptrdiff_t j = 1; j <= r; ++j) {
-        const std::ptrdiff_t a = rr + sg * j * kHangDirs[s][0];
-        const std::ptrdiff_t b = cc + sg * j * kHangDirs[s][1];
-        if (a < 0 || a >= H || b < 0 || b >= W) return false;
-        const std::uint8_t l = labels[a * W + b];
-        if (l == kInvalid) return false;
-        end = g(a, b);
-        if (std::abs(dot3(Eigen::Vector3d(end - p), u)) > level) return l == kNormal || l == kEdge;
-        widest = std::max(widest, std::abs(dot3(Eigen::Vector3d(end - last), u)));
-        last = end;
-        ++run;
-      }
-      return false;
-    };
-    Eigen::Vector3d top, t_last, low, l_last;
-    std::ptrdiff_t run = 0;
-    if (!walk(-1, top, t_last, run) || !walk(1, low, l_last, run)) continue;
-    if (run < 1 || run + 1 > kLedgeCells) continue;
-    if (std::abs(dot3(Eigen::Vector3d((top - o) - x.centroid), u)) > x.tol) continue;
-    if (!(dot3(Eigen::Vector3d(top - t_last), u) > widest + kLedgeJump * x.tol)) continue;
-    const Eigen::Vector3d w = low - l_last;
-    const double fall = -dot3(w, u);
-    if (fall > 0.0 && fall * fall > dot3(w, w) - fall * fall &&
-        dot3(Eigen::Vector3d(low - p), u) < -kHangShelf * depth)
-      return true;
   }
   return false;
 }
@@ -963,8 +959,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
                                   is_fin(g, lab, grow, cols[j], r) ||
                                   is_lip(g, lab, grow, cols[j], r, sd, best));
         if (!abnormal && !fits_ground) {
-          abnormal = is_hanging(g, lab, grow, cols[j], r, sd, best) ||
-                     is_ledge(g, lab, grow, cols[j], r, o, sd, best);
+          abnormal = is_hanging(g, lab, grow, cols[j], r, o, sd, best);
         }
         if (!abnormal && !fits) abnormal = is_spike(g, lab, grow, rr, cols[j], H, o, sd, best);
         mark[i] = abnormal ? 1 : 0;

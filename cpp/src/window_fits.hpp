@@ -448,12 +448,10 @@ struct RowFits {
   }
 };
 
-// (kRefitRatio, plane_math.hpp: a window plane the sums lose to cancellation is fitted again
-// directly, direct_fit_by, as the reference fits it.)
-
-/// The solved entries [e0, e1) of row_solve whose sums lost the plane (kRefitRatio; at least 3
-/// cells, whether the sums found a plane or not: cancellation may decide either): their fit
-/// from refit(j) (j: the segment's column of entry e; compact, the e-th wanted one from j0).
+/// The solved entries [e0, e1) of row_solve whose sums lost the plane (kRefitRatio in
+/// plane_math.hpp; at least 3 cells, whether the sums found a plane or not: cancellation may
+/// decide either), fitted again directly as the reference fits them: their fit from refit(j)
+/// (j: the segment's column of entry e; compact, the e-th wanted one from j0).
 template <typename Refit>
 void refit_cancelled(std::ptrdiff_t e0, std::ptrdiff_t e1, bool compact, std::ptrdiff_t j0,
                      const std::uint8_t* wrow, std::ptrdiff_t cap, double* S, double* F,

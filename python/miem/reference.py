@@ -1742,6 +1742,7 @@ def _edge_verdicts(
     attached = _attached(grid, labels, cells, r, origin, nrm, cen, tol)
     # P below a clean side x whose opposite y has no return or is clean with P above it and
     # falls away: P lies between a top and the lower surface beyond (a hanging candidate)
+    under = clean & (h < -tol)  # P below a clean side: hanging or a ledge (step 6)
     below = np.zeros_like(clean)
     for a, b in _EDGE_OPPOSITE:
         for x, y in ((a, b), (b, a)):
@@ -1749,7 +1750,7 @@ def _edge_verdicts(
             falls = empty[y] | (valid[y] & drop)
             proud |= clean[x] & (h[x] > tol[x]) & falls & attached[x]
             beyond = empty[y] | (clean[y] & (h[y] > tol[y]) & drop)
-            below[x] = clean[x] & (h[x] < -tol[x]) & beyond
+            below[x] = under[x] & beyond
     fin = _fins(grid, labels, cells, r)[cells]  # (SPEC step 6: reach r, inside the tile's frame)
     out[cells] = ~fits.any(axis=0) & (proud | fin)
     # a lip at a concave feature: P above a clean side, and beyond P the surface dips, then
@@ -1768,9 +1769,8 @@ def _edge_verdicts(
     if hang.any():
         sel = cells.copy()
         sel[cells] = hang
-        ledge = clean[:, hang] & (h[:, hang] < -tol[:, hang])
         hang[hang] = _hanging(grid, labels, sel, r, below[:, hang], h[:, hang], nrm[:, hang]) | \
-            _ledges(grid, labels, sel, r, ledge, h[:, hang], nrm[:, hang], cen[:, hang],
+            _ledges(grid, labels, sel, r, under[:, hang], h[:, hang], nrm[:, hang], cen[:, hang],
                     tol[:, hang], origin)
         out[cells] |= hang
     # an isolated spike far off every clean side that no other step flags (step 7)
