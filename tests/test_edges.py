@@ -81,6 +81,19 @@ def test_score_mask_hand_counts() -> None:
         rt.score_mask(np.zeros((2, 2), bool), tr)
 
 
+def test_truth_classes_and_regions_by_hand() -> None:
+    """real_truth step 4 on a hand-made deviation row: CLEAN below 0.15, BURR above 0.25 up to
+    FOREIGN (5 mm), don't-care between and beyond (material 6 mm out is not this part's), NaN
+    on a finite cell uncovered, on a missing cell a dropout; the burr regions hold the cells
+    with 0.2 < dev <= 5 only, so two burrs parted by a foreign cell are two regions."""
+    dev = np.array([[0.0, 0.1, 0.18, 0.3, 6.0, 0.4, -0.3, 5.0, np.nan, np.nan]])
+    fin = np.array([[True] * 9 + [False]])
+    cls = rt._classes(dev, fin)
+    c, b, d, u, o = rt.CLEAN, rt.BURR, rt.DONTCARE, rt.UNCOVERED, rt.DROPOUT
+    assert cls.tolist() == [[c, c, d, b, d, b, d, b, u, o]]
+    assert [r.tolist() for r in rt._burr_regions(dev)] == [[3], [5], [7]]
+
+
 def test_error_bands_hand_counts() -> None:
     """edges.py's "where the error goes" table: misses (and their EDGE share) and false alarms
     per band of profiles, counted by hand on a 25 x 3 truth with bands of 10 rows."""
@@ -146,6 +159,15 @@ def test_real_truth_registration_and_the_lip_layer() -> None:
     layer = (z[310:315, 250:350] > top + 1.5) & covered[310:315, 250:350]
     assert layer.sum() > 100
     assert (tr.classes[310:315, 250:350][layer] == rt.BURR).all()
+    # Returns from below the lower outline (profiles 382-387): more than 5 mm below the top
+    # of profiles 375-379 next to them, they are no burr, whatever their distance to the golden
+    # sample's wall: not one is BURR, nor in a burr region.
+    top = np.nanmedian(z[375:380])
+    deep = np.zeros(z.shape, dtype=bool)
+    deep[382:388] = np.nan_to_num(z[382:388], nan=np.inf) < top - 5.0
+    assert (deep & covered).sum() > 100
+    assert not (tr.classes[deep] == rt.BURR).any()
+    assert not np.isin(np.flatnonzero(deep), np.concatenate(tr.regions)).any()
 
 
 @pytest.mark.skipif(not rt.available(), reason="shared/data/real not present")
