@@ -145,7 +145,7 @@ def test_local_offset_by_hand() -> None:
 
 
 @pytest.mark.skipif(not rt.available(), reason="shared/data/real not present")
-def test_real_truth_registration_and_the_lip_layer() -> None:
+def test_real_truth_registration_lip_layer_and_outline_returns() -> None:
     tr = rt.truth()
     assert tr.grid.shape == (426, 724, 3)
     assert tr.nn_median < 0.15  # the golden sample lies on the scan (registration)

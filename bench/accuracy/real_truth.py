@@ -38,8 +38,9 @@ The truth is derived here, without miem, in four steps:
    the outline). The cap sits in that gap of the deviation's own distribution; it was added
    after those cells showed among the recommended preset's misses (the real scan is the test
    split, so this is disclosed: with the cap its recall went 0.695 -> 0.709 at precision
-   0.812, burr regions 151 -> 122, no detector changed). **Burr regions**: 8-connected components of cells with ``0.2 < dev <= FOREIGN``;
-   a region is *found* when at least one of its BURR cells is flagged.
+   0.812, burr regions 151 -> 122, no detector changed). **Burr regions**: 8-connected
+   components of cells with ``0.2 < dev <= FOREIGN``; a region is *found* when at least one of
+   its BURR cells is flagged.
 5. **Local offset** (the default truth; ``truth(local=False)`` is steps 1-4 alone, the
    *absolute* truth, kept and reported too). Golden-sample metrology compares after a local
    best fit: a rigid registration of another part of the same type leaves a smooth residual
