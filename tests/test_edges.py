@@ -323,7 +323,7 @@ def _steep_valley_lip_z(beyond: float, h: int = 40, w: int = 40) -> tuple[np.nda
     return z + 0.12 * lip, lip
 
 
-def test_lip_dips_at_itself_before_a_steep_valley() -> None:
+def test_lip_dips_at_itself_before_a_steep_valley(monkeypatch: pytest.MonkeyPatch) -> None:
     """SPEC "Edge test" step 6, lips at a concave feature, the dip at P itself: on a coarse
     scan of a steep concave crease the first cell beyond the lip has climbed already, so no
     cell beyond lies D lower than the lip, but the lip stands above the chord between its
@@ -332,19 +332,30 @@ def test_lip_dips_at_itself_before_a_steep_valley() -> None:
     column 20, lies 0.12 - 0.07 = 0.05 below P (not D: from there the surface rises, so no
     cell beyond dips by D; but more than 2 t), the chord from column 18 (0.12 below P) to
     column 20 passes 0.085 below P (> D); the last cell beyond, column 24, lies 0.47 above the
-    left side's plane (the rise). Must not fire when the first cell beyond lies level with
-    the lip (0.12: no dip at P, as at a terrace's edge or on a fillet)."""
+    left side's plane (the rise). The lip rule must not fire when the first cell beyond lies
+    level with the lip (0.12: no dip at P, as at a terrace's edge or on a fillet); there the
+    valley rule (step 6, valleys) does: P steps up 0.12 from the sheet, more than it rises
+    onto that cell (0) plus 1.5 t, and the face beyond climbs, as a one-cell burr before a
+    coarsely sampled concave crease does."""
     z, lip = _steep_valley_lip_z(0.07)
     t = 8 * 0.002
     assert 0.12 - 0.07 < 0.06 < (0.12 + 0.05) / 2 and 0.05 > 2 * t * 1.4
     rows = slice(17, 23)  # whose sub-windows lie within the lip's rows 12-27 (r = 5)
-    for beyond, fires in ((0.07, True), (0.12, False)):
+    labels = np.zeros(lip.shape, np.uint8)
+    level = _grid(_steep_valley_lip_z(0.12)[0])
+    for valleys in (True, False):  # the level case: the valley rule's, not the lip rule's
+        if not valleys:
+            monkeypatch.setattr(ref, "_VALLEY_HEIGHT", np.inf)
+        out = ref.edge_test(level, labels, window=11, tolerance=8.0, max_iterations=1)[0]
+        new = out == ref.ABNORMAL
+        assert new[rows, 19].all() == valleys and not (new & ~lip).any(), valleys
+    for beyond, fires in ((0.07, True), (0.12, False)):  # the lip rule alone
         g = _grid(_steep_valley_lip_z(beyond)[0])
-        labels = np.zeros(lip.shape, np.uint8)
         out = ref.edge_test(g, labels, window=11, tolerance=8.0, max_iterations=1)[0]
         new = out == ref.ABNORMAL
         assert new[rows, 19].all() == fires and new[rows].any() == fires, beyond
         assert not (new & ~lip).any(), beyond
+    monkeypatch.undo()
     # the detector, core and reference, batch and stream: the lip and nothing else
     g = _grid(z)
     kw = {"preset": "recommended", "edge_tolerance": 8.0, "edge_window": 11}
@@ -354,6 +365,75 @@ def test_lip_dips_at_itself_before_a_steep_valley() -> None:
     np.testing.assert_array_equal(miem.detect(g, **kw).labels, want)
     p = miem.default_params("stream").replace(edge_tolerance=8.0, edge_window=11)
     np.testing.assert_array_equal(stream_labels(g, p), miem.detect(g, params=p).labels)
+
+
+def _coarse_valley_z(kind: str, h: int = 40, w: int = 40) -> tuple[np.ndarray, np.ndarray]:
+    """Sheet (z = 0) sampled at 0.5 mm up to a 30-degree concave crease between columns 19 and
+    20 (``"crease"``; ``"burr"``: with a burr 0.1 mm tall on column 19, rows 12-27, the last
+    cell before the line; ``"fillet"``: the crease rounded over 0.3 mm); returns z and the
+    burr mask."""
+    cols = np.arange(w)[None, :].repeat(h, 0)
+    x = (cols - 19.5) * 0.5
+    t30 = np.tan(np.radians(30))
+    face = t30 * 0.3 * np.logaddexp(0.0, x / 0.3) if kind == "fillet" else t30 * np.maximum(x, 0.0)
+    burr = np.zeros((h, w), bool)
+    if kind == "burr":
+        burr[12:28, 19] = True
+    return _noise((h, w)) + face + 0.1 * burr, burr
+
+
+def test_valley_burr_before_a_coarse_concave_crease(monkeypatch: pytest.MonkeyPatch) -> None:
+    """SPEC "Edge test" step 6, valleys. At 0.5 mm steps the face beyond a 30-degree concave
+    crease climbs 0.14 mm by its first cell, so a 0.1 mm burr on the last cell before the line
+    has no dip beyond it and stands only 0.028 above the chord of its neighbours (the lip's D
+    is 0.05): no lip. By hand (11-cell sub-windows, 8 rms ~ 0.016 = t): P lies 0.1 above the
+    left side's plane (z = 0) and 0.1 + 0.14 above the face's plane extended back (both more
+    than 1.75 t); the face's centroid lies far above the left plane (more than 2 t); towards
+    the left P steps up 0.1 from column 18 (on the plane), more than the rise from P onto
+    column 20 (0.044) plus 1.5 t. The same crease without the burr, and rounded into a fillet
+    (its corner cell 0.1 above both planes, but the surface beyond climbs 0.2 in one step: no
+    step up), stay clean. Without the rule (a height bound of infinity) the burr is missed."""
+    z, burr = _coarse_valley_z("burr")
+    assert 0.1 > 1.75 * 0.016 and 0.1 > 0.044 + 1.5 * 0.016
+    assert z[20, 20] - z[20, 19] > -0.05 and z[20, 19] - (z[20, 18] + z[20, 20]) / 2 < 0.05
+    labels = np.zeros(burr.shape, np.uint8)
+    for kind in ("burr", "crease", "fillet"):
+        g = _grid(_coarse_valley_z(kind)[0], step=0.5)
+        new = ref.edge_test(g, labels, window=11, tolerance=8.0, max_iterations=10)[0] == ref.ABNORMAL
+        np.testing.assert_array_equal(new, burr if kind == "burr" else np.zeros_like(burr))
+    g = _grid(z, step=0.5)
+    kw = {"preset": "recommended", "edge_tolerance": 8.0, "edge_window": 11}
+    want = ref.detect(g, **kw).labels
+    np.testing.assert_array_equal(want == ref.ABNORMAL, burr)
+    np.testing.assert_array_equal(miem.detect(g, **kw).labels, want)
+    p = miem.default_params("stream").replace(edge_tolerance=8.0, edge_window=11)
+    np.testing.assert_array_equal(stream_labels(g, p), miem.detect(g, params=p).labels)
+    monkeypatch.setattr(ref, "_VALLEY_HEIGHT", np.inf)
+    assert not (ref.edge_test(g, labels, window=11, tolerance=8.0, max_iterations=10)[0]
+                == ref.ABNORMAL).any()
+
+
+def test_valley_rule_leaves_a_curved_sheet_clean(monkeypatch: pytest.MonkeyPatch) -> None:
+    """SPEC "Edge test" step 6, valleys, the guards chosen on scenes outside the test split: a
+    generated curved sheet at 0.5 mm steps (noise 0.01 mm, six 3 x 3 clusters; seed 8123,
+    outside every split) has noise peaks that lie above the planes on both sides of them,
+    extrapolated over a concave curve. With a height bound of 1.5 t, the far side's centroid
+    over 1 t and a step up of 1 t (the first form of the rule) 14 of its clean cells were
+    flagged; with the rule's bounds (1.75 t, 2 t, 1.5 t) none is, and the core agrees."""
+    spec = suite.SceneSpec("curved sheet", "tune", "cluster3", "synthetic", {
+        "shape": (148, 148), "step": 0.5, "surface": "curved", "noise": 0.01,
+        "dropout": 0.005, "defects": {"cluster3": 6}, "seed": 8123,
+        "line_angle_deg": -6.782830832777723, "azimuth_deg": 81.15967734351256, "margin": 4,
+        "max_slope_deg": 45.0, "height": (1.0, 10.0)})
+    sc = suite.build(spec)
+    clean = sc.truth != suite.DEFECT
+    labels = ref.detect(sc.points).labels
+    assert not ((labels == ref.ABNORMAL) & clean).any()
+    assert (labels[~clean] == ref.ABNORMAL).all()
+    np.testing.assert_array_equal(miem.detect(sc.points).labels, labels)
+    for name, value in (("_VALLEY_HEIGHT", 1.5), ("_VALLEY_CENTROID", 1.0), ("_VALLEY_JUMP", 1.0)):
+        monkeypatch.setattr(ref, name, value)
+    assert ((ref.detect(sc.points).labels == ref.ABNORMAL) & clean).sum() == 14
 
 
 def _fin_z(h: int = 40, w: int = 40, diagonal: bool = False) -> tuple[np.ndarray, np.ndarray]:

@@ -490,6 +490,91 @@ bool is_lip(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
   return false;
 }
 
+// SPEC "Edge test" step 6, valleys: P (candidate (rr, cc), its 8 sides `sd`, `best` their
+// smallest rms; the caller has found that P fits no clean side) lies above two opposite clean
+// sides x and y by more than kValleyHeight times their tolerances, y's centroid lies above x's
+// plane by more than kValleyCentroid times x's tolerance (the surface rises beyond P: a
+// concave crease), the scan is sampled regularly up to P on both sides (valley_regular), and
+// towards x the raised ground cells (at most kValleyCells, P included) step up from a ground
+// cell on x's plane by more than their largest rise, and the rise from P onto the nearest
+// ground cell beyond, plus kValleyJump x tol: material raised before a concave crease, where
+// the lip rule finds no dip (the far face already rises). A fillet rises ever more steeply (no
+// step up from the plane); a profile between two wide gaps on a curved surface extrapolates
+// both planes over the gaps; a noise peak on a concave curved surface stands less than
+// kValleyHeight tolerances above both planes, or its far side rises too little. The formulas
+// are miem.reference._valleys'.
+constexpr double kValleyHeight = 1.75, kValleyCentroid = 2.0, kValleyGap = 3.0,
+                 kValleyJump = 1.5;
+constexpr std::ptrdiff_t kValleyCells = 4;
+
+// Regular sampling up to P = (rr, cc) towards side s: P - d and P - 2 d have returns (inside
+// the grid, not INVALID; within r >= 2) and the gap from P to the first is at most kValleyGap
+// times the gap between the two, measured along x's plane.
+template <typename T>
+bool valley_regular(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
+                    std::ptrdiff_t cc, std::ptrdiff_t r, const Side& x, int s) {
+  if (r < 2) return false;
+  const std::ptrdiff_t H = g.rows, W = g.cols, dr = kHangDirs[s][0], dc = kHangDirs[s][1];
+  Eigen::Vector3d q[3];
+  q[0] = g(rr, cc);
+  for (std::ptrdiff_t j = 1; j <= 2; ++j) {
+    const std::ptrdiff_t a = rr - j * dr, b = cc - j * dc;
+    if (a < 0 || a >= H || b < 0 || b >= W || labels[a * W + b] == kInvalid) return false;
+    q[j] = g(a, b);
+  }
+  const auto along = [&](const Eigen::Vector3d& v) {
+    const double h = dot3(v, x.normal);
+    return std::sqrt(std::max(dot3(v, v) - h * h, 0.0));
+  };
+  return along(Eigen::Vector3d(q[1] - q[0])) <= kValleyGap * along(Eigen::Vector3d(q[2] - q[1]));
+}
+
+template <typename T>
+bool in_valley(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
+               std::ptrdiff_t cc, std::ptrdiff_t r, const Side (&sd)[8], double best) {
+  const std::ptrdiff_t H = g.rows, W = g.cols;
+  const auto high = [&](int s) {
+    return edge_clean(sd[s], best) && sd[s].h > kValleyHeight * sd[s].tol;
+  };
+  const Eigen::Vector3d p = g(rr, cc);
+  for (int s = 0; s < 8; ++s) {
+    const Side& x = sd[s];
+    const int o = kOpposite[s];
+    const double rise = dot3(x.normal, sd[o].centroid - x.centroid);  // y's centroid over x
+    if (!high(s) || !high(o) || !(rise > kValleyCentroid * x.tol)) continue;
+    if (!valley_regular(g, labels, rr, cc, r, x, s) ||
+        !valley_regular(g, labels, rr, cc, r, sd[o], o)) {
+      continue;
+    }
+    const std::ptrdiff_t dr = kHangDirs[s][0], dc = kHangDirs[s][1];
+    // towards x: the raised ground cells, then the first on x's plane (the base)
+    double prev = x.h, widest = 0.0, jump = 0.0;
+    bool based = false;
+    for (std::ptrdiff_t j = 1; j <= std::min(r, kValleyCells); ++j) {
+      const std::ptrdiff_t a = rr - j * dr, b = cc - j * dc;
+      if (a < 0 || a >= H || b < 0 || b >= W) break;
+      const std::uint8_t l = labels[a * W + b];
+      if (l != kNormal && l != kEdge) continue;
+      const double hv = dot3(Eigen::Vector3d(g(a, b) - p), x.normal) + x.h;
+      if (!(std::abs(hv) > x.tol)) {
+        based = true;
+        jump = prev - hv;
+        break;
+      }
+      widest = std::max(widest, prev - hv);
+      prev = hv;
+    }
+    if (!based) continue;
+    // ... and beyond P: the rise onto the nearest ground cell
+    ground_line(g, labels, rr, cc, r, dr, dc, [&](const Eigen::Vector3d& v) {
+      widest = std::max(widest, dot3(v, x.normal));
+      return false;
+    });
+    if (jump > widest + kValleyJump * x.tol) return true;
+  }
+  return false;
+}
+
 }  // namespace
 
 namespace {
@@ -957,7 +1042,8 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
         bool abnormal = !fits && (edge_proud(sd, best, [](int s) { return kOpposite[s]; },
                                              attached_to) ||
                                   is_fin(g, lab, grow, cols[j], r) ||
-                                  is_lip(g, lab, grow, cols[j], r, sd, best));
+                                  is_lip(g, lab, grow, cols[j], r, sd, best) ||
+                                  in_valley(g, lab, grow, cols[j], r, sd, best));
         if (!abnormal && !fits_ground) {
           abnormal = is_hanging(g, lab, grow, cols[j], r, o, sd, best);
         }

@@ -1592,6 +1592,87 @@ def _lips(
     return out
 
 
+#: Valleys (SPEC "Edge test" step 6): P lies above both opposite clean sub-windows by more
+#: than this times their tolerances ...
+_VALLEY_HEIGHT = 1.75
+#: ... the opposite sub-window's centroid lies above the first one's plane by more than this
+#: times its tolerance (the far face rises: a concave feature) ...
+_VALLEY_CENTROID = 2.0
+#: ... the scan's spacing is regular up to P on both sides: the gap from P to its neighbour
+#: towards a sub-window is at most this times the gap from that neighbour to the next ...
+_VALLEY_GAP = 3.0
+#: ... towards the lower side the raised run (P included) holds at most this many cells ...
+_VALLEY_CELLS = 4
+#: ... and steps up from that side's plane by more than its largest rise plus this many
+#: tolerances (a fillet rises ever more steeply: no step).
+_VALLEY_JUMP = 1.5
+
+
+def _valleys(
+    grid: NDArray[np.float64],
+    labels: NDArray[np.uint8],
+    cells: NDArray[np.bool_],
+    r: int,
+    clean: NDArray[np.bool_],
+    h: NDArray[np.float64],
+    tol: NDArray[np.float64],
+    nrm: NDArray[np.float64],
+    cen: NDArray[np.float64],
+) -> NDArray[np.bool_]:
+    """The cells of ``cells`` (row-major) *in a valley* (SPEC "Edge test" step 6)."""
+    hh, ww = labels.shape
+    rr, cc = np.nonzero(cells)
+    p = grid[rr, cc]
+    regular = np.zeros(clean.shape, dtype=bool)
+    if r >= 2:
+        for k, (dr, dc) in enumerate(_HANG_DIRECTIONS):
+            u = nrm[k]
+            q, ok = [], np.ones(rr.size, dtype=bool)
+            for j in (1, 2):
+                a, b = rr - j * dr, cc - j * dc
+                inside = (a >= 0) & (a < hh) & (b >= 0) & (b < ww)
+                a, b = np.clip(a, 0, hh - 1), np.clip(b, 0, ww - 1)
+                ok &= inside & (labels[a, b] != INVALID)
+                q.append(grid[a, b])
+
+            def along(v: NDArray[np.float64]) -> NDArray[np.float64]:
+                s = _dot3(v, u)
+                return np.sqrt(np.maximum(_dot3(v, v) - s * s, 0.0))
+
+            regular[k] = ok & (along(q[0] - p) <= _VALLEY_GAP * along(q[1] - q[0]))
+    high = clean & (h > _VALLEY_HEIGHT * tol) & regular
+    out = np.zeros(rr.size, dtype=bool)
+    for a, b in _EDGE_OPPOSITE:
+        for x, y in ((a, b), (b, a)):
+            rise = _dot3(nrm[x], cen[y] - cen[x])  # y's centroid over x's plane
+            cand = high[x] & high[y] & (rise > _VALLEY_CENTROID * tol[x])
+            if not cand.any():
+                continue
+            u, hx, tx = nrm[x], h[x], tol[x]
+            dr, dc = _HANG_DIRECTIONS[x]
+            # towards x: the raised ground cells, then the first on x's plane (the base)
+            prev = hx.copy()  # height over x's plane of the last raised cell
+            widest = np.zeros(rr.size)  # the largest rise between consecutive raised cells
+            going = cand.copy()
+            based = np.zeros(rr.size, dtype=bool)
+            jump = np.zeros(rr.size)
+            for j, (hit, v) in enumerate(_ground_line(grid, labels, cells, r, (-dr, -dc)), 1):
+                hv = _dot3(v, u) + hx
+                on = hit & going & ~(np.abs(hv) > tx)
+                based |= on & (j <= _VALLEY_CELLS)
+                jump[on] = prev[on] - hv[on]
+                up = hit & going & ~on
+                widest[up] = np.maximum(widest[up], prev[up] - hv[up])
+                prev[up] = hv[up]
+                going &= ~hit | up
+                going &= j < _VALLEY_CELLS
+            # ... and beyond P: the rise onto the next ground cell
+            ok1, s1, _ = _nearest_ground(grid, labels, cells, r, (dr, dc), u)
+            widest = np.where(ok1, np.maximum(widest, s1), widest)
+            out |= cand & based & (jump > widest + _VALLEY_JUMP * tx)
+    return out
+
+
 #: Isolated spikes (SPEC "Edge test" step 7): P lies more than this times its tolerance off
 #: every clean side (2 x edge_k rms: never a cell that fits a clean side) ...
 _EDGE_SPIKE_TOL = 2.0
@@ -1763,6 +1844,8 @@ def _edge_verdicts(
         sel[cells] = has
         has[has] = _lips(grid, labels, sel, r, lip[:, has], nrm[:, has], h[:, has], tol[:, has])
         out[cells] |= has
+    # in a valley: P above both opposite clean sides of a concave feature (step 6)
+    out[cells] |= ~fits.any(axis=0) & _valleys(grid, labels, cells, r, clean, h, tol, nrm, cen)
     # a hanging cell that fits no clean side with a return (an empty side's support is the last
     # returns before a dropout, often the hanging material itself bridged to the floor beyond)
     hang = ~(fits & ~empty).any(axis=0)
