@@ -64,6 +64,7 @@ __all__ = [
     "Scene",
     "SceneSpec",
     "build",
+    "dev_specs",
     "real_available",
     "scenes",
     "specs",
@@ -208,6 +209,47 @@ class Scene:
 def real_available() -> bool:
     """True when both real scans are readable from :data:`REAL_DIR`."""
     return (REAL_DIR / _SECOND).is_file() and (REAL_DIR / _GOCATOR).is_file()
+
+
+#: The dev set's seed bases (:func:`dev_specs`): apart from every split's seeds.
+_DEV_SEED, _DEV_PAPER_SEED = 8000, 8600
+
+
+def dev_specs(per_kind: int = 24) -> list[SceneSpec]:
+    """A development set of the suite's non-edge kinds: ``per_kind`` scenes of each (seeds from
+    8000), every surface, step, noise and dropout cycled, and ``per_kind`` paper scenes (seeds
+    from 8600). For choosing a rule's bounds where it could fire on clean surfaces (curved
+    sheets, fillets, the paper's edge strips) without looking at the test split (SPEC "Edge
+    test" step 6, valleys); never scored in the tables."""
+    out = []
+    for i, kind in enumerate(KINDS):
+        sim_kind, count, heights = _KIND_SPECS[kind]
+        for j in range(per_kind):
+            seed = _DEV_SEED + 20 * i + j
+            rng = np.random.default_rng(seed)
+            surface, extra = _SURFACES[(j + i) % len(_SURFACES)]
+            params: dict[str, Any] = {
+                "shape": (int(rng.integers(120, 161)), int(rng.integers(120, 161))),
+                "step": _STEPS[(j // 2 + i) % len(_STEPS)],
+                "surface": surface,
+                "noise": _NOISES[(j + 2 * i + j // 3) % len(_NOISES)],
+                "dropout": _DROPOUTS[(i + j) % len(_DROPOUTS)],
+                "defects": {sim_kind: count},
+                "seed": seed,
+                "line_angle_deg": float(rng.uniform(-30.0, 30.0)),
+                "azimuth_deg": float(rng.uniform(0.0, 360.0)),
+                "margin": 4,
+                "max_slope_deg": 45.0,
+            }
+            params["height" if sim_kind != "dust" else "dust_height"] = heights
+            for key, value in extra.items():
+                params[key] = round(_pick(rng, value), 3)
+            out.append(SceneSpec(f"dev-{kind}-{j}-{surface}", "dev", kind, "synthetic", params))
+    for k in range(per_kind):
+        paper = {"step": 0.5, "noise": (0.03, 0.04, 0.05)[k % 3], "dropout": 0.01,
+                 "n_abnormal": 9, "n_on_edge": 3, "seed": _DEV_PAPER_SEED + k}
+        out.append(SceneSpec(f"dev-paper-{k}", "dev", "paper", "paper", paper))
+    return out
 
 
 def _pick(rng: np.random.Generator, value: Any) -> Any:
