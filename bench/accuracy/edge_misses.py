@@ -10,7 +10,8 @@ the edge test's sub-windows on the final labels (``miem.reference._side_fits``, 
 test" steps 3-4): *fits* a clean sub-window (within ``edge_tolerance`` rms of its plane: no
 rule of the edge test flags such a cell, so the kind's recall cannot exceed the *ceiling*
 printed beside it), *above* a clean sub-window (proud, but the opposite side does not fall
-away: a concave feature, where only a lip, dipping then rising beyond, is flagged; or a burr
+away: a concave feature, where only a lip, dipping then rising beyond, or a valley burr,
+stepping up from one side's plane and above the other's, is flagged; or a burr
 hanging less steeply than 45 degrees below a top, seen from the floor), *below* one, or *no
 clean* sub-window.
 Writes nothing (the tables are edges.py's).
