@@ -402,16 +402,21 @@ def test_valley_burr_before_a_coarse_concave_crease(monkeypatch: pytest.MonkeyPa
     than 1.75 t); the face's centroid lies far above the left plane (more than 2 t); towards
     the left P steps up 0.1 from column 18 (on the plane), more than the rise from P onto
     column 20 (0.044) plus 1.5 t. The same crease without the burr, and rounded into a fillet
-    (its corner cell 0.1 above both planes, but the surface beyond climbs 0.2 in one step: no
-    step up), stay clean. Without the rule (a height bound of infinity) the burr is missed."""
+    (its last cell before the line 0.06 above the sheet's plane and 0.2 above the face's, but
+    stepping up only 0.05 from column 18 while the surface beyond climbs 0.14 in one step),
+    stay clean. Without the rule (a height bound of infinity) the burr is missed."""
     z, burr = _coarse_valley_z("burr")
     assert 0.1 > 1.75 * 0.016 and 0.1 > 0.044 + 1.5 * 0.016
+    f = _coarse_valley_z("fillet")[0] - _noise((40, 40))  # the fillet's own profile, by hand
+    assert abs(f[20, 19] - 0.0625) < 1e-3 and abs(f[20, 20] - f[20, 19] - 0.145) < 1e-3
+    assert f[20, 19] - f[20, 18] < 0.145 + 1.5 * 0.016
     assert z[20, 20] - z[20, 19] > -0.05 and z[20, 19] - (z[20, 18] + z[20, 20]) / 2 < 0.05
     labels = np.zeros(burr.shape, np.uint8)
     for kind in ("burr", "crease", "fillet"):
         g = _grid(_coarse_valley_z(kind)[0], step=0.5)
-        new = ref.edge_test(g, labels, window=11, tolerance=8.0, max_iterations=10)[0] == ref.ABNORMAL
-        np.testing.assert_array_equal(new, burr if kind == "burr" else np.zeros_like(burr))
+        out = ref.edge_test(g, labels, window=11, tolerance=8.0, max_iterations=10)[0]
+        np.testing.assert_array_equal(out == ref.ABNORMAL,
+                                      burr if kind == "burr" else np.zeros_like(burr))
     g = _grid(z, step=0.5)
     kw = {"preset": "recommended", "edge_tolerance": 8.0, "edge_window": 11}
     want = ref.detect(g, **kw).labels
