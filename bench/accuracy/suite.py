@@ -221,30 +221,11 @@ def dev_specs(per_kind: int = 24) -> list[SceneSpec]:
     from 8600). For choosing a rule's bounds where it could fire on clean surfaces (curved
     sheets, fillets, the paper's edge strips) without looking at the test split (SPEC "Edge
     test" step 6, valleys); never scored in the tables."""
-    out = []
-    for i, kind in enumerate(KINDS):
-        sim_kind, count, heights = _KIND_SPECS[kind]
-        for j in range(per_kind):
-            seed = _DEV_SEED + 20 * i + j
-            rng = np.random.default_rng(seed)
-            surface, extra = _SURFACES[(j + i) % len(_SURFACES)]
-            params: dict[str, Any] = {
-                "shape": (int(rng.integers(120, 161)), int(rng.integers(120, 161))),
-                "step": _STEPS[(j // 2 + i) % len(_STEPS)],
-                "surface": surface,
-                "noise": _NOISES[(j + 2 * i + j // 3) % len(_NOISES)],
-                "dropout": _DROPOUTS[(i + j) % len(_DROPOUTS)],
-                "defects": {sim_kind: count},
-                "seed": seed,
-                "line_angle_deg": float(rng.uniform(-30.0, 30.0)),
-                "azimuth_deg": float(rng.uniform(0.0, 360.0)),
-                "margin": 4,
-                "max_slope_deg": 45.0,
-            }
-            params["height" if sim_kind != "dust" else "dust_height"] = heights
-            for key, value in extra.items():
-                params[key] = round(_pick(rng, value), 3)
-            out.append(SceneSpec(f"dev-{kind}-{j}-{surface}", "dev", kind, "synthetic", params))
+    out = [_synthetic_spec("dev", kind, j, _DEV_SEED + 20 * i + j, j + i,
+                           _STEPS[(j // 2 + i) % len(_STEPS)],
+                           _NOISES[(j + 2 * i + j // 3) % len(_NOISES)],
+                           _DROPOUTS[(i + j) % len(_DROPOUTS)])
+           for i, kind in enumerate(KINDS) for j in range(per_kind)]
     for k in range(per_kind):
         paper = {"step": 0.5, "noise": (0.03, 0.04, 0.05)[k % 3], "dropout": 0.01,
                  "n_abnormal": 9, "n_on_edge": 3, "seed": _DEV_PAPER_SEED + k}
@@ -257,6 +238,33 @@ def _pick(rng: np.random.Generator, value: Any) -> Any:
     if isinstance(value, tuple) and len(value) == 2:
         return float(rng.uniform(*value))
     return value
+
+
+def _synthetic_spec(split: str, kind: str, j: int, seed: int, surface: int, step: float,
+                    noise: float, dropout: float) -> SceneSpec:
+    """Scene ``j`` of a synthetic ``kind`` (``surface``: an index into _SURFACES), named
+    ``{split}-{kind}-{j}-{surface}``; its shape, line, azimuth and surface extras drawn from
+    ``seed``."""
+    sim_kind, count, heights = _KIND_SPECS[kind]
+    rng = np.random.default_rng(seed)
+    name, extra = _SURFACES[surface % len(_SURFACES)]
+    params: dict[str, Any] = {
+        "shape": (int(rng.integers(120, 161)), int(rng.integers(120, 161))),
+        "step": step,
+        "surface": name,
+        "noise": noise,
+        "dropout": dropout,
+        "defects": {sim_kind: count},
+        "seed": seed,
+        "line_angle_deg": float(rng.uniform(-30.0, 30.0)),
+        "azimuth_deg": float(rng.uniform(0.0, 360.0)),
+        "margin": 4,
+        "max_slope_deg": 45.0,
+    }
+    params["height" if sim_kind != "dust" else "dust_height"] = heights
+    for key, value in extra.items():
+        params[key] = round(_pick(rng, value), 3)
+    return SceneSpec(f"{split}-{kind}-{j}-{name}", split, kind, "synthetic", params)
 
 
 def specs(split: str, *, real: bool | None = None) -> list[SceneSpec]:
@@ -273,7 +281,8 @@ def specs(split: str, *, real: bool | None = None) -> list[SceneSpec]:
     -------
     list of SceneSpec
         Synthetic scenes (every focus kind on several surfaces; 4 per kind for ``"test"``,
-        2 for ``"tune"``; edge kinds: :data:`EDGE_PER_KIND`), one paper scene, then the real crops of the split.
+        2 for ``"tune"``; edge kinds: :data:`EDGE_PER_KIND`), one paper scene, then the real
+        crops of the split.
     """
     if split not in _SPLIT_SEED:
         raise ValueError(f"split: expected 'tune', 'test' or 'third', got {split!r}")
@@ -284,30 +293,11 @@ def specs(split: str, *, real: bool | None = None) -> list[SceneSpec]:
     # The tuning split pairs kinds with other surfaces, noises and steps than the test split
     # (the third set with others again).
     shift = {"test": 0, "tune": 3, "third": 1}[split]
-    out = []
-    for i, kind in enumerate(KINDS):
-        sim_kind, count, heights = _KIND_SPECS[kind]
-        for j in range(per_kind):
-            seed = base + 10 * i + j
-            rng = np.random.default_rng(seed)
-            surface, extra = _SURFACES[(2 * i + j + shift) % len(_SURFACES)]
-            params: dict[str, Any] = {
-                "shape": (int(rng.integers(120, 161)), int(rng.integers(120, 161))),
-                "step": _STEPS[(i + j + shift) % len(_STEPS)],
-                "surface": surface,
-                "noise": _NOISES[(i + 3 * j + shift) % len(_NOISES)],
-                "dropout": _DROPOUTS[(i + 2 * j + shift) % len(_DROPOUTS)],
-                "defects": {sim_kind: count},
-                "seed": seed,
-                "line_angle_deg": float(rng.uniform(-30.0, 30.0)),
-                "azimuth_deg": float(rng.uniform(0.0, 360.0)),
-                "margin": 4,
-                "max_slope_deg": 45.0,
-            }
-            params["height" if sim_kind != "dust" else "dust_height"] = heights
-            for key, value in extra.items():
-                params[key] = round(_pick(rng, value), 3)
-            out.append(SceneSpec(f"{split}-{kind}-{j}-{surface}", split, kind, "synthetic", params))
+    out = [_synthetic_spec(split, kind, j, base + 10 * i + j, 2 * i + j + shift,
+                           _STEPS[(i + j + shift) % len(_STEPS)],
+                           _NOISES[(i + 3 * j + shift) % len(_NOISES)],
+                           _DROPOUTS[(i + 2 * j + shift) % len(_DROPOUTS)])
+           for i, kind in enumerate(KINDS) for j in range(per_kind)]
     for i, kind in enumerate(EDGE_KINDS):
         for j in range(EDGE_PER_KIND[split]):
             seed = base + 300 + 10 * i + j
