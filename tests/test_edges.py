@@ -378,6 +378,56 @@ def test_lip_dips_at_itself_before_a_steep_valley(monkeypatch: pytest.MonkeyPatc
     np.testing.assert_array_equal(stream_labels(g, p), miem.detect(g, params=p).labels)
 
 
+def _outline_crop(resume: bool) -> tuple[np.ndarray, np.ndarray]:
+    """A 48 x 64 crop of a generated cut scene (seed 9003, outside every split: 0.5 mm steps,
+    0.02 mm noise, a curved outline with burr runs along it) and its burr mask. With
+    ``resume`` the part's plane (fitted to its clean cells) returns 3 cells beyond the
+    outline: a band of dropouts, not an outline."""
+    e = edge_scenes.make_edge_scene("edge_cut", 9003, step=0.5, noise=0.02, curved=True)
+    pts = np.ascontiguousarray(e.points[30:78, 50:114]).copy()
+    burr = e.truth[30:78, 50:114] == suite.DEFECT
+    if resume:
+        z = pts[..., 2]
+        fin = np.isfinite(z)
+        clean = fin & ~burr
+        a = np.c_[pts[clean][:, :2], np.ones(int(clean.sum()))]
+        coef = np.linalg.lstsq(a, z[clean], rcond=None)[0]
+        far = ~fin
+        for _ in range(3):  # the NaN cells more than 3 steps (4-connected) from a return
+            grown = far.copy()
+            grown[1:] &= far[:-1]
+            grown[:-1] &= far[1:]
+            grown[:, 1:] &= far[:, :-1]
+            grown[:, :-1] &= far[:, 1:]
+            far = grown
+        x = (50 + np.arange(64))[None, :].repeat(48, 0) * 0.5  # the scene's columns
+        y = np.nanmean(pts[..., 1], axis=1)[:, None].repeat(64, 1)
+        noise = np.random.default_rng(1).normal(0.0, 0.02, int(far.sum()))
+        pts[far] = np.c_[x[far], y[far], coef[0] * x[far] + coef[1] * y[far] + coef[2] + noise]
+    return pts, burr
+
+
+def test_lip_before_an_outline_that_its_run_fits(monkeypatch: pytest.MonkeyPatch) -> None:
+    """SPEC "Edge test" step 5, outlines: burr runs along a cut whose sub-windows along the cut
+    (they hold the run itself) fit them. With the rule the reference flags burr cells it
+    misses without it (a tolerance bound of infinity), and nothing else; the core and the
+    stream agree. Where the part's surface resumes 3 cells beyond the cut (a band of
+    dropouts: no sub-window there is 90 % without returns), the rule adds nothing."""
+    pts, burr = _outline_crop(resume=False)
+    on = ref.detect(pts).labels == ref.ABNORMAL
+    np.testing.assert_array_equal(miem.detect(pts).labels == miem.ABNORMAL, on)
+    p = miem.default_params("stream")
+    np.testing.assert_array_equal(stream_labels(pts, p) == miem.ABNORMAL, on)
+    gap = _outline_crop(resume=True)[0]
+    assert np.isfinite(gap[..., 2]).sum() > np.isfinite(pts[..., 2]).sum() + 100
+    gap_on = ref.detect(gap).labels == ref.ABNORMAL
+    monkeypatch.setattr(ref, "_OUTLINE_HEIGHT", np.inf)
+    off = ref.detect(pts).labels == ref.ABNORMAL
+    gained = on & ~off
+    assert gained.sum() >= 10 and not (gained & ~burr).any() and not (on & ~burr).any()
+    np.testing.assert_array_equal(ref.detect(gap).labels == ref.ABNORMAL, gap_on)
+
+
 def _coarse_valley_z(kind: str, h: int = 40, w: int = 40) -> tuple[np.ndarray, np.ndarray]:
     """Sheet (z = 0) sampled at 0.5 mm up to a 30-degree concave crease between columns 19 and
     20 (``"crease"``; ``"burr"``: with a burr 0.1 mm tall on column 19, rows 12-27, the last

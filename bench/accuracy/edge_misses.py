@@ -8,8 +8,9 @@ detector gave the missed cells (NORMAL or EDGE), the scene's step and whether it
 curved; then the misses per kind and step; then, per kind, where the missed cells stand against
 the edge test's sub-windows on the final labels (``miem.reference._side_fits``, SPEC "Edge
 test" steps 3-4): *fits* a clean sub-window (within ``edge_tolerance`` rms of its plane: no
-rule of the edge test flags such a cell, so the kind's recall cannot exceed the *ceiling*
-printed beside it), *above* a clean sub-window (proud, but the opposite side does not fall
+rule of the edge test flags such a cell but the outline rule of step 5, where the sub-windows
+along an outline may fit it, so outside outlines the kind's recall cannot exceed the
+*ceiling* printed beside it), *above* a clean sub-window (proud, but the opposite side does not fall
 away: a concave feature, where only a lip, dipping then rising beyond, or a valley burr,
 stepping up from one side's plane and above the other's, is flagged; or a burr
 hanging less steeply than 45 degrees below a top, seen from the floor), *below* one, or *no

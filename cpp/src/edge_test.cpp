@@ -62,7 +62,8 @@ inline __attribute__((always_inline)) void side_moment(const double* mm, std::pt
 }
 
 // Sub-window moments (SoA, moment q at mm + q * cap) to what the planes need (side_moment),
-// and whether the side is empty (INVALID count). Vectorised.
+// and whether the side is empty: emptyb its INVALID count when that is at least n_min, else
+// 0. Vectorised.
 MIEM_CLONES void side_moments(std::ptrdiff_t m, std::ptrdiff_t cap, double n_min,
                               const double* __restrict mm, double* __restrict nnb,
                               double* __restrict ceb, double* __restrict Mb,
@@ -72,7 +73,7 @@ MIEM_CLONES void side_moments(std::ptrdiff_t m, std::ptrdiff_t cap, double n_min
     double nn, cx, cy, cz, M[6];
     bool use;
     side_moment(mm + e, cap, n_min, nn, cx, cy, cz, M, use);
-    emptyb[e] = mm[10 * cap + e] >= n_min ? 1.0 : 0.0;
+    emptyb[e] = mm[10 * cap + e] >= n_min ? mm[10 * cap + e] : 0.0;
     nnb[e] = nn;
     ceb[e] = cx, ceb[cap + e] = cy, ceb[2 * cap + e] = cz;
     useb[e] = use ? 1.0 : 0.0;
@@ -575,6 +576,40 @@ bool in_valley(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t 
   return false;
 }
 
+// SPEC "Edge test" step 5, outlines: a side is an outline when at least kOutlineEmpty of the
+// cells of its full (unclipped) extent have no return (outline_cells: a half (2 r + 1) r, a
+// quadrant r r) ...
+constexpr double kOutlineEmpty = 0.9;
+// ... and P is a lip before it when it lies above the opposite clean side x by more than
+// kOutlineHeight x tol, is attached to x, and fits no clean side on x's side of it (x and,
+// for a half, its two quadrants, kSameSide): the other sides lie along the outline and hold
+// the lip itself. miem.reference._outline_lips.
+constexpr double kOutlineHeight = 1.5;
+constexpr int kSameSide[8][3] = {{0, 4, 6}, {1, 5, 7}, {2, 4, 5}, {3, 6, 7},
+                                 {4, 4, 4}, {5, 5, 5}, {6, 6, 6}, {7, 7, 7}};
+
+inline double outline_cells(int s, std::ptrdiff_t r) {
+  return static_cast<double>(s < 4 ? (2 * r + 1) * r : r * r);
+}
+
+template <typename Attached>
+bool outline_lip(const Side (&sd)[8], double best, Attached attached) {
+  const auto fits = [&](int q) {
+    return edge_clean(sd[q], best) && !(std::abs(sd[q].h) > sd[q].tol);
+  };
+  for (int s = 0; s < 8; ++s) {
+    const Side& x = sd[s];
+    if (!edge_clean(x, best) || !(x.h > kOutlineHeight * x.tol) || !sd[kOpposite[s]].outline) {
+      continue;
+    }
+    if (!fits(kSameSide[s][0]) && !fits(kSameSide[s][1]) && !fits(kSameSide[s][2]) &&
+        attached(s)) {
+      return true;
+    }
+  }
+  return false;
+}
+
 }  // namespace
 
 namespace {
@@ -891,7 +926,8 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
         }
       }
     }
-    // Shortcut (exact): a cell that fits a clean side cannot become ABNORMAL (step 6).
+    // Shortcut (exact): a cell that fits a clean side cannot become ABNORMAL (step 6), unless
+    // it lies before an outline (step 5, outline_lip: those are judged in full).
     // Solve only the side s* with the smallest rms lower bound: when its rms is within
     // kCleanRatio of the smallest bound it is clean whatever the other sides give, and
     // when the cell fits it the verdict is "no" without the other seven solves. The
@@ -942,7 +978,14 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
           mark[i] = !fit_only && is_fin(g, lab, grow, cols[j], r) ? 1 : 0;
           continue;
         }
-        if (fits[j] != 0.0) {  // (a side with a return)
+        // before an outline a fit does not settle it (outline_lip): judged in full below
+        bool outline = false;
+        for (int s = 0; s < 8 && !fit_only; ++s) {
+          const double inv = banded ? bandp[kBandOf[s]][10 * kBandPos + bpos(s, cols[j])]
+                                    : mm[10 * kCap + s * m + j];
+          outline = outline || (inv >= n_min && inv >= kOutlineEmpty * outline_cells(s, r));
+        }
+        if (fits[j] != 0.0 && !outline) {  // (a side with a return)
           mark[i] = fit_only ? 1 : 0;
           continue;
         }
@@ -1012,6 +1055,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
           const int e = s * m + j;
           Side& x = sd[s];
           x.empty = emptyb[e] != 0;
+          x.outline = emptyb[e] >= kOutlineEmpty * outline_cells(s, r);
           x.centroid = Eigen::Vector3d(ceb[e], ceb[kCap + e], ceb[2 * kCap + e]);
           x.valid = validb[e] != 0;
           if (!x.valid) continue;
@@ -1024,7 +1068,8 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
         }
         // P fits a clean side (`fits`; one with a return: `fits_ground`): then no rule of
         // step 6 or 7 flags it but hanging, which a fit to an empty side does not clear (and
-        // step 7 needs every clean side more than 2 tol off)
+        // step 7 needs every clean side more than 2 tol off), and a lip before an outline
+        // (step 5), which a fit along the outline does not clear
         bool fits = false, fits_ground = false;
         for (const Side& x : sd) {
           if (edge_clean(x, best) && !(std::abs(x.h) > x.tol)) {
@@ -1044,6 +1089,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
                                   is_fin(g, lab, grow, cols[j], r) ||
                                   is_lip(g, lab, grow, cols[j], r, sd, best) ||
                                   in_valley(g, lab, grow, cols[j], r, sd, best));
+        if (!abnormal && fits) abnormal = outline_lip(sd, best, attached_to);
         if (!abnormal && !fits_ground) {
           abnormal = is_hanging(g, lab, grow, cols[j], r, o, sd, best);
         }

@@ -31,6 +31,7 @@ constexpr double kEdgeSteepCos = 0.3420201433256687;
 struct EdgeSide {
   bool valid = false, empty = false;
   bool steep = false;  // grids: a plane steeper than 70 degrees (never clean); clouds: unused
+  bool outline = false;  // grids: an outline, mostly without returns (step 5); clouds: unused
   double h = 0.0, rms = 0.0, tol = 0.0;  // h = u . (P - centroid); tol = max(k rms, floor)
   Eigen::Vector3d normal, centroid;      // centroid in any frame shared by the sides
 };

@@ -1053,6 +1053,14 @@ _EDGE_LINE_TOL = 1e-6
 _EDGE_STEEP_COS = 0.3420201433256687  # cos(70 degrees)
 #: Opposite sub-windows (indices into :func:`_edge_sides`).
 _EDGE_OPPOSITE = ((0, 1), (2, 3), (4, 7), (5, 6))
+#: The sub-windows on the same side of the cell as each one (SPEC "Edge test" step 5,
+#: outlines): a half and its two quadrants; a quadrant alone.
+_EDGE_SAME_SIDE = ((0, 4, 6), (1, 5, 7), (2, 4, 5), (3, 6, 7), (4,), (5,), (6,), (7,))
+#: Outlines (step 5): the opposite sub-window is an *outline* when at least this share of the
+#: cells of its full (unclipped) extent has no return ...
+_OUTLINE_EMPTY = 0.9
+#: ... and P stands above the clean sub-window by more than this times its tolerance.
+_OUTLINE_HEIGHT = 1.5
 
 
 def _edge_rms(evals: NDArray[np.float64], n: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -1140,6 +1148,17 @@ def _quiet_cells(
         return cand & np.isfinite(height) & (l0 <= (_EDGE_QUIET_ROUGH * floor) ** 2 * n) & near
 
 
+def _side_sums(s: NDArray[np.float64], rr: NDArray[np.intp], cc: NDArray[np.intp], r: int,
+               k: int) -> NDArray[np.float64]:
+    """The moments (``_moment_images`` channels) of sub-window ``k`` of each cell
+    ``(rr, cc)``, clipped at the grid border: one rectangle sum of the integral images ``s``."""
+    hh, ww = s.shape[0] - 1, s.shape[1] - 1
+    a0, a1, b0, b1 = _edge_sides(r)[k]
+    r0, r1 = np.clip(rr + a0, 0, hh), np.clip(rr + a1 + 1, 0, hh)
+    c0, c1 = np.clip(cc + b0, 0, ww), np.clip(cc + b1 + 1, 0, ww)
+    return s[r1, c1] - s[r0, c1] - s[r1, c0] + s[r0, c0]
+
+
 def _side_fits(
     grid: NDArray[np.float64],
     support: NDArray[np.bool_],
@@ -1169,12 +1188,8 @@ def _side_fits(
     normals = np.full((8, rr.size, 3), np.nan)
     centroids = np.full((8, rr.size, 3), np.nan)
     empty = np.zeros((8, rr.size), dtype=bool)
-    for k, (a0, a1, b0, b1) in enumerate(_edge_sides(r)):
-        r0 = np.clip(rr + a0, 0, hh)
-        r1 = np.clip(rr + a1 + 1, 0, hh)
-        c0 = np.clip(cc + b0, 0, ww)
-        c1 = np.clip(cc + b1 + 1, 0, ww)
-        m = s[r1, c1] - s[r0, c1] - s[r1, c0] + s[r0, c0]
+    for k in range(8):
+        m = _side_sums(s, rr, cc, r, k)
         ok = m[:, 0] >= n_min
         nn, cen, cov = _scatter(m)
         # support on a line in (x, y) (one row or column of cells): no plane (its normal would
@@ -1592,6 +1607,33 @@ def _lips(
     return out
 
 
+def _outline_lips(
+    images: NDArray[np.float64],
+    cells: NDArray[np.bool_],
+    r: int,
+    clean: NDArray[np.bool_],
+    fits: NDArray[np.bool_],
+    h: NDArray[np.float64],
+    tol: NDArray[np.float64],
+    empty: NDArray[np.bool_],
+    attached: NDArray[np.bool_],
+) -> NDArray[np.bool_]:
+    """The cells of ``cells`` (row-major) that are a *lip before an outline* (SPEC "Edge
+    test" step 5): above a clean sub-window by more than _OUTLINE_HEIGHT tolerances, attached
+    to it, its opposite an outline, and fitting no clean sub-window on its own side."""
+    rr, cc = np.nonzero(cells)
+    full = np.array([(2 * r + 1) * r] * 4 + [r * r] * 4, dtype=np.float64)
+    outline = np.stack([_side_sums(images, rr, cc, r, k)[:, 10] for k in range(8)])
+    outline = empty & (outline >= _OUTLINE_EMPTY * full[:, None])
+    out = np.zeros(rr.size, dtype=bool)
+    for a, b in _EDGE_OPPOSITE:
+        for x, y in ((a, b), (b, a)):
+            near = fits[list(_EDGE_SAME_SIDE[x])].any(axis=0)
+            out |= (clean[x] & (h[x] > _OUTLINE_HEIGHT * tol[x]) & outline[y] & attached[x]
+                    & ~near)
+    return out
+
+
 #: Valleys (SPEC "Edge test" step 6): P lies above both opposite clean sub-windows by more
 #: than this times their tolerances ...
 _VALLEY_HEIGHT = 1.75
@@ -1834,6 +1876,9 @@ def _edge_verdicts(
             below[x] = under[x] & beyond
     fin = _fins(grid, labels, cells, r)[cells]  # (SPEC step 6: reach r, inside the tile's frame)
     out[cells] = ~fits.any(axis=0) & (proud | fin)
+    # before an outline, only the sub-windows on P's side of it may clear P: the others lie
+    # along the outline and hold the lip itself (step 5, outlines)
+    out[cells] |= _outline_lips(images, cells, r, clean, fits, h, tol, empty, attached)
     # a lip at a concave feature: P above a clean side, and beyond P the surface dips, then
     # rises above that side's plane (step 6)
     lip = clean & (h > tol)
