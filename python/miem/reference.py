@@ -1176,7 +1176,6 @@ def _side_fits(
     and ``empty``, of shape ``(8, N)`` (``(8, N, 3)``) for the ``N`` cells of ``cells`` in
     row-major order.
     """
-    hh, ww = support.shape
     s = _moment_images(grid, support, invalid, origin) if images is None else images
     rr, cc = np.nonzero(cells)
     pt = grid[rr, cc] - origin
