@@ -533,11 +533,9 @@ bool valley_regular(const GridView<T>& g, const std::uint8_t* labels, std::ptrdi
 template <typename T>
 bool in_valley(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
                std::ptrdiff_t cc, std::ptrdiff_t r, const Side (&sd)[8], double best) {
-  const std::ptrdiff_t H = g.rows, W = g.cols;
   const auto high = [&](int s) {
     return edge_clean(sd[s], best) && sd[s].h > kValleyHeight * sd[s].tol;
   };
-  const Eigen::Vector3d p = g(rr, cc);
   for (int s = 0; s < 8; ++s) {
     const Side& x = sd[s];
     const int o = kOpposite[s];
@@ -548,29 +546,28 @@ bool in_valley(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t 
       continue;
     }
     const std::ptrdiff_t dr = kHangDirs[s][0], dc = kHangDirs[s][1];
-    // towards x: the raised ground cells, then the first on x's plane (the base)
+    // towards x (within kValleyCells steps): the raised ground cells, then the first on x's
+    // plane (the base)
     double prev = x.h, widest = 0.0, jump = 0.0;
     bool based = false;
-    for (std::ptrdiff_t j = 1; j <= std::min(r, kValleyCells); ++j) {
-      const std::ptrdiff_t a = rr - j * dr, b = cc - j * dc;
-      if (a < 0 || a >= H || b < 0 || b >= W) break;
-      const std::uint8_t l = labels[a * W + b];
-      if (l != kNormal && l != kEdge) continue;
-      const double hv = dot3(Eigen::Vector3d(g(a, b) - p), x.normal) + x.h;
-      if (!(std::abs(hv) > x.tol)) {
-        based = true;
-        jump = prev - hv;
-        break;
-      }
-      widest = std::max(widest, prev - hv);
-      prev = hv;
-    }
+    ground_line(g, labels, rr, cc, std::min(r, kValleyCells), -dr, -dc,
+                [&](const Eigen::Vector3d& v) {
+                  const double hv = dot3(v, x.normal) + x.h;
+                  if (!(std::abs(hv) > x.tol)) {
+                    based = true;
+                    jump = prev - hv;
+                    return false;
+                  }
+                  widest = std::max(widest, prev - hv);
+                  prev = hv;
+                  return true;
+                });
     if (!based) continue;
     // ... and beyond P: the rise onto the nearest ground cell
-    ground_line(g, labels, rr, cc, r, dr, dc, [&](const Eigen::Vector3d& v) {
-      widest = std::max(widest, dot3(v, x.normal));
-      return false;
-    });
+    double s1 = 0.0, w1 = 0.0;
+    if (nearest_ground(g, labels, rr, cc, r, dr, dc, x.normal, s1, w1)) {
+      widest = std::max(widest, s1);
+    }
     if (jump > widest + kValleyJump * x.tol) return true;
   }
   return false;
@@ -578,7 +575,7 @@ bool in_valley(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t 
 
 // SPEC "Edge test" step 5, outlines: a side is an outline when at least kOutlineEmpty of the
 // cells of its full (unclipped) extent have no return (outline_cells: a half (2 r + 1) r, a
-// quadrant r r) ...
+// quadrant r r), and it is empty (at least n_min of them) ...
 constexpr double kOutlineEmpty = 0.9;
 // ... and P is a lip before it when it lies above the opposite clean side x by more than
 // kOutlineHeight x tol, is attached to x, and fits no clean side on x's side of it (x and,
@@ -756,6 +753,8 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
   const bool fit_only = judge == EdgeJudgment::kFitsGround;  // step 9: any label, fits only
   const std::ptrdiff_t W = g.cols, f0 = im.f0, plane = im.plane;
   const double n_min = static_cast<double>(edge_n_min(r));
+  double outline_at[8];  // a side with this many INVALID cells is an outline (outline_lip)
+  for (int s = 0; s < 8; ++s) outline_at[s] = std::max(n_min, kOutlineEmpty * outline_cells(s, r));
   const double* const S = im.data;
   const std::uint8_t* const lrow = lab + grow * W;  // the cell's row
   const auto srow = [&im](std::ptrdiff_t s) { return ((s - im.first) % im.rows) * im.stride; };
@@ -979,13 +978,15 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
           continue;
         }
         // before an outline a fit does not settle it (outline_lip): judged in full below
-        bool outline = false;
-        for (int s = 0; s < 8 && !fit_only; ++s) {
-          const double inv = banded ? bandp[kBandOf[s]][10 * kBandPos + bpos(s, cols[j])]
-                                    : mm[10 * kCap + s * m + j];
-          outline = outline || (inv >= n_min && inv >= kOutlineEmpty * outline_cells(s, r));
-        }
-        if (fits[j] != 0.0 && !outline) {  // (a side with a return)
+        const auto before_outline = [&] {
+          for (int s = 0; s < 8; ++s) {
+            const double inv = banded ? bandp[kBandOf[s]][10 * kBandPos + bpos(s, cols[j])]
+                                      : mm[10 * kCap + s * m + j];
+            if (inv >= outline_at[s]) return true;
+          }
+          return false;
+        };
+        if (fits[j] != 0.0 && (fit_only || !before_outline())) {  // (a side with a return)
           mark[i] = fit_only ? 1 : 0;
           continue;
         }
@@ -1055,7 +1056,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
           const int e = s * m + j;
           Side& x = sd[s];
           x.empty = emptyb[e] != 0;
-          x.outline = emptyb[e] >= kOutlineEmpty * outline_cells(s, r);
+          x.outline = emptyb[e] >= outline_at[s];
           x.centroid = Eigen::Vector3d(ceb[e], ceb[kCap + e], ceb[2 * kCap + e]);
           x.valid = validb[e] != 0;
           if (!x.valid) continue;

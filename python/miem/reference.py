@@ -1691,22 +1691,23 @@ def _valleys(
                 continue
             u, hx, tx = nrm[x], h[x], tol[x]
             dr, dc = _HANG_DIRECTIONS[x]
-            # towards x: the raised ground cells, then the first on x's plane (the base)
+            # towards x (within _VALLEY_CELLS steps): the raised ground cells, then the first
+            # on x's plane (the base)
             prev = hx.copy()  # height over x's plane of the last raised cell
             widest = np.zeros(rr.size)  # the largest rise between consecutive raised cells
             going = cand.copy()
             based = np.zeros(rr.size, dtype=bool)
             jump = np.zeros(rr.size)
-            for j, (hit, v) in enumerate(_ground_line(grid, labels, cells, r, (-dr, -dc)), 1):
+            reach = min(r, _VALLEY_CELLS)
+            for hit, v in _ground_line(grid, labels, cells, reach, (-dr, -dc)):
                 hv = _dot3(v, u) + hx
                 on = hit & going & ~(np.abs(hv) > tx)
-                based |= on & (j <= _VALLEY_CELLS)
+                based |= on
                 jump[on] = prev[on] - hv[on]
                 up = hit & going & ~on
                 widest[up] = np.maximum(widest[up], prev[up] - hv[up])
                 prev[up] = hv[up]
                 going &= ~hit | up
-                going &= j < _VALLEY_CELLS
             # ... and beyond P: the rise onto the next ground cell
             ok1, s1, _ = _nearest_ground(grid, labels, cells, r, (dr, dc), u)
             widest = np.where(ok1, np.maximum(widest, s1), widest)
