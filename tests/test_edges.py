@@ -494,6 +494,38 @@ def test_valley_rule_leaves_a_curved_sheet_clean(monkeypatch: pytest.MonkeyPatch
     assert ((ref.detect(sc.points).labels == ref.ABNORMAL) & clean).sum() == 14
 
 
+def test_valley_beside_a_far_side_that_is_not_clean(monkeypatch: pytest.MonkeyPatch) -> None:
+    """SPEC "Edge test" step 6, valleys, level sub-windows: a 32 x 40 crop of a generated crease
+    scene (seed 9017, outside every split: 0.5 mm steps, 0.01 mm noise, a straight concave
+    crease of 21 degrees at 128 degrees across the scan, burr runs 1-4 cells wide before it).
+    Beyond a burr cell the far sub-window holds the run's other cells or straddles the line,
+    so it is not clean. Asking for two clean sub-windows (the rule's first form) the reference
+    finds 20 of the crop's 128 burr cells; with two level ones at least 75, and no other cell;
+    the core and the stream agree."""
+    e = edge_scenes.make_edge_scene("edge_crease", 9017, step=0.5, noise=0.01)
+    pts = np.ascontiguousarray(e.points[12:44, 0:40]).copy()
+    burr = e.truth[12:44, 0:40] == suite.DEFECT
+    assert burr.sum() == 128
+    on = ref.detect(pts).labels == ref.ABNORMAL
+    assert (on & burr).sum() >= 75 and not (on & ~burr).any()
+    np.testing.assert_array_equal(miem.detect(pts).labels == miem.ABNORMAL, on)
+    p = miem.default_params("stream")
+    np.testing.assert_array_equal(stream_labels(pts, p) == miem.ABNORMAL, on)
+    # the first form: the valley rule given the clean sub-windows instead of the level ones
+    clean_sides, valleys, seen = ref._clean_sides, ref._valleys, []
+
+    def keep_clean(*args: object, **kw: object) -> tuple[np.ndarray, ...]:
+        level, clean, tol = clean_sides(*args, **kw)
+        seen.append(clean)
+        return level, clean, tol
+
+    monkeypatch.setattr(ref, "_clean_sides", keep_clean)
+    monkeypatch.setattr(ref, "_valleys", lambda g, lab, cells, r, level, *rest: valleys(
+        g, lab, cells, r, seen[-1], *rest))
+    first = ref.detect(pts).labels == ref.ABNORMAL
+    assert (first & burr).sum() <= 25 and not (first & ~on).any()
+
+
 def _fin_z(h: int = 40, w: int = 40, diagonal: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Sheet with a fin 1.5 mm tall and 4 cells (0.4 mm) wide standing on it, along the rows
     (or along a diagonal); returns z and the fin mask."""

@@ -491,11 +491,12 @@ bool is_lip(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
   return false;
 }
 
-// SPEC "Edge test" step 6, valleys: P (candidate (rr, cc), its 8 sides `sd`, `best` their
-// smallest rms; the caller has found that P fits no clean side) lies above two opposite clean
-// sides x and y by more than kValleyHeight times their tolerances, y's centroid lies above x's
-// plane by more than kValleyCentroid times x's tolerance (the surface rises beyond P: a
-// concave crease), the scan is sampled regularly up to P on both sides (valley_regular), and
+// SPEC "Edge test" step 6, valleys: P (candidate (rr, cc), its 8 sides `sd`; the caller has
+// found that P fits no clean side) lies above two opposite level sides x and y (valid, not
+// steep; clean or not: beyond P a side may straddle the crease or hold the burr run's cells)
+// by more than kValleyHeight times their tolerances, y's centroid lies above x's plane by
+// more than kValleyCentroid times x's tolerance (the surface rises beyond P: a concave
+// crease), the scan is sampled regularly up to P on both sides (valley_regular), and
 // towards x the raised ground cells (at most kValleyCells, P included) step up from a ground
 // cell on x's plane by more than their largest rise, and the rise from P onto the nearest
 // ground cell beyond, plus kValleyJump x tol: material raised before a concave crease, where
@@ -532,9 +533,9 @@ bool valley_regular(const GridView<T>& g, const std::uint8_t* labels, std::ptrdi
 
 template <typename T>
 bool in_valley(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
-               std::ptrdiff_t cc, std::ptrdiff_t r, const Side (&sd)[8], double best) {
-  const auto high = [&](int s) {
-    return edge_clean(sd[s], best) && sd[s].h > kValleyHeight * sd[s].tol;
+               std::ptrdiff_t cc, std::ptrdiff_t r, const Side (&sd)[8]) {
+  const auto high = [&](int s) {  // (level: valid and not steep; clean or not)
+    return sd[s].valid && !sd[s].steep && sd[s].h > kValleyHeight * sd[s].tol;
   };
   for (int s = 0; s < 8; ++s) {
     const Side& x = sd[s];
@@ -1089,7 +1090,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
                                              attached_to) ||
                                   is_fin(g, lab, grow, cols[j], r) ||
                                   is_lip(g, lab, grow, cols[j], r, sd, best) ||
-                                  in_valley(g, lab, grow, cols[j], r, sd, best));
+                                  in_valley(g, lab, grow, cols[j], r, sd));
         if (!abnormal && fits) abnormal = outline_lip(sd, best, attached_to);
         if (!abnormal && !fits_ground) {
           abnormal = is_hanging(g, lab, grow, cols[j], r, o, sd, best);

@@ -1654,17 +1654,18 @@ def _valleys(
     labels: NDArray[np.uint8],
     cells: NDArray[np.bool_],
     r: int,
-    clean: NDArray[np.bool_],
+    level: NDArray[np.bool_],
     h: NDArray[np.float64],
     tol: NDArray[np.float64],
     nrm: NDArray[np.float64],
     cen: NDArray[np.float64],
 ) -> NDArray[np.bool_]:
-    """The cells of ``cells`` (row-major) *in a valley* (SPEC "Edge test" step 6)."""
+    """The cells of ``cells`` (row-major) *in a valley* (SPEC "Edge test" step 6); ``level``: the
+    valid sub-windows that are not steep, clean or not."""
     hh, ww = labels.shape
     rr, cc = np.nonzero(cells)
     p = grid[rr, cc]
-    regular = np.zeros(clean.shape, dtype=bool)
+    regular = np.zeros(level.shape, dtype=bool)
     if r >= 2:
         for k, (dr, dc) in enumerate(_HANG_DIRECTIONS):
             u = nrm[k]
@@ -1681,7 +1682,7 @@ def _valleys(
                 return np.sqrt(np.maximum(_dot3(v, v) - s * s, 0.0))
 
             regular[k] = ok & (along(q[0] - p) <= _VALLEY_GAP * along(q[1] - q[0]))
-    high = clean & (h > _VALLEY_HEIGHT * tol) & regular
+    high = level & (h > _VALLEY_HEIGHT * tol) & regular
     out = np.zeros(rr.size, dtype=bool)
     for a, b in _EDGE_OPPOSITE:
         for x, y in ((a, b), (b, a)):
@@ -1889,8 +1890,8 @@ def _edge_verdicts(
         sel[cells] = has
         has[has] = _lips(grid, labels, sel, r, lip[:, has], nrm[:, has], h[:, has], tol[:, has])
         out[cells] |= has
-    # in a valley: P above both opposite clean sides of a concave feature (step 6)
-    out[cells] |= ~fits.any(axis=0) & _valleys(grid, labels, cells, r, clean, h, tol, nrm, cen)
+    # in a valley: P above both of two opposite level sides of a concave feature (step 6)
+    out[cells] |= ~fits.any(axis=0) & _valleys(grid, labels, cells, r, level, h, tol, nrm, cen)
     # a hanging cell that fits no clean side with a return (an empty side's support is the last
     # returns before a dropout, often the hanging material itself bridged to the floor beyond)
     hang = ~(fits & ~empty).any(axis=0)
