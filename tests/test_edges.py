@@ -24,6 +24,7 @@ from stream_batch import stream_labels  # noqa: E402
 import miem  # noqa: E402
 from miem import _core  # noqa: E402
 from miem import reference as ref  # noqa: E402
+from miem import simulate  # noqa: E402
 
 # --------------------------------------------------------------------------------------------
 # synthetic edge scenes
@@ -479,8 +480,9 @@ def test_valley_rule_leaves_a_curved_sheet_clean(monkeypatch: pytest.MonkeyPatch
     curved sheet of the dev set at 0.5 mm steps (noise 0.01 mm, six 3 x 3 clusters; seed 8123,
     outside every split) has noise peaks that lie above the planes on both sides of them,
     extrapolated over a concave curve. With a height bound of 1.5 t, the far side's centroid
-    over 1 t and a step up of 1 t (the first form of the rule) 14 of its clean cells were
-    flagged; with the rule's bounds (1.75 t, 2 t, 1.5 t) none is, and the core agrees."""
+    over 1 t, a step up of 1 t and no bound on the angle between the planes (the first form
+    of the rule) 14 of its clean cells were flagged; with the rule's bounds (1.75 t, 2 t, 1.5 t,
+    more than 4 degrees) none is, and the core agrees."""
     spec = next(s for s in suite.dev_specs() if s.name == "dev-cluster3-3-curved")
     assert spec.params["step"] == 0.5 and spec.params["seed"] == 8123
     sc = suite.build(spec)
@@ -489,7 +491,8 @@ def test_valley_rule_leaves_a_curved_sheet_clean(monkeypatch: pytest.MonkeyPatch
     assert not ((labels == ref.ABNORMAL) & clean).any()
     assert (labels[~clean] == ref.ABNORMAL).all()
     np.testing.assert_array_equal(miem.detect(sc.points).labels, labels)
-    for name, value in (("_VALLEY_HEIGHT", 1.5), ("_VALLEY_CENTROID", 1.0), ("_VALLEY_JUMP", 1.0)):
+    for name, value in (("_VALLEY_HEIGHT", 1.5), ("_VALLEY_CENTROID", 1.0), ("_VALLEY_JUMP", 1.0),
+                        ("_VALLEY_COS", 1.0 + 1e-9)):
         monkeypatch.setattr(ref, name, value)
     assert ((ref.detect(sc.points).labels == ref.ABNORMAL) & clean).sum() == 14
 
@@ -524,6 +527,34 @@ def test_valley_beside_a_far_side_that_is_not_clean(monkeypatch: pytest.MonkeyPa
         g, lab, cells, r, seen[-1], *rest))
     first = ref.detect(pts).labels == ref.ABNORMAL
     assert (first & burr).sum() <= 25 and not (first & ~on).any()
+
+
+def test_valley_needs_a_crease_not_a_curved_surface(monkeypatch: pytest.MonkeyPatch) -> None:
+    """SPEC "Edge test" step 6, valleys: the two planes meet at more than 4 degrees. The paper
+    scan is noise-free and gently curved, with beads one sample wide and 1.5 mm tall (designed
+    EDGE). A bead cell stands far above the level planes on both sides, and on a noise-free
+    surface the tolerances are so small that the curvature alone puts one side's centroid more
+    than 2 t above the other side's plane; but the two planes there meet at under a degree. With
+    the bound, default detection flags exactly the 5 injected defects (core and reference);
+    without it the reference flags bead cells too."""
+    scan = simulate.paper_scan()
+    pts, truth = scan.points, scan.truth
+    want = truth == simulate.ABNORMAL
+    assert want.sum() == 5
+    on = ref.detect(pts).labels == ref.ABNORMAL
+    np.testing.assert_array_equal(on, want)
+    np.testing.assert_array_equal(miem.detect(pts).labels == miem.ABNORMAL, on)
+    # a bead cell's left and right sub-windows (r = 7): planes less than a degree apart
+    r, c = 100, 130
+    assert truth[r, c] == simulate.EDGE
+    sel = np.zeros(truth.shape, bool)
+    sel[r, c] = True
+    support = np.isfinite(pts[..., 2]) & (truth != simulate.EDGE)
+    nrm = ref._side_fits(pts, support, ~np.isfinite(pts[..., 2]), sel, 7, pts[0, 0])[4]
+    assert np.degrees(np.arccos(min(1.0, float(nrm[0, 0] @ nrm[1, 0])))) < 1.0
+    monkeypatch.setattr(ref, "_VALLEY_COS", 1.0 + 1e-9)
+    beads = (ref.detect(pts).labels == ref.ABNORMAL) & (truth == simulate.EDGE)
+    assert beads.sum() >= 100
 
 
 def _fin_z(h: int = 40, w: int = 40, diagonal: bool = False) -> tuple[np.ndarray, np.ndarray]:

@@ -507,6 +507,10 @@ bool is_lip(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
 // are miem.reference._valleys'.
 constexpr double kValleyHeight = 1.75, kValleyCentroid = 2.0, kValleyGap = 3.0,
                  kValleyJump = 1.5;
+// ... and x's and y's planes meet at more than 4 degrees (normals' dot product below cos 4
+// degrees): a crease, not a gently curved surface (noise-free, its tolerances are so small that
+// the centroid test alone passed a bead standing on it)
+constexpr double kValleyCos = 0.9975640502598242;
 constexpr std::ptrdiff_t kValleyCells = 4;
 
 // Regular sampling up to P = (rr, cc) towards side s: P - d and P - 2 d have returns (inside
@@ -541,7 +545,10 @@ bool in_valley(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t 
     const Side& x = sd[s];
     const int o = kOpposite[s];
     const double rise = dot3(x.normal, sd[o].centroid - x.centroid);  // y's centroid over x
-    if (!high(s) || !high(o) || !(rise > kValleyCentroid * x.tol)) continue;
+    if (!high(s) || !high(o) || !(rise > kValleyCentroid * x.tol) ||
+        !(dot3(x.normal, sd[o].normal) < kValleyCos)) {
+      continue;
+    }
     if (!valley_regular(g, labels, rr, cc, r, x, s) ||
         !valley_regular(g, labels, rr, cc, r, sd[o], o)) {
       continue;

@@ -1639,6 +1639,9 @@ _VALLEY_HEIGHT = 1.75
 #: ... the opposite sub-window's centroid lies above the first one's plane by more than this
 #: times its tolerance (the far face rises: a concave feature) ...
 _VALLEY_CENTROID = 2.0
+#: ... the two planes meet at more than 4 degrees (a crease, not a gently curved surface: on
+#: a noise-free one the centroid test alone passes a bead), cos 4 degrees ...
+_VALLEY_COS = 0.9975640502598242
 #: ... the scan's spacing is regular up to P on both sides: the gap from P to its neighbour
 #: towards a sub-window is at most this times the gap from that neighbour to the next ...
 _VALLEY_GAP = 3.0
@@ -1687,7 +1690,8 @@ def _valleys(
     for a, b in _EDGE_OPPOSITE:
         for x, y in ((a, b), (b, a)):
             rise = _dot3(nrm[x], cen[y] - cen[x])  # y's centroid over x's plane
-            cand = high[x] & high[y] & (rise > _VALLEY_CENTROID * tol[x])
+            cand = high[x] & high[y] & (rise > _VALLEY_CENTROID * tol[x]) & (
+                _dot3(nrm[x], nrm[y]) < _VALLEY_COS)
             if not cand.any():
                 continue
             u, hx, tx = nrm[x], h[x], tol[x]
