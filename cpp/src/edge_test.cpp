@@ -538,8 +538,8 @@ bool valley_regular(const GridView<T>& g, const std::uint8_t* labels, std::ptrdi
 template <typename T>
 bool in_valley(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
                std::ptrdiff_t cc, std::ptrdiff_t r, const Side (&sd)[8]) {
-  const auto high = [&](int s) {  // (level: valid and not steep; clean or not)
-    return sd[s].valid && !sd[s].steep && sd[s].h > kValleyHeight * sd[s].tol;
+  const auto high = [&](int s) {  // (level, clean or not)
+    return edge_level(sd[s]) && sd[s].h > kValleyHeight * sd[s].tol;
   };
   for (int s = 0; s < 8; ++s) {
     const Side& x = sd[s];
@@ -599,9 +599,7 @@ inline double outline_cells(int s, std::ptrdiff_t r) {
 
 template <typename Attached>
 bool outline_lip(const Side (&sd)[8], double best, Attached attached) {
-  const auto fits = [&](int q) {
-    return edge_clean(sd[q], best) && !(std::abs(sd[q].h) > sd[q].tol);
-  };
+  const auto fits = [&](int q) { return edge_fits(sd[q], best); };
   for (int s = 0; s < 8; ++s) {
     const Side& x = sd[s];
     if (!edge_clean(x, best) || !(x.h > kOutlineHeight * x.tol) || !sd[kOpposite[s]].outline) {
@@ -1081,7 +1079,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
         // (step 5), which a fit along the outline does not clear
         bool fits = false, fits_ground = false;
         for (const Side& x : sd) {
-          if (edge_clean(x, best) && !(std::abs(x.h) > x.tol)) {
+          if (edge_fits(x, best)) {
             fits = true;
             fits_ground = fits_ground || !x.empty;
           }

@@ -36,9 +36,17 @@ struct EdgeSide {
   Eigen::Vector3d normal, centroid;      // centroid in any frame shared by the sides
 };
 
-/// A clean side (SPEC "Edge test" step 4): valid, not steep, rms <= kEdgeCleanRatio x best.
+/// A level side (SPEC "Edge test" step 4): valid and not steep.
+inline bool edge_level(const EdgeSide& x) { return x.valid && !x.steep; }
+
+/// A clean side (SPEC "Edge test" step 4): level, rms <= kEdgeCleanRatio x best.
 inline bool edge_clean(const EdgeSide& x, double best) {
-  return x.valid && !x.steep && x.rms <= kEdgeCleanRatio * best;
+  return edge_level(x) && x.rms <= kEdgeCleanRatio * best;
+}
+
+/// P fits side x (step 4): x is clean and not |h| > tol.
+inline bool edge_fits(const EdgeSide& x, double best) {
+  return edge_clean(x, best) && !(std::abs(x.h) > x.tol);
 }
 
 /// SPEC "Edge test" step 5: P stands proud of a clean side whose opposite side
