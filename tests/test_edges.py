@@ -557,6 +557,31 @@ def test_valley_needs_a_crease_not_a_curved_surface(monkeypatch: pytest.MonkeyPa
     assert beads.sum() >= 100
 
 
+def test_lip_above_a_convex_creases_lower_envelope(monkeypatch: pytest.MonkeyPatch) -> None:
+    """SPEC "Edge test" step 6, lower envelopes: a 28 x 32 crop of a generated crease scene
+    (seed 9007, outside every split: 0.5 mm steps, 0.02 mm noise, a straight convex fold of 19.5
+    degrees, burr runs 1-4 cells wide along it). The far face's plane, extended over a burr
+    cell on the near face, lies above the surface there: the cell fits that sub-window, so no
+    other rule of step 6 flags it. With the rule the reference finds at least 75 of the
+    crop's 80 burr cells and no other cell; without it at most 65 (and nothing the rule's form
+    does not); the core, whose shortcut must not settle a cell that fits, and the stream
+    agree."""
+    e = edge_scenes.make_edge_scene("edge_crease", 9007, step=0.5, noise=0.02)
+    pts = np.ascontiguousarray(e.points[36:64, 54:86]).copy()
+    burr = e.truth[36:64, 54:86] == suite.DEFECT
+    assert burr.sum() == 80
+    on = ref.detect(pts).labels == ref.ABNORMAL
+    assert (on & burr).sum() >= 75 and not (on & ~burr).any()
+    np.testing.assert_array_equal(miem.detect(pts).labels == miem.ABNORMAL, on)
+    np.testing.assert_array_equal(
+        miem.detect(pts.astype(np.float32)).labels == miem.ABNORMAL, on)
+    p = miem.default_params("stream")
+    np.testing.assert_array_equal(stream_labels(pts, p) == miem.ABNORMAL, on)
+    monkeypatch.setattr(ref, "_envelopes", lambda clean, *rest: np.zeros(clean.shape[1], bool))
+    first = ref.detect(pts).labels == ref.ABNORMAL
+    assert (first & burr).sum() <= 65 and not (first & ~on).any()
+
+
 def _fin_z(h: int = 40, w: int = 40, diagonal: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Sheet with a fin 1.5 mm tall and 4 cells (0.4 mm) wide standing on it, along the rows
     (or along a diagonal); returns z and the fin mask."""

@@ -597,20 +597,91 @@ inline double outline_cells(int s, std::ptrdiff_t r) {
   return static_cast<double>(s < 4 ? (2 * r + 1) * r : r * r);
 }
 
-template <typename Attached>
-bool outline_lip(const Side (&sd)[8], double best, Attached attached) {
+// A lip before a feature on the far side (steps 5 and 6): P lies above clean side x by more
+// than `height` x tol, `beyond(x)` holds (x's opposite is an outline, or the other face of a
+// convex crease), P is attached to x and fits no clean side on x's side (kSameSide): the
+// sides across the feature do not clear P. miem.reference._lips_before.
+template <typename Beyond, typename Attached>
+bool lip_before(const Side (&sd)[8], double best, double height, Beyond beyond,
+                Attached attached) {
   const auto fits = [&](int q) { return edge_fits(sd[q], best); };
   for (int s = 0; s < 8; ++s) {
     const Side& x = sd[s];
-    if (!edge_clean(x, best) || !(x.h > kOutlineHeight * x.tol) || !sd[kOpposite[s]].outline) {
-      continue;
-    }
+    if (!edge_clean(x, best) || !(x.h > height * x.tol) || !beyond(s)) continue;
     if (!fits(kSameSide[s][0]) && !fits(kSameSide[s][1]) && !fits(kSameSide[s][2]) &&
         attached(s)) {
       return true;
     }
   }
   return false;
+}
+
+template <typename Attached>
+bool outline_lip(const Side (&sd)[8], double best, Attached attached) {
+  return lip_before(sd, best, kOutlineHeight, [&](int s) { return sd[kOpposite[s]].outline; },
+                    attached);
+}
+
+// SPEC "Edge test" step 6, lower envelopes: P lies above clean side x by more than
+// kEnvelopeHeight x tol, x's opposite y is clean and the two are convex (each centroid below
+// the other's plane by more than its tolerance), P is attached to x and fits no clean side on
+// x's side: y's plane, extended over P, lies above the surface there, so a fit to it does
+// not clear P. miem.reference._envelopes.
+constexpr double kEnvelopeHeight = 2.5;
+
+template <typename Attached>
+bool envelope_lip(const Side (&sd)[8], double best, Attached attached) {
+  const auto convex = [&](int s) {
+    const Side &x = sd[s], &y = sd[kOpposite[s]];
+    return edge_clean(y, best) && dot3(x.normal, y.centroid - x.centroid) < -x.tol &&
+           dot3(y.normal, x.centroid - y.centroid) < -y.tol;
+  };
+  return lip_before(sd, best, kEnvelopeHeight, convex, attached);
+}
+
+// For m cells (side s of cell j: its moments at mm8[s] + j, `cap` apart, its rms^2 bound at
+// low8[s][j], side_lows; the cell at Pc + j and a unit vector at U + j, `pcap` apart), how
+// many of their 8 sides may have P above their plane by more than `lim` x tol, tol >=
+// max(edge_k rms, floor), without solving: for unit w, (w . v)^2 <= (w' C w) (v' C^-1 v) with
+// C = M / nn, v = P - centroid. With w the plane's normal (smallest eigenvector), w' C w =
+// rms^2, so h > lim k rms needs nn v' M^-1 v > (lim k)^2 = lim2 (when rms is not 0: low > 0);
+// and w' C w <= u' C u for any unit u, so h > lim floor needs (u' C u) (v' C^-1 v) > (lim
+// floor)^2 = flo2 (both less a relative 1e-6 for rounding). A side with fewer than n_min points
+// (never valid) never does. The shortcut's test of a cell that fits a clean side for a lower
+// envelope: no side reaching, no lip. Vectorised over the cells.
+MIEM_CLONES void side_reaches(int m, std::ptrdiff_t cap, double n_min, double lim2,
+                              double flo2, const double* const* mm8, const double* const* low8,
+                              const double* __restrict Pc, const double* __restrict U,
+                              std::ptrdiff_t pcap, double* __restrict reach) {
+  for (int j = 0; j < m; ++j) reach[j] = 0.0;
+  for (int s = 0; s < 8; ++s) {
+    const double* __restrict mm = mm8[s];
+    const double* __restrict low = low8[s];
+#pragma GCC ivdep
+    for (int j = 0; j < m; ++j) {
+      // (side_moment's expressions, with one division: a bound needs no equal bits)
+      const double n = mm[j], nn = n < 1.0 ? 1.0 : n, inv = 1.0 / nn;
+      const double sx = mm[cap + j], sy = mm[2 * cap + j], sz = mm[3 * cap + j];
+      const double a = mm[4 * cap + j] - sx * sx * inv, b = mm[7 * cap + j] - sy * sy * inv;
+      const double c = mm[9 * cap + j] - sz * sz * inv, d = mm[5 * cap + j] - sx * sy * inv;
+      const double f = mm[8 * cap + j] - sy * sz * inv, g = mm[6 * cap + j] - sx * sz * inv;
+      // nn v = nn P - sums; adj(M) = det M^-1 by cofactors
+      const double vx = nn * Pc[j] - sx, vy = nn * Pc[pcap + j] - sy;
+      const double vz = nn * Pc[2 * pcap + j] - sz;
+      const double A00 = b * c - f * f, A11 = a * c - g * g, A22 = a * b - d * d;
+      const double A01 = f * g - d * c, A12 = d * g - a * f, A02 = d * f - b * g;
+      const double det = a * A00 + d * A01 + g * A02;
+      // (nn v)' adj(M) (nn v) = nn^2 det v' M^-1 v
+      const double q = vx * vx * A00 + vy * vy * A11 + vz * vz * A22 +
+                       2.0 * (vx * vy * A01 + vy * vz * A12 + vx * vz * A02);
+      const double ux = U[j], uy = U[pcap + j], uz = U[2 * pcap + j];
+      const double uMu = a * ux * ux + b * uy * uy + c * uz * uz +
+                         2.0 * (d * ux * uy + f * uy * uz + g * ux * uz);
+      const bool bounded = det > 0.0 && ((low[j] > 0.0 && q <= lim2 * nn * det) ||
+                                         (flo2 > 0.0 && uMu * q <= flo2 * nn * nn * det));
+      reach[j] += n >= n_min && !bounded ? 1.0 : 0.0;
+    }
+  }
 }
 
 }  // namespace
@@ -977,6 +1048,53 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       side_planes(m, kChunk, et, use1, ok1, E1, nn1, ce1, Pc, valid1, F1);
       double fits[kChunk];
       fits_clean_side(m, kChunk, redo1, valid1, empty1, low1, F1, fits);
+      // a cell that fits may lie above a lower envelope (envelope_lip) when one of its sides
+      // reaches (side_reaches): those are judged in full below
+      double reach[kChunk];
+      if (!fit_only) {
+        const double lim2 = kEnvelopeHeight * et.k * kEnvelopeHeight * et.k * (1.0 - 1e-6);
+        const double flo2 =
+            kEnvelopeHeight * et.floor * kEnvelopeHeight * et.floor * (1.0 - 1e-6);
+        const double* const U = F1 + 3 * kChunk;  // the solved side's normal
+        const double* mm8[8];
+        if (!banded || span == m) {  // the chunk's sides in place: mm (s * m + j) or the bands
+          for (int s = 0; s < 8; ++s) {
+            mm8[s] = banded ? bandp[kBandOf[s]] + bpos(s, cols[0]) : mm + s * m;
+          }
+          side_reaches(m, banded ? kBandPos : kCap, n_min, lim2, flo2, mm8, low8, Pc, U, kChunk,
+                       reach);
+        } else {  // scattered banded cells: the fitting ones' sides gathered, kSub at a time
+                  // (into mm: a banded chunk reads its sums from the bands)
+          int fit[kChunk], nfit = 0;
+          for (int j = 0; j < m; ++j) {
+            reach[j] = 0.0;
+            fit[nfit] = j;
+            nfit += fits[j] != 0.0;
+          }
+          double lq[kCap], pq[3 * kSub], uq[3 * kSub], rq[kSub];
+          const double* lq8[8];
+          for (int f0 = 0; f0 < nfit; f0 += kSub) {
+            const int mf = std::min(kSub, nfit - f0);
+            for (int s = 0; s < 8; ++s) {
+              const double* const bs = bandp[kBandOf[s]];
+              for (int f = 0; f < mf; ++f) {
+                const std::ptrdiff_t i = bpos(s, cols[fit[f0 + f]]);
+                for (int q = 0; q < kM; ++q) mm[q * kCap + s * mf + f] = bs[q * kBandPos + i];
+                lq[s * mf + f] = lowp[kBandOf[s]][i];
+              }
+              mm8[s] = mm + s * mf, lq8[s] = lq + s * mf;
+            }
+            for (int f = 0; f < mf; ++f) {
+              for (int q = 0; q < 3; ++q) {
+                pq[q * kSub + f] = Pc[q * kChunk + fit[f0 + f]];
+                uq[q * kSub + f] = U[q * kChunk + fit[f0 + f]];
+              }
+            }
+            side_reaches(mf, kCap, n_min, lim2, flo2, mm8, lq8, pq, uq, kSub, rq);
+            for (int f = 0; f < mf; ++f) reach[fit[f0 + f]] = rq[f];
+          }
+        }
+      }
       for (int j = 0; j < m; ++j) {
         const std::ptrdiff_t i = cols[j];
         if (!use1[j]) {  // no side with support: none to fit or stand proud of; a fin?
@@ -992,7 +1110,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
           }
           return false;
         };
-        if (fits[j] != 0.0 && (fit_only || !before_outline())) {  // (a side with a return)
+        if (fits[j] != 0.0 && (fit_only || (reach[j] == 0.0 && !before_outline()))) {
           mark[i] = fit_only ? 1 : 0;
           continue;
         }
@@ -1096,7 +1214,9 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
                                   is_fin(g, lab, grow, cols[j], r) ||
                                   is_lip(g, lab, grow, cols[j], r, sd, best) ||
                                   in_valley(g, lab, grow, cols[j], r, sd));
-        if (!abnormal && fits) abnormal = outline_lip(sd, best, attached_to);
+        if (!abnormal && fits) {
+          abnormal = outline_lip(sd, best, attached_to) || envelope_lip(sd, best, attached_to);
+        }
         if (!abnormal && !fits_ground) {
           abnormal = is_hanging(g, lab, grow, cols[j], r, o, sd, best);
         }

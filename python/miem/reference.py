@@ -1056,6 +1056,8 @@ _EDGE_OPPOSITE = ((0, 1), (2, 3), (4, 7), (5, 6))
 #: The sub-windows on the same side of the cell as each one (SPEC "Edge test" step 5,
 #: outlines): a half and its two quadrants; a quadrant alone.
 _EDGE_SAME_SIDE = ((0, 4, 6), (1, 5, 7), (2, 4, 5), (3, 6, 7), (4,), (5,), (6,), (7,))
+#: Each sub-window's opposite.
+_EDGE_OPPOSITE_OF = tuple(a + b - k for k in range(8) for a, b in _EDGE_OPPOSITE if k in (a, b))
 #: Outlines (step 5): the opposite sub-window is an *outline* when at least this share of the
 #: cells of its full (unclipped) extent has no return ...
 _OUTLINE_EMPTY = 0.9
@@ -1624,12 +1626,51 @@ def _outline_lips(
     full = np.array([(2 * r + 1) * r] * 4 + [r * r] * 4, dtype=np.float64)
     outline = np.stack([_side_sums(images, rr, cc, r, k)[:, 10] for k in range(8)])
     outline = empty & (outline >= _OUTLINE_EMPTY * full[:, None])
-    out = np.zeros(rr.size, dtype=bool)
-    for a, b in _EDGE_OPPOSITE:
-        for x, y in ((a, b), (b, a)):
-            near = fits[list(_EDGE_SAME_SIDE[x])].any(axis=0)
-            out |= (clean[x] & (h[x] > _OUTLINE_HEIGHT * tol[x]) & outline[y] & attached[x]
-                    & ~near)
+    return _lips_before(outline[list(_EDGE_OPPOSITE_OF)], _OUTLINE_HEIGHT, clean, fits, h, tol,
+                        attached)
+
+
+#: Lower envelopes (SPEC "Edge test" step 6): P above a clean sub-window of a convex crease by
+#: more than this times its tolerance.
+_ENVELOPE_HEIGHT = 2.5
+
+
+def _envelopes(
+    clean: NDArray[np.bool_],
+    fits: NDArray[np.bool_],
+    h: NDArray[np.float64],
+    tol: NDArray[np.float64],
+    nrm: NDArray[np.float64],
+    cen: NDArray[np.float64],
+    attached: NDArray[np.bool_],
+) -> NDArray[np.bool_]:
+    """The cells *above a lower envelope* (SPEC "Edge test" step 6): above a clean sub-window
+    by more than _ENVELOPE_HEIGHT tolerances, attached to it, its opposite clean and the two
+    convex (each centroid below the other's plane by more than its tolerance), and fitting no
+    clean sub-window on its own side (the opposite plane, extended over P, lies above the
+    surface there)."""
+    opp = list(_EDGE_OPPOSITE_OF)
+    convex = ((_dot3(nrm, cen[opp] - cen) < -tol) & (_dot3(nrm[opp], cen - cen[opp]) < -tol[opp]))
+    return _lips_before(clean[opp] & convex, _ENVELOPE_HEIGHT, clean, fits, h, tol, attached)
+
+
+def _lips_before(
+    beyond: NDArray[np.bool_],
+    height: float,
+    clean: NDArray[np.bool_],
+    fits: NDArray[np.bool_],
+    h: NDArray[np.float64],
+    tol: NDArray[np.float64],
+    attached: NDArray[np.bool_],
+) -> NDArray[np.bool_]:
+    """The cells above a clean sub-window ``x`` by more than ``height`` tolerances, attached to
+    it, ``beyond[x]`` (x's opposite an outline or a convex crease's other face) and fitting no
+    clean sub-window on x's side (SPEC "Edge test" steps 5 and 6): the sub-windows across the
+    feature do not clear P."""
+    out = np.zeros(h.shape[1], dtype=bool)
+    for x in range(8):
+        near = fits[list(_EDGE_SAME_SIDE[x])].any(axis=0)
+        out |= clean[x] & (h[x] > height * tol[x]) & beyond[x] & attached[x] & ~near
     return out
 
 
@@ -1884,6 +1925,9 @@ def _edge_verdicts(
     # before an outline, only the sub-windows on P's side of it may clear P: the others lie
     # along the outline and hold the lip itself (step 5, outlines)
     out[cells] |= _outline_lips(images, cells, r, clean, fits, h, tol, empty, attached)
+    # above a convex crease's lower envelope: the opposite face's plane, extended over P, lies
+    # above the surface there, and a fit to it does not clear P (step 6)
+    out[cells] |= _envelopes(clean, fits, h, tol, nrm, cen, attached)
     # a lip at a concave feature: P above a clean side, and beyond P the surface dips, then
     # rises above that side's plane (step 6)
     lip = clean & (h > tol)
