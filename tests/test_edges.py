@@ -497,6 +497,25 @@ def test_valley_rule_leaves_a_curved_sheet_clean(monkeypatch: pytest.MonkeyPatch
     assert ((ref.detect(sc.points).labels == ref.ABNORMAL) & clean).sum() == 14
 
 
+def _crease_crop(seed: int, noise: float, crop: tuple[slice, slice], n_burr: int,
+                 at_least: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A crop of generated crease scene ``seed`` (0.5 mm steps): its points, burr cells and the
+    reference's ABNORMAL cells, after checking that it holds ``n_burr`` burr cells, that the
+    reference finds at least ``at_least`` of them and no other cell, and that the core (float64
+    and float32) and the stream give the same cells."""
+    e = edge_scenes.make_edge_scene("edge_crease", seed, step=0.5, noise=noise)
+    pts = np.ascontiguousarray(e.points[crop]).copy()
+    burr = e.truth[crop] == suite.DEFECT
+    assert burr.sum() == n_burr
+    on = ref.detect(pts).labels == ref.ABNORMAL
+    assert (on & burr).sum() >= at_least and not (on & ~burr).any()
+    for p in (pts, pts.astype(np.float32)):
+        np.testing.assert_array_equal(miem.detect(p).labels == miem.ABNORMAL, on)
+    stream = stream_labels(pts, miem.default_params("stream"))
+    np.testing.assert_array_equal(stream == miem.ABNORMAL, on)
+    return pts, burr, on
+
+
 def test_valley_beside_a_far_side_that_is_not_clean(monkeypatch: pytest.MonkeyPatch) -> None:
     """SPEC "Edge test" step 6, valleys, level sub-windows: a 32 x 40 crop of a generated crease
     scene (seed 9017, outside every split: 0.5 mm steps, 0.01 mm noise, a straight concave
@@ -504,16 +523,8 @@ def test_valley_beside_a_far_side_that_is_not_clean(monkeypatch: pytest.MonkeyPa
     Beyond a burr cell the far sub-window holds the run's other cells or straddles the line,
     so it is not clean. Asking for two clean sub-windows (the rule's first form) the reference
     finds 20 of the crop's 128 burr cells; with two level ones at least 75, and no other cell;
-    the core and the stream agree."""
-    e = edge_scenes.make_edge_scene("edge_crease", 9017, step=0.5, noise=0.01)
-    pts = np.ascontiguousarray(e.points[12:44, 0:40]).copy()
-    burr = e.truth[12:44, 0:40] == suite.DEFECT
-    assert burr.sum() == 128
-    on = ref.detect(pts).labels == ref.ABNORMAL
-    assert (on & burr).sum() >= 75 and not (on & ~burr).any()
-    np.testing.assert_array_equal(miem.detect(pts).labels == miem.ABNORMAL, on)
-    p = miem.default_params("stream")
-    np.testing.assert_array_equal(stream_labels(pts, p) == miem.ABNORMAL, on)
+    the core (float64 and float32) and the stream agree."""
+    pts, burr, on = _crease_crop(9017, 0.01, np.s_[12:44, 0:40], 128, 75)
     # the first form: the valley rule given the clean sub-windows instead of the level ones
     clean_sides, valleys, seen = ref._clean_sides, ref._valleys, []
 
@@ -564,19 +575,9 @@ def test_lip_above_a_convex_creases_lower_envelope(monkeypatch: pytest.MonkeyPat
     cell on the near face, lies above the surface there: the cell fits that sub-window, so no
     other rule of step 6 flags it. With the rule the reference finds at least 75 of the
     crop's 80 burr cells and no other cell; without it at most 65 (and nothing the rule's form
-    does not); the core, whose shortcut must not settle a cell that fits, and the stream
-    agree."""
-    e = edge_scenes.make_edge_scene("edge_crease", 9007, step=0.5, noise=0.02)
-    pts = np.ascontiguousarray(e.points[36:64, 54:86]).copy()
-    burr = e.truth[36:64, 54:86] == suite.DEFECT
-    assert burr.sum() == 80
-    on = ref.detect(pts).labels == ref.ABNORMAL
-    assert (on & burr).sum() >= 75 and not (on & ~burr).any()
-    np.testing.assert_array_equal(miem.detect(pts).labels == miem.ABNORMAL, on)
-    np.testing.assert_array_equal(
-        miem.detect(pts.astype(np.float32)).labels == miem.ABNORMAL, on)
-    p = miem.default_params("stream")
-    np.testing.assert_array_equal(stream_labels(pts, p) == miem.ABNORMAL, on)
+    does not); the core (float64 and float32), whose shortcut must not settle a cell that fits,
+    and the stream agree."""
+    pts, burr, on = _crease_crop(9007, 0.02, np.s_[36:64, 54:86], 80, 75)
     monkeypatch.setattr(ref, "_envelopes", lambda clean, *rest: np.zeros(clean.shape[1], bool))
     first = ref.detect(pts).labels == ref.ABNORMAL
     assert (first & burr).sum() <= 65 and not (first & ~on).any()
