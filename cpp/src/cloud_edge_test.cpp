@@ -144,7 +144,7 @@ SectorVerdict cloud_edge_verdict(const detail::EdgeSide (&sd)[kSectors],
       }
     }
     if (!(outline ||
-          (centred[o] && detail::dot3(x.normal, y.centroid - x.centroid) < -x.tol))) {
+          (centred[o] && detail::edge_drops(x, y)))) {
       continue;
     }
     bool top = true;
@@ -156,7 +156,7 @@ SectorVerdict cloud_edge_verdict(const detail::EdgeSide (&sd)[kSectors],
     // centroid not below x's plane by more than x's tolerance).
     bool cleared = false;
     for (int c = 0; c < kSectors && !cleared; ++c) {
-      cleared = fit[c] && !(detail::dot3(x.normal, sd[c].centroid - x.centroid) < -x.tol);
+      cleared = fit[c] && !detail::edge_drops(x, sd[c]);
     }
     if (!cleared) return SectorVerdict::kProud;
   }
@@ -174,8 +174,8 @@ SectorVerdict cloud_edge_verdict(const detail::EdgeSide (&sd)[kSectors],
     }
     if (!(x.h < -x.tol)) continue;
     const detail::EdgeSide& y = sd[turned(s, 4)];
-    if (gone[turned(s, 4)] || (y.valid && y.rms <= clean && y.h > y.tol &&
-                    detail::dot3(x.normal, y.centroid - x.centroid) < -x.tol)) {
+    if (gone[turned(s, 4)] ||
+        (y.valid && y.rms <= clean && y.h > y.tol && detail::edge_drops(x, y))) {
       *below |= 1u << s;
     }
   }

@@ -397,8 +397,7 @@ bool is_hanging(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t
     const Side& y = sd[kOpposite[s]];
     if (!clean(s) || !(x.h < -x.tol)) continue;
     if (on_ledge(g, labels, rr, cc, r, o, x, s)) return true;
-    const bool drop = dot3(x.normal, y.centroid - x.centroid) < -x.tol;
-    if (!(y.empty || (clean(kOpposite[s]) && y.h > y.tol && drop))) continue;
+    if (!(y.empty || (clean(kOpposite[s]) && y.h > y.tol && edge_drops(x, y)))) continue;
     const std::ptrdiff_t dr = kHangDirs[s][0], dc = kHangDirs[s][1];
     const double depth = -x.h;
     bool steep = false;
@@ -633,8 +632,7 @@ template <typename Attached>
 bool envelope_lip(const Side (&sd)[8], double best, Attached attached) {
   const auto convex = [&](int s) {
     const Side &x = sd[s], &y = sd[kOpposite[s]];
-    return edge_clean(y, best) && dot3(x.normal, y.centroid - x.centroid) < -x.tol &&
-           dot3(y.normal, x.centroid - y.centroid) < -y.tol;
+    return edge_clean(y, best) && edge_drops(x, y) && edge_drops(y, x);
   };
   return lip_before(sd, best, kEnvelopeHeight, convex, attached);
 }
@@ -645,10 +643,10 @@ bool envelope_lip(const Side (&sd)[8], double best, Attached attached) {
 // max(edge_k rms, floor), without solving: for unit w, (w . v)^2 <= (w' C w) (v' C^-1 v) with
 // C = M / nn, v = P - centroid. With w the plane's normal (smallest eigenvector), w' C w =
 // rms^2, so h > lim k rms needs nn v' M^-1 v > (lim k)^2 = lim2 (when rms is not 0: low > 0);
-// and w' C w <= u' C u for any unit u, so h > lim floor needs (u' C u) (v' C^-1 v) > (lim
-// floor)^2 = flo2 (both less a relative 1e-6 for rounding). A side with fewer than n_min points
-// (never valid) never does. The shortcut's test of a cell that fits a clean side for a lower
-// envelope: no side reaching, no lip. Vectorised over the cells.
+// and w' C w <= u' C u for any unit u, so h > lim floor needs (u' M u) (v' M^-1 v) > (lim
+// floor)^2 = flo2 (both less a relative 1e-6 for rounding). A side without support (side_moment,
+// the same bits as the planes': never valid) never does. The shortcut's test of a cell that
+// fits a clean side for a lower envelope: no side reaching, no lip. Vectorised over the cells.
 MIEM_CLONES void side_reaches(int m, std::ptrdiff_t cap, double n_min, double lim2,
                               double flo2, const double* const* mm8, const double* const* low8,
                               const double* __restrict Pc, const double* __restrict U,
@@ -659,27 +657,23 @@ MIEM_CLONES void side_reaches(int m, std::ptrdiff_t cap, double n_min, double li
     const double* __restrict low = low8[s];
 #pragma GCC ivdep
     for (int j = 0; j < m; ++j) {
-      // (side_moment's expressions, with one division: a bound needs no equal bits)
-      const double n = mm[j], nn = n < 1.0 ? 1.0 : n, inv = 1.0 / nn;
-      const double sx = mm[cap + j], sy = mm[2 * cap + j], sz = mm[3 * cap + j];
-      const double a = mm[4 * cap + j] - sx * sx * inv, b = mm[7 * cap + j] - sy * sy * inv;
-      const double c = mm[9 * cap + j] - sz * sz * inv, d = mm[5 * cap + j] - sx * sy * inv;
-      const double f = mm[8 * cap + j] - sy * sz * inv, g = mm[6 * cap + j] - sx * sz * inv;
-      // nn v = nn P - sums; adj(M) = det M^-1 by cofactors
-      const double vx = nn * Pc[j] - sx, vy = nn * Pc[pcap + j] - sy;
-      const double vz = nn * Pc[2 * pcap + j] - sz;
+      double nn, cx, cy, cz, M[6];
+      bool use;
+      side_moment(mm + j, cap, n_min, nn, cx, cy, cz, M, use);
+      const double a = M[0], b = M[1], c = M[2], d = M[3], f = M[4], g = M[5];
+      // v' adj(M) v, adj(M) = det M^-1 by cofactors
       const double A00 = b * c - f * f, A11 = a * c - g * g, A22 = a * b - d * d;
       const double A01 = f * g - d * c, A12 = d * g - a * f, A02 = d * f - b * g;
       const double det = a * A00 + d * A01 + g * A02;
-      // (nn v)' adj(M) (nn v) = nn^2 det v' M^-1 v
+      const double vx = Pc[j] - cx, vy = Pc[pcap + j] - cy, vz = Pc[2 * pcap + j] - cz;
       const double q = vx * vx * A00 + vy * vy * A11 + vz * vz * A22 +
                        2.0 * (vx * vy * A01 + vy * vz * A12 + vx * vz * A02);
       const double ux = U[j], uy = U[pcap + j], uz = U[2 * pcap + j];
       const double uMu = a * ux * ux + b * uy * uy + c * uz * uz +
                          2.0 * (d * ux * uy + f * uy * uz + g * ux * uz);
-      const bool bounded = det > 0.0 && ((low[j] > 0.0 && q <= lim2 * nn * det) ||
-                                         (flo2 > 0.0 && uMu * q <= flo2 * nn * nn * det));
-      reach[j] += n >= n_min && !bounded ? 1.0 : 0.0;
+      const bool bounded = det > 0.0 && ((low[j] > 0.0 && nn * q <= lim2 * det) ||
+                                         (flo2 > 0.0 && uMu * q <= flo2 * det));
+      reach[j] += use && !bounded ? 1.0 : 0.0;
     }
   }
 }
@@ -969,6 +963,16 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
     const bool run = inside && span == m, spanned = inside && span <= kSpan;
     // a side's position in its band (banded chunks)
     const auto bpos = [&](int s, std::ptrdiff_t c) { return c - b0 + (kRight[s] ? r + 1 : 0); };
+    // banded: the sides' sums of the n cells cs[0 .. n) into mm (side s of cell f: s * n + f)
+    const auto band_sides = [&](const std::ptrdiff_t* cs, int n) {
+      for (int s = 0; s < 8; ++s) {
+        const double* const bs = bandp[kBandOf[s]];
+        for (int f = 0; f < n; ++f) {
+          const std::ptrdiff_t i = bpos(s, cs[f]);
+          for (int q = 0; q < kM; ++q) mm[q * kCap + s * n + f] = bs[q * kBandPos + i];
+        }
+      }
+    };
     for (int s = 0; s < 8 && !banded; ++s) {
       const std::ptrdiff_t r0 = std::clamp<std::ptrdiff_t>(rr + offset(kSides[s][0], r), 0, H);
       const std::ptrdiff_t r1 =
@@ -1072,16 +1076,14 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
             nfit += fits[j] != 0.0;
           }
           double lq[kCap], pq[3 * kSub], uq[3 * kSub], rq[kSub];
+          std::ptrdiff_t fc[kSub];
           const double* lq8[8];
           for (int f0 = 0; f0 < nfit; f0 += kSub) {
             const int mf = std::min(kSub, nfit - f0);
+            for (int f = 0; f < mf; ++f) fc[f] = cols[fit[f0 + f]];
+            band_sides(fc, mf);
             for (int s = 0; s < 8; ++s) {
-              const double* const bs = bandp[kBandOf[s]];
-              for (int f = 0; f < mf; ++f) {
-                const std::ptrdiff_t i = bpos(s, cols[fit[f0 + f]]);
-                for (int q = 0; q < kM; ++q) mm[q * kCap + s * mf + f] = bs[q * kBandPos + i];
-                lq[s * mf + f] = lowp[kBandOf[s]][i];
-              }
+              for (int f = 0; f < mf; ++f) lq[s * mf + f] = lowp[kBandOf[s]][bpos(s, fc[f])];
               mm8[s] = mm + s * mf, lq8[s] = lq + s * mf;
             }
             for (int f = 0; f < mf; ++f) {
@@ -1130,13 +1132,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       const std::ptrdiff_t* const cols = left + fa;
       const int* const keep = left_keep + fa;
       if (banded) {
-        for (int s = 0; s < 8; ++s) {
-          const double* const bs = bandp[kBandOf[s]];
-          for (int f = 0; f < m; ++f) {
-            const std::ptrdiff_t i = bpos(s, cols[f]);
-            for (int q = 0; q < kM; ++q) mm[q * kCap + s * m + f] = bs[q * kBandPos + i];
-          }
-        }
+        band_sides(cols, m);
       } else if (m != mc) {
         for (int s = 0; s < 8; ++s) {
           for (int f = 0; f < m; ++f) {

@@ -49,6 +49,12 @@ inline bool edge_fits(const EdgeSide& x, double best) {
   return edge_clean(x, best) && !(std::abs(x.h) > x.tol);
 }
 
+/// Beyond P the surface falls away below side x's plane: side y's centroid lies more than x's
+/// tolerance below it (SPEC "Edge test" steps 5 and 6).
+inline bool edge_drops(const EdgeSide& x, const EdgeSide& y) {
+  return dot3(x.normal, y.centroid - x.centroid) < -x.tol;
+}
+
 /// SPEC "Edge test" step 5: P stands proud of a clean side whose opposite side
 /// (`opposite(s)`) is empty or falls away below its plane, and to which P is attached
 /// (`attached(s)`; asked last) (step 6 flags it when it also fits no clean side, which the
@@ -60,7 +66,7 @@ inline bool edge_proud(const EdgeSide (&sd)[N], double best, Opposite opposite,
     const EdgeSide& x = sd[s];
     if (!edge_clean(x, best) || !(x.h > x.tol)) continue;
     const EdgeSide& y = sd[opposite(s)];
-    if ((y.empty || (y.valid && dot3(x.normal, y.centroid - x.centroid) < -x.tol)) &&
+    if ((y.empty || (y.valid && edge_drops(x, y))) &&
         attached(s))
       return true;
   }

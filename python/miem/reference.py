@@ -1640,18 +1640,17 @@ def _envelopes(
     fits: NDArray[np.bool_],
     h: NDArray[np.float64],
     tol: NDArray[np.float64],
-    nrm: NDArray[np.float64],
-    cen: NDArray[np.float64],
+    drop: NDArray[np.bool_],
     attached: NDArray[np.bool_],
 ) -> NDArray[np.bool_]:
     """The cells *above a lower envelope* (SPEC "Edge test" step 6): above a clean sub-window
     by more than _ENVELOPE_HEIGHT tolerances, attached to it, its opposite clean and the two
-    convex (each centroid below the other's plane by more than its tolerance), and fitting no
-    clean sub-window on its own side (the opposite plane, extended over P, lies above the
-    surface there)."""
+    convex (``drop``: each sub-window's opposite's centroid lies below its plane by more than
+    its tolerance, both ways round), and fitting no clean sub-window on its own side (the
+    opposite plane, extended over P, lies above the surface there)."""
     opp = list(_EDGE_OPPOSITE_OF)
-    convex = ((_dot3(nrm, cen[opp] - cen) < -tol) & (_dot3(nrm[opp], cen - cen[opp]) < -tol[opp]))
-    return _lips_before(clean[opp] & convex, _ENVELOPE_HEIGHT, clean, fits, h, tol, attached)
+    return _lips_before(clean[opp] & drop & drop[opp], _ENVELOPE_HEIGHT, clean, fits, h, tol,
+                        attached)
 
 
 def _lips_before(
@@ -1907,19 +1906,15 @@ def _edge_verdicts(
         return out
     # P stands proud (outward, above the plane) of a clean side whose opposite side has no
     # support (an outline) or falls away below that plane (a convex edge, a wall top).
-    proud = np.zeros(h.shape[1], dtype=bool)
     attached = _attached(grid, labels, cells, r, origin, nrm, cen, tol)
     # P below a clean side x whose opposite y has no return or is clean with P above it and
     # falls away: P lies between a top and the lower surface beyond (a hanging candidate)
     under = clean & (h < -tol)  # P below a clean side: hanging or a ledge (step 6)
-    below = np.zeros_like(clean)
-    for a, b in _EDGE_OPPOSITE:
-        for x, y in ((a, b), (b, a)):
-            drop = _dot3(nrm[x], cen[y] - cen[x]) < -tol[x]
-            falls = empty[y] | (valid[y] & drop)
-            proud |= clean[x] & (h[x] > tol[x]) & falls & attached[x]
-            beyond = empty[y] | (clean[y] & (h[y] > tol[y]) & drop)
-            below[x] = under[x] & beyond
+    opp = list(_EDGE_OPPOSITE_OF)
+    drop = _dot3(nrm, cen[opp] - cen) < -tol  # the opposite's centroid below each plane
+    falls = empty[opp] | (valid[opp] & drop)
+    proud = (clean & (h > tol) & falls & attached).any(axis=0)
+    below = under & (empty[opp] | (clean[opp] & (h[opp] > tol[opp]) & drop))
     fin = _fins(grid, labels, cells, r)[cells]  # (SPEC step 6: reach r, inside the tile's frame)
     out[cells] = ~fits.any(axis=0) & (proud | fin)
     # before an outline, only the sub-windows on P's side of it may clear P: the others lie
@@ -1927,7 +1922,7 @@ def _edge_verdicts(
     out[cells] |= _outline_lips(images, cells, r, clean, fits, h, tol, empty, attached)
     # above a convex crease's lower envelope: the opposite face's plane, extended over P, lies
     # above the surface there, and a fit to it does not clear P (step 6)
-    out[cells] |= _envelopes(clean, fits, h, tol, nrm, cen, attached)
+    out[cells] |= _envelopes(clean, fits, h, tol, drop, attached)
     # a lip at a concave feature: P above a clean side, and beyond P the surface dips, then
     # rises above that side's plane (step 6)
     lip = clean & (h > tol)
