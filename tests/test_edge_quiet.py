@@ -15,7 +15,8 @@ FLOOR = 0.01
 
 def _scene() -> tuple[np.ndarray, np.ndarray]:
     """A noisy sheet (0.1 mm cells, 2 um noise) with a bend, a low bump, a dropout patch, one
-    EDGE and one ABNORMAL cell; the labels set by hand (NORMAL elsewhere)."""
+    EDGE cell, one ABNORMAL cell the height test flagged, one the angle test flagged and a 2 x 2
+    block of them; the labels set by hand (NORMAL elsewhere)."""
     h, w = 40, 60
     rng = np.random.default_rng(5)
     x, y = np.meshgrid(np.arange(w) * 0.1, np.arange(h) * 0.1)
@@ -27,7 +28,9 @@ def _scene() -> tuple[np.ndarray, np.ndarray]:
     g[8:14, 25:31] = np.nan  # 36 dropouts: >= n_min (4 at r = 3) in the windows around it
     labels[8:14, 25:31] = miem.INVALID
     labels[30, 20] = miem.EDGE
-    labels[30, 32] = miem.ABNORMAL
+    labels[30, 32] = miem.ABNORMAL  # (removed: the height test's)
+    labels[15, 12] = miem.ABNORMAL  # the angle test's: a missing support cell, like a dropout
+    labels[33:35, 6:8] = miem.ABNORMAL  # 4 of them: n_min at r = 3
     return g, labels
 
 
@@ -46,9 +49,9 @@ def _direct(g: np.ndarray, labels: np.ndarray, r: int, window: int, floor: float
             if labels[a, b] != miem.NORMAL:
                 continue
             win = labels[a - r:a + r + 1, b - r:b + r + 1]
-            if np.any((win == miem.EDGE) | (win == miem.ABNORMAL)):
+            if np.any(win == miem.EDGE):
                 continue
-            if (win == miem.INVALID).sum() >= n_min:
+            if ((win == miem.INVALID) | (win == miem.ABNORMAL)).sum() >= n_min:
                 continue
             if removed[max(0, a - hw):a + hw + 1, max(0, b - hw):b + hw + 1].any():
                 continue
@@ -77,9 +80,17 @@ def test_quiet_cells_are_a_direct_window_fit() -> None:
     assert (~sure).sum() < 5
     # by geometry: the flat sheet's interior is mostly quiet; the bump (6 sigma off the plane),
     # the bend (its curvature 1 / mm: a 0.9 mm window's plane misses it by more than the
-    # floor), the cells within r = 3 of the EDGE and ABNORMAL cells, within h = 4 of the cell
-    # the height test flagged, near the dropouts and the border are not
+    # floor), the cells within r = 3 of the EDGE cell, within h = 4 of the cell the height test
+    # flagged, near the dropouts and the border are not
     assert quiet[5:25, 5:22].mean() > 0.9
+    # the angle test's ABNORMAL cell is not, but its neighbours are: to their sub-windows it is
+    # a missing cell; the 2 x 2 block's neighbours whose r-square holds all 4 (n_min) are not,
+    # those that hold 1-3 of them are
+    assert not got[15, 12] and got[12:19, 9:16].sum() == quiet[12:19, 9:16].sum() >= 40
+    assert not got[31:37, 4:10].any()  # rows 31-36, columns 4-9: all 4 within r
+    beside = np.zeros_like(got)
+    beside[31:37, 3] = beside[31:37, 10] = True  # 2 of them within r
+    assert got[beside].sum() == quiet[beside].sum() >= 10
     assert not got[20, 10]
     assert not got[10:30, 45:56].any()
     near = np.zeros_like(got)

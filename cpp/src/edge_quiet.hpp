@@ -1,6 +1,7 @@
 // SPEC "Edge test" step 1: the quiet cells, which the edge passes do not judge. A NORMAL cell
 // is quiet when every cell within r = edge_window / 2 rows and columns lies inside the grid and
-// is NORMAL or INVALID, fewer than n_min of them INVALID (no sub-window is empty), no cell
+// is NORMAL, INVALID or ABNORMAL (no EDGE), fewer than n_min of them INVALID or ABNORMAL (no
+// sub-window is empty of support: a removed cell is a missing one, like a dropout), no cell
 // within h = window / 2 became ABNORMAL in the height passes (so its height-window plane is
 // the one the height test's first pass fitted), and that plane is quiet (kHQuiet, kHStale
 // clear: quiet_plane and the height passes' marks, stages.hpp). Shared by the batch
@@ -16,8 +17,8 @@
 
 namespace miem::detail {
 
-/// The window condition over the 2 r + 1 rows around a row: per column, the INVALID cells
-/// (inv) and the EDGE or ABNORMAL cells (bad) of the rows held, kept as rows come in and go
+/// The window condition over the 2 r + 1 rows around a row: per column, the INVALID or ABNORMAL
+/// cells (inv: no support) and the EDGE cells (bad) of the rows held, kept as rows come in and go
 /// out; pinv and pbad (W + 1 each) are scratch for the sums along a row. The caller owns the
 /// buffer (over(): ints(W) of them).
 struct QuietCounts {
@@ -47,8 +48,8 @@ struct QuietCounts {
     std::int32_t* __restrict nb = bad;
     for (std::ptrdiff_t c = 0; c < W; ++c) {  // (branch-free: vectorised)
       const std::uint8_t l = labels[c];
-      ni[c] += sign * static_cast<std::int32_t>(l == kInvalid);
-      nb[c] += sign * static_cast<std::int32_t>((l == kEdge) | (l == kAbnormal));
+      ni[c] += sign * static_cast<std::int32_t>((l == kInvalid) | (l == kAbnormal));
+      nb[c] += sign * static_cast<std::int32_t>(l == kEdge);
     }
   }
   /// The rows held are the 2 r + 1 rows around a row inside the grid, `labels` that row's:

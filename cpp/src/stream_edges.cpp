@@ -324,7 +324,8 @@ bool ProfileStream<T>::restore_candidates(std::int64_t row) noexcept {
 // Pass 1's candidates of `row` into etd_: every cell but the quiet ones (edge_quiet.hpp), from
 // the window counts of the rows within r at the start of pass 1 and the height passes' marks
 // (eplane_). `win` holds those labels of rows a0 .. row + r (edge_row's); a row leaves the
-// counts as it came in (step 9 turns ABNORMAL cells EDGE, both counted alike).
+// counts as it came in (pass 1 reads its labels after step 9, which is done on rows r ahead of
+// pass 1's: a row's step 9 turned its ABNORMAL cells EDGE before the row came in).
 template <typename T>
 void ProfileStream<T>::quiet_candidates(std::int64_t row, const std::uint8_t* win,
                                         std::int64_t a0) noexcept {

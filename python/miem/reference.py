@@ -1124,8 +1124,9 @@ def _quiet_cells(
     """SPEC "Edge test" step 1: the quiet cells, which pass 1 leaves out, on the labels at the
     start of the edge test (``window``: the height test's; ``removed``: the cells its passes
     made ABNORMAL). A NORMAL cell is quiet when every cell within ``r`` rows and columns lies
-    inside the grid and is NORMAL or INVALID, fewer than ``n_min`` of them INVALID (no
-    sub-window of step 3 is empty), no ``removed`` cell lies within ``window // 2``, and its
+    inside the grid and is NORMAL, INVALID or ABNORMAL (no EDGE), fewer than ``n_min`` of them
+    INVALID or ABNORMAL (no sub-window of step 3 is empty of support), no ``removed`` cell
+    lies within ``window // 2``, and its
     height-window plane (the NORMAL cells of its window, itself included, as the height test
     fits them) has ``rms = sqrt(max(l0, 0) / n) <= _EDGE_QUIET_ROUGH * floor`` with the cell
     within ``_EDGE_QUIET_H * rms`` of it, or within the height test's round-off floor
@@ -1135,8 +1136,8 @@ def _quiet_cells(
     if floor <= 0.0 or hh <= 2 * r or ww <= 2 * r:
         return np.zeros_like(normal)
     side = 2 * r + 1
-    cand = normal & (_box_count((labels == EDGE) | (labels == ABNORMAL), side) == 0)
-    cand &= _box_count(labels == INVALID, side) < max(3, (r * r) // 2)
+    cand = normal & (_box_count(labels == EDGE, side) == 0)
+    cand &= _box_count((labels == INVALID) | (labels == ABNORMAL), side) < max(3, (r * r) // 2)
     cand &= _box_count(removed, 2 * (window // 2) + 1) == 0
     inside = np.zeros_like(cand)
     inside[r:hh - r, r:ww - r] = True
