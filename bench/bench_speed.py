@@ -212,7 +212,7 @@ BASES = [
      "recommended", "recommended"),
     ("ed7b889", "2026-12-05, before the finiteness pass fused into pass 1 (and the edge "
      "test's attached condition)", "recommended", "recommended"),
-    ("0e9f972", "2026-12-06, before the edge test's lower envelopes (and its shortcut's bound)",
+    ("c212da6", "2026-12-06, before quiet cells count removed cells as missing ones",
      "recommended", "recommended"),
 ]
 
