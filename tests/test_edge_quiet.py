@@ -85,7 +85,7 @@ def test_quiet_cells_are_a_direct_window_fit() -> None:
     assert quiet[5:25, 5:22].mean() > 0.9
     # the angle test's ABNORMAL cell is not, but its neighbours are: to their sub-windows it is
     # a missing cell; the 2 x 2 block's neighbours whose r-square holds all 4 (n_min) are not,
-    # those that hold 1-3 of them are
+    # those that hold 2 of them are
     assert not got[15, 12] and got[12:19, 9:16].sum() == quiet[12:19, 9:16].sum() >= 40
     assert not got[31:37, 4:10].any()  # rows 31-36, columns 4-9: all 4 within r
     beside = np.zeros_like(got)
