@@ -1,8 +1,8 @@
 // SPEC "Edge test" step 1: the quiet cells, which the edge passes do not judge. A NORMAL cell
 // is quiet when every cell within r = edge_window / 2 rows and columns lies inside the grid and
 // is NORMAL, INVALID or ABNORMAL (no EDGE), fewer than n_min of them INVALID or ABNORMAL (no
-// sub-window is empty of support: a removed cell is a missing one, like a dropout), no cell
-// within h = window / 2 became ABNORMAL in the height passes (so its height-window plane is
+// sub-window is empty or short of support: a removed cell is a missing one, like a dropout), no
+// cell within h = window / 2 became ABNORMAL in the height passes (so its height-window plane is
 // the one the height test's first pass fitted), and that plane is quiet (kHQuiet, kHStale
 // clear: quiet_plane and the height passes' marks, stages.hpp). Shared by the batch
 // (edge_test.cpp) and the stream (stream_edges.cpp).

@@ -66,9 +66,7 @@ inline bool edge_proud(const EdgeSide (&sd)[N], double best, Opposite opposite,
     const EdgeSide& x = sd[s];
     if (!edge_clean(x, best) || !(x.h > x.tol)) continue;
     const EdgeSide& y = sd[opposite(s)];
-    if ((y.empty || (y.valid && edge_drops(x, y))) &&
-        attached(s))
-      return true;
+    if ((y.empty || (y.valid && edge_drops(x, y))) && attached(s)) return true;
   }
   return false;
 }

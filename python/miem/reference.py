@@ -1125,8 +1125,8 @@ def _quiet_cells(
     start of the edge test (``window``: the height test's; ``removed``: the cells its passes
     made ABNORMAL). A NORMAL cell is quiet when every cell within ``r`` rows and columns lies
     inside the grid and is NORMAL, INVALID or ABNORMAL (no EDGE), fewer than ``n_min`` of them
-    INVALID or ABNORMAL (no sub-window of step 3 is empty of support), no ``removed`` cell
-    lies within ``window // 2``, and its
+    INVALID or ABNORMAL (no sub-window of step 3 is empty or short of support), no
+    ``removed`` cell lies within ``window // 2``, and its
     height-window plane (the NORMAL cells of its window, itself included, as the height test
     fits them) has ``rms = sqrt(max(l0, 0) / n) <= _EDGE_QUIET_ROUGH * floor`` with the cell
     within ``_EDGE_QUIET_H * rms`` of it, or within the height test's round-off floor
