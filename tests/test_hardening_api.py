@@ -260,11 +260,36 @@ def test_the_range_edges_still_compute_like_unit_scale():
 
 
 def test_stream_refuses_profiles_beyond_the_range():
-    s = miem.ProfileStream(4)
-    s.push(np.zeros((4, 3)))
-    with pytest.raises(ValueError, match="profile.*rescale"):
-        s.push(np.full((4, 3), 1e300))
-    assert s.rows_pushed == 1  # refused, not half-taken
+    """The core's push refuses the profile (as it copies it); the message names the magnitude,
+    for a profile of the stream's dtype and one converted to it."""
+    for dtype in (np.float64, np.float32):
+        s = miem.ProfileStream(4, dtype=dtype)
+        s.push(np.zeros((4, 3)))
+        with pytest.raises(ValueError, match=r"profile: .*magnitude of 1e\+300.*rescale"):
+            s.push(np.full((4, 3), 1e300))
+        with pytest.raises(ValueError, match=r"magnitude of 3e\+18.*rescale"):
+            s.push(np.array([[0, 0, 0], [0, 0, 0], [0, np.nan, -3e18], [0, 0, 0]], dtype))
+        assert s.rows_pushed == 1  # refused, not half-taken
+
+
+def test_a_grid_is_range_checked_by_the_core_in_its_first_pass(monkeypatch):
+    """detect reads an (H, W, 3) grid once for the range (SPEC "Numbers"): in angle pass 1, not
+    in a separate Python-side pass; a cloud is still checked before it is detected."""
+    from miem import _api
+
+    calls = []
+    real = _api._core.finite_extent
+    monkeypatch.setattr(_api._core, "finite_extent", lambda a, n: calls.append(n) or real(a, n))
+    g = _grid()
+    miem.detect(g)
+    assert calls == []
+    g[3, 4, 0] = 2e18
+    with pytest.raises(ValueError, match=r"grid: .*magnitude of 2e\+18.*rescale"):
+        miem.detect(g)
+    assert calls == []
+    with pytest.raises(ValueError, match="rescale"):
+        miem.detect(g.reshape(-1, 3)[np.isfinite(g.reshape(-1, 3)).all(axis=1)])
+    assert calls[0] == "grid"
 
 
 @pytest.mark.parametrize("layout", ["c", "strided", "reversed", "fortran", "float32"])

@@ -9,6 +9,7 @@
 #include <type_traits>
 #include <vector>
 
+#include "finite_magnitude.hpp"
 #include "judge.hpp"
 #include "pass1_row.hpp"
 #include "parallel.hpp"
@@ -20,16 +21,19 @@ namespace {
 
 // GridView::finite of row r's cells as straight-line code (constant strides for the common
 // interleaved xyz layout; the generic strides keep the loop scalar): us[c] 1 or 0 and, with
-// `lb`, the label NORMAL or INVALID. Returns the finite count.
+// `lb`, the label NORMAL or INVALID. Returns the finite count; raises `top` to the largest
+// finite_abs_bits of the row's coordinates (SPEC "Numbers": every finite coordinate counts,
+// a dropout's too).
 template <typename T>
 std::ptrdiff_t finite_row(const GridView<T>& g, std::ptrdiff_t r, std::uint8_t* us,
-                          std::uint8_t* lb) {
+                          std::uint8_t* lb, AbsBits<T>& top) {
   const T* base = g.data + r * g.row_stride;
   const std::ptrdiff_t W = g.cols, cs = g.col_stride, ys = g.coord_stride;
   auto row = [&](auto cs_, auto ys_, auto zs_, auto with_labels) {
     std::uint8_t* __restrict u = us;
     std::uint8_t* __restrict l = lb;
     std::ptrdiff_t nf = 0;
+    AbsBits<T> t = top;
     for (std::ptrdiff_t c = 0; c < W; ++c) {
       const T* q = base + c * cs_;
       const T s = (q[0] - q[0]) + (q[ys_] - q[ys_]) + (q[zs_] - q[zs_]);
@@ -37,7 +41,10 @@ std::ptrdiff_t finite_row(const GridView<T>& g, std::ptrdiff_t r, std::uint8_t* 
       u[c] = fin;
       if constexpr (decltype(with_labels)::value) l[c] = fin ? kNormal : kInvalid;
       nf += fin;
+      const AbsBits<T> m = std::max(finite_abs_bits(q[0]), finite_abs_bits(q[ys_]));
+      t = std::max(t, std::max(m, finite_abs_bits(q[zs_])));
     }
+    top = t;
     return nf;
   };
   using K3 = std::integral_constant<std::ptrdiff_t, 3>;
@@ -56,12 +63,13 @@ std::ptrdiff_t finite_row(const GridView<T>& g, std::ptrdiff_t r, std::uint8_t* 
 // and zero flags, the rows of the blocks around into sc.fin. The cells the kernel cannot
 // settle are listed in sc.judge for the scalar judge, which may read any row's finiteness:
 // the caller judges them once every block is done. With min_step, `reach` (4 bytes per cell)
-// receives the rays read. Returns the block's finite count.
+// receives the rays read. Returns the block's finite count; raises `top` to its rows' largest
+// finite coordinate magnitude (finite_abs_bits).
 template <typename T>
 std::ptrdiff_t pass1_rows(const GridView<T>& g, std::uint8_t* usable, const DetectParams& p,
                           int depth, std::ptrdiff_t r_begin, std::ptrdiff_t r_end,
                           detail::RowScratch& sc, std::uint8_t* labels, std::uint8_t* flags_out,
-                          double* angle_out, std::uint8_t* reach) {
+                          double* angle_out, std::uint8_t* reach, AbsBits<T>& top) {
   const std::ptrdiff_t H = g.rows, W = g.cols, pad = depth;
   pass1_prepare(sc, W, depth, p.min_step >= 0.0);
   sc.judge.clear();
@@ -70,9 +78,11 @@ std::ptrdiff_t pass1_rows(const GridView<T>& g, std::uint8_t* usable, const Dete
   const auto load = [&](std::ptrdiff_t rr) {
     const bool own = rr >= r_begin && rr < r_end;
     std::uint8_t* us = own ? usable + rr * W : sc.fin.data();
-    const std::ptrdiff_t nf = finite_row(g, rr, us, own ? labels + rr * W : nullptr);
+    AbsBits<T> row_top = 0;
+    const std::ptrdiff_t nf = finite_row(g, rr, us, own ? labels + rr * W : nullptr, row_top);
     if (own) {
       n_finite += nf;
+      top = std::max(top, row_top);
       if (flags_out) std::fill(flags_out + rr * W, flags_out + (rr + 1) * W, std::uint8_t{0});
     }
     const T* base = g.data + rr * g.row_stride;
@@ -140,15 +150,20 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
   // kernel writes every cell's angle, NaN where there is none.)
   const bool angle_nan = out.angle_deg != nullptr && !row_kernel;
   std::ptrdiff_t n_finite = 0;
+  AbsBits<T> top = 0;  // the largest finite coordinate magnitude (finite_abs_bits)
   if (!row_kernel) {
-#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1) reduction(+ : n_finite)
+#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1) \
+    reduction(+ : n_finite) reduction(max : top)
     for (std::ptrdiff_t r = 0; r < H; ++r) {
-      n_finite += finite_row(g, r, usable + r * W, labels + r * W);
+      n_finite += finite_row(g, r, usable + r * W, labels + r * W, top);
       if (out.flags) std::fill(out.flags + r * W, out.flags + (r + 1) * W, std::uint8_t{0});
       if (angle_nan) std::fill(out.angle_deg + r * W, out.angle_deg + (r + 1) * W, kNaN);
     }
   }
-  const auto check_finite = [&n_finite] {
+  // SPEC "Numbers" first (the coordinate range), then at least 3 finite points.
+  const auto check_finite = [&n_finite, &top] {
+    const double magnitude = magnitude_of<T>(top);
+    if (!coordinate_range_ok(magnitude)) throw CoordinateRangeError("grid", magnitude);
     if (n_finite < 3) {
       throw std::invalid_argument("grid: fewer than 3 finite points (found " +
                                   std::to_string(n_finite) + ")");
@@ -168,7 +183,8 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
     const CellJudge<T> judge(g, usable, p);
     if (row_kernel) {
       std::ptrdiff_t nf = 0;
-#pragma omp parallel num_threads(ntk) if (ntk > 1) reduction(+ : nf)
+      AbsBits<T> tp = 0;
+#pragma omp parallel num_threads(ntk) if (ntk > 1) reduction(+ : nf) reduction(max : tp)
       {
         int tid = 0;
 #ifdef MIEM_HAVE_OPENMP
@@ -177,7 +193,8 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
         // Contiguous row blocks, one per thread: each row is converted once per block.
         const std::ptrdiff_t r0 = H * tid / ntk, r1 = H * (tid + 1) / ntk;
         RowScratch& sc = ws.rows[tid];
-        nf += pass1_rows(g, usable, p, depth, r0, r1, sc, labels, out.flags, angle_out, reach);
+        nf += pass1_rows(g, usable, p, depth, r0, r1, sc, labels, out.flags, angle_out, reach,
+                         tp);
 #pragma omp barrier
         // every row's finiteness is known: the scalar judge for the cells the kernel left
         for (const std::int64_t i : sc.judge) {
@@ -189,6 +206,7 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
         }
       }
       n_finite = nf;
+      top = tp;
       check_finite();
     } else {
 #pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)

@@ -1,8 +1,11 @@
-// largest_finite_magnitude (miem/views.hpp): one read pass over caller memory, two (SSE2) lanes
-// of doubles or four of floats at a time along contiguous rows.
+// SPEC "Numbers", the coordinate range (miem/views.hpp): largest_finite_magnitude, one read pass
+// over caller memory, two (SSE2) lanes of doubles or four of floats at a time along contiguous
+// rows; CoordinateRangeError's message.
 #include <cmath>
 #include <cstddef>
+#include <cstdio>
 #include <limits>
+#include <string>
 
 #include "miem/views.hpp"
 
@@ -61,7 +64,20 @@ inline float row_top(const float* p, std::ptrdiff_t n, float top) {
   return top;
 }
 
+// The message, as the Python layer words it (miem/_api.py _check_range).
+std::string range_message(const char* name, double magnitude) {
+  char buf[320];
+  std::snprintf(buf, sizeof buf,
+                "%s: finite coordinates reach a magnitude of %.3g, outside the range the method "
+                "computes without overflow (at most %g, largest at least %g); rescale the points",
+                name, magnitude, kCoordinateMax, kCoordinateMin);
+  return buf;
+}
+
 }  // namespace
+
+CoordinateRangeError::CoordinateRangeError(const char* name, double magnitude)
+    : std::invalid_argument(range_message(name, magnitude)), magnitude_(magnitude) {}
 
 template <typename T>
 double largest_finite_magnitude(const T* data, std::ptrdiff_t rows, std::ptrdiff_t cols,

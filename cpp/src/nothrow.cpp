@@ -121,6 +121,10 @@ Status detect(OrganizedDetector& detector, const GridView<T>& grid, const Organi
   if (n_finite < 3) return {StatusCode::kTooFewPoints, "grid: fewer than 3 finite points"};
   try {
     *summary = detector.run(grid, out);
+  } catch (const CoordinateRangeError&) {  // (found in the pass that reads the grid anyway)
+    return {StatusCode::kInvalidInput,
+            "grid: finite coordinates reach a magnitude above 1e18, or the largest is below "
+            "1e-18: outside the range the method computes without overflow; rescale the points"};
   } catch (...) {
     return from_current_exception();
   }

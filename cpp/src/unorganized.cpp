@@ -31,10 +31,14 @@ using namespace cloud;  // NOLINT(google-build-using-namespace): the stage kerne
 namespace {
 
 // Distance from every finite point to its nearest other finite point (NaN for non-finite rows,
-// 0 for a duplicate). Throws when there are fewer than 3 finite points or all are one point.
+// 0 for a duplicate). Throws when a finite coordinate lies outside SPEC's range
+// (CoordinateRangeError), there are fewer than 3 finite points or all are one point.
 template <typename T>
 std::vector<double> nearest_other(const PointsView<T>& points, int num_threads) {
   check_view(points);
+  const double top = largest_finite_magnitude(points.data, points.size, 3, points.point_stride,
+                                              points.coord_stride);
+  if (!coordinate_range_ok(top)) throw CoordinateRangeError("points", top);
   const std::ptrdiff_t n_finite = count_finite(points, num_threads);
   if (n_finite < 3) {
     throw std::invalid_argument("points: need at least 3 finite points, found " +

@@ -220,8 +220,9 @@ def _xyz_fields(arr: np.ndarray, name: str) -> np.ndarray:
 
 #: Largest finite coordinate magnitude accepted, and the least the largest may be (SPEC
 #: "Numbers"): beyond them float64 overflows or underflows in the tests' powers of differences.
-COORDINATE_MAX = 1e18
-COORDINATE_MIN = 1e-18
+#: The core's values (miem/views.hpp), which its detectors check themselves.
+COORDINATE_MAX = float(_core.COORDINATE_MAX)
+COORDINATE_MIN = float(_core.COORDINATE_MIN)
 
 
 def _check_range(arr: np.ndarray, name: str, lower: bool = True) -> None:
@@ -236,10 +237,13 @@ def _check_range(arr: np.ndarray, name: str, lower: bool = True) -> None:
             f"{COORDINATE_MIN:g}); rescale the points")
 
 
-def _as_float_array(a: object, name: str, lower: bool = True) -> np.ndarray:
+def _as_float_array(a: object, name: str, lower: bool = True,
+                    check_range: bool = True) -> np.ndarray:
     """A float32/float64 native-order array view of `a` (copied only when it must be).
 
     A structured array with fields x, y, z is accepted wherever an ``(..., 3)`` array is.
+    ``check_range=False`` leaves SPEC's coordinate range to the caller (the organized core and
+    the stream check it in the pass that reads every coordinate anyway).
     """
     try:
         arr = np.asarray(a)
@@ -257,7 +261,8 @@ def _as_float_array(a: object, name: str, lower: bool = True) -> np.ndarray:
     item = arr.itemsize
     if not arr.flags.aligned or any(s % item for s in arr.strides):
         arr = arr.copy()  # aligned and C-ordered: the core never reads a misaligned value
-    _check_range(arr, name, lower)
+    if check_range:
+        _check_range(arr, name, lower)
     return arr
 
 
@@ -422,11 +427,16 @@ def _looks_like_grid(arr: np.ndarray) -> str:
 
 
 def _grid_or_cloud(data: object) -> np.ndarray:
+    """detect's array: an (H, W, 3) grid is left to the core's coordinate-range check (in angle
+    pass 1, which reads every coordinate anyway); anything else is checked here."""
     if _is_open3d(data):
         from .io import from_open3d
 
         data = from_open3d(data)
-    return _as_float_array(data, "grid")
+    arr = _as_float_array(data, "grid", check_range=False)
+    if arr.ndim != 3:
+        _check_range(arr, "grid")
+    return arr
 
 
 #: How detect's advice on a cloud that looks like a grid goes on after saying so (the command

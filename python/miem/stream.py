@@ -15,7 +15,8 @@ import numpy as np
 from numpy.typing import ArrayLike, DTypeLike
 
 from . import _core
-from ._api import Defect, _as_float_array, _grid_defects, _params_record, _threads
+from ._api import (Defect, _as_float_array, _check_range, _grid_defects, _params_record,
+                   _threads)
 from .params import DetectParams, _int, resolve_params
 
 __all__ = ["ProfileStream", "StreamRow"]
@@ -285,13 +286,18 @@ class ProfileStream:
             Wrong shape or dtype kind, or the stream was flushed (call :meth:`reset`). A rejected
             profile leaves the stream unchanged.
         """
-        arr = _as_float_array(profile, "profile", lower=False)  # native order, aligned
+        # native order, aligned; SPEC's coordinate range is checked by the core's push as it
+        # copies the profile, here only before a conversion (which could make values inf)
+        arr = _as_float_array(profile, "profile", check_range=False)
         if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] != self.width:
             raise ValueError(f"profile: expected shape ({self.width}, 3), got {arr.shape}")
         if arr.dtype != self._dtype:
+            _check_range(arr, "profile", lower=False)
             arr = arr.astype(self._dtype)
         code, message, row, labels, heights, defects = self._core.push(arr)
         if code not in (_OK, _EMPTY_PROFILE):
+            if "rescale" in message:  # the core's range check: say the magnitude it found
+                _check_range(arr, "profile", lower=False)
             raise ValueError(message)
         if labels is None:
             return None

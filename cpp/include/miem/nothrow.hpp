@@ -35,8 +35,10 @@ Status make_detector(const DetectParams& params, std::optional<OrganizedDetector
 
 /// Organized detection over a strided view of caller memory (no copy), as
 /// OrganizedDetector::run, writing labels (and the optional outputs) into `out` and the
-/// iteration count, MIEM plane and defects into `*summary`. kInvalidInput for an empty grid or a
-/// null `out.labels` / `summary`; kTooFewPoints when the grid has fewer than 3 finite points.
+/// iteration count, MIEM plane and defects into `*summary`. kInvalidInput for an empty grid, a
+/// null `out.labels` / `summary` or coordinates outside SPEC's range (kCoordinateMax,
+/// kCoordinateMin; `out` then holds no result); kTooFewPoints when the grid has fewer than 3
+/// finite points.
 /// The defect list is the only allocation of a run on a grid of an already-seen size.
 template <typename T>
 Status detect(OrganizedDetector& detector, const GridView<T>& grid, const OrganizedOutput& out,

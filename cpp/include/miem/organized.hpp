@@ -169,7 +169,9 @@ class OrganizedDetector {
   const DetectParams& params() const { return params_; }
 
   /// Detect on `grid` writing into `out`. Throws std::invalid_argument when the grid is empty,
-  /// has fewer than 3 finite points, or `out.labels` is null.
+  /// has fewer than 3 finite points, or `out.labels` is null, and CoordinateRangeError (an
+  /// std::invalid_argument, miem/views.hpp) when a finite coordinate lies outside SPEC's range
+  /// (found while pass 1 reads the grid: `out` then holds no result).
   template <typename T>
   DetectSummary run(const GridView<T>& grid, const OrganizedOutput& out);
 

@@ -222,7 +222,8 @@ class ProfileStream {
   /// dropouts). When it completes a row (every push after the first L does), `*out` describes
   /// that row, else `out->ready()` is false. Never allocates or throws.
   /// Returns kOk; kEmptyProfile (pushed as a row of dropouts); kWrongWidth or kInvalidInput
-  /// (rejected: the stream is unchanged); kFinished after flush().
+  /// (rejected: the stream is unchanged; kInvalidInput also for a finite coordinate of
+  /// magnitude above kCoordinateMax, SPEC "Numbers"); kFinished after flush().
   Status push(const PointsView<T>& profile, StreamRow* out) noexcept;
 
   /// Pushes a dense profile: `size` points of x, y, z, contiguous.

@@ -19,7 +19,8 @@ namespace miem {
 
 /// Median over the finite points of the distance to the nearest other finite point (the mean of
 /// the two middle values for an even count). Throws std::invalid_argument when there are fewer
-/// than 3 finite points or the spacing is 0 (more than half the points are duplicates).
+/// than 3 finite points or the spacing is 0 (more than half the points are duplicates), and
+/// CoordinateRangeError (miem/views.hpp) for a finite coordinate outside SPEC's range.
 template <typename T>
 double point_spacing(const PointsView<T>& points, int num_threads = 0);
 
@@ -104,7 +105,7 @@ struct PointsDetectHooks {
 
 /// MIEM on an unorganized cloud, writing into `out`. Non-finite rows are INVALID. Throws
 /// std::invalid_argument on bad parameters, fewer than 3 finite points, spacing 0, or a null
-/// `out.labels`. Deterministic for any thread count. `hooks`: internal (PointsDetectHooks).
+/// `out.labels`, and CoordinateRangeError for a finite coordinate outside SPEC's range. Deterministic for any thread count. `hooks`: internal (PointsDetectHooks).
 template <typename T>
 PointsDetectSummary detect_points(const PointsView<T>& points, const PointsDetectParams& params,
                                   const PointsOutput& out, const PointsDetectHooks& hooks = {});
