@@ -30,15 +30,22 @@ using namespace cloud;  // NOLINT(google-build-using-namespace): the stage kerne
 
 namespace {
 
+// SPEC "Numbers": throws CoordinateRangeError when a finite coordinate of `points` lies
+// outside the coordinate range (one read pass).
+template <typename T>
+void check_range(const PointsView<T>& points) {
+  const double top = largest_finite_magnitude(points.data, points.size, 3, points.point_stride,
+                                              points.coord_stride);
+  if (!coordinate_range_ok(top)) throw CoordinateRangeError("points", top);
+}
+
 // Distance from every finite point to its nearest other finite point (NaN for non-finite rows,
 // 0 for a duplicate). Throws when a finite coordinate lies outside SPEC's range
 // (CoordinateRangeError), there are fewer than 3 finite points or all are one point.
 template <typename T>
 std::vector<double> nearest_other(const PointsView<T>& points, int num_threads) {
   check_view(points);
-  const double top = largest_finite_magnitude(points.data, points.size, 3, points.point_stride,
-                                              points.coord_stride);
-  if (!coordinate_range_ok(top)) throw CoordinateRangeError("points", top);
+  check_range(points);
   const std::ptrdiff_t n_finite = count_finite(points, num_threads);
   if (n_finite < 3) {
     throw std::invalid_argument("points: need at least 3 finite points, found " +
@@ -140,6 +147,7 @@ void estimate_normals(const PointsView<T>& points, double radius, const NormalsO
   if (!std::isfinite(radius) || !(radius > 0.0)) {
     throw std::invalid_argument("radius: must be finite and > 0, got " + std::to_string(radius));
   }
+  check_range(points);
   const std::ptrdiff_t n = points.size;
   for (std::ptrdiff_t i = 0; i < n; ++i) {
     if (out.normals) out.normals[3 * i] = out.normals[3 * i + 1] = out.normals[3 * i + 2] = kNaN;

@@ -132,6 +132,15 @@ TEST(CoordinateRange, DetectorsRefuseCoordinatesOutsideTheRange) {
                miem::CoordinateRangeError);
   EXPECT_THROW(miem::point_spacing(miem::PointsView<double>{g.data(), N, 3, 1}),
                miem::CoordinateRangeError);
+  std::vector<std::uint8_t> valid(N);
+  EXPECT_THROW(miem::estimate_normals(miem::PointsView<double>{g.data(), N, 3, 1}, 1.0,
+                                      miem::NormalsOutput{nullptr, nullptr, nullptr, valid.data()}),
+               miem::CoordinateRangeError);
+  g[3 * 100 + 2] = -1e18;  // at the bound: computes
+  miem::estimate_normals(miem::PointsView<double>{g.data(), N, 3, 1}, 1.0,
+                         miem::NormalsOutput{nullptr, nullptr, nullptr, valid.data()});
+  EXPECT_EQ(valid[100], 0);  // (its ball holds no other point)
+  EXPECT_EQ(valid[101], 1);
 }
 
 // A stream refuses a profile beyond the range and is unchanged: its rows are those of a stream

@@ -44,7 +44,8 @@ struct NormalsOutput {
 /// Local plane at every finite point: eigen fit of the finite points within `radius`, the point
 /// itself included. Fewer than 3 points or degenerate (collinear / equal): NaN normal and rms,
 /// valid 0. Any of the output pointers may be null. Throws std::invalid_argument when radius is
-/// not finite and > 0. Deterministic for any thread count.
+/// not finite and > 0, CoordinateRangeError for a finite coordinate outside SPEC's range.
+/// Deterministic for any thread count.
 template <typename T>
 void estimate_normals(const PointsView<T>& points, double radius, const NormalsOutput& out,
                       int num_threads = 0);
