@@ -161,7 +161,7 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
     }
   }
   // SPEC "Numbers" first (the coordinate range), then at least 3 finite points.
-  const auto check_finite = [&n_finite, &top] {
+  const auto check_grid = [&n_finite, &top] {
     const double magnitude = magnitude_of<T>(top);
     if (!coordinate_range_ok(magnitude)) throw CoordinateRangeError("grid", magnitude);
     if (n_finite < 3) {
@@ -169,7 +169,7 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
                                   std::to_string(n_finite) + ")");
     }
   };
-  if (!row_kernel) check_finite();
+  if (!row_kernel) check_grid();
 
   // With min_step: the rays each cell's verdict read (4 bytes per cell), so that a later pass
   // re-judges only the cells whose verdict a removal can change.
@@ -207,7 +207,7 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
       }
       n_finite = nf;
       top = tp;
-      check_finite();
+      check_grid();
     } else {
 #pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
       for (std::ptrdiff_t r = 0; r < H; ++r) {

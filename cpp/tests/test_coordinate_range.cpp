@@ -146,34 +146,43 @@ TEST(CoordinateRange, DetectorsRefuseCoordinatesOutsideTheRange) {
 // A stream refuses a profile beyond the range and is unchanged: its rows are those of a stream
 // that never saw it.
 TEST(CoordinateRange, StreamRejectsAProfileBeyondTheRange) {
-  const std::ptrdiff_t H = 40, W = 50;
+  const std::ptrdiff_t H = 1200, W = 50;  // more rows than the default stream's ring (about 940)
   const std::vector<double> g = bumpy_grid(H, W);
   std::vector<double> bad(g.begin(), g.begin() + 3 * W);
   bad[3 * 10 + 2] = 2e18;
-  auto rows = [&](bool with_bad) {
+  auto push_bad = [&](miem::ProfileStream<double>& s, miem::StreamRow& row) {
+    const std::int64_t before = s.rows_pushed();
+    const miem::Status st = s.push(bad.data(), W, &row);
+    EXPECT_EQ(st.code, miem::StatusCode::kInvalidInput);
+    EXPECT_NE(std::string(st.message).find("rescale"), std::string::npos);
+    EXPECT_FALSE(row.ready());
+    EXPECT_EQ(s.rows_pushed(), before);
+  };
+  // The bad profile in the middle of the part, or just before the flush (more rows than the
+  // stream's ring holds: the slot the next row would take still holds a row the flush reads).
+  auto rows = [&](bool with_bad, std::ptrdiff_t at = 20) {
     miem::ProfileStream<double> s(W);
-    std::vector<std::uint8_t> all;
+    std::vector<std::uint8_t> all;  // labels, then each row's heights' bytes
     miem::StreamRow row;
     auto keep = [&](const miem::StreamRow& r) {
-      if (r.ready()) all.insert(all.end(), r.labels, r.labels + W);
+      if (!r.ready()) return;
+      all.insert(all.end(), r.labels, r.labels + W);
+      const auto* h = reinterpret_cast<const std::uint8_t*>(r.height);
+      all.insert(all.end(), h, h + W * sizeof(double));
     };
     for (std::ptrdiff_t r = 0; r < H; ++r) {
-      if (with_bad && r == 20) {
-        const miem::Status st = s.push(bad.data(), W, &row);
-        EXPECT_EQ(st.code, miem::StatusCode::kInvalidInput);
-        EXPECT_NE(std::string(st.message).find("rescale"), std::string::npos);
-        EXPECT_FALSE(row.ready());
-        EXPECT_EQ(s.rows_pushed(), 20);
-      }
+      if (with_bad && r == at) push_bad(s, row);
       EXPECT_TRUE(s.push(g.data() + 3 * r * W, W, &row).ok());
       keep(row);
     }
+    if (with_bad && at == H) push_bad(s, row);
     while (s.flush(&row)) keep(row);
     return all;
   };
   const std::vector<std::uint8_t> clean = rows(false);
-  EXPECT_EQ(clean.size(), static_cast<std::size_t>(H * W));
+  EXPECT_EQ(clean.size(), static_cast<std::size_t>(H * W) * (1 + sizeof(double)));
   EXPECT_EQ(rows(true), clean);
+  EXPECT_EQ(rows(true, H), clean);
 }
 
 }  // namespace
