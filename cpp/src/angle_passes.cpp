@@ -4,12 +4,12 @@
 // pass (Jacobi): row-parallel, and identical for any thread count.
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <stdexcept>
 #include <string>
 #include <type_traits>
 #include <vector>
 
-#include "finite_magnitude.hpp"
 #include "judge.hpp"
 #include "pass1_row.hpp"
 #include "parallel.hpp"
@@ -18,6 +18,35 @@
 namespace miem::detail {
 
 namespace {
+
+// SPEC "Numbers" (the coordinate range) in pass 1's finiteness pass, which reads every
+// coordinate anyway: the bit pattern of |v| where v is finite, else 0. Non-negative floats order
+// like their patterns, so an integer maximum of them is the largest finite magnitude (fused
+// into finite_row's loop: about 2 ms of a 345 ms run at 2048^2, where a second pass over each
+// row with largest_finite_magnitude measured 4-5 ms).
+inline std::uint64_t finite_abs_bits(double v) {
+  std::uint64_t u;
+  std::memcpy(&u, &v, sizeof u);
+  u &= 0x7FFFFFFFFFFFFFFFull;
+  return u < 0x7FF0000000000000ull ? u : 0;
+}
+inline std::uint32_t finite_abs_bits(float v) {
+  std::uint32_t u;
+  std::memcpy(&u, &v, sizeof u);
+  u &= 0x7FFFFFFFu;
+  return u < 0x7F800000u ? u : 0;
+}
+// The pattern type of T.
+template <typename T>
+using AbsBits = decltype(finite_abs_bits(T()));
+
+// The value of a pattern finite_abs_bits gave, widened to double.
+template <typename T>
+double magnitude_of(AbsBits<T> u) {
+  T v;
+  std::memcpy(&v, &u, sizeof v);
+  return static_cast<double>(v);
+}
 
 // GridView::finite of row r's cells as straight-line code (constant strides for the common
 // interleaved xyz layout; the generic strides keep the loop scalar): us[c] 1 or 0 and, with

@@ -20,7 +20,6 @@
 
 #include "auto_min_step.hpp"
 #include "edge_quiet.hpp"
-#include "finite_magnitude.hpp"
 #include "z_resolution.hpp"
 #include "judge.hpp"
 #include "parallel.hpp"
@@ -569,20 +568,10 @@ Status ProfileStream<T>::push(const PointsView<T>& profile, StreamRow* out) noex
   // anything is written (the stream stays exactly as it was).
   const bool dense = profile.point_stride == 3 && profile.coord_stride == 1;
   {
-    using detail::finite_abs_bits;
-    detail::AbsBits<T> top = 0;
-    if (dense) {  // 3 W contiguous values: a loop the compiler vectorises
-      const T* p = profile.data;
-      for (std::ptrdiff_t i = 0; i < 3 * W; ++i) top = std::max(top, finite_abs_bits(p[i]));
-    } else {
-      const std::ptrdiff_t ps = profile.point_stride, cs = profile.coord_stride;
-      for (std::ptrdiff_t c = 0; c < W; ++c) {
-        const T* p = profile.data + c * ps;
-        top = std::max(top, std::max(std::max(finite_abs_bits(p[0]), finite_abs_bits(p[cs])),
-                                     finite_abs_bits(p[2 * cs])));
-      }
-    }
-    if (!coordinate_range_ok(detail::magnitude_of<T>(top), false)) {
+    const double top = dense ? largest_finite_magnitude(profile.data, 1, 3 * W, 0, 1)
+                             : largest_finite_magnitude(profile.data, W, 3, profile.point_stride,
+                                                        profile.coord_stride);
+    if (!coordinate_range_ok(top, false)) {
       return {StatusCode::kInvalidInput,
               "profile: finite coordinates reach a magnitude above 1e18, outside the range the "
               "method computes without overflow; rescale the points (profile rejected)"};
