@@ -286,8 +286,8 @@ class ProfileStream:
             Wrong shape or dtype kind, or the stream was flushed (call :meth:`reset`). A rejected
             profile leaves the stream unchanged.
         """
-        # native order, aligned; SPEC's coordinate range is checked by the core's push as it
-        # copies the profile, here only before a conversion (which could make values inf)
+        # native order, aligned; SPEC's coordinate range is checked by the core's push before
+        # it takes the profile, here only before a conversion (which could make values inf)
         arr = _as_float_array(profile, "profile", check_range=False)
         if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] != self.width:
             raise ValueError(f"profile: expected shape ({self.width}, 3), got {arr.shape}")

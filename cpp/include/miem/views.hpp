@@ -80,7 +80,8 @@ inline bool coordinate_range_ok(double top, bool lower = true) noexcept {
 }
 
 /// What the detectors throw for coordinates outside that range (OrganizedDetector::run,
-/// detect_organized, detect_points; the no-throw API and ProfileStream::push return
+/// detect_organized, and detect_points, point_spacing, distinct_spacings, estimate_normals of
+/// miem/unorganized.hpp; nothrow::detect and ProfileStream::push return
 /// StatusCode::kInvalidInput instead): an std::invalid_argument whose message names the
 /// argument and the magnitude found.
 class CoordinateRangeError : public std::invalid_argument {
