@@ -292,6 +292,19 @@ def test_a_grid_is_range_checked_by_the_core_in_its_first_pass(monkeypatch):
     assert calls[0] == "grid"
 
 
+@pytest.mark.parametrize("case", ["one point", "four coordinates", "bad parameter", "threads"])
+def test_the_range_error_comes_first_whatever_else_is_wrong(case):
+    """A grid beyond the range that is also wrong in another way says the range (as it did when
+    Python checked every grid first; the fuzzed stream found the 1 x 1 case)."""
+    g = {"one point": np.zeros((1, 1, 3)), "four coordinates": np.zeros((4, 5, 4))}.get(
+        case, np.zeros((4, 5, 3)))
+    g[0, 0, 0] = 1e300
+    kw = {"bad parameter": {"theta0": -5}, "threads": {"num_threads": 0}}.get(case, {})
+    with pytest.raises(ValueError, match=r"grid: .*magnitude of 1e\+300.*rescale") as err:
+        miem.detect(g, **kw)
+    assert err.value.__suppress_context__  # the range error alone, not chained to the other
+
+
 @pytest.mark.parametrize("layout", ["c", "strided", "reversed", "fortran", "float32"])
 def test_the_range_check_reads_every_value_of_any_layout(layout):
     """One value out of range at the last position of a view (inf and NaN elsewhere do not

@@ -541,9 +541,33 @@ def detect(
     >>> miem.detect(grid, preset="paper").params["theta0"]
     75.0
     """
+    arr = _grid_or_cloud(grid)
+    try:
+        return _detect_array(arr, params, preset, num_threads, shape, layout, overrides)
+    except ValueError as exc:
+        # a grid's coordinate range is the core's (its error says "rescale the points"); the
+        # range error still comes before any other
+        if arr.ndim == 3 and "rescale the points" not in str(exc):
+            _range_error_first(arr)
+        raise
+
+
+def _range_error_first(arr: np.ndarray) -> None:
+    """The coordinate-range ValueError of ``arr`` (SPEC "Numbers"), if it has one, in place of
+    another error about it: the range is reported before anything else, whichever check found
+    the other first."""
+    try:
+        _check_range(arr, "grid")
+    except ValueError as exc:
+        raise exc from None
+
+
+def _detect_array(arr: np.ndarray, params: Optional[DetectParams], preset: Optional[str],
+                  num_threads: Optional[int], shape: Optional[Sequence[int]],
+                  layout: Optional[str], overrides: dict) -> DetectResult:
+    """detect's body, for ``arr`` from _grid_or_cloud."""
     from . import _layout
 
-    arr = _grid_or_cloud(grid)
     nt = _threads(num_threads)
     _layout.check_layout(layout, arr, shape)
     if shape is not None:
