@@ -192,8 +192,7 @@ int angle_passes(const GridView<T>& g, DetectParams& eff, const OrganizedOutput&
   }
   // SPEC "Numbers" first (the coordinate range), then at least 3 finite points.
   const auto check_grid = [&n_finite, &top] {
-    const double magnitude = magnitude_of<T>(top);
-    if (!coordinate_range_ok(magnitude)) throw CoordinateRangeError("grid", magnitude);
+    check_coordinate_range(magnitude_of<T>(top), "grid");
     if (n_finite < 3) {
       throw std::invalid_argument("grid: fewer than 3 finite points (found " +
                                   std::to_string(n_finite) + ")");

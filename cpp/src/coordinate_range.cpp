@@ -64,7 +64,7 @@ inline float row_top(const float* p, std::ptrdiff_t n, float top) {
   return top;
 }
 
-// The message, as the Python layer words it (miem/_api.py _check_range).
+// The message (the Python layer raises it too: miem/_api.py _check_range).
 std::string range_message(const char* name, double magnitude) {
   char buf[320];
   std::snprintf(buf, sizeof buf,
@@ -78,6 +78,10 @@ std::string range_message(const char* name, double magnitude) {
 
 CoordinateRangeError::CoordinateRangeError(const char* name, double magnitude)
     : std::invalid_argument(range_message(name, magnitude)), magnitude_(magnitude) {}
+
+void check_coordinate_range(double magnitude, const char* name, bool lower) {
+  if (!coordinate_range_ok(magnitude, lower)) throw CoordinateRangeError(name, magnitude);
+}
 
 template <typename T>
 double largest_finite_magnitude(const T* data, std::ptrdiff_t rows, std::ptrdiff_t cols,

@@ -34,9 +34,9 @@ namespace {
 // outside the coordinate range (one read pass).
 template <typename T>
 void check_range(const PointsView<T>& points) {
-  const double top = largest_finite_magnitude(points.data, points.size, 3, points.point_stride,
-                                              points.coord_stride);
-  if (!coordinate_range_ok(top)) throw CoordinateRangeError("points", top);
+  check_coordinate_range(largest_finite_magnitude(points.data, points.size, 3,
+                                                  points.point_stride, points.coord_stride),
+                         "points");
 }
 
 // Distance from every finite point to its nearest other finite point (NaN for non-finite rows,

@@ -218,23 +218,13 @@ def _xyz_fields(arr: np.ndarray, name: str) -> np.ndarray:
     return np.stack(cols, axis=-1).astype(np.result_type(*cols, np.float32), copy=False)
 
 
-#: Largest finite coordinate magnitude accepted, and the least the largest may be (SPEC
-#: "Numbers"): beyond them float64 overflows or underflows in the tests' powers of differences.
-#: The core's values (miem/views.hpp), which its detectors check themselves.
-COORDINATE_MAX = float(_core.COORDINATE_MAX)
-COORDINATE_MIN = float(_core.COORDINATE_MIN)
-
-
 def _check_range(arr: np.ndarray, name: str, lower: bool = True) -> None:
-    """ValueError when the finite coordinates leave the SPEC range (one pass, no copy). With
-    ``lower=False`` only the upper bound is checked (a stream sees one profile at a time, and
-    the lower bound is about the whole scan)."""
+    """ValueError when the finite coordinates leave the SPEC range ("Numbers"; one pass, no
+    copy): the core's bounds and message (miem/views.hpp CoordinateRangeError), which its
+    detectors raise themselves. With ``lower=False`` only the upper bound is checked (a stream
+    sees one profile at a time, and the lower bound is about the whole scan)."""
     top = _core.finite_extent(arr, name)  # largest finite magnitude: one pass, in place
-    if top > COORDINATE_MAX or (lower and 0.0 < top < COORDINATE_MIN):
-        raise ValueError(
-            f"{name}: finite coordinates reach a magnitude of {top:.3g}, outside the range the "
-            f"method computes without overflow (at most {COORDINATE_MAX:g}, largest at least "
-            f"{COORDINATE_MIN:g}); rescale the points")
+    _core.check_range(top, name, lower)
 
 
 def _as_float_array(a: object, name: str, lower: bool = True,

@@ -94,4 +94,8 @@ class CoordinateRangeError : public std::invalid_argument {
   double magnitude_;
 };
 
+/// Throws CoordinateRangeError(name, magnitude) unless coordinate_range_ok(magnitude, lower).
+/// (Defined in the library: the headers compile with -fno-exceptions.)
+void check_coordinate_range(double magnitude, const char* name, bool lower = true);
+
 }  // namespace miem

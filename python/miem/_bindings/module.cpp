@@ -132,8 +132,14 @@ PYBIND11_MODULE(_core, m) {
         "The most threads any call uses; larger num_threads requests are clamped to it.");
   m.def("finite_extent", &finite_extent, py::arg("a"), py::arg("name"),
         "The largest magnitude among the finite values of a float32/float64 array (0 if none).");
-  m.attr("COORDINATE_MAX") = miem::kCoordinateMax;  // SPEC "Numbers" (miem/views.hpp)
-  m.attr("COORDINATE_MIN") = miem::kCoordinateMin;
+  m.def(
+      "check_range",
+      [](double magnitude, const std::string& name, bool lower) {
+        miem::check_coordinate_range(magnitude, name.c_str(), lower);
+      },
+      py::arg("magnitude"), py::arg("name"), py::arg("lower"),
+      "ValueError (the core's CoordinateRangeError) when a largest finite magnitude lies outside "
+      "SPEC's coordinate range (lower=False: the upper bound only).");
   m.def("fit_plane", &fit_plane, py::arg("points"), py::arg("method"), py::arg("num_threads"));
   m.def("scan_line_angles", &scan_line<false>, py::arg("line"), py::arg("step"));
   m.def("scan_line_heights", &scan_line<true>, py::arg("line"), py::arg("step"));
