@@ -1281,6 +1281,12 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol e
         std::fill(mark + rr * W + C0, mark + rr * W + C1, std::uint8_t{0});
         std::ptrdiff_t cc = C1 - 1;  // the row's last candidate (from the end: often C1 - 1)
         for (const std::ptrdiff_t i = rr * W; cc >= C0; --cc) {
+          // 8 cells at a time while none is to do (most, after the quiet cells leave pass 1)
+          for (std::uint64_t w; cc - 7 >= C0; cc -= 8) {
+            std::memcpy(&w, todo + i + cc - 7, 8);
+            if (w != 0) break;
+          }
+          if (cc < C0) break;
           const std::uint8_t l = labels[i + cc];
           if (todo[i + cc] && (any_label || l == kNormal || l == kEdge)) break;
         }
@@ -1353,8 +1359,14 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol e
     }
     std::fill(tile_todo.begin(), tile_todo.end(), std::uint8_t{1});
   }
-  parallel_ranges(ntn, N, 64, [&](int, std::ptrdiff_t i0, std::ptrdiff_t i1) {
-    for (std::ptrdiff_t i = i0; i < i1; ++i) todo[i] = labels[i] == kNormal || labels[i] == kEdge;
+  parallel_ranges(ntn, N, 64, [todo, labels](int, std::ptrdiff_t i0, std::ptrdiff_t i1) {
+    // (local restrict pointers and no short circuit: vectorised; through the captured
+    // pointers every byte store reloaded them)
+    std::uint8_t* __restrict td = todo;
+    const std::uint8_t* __restrict lb = labels;
+    for (std::ptrdiff_t i = i0; i < i1; ++i) {
+      td[i] = static_cast<std::uint8_t>((lb[i] == kNormal) | (lb[i] == kEdge));
+    }
   });
   // pass 1 leaves out the quiet cells (step 1): rows r .. H - r - 1, each thread its rows'
   // window counts

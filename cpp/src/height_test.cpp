@@ -106,13 +106,19 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
     std::fill(hm + i0, hm + i1, std::uint8_t{0});
   });
   mark_compact_edges(labels, H, W, p.edge_extent, p.max_gap, hm, ws.queue);
-#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
-  for (std::ptrdiff_t i = 0; i < N; ++i) {
-    const std::uint8_t l = labels[i];
-    const bool compact = (hm[i] & kHCompact) != 0;
-    cls[i] = l == kNormal ? kInPlane : (l == kEdge && !compact ? kLine : 0);
-    if (l == kNormal || compact) hm[i] |= kHWant;  // pass 1 fits every candidate
-  }
+  parallel_ranges(nt, N, 64, [labels, hm, cls](int, std::ptrdiff_t i0, std::ptrdiff_t i1) {
+    // branch-free over local restrict pointers: vectorised (kHCompact, bit 0, read as a
+    // number: GCC 12 does not vectorise a test of bit 0 with != 0)
+    const std::uint8_t* __restrict lb = labels;
+    std::uint8_t* __restrict h = hm;
+    std::uint8_t* __restrict cl = cls;
+    for (std::ptrdiff_t i = i0; i < i1; ++i) {
+      const std::uint8_t l = lb[i], b = h[i];
+      const int normal = l == kNormal, compact = b & kHCompact;  // 1 or 0 each
+      cl[i] = static_cast<std::uint8_t>(normal * kInPlane + ((l == kEdge) & (compact ^ 1)) * kLine);
+      h[i] = static_cast<std::uint8_t>(b | (normal | compact) * kHWant);  // pass 1 fits them
+    }
+  });
   int passes = 0;
   std::vector<std::vector<std::int64_t>> parts;  // per thread: new ABNORMAL cells of a pass
   // the edge test's quiet cells (SPEC "Edge test" step 1) by the first pass's planes (a cell

@@ -104,8 +104,22 @@ template <typename Keep>
 void collect_indices(int nt, std::ptrdiff_t n, std::vector<std::int64_t>& out, Keep keep) {
   collect_ranges(nt, n, 64, out,
                  [&](std::ptrdiff_t i0, std::ptrdiff_t i1, std::vector<std::int64_t>& part) {
-                   for (std::ptrdiff_t i = i0; i < i1; ++i)
-                     if (keep(i)) part.push_back(i);
+                   // 64 cells at a time: keep() of each into bytes (straight-line code,
+                   // vectorised for a simple keep), then the kept ones of the blocks that
+                   // have any (the indices are few: most blocks have none)
+                   std::uint8_t k[64];
+                   for (std::ptrdiff_t b = i0; b < i1; b += 64) {
+                     const std::ptrdiff_t m = std::min<std::ptrdiff_t>(64, i1 - b);
+                     unsigned any = 0;
+                     for (std::ptrdiff_t j = 0; j < m; ++j) {
+                       k[j] = keep(b + j) ? 1 : 0;
+                       any |= k[j];
+                     }
+                     if (any == 0) continue;
+                     for (std::ptrdiff_t j = 0; j < m; ++j) {
+                       if (k[j]) part.push_back(b + j);
+                     }
+                   }
                  });
 }
 

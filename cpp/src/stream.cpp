@@ -24,6 +24,7 @@
 #include "judge.hpp"
 #include "parallel.hpp"
 #include "pass1_row.hpp"
+#include "vector_clones.hpp"
 
 namespace miem {
 
@@ -543,6 +544,27 @@ void ProfileStream<T>::reset() noexcept {
   reset_defects();
 }
 
+namespace {
+// n interleaved points (x, y, z, x, ...) into three planes, in vector clones (AVX2 and AVX-512
+// shuffle the interleaved loads; the baseline build moves them two at a time).
+template <typename T>
+inline __attribute__((always_inline)) void split_xyz_body(const T* __restrict p,
+                                                          std::ptrdiff_t n, T* __restrict x,
+                                                          T* __restrict y, T* __restrict z) {
+  for (std::ptrdiff_t c = 0; c < n; ++c) {
+    x[c] = p[3 * c];
+    y[c] = p[3 * c + 1];
+    z[c] = p[3 * c + 2];
+  }
+}
+MIEM_CLONES void split_xyz(const double* p, std::ptrdiff_t n, double* x, double* y, double* z) {
+  split_xyz_body(p, n, x, y, z);
+}
+MIEM_CLONES void split_xyz(const float* p, std::ptrdiff_t n, float* x, float* y, float* z) {
+  split_xyz_body(p, n, x, y, z);
+}
+}  // namespace
+
 template <typename T>
 Status ProfileStream<T>::push(const PointsView<T>& profile, StreamRow* out) noexcept {
   if (out != nullptr) *out = StreamRow{};
@@ -578,12 +600,7 @@ Status ProfileStream<T>::push(const PointsView<T>& profile, StreamRow* out) noex
     }
   }
   if (dense) {
-    const T* p = profile.data;  // the common dense layout: a loop the compiler vectorises
-    for (std::ptrdiff_t c = 0; c < W; ++c) {
-      x[c] = p[3 * c];
-      y[c] = p[3 * c + 1];
-      z[c] = p[3 * c + 2];
-    }
+    split_xyz(profile.data, W, x, y, z);  // the common dense layout
   } else {
     const std::ptrdiff_t ps = profile.point_stride, cs = profile.coord_stride;
     for (std::ptrdiff_t c = 0; c < W; ++c) {

@@ -67,6 +67,7 @@ void ProfileStream<T>::init_edges() {
   elab_img_.assign(static_cast<std::size_t>(threads_ * W), kInvalid);
   etile_list_.assign(static_cast<std::size_t>(etiles_), 0);
   elab_row_.assign(static_cast<std::size_t>((2 * r + 1) * W), kInvalid);
+  elab1_.assign(static_cast<std::size_t>(2 * (2 * r + 1) * W), kInvalid);
   emark_.assign(static_cast<std::size_t>(W), 0);
   etd_.assign(static_cast<std::size_t>(W), 0);
 }
@@ -78,6 +79,7 @@ void ProfileStream<T>::reset_edges() noexcept {
   std::fill(enext_.begin(), enext_.end(), 0);
   eq_first_ = eq_next_ = 0;
   ecand_ = 0;
+  elab1_next_ = 0;
 }
 
 // At push: the tile origins of the row's band (the first finite cell of each tile, row-major).
@@ -194,10 +196,24 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
   const std::ptrdiff_t grow = static_cast<std::ptrdiff_t>(row - a0);
   const GridView<T> gw{xyz_.data() + slot(a0) * W, static_cast<std::ptrdiff_t>(upto - a0), W, W,
                        1, phys_ * W};
-  std::uint8_t* const win = elab_row_.data();
-  // (step 9 reads no label of the window: its candidates are todo's, its verdict the fits)
-  for (std::int64_t a = a0; pass > 0 && a < upto; ++a) {
-    edge_labels(a, pass, 0, W, win + (a - a0) * W);
+  std::uint8_t* win = elab_row_.data();
+  if (pass == 1) {
+    // Pass 1 moves down one row a push: each row's labels are read once, when the row enters
+    // the window (final then: the height passes and step 9 are done r rows below, and the
+    // view leaves out pass 1's own removals), and kept for the next 2 r judgments.
+    const std::ptrdiff_t M = 2 * r + 1;
+    for (std::int64_t a = std::max(elab1_next_, a0); a < upto; ++a) {
+      std::uint8_t* d = elab1_.data() + (a % M) * W;
+      edge_labels(a, 1, 0, W, d);
+      std::memcpy(d + M * W, d, static_cast<std::size_t>(W));
+    }
+    elab1_next_ = std::max(elab1_next_, upto);
+    win = elab1_.data() + (a0 % M) * W;
+  } else {
+    // (step 9 reads no label of the window: its candidates are todo's, its verdict the fits)
+    for (std::int64_t a = a0; pass > 0 && a < upto; ++a) {
+      edge_labels(a, pass, 0, W, win + (a - a0) * W);
+    }
   }
   const std::uint8_t* lab = win + grow * W;
   if (pass == 1) {

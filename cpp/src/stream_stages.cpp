@@ -43,6 +43,17 @@ constexpr std::uint8_t kNever = 255;  // hs_: not removed by the height test
 
 constexpr std::uint8_t want_bit(int pass) { return (pass & 1) ? kSWantOdd : kSWantEven; }
 
+// The first c in [c, n) with p[c] != 0, else n: 8 bytes at a time over zeros (most cells of a
+// row are not wanted).
+inline std::ptrdiff_t next_nonzero(const std::uint8_t* p, std::ptrdiff_t c, std::ptrdiff_t n) {
+  for (std::uint64_t w; c + 8 <= n; c += 8) {
+    std::memcpy(&w, p + c, 8);
+    if (w != 0) break;
+  }
+  while (c < n && p[c] == 0) ++c;
+  return c;
+}
+
 // A cell's class in height pass `pass` (kNever: the final labels) from its bits b and removal
 // pass hs: in the plane while NORMAL at the pass's start (Jacobi), else a feature-line count
 // when `lines`.
@@ -72,10 +83,13 @@ MIEM_CLONES void pass1_verdicts(std::ptrdiff_t n, const std::uint8_t* __restrict
   }
   if (quiet_floor > 0.0) {  // the edge test's quiet planes of the NORMAL cells (edge_quiet.hpp)
     for (std::ptrdiff_t j = 0; j < n; ++j) {
-      const bool q = (w[j] != 0) & ((hm[j] & kInPlane) != 0) &
-                     detail::quiet_plane(okf[j] != 0, fh[j], S[j], f0[j], f1[j], f2[j],
+      const bool q = detail::quiet_plane(okf[j] != 0, fh[j], S[j], f0[j], f1[j], f2[j],
                                          quiet_floor);
-      quiet[j] |= q ? detail::kHQuiet : 0;  // (kHStale may be there: a removal above)
+      // hm[j] & kInPlane (bit 0) as a number, not tested with != 0: GCC 12 does not vectorise
+      // a loop with that test of bit 0 (no vector type for it), and this one ran scalar
+      const int mark = ((w[j] != 0) & q) & (hm[j] & kInPlane);
+      // (kHStale may be there: a removal above)
+      quiet[j] = static_cast<std::uint8_t>(quiet[j] | (mark ? detail::kHQuiet : 0));
     }
   }
   if (!test) return;
@@ -218,7 +232,16 @@ void ProfileStream<T>::compact_row(std::int64_t row) noexcept {
       return true;
     }
   };
+  constexpr std::uint64_t kBytes = 0x0101010101010101ull;  // one in each byte
   for (std::ptrdiff_t c = 0; extent_ > 0 && c < W; ++c) {
+    // 8 cells at a time while none is an EDGE cell not yet grouped (most rows have none):
+    // kSSeen moved down onto kSEdge clears the grouped ones
+    static_assert(kSSeen == kSEdge << 2, "the shift below moves kSSeen onto kSEdge");
+    for (std::uint64_t w; c + 8 <= W; c += 8) {
+      std::memcpy(&w, hm0 + c, 8);
+      if ((w & kBytes * kSEdge & ~((w & kBytes * kSSeen) >> 2)) != 0) break;
+    }
+    if (c >= W) break;
     if ((hm0[c] & (kSEdge | kSSeen)) != kSEdge) continue;
     Cells cells{*this, lo, hi};
     const detail::EdgeGroupBox box = detail::walk_edge_group(cells, row, c, W, link_gap_, queue_);
@@ -229,8 +252,9 @@ void ProfileStream<T>::compact_row(std::int64_t row) noexcept {
       }
     }
   }
-  for (std::ptrdiff_t c = 0; c < W; ++c) {
-    if ((hm0[c] & (kSEdge | kSCompact)) == kSEdge) hm0[c] |= kLine;
+  for (std::ptrdiff_t c = 0; c < W; ++c) {  // branch-free: vectorised
+    const std::uint8_t b = hm0[c];
+    hm0[c] = static_cast<std::uint8_t>(b | ((b & (kSEdge | kSCompact)) == kSEdge ? kLine : 0));
   }
 }
 
@@ -442,7 +466,8 @@ void ProfileStream<T>::height_pass_row(std::int64_t row, int pass) noexcept {
   std::uint8_t* want = want_row_.data();
   for (std::ptrdiff_t c = 0; c < W; ++c) {
     const std::uint8_t b = hm[c];
-    want[c] = (b & bit) && hs[c] == kNever && (b & (kInPlane | kSCompact));
+    want[c] = static_cast<std::uint8_t>(((b & bit) != 0) & (hs[c] == kNever) &
+                                        ((b & (kInPlane | kSCompact)) != 0));
     hm[c] = static_cast<std::uint8_t>(b & ~bit);
   }
   // Jacobi: every verdict of the row first (the removals below change later rows' windows only
@@ -508,7 +533,9 @@ void ProfileStream<T>::final_row(std::int64_t row) noexcept {
   }
   if (!htest_ && !edge_) return;  // the pass-1 heights are final
   std::uint8_t* want = want_row_.data();
-  for (std::ptrdiff_t c = 0; c < W; ++c) want[c] = (hm[c] & kSStale) && lab[c] != kInvalid;
+  for (std::ptrdiff_t c = 0; c < W; ++c) {  // branch-free: vectorised
+    want[c] = static_cast<std::uint8_t>(((hm[c] & kSStale) != 0) & (lab[c] != kInvalid));
+  }
   region_fits(row, kNever, [&](std::ptrdiff_t c, const detail::WindowFit& f) {
     height[c] = f.ok ? f.height : detail::kNaN;
   });
@@ -537,10 +564,8 @@ void ProfileStream<T>::region_fits(std::int64_t row, int pass, Visit visit) noex
   std::uint8_t* wrow = redo + cap;
   std::uint8_t* cl = region_cls_.data();
   for (std::ptrdiff_t c = 0; c < W;) {
-    if (!want[c]) {
-      ++c;
-      continue;
-    }
+    c = next_nonzero(want, c, W);
+    if (c >= W) break;
     const std::ptrdiff_t ca = c, end = std::min(W, ca + kStrip);
     std::ptrdiff_t cb = ca, m = 0;
     for (std::ptrdiff_t q = ca; q < end; ++q) {

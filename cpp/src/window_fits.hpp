@@ -448,6 +448,23 @@ struct RowFits {
   }
 };
 
+/// Whether the sums of a window with n cells (s0), second moments s4, s7, s9 about the tile's
+/// point and l1 lost the plane (refit_cancelled).
+inline __attribute__((always_inline)) bool cancelled(double s0, double s4, double s7, double s9,
+                                                     double l1) {
+  return (s0 >= 3.0) & (l1 <= kRefitRatio * (s4 + s7 + s9));
+}
+
+/// Whether any of m entries did (nearly always none): one pass in vector clones (the baseline
+/// build has no vector form of a double comparison's flag as an integer: a scalar loop there).
+MIEM_CLONES inline bool any_cancelled(std::ptrdiff_t m, const double* __restrict s0,
+                                      const double* __restrict s4, const double* __restrict s7,
+                                      const double* __restrict s9, const double* __restrict l1) {
+  std::int64_t any = 0;
+  for (std::ptrdiff_t e = 0; e < m; ++e) any |= cancelled(s0[e], s4[e], s7[e], s9[e], l1[e]);
+  return any != 0;
+}
+
 /// The solved entries [e0, e1) of row_solve whose sums lost the plane (kRefitRatio in
 /// plane_math.hpp; at least 3 cells, whether the sums found a plane or not: cancellation may
 /// decide either), fitted again directly as the reference fits them: their fit from refit(j)
@@ -458,12 +475,8 @@ void refit_cancelled(std::ptrdiff_t e0, std::ptrdiff_t e1, bool compact, std::pt
                      std::uint8_t* okf, std::uint8_t* redo, Refit refit) {
   const double *s0 = S, *s4 = S + 4 * cap, *s7 = S + 7 * cap, *s9 = S + 9 * cap;
   const double* l1 = F + 2 * cap;
-  const auto lost = [&](std::ptrdiff_t e) {
-    return (s0[e] >= 3.0) & (l1[e] <= kRefitRatio * (s4[e] + s7[e] + s9[e]));
-  };
-  std::uint8_t any = 0;  // nearly always none: one vector pass
-  for (std::ptrdiff_t e = e0; e < e1; ++e) any |= static_cast<std::uint8_t>(lost(e));
-  if (!any) return;
+  const auto lost = [&](std::ptrdiff_t e) { return cancelled(s0[e], s4[e], s7[e], s9[e], l1[e]); };
+  if (!any_cancelled(e1 - e0, s0 + e0, s4 + e0, s7 + e0, s9 + e0, l1 + e0)) return;
   std::ptrdiff_t j = j0 - 1;
   for (std::ptrdiff_t e = e0; e < e1; ++e) {
     if (compact) {

@@ -432,6 +432,11 @@ class ProfileStream {
   std::vector<std::ptrdiff_t> eorg_missing_;  // per band slot: tiles without an origin yet
   std::vector<std::uint8_t> eones_, elab_row_, emark_, etd_;  // one row each
   std::vector<std::uint8_t> elab_img_;  // one row per thread (edge_images' labels)
+  // Pass 1's labels (edge_labels) of the last 2 r + 1 rows, each row twice (2 r + 1 rows
+  // apart, so that a judgment's window is contiguous), and the next row to add: a row's are
+  // final when it first enters a pass-1 window.
+  std::vector<std::uint8_t> elab1_;
+  std::int64_t elab1_next_ = 0;
   std::vector<std::ptrdiff_t> etile_list_;  // a pass's tile columns with a candidate
   // Defects (stream_defects.cpp): open groups as union-find slots over the cells of the last
   // row handed back; their cells in a pool of singly linked members.
@@ -443,6 +448,7 @@ class ProfileStream {
     bool touches = false, closed = false;
   };
   std::vector<std::int32_t> dprev_, dcur_;  // per column: slot of the ABNORMAL cell, or -1
+  std::vector<std::int32_t> dcols_prev_, dcols_cur_;  // their columns holding a slot, ascending
   std::vector<DefectSlot> slots_;
   std::vector<std::int32_t> slot_free_, dead_, closed_;
   std::vector<std::int64_t> mem_idx_;
