@@ -42,19 +42,20 @@ inline std::uint32_t finite_abs_bits(float v) {
 template <typename T>
 using AbsBits = decltype(finite_abs_bits(T()));
 
-// finite_row's loop for the interleaved layout (x, y, z, x, ...), n points at p: us[c] 1 or 0,
-// with `lb` the label, the finite count returned and `top` raised to the largest pattern, in
-// vector clones. The patterns lie below 2^63 (2^31): a signed maximum orders them, which AVX2
-// has for 64-bit lanes (the unsigned one only AVX-512; the baseline build has neither, and
-// its loop ran one cell at a time).
-template <typename T, typename S>
-inline __attribute__((always_inline)) std::ptrdiff_t finite_xyz_body(
-    const T* __restrict p, std::ptrdiff_t n, std::uint8_t* __restrict us,
+// GridView::finite of n cells at p (cells cs apart, coordinates ys apart) as straight-line
+// code: us[c] 1 or 0 and, with `lb`, the label NORMAL or INVALID; returns the finite count and
+// raises `top` to the largest finite_abs_bits (SPEC "Numbers": every finite coordinate counts,
+// a dropout's too). The patterns lie below 2^63 (2^31): `top` is signed, as a signed maximum
+// orders them and AVX2 has one for 64-bit lanes (the unsigned one only AVX-512).
+template <typename T, typename S, typename CS, typename YS>
+inline __attribute__((always_inline)) std::ptrdiff_t finite_cells(
+    const T* __restrict p, std::ptrdiff_t n, CS cs, YS ys, std::uint8_t* __restrict us,
     std::uint8_t* __restrict lb, S& top) {
   std::ptrdiff_t nf = 0;
   S t = top;
   for (std::ptrdiff_t c = 0; c < n; ++c) {
-    const T x = p[3 * c], y = p[3 * c + 1], z = p[3 * c + 2];
+    const T* q = p + c * cs;
+    const T x = q[0], y = q[ys], z = q[2 * ys];
     const bool fin = (x - x) + (y - y) + (z - z) == T(0);
     us[c] = fin;
     if (lb != nullptr) lb[c] = fin ? kNormal : kInvalid;
@@ -66,15 +67,27 @@ inline __attribute__((always_inline)) std::ptrdiff_t finite_xyz_body(
   top = t;
   return nf;
 }
+
+// finite_cells with labels or without (lb null), the loop without a test per cell.
+template <typename T, typename S, typename CS, typename YS>
+inline __attribute__((always_inline)) std::ptrdiff_t finite_cells_lb(
+    const T* p, std::ptrdiff_t n, CS cs, YS ys, std::uint8_t* us, std::uint8_t* lb,
+    S& top) {
+  return lb != nullptr ? finite_cells(p, n, cs, ys, us, lb, top)
+                       : finite_cells(p, n, cs, ys, us, nullptr, top);
+}
+
+// The interleaved layout (x, y, z, x, ...) in vector clones: the constant strides vectorise
+// (the baseline build has no 64-bit maximum, and its loop ran one cell at a time).
+using K3 = std::integral_constant<std::ptrdiff_t, 3>;
+using K1 = std::integral_constant<std::ptrdiff_t, 1>;
 MIEM_CLONES std::ptrdiff_t finite_xyz(const double* p, std::ptrdiff_t n, std::uint8_t* us,
                                       std::uint8_t* lb, std::int64_t& top) {
-  return lb != nullptr ? finite_xyz_body(p, n, us, lb, top)
-                       : finite_xyz_body(p, n, us, nullptr, top);
+  return finite_cells_lb(p, n, K3{}, K1{}, us, lb, top);
 }
 MIEM_CLONES std::ptrdiff_t finite_xyz(const float* p, std::ptrdiff_t n, std::uint8_t* us,
                                       std::uint8_t* lb, std::int32_t& top) {
-  return lb != nullptr ? finite_xyz_body(p, n, us, lb, top)
-                       : finite_xyz_body(p, n, us, nullptr, top);
+  return finite_cells_lb(p, n, K3{}, K1{}, us, lb, top);
 }
 
 // The value of a pattern finite_abs_bits gave, widened to double.
@@ -85,44 +98,19 @@ double magnitude_of(AbsBits<T> u) {
   return static_cast<double>(v);
 }
 
-// GridView::finite of row r's cells as straight-line code (the common interleaved xyz layout
-// by finite_xyz, vectorised; the generic strides keep the loop scalar): us[c] 1 or 0 and, with
-// `lb`, the label NORMAL or INVALID. Returns the finite count; raises `top` to the largest
-// finite_abs_bits of the row's coordinates (SPEC "Numbers": every finite coordinate counts,
-// a dropout's too).
+// finite_cells of row r of g: the interleaved layout by finite_xyz, any other strides by the
+// same loop (scalar).
 template <typename T>
 std::ptrdiff_t finite_row(const GridView<T>& g, std::ptrdiff_t r, std::uint8_t* us,
                           std::uint8_t* lb, AbsBits<T>& top) {
   const T* base = g.data + r * g.row_stride;
   const std::ptrdiff_t W = g.cols, cs = g.col_stride, ys = g.coord_stride;
-  auto row = [&](auto cs_, auto ys_, auto zs_, auto with_labels) {
-    std::uint8_t* __restrict u = us;
-    std::uint8_t* __restrict l = lb;
-    std::ptrdiff_t nf = 0;
-    AbsBits<T> t = top;
-    for (std::ptrdiff_t c = 0; c < W; ++c) {
-      const T* q = base + c * cs_;
-      const T s = (q[0] - q[0]) + (q[ys_] - q[ys_]) + (q[zs_] - q[zs_]);
-      const bool fin = s == T(0);
-      u[c] = fin;
-      if constexpr (decltype(with_labels)::value) l[c] = fin ? kNormal : kInvalid;
-      nf += fin;
-      const AbsBits<T> m = std::max(finite_abs_bits(q[0]), finite_abs_bits(q[ys_]));
-      t = std::max(t, std::max(m, finite_abs_bits(q[zs_])));
-    }
-    top = t;
-    return nf;
-  };
-  using Yes = std::true_type;
-  using No = std::false_type;
-  if (cs == 3 && ys == 1) {
-    using S = std::conditional_t<sizeof(T) == 8, std::int64_t, std::int32_t>;
-    S t = static_cast<S>(top);
-    const std::ptrdiff_t nf = finite_xyz(base, W, us, lb, t);
-    top = static_cast<AbsBits<T>>(t);
-    return nf;
-  }
-  return lb ? row(cs, ys, 2 * ys, Yes{}) : row(cs, ys, 2 * ys, No{});
+  using S = std::conditional_t<sizeof(T) == 8, std::int64_t, std::int32_t>;
+  S t = static_cast<S>(top);
+  const std::ptrdiff_t nf = cs == 3 && ys == 1 ? finite_xyz(base, W, us, lb, t)
+                                               : finite_cells_lb(base, W, cs, ys, us, lb, t);
+  top = static_cast<AbsBits<T>>(t);
+  return nf;
 }
 
 // Judge rows [r_begin, r_end) of pass 1 with the row kernel (pass1_row.hpp), keeping its ring
