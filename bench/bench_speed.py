@@ -131,13 +131,24 @@ def pcl_rows(build_dir: Path, side: int, repeats: int) -> list[dict]:
             for r in json.loads(out.stdout)]
 
 
+#: The size sweep's defect density: the lead scan's (200 defects in 2048^2 points) at every size,
+#: so that the cost per point compares scans of one kind (a fixed 200 made 256^2 64x as dense
+#: in defects as 2048^2, and each defect brings its own edge-test and height work).
+SWEEP_DEFECTS_PER_POINT = 200 / 2048**2
+
+
+def sweep_defects(n: int) -> int:
+    """The defects injected into a sweep grid of n points (at least 1)."""
+    return max(1, round(SWEEP_DEFECTS_PER_POINT * n))
+
+
 def sweep(sides: list[int], repeats: int) -> list[dict]:
     import miem
 
     rows = []
     for side in sides:
-        grid = scan_grid(side, side)
         n = side * side
+        grid = scan_grid(side, side, n_defects=sweep_defects(n))
         reps = repeats if side < 4096 else max(1, repeats - 1)
         # CPU time in a block of 1-thread calls of its own: after a 2-thread call the idle
         # OpenMP worker spins on, and its CPU time would count in the next 1-thread call
@@ -430,9 +441,13 @@ def fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, meta,
         ns = [r["cpu1"] / r["n"] * 1e9 for r in rows_sweep if r["side"] >= 512]
         if ns:
             L += ["", f"Cost per point from 512^2 up: {min(ns):.0f} to {max(ns):.0f} ns "
-                  f"(max / min {max(ns) / min(ns):.2f}: linear when close to 1). The wall "
-                  "columns are `miem.detect` through Python, best of the repeats, the 1-thread "
-                  "and 2-thread calls alternated."]
+                  f"(max / min {max(ns) / min(ns):.2f}: linear when close to 1). Every grid "
+                  "has the 2048^2 scan's defect density (200 defects per 2048^2 points: "
+                  f"{sweep_defects(512 * 512)} at 512^2, {sweep_defects(4096 * 4096)} at "
+                  "4096^2). A fixed cost remains: `min_step` / `z_noise` \"auto\" read the "
+                  "first 256 rows whatever the grid's height (SPEC), half of a 512^2 grid and "
+                  "1/16 of a 4096^2 one. The wall columns are `miem.detect` through Python, "
+                  "best of the repeats, the 1-thread and 2-thread calls alternated."]
     L += ["", "| `fit_plane`, 1 thread | time | GB/s | NumPy `sum` GB/s | share of the yardstick |",
           "|---|---:|---:|---:|---:|"]
     for r in rows_fit:
