@@ -7,9 +7,9 @@
 // The four medians are exact (NumPy's: the middle value, or the mean of the two middle values)
 // without a sort of all values. band_medians: a sample of the cells gives a narrow band of
 // values around each middle; one pass over the grid counts the values below it and keeps those
-// in it, where the middle ranks are selected. A sample rows' block under 65,536 cells has its
-// ranks selected among all its values (direct_medians). When a middle rank falls outside its
-// band, key_medians decides: the values are non-negative, so their float32 roundings
+// in it, where the middle ranks are selected. When the sample rows hold fewer than 65,536 cells,
+// the ranks are selected among all their values (direct_medians). When a middle rank falls
+// outside its band, key_medians decides: the values are non-negative, so their float32 roundings
 // order like them (rounding is monotone) and the float32 bit patterns order like the floats.
 // Three passes over the grid, each computing the four quantities at once: histograms of the
 // patterns' high 16 bits; in the bin of each middle rank, histograms of the low 16 bits (the
@@ -39,6 +39,15 @@ constexpr std::size_t kBins = 1 << 16;
 constexpr int kQ = 4;  // along: distance^2, |second difference|; across: the same
 // band_medians' smallest sample (fewer cells: direct_medians)
 constexpr std::ptrdiff_t kBandCells = std::ptrdiff_t{1} << 16;
+
+// The values of ranks r and r + 1 (`one`: r only, given twice) among [b, e): nth_element puts
+// rank r in place with nothing smaller after it, so rank r + 1 is the smallest after it.
+std::array<double, 2> rank_pair(std::vector<double>::iterator b, std::vector<double>::iterator e,
+                                std::size_t r, bool one) {
+  const auto at = b + static_cast<std::ptrdiff_t>(r);
+  std::nth_element(b, at, e);
+  return {*at, one ? *at : *std::min_element(at + 1, e)};
+}
 
 inline std::uint32_t key(double v) {  // float32 bit pattern of a non-negative v
   const float f = static_cast<float>(v);
@@ -425,11 +434,7 @@ bool band_medians(const GridView<T>& g, int nt, Counts& count, Mids& mids,
     const std::size_t ranks[2] = {(n - 1) / 2, n / 2};
     for (std::size_t rank : ranks)
       if (rank < below || rank - below >= v.size()) return false;
-    const auto at = v.begin() + static_cast<std::ptrdiff_t>(ranks[0] - below);
-    std::nth_element(v.begin(), at, v.end());
-    mids[q][0] = *at;
-    // the next rank (n even) is the smallest value after it: nth_element left none below it
-    mids[q][1] = ranks[1] == ranks[0] ? *at : *std::min_element(at + 1, v.end());
+    mids[q] = rank_pair(v.begin(), v.end(), ranks[0] - below, ranks[1] == ranks[0]);
   }
   return true;
 }
@@ -447,11 +452,7 @@ void direct_medians(const GridView<T>& g, Counts& count, Mids& mids) {
     std::vector<double>& w = v[q];
     count[q] = w.size();
     if (w.empty()) continue;
-    const auto at = w.begin() + static_cast<std::ptrdiff_t>((w.size() - 1) / 2);
-    std::nth_element(w.begin(), at, w.end());
-    mids[q][0] = *at;
-    // rank n / 2: the same value (n odd) or the smallest after it (n even; band_medians')
-    mids[q][1] = w.size() % 2 == 1 ? *at : *std::min_element(at + 1, w.end());
+    mids[q] = rank_pair(w.begin(), w.end(), (w.size() - 1) / 2, w.size() % 2 == 1);
   }
 }
 
