@@ -17,6 +17,7 @@ ACCURACY = Path(__file__).resolve().parents[1] / "bench" / "accuracy"
 sys.path.insert(0, str(ACCURACY))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+import edge_pool  # noqa: E402
 import edge_scenes  # noqa: E402
 import real_truth as rt  # noqa: E402
 import suite  # noqa: E402
@@ -69,6 +70,31 @@ def test_dev_set_is_apart_from_every_split() -> None:
         assert not seeds & {(s.source, s.params["seed"]) for s in suite.specs(split, real=False)}
     assert {s.group for s in dev} == set(suite.KINDS) | {"paper"}
     assert len(dev) == 24 * (len(suite.KINDS) + 1)
+
+
+def test_edge_pool_is_apart_from_every_split_and_covers_every_step() -> None:
+    """The pool of generated edge scenes (edge_pool.py, where rule variants are compared beyond
+    the tuning split's 2 scenes per kind) shares no edge seed with the tuning, test or third
+    split or the dev set; each kind meets every step on both line shapes and every noise; the
+    specs build the scenes edge_scenes makes from the same arguments."""
+    specs = edge_pool.pool_specs(9000, 40) + edge_pool.pool_specs(9100, 40)
+    seeds = {(s.group, s.params["seed"]) for s in specs}
+    assert len(seeds) == len(specs) == 2 * 40 * len(suite.EDGE_KINDS)
+    for split in ("tune", "test", "third"):
+        assert not seeds & {(s.group, s.params["seed"]) for s in suite.specs(split, real=False)}
+    assert not {s.params["seed"] for s in specs} & {s.params["seed"] for s in suite.dev_specs()}
+    for kind in suite.EDGE_KINDS:
+        mine = [s.params for s in specs if s.group == kind]
+        assert {(p["step"], p["curved"]) for p in mine} == {
+            (st, cv) for st in (0.05, 0.1, 0.2, 0.5) for cv in (False, True)}
+        assert {p["noise"] for p in mine} == {0.005, 0.01, 0.02}
+    spec = specs[5]
+    sc = suite.build(spec)
+    e = edge_scenes.make_edge_scene(**spec.params)
+    np.testing.assert_array_equal(sc.truth, e.truth)
+    assert sc.step == spec.params["step"] == 0.1 and spec.params["curved"] is True
+    with pytest.raises(ValueError, match="per_kind"):
+        edge_pool.pool_specs(9000, 101)
 
 
 # --------------------------------------------------------------------------------------------
