@@ -4,8 +4,8 @@
 // (window_fits.hpp), reusing what the height test already fitted; kAbnormal: ABNORMAL points
 // only, each fitted directly.
 #include <algorithm>
-#include <cstring>
 
+#include "byte_scan.hpp"
 #include "judge.hpp"
 #include "parallel.hpp"
 #include "stages.hpp"
@@ -56,15 +56,13 @@ void heights(const GridView<T>& g, const DetectParams& p, const std::uint8_t* la
     }
   }
   // the window classes (feature lines do not matter here), branch-free: vectorised; NaN at
-  // the INVALID cells, found by memchr (a vectorised search: they are few)
+  // the INVALID cells, found by next_byte (a vectorised search: they are few)
   parallel_ranges(nt, N, 64, [cls, labels, height](int, std::ptrdiff_t i0, std::ptrdiff_t i1) {
     std::uint8_t* __restrict cl = cls;
     const std::uint8_t* __restrict lb = labels;
     for (std::ptrdiff_t i = i0; i < i1; ++i) cl[i] = lb[i] == kNormal ? kInPlane : 0;
-    for (std::ptrdiff_t i = i0; i < i1; ++i) {
-      const void* next = std::memchr(lb + i, kInvalid, static_cast<std::size_t>(i1 - i));
-      if (next == nullptr) break;
-      i = static_cast<const std::uint8_t*>(next) - lb;
+    for (std::ptrdiff_t i = next_byte(lb, i0, i1, kInvalid); i < i1;
+         i = next_byte(lb, i + 1, i1, kInvalid)) {
       height[i] = kNaN;
     }
   });

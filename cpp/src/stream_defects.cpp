@@ -7,8 +7,8 @@
 // computed when a cell becomes its group's peak (its window's labels are final by then).
 #include <algorithm>
 #include <cmath>
-#include <cstring>
 
+#include "byte_scan.hpp"
 #include "defects.hpp"
 #include "judge.hpp"
 #include "miem/stream.hpp"
@@ -117,10 +117,8 @@ void ProfileStream<T>::defect_row(std::int64_t row) noexcept {
   const T* px = xyz_.data() + slot(row) * W;
   auto surface = [](std::uint8_t l) { return l != kAbnormal && l != kInvalid; };
   for (std::ptrdiff_t c = 0; c < W; ++c) {
-    // the next ABNORMAL cell (memchr: a vectorised search)
-    const void* next = std::memchr(lab + c, kAbnormal, static_cast<std::size_t>(W - c));
-    if (next == nullptr) break;
-    c = static_cast<const std::uint8_t*>(next) - lab;
+    c = detail::next_byte(lab, c, W, kAbnormal);  // the next ABNORMAL cell
+    if (c >= W) break;
     std::int32_t s = kNone;
     const std::int32_t near[4] = {c > 0 ? dcur_[static_cast<std::size_t>(c - 1)] : kNone,
                                   c > 0 ? dprev_[static_cast<std::size_t>(c - 1)] : kNone,

@@ -14,6 +14,7 @@
 #include <cmath>
 #include <cstring>
 
+#include "byte_scan.hpp"
 #include "edge_groups.hpp"
 #include "edge_test.hpp"
 #include "miem/stream.hpp"
@@ -42,17 +43,6 @@ constexpr std::ptrdiff_t kStrip = 128;
 constexpr std::uint8_t kNever = 255;  // hs_: not removed by the height test
 
 constexpr std::uint8_t want_bit(int pass) { return (pass & 1) ? kSWantOdd : kSWantEven; }
-
-// The first c in [c, n) with p[c] != 0, else n: 8 bytes at a time over zeros (most cells of a
-// row are not wanted).
-inline std::ptrdiff_t next_nonzero(const std::uint8_t* p, std::ptrdiff_t c, std::ptrdiff_t n) {
-  for (std::uint64_t w; c + 8 <= n; c += 8) {
-    std::memcpy(&w, p + c, 8);
-    if (w != 0) break;
-  }
-  while (c < n && p[c] == 0) ++c;
-  return c;
-}
 
 // A cell's class in height pass `pass` (kNever: the final labels) from its bits b and removal
 // pass hs: in the plane while NORMAL at the pass's start (Jacobi), else a feature-line count
@@ -564,7 +554,7 @@ void ProfileStream<T>::region_fits(std::int64_t row, int pass, Visit visit) noex
   std::uint8_t* wrow = redo + cap;
   std::uint8_t* cl = region_cls_.data();
   for (std::ptrdiff_t c = 0; c < W;) {
-    c = next_nonzero(want, c, W);
+    c = detail::next_nonzero(want, c, W);  // (most cells of a row are not wanted)
     if (c >= W) break;
     const std::ptrdiff_t ca = c, end = std::min(W, ca + kStrip);
     std::ptrdiff_t cb = ca, m = 0;
