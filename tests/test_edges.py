@@ -97,6 +97,34 @@ def test_edge_pool_is_apart_from_every_split_and_covers_every_step() -> None:
         edge_pool.pool_specs(9000, 101)
 
 
+def test_edge_pool_overrides_reach_the_detector(capsys) -> None:
+    """edge_pool.py --set / --cloud-set: FIELD=VALUE read as literals (else strings), refused
+    without '=', and passed to the detector: the printed found count for one scene per kind
+    is the one miem.detect gives with that override, counted here from the truth; so are the
+    false alarms, which the override changes on the wall scene (so a dropped override fails)."""
+    assert edge_pool.overrides(["edge_tolerance=3.5", "height_tolerance=4.5rms",
+                                "scales=(1, 2)", "min_step=None"]) == {
+        "edge_tolerance": 3.5, "height_tolerance": "4.5rms", "scales": (1, 2), "min_step": None}
+    assert edge_pool.overrides(None) == {}
+    with pytest.raises(ValueError, match="FIELD=VALUE"):
+        edge_pool.overrides(["edge_tolerance"])
+    edge_pool.main(["--per-kind", "1", "--set", "edge_tolerance=2.0"])
+    out = capsys.readouterr().out
+    assert "grid overrides {'edge_tolerance': 2.0}" in out
+    for spec in edge_pool.pool_specs(9000, 1):
+        sc = suite.build(spec)
+        burr = sc.truth == 1
+        flagged = miem.detect(sc.points, edge_tolerance=2.0).labels == miem.ABNORMAL
+        fa_edge, fa_normal = int((flagged & (sc.truth == 2)).sum()), int(
+            (flagged & (sc.truth == 0)).sum())
+        line = next(ln for ln in out.splitlines() if ln.split()[1] == spec.group)
+        assert f"found {int((burr & flagged).sum())}/{int(burr.sum())} " in line
+        assert f" FA {fa_edge}+{fa_normal} " in line
+        if spec.group == "edge_wall":
+            default = miem.detect(sc.points).labels == miem.ABNORMAL
+            assert int((default & (sc.truth != 1)).sum()) != fa_edge + fa_normal
+
+
 # --------------------------------------------------------------------------------------------
 # real truth scoring
 
