@@ -25,6 +25,12 @@ constexpr double kEmpty = 0.35;  // empty: fewer returns than 0.35 of a full sec
 // ... and, as the opposite of a hanging point, below 0.3: a face falling away steeper than 45
 // degrees past a convex crease keeps about 0.3-0.35 (SPEC step 5)
 constexpr double kHangEmpty = 0.3;
+// ... unless its support's plane runs through P steeper than 45 degrees against the opposite
+// sector's: |u_a . u_b| below cos 45 degrees (sqrt(0.5) rounded to double; SPEC step 5)
+constexpr double kFaceCos = 0.7071067811865476;
+// ... and is smooth: its rms at most 3 x the cleanest valid sector's (a plane through material
+// hanging level with P and the floor beyond it is not a face)
+constexpr double kFaceClean = 3.0;
 constexpr double kHangShelf = 2.0;  // hanging: the surface beyond lies > 2x P's depth below
 constexpr double kLedgeLevel = 0.5;  // a ledge's material within 0.5 x P's depth of P's level
 // Lips at a concave feature (SPEC step 6): the grid's dip (detail::kEdgeLipTol, kEdgeLipDip),
@@ -114,7 +120,7 @@ enum class SectorVerdict { kFits, kProud, kOther };
 // `*below`: when P fits no clean sector and stands proud of none, bit s set for each clean
 // sector s that P lies below with the surface beyond falling away (the hanging rule's first
 // condition, step 5; the rest needs the points): its opposite `gone` (fewer returns than
-// kHangEmpty of a full sector) or clean with P above it; `*raised`: then bit s set for each
+// kHangEmpty of a full sector, and not a face through P) or clean with P above it; `*raised`: then bit s set for each
 // clean sector s that P lies above (h > tol) with the surface beyond rising (the lips' first
 // condition, step 6): the centroid of the opposite's support (at least 3 points, `centred`) lies
 // above s's plane by more than kLipRise x h.
@@ -385,6 +391,14 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
     full[0] = std::max(full[0], finite[s]);
   }
   for (int s = 8; s < kSectors; ++s) full[1] = std::max(full[1], finite[s]);
+  // Sector s's support points again, for plane_of.
+  const auto support = [&](int s) {
+    return [&, s](auto&& fn) {
+      for_each_member(ball, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
+        if (in_sector(o, s) && labels[ball.id[k]] == kNormal) fn(Eigen::Vector3d(wx, wy, wz));
+      });
+    };
+  };
   bool valid[kSectors], empty[kSectors], gone[kSectors];
   double h[kSectors], rms[kSectors], tol[kSectors], floor[kSectors] = {};
   LocalPlane lp[kSectors];
@@ -393,13 +407,8 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
     const double half = full[s / 8] / 2.0;
     empty[s] = finite[s] < kEmpty * full[s / 8];  // (a steep face keeps about half)
     gone[s] = finite[s] < kHangEmpty * full[s / 8];
-    const auto members = [&, s](auto&& fn) {  // the sector's support again (plane_of)
-      for_each_member(ball, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
-        if (in_sector(o, s) && labels[ball.id[k]] == kNormal) fn(Eigen::Vector3d(wx, wy, wz));
-      });
-    };
     valid[s] = sums[s].n >= std::max(3.0, half) &&
-               plane_of(sums[s], &lp[s], members) == PlaneStatus::kOk;
+               plane_of(sums[s], &lp[s], support(s)) == PlaneStatus::kOk;
     if (!valid[s]) continue;
     const double n = static_cast<double>(lp[s].n);
     const Eigen::Vector3d& ev = lp[s].eigenvalues;
@@ -408,6 +417,26 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
     floor[s] = kRmsFloor * std::sqrt((ev(1) + ev(2)) / n);
     tol[s] = std::max(e.k * rms[s], floor[s]);
     best = std::min(best, rms[s]);
+  }
+  // A gone sector is in reach after all when its support (a plane: at least 3 points, rms at
+  // most kFaceClean x best) runs through P (within its own tolerance) steeper than 45 degrees
+  // against the opposite sector's plane: a face falling away past a convex bend, sampled
+  // sparsely in 3-D (SPEC step 5). `gone` is only read opposite a clean sector (valid: its
+  // plane exists); a gone sector is never valid (fewer than 0.3 of a full sector's returns).
+  for (int s = 0; s < kSectors; ++s) {
+    const int o = turned(s, 4);
+    if (!gone[s] || !valid[o] || sums[s].n < 3.0) continue;
+    LocalPlane face;
+    if (plane_of(sums[s], &face, support(s)) != PlaneStatus::kOk) continue;
+    const double n = static_cast<double>(face.n);
+    const Eigen::Vector3d& ev = face.eigenvalues;
+    const double hs = -face.normal.dot(face.mean);
+    const double rs = detail::edge_side_rms(ev(0), ev(2), n);
+    const double ts = std::max(e.k * rs, kRmsFloor * std::sqrt((ev(1) + ev(2)) / n));
+    if (rs <= kFaceClean * best && !(std::abs(hs) > ts) &&
+        std::abs(face.normal.dot(lp[o].normal)) < kFaceCos) {
+      gone[s] = false;
+    }
   }
   detail::EdgeSide sd[kSectors];  // centroids relative to P (the planes' means)
   bool centred[kSectors];         // a centroid of at least 3 support points (valid or not)

@@ -2965,6 +2965,12 @@ _CLOUD_EMPTY = 0.35
 #: ... and, as the opposite of a hanging point (SPEC step 5), below this fraction: a face
 #: falling away steeper than 45 degrees past a convex crease keeps about 0.3-0.35.
 _CLOUD_HANG_EMPTY = 0.3
+#: ... unless its support's plane runs through P steeper than 45 degrees against the opposite
+#: sector's: |u_a . u_b| below cos 45 degrees (sqrt(0.5) rounded to double).
+_CLOUD_FACE_COS = float(np.sqrt(0.5))
+#: ... and is smooth: its rms at most this times the cleanest valid sector's (a plane through
+#: material hanging level with P and the floor beyond it is not a face).
+_CLOUD_FACE_CLEAN = 3.0
 
 
 def _turned(s: int, by: int) -> int:
@@ -3059,6 +3065,14 @@ def _cloud_edge_pass(
     spread = np.sqrt((evals[:, :, 1] + evals[:, :, 2]) / n)
     tol = np.maximum(k * rms, _HEIGHT_RMS_FLOOR * spread)
     best = np.min(np.where(valid, rms, np.inf), axis=1)
+    # a gone sector is in reach after all when its support (a plane: at least 3 points, rms at
+    # most _CLOUD_FACE_CLEAN x best) runs through P (within its own tolerance) steeper than 45
+    # degrees against the opposite sector's plane: a face falling away past a convex bend,
+    # sampled sparsely in 3-D (SPEC step 5); gone is only read opposite a clean sector
+    opp = [_turned(s, 4) for s in range(_CLOUD_SECTORS)]
+    tilt = np.abs(np.einsum("isj,isj->is", nrm, nrm[:, opp]))  # NaN without both planes
+    gone &= ~(ok & (rms <= _CLOUD_FACE_CLEAN * best[:, None]) & ~(np.abs(h) > tol)
+              & (tilt < _CLOUD_FACE_COS))
     clean = valid & (rms <= _EDGE_CLEAN_RATIO * best[:, None])
     # P fits a clean sector within the cleanest sector's tolerance (k best, floored as the
     # sector's own): a clean sector of larger rms (e.g. one holding part of the burr run itself)
@@ -3101,7 +3115,6 @@ def _cloud_edge_pass(
             h[hang], nrm[hang], cen[hang], tol[hang], gone[hang])
     # the lips' sectors: clean, P above them, the opposite's support centroid (at least 3
     # points) above their plane by more than _CLOUD_LIP_RISE x h
-    opp = [_turned(s, 4) for s in range(_CLOUD_SECTORS)]
     rise = np.einsum("isj,isj->is", nrm, cen[:, opp] - cen)
     raised = clean & (h > tol) & (cnt[:, opp] >= 3.0) & (rise > _CLOUD_LIP_RISE * h)
     lip = out & ~proud & ~hang & raised.any(axis=1)
