@@ -68,6 +68,14 @@ class HandSectors:
     best: float
 
 
+def svd_plane(w: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """The plane of points ``w`` (at least 3) by SVD: (unit normal, z component > 0 where
+    nonzero; centroid; rms = smallest singular value / sqrt(count))."""
+    c = w.mean(axis=0)
+    _, sv, vt = np.linalg.svd(w - c, full_matrices=False)
+    return (vt[2] if vt[2, 2] > 0 else -vt[2], c, float(sv[2] / np.sqrt(len(w))))
+
+
 def sectors_by_hand(pts: np.ndarray, normal: np.ndarray, i: int, r_edge: float,
                     gap: float) -> HandSectors:
     """The sectors of point i (``normal``: the support, NORMAL at the start of the pass)."""
@@ -95,9 +103,7 @@ def sectors_by_hand(pts: np.ndarray, normal: np.ndarray, i: int, r_edge: float,
         if sel.sum() < max(3.0, full[s] / 2.0):
             planes.append(None)
             continue
-        c = w[sel].mean(axis=0)
-        _, sv, vt = np.linalg.svd(w[sel] - c, full_matrices=False)
-        planes.append((vt[2] if vt[2, 2] > 0 else -vt[2], c, sv[2] / np.sqrt(sel.sum())))
+        planes.append(svd_plane(w[sel]))
     best = min(p[2] for p in planes if p is not None)
     clean = [p is not None and p[2] <= 2 * best for p in planes]
     h = [None if p is None else -p[0] @ p[1] for p in planes]

@@ -20,6 +20,7 @@ from cloud_checks import (  # noqa: E402
     assert_same_cloud_result,
     pre_edge_pass,
     sectors_by_hand,
+    svd_plane,
 )
 
 A = miem.ABNORMAL
@@ -70,11 +71,8 @@ def _face_through(w: np.ndarray, sel: np.ndarray, u_top: np.ndarray, best: float
     the top's normal `u_top`."""
     if sel.sum() < 3:
         return False
-    c = w[sel].mean(axis=0)
-    _, sv, vt = np.linalg.svd(w[sel] - c, full_matrices=False)
-    rms = sv[2] / np.sqrt(sel.sum())
-    return bool(rms <= 3.0 * best and abs(vt[2] @ c) <= k * rms
-                and abs(vt[2] @ u_top) < np.sqrt(0.5))
+    u, c, rms = svd_plane(w[sel])
+    return bool(rms <= 3.0 * best and abs(u @ c) <= k * rms and abs(u @ u_top) < np.sqrt(0.5))
 
 
 def _hangs_by_hand(pts: np.ndarray, normal: np.ndarray, ground: np.ndarray, i: int,
