@@ -108,6 +108,9 @@ def test_edge_pool_overrides_reach_the_detector(capsys) -> None:
     assert edge_pool.overrides(None) == {}
     with pytest.raises(ValueError, match="FIELD=VALUE"):
         edge_pool.overrides(["edge_tolerance"])
+    with pytest.raises(SystemExit):  # clouds' overrides without the clouds: refused
+        edge_pool.main(["--per-kind", "1", "--cloud-set", "edge_tolerance=2.0"])
+    assert "--cloud-set" in capsys.readouterr().err
     edge_pool.main(["--per-kind", "1", "--set", "edge_tolerance=2.0"])
     out = capsys.readouterr().out
     assert "grid overrides {'edge_tolerance': 2.0}" in out

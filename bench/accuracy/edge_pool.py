@@ -92,23 +92,27 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cloud-set", action="append", metavar="FIELD=VALUE",
                     help="a cloud detector override (repeatable; with --clouds)")
     args = ap.parse_args(argv)
+    if args.cloud_set and not args.clouds:
+        ap.error("--cloud-set: the clouds are scored only with --clouds")
     grid_kw, cloud_kw = overrides(args.set), overrides(args.cloud_set)
     paths = ("grid", "cloud") if args.clouds else ("grid",)
     per: dict = {}
     for sc in pool(args.base, args.per_kind):
         for path in paths:
             if path == "grid":
-                flagged, truth = miem.detect(sc.points, **grid_kw).labels == miem.ABNORMAL, sc.truth
+                labels = miem.detect(sc.points, **grid_kw).labels
+                flagged, truth = labels == miem.ABNORMAL, sc.truth
             else:
                 c = to_cloud(sc)
-                flagged, truth = miem.detect(c.points, **cloud_kw).labels == miem.ABNORMAL, c.truth
+                labels = miem.detect(c.points, **cloud_kw).labels
+                flagged, truth = labels == miem.ABNORMAL, c.truth
             c = confusion(flagged, truth)
             for key in ((path, sc.spec.group, None), (path, sc.spec.group, sc.step)):
                 per[key] = per.get(key, Counts()) + c
     print(f"pool base {args.base}, {args.per_kind} scenes per kind: F1, burr cells found, "
           "false alarms on the designed edge + on normal surface (counts; rates)"
           + (f"; grid overrides {grid_kw}" if grid_kw else "")
-          + (f"; cloud overrides {cloud_kw}" if cloud_kw and args.clouds else ""))
+          + (f"; cloud overrides {cloud_kw}" if cloud_kw else ""))
     for path in paths:
         for kind in EDGE_KINDS:
             c = per[(path, kind, None)]

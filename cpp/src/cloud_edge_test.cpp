@@ -120,8 +120,9 @@ enum class SectorVerdict { kFits, kProud, kOther };
 // `*below`: when P fits no clean sector and stands proud of none, bit s set for each clean
 // sector s that P lies below with the surface beyond falling away (the hanging rule's first
 // condition, step 5; the rest needs the points): its opposite `gone` (fewer returns than
-// kHangEmpty of a full sector, and not a face through P) or clean with P above it; `*raised`: then bit s set for each
-// clean sector s that P lies above (h > tol) with the surface beyond rising (the lips' first
+// kHangEmpty of a full sector, and not a face through P) or clean with P above it; `*raised`:
+// then bit s set for each clean sector s that P lies above (h > tol) with the surface beyond
+// rising (the lips' first
 // condition, step 6): the centroid of the opposite's support (at least 3 points, `centred`) lies
 // above s's plane by more than kLipRise x h.
 SectorVerdict cloud_edge_verdict(const detail::EdgeSide (&sd)[kSectors],
