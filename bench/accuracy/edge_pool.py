@@ -100,13 +100,11 @@ def main(argv: list[str] | None = None) -> int:
     for sc in pool(args.base, args.per_kind):
         for path in paths:
             if path == "grid":
-                labels = miem.detect(sc.points, **grid_kw).labels
-                flagged, truth = labels == miem.ABNORMAL, sc.truth
+                points, truth, kw = sc.points, sc.truth, grid_kw
             else:
-                c = to_cloud(sc)
-                labels = miem.detect(c.points, **cloud_kw).labels
-                flagged, truth = labels == miem.ABNORMAL, c.truth
-            c = confusion(flagged, truth)
+                cl = to_cloud(sc)
+                points, truth, kw = cl.points, cl.truth, cloud_kw
+            c = confusion(miem.detect(points, **kw).labels == miem.ABNORMAL, truth)
             for key in ((path, sc.spec.group, None), (path, sc.spec.group, sc.step)):
                 per[key] = per.get(key, Counts()) + c
     print(f"pool base {args.base}, {args.per_kind} scenes per kind: F1, burr cells found, "

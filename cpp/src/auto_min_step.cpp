@@ -319,12 +319,12 @@ void key_medians(const GridView<T>& g, int nt, Counts& count, Mids& mids,
 // The middle values from a band around a sample's middle: the sample gives values a <= b with
 // the middle ranks between them unless it is far off; one pass counts the values below a and
 // keeps those in [a, b] (a few per cent), where the ranks are then selected. False (nothing
-// decided) when a middle rank falls outside the band.
+// decided) when a middle rank falls outside the band. For at least kBandCells cells (fewer:
+// direct_medians, auto_survey decides).
 template <typename T>
 bool band_medians(const GridView<T>& g, int nt, Counts& count, Mids& mids,
                   std::vector<double>& scratch) {
   const std::ptrdiff_t H = g.rows, W = g.cols;
-  if (H * W < kBandCells) return false;
   // the sample: every k-th cell in row-major order (k prime and not dividing the row length,
   // so the sample walks across all rows and columns: spacings may change from row to row)
   std::ptrdiff_t k = 31;

@@ -122,9 +122,22 @@ enum class SectorVerdict { kFits, kProud, kOther };
 // condition, step 5; the rest needs the points): its opposite `gone` (fewer returns than
 // kHangEmpty of a full sector, and not a face through P) or clean with P above it; `*raised`:
 // then bit s set for each clean sector s that P lies above (h > tol) with the surface beyond
-// rising (the lips' first
-// condition, step 6): the centroid of the opposite's support (at least 3 points, `centred`) lies
-// above s's plane by more than kLipRise x h.
+// rising (the lips' first condition, step 6): the centroid of the opposite's support (at least
+// 3 points, `centred`) lies above s's plane by more than kLipRise x h.
+// SPEC step 3's numbers of a sector's plane: h = u . (P - centroid) (the plane's mean is the
+// centroid's offset from P), rms (0 for an exactly flat support), the tolerance's floor and
+// t = max(k rms, floor).
+struct SectorFit {
+  double h, rms, floor, tol;
+};
+inline SectorFit sector_fit(const LocalPlane& lp, double k) {
+  const double n = static_cast<double>(lp.n);
+  const Eigen::Vector3d& ev = lp.eigenvalues;
+  const double rms = detail::edge_side_rms(ev(0), ev(2), n);
+  const double floor = kRmsFloor * std::sqrt((ev(1) + ev(2)) / n);
+  return {-lp.normal.dot(lp.mean), rms, floor, std::max(k * rms, floor)};
+}
+
 SectorVerdict cloud_edge_verdict(const detail::EdgeSide (&sd)[kSectors],
                                  const bool (&centred)[kSectors], const bool (&gone)[kSectors],
                                  const double (&floor)[kSectors], double best, double k,
@@ -411,12 +424,11 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
     valid[s] = sums[s].n >= std::max(3.0, half) &&
                plane_of(sums[s], &lp[s], support(s)) == PlaneStatus::kOk;
     if (!valid[s]) continue;
-    const double n = static_cast<double>(lp[s].n);
-    const Eigen::Vector3d& ev = lp[s].eigenvalues;
-    h[s] = -lp[s].normal.dot(lp[s].mean);  // u . (P - centroid), centroid = P + mean
-    rms[s] = detail::edge_side_rms(ev(0), ev(2), n);
-    floor[s] = kRmsFloor * std::sqrt((ev(1) + ev(2)) / n);
-    tol[s] = std::max(e.k * rms[s], floor[s]);
+    const SectorFit x = sector_fit(lp[s], e.k);
+    h[s] = x.h;
+    rms[s] = x.rms;
+    floor[s] = x.floor;
+    tol[s] = x.tol;
     best = std::min(best, rms[s]);
   }
   // A gone sector is in reach after all when its support (a plane: at least 3 points, rms at
@@ -429,12 +441,8 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
     if (!gone[s] || !valid[o] || sums[s].n < 3.0) continue;
     LocalPlane face;
     if (plane_of(sums[s], &face, support(s)) != PlaneStatus::kOk) continue;
-    const double n = static_cast<double>(face.n);
-    const Eigen::Vector3d& ev = face.eigenvalues;
-    const double hs = -face.normal.dot(face.mean);
-    const double rs = detail::edge_side_rms(ev(0), ev(2), n);
-    const double ts = std::max(e.k * rs, kRmsFloor * std::sqrt((ev(1) + ev(2)) / n));
-    if (rs <= kFaceClean * best && !(std::abs(hs) > ts) &&
+    const SectorFit x = sector_fit(face, e.k);
+    if (x.rms <= kFaceClean * best && !(std::abs(x.h) > x.tol) &&
         std::abs(face.normal.dot(lp[o].normal)) < kFaceCos) {
       gone[s] = false;
     }
