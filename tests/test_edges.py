@@ -625,9 +625,9 @@ def test_valley_needs_a_crease_not_a_curved_surface(monkeypatch: pytest.MonkeyPa
     assert beads.sum() >= 100
 
 
-def test_lip_above_a_convex_creases_lower_envelope(monkeypatch: pytest.MonkeyPatch) -> None:
-    """SPEC "Edge test" step 6, lower envelopes: a 28 x 32 crop of a generated crease scene
-    (seed 9007, outside every split: 0.5 mm steps, 0.02 mm noise, a straight convex fold of 19.5
+def test_lip_across_a_convex_crease(monkeypatch: pytest.MonkeyPatch) -> None:
+    """SPEC "Edge test" step 6, crossings: a 28 x 32 crop of a generated crease scene (seed
+    9007, outside every split: 0.5 mm steps, 0.02 mm noise, a straight convex fold of 19.5
     degrees, burr runs 1-4 cells wide along it). The far face's plane, extended over a burr
     cell on the near face, lies above the surface there: the cell fits that sub-window, so no
     other rule of step 6 flags it. With the rule the reference finds at least 75 of the
@@ -635,9 +635,50 @@ def test_lip_above_a_convex_creases_lower_envelope(monkeypatch: pytest.MonkeyPat
     does not); the core (float64 and float32), whose shortcut must not settle a cell that fits,
     and the stream agree."""
     pts, burr, on = _crease_crop(9007, 0.02, np.s_[36:64, 54:86], 80, 75)
-    monkeypatch.setattr(ref, "_envelopes", lambda clean, *rest: np.zeros(clean.shape[1], bool))
+    monkeypatch.setattr(ref, "_crossings", lambda clean, *rest: np.zeros(clean.shape[1], bool))
     first = ref.detect(pts).labels == ref.ABNORMAL
     assert (first & burr).sum() <= 65 and not (first & ~on).any()
+
+
+def test_lip_across_a_rounded_bend(monkeypatch: pytest.MonkeyPatch) -> None:
+    """SPEC "Edge test" step 6, crossings, on a flange: generated flange scene 9318 (outside
+    every split: 0.2 mm steps, 0.005 mm noise, a straight rounded bend, burr runs on its last
+    1-4 points before the bend). Beyond a burr cell the far sub-window spans the rounded bend:
+    its centroid lies below the near face's plane, but its rms is far above the near face's,
+    so it is not clean, and a rule asking for two clean faces (the lower envelope it replaced)
+    leaves the cell to the far face's tangent plane, which it fits. With the rule the
+    reference finds at least 50 of the scene's 114 burr cells and no other cell; without it
+    at most 20; the core (float64 and float32) and the stream agree."""
+    e = edge_scenes.make_edge_scene("edge_flange", 9318, step=0.2, noise=0.005)
+    pts, burr = e.points, e.truth == suite.DEFECT
+    assert burr.sum() == 114
+    on = ref.detect(pts).labels == ref.ABNORMAL
+    assert (on & burr).sum() >= 50 and not (on & ~burr).any()
+    for p in (pts, pts.astype(np.float32)):
+        np.testing.assert_array_equal(miem.detect(p).labels == miem.ABNORMAL, on)
+    stream = stream_labels(pts, miem.default_params("stream"))
+    np.testing.assert_array_equal(stream == miem.ABNORMAL, on)
+    monkeypatch.setattr(ref, "_crossings", lambda clean, *rest: np.zeros(clean.shape[1], bool))
+    without = ref.detect(pts).labels == ref.ABNORMAL
+    assert (without & burr).sum() <= 20 and not (without & ~on).any()
+
+
+def test_lip_across_a_feature_clears_the_tolerance_floor(monkeypatch: pytest.MonkeyPatch) -> None:
+    """SPEC "Edge test" step 6, crossings: P must stand more than 2.5 floors above the near
+    face (the floor: min_step / 2 here, 0.03 mm with min_step 0.06), where a scanner's
+    resolution, not its noise, sets the tolerance. Flange scene 9318 (as above) with min_step
+    0.06: the core (float64 and float32) equals the reference, which finds at least 30 burr
+    cells and no other cell; without the floor's bound at least 50, no other cell either (the
+    bound only withholds flags, and the core's shortcut bounds the floor's part by it)."""
+    e = edge_scenes.make_edge_scene("edge_flange", 9318, step=0.2, noise=0.005)
+    pts, burr = e.points, e.truth == suite.DEFECT
+    on = ref.detect(pts, min_step=0.06).labels == ref.ABNORMAL
+    assert (on & burr).sum() >= 30 and not (on & ~burr).any()
+    for p in (pts, pts.astype(np.float32)):
+        np.testing.assert_array_equal(miem.detect(p, min_step=0.06).labels == miem.ABNORMAL, on)
+    monkeypatch.setattr(ref, "_CROSSING_FLOOR", 0.0)
+    loose = ref.detect(pts, min_step=0.06).labels == ref.ABNORMAL
+    assert (loose & burr).sum() >= 50 and not (loose & ~burr).any() and (on <= loose).all()
 
 
 def _fin_z(h: int = 40, w: int = 40, diagonal: bool = False) -> tuple[np.ndarray, np.ndarray]:

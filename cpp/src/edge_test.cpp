@@ -596,17 +596,14 @@ inline double outline_cells(int s, std::ptrdiff_t r) {
   return static_cast<double>(s < 4 ? (2 * r + 1) * r : r * r);
 }
 
-// A lip before a feature on the far side (steps 5 and 6): P lies above clean side x by more
-// than `height` x tol, `beyond(x)` holds (x's opposite is an outline, or the other face of a
-// convex crease), P is attached to x and fits no clean side on x's side (kSameSide): the
-// sides across the feature do not clear P. miem.reference._lips_before.
-template <typename Beyond, typename Attached>
-bool lip_before(const Side (&sd)[8], double best, double height, Beyond beyond,
-                Attached attached) {
+template <typename Attached>
+bool outline_lip(const Side (&sd)[8], double best, Attached attached) {
   const auto fits = [&](int q) { return edge_fits(sd[q], best); };
   for (int s = 0; s < 8; ++s) {
     const Side& x = sd[s];
-    if (!edge_clean(x, best) || !(x.h > height * x.tol) || !beyond(s)) continue;
+    if (!edge_clean(x, best) || !(x.h > kOutlineHeight * x.tol) || !sd[kOpposite[s]].outline) {
+      continue;
+    }
     if (!fits(kSameSide[s][0]) && !fits(kSameSide[s][1]) && !fits(kSameSide[s][2]) &&
         attached(s)) {
       return true;
@@ -615,26 +612,34 @@ bool lip_before(const Side (&sd)[8], double best, double height, Beyond beyond,
   return false;
 }
 
-template <typename Attached>
-bool outline_lip(const Side (&sd)[8], double best, Attached attached) {
-  return lip_before(sd, best, kOutlineHeight, [&](int s) { return sd[kOpposite[s]].outline; },
-                    attached);
-}
-
-// SPEC "Edge test" step 6, lower envelopes: P lies above clean side x by more than
-// kEnvelopeHeight x tol, x's opposite y is clean and the two are convex (each centroid below
-// the other's plane by more than its tolerance), P is attached to x and fits no clean side on
-// x's side: y's plane, extended over P, lies above the surface there, so a fit to it does
-// not clear P. miem.reference._envelopes.
-constexpr double kEnvelopeHeight = 2.5;
+// SPEC "Edge test" step 6, crossing a convex feature: P lies above clean side x by more than
+// its tolerance and by more than kCrossingFloor x the tolerance floor `floor` (min_step / 2,
+// 1.5 z_resolution, 2 z_noise: where a scanner's resolution, not its noise, sets the
+// tolerance), x's opposite is empty or falls away below x's plane (as for standing proud), P
+// is attached to x, and every clean side P fits lies past the feature (its centroid more than
+// x's tolerance below x's plane): on a convex crease or bend the far face's plane, extended
+// back over P, lies above the near face there, so a fit to it does not clear P. Asked of a P
+// that fits (one that fits nothing and meets it stands proud). The two heights bound the
+// shortcut's side_reaches. miem.reference._crossings.
+constexpr double kCrossingHeight = 1.0, kCrossingFloor = 2.5;
 
 template <typename Attached>
-bool envelope_lip(const Side (&sd)[8], double best, Attached attached) {
-  const auto convex = [&](int s) {
-    const Side &x = sd[s], &y = sd[kOpposite[s]];
-    return edge_clean(y, best) && edge_drops(x, y) && edge_drops(y, x);
-  };
-  return lip_before(sd, best, kEnvelopeHeight, convex, attached);
+bool crossing_lip(const Side (&sd)[8], double best, double floor, Attached attached) {
+  for (int s = 0; s < 8; ++s) {
+    const Side& x = sd[s];
+    if (!edge_clean(x, best) || !(x.h > kCrossingHeight * x.tol) ||
+        !(x.h > kCrossingFloor * floor)) {
+      continue;
+    }
+    const Side& y = sd[kOpposite[s]];
+    if (!(y.empty || (y.valid && edge_drops(x, y)))) continue;
+    bool cleared = false;
+    for (int c = 0; c < 8 && !cleared; ++c) {
+      cleared = edge_fits(sd[c], best) && !edge_drops(x, sd[c]);
+    }
+    if (!cleared && attached(s)) return true;
+  }
+  return false;
 }
 
 // For m cells (side s of cell j: its moments at mm8[s] + j, `cap` apart, its rms^2 bound at
@@ -646,7 +651,7 @@ bool envelope_lip(const Side (&sd)[8], double best, Attached attached) {
 // and w' C w <= u' C u for any unit u, so h > lim floor needs (u' M u) (v' M^-1 v) > (lim
 // floor)^2 = flo2 (both less a relative 1e-6 for rounding). A side without support (side_moment,
 // the same bits as the planes': never valid) never does. The shortcut's test of a cell that
-// fits a clean side for a lower envelope: no side reaching, no lip. Vectorised over the cells.
+// fits a clean side for a crossing lip: no side reaching, no lip. Vectorised over the cells.
 MIEM_CLONES void side_reaches(int m, std::ptrdiff_t cap, double n_min, double lim2,
                               double flo2, const double* const* mm8, const double* const* low8,
                               const double* __restrict Pc, const double* __restrict U,
@@ -1052,13 +1057,12 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       side_planes(m, kChunk, et, use1, ok1, E1, nn1, ce1, Pc, valid1, F1);
       double fits[kChunk];
       fits_clean_side(m, kChunk, redo1, valid1, empty1, low1, F1, fits);
-      // a cell that fits may lie above a lower envelope (envelope_lip) when one of its sides
-      // reaches (side_reaches): those are judged in full below
+      // a cell that fits may be a lip across a convex feature (crossing_lip) when one of its
+      // sides reaches (side_reaches): those are judged in full below
       double reach[kChunk];
       if (!fit_only) {
-        const double lim2 = kEnvelopeHeight * et.k * kEnvelopeHeight * et.k * (1.0 - 1e-6);
-        const double flo2 =
-            kEnvelopeHeight * et.floor * kEnvelopeHeight * et.floor * (1.0 - 1e-6);
+        const double lim2 = kCrossingHeight * et.k * kCrossingHeight * et.k * (1.0 - 1e-6);
+        const double flo2 = kCrossingFloor * et.floor * kCrossingFloor * et.floor * (1.0 - 1e-6);
         const double* const U = F1 + 3 * kChunk;  // the solved side's normal
         const double* mm8[8];
         if (!banded || span == m) {  // the chunk's sides in place: mm (s * m + j) or the bands
@@ -1211,7 +1215,8 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
                                   is_lip(g, lab, grow, cols[j], r, sd, best) ||
                                   in_valley(g, lab, grow, cols[j], r, sd));
         if (!abnormal && fits) {
-          abnormal = outline_lip(sd, best, attached_to) || envelope_lip(sd, best, attached_to);
+          abnormal = outline_lip(sd, best, attached_to) ||
+                     crossing_lip(sd, best, et.floor, attached_to);
         }
         if (!abnormal && !fits_ground) {
           abnormal = is_hanging(g, lab, grow, cols[j], r, o, sd, best);

@@ -1627,50 +1627,46 @@ def _outline_lips(
     full = np.array([(2 * r + 1) * r] * 4 + [r * r] * 4, dtype=np.float64)
     outline = np.stack([_side_sums(images, rr, cc, r, k)[:, 10] for k in range(8)])
     outline = empty & (outline >= _OUTLINE_EMPTY * full[:, None])
-    return _lips_before(outline[list(_EDGE_OPPOSITE_OF)], _OUTLINE_HEIGHT, clean, fits, h, tol,
-                        attached)
-
-
-#: Lower envelopes (SPEC "Edge test" step 6): P above a clean sub-window of a convex crease by
-#: more than this times its tolerance.
-_ENVELOPE_HEIGHT = 2.5
-
-
-def _envelopes(
-    clean: NDArray[np.bool_],
-    fits: NDArray[np.bool_],
-    h: NDArray[np.float64],
-    tol: NDArray[np.float64],
-    drop: NDArray[np.bool_],
-    attached: NDArray[np.bool_],
-) -> NDArray[np.bool_]:
-    """The cells *above a lower envelope* (SPEC "Edge test" step 6): above a clean sub-window
-    by more than _ENVELOPE_HEIGHT tolerances, attached to it, its opposite clean and the two
-    convex (``drop``: each sub-window's opposite's centroid lies below its plane by more than
-    its tolerance, both ways round), and fitting no clean sub-window on its own side (the
-    opposite plane, extended over P, lies above the surface there)."""
-    opp = list(_EDGE_OPPOSITE_OF)
-    return _lips_before(clean[opp] & drop & drop[opp], _ENVELOPE_HEIGHT, clean, fits, h, tol,
-                        attached)
-
-
-def _lips_before(
-    beyond: NDArray[np.bool_],
-    height: float,
-    clean: NDArray[np.bool_],
-    fits: NDArray[np.bool_],
-    h: NDArray[np.float64],
-    tol: NDArray[np.float64],
-    attached: NDArray[np.bool_],
-) -> NDArray[np.bool_]:
-    """The cells above a clean sub-window ``x`` by more than ``height`` tolerances, attached to
-    it, ``beyond[x]`` (x's opposite an outline or a convex crease's other face) and fitting no
-    clean sub-window on x's side (SPEC "Edge test" steps 5 and 6): the sub-windows across the
-    feature do not clear P."""
+    beyond = outline[list(_EDGE_OPPOSITE_OF)]
     out = np.zeros(h.shape[1], dtype=bool)
     for x in range(8):
         near = fits[list(_EDGE_SAME_SIDE[x])].any(axis=0)
-        out |= clean[x] & (h[x] > height * tol[x]) & beyond[x] & attached[x] & ~near
+        out |= clean[x] & (h[x] > _OUTLINE_HEIGHT * tol[x]) & beyond[x] & attached[x] & ~near
+    return out
+
+
+#: Crossings (SPEC "Edge test" step 6): P above a clean sub-window by more than this times its
+#: tolerance ...
+_CROSSING_HEIGHT = 1.0
+#: ... and by more than this times the tolerance's floor (min_step / 2, 1.5 z_resolution,
+#: 2 z_noise), every clean sub-window it fits past the feature.
+_CROSSING_FLOOR = 2.5
+
+
+def _crossings(
+    clean: NDArray[np.bool_],
+    fits: NDArray[np.bool_],
+    h: NDArray[np.float64],
+    tol: NDArray[np.float64],
+    nrm: NDArray[np.float64],
+    cen: NDArray[np.float64],
+    falls: NDArray[np.bool_],
+    attached: NDArray[np.bool_],
+    floor: float,
+) -> NDArray[np.bool_]:
+    """The cells that are *lips across a convex feature* (SPEC "Edge test" step 6): above a
+    clean sub-window ``x`` by more than _CROSSING_HEIGHT tolerances and _CROSSING_FLOOR times
+    the tolerance floor ``floor`` (step 3), x's opposite empty or falling away (``falls``),
+    attached to x, and every clean sub-window they fit *past the feature* (its centroid more
+    than x's tolerance below x's plane): the far face's plane, extended back over P, does not
+    clear P."""
+    out = np.zeros(h.shape[1], dtype=bool)
+    for x in range(8):
+        cleared = np.zeros(h.shape[1], dtype=bool)
+        for c in range(8):
+            cleared |= fits[c] & ~(_dot3(nrm[x], cen[c] - cen[x]) < -tol[x])
+        high = (h[x] > _CROSSING_HEIGHT * tol[x]) & (h[x] > _CROSSING_FLOOR * floor)
+        out |= clean[x] & high & falls[x] & attached[x] & ~cleared
     return out
 
 
@@ -1921,9 +1917,9 @@ def _edge_verdicts(
     # before an outline, only the sub-windows on P's side of it may clear P: the others lie
     # along the outline and hold the lip itself (step 5, outlines)
     out[cells] |= _outline_lips(images, cells, r, clean, fits, h, tol, empty, attached)
-    # above a convex crease's lower envelope: the opposite face's plane, extended over P, lies
-    # above the surface there, and a fit to it does not clear P (step 6)
-    out[cells] |= _envelopes(clean, fits, h, tol, drop, attached)
+    # a lip across a convex feature: the far face's plane, extended back over P, lies above the
+    # near face there, and a fit to it does not clear P (step 6)
+    out[cells] |= _crossings(clean, fits, h, tol, nrm, cen, falls, attached, floor)
     # a lip at a concave feature: P above a clean side, and beyond P the surface dips, then
     # rises above that side's plane (step 6)
     lip = clean & (h > tol)
