@@ -640,17 +640,22 @@ def test_lip_across_a_convex_crease(monkeypatch: pytest.MonkeyPatch) -> None:
     assert (first & burr).sum() <= 65 and not (first & ~on).any()
 
 
+def _flange_9318() -> tuple[np.ndarray, np.ndarray]:
+    """Generated flange scene 9318 (outside every split: 0.2 mm steps, 0.005 mm noise, a
+    straight rounded bend, burr runs on its last 1-4 points before the bend): points, burr
+    cells."""
+    e = edge_scenes.make_edge_scene("edge_flange", 9318, step=0.2, noise=0.005)
+    return e.points, e.truth == suite.DEFECT
+
+
 def test_lip_across_a_rounded_bend(monkeypatch: pytest.MonkeyPatch) -> None:
-    """SPEC "Edge test" step 6, crossings, on a flange: generated flange scene 9318 (outside
-    every split: 0.2 mm steps, 0.005 mm noise, a straight rounded bend, burr runs on its last
-    1-4 points before the bend). Beyond a burr cell the far sub-window spans the rounded bend:
-    its centroid lies below the near face's plane, but its rms is far above the near face's,
-    so it is not clean, and a rule asking for two clean faces (the lower envelope it replaced)
-    leaves the cell to the far face's tangent plane, which it fits. With the rule the
+    """SPEC "Edge test" step 6, crossings, on a flange (_flange_9318). Beyond a burr cell the
+    far sub-window spans the rounded bend: its centroid lies below the near face's plane, but
+    it is rarely clean, so a rule asking for two clean faces (the lower envelope this rule
+    replaced) left the cell to the far face's tangent plane, which it fits. With the rule the
     reference finds at least 50 of the scene's 114 burr cells and no other cell; without it
     at most 20; the core (float64 and float32) and the stream agree."""
-    e = edge_scenes.make_edge_scene("edge_flange", 9318, step=0.2, noise=0.005)
-    pts, burr = e.points, e.truth == suite.DEFECT
+    pts, burr = _flange_9318()
     assert burr.sum() == 114
     on = ref.detect(pts).labels == ref.ABNORMAL
     assert (on & burr).sum() >= 50 and not (on & ~burr).any()
@@ -663,15 +668,14 @@ def test_lip_across_a_rounded_bend(monkeypatch: pytest.MonkeyPatch) -> None:
     assert (without & burr).sum() <= 20 and not (without & ~on).any()
 
 
-def test_lip_across_a_feature_clears_the_tolerance_floor(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_lip_across_a_feature_clears_the_floor(monkeypatch: pytest.MonkeyPatch) -> None:
     """SPEC "Edge test" step 6, crossings: P must stand more than 2.5 floors above the near
     face (the floor: min_step / 2 here, 0.03 mm with min_step 0.06), where a scanner's
-    resolution, not its noise, sets the tolerance. Flange scene 9318 (as above) with min_step
-    0.06: the core (float64 and float32) equals the reference, which finds at least 30 burr
-    cells and no other cell; without the floor's bound at least 50, no other cell either (the
-    bound only withholds flags, and the core's shortcut bounds the floor's part by it)."""
-    e = edge_scenes.make_edge_scene("edge_flange", 9318, step=0.2, noise=0.005)
-    pts, burr = e.points, e.truth == suite.DEFECT
+    resolution, not its noise, sets the tolerance. _flange_9318 with min_step 0.06: the core
+    (float64 and float32) equals the reference, which finds at least 30 burr cells and no
+    other cell; without the floor's bound at least 50, no other cell either (the bound only
+    withholds flags, and the core's shortcut bounds the floor's part by it)."""
+    pts, burr = _flange_9318()
     on = ref.detect(pts, min_step=0.06).labels == ref.ABNORMAL
     assert (on & burr).sum() >= 30 and not (on & ~burr).any()
     for p in (pts, pts.astype(np.float32)):
