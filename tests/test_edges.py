@@ -635,7 +635,8 @@ def test_lip_across_a_convex_crease(monkeypatch: pytest.MonkeyPatch) -> None:
     does not); the core (float64 and float32), whose shortcut must not settle a cell that fits,
     and the stream agree."""
     pts, burr, on = _crease_crop(9007, 0.02, np.s_[36:64, 54:86], 80, 75)
-    monkeypatch.setattr(ref, "_crossings", lambda clean, *rest: np.zeros(clean.shape[1], bool))
+    monkeypatch.setattr(ref, "_crossings",
+                        lambda proud_of, *rest: np.zeros(proud_of.shape[1], bool))
     first = ref.detect(pts).labels == ref.ABNORMAL
     assert (first & burr).sum() <= 65 and not (first & ~on).any()
 
@@ -663,7 +664,8 @@ def test_lip_across_a_rounded_bend(monkeypatch: pytest.MonkeyPatch) -> None:
         np.testing.assert_array_equal(miem.detect(p).labels == miem.ABNORMAL, on)
     stream = stream_labels(pts, miem.default_params("stream"))
     np.testing.assert_array_equal(stream == miem.ABNORMAL, on)
-    monkeypatch.setattr(ref, "_crossings", lambda clean, *rest: np.zeros(clean.shape[1], bool))
+    monkeypatch.setattr(ref, "_crossings",
+                        lambda proud_of, *rest: np.zeros(proud_of.shape[1], bool))
     without = ref.detect(pts).labels == ref.ABNORMAL
     assert (without & burr).sum() <= 20 and not (without & ~on).any()
 

@@ -612,31 +612,26 @@ bool outline_lip(const Side (&sd)[8], double best, Attached attached) {
   return false;
 }
 
-// SPEC "Edge test" step 6, crossing a convex feature: P lies above clean side x by more than
-// its tolerance and by more than kCrossingFloor x the tolerance floor `floor` (min_step / 2,
-// 1.5 z_resolution, 2 z_noise: where a scanner's resolution, not its noise, sets the
-// tolerance), x's opposite is empty or falls away below x's plane (as for standing proud), P
-// is attached to x, and every clean side P fits lies past the feature (its centroid more than
-// x's tolerance below x's plane): on a convex crease or bend the far face's plane, extended
-// back over P, lies above the near face there, so a fit to it does not clear P. Asked of a P
-// that fits (one that fits nothing and meets it stands proud). The two heights bound the
-// shortcut's side_reaches. miem.reference._crossings.
-constexpr double kCrossingHeight = 1.0, kCrossingFloor = 2.5;
+// SPEC "Edge test" step 6, crossing a convex feature: P stands proud of clean side x
+// (edge_proud_of: h > tol, x's opposite empty or falling away) by more than kCrossingFloor x
+// the tolerance floor `floor` too (min_step / 2, 1.5 z_resolution, 2 z_noise: where a
+// scanner's resolution, not its noise, sets the tolerance), P is attached to x, and every clean
+// side P fits lies past the feature (its centroid more than x's tolerance below x's plane): on
+// a convex crease or bend the far face's plane, extended back over P, lies above the near face
+// there, so a fit to it does not clear P. Asked of a P that fits (one that fits nothing and
+// meets it stands proud). Its heights (tol, kCrossingFloor x floor) bound the shortcut's
+// side_reaches. miem.reference._crossings.
+constexpr double kCrossingFloor = 2.5;
 
 template <typename Attached>
 bool crossing_lip(const Side (&sd)[8], double best, double floor, Attached attached) {
+  bool fit[8];
+  for (int c = 0; c < 8; ++c) fit[c] = edge_fits(sd[c], best);
   for (int s = 0; s < 8; ++s) {
     const Side& x = sd[s];
-    if (!edge_clean(x, best) || !(x.h > kCrossingHeight * x.tol) ||
-        !(x.h > kCrossingFloor * floor)) {
-      continue;
-    }
-    const Side& y = sd[kOpposite[s]];
-    if (!(y.empty || (y.valid && edge_drops(x, y)))) continue;
+    if (!edge_proud_of(x, sd[kOpposite[s]], best) || !(x.h > kCrossingFloor * floor)) continue;
     bool cleared = false;
-    for (int c = 0; c < 8 && !cleared; ++c) {
-      cleared = edge_fits(sd[c], best) && !edge_drops(x, sd[c]);
-    }
+    for (int c = 0; c < 8 && !cleared; ++c) cleared = fit[c] && !edge_drops(x, sd[c]);
     if (!cleared && attached(s)) return true;
   }
   return false;
@@ -1061,7 +1056,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       // sides reaches (side_reaches): those are judged in full below
       double reach[kChunk];
       if (!fit_only) {
-        const double lim2 = kCrossingHeight * et.k * kCrossingHeight * et.k * (1.0 - 1e-6);
+        const double lim2 = et.k * et.k * (1.0 - 1e-6);  // h > tol >= k rms
         const double flo2 = kCrossingFloor * et.floor * kCrossingFloor * et.floor * (1.0 - 1e-6);
         const double* const U = F1 + 3 * kChunk;  // the solved side's normal
         const double* mm8[8];

@@ -55,6 +55,13 @@ inline bool edge_drops(const EdgeSide& x, const EdgeSide& y) {
   return dot3(x.normal, y.centroid - x.centroid) < -x.tol;
 }
 
+/// P stands proud of side x with opposite y, but for `attached` (SPEC "Edge test" step 5): x
+/// is clean, P lies above its plane by more than its tolerance, and y is empty or valid and
+/// falls away below x's plane (edge_proud; the grid's crossing rule asks it of one side).
+inline bool edge_proud_of(const EdgeSide& x, const EdgeSide& y, double best) {
+  return edge_clean(x, best) && x.h > x.tol && (y.empty || (y.valid && edge_drops(x, y)));
+}
+
 /// SPEC "Edge test" step 5: P stands proud of a clean side whose opposite side
 /// (`opposite(s)`) is empty or falls away below its plane, and to which P is attached
 /// (`attached(s)`; asked last) (step 6 flags it when it also fits no clean side, which the
@@ -63,10 +70,7 @@ template <int N, typename Opposite, typename Attached>
 inline bool edge_proud(const EdgeSide (&sd)[N], double best, Opposite opposite,
                        Attached attached) {
   for (int s = 0; s < N; ++s) {
-    const EdgeSide& x = sd[s];
-    if (!edge_clean(x, best) || !(x.h > x.tol)) continue;
-    const EdgeSide& y = sd[opposite(s)];
-    if ((y.empty || (y.valid && edge_drops(x, y))) && attached(s)) return true;
+    if (edge_proud_of(sd[s], sd[opposite(s)], best) && attached(s)) return true;
   }
   return false;
 }

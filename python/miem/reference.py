@@ -1635,38 +1635,32 @@ def _outline_lips(
     return out
 
 
-#: Crossings (SPEC "Edge test" step 6): P above a clean sub-window by more than this times its
-#: tolerance ...
-_CROSSING_HEIGHT = 1.0
-#: ... and by more than this times the tolerance's floor (min_step / 2, 1.5 z_resolution,
-#: 2 z_noise), every clean sub-window it fits past the feature.
+#: Crossings (SPEC "Edge test" step 6): P stands proud of a clean sub-window by more than
+#: this times the tolerance's floor (min_step / 2, 1.5 z_resolution, 2 z_noise) too, every
+#: clean sub-window it fits past the feature.
 _CROSSING_FLOOR = 2.5
 
 
 def _crossings(
-    clean: NDArray[np.bool_],
+    proud_of: NDArray[np.bool_],
     fits: NDArray[np.bool_],
     h: NDArray[np.float64],
     tol: NDArray[np.float64],
     nrm: NDArray[np.float64],
     cen: NDArray[np.float64],
-    falls: NDArray[np.bool_],
-    attached: NDArray[np.bool_],
     floor: float,
 ) -> NDArray[np.bool_]:
-    """The cells that are *lips across a convex feature* (SPEC "Edge test" step 6): above a
-    clean sub-window ``x`` by more than _CROSSING_HEIGHT tolerances and _CROSSING_FLOOR times
-    the tolerance floor ``floor`` (step 3), x's opposite empty or falling away (``falls``),
-    attached to x, and every clean sub-window they fit *past the feature* (its centroid more
-    than x's tolerance below x's plane): the far face's plane, extended back over P, does not
-    clear P."""
+    """The cells that are *lips across a convex feature* (SPEC "Edge test" step 6): standing
+    proud of a clean sub-window ``x`` (``proud_of[x]``: step 5, attached), above it by more
+    than _CROSSING_FLOOR times the tolerance floor ``floor`` (step 3) too, and every clean
+    sub-window they fit *past the feature* (its centroid more than x's tolerance below x's
+    plane): the far face's plane, extended back over P, does not clear P."""
     out = np.zeros(h.shape[1], dtype=bool)
     for x in range(8):
         cleared = np.zeros(h.shape[1], dtype=bool)
         for c in range(8):
             cleared |= fits[c] & ~(_dot3(nrm[x], cen[c] - cen[x]) < -tol[x])
-        high = (h[x] > _CROSSING_HEIGHT * tol[x]) & (h[x] > _CROSSING_FLOOR * floor)
-        out |= clean[x] & high & falls[x] & attached[x] & ~cleared
+        out |= proud_of[x] & (h[x] > _CROSSING_FLOOR * floor) & ~cleared
     return out
 
 
@@ -1910,7 +1904,8 @@ def _edge_verdicts(
     opp = list(_EDGE_OPPOSITE_OF)
     drop = _dot3(nrm, cen[opp] - cen) < -tol  # the opposite's centroid below each plane
     falls = empty[opp] | (valid[opp] & drop)
-    proud = (clean & (h > tol) & falls & attached).any(axis=0)
+    proud_of = clean & (h > tol) & falls & attached  # per side (the crossing rule's too)
+    proud = proud_of.any(axis=0)
     below = under & (empty[opp] | (clean[opp] & (h[opp] > tol[opp]) & drop))
     fin = _fins(grid, labels, cells, r)[cells]  # (SPEC step 6: reach r, inside the tile's frame)
     out[cells] = ~fits.any(axis=0) & (proud | fin)
@@ -1919,7 +1914,7 @@ def _edge_verdicts(
     out[cells] |= _outline_lips(images, cells, r, clean, fits, h, tol, empty, attached)
     # a lip across a convex feature: the far face's plane, extended back over P, lies above the
     # near face there, and a fit to it does not clear P (step 6)
-    out[cells] |= _crossings(clean, fits, h, tol, nrm, cen, falls, attached, floor)
+    out[cells] |= _crossings(proud_of, fits, h, tol, nrm, cen, floor)
     # a lip at a concave feature: P above a clean side, and beyond P the surface dips, then
     # rises above that side's plane (step 6)
     lip = clean & (h > tol)
