@@ -152,7 +152,8 @@ def test_level_rule_by_hand() -> None:
     sector and stands proud of clean sectors whose opposite is empty and of which it is the
     top, but beside each empty opposite lies a clean sector at the proud sector's level (the
     plane goes on past the bead; only the border empties the opposite): not an outline, so
-    the point stays as it was."""
+    the point stays as it was; at the wide scale too, whose disk holds less of those
+    neighbours near the border, by the narrow scale's veto (SPEC step 7)."""
     pts, bead = bead_scene(0)
     pre, r_edge, gap, normal, _ = pre_edge_pass(pts)
     caught = []
@@ -281,7 +282,8 @@ def test_opposite_centroid_falls_by_hand() -> None:
     lies below the proud sector's plane (SPEC step 4: a centroid needs no plane). ABNORMAL in
     the core and the reference (by the grid's rule alone they stayed NORMAL); nothing but the
     lip is ABNORMAL, and without the lip nothing is. (On a flange this steep most of the lip
-    fits a clean sector and stays as it was, by either rule.)"""
+    fits a clean sector and stays as it was, by either rule. At the wide scale, which has no
+    hanging rule, a point of the bend hung below a clean sector: SPEC step 7.)"""
     k = DEFAULT_K
     pts, lip = flange_scene(0, True)
     pre, r_edge, gap, normal, _ = pre_edge_pass(pts)

@@ -1,7 +1,8 @@
 // Edge test on unorganized clouds (docs/SPEC.md, "Unorganized clouds: edge test"): the grid edge
 // test's one-sided sub-windows become eight 90-degree sectors of a point's disk in its tangent
-// plane. Jacobi passes; the first judges every candidate, later ones only the candidates within
-// the edge radius of a point the pass before made ABNORMAL.
+// plane, at two scales (the edge radius and 1.5 times it). Jacobi passes; the first judges every
+// candidate, later ones only the candidates within the wide radius of a point the pass before
+// made ABNORMAL.
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -21,6 +22,8 @@ namespace {
 constexpr int kSectors = 16;  // 8 quarter-disk and 8 half-disk sectors
 constexpr double kRmsFloor = 1e-9;      // of the tolerance, as the height test's
 constexpr double kSuspect = 1.5;        // candidates: surroundings rms above 1.5 x the median
+// The wide scale's sector radius, in edge radii (SPEC step 7; edge pool and tune split)
+constexpr double kEdgeWide = 1.5;
 constexpr double kEmpty = 0.35;  // empty: fewer returns than 0.35 of a full sector (tune split)
 // ... and, as the opposite of a hanging point, below 0.3: a face falling away steeper than 45
 // degrees past a convex crease keeps about 0.3-0.35 (SPEC step 5)
@@ -92,6 +95,21 @@ double finite_median(const double* v, std::ptrdiff_t n) {
   return med;
 }
 
+// `out` = the members of `ball` within squared distance r2 of its point, in the same order.
+void within(const Selection& ball, double r2, Selection& out) {
+  out.reserve(ball.n);
+  std::size_t m = 0;
+  for (std::size_t k = 0; k < ball.n; ++k) {
+    out.wx[m] = ball.wx[k];
+    out.wy[m] = ball.wy[k];
+    out.wz[m] = ball.wz[k];
+    out.d2[m] = ball.d2[k];
+    out.id[m] = ball.id[k];
+    m += static_cast<std::size_t>(ball.d2[k] <= r2);
+  }
+  out.n = m;
+}
+
 // The turn of sector s by `by` octants within its width (8 quarter, 8 half sectors).
 inline int turned(int s, int by) { return (s / 8) * 8 + (s % 8 + 8 + by) % 8; }
 
@@ -101,29 +119,6 @@ inline int bisector(int s) { return (s % 8 + 1 + s / 8) % 8; }
 // What step 4 of SPEC "Unorganized clouds: edge test" says of P from its sectors alone.
 enum class SectorVerdict { kFits, kProud, kOther };
 
-// SPEC "Unorganized clouds: edge test" step 4 (the grid's steps 4-5, edge_verdict.hpp, plus the
-// level, top and crossing rules): P stands proud of a clean sector `a` whose
-// opposite (the sector of the same width turned by 180 degrees) falls away below a's plane (the
-// centroid of its support, `centred`: at least 3 points, a plane or not: a flange falling away
-// steeply leaves its sector too few points to be valid), or
-// is empty while neither of its neighbours (the same width, turned by +-45 degrees) is a clean
-// sector at a's level (a bead or ridge on a surface that goes on past P, whose opposite sector
-// only the scan's border empties, is not a lip before an outline), and no valid sector's
-// centroid lies above P along a's normal (P is the top of what it stands on: a point on a
-// fillet or a slope whose rising side the scan's border hides is not a lip), and every clean
-// sector P fits lies past the feature (the crossing rule: its centroid below a's plane by
-// more than a's tolerance; on a convex crease the far side's plane, extended back, runs through
-// a lip on the near side). Centroids are relative to P. P fits a clean sector when |h| is
-// within the cleanest sector's tolerance (k best, floored as the sector's own `floor`): a
-// clean sector of larger rms (up to 2 best, e.g. one holding part of the burr run itself)
-// does not lend P its wider tolerance.
-// `*below`: when P fits no clean sector and stands proud of none, bit s set for each clean
-// sector s that P lies below with the surface beyond falling away (the hanging rule's first
-// condition, step 5; the rest needs the points): its opposite `gone` (fewer returns than
-// kHangEmpty of a full sector, and not a face through P) or clean with P above it; `*raised`:
-// then bit s set for each clean sector s that P lies above (h > tol) with the surface beyond
-// rising (the lips' first condition, step 6): the centroid of the opposite's support (at least
-// 3 points, `centred`) lies above s's plane by more than kLipRise x h.
 // SPEC step 3's numbers of a sector's plane: h = u . (P - centroid) (the plane's mean is the
 // centroid's offset from P), rms (0 for an exactly flat support), the tolerance's floor and
 // t = max(k rms, floor).
@@ -138,10 +133,55 @@ inline SectorFit sector_fit(const LocalPlane& lp, double k) {
   return {-lp.normal.dot(lp.mean), rms, floor, std::max(k * rms, floor)};
 }
 
+// The level rule of SPEC step 4, per sector: bit s set when sector s is valid, its opposite is
+// empty and a clean neighbour c of that opposite (the same width, turned by +-45 degrees) lies
+// at s's level, |u_s . (m_c - m_s)| <= t_s: that empty opposite is no outline (the scan's
+// border emptied it, not the part's). Also handed from the narrow scale to the wide one
+// (step 7).
+unsigned level_vetoes(const detail::EdgeSide (&sd)[kSectors], double best) {
+  const double clean = detail::kEdgeCleanRatio * best;
+  unsigned veto = 0;
+  for (int s = 0; s < kSectors; ++s) {
+    const detail::EdgeSide& x = sd[s];
+    const int o = turned(s, 4);
+    if (!x.valid || !sd[o].empty) continue;
+    for (int by : {-1, 1}) {
+      const detail::EdgeSide& c = sd[turned(o, by)];
+      if (c.valid && c.rms <= clean &&
+          !(std::abs(detail::dot3(x.normal, c.centroid - x.centroid)) > x.tol)) {
+        veto |= 1u << s;
+      }
+    }
+  }
+  return veto;
+}
+
+// SPEC "Unorganized clouds: edge test" step 4 (the grid's steps 4-5, edge_verdict.hpp, plus the
+// level, top and crossing rules): P stands proud of a clean sector `a` whose
+// opposite (the sector of the same width turned by 180 degrees) falls away below a's plane (the
+// centroid of its support, `centred`: at least 3 points, a plane or not: a flange falling away
+// steeply leaves its sector too few points to be valid), or is empty while `veto`
+// (level_vetoes) does not hold bit a (a bead or ridge on a surface that goes on past P, whose
+// opposite sector only the scan's border empties, is not a lip before an outline), and no
+// valid sector's centroid lies above P along a's normal (P is the top of what it stands on: a point on a
+// fillet or a slope whose rising side the scan's border hides is not a lip), and every clean
+// sector P fits lies past the feature (the crossing rule: its centroid below a's plane by
+// more than a's tolerance; on a convex crease the far side's plane, extended back, runs through
+// a lip on the near side). Centroids are relative to P. P fits a clean sector when |h| is
+// within the cleanest sector's tolerance (k best, floored as the sector's own `floor`): a
+// clean sector of larger rms (up to 2 best, e.g. one holding part of the burr run itself)
+// does not lend P its wider tolerance.
+// `*below`: when P fits no clean sector and stands proud of none, bit s set for each clean
+// sector s that P lies below with the surface beyond falling away (the hanging rule's first
+// condition, step 5; the rest needs the points): its opposite `gone` (fewer returns than
+// kHangEmpty of a full sector, and not a face through P) or clean with P above it; `*raised`:
+// then bit s set for each clean sector s that P lies above (h > tol) with the surface beyond
+// rising (the lips' first condition, step 6): the centroid of the opposite's support (at least
+// 3 points, `centred`) lies above s's plane by more than kLipRise x h.
 SectorVerdict cloud_edge_verdict(const detail::EdgeSide (&sd)[kSectors],
                                  const bool (&centred)[kSectors], const bool (&gone)[kSectors],
                                  const double (&floor)[kSectors], double best, double k,
-                                 unsigned* below, unsigned* raised) {
+                                 unsigned veto, unsigned* below, unsigned* raised) {
   const double clean = detail::kEdgeCleanRatio * best;
   bool fit[kSectors];
   bool any_fit = false;
@@ -155,14 +195,7 @@ SectorVerdict cloud_edge_verdict(const detail::EdgeSide (&sd)[kSectors],
     if (!x.valid || !(x.rms <= clean) || !(x.h > x.tol)) continue;
     const int o = turned(s, 4);
     const detail::EdgeSide& y = sd[o];
-    bool outline = y.empty;
-    for (int by : {-1, 1}) {
-      const detail::EdgeSide& c = sd[turned(o, by)];
-      if (c.valid && c.rms <= clean &&
-          !(std::abs(detail::dot3(x.normal, c.centroid - x.centroid)) > x.tol)) {
-        outline = false;
-      }
-    }
+    const bool outline = y.empty && !(veto >> s & 1u);
     if (!(outline ||
           (centred[o] && detail::edge_drops(x, y)))) {
       continue;
@@ -356,9 +389,12 @@ bool is_lip(const Selection& ball, const std::uint8_t* labels, const Frame& f,
 
 // The verdict on a point P with tangent frame f, from the finite points within r_edge of it
 // (`ball`, select's, in gather order): the NORMAL ones (labels: at the start of the pass) are
-// the support, the others count as returns only.
+// the support, the others count as returns only. `*level` (when given): P lies within t of
+// every clean sector's plane; `*veto_out` (when given): this scale's level_vetoes; `veto_in`:
+// the narrow scale's, at the wide one (SPEC step 7).
 bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const Frame& f,
-                      const CloudEdgeTest& e) {
+                      const CloudEdgeTest& e, bool* level = nullptr, unsigned veto_in = 0,
+                      unsigned* veto_out = nullptr) {
   OffsetSums oct[8];
   double fin[8] = {};
 #ifdef __SSE2__
@@ -464,11 +500,21 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
     sd[s].normal = lp[s].normal;
     sd[s].centroid = lp[s].mean;
   }
+  const unsigned veto = level_vetoes(sd, best);
+  if (veto_out != nullptr) *veto_out = veto;
+  if (level != nullptr) {  // P within t of every clean sector's plane (step 7)
+    *level = true;
+    for (const detail::EdgeSide& x : sd) {
+      if (x.valid && x.rms <= detail::kEdgeCleanRatio * best && std::abs(x.h) > x.tol) {
+        *level = false;
+      }
+    }
+  }
   unsigned below = 0, raised = 0;
   const SectorVerdict v =
-      cloud_edge_verdict(sd, centred, gone, floor, best, e.k, &below, &raised);
+      cloud_edge_verdict(sd, centred, gone, floor, best, e.k, veto | veto_in, &below, &raised);
   if (v != SectorVerdict::kOther) return v == SectorVerdict::kProud;
-  return (below != 0 && hangs(ball, labels, f, e, sd, gone, below)) ||
+  return (below != 0 && e.hanging && hangs(ball, labels, f, e, sd, gone, below)) ||
          (raised != 0 && is_lip(ball, labels, f, e, sd, raised));
 }
 
@@ -494,20 +540,51 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
     }
     std::vector<double>().swap(*first_rms);  // free N doubles before the frames (peak memory)
   }
-  // Frames: the plane of the finite points within radius, the point included (as the normals).
-  // When the frame's disk is the sectors' (e.radius == e.r_edge, as detect_points sets them),
-  // the first pass's verdicts come from the frame's selection (the same ball, in gather order;
-  // the labels do not change before the first pass).
+  // Two scales (SPEC step 7): the sectors within r_edge and within kEdgeWide x r_edge, each
+  // with the frame of its own disk (the plane of the finite points within it, the point
+  // included, as the normals; it does not depend on the labels, so it is fitted when first
+  // needed). One wide selection per judgement; the narrow ball is its members within r_edge
+  // (the same order).
   const std::ptrdiff_t nc = static_cast<std::ptrdiff_t>(cand.size());
-  std::vector<Frame> frame(cand.size());
+  const double r_wide = kEdgeWide * e.r_edge;
+  const double n2 = e.r_edge * e.r_edge, w2 = r_wide * r_wide;
+  CloudEdgeTest wide = e;  // the wide scale's sectors (the lips' strip scales with them)
+  wide.r_edge = r_wide;
+  wide.hanging = false;
+  std::vector<Frame> frame(2 * cand.size());  // candidate c, scale s: 2 c + s
+  // bit s: scale s has a frame; bit 2 + s: scale s's frame was fitted (or found impossible)
   std::vector<std::uint8_t> framed(cand.size(), 0);
-  const bool first_here = e.radius == e.r_edge;
-  std::vector<std::uint8_t> first_verdict(first_here ? cand.size() : 0, 0);
-  const double fr2 = e.radius * e.radius;
+  std::vector<std::uint8_t> verdict(cand.size(), 0);
+  // Candidate c's verdict at point p on the labels: ABNORMAL at either scale; the wide one is
+  // asked only when the narrow one neither flags P nor finds it level (SPEC step 7).
+  auto judge = [&](std::uint32_t c, const Eigen::Vector3d& p, JudgeScratch& js) {
+    select_box(grid, grid.box_around(p, p, r_wide), p, w2, js.sel);
+    within(js.sel, n2, js.narrow);
+    const Selection* ball[2] = {&js.narrow, &js.sel};
+    bool flag = false, level = false;
+    unsigned veto = 0;
+    for (int s = 0; s < 2 && !flag && !level; ++s) {
+      Frame& f = frame[2 * c + s];
+      if (!(framed[c] >> (2 + s) & 1u)) {
+        framed[c] |= static_cast<std::uint8_t>(4u << s);
+        LocalPlane lp;
+        if (fit_selection(*ball[s], true, &lp) == PlaneStatus::kOk) {
+          f.e1 = lp.major;
+          f.e2 = lp.normal.cross(lp.major);
+          framed[c] |= static_cast<std::uint8_t>(1u << s);
+        }
+      }
+      if (framed[c] >> s & 1u) {
+        flag = s == 0 ? cloud_edge_judge(*ball[0], labels, f, e, &level, 0, &veto)
+                      : cloud_edge_judge(*ball[1], labels, f, wide, nullptr, veto);
+      }
+    }
+    return flag;
+  };
   {
-    // Visited in the grid's cell order (its cell key), not the input's, which a shuffled cloud
-    // scatters: one candidate's gather then touches the cells the last one did. Only the speed
-    // depends on the order: each candidate has its own slot.
+    // Pass 1, with the frames. Visited in the grid's cell order (its cell key), not the
+    // input's, which a shuffled cloud scatters: one candidate's gather then touches the cells
+    // the last one did. Only the speed depends on the order: each candidate has its own slot.
     std::vector<std::pair<std::uint64_t, std::uint32_t>> by_cell(cand.size());
     for (std::ptrdiff_t c = 0; c < nc; ++c) {
       by_cell[c] = {grid.key_of(points[cand[c]]), static_cast<std::uint32_t>(c)};
@@ -517,61 +594,47 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
 #pragma omp parallel for schedule(dynamic, 32) num_threads(ntc) if (ntc > 1)
     for (std::ptrdiff_t q = 0; q < nc; ++q) {
       const std::uint32_t c = by_cell[q].second;
-      JudgeScratch& js = scratch[thread_id()];
-      const Eigen::Vector3d p = points[cand[c]];
-      select_box(grid, grid.box_around(p, p, e.radius), p, fr2, js.sel);
-      LocalPlane lp;
-      if (fit_selection(js.sel, true, &lp) != PlaneStatus::kOk) continue;
-      frame[c].e1 = lp.major;
-      frame[c].e2 = lp.normal.cross(lp.major);
-      framed[c] = 1;
-      if (first_here) first_verdict[c] = cloud_edge_judge(js.sel, labels, frame[c], e);
+      verdict[c] = judge(c, points[cand[c]], scratch[thread_id()]);
     }
   }
+  // Testable: a frame at either scale (a wide frame not yet fitted: the narrow one exists).
   std::vector<std::uint32_t> todo;
   for (std::ptrdiff_t c = 0; c < nc; ++c) {
-    if (framed[c]) todo.push_back(static_cast<std::uint32_t>(c));
+    if (framed[c] & 3u) todo.push_back(static_cast<std::uint32_t>(c));
   }
-  const double r2 = e.r_edge * e.r_edge;
-  std::vector<std::uint8_t> verdict, mark(cand.size(), 0);  // mark: per candidate
+  std::vector<std::uint8_t> mark(cand.size(), 0);  // per candidate
   std::vector<std::uint32_t> fresh;
   int passes = 0;
   while (passes < e.max_iterations) {
     ++passes;
     const std::ptrdiff_t nj = static_cast<std::ptrdiff_t>(todo.size());
-    verdict.assign(todo.size(), 0);
-    if (passes == 1 && first_here) {  // judged with the frames
-      for (std::ptrdiff_t j = 0; j < nj; ++j) verdict[j] = first_verdict[todo[j]];
-      std::vector<std::uint8_t>().swap(first_verdict);
-    } else {
+    if (passes > 1) {  // pass 1's verdicts came with the frames
       const int ntj = std::min(nt, detail::thread_count(num_threads, nj, 256));
 #pragma omp parallel for schedule(dynamic, 32) num_threads(ntj) if (ntj > 1)
       for (std::ptrdiff_t j = 0; j < nj; ++j) {
         const std::uint32_t c = todo[j], i = cand[c];
-        if (labels[i] != kNormal && labels[i] != kEdge) continue;
-        JudgeScratch& js = scratch[thread_id()];
-        const Eigen::Vector3d p = points[i];
-        select_box(grid, grid.box_around(p, p, e.r_edge), p, r2, js.sel);
-        verdict[j] = cloud_edge_judge(js.sel, labels, frame[c], e);
+        verdict[c] = (labels[i] == kNormal || labels[i] == kEdge) &&
+                     judge(c, points[i], scratch[thread_id()]);
       }
     }
     fresh.clear();
-    for (std::ptrdiff_t j = 0; j < nj; ++j) {
-      if (!verdict[j]) continue;
-      const std::uint32_t i = cand[todo[j]];
+    for (std::uint32_t c : todo) {
+      if (!verdict[c]) continue;
+      verdict[c] = 0;
+      const std::uint32_t i = cand[c];
       if (unnormal != nullptr && labels[i] == kNormal) unnormal->push_back(i);
       labels[i] = kAbnormal;
       fresh.push_back(i);
     }
     if (fresh.empty()) break;
-    // Only the candidates with a new ABNORMAL point within r_edge can change.
+    // Only the candidates with a new ABNORMAL point within the wide radius can change.
     todo.clear();
     for (std::uint32_t u : fresh) {
-      grid.for_each_in_radius(points[u], e.r_edge, [&](std::ptrdiff_t j, double) {
+      grid.for_each_in_radius(points[u], r_wide, [&](std::ptrdiff_t j, double) {
         const auto it = std::lower_bound(cand.begin(), cand.end(), static_cast<std::uint32_t>(j));
         if (it == cand.end() || *it != static_cast<std::uint32_t>(j)) return;
         const std::size_t c = static_cast<std::size_t>(it - cand.begin());
-        if (framed[c] && !mark[c]) {
+        if ((framed[c] & 3u) && !mark[c]) {
           mark[c] = 1;
           todo.push_back(static_cast<std::uint32_t>(c));
         }

@@ -73,10 +73,10 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
 /// The cloud edge test's settings, resolved (SPEC "Unorganized clouds: edge test").
 struct CloudEdgeTest {
   double k = 0.0;        ///< tolerance in sector rms
-  double radius = 0.0;   ///< the frame's plane: finite points within this (the point included)
-  double r_edge = 0.0;   ///< sector radius
+  double r_edge = 0.0;   ///< sector radius of the narrow scale (the wide one: 1.5 x this)
   double gap = 0.0;      ///< sector members lie at least this far from the point in the tangent plane
   int max_iterations = 1;
+  bool hanging = true;   ///< step 5's hanging rule (the wide scale's sectors do without it)
   /// Not NaN: the median of the candidates' rms given by the caller (the whole cloud's, when
   /// this run sees part of it: PointsDetectHooks); NaN: the median of `*first_rms`.
   double rms_median = kNaN;
@@ -84,10 +84,11 @@ struct CloudEdgeTest {
 
 /// Edge passes after the height passes: candidates are the NORMAL and EDGE points whose
 /// `*first_rms` (height_passes' HeightTest::first_rms, NaN: no verdict; freed once the
-/// candidates are listed) is NaN or above 1.5 x the median; one becomes ABNORMAL when it stands
-/// proud of a clean sector whose opposite is empty or falls away and fits no clean sector that
-/// is not past the feature (the crossing rule), or fits none and hangs below one or is a lip
-/// at a concave feature beyond one. NORMAL points made ABNORMAL are appended to
+/// candidates are listed) is NaN or above 1.5 x the median; one becomes ABNORMAL when, at
+/// either scale (sectors within r_edge or 1.5 r_edge, each with the frame of its own disk), it
+/// stands proud of a clean sector whose opposite is empty or falls away and fits no clean
+/// sector that is not past the feature (the crossing rule), or fits none and hangs below one or
+/// is a lip at a concave feature beyond one. NORMAL points made ABNORMAL are appended to
 /// `*unnormal` (when given). Returns the number of passes run.
 template <typename T>
 int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,

@@ -372,7 +372,6 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
   if (p.edge_k > 0.0) {  // the edge test
     CloudEdgeTest et;
     et.k = p.edge_k;
-    et.radius = summary.edge_radius;  // the frame's plane: the whole disk (a fin's top too)
     et.r_edge = summary.edge_radius;
     et.gap = min_step;
     et.max_iterations = p.max_iterations;

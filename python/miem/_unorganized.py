@@ -317,7 +317,8 @@ def detect_points(
     nearest-neighbour distance, :func:`point_spacing`; ``K``; ``min_step``; ``link``;
     ``heights``; ``height_tolerance``; ``edge_extent``; ``min_group``; ``height_radius``;
     ``merge_distance``; ``edge_tolerance`` and ``edge_radius``: the cloud edge test, on by
-    default, SPEC "Unorganized clouds: edge test"). A field of the ``grid`` part (``window``, ``max_gap``, the grid edge
+    default, judging at ``edge_radius`` and at 1.5 times it, SPEC "Unorganized clouds: edge
+    test"). A field of the ``grid`` part (``window``, ``max_gap``, the grid edge
     test, ...) is a ``ValueError`` naming it: clouds do not implement it.
 
     Parameters

@@ -724,6 +724,9 @@ _POINT_FILL = {"labels": int(miem.INVALID), "flags": 0, "angle": np.nan, "height
 #: Cloud parameters whose reach points_halo knows: every field cloud detection reads (generated
 #: from miem.DetectParams), what it records (merged) and the preset's name; any other parameter
 #: that is on is refused.
+#: The cloud edge test's wide scale, in edge radii (SPEC "Unorganized clouds: edge test",
+#: step 7): how far a pass reads.
+_EDGE_WIDE = 1.5
 _POINT_KNOWN = {"preset", "merged", *miem.DetectParams.fields("cloud")}
 
 
@@ -822,9 +825,9 @@ def points_halo(params: dict) -> float:
     height_radius; whether an EDGE point's group is compact, i.e. spans at most
     ``edge_extent * spacing``, is seen within that span plus link: a compact group lies within
     it, and a group that reaches beyond it is seen to), ``+ link + max(height_radius, link)``
-    ``+ max_iterations * edge_radius`` with the cloud edge test (a pass judges a candidate
-    from the points within edge_radius, and a later pass only the candidates within it of a
-    point the pass before made ABNORMAL; whether a point is a candidate is decided by the first
+    ``+ max_iterations * 1.5 * edge_radius`` with the cloud edge test (a pass judges a
+    candidate from the points within 1.5 edge_radius, its wide scale, and a later pass only the
+    candidates within that of a point the pass before made ABNORMAL; whether a point is a candidate is decided by the first
     height pass, within the reach above, and the whole cloud's median, found first),
     ``+ link + max(height_radius, link)`` so that the heights and the defects that leave the
     tile by up to ``link`` are exact.
@@ -835,7 +838,7 @@ def points_halo(params: dict) -> float:
     if params.get("height_tolerance") is not None:
         lag += params["max_iterations"] * _height_pass_reach(params)
     if params.get("edge_tolerance") is not None:
-        lag += params["max_iterations"] * (params.get("edge_radius") or hr)
+        lag += params["max_iterations"] * _EDGE_WIDE * (params.get("edge_radius") or hr)
     return lag + link + max(hr, link)
 
 

@@ -2947,6 +2947,8 @@ _CLOUD_ISOLATED_MEDIAN = 0.5
 #: Cloud edge test (SPEC "Unorganized clouds: edge test"): a point's surroundings rms in the
 #: first height pass above this multiple of the median makes it a candidate.
 _CLOUD_EDGE_SUSPECT = 1.5
+#: Cloud edge test (step 7): the wide scale's sector radius, in edge radii.
+_CLOUD_EDGE_WIDE = 1.5
 #: Cloud edge test: 8 quarter-disk and 8 half-disk sectors.
 _CLOUD_SECTORS = 16
 #: Cloud edge test: a sector with fewer finite points than this fraction of a full one is empty
@@ -3009,15 +3011,22 @@ def _cloud_edge_pass(
     r_edge: float,
     gap: float,
     k: float,
-) -> NDArray[np.bool_]:
-    """One cloud edge pass: which of the points ``cand`` (tangent directions ``e1``, ``e2``)
-    become ABNORMAL (SPEC steps 3-6: they stand proud of a clean sector and fit no clean sector
-    that is not past the feature (the crossing rule), or fit none and hang below one or are a
-    lip at a concave feature beyond one), the support being the NORMAL points of ``labels``."""
+    veto: NDArray[np.bool_] | None = None,
+    hanging: bool = True,
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_], NDArray[np.bool_]]:
+    """One cloud edge pass at one scale: which of the points ``cand`` (tangent directions
+    ``e1``, ``e2``) become ABNORMAL (SPEC steps 3-6: they stand proud of a clean sector and fit
+    no clean sector that is not past the feature (the crossing rule), or fit none and hang below
+    one or are a lip at a concave feature beyond one), the support being the NORMAL points of
+    ``labels``; which are *level* (step 7: within ``t`` of every clean sector's plane); and
+    per sector ``(M, 16)`` where the level rule *vetoes* an outline (step 7: the sector valid,
+    its opposite empty, a clean neighbour of that at its level). ``veto``: the narrow scale's,
+    for the wide one (no outline where it is set); ``hanging`` False: without step 5 (the wide
+    scale)."""
     m = cand.size
     out = np.zeros(m, dtype=bool)
     if m == 0:
-        return out
+        return out, out.copy(), np.zeros((0, _CLOUD_SECTORS), dtype=bool)
     pi, pj, w, dist = _ball_pairs(tree, pts, pts[cand], r_edge)
     a = _dot3(w, e1[pi])
     b = _dot3(w, e2[pi])
@@ -3065,6 +3074,7 @@ def _cloud_edge_pass(
     gone &= ~(ok & (rms <= _CLOUD_FACE_CLEAN * best[:, None]) & ~(np.abs(h) > tol)
               & (tilt < _CLOUD_FACE_COS))
     clean = valid & (rms <= _EDGE_CLEAN_RATIO * best[:, None])
+    level = ~(clean & (np.abs(h) > tol)).any(axis=1)  # step 7: the wide scale is not asked
     # P fits a clean sector within the cleanest sector's tolerance (k best, floored as the
     # sector's own): a clean sector of larger rms (e.g. one holding part of the burr run itself)
     # does not lend P its wider tolerance.
@@ -3072,15 +3082,19 @@ def _cloud_edge_pass(
     proud = np.zeros(m, dtype=bool)
     across = np.zeros(m, dtype=bool)  # stands proud and fits only sectors past the feature
     below = np.zeros((m, _CLOUD_SECTORS), dtype=bool)  # hanging, the first condition
+    vetoes = np.zeros((m, _CLOUD_SECTORS), dtype=bool)  # the level rule's, per sector
     for s in range(_CLOUD_SECTORS):
         o = _turned(s, 4)  # the opposite sector of the same width
         drop = np.einsum("ij,ij->i", nrm[:, s], cen[:, o] - cen[:, s])
         # the level rule: an empty opposite is an outline unless a clean neighbour of it (the
-        # same width, turned by +-45 degrees) lies at this sector's level
-        outline = empty[:, o].copy()
+        # same width, turned by +-45 degrees) lies at this sector's level (at this scale or, for
+        # the wide one, at the narrow one)
         for c in (_turned(o, -1), _turned(o, 1)):
             lvl = np.abs(np.einsum("ij,ij->i", nrm[:, s], cen[:, c] - cen[:, s]))
-            outline &= ~(clean[:, c] & ~(lvl > tol[:, s]))
+            vetoes[:, s] |= valid[:, s] & empty[:, o] & clean[:, c] & ~(lvl > tol[:, s])
+        outline = empty[:, o] & ~vetoes[:, s]
+        if veto is not None:
+            outline &= ~veto[:, s]
         # the opposite falls away: the centroid of its support (at least 3 points; no plane
         # needed: a flange falling away steeply leaves its sector too few points to be valid)
         falls = outline | ((cnt[:, o] >= 3.0) & (drop < -tol[:, s]))
@@ -3099,7 +3113,7 @@ def _cloud_edge_pass(
         beyond = gone[:, o] | (clean[:, o] & (h[:, o] > tol[:, o]) & (drop < -tol[:, s]))
         below[:, s] = clean[:, s] & (h[:, s] < -tol[:, s]) & beyond
     out = ~fits.any(axis=1)
-    hang = out & ~proud & below.any(axis=1)
+    hang = out & ~proud & below.any(axis=1) & hanging
     if hang.any():
         hang[hang] = _cloud_hanging(
             labels, sec_i, sec_j, sec_w, np.tile(dist, len(lists)), sup, hang, below[hang],
@@ -3112,7 +3126,7 @@ def _cloud_edge_pass(
     if lip.any():
         lip[lip] = _cloud_lips(labels, pi, pj, w, a, b, lip, raised[lip], h[lip], nrm[lip],
                                tol[lip], r_edge)
-    return (out & (proud | hang | lip)) | across
+    return (out & (proud | hang | lip)) | across, level, vetoes
 
 
 #: Cloud hanging rule (SPEC "Unorganized clouds: edge test" step 5): the surface beyond a
@@ -3275,37 +3289,52 @@ def _cloud_edge_test(
     pts: NDArray[np.float64],
     labels: NDArray[np.uint8],
     suspect: NDArray[np.bool_],
-    radius: float,
     r_edge: float,
     gap: float,
     k: float,
     iters: int,
 ) -> int:
-    """Edge passes (SPEC "Unorganized clouds: edge test") on ``labels`` in place; returns the
-    number of passes run."""
+    """Edge passes (SPEC "Unorganized clouds: edge test") on ``labels`` in place, at the two
+    scales ``r_edge`` and ``_CLOUD_EDGE_WIDE * r_edge`` (step 7); returns the number of passes
+    run."""
     todo = suspect & ((labels == NORMAL) | (labels == EDGE))
     cand_all = np.flatnonzero(todo)
-    e1, e2, ok = _cloud_frames(tree, pts, cand_all, r_edge)
-    frame_of = np.full(pts.shape[0], -1, dtype=np.int64)
-    frame_of[cand_all[ok]] = np.flatnonzero(ok)
-    testable = frame_of >= 0
+    scales = []  # per scale: its radius, its frames and each point's frame (-1: none)
+    testable = np.zeros(pts.shape[0], dtype=bool)
+    for r_s in (r_edge, _CLOUD_EDGE_WIDE * r_edge):
+        e1, e2, ok = _cloud_frames(tree, pts, cand_all, r_s)
+        frame_of = np.full(pts.shape[0], -1, dtype=np.int64)
+        frame_of[cand_all[ok]] = np.flatnonzero(ok)
+        testable |= frame_of >= 0
+        scales.append((r_s, e1, e2, frame_of))
+    r_wide = scales[-1][0]
     passes = 0
     judge = testable.copy()
     for _ in range(iters):
         passes += 1
         cand = np.flatnonzero(judge & ((labels == NORMAL) | (labels == EDGE)))
-        f = frame_of[cand]
-        new = cand[_cloud_edge_pass(tree, pts, labels, cand, e1[f], e2[f], r_edge, gap, k)]
+        flag = np.zeros(pts.shape[0], dtype=bool)  # ABNORMAL at either scale (Jacobi)
+        asked = np.ones(pts.shape[0], dtype=bool)  # the wide scale: not level at the narrow one
+        veto = np.zeros((pts.shape[0], _CLOUD_SECTORS), dtype=bool)  # the narrow scale's
+        for scale, (r_s, e1, e2, frame_of) in enumerate(scales):
+            c = cand[(frame_of[cand] >= 0) & asked[cand]]
+            f = frame_of[c]
+            hit, level, vetoes = _cloud_edge_pass(tree, pts, labels, c, e1[f], e2[f], r_s, gap,
+                                                  k, veto[c] if scale else None, not scale)
+            flag[c[hit]] = True
+            asked[c[level]] = False
+            veto[c] = vetoes
+        new = np.flatnonzero(flag)
         labels[new] = ABNORMAL
         if new.size == 0:
             break
-        # only candidates with a new ABNORMAL point within r_edge can change
+        # only candidates with a new ABNORMAL point within the wide radius can change
         near = np.zeros(pts.shape[0], dtype=bool)
-        lists = tree.query_ball_point(pts[new], _query_radius(r_edge))
+        lists = tree.query_ball_point(pts[new], _query_radius(r_wide))
         for i, js in zip(new, lists):
             js = np.asarray(js, dtype=np.int64)
             d = pts[js] - pts[i]
-            near[js[np.sqrt(_dot3(d, d)) <= r_edge]] = True
+            near[js[np.sqrt(_dot3(d, d)) <= r_wide]] = True
         judge = testable & near
     return passes
 
@@ -3516,8 +3545,8 @@ def detect_points(
             fin = np.isfinite(first_rms)
             med = float(np.median(first_rms[fin])) if fin.any() else np.inf
             suspect = ~fin | (first_rms > _CLOUD_EDGE_SUSPECT * med)
-            passes += _cloud_edge_test(tree, pts, labels, suspect, r, re_used, step,
-                                       edge_k, iters)
+            passes += _cloud_edge_test(tree, pts, labels, suspect, re_used, step, edge_k,
+                                       iters)
             abnormal = labels == ABNORMAL
 
         plane = _eigen_plane(pts[~abnormal])
