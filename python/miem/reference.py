@@ -3413,7 +3413,8 @@ def detect_points(
     edge_tolerance : float or None, optional
         Edge test (SPEC "Unorganized clouds: edge test"): None (off) or ``k > 0`` (default 4).
     edge_radius : float or None, optional
-        Radius of the edge test's sectors; None means ``height_radius``. ``> 0``.
+        Radius of the edge test's sectors (it also judges at 1.5 times it, SPEC step 7); None
+        means ``height_radius``. ``> 0``.
     isolated_tolerance : float or None, optional
         With the height test (either tolerance), the isolated-point rule (SPEC "Unorganized
         clouds: floating groups and height test", step 3): None (off) or ``k > 0``, in
