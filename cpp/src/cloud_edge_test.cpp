@@ -95,21 +95,6 @@ double finite_median(const double* v, std::ptrdiff_t n) {
   return med;
 }
 
-// `out` = the members of `ball` within squared distance r2 of its point, in the same order.
-void within(const Selection& ball, double r2, Selection& out) {
-  out.reserve(ball.n);
-  std::size_t m = 0;
-  for (std::size_t k = 0; k < ball.n; ++k) {
-    out.wx[m] = ball.wx[k];
-    out.wy[m] = ball.wy[k];
-    out.wz[m] = ball.wz[k];
-    out.d2[m] = ball.d2[k];
-    out.id[m] = ball.id[k];
-    m += static_cast<std::size_t>(ball.d2[k] <= r2);
-  }
-  out.n = m;
-}
-
 // The turn of sector s by `by` octants within its width (8 quarter, 8 half sectors).
 inline int turned(int s, int by) { return (s / 8) * 8 + (s % 8 + 8 + by) % 8; }
 
@@ -163,14 +148,14 @@ unsigned level_vetoes(const detail::EdgeSide (&sd)[kSectors], double best) {
 // steeply leaves its sector too few points to be valid), or is empty while `veto`
 // (level_vetoes) does not hold bit a (a bead or ridge on a surface that goes on past P, whose
 // opposite sector only the scan's border empties, is not a lip before an outline), and no
-// valid sector's centroid lies above P along a's normal (P is the top of what it stands on: a point on a
-// fillet or a slope whose rising side the scan's border hides is not a lip), and every clean
-// sector P fits lies past the feature (the crossing rule: its centroid below a's plane by
-// more than a's tolerance; on a convex crease the far side's plane, extended back, runs through
-// a lip on the near side). Centroids are relative to P. P fits a clean sector when |h| is
-// within the cleanest sector's tolerance (k best, floored as the sector's own `floor`): a
-// clean sector of larger rms (up to 2 best, e.g. one holding part of the burr run itself)
-// does not lend P its wider tolerance.
+// valid sector's centroid lies above P along a's normal (P is the top of what it stands on: a
+// point on a fillet or a slope whose rising side the scan's border hides is not a lip), and
+// every clean sector P fits lies past the feature (the crossing rule: its centroid below a's
+// plane by more than a's tolerance; on a convex crease the far side's plane, extended back,
+// runs through a lip on the near side). Centroids are relative to P. P fits a clean sector
+// when |h| is within the cleanest sector's tolerance (k best, floored as the sector's own
+// `floor`): a clean sector of larger rms (up to 2 best, e.g. one holding part of the burr run
+// itself) does not lend P its wider tolerance.
 // `*below`: when P fits no clean sector and stands proud of none, bit s set for each clean
 // sector s that P lies below with the surface beyond falling away (the hanging rule's first
 // condition, step 5; the rest needs the points): its opposite `gone` (fewer returns than
@@ -543,11 +528,10 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
   // Two scales (SPEC step 7): the sectors within r_edge and within kEdgeWide x r_edge, each
   // with the frame of its own disk (the plane of the finite points within it, the point
   // included, as the normals; it does not depend on the labels, so it is fitted when first
-  // needed). One wide selection per judgement; the narrow ball is its members within r_edge
-  // (the same order).
+  // needed). The wide ball is selected only when the wide scale is asked.
   const std::ptrdiff_t nc = static_cast<std::ptrdiff_t>(cand.size());
   const double r_wide = kEdgeWide * e.r_edge;
-  const double n2 = e.r_edge * e.r_edge, w2 = r_wide * r_wide;
+  const double reach[2] = {e.r_edge, r_wide};
   CloudEdgeTest wide = e;  // the wide scale's sectors (the lips' strip scales with them)
   wide.r_edge = r_wide;
   wide.hanging = false;
@@ -558,12 +542,11 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
   // Candidate c's verdict at point p on the labels: ABNORMAL at either scale; the wide one is
   // asked only when the narrow one neither flags P nor finds it level (SPEC step 7).
   auto judge = [&](std::uint32_t c, const Eigen::Vector3d& p, JudgeScratch& js) {
-    select_box(grid, grid.box_around(p, p, r_wide), p, w2, js.sel);
-    within(js.sel, n2, js.narrow);
-    const Selection* ball[2] = {&js.narrow, &js.sel};
+    Selection* ball[2] = {&js.sel, &js.wide};
     bool flag = false, level = false;
     unsigned veto = 0;
     for (int s = 0; s < 2 && !flag && !level; ++s) {
+      select_box(grid, grid.box_around(p, p, reach[s]), p, reach[s] * reach[s], *ball[s]);
       Frame& f = frame[2 * c + s];
       if (!(framed[c] >> (2 + s) & 1u)) {
         framed[c] |= static_cast<std::uint8_t>(4u << s);
@@ -575,8 +558,8 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
         }
       }
       if (framed[c] >> s & 1u) {
-        flag = s == 0 ? cloud_edge_judge(*ball[0], labels, f, e, &level, 0, &veto)
-                      : cloud_edge_judge(*ball[1], labels, f, wide, nullptr, veto);
+        flag = s == 0 ? cloud_edge_judge(js.sel, labels, f, e, &level, 0, &veto)
+                      : cloud_edge_judge(js.wide, labels, f, wide, nullptr, veto);
       }
     }
     return flag;

@@ -717,7 +717,7 @@ struct JudgeScratch {
   Gather gather;
   Gather aside;  // a second list of candidates (gather_split)
   Selection sel;
-  Selection narrow;  // the cloud edge test's narrow ball (cloud_edge_test.cpp)
+  Selection wide;  // the cloud edge test's wide ball (cloud_edge_test.cpp)
   std::vector<std::uint64_t> best_key;  // per (direction, side, scale) slot: bits of its d2
   std::vector<int> best_m;      // position in `sel` of the slot's neighbour, -1: none
   std::vector<double> tlen;     // per selected neighbour: tangent-plane length

@@ -724,10 +724,10 @@ _POINT_FILL = {"labels": int(miem.INVALID), "flags": 0, "angle": np.nan, "height
 #: Cloud parameters whose reach points_halo knows: every field cloud detection reads (generated
 #: from miem.DetectParams), what it records (merged) and the preset's name; any other parameter
 #: that is on is refused.
+_POINT_KNOWN = {"preset", "merged", *miem.DetectParams.fields("cloud")}
 #: The cloud edge test's wide scale, in edge radii (SPEC "Unorganized clouds: edge test",
 #: step 7): how far a pass reads.
 _EDGE_WIDE = 1.5
-_POINT_KNOWN = {"preset", "merged", *miem.DetectParams.fields("cloud")}
 
 
 def _probe_points(kwargs: dict) -> tuple:
@@ -827,8 +827,9 @@ def points_halo(params: dict) -> float:
     it, and a group that reaches beyond it is seen to), ``+ link + max(height_radius, link)``
     ``+ max_iterations * 1.5 * edge_radius`` with the cloud edge test (a pass judges a
     candidate from the points within 1.5 edge_radius, its wide scale, and a later pass only the
-    candidates within that of a point the pass before made ABNORMAL; whether a point is a candidate is decided by the first
-    height pass, within the reach above, and the whole cloud's median, found first),
+    candidates within that of a point the pass before made ABNORMAL; whether a point is a
+    candidate is decided by the first height pass, within the reach above, and the whole
+    cloud's median, found first),
     ``+ link + max(height_radius, link)`` so that the heights and the defects that leave the
     tile by up to ``link`` are exact.
     """

@@ -155,7 +155,9 @@ struct CloudParams {
   /// multiple of the sector rms: > 0 edge test (SPEC "Unorganized clouds: edge test"; default 4,
   /// chosen on the tune split of the held-out-style clouds), 0 off
   double edge_k = 4.0;
-  std::optional<double> edge_radius;  ///< length: edge-test sector radius (> 0; also judged at 1.5x); default height_radius
+  /// length: edge-test sector radius (> 0; the test also judges at 1.5 times it); default
+  /// height_radius
+  std::optional<double> edge_radius;
   /// length: the cloud's point spacing (> 0), the unit of the defaults and of edge_extent;
   /// default: the median nearest-neighbour distance of the distinct points (point_spacing).
   std::optional<double> spacing;
@@ -200,7 +202,8 @@ struct CloudParams {
                 "proud of a feature line or outline by more than k times a one-sided sector's "
                 "plane rms is ABNORMAL; 0: off"}, &CloudParams::edge_k);
     v(FieldInfo{"edge_radius", "length", "with the edge test: radius of its sectors (> 0; the "
-                "test also judges at 1.5 times it); None: height_radius"}, &CloudParams::edge_radius);
+                "test also judges at 1.5 times it); None: height_radius"},
+      &CloudParams::edge_radius);
     v(FieldInfo{"spacing", "length", "the cloud's point spacing (> 0), the unit of the defaults "
                 "and of edge_extent; None: the median nearest-neighbour distance"},
       &CloudParams::spacing);
