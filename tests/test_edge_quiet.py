@@ -13,14 +13,14 @@ WINDOW = 9  # the height test's window: q = max(3, 4) = 4
 FLOOR = 0.01
 
 
-def _scene() -> tuple[np.ndarray, np.ndarray]:
-    """A noisy sheet (0.1 mm cells, 2 um noise) with a bend, a low bump, a dropout patch, one
-    EDGE cell, one ABNORMAL cell the height test flagged, one the angle test flagged and a 2 x 2
-    block of them; the labels set by hand (NORMAL elsewhere)."""
+def _scene(noise: float = 0.002) -> tuple[np.ndarray, np.ndarray]:
+    """A sheet (0.1 mm cells, 2 um noise; `noise` 0: a plane to round-off) with a bend, a low
+    bump, a dropout patch, one EDGE cell, one ABNORMAL cell the height test flagged, one the
+    angle test flagged and a 2 x 2 block of them; the labels set by hand (NORMAL elsewhere)."""
     h, w = 40, 60
     rng = np.random.default_rng(5)
     x, y = np.meshgrid(np.arange(w) * 0.1, np.arange(h) * 0.1)
-    z = 0.02 * x + rng.normal(0.0, 0.002, (h, w))
+    z = 0.02 * x + rng.normal(0.0, noise, (h, w)) if noise > 0 else 0.02 * x + 0.01 * y
     z += np.where(x > 4.0, 0.5 * (x - 4.0) ** 2, 0.0)  # a bend from column 40 on
     z[20, 10] += 0.012  # a low bump: 6 sigma of the noise
     g = np.stack([x, y, z], axis=-1)
@@ -64,8 +64,10 @@ def _direct(g: np.ndarray, labels: np.ndarray, r: int, window: int, floor: float
                 continue
             rms = np.sqrt(max(ev[0], 0.0) / len(p))
             dist = abs((g[a, b] - m) @ vec[:, 0])
-            quiet[a, b] = dist <= 4.0 * rms and rms <= 0.75 * floor
-            margin[a, b] = min(abs(dist - 4.0 * rms), abs(rms - 0.75 * floor))
+            near = dist <= 4.0 * rms or dist <= 1e-6 * np.sqrt((ev[1] + ev[2]) / len(p))
+            flat = ev[0] <= 1e-12 * ev[2]  # a plane to round-off
+            quiet[a, b] = near and (rms <= 0.75 * floor or flat)
+            margin[a, b] = min(abs(dist - 4.0 * rms), abs(rms - 0.75 * floor) + flat)
     return quiet, margin
 
 
@@ -109,8 +111,53 @@ def test_quiet_cells_are_a_direct_window_fit() -> None:
     # the patch, which the q = 4 square reaches, the r = 3 one not)
     assert quiet[6:16, 21].mean() > 0.7 and quiet[6:16, 34].mean() > 0.7
     assert not got[:R].any() and not got[:, -R:].any() and got[R, 5:20].any()
-    # no floor: nothing is quiet
+    # no floor: nothing on a noisy sheet is quiet
     assert not ref._quiet_cells(g, labels, R, WINDOW, 0.0, removed).any()
+
+
+def test_noise_free_planes_are_quiet_without_a_floor() -> None:
+    """A plane to round-off (a simulated or CAD-sampled face, whose tolerance floor is often 0)
+    is flat (l0 <= 1e-12 l2): its cells are quiet with no floor at all, as on a noisy sheet
+    within the floor, and the bend beside it (a curved window: not flat) and the bump are
+    not. The core judges exactly the cells the reference does: the same labels as the
+    reference judging every cell."""
+    g, labels = _scene(noise=0.0)
+    removed = np.zeros(labels.shape, dtype=bool)
+    removed[30, 32] = True
+    got = ref._quiet_cells(g, labels, R, WINDOW, 0.0, removed)
+    quiet, margin = _direct(g, labels, R, WINDOW, 0.0, removed)
+    np.testing.assert_array_equal(got[margin > 1e-9], quiet[margin > 1e-9])
+    # by geometry: the plane's interior is quiet (the angle test's cell at row 15, column 12 is
+    # a missing support cell), but not where the window holds the bump (row 20, column 10,
+    # 0.012 mm high: within h = 4) or the bend (x > 4 mm: column 41 on; l0 of its curvature)
+    a, b = np.mgrid[0:40, 0:60]
+    bump = (abs(a - 20) <= 4) & (abs(b - 10) <= 4)
+    plain = (a >= 5) & (a < 25) & (b >= 5) & (b < 22)
+    plain[15, 12] = False  # (the angle test's cell itself: not NORMAL)
+    assert got[plain & ~bump].all() and not got[bump].any()
+    assert got[3:26, 36].all() and not got[:, 37:].any()  # column 37's window reaches column 41
+    assert not got[10:30, 45:56].any() and not got[20, 10]
+    assert not got[31:37, 4:10].any() and not got[:R].any()  # the 2 x 2 block, the border
+    # a detection on a noise-free scan: the core and the reference agree on every label, and
+    # the quiet cells change nothing (the reference judging every cell gives the same)
+    from miem.simulate import make_scan
+    scan = make_scan((90, 100), step=0.2, surface="tilted", noise=0.0, seed=3,
+                     defects={"spike": 2, "pit": 2, "dust": 1, "cluster": 1}, dropout=0.002)
+    kw = {"z_resolution": None, "z_noise": None}  # no floor (min_step "auto" finds none)
+    oracle = ref.detect(scan.points, **kw)
+    assert oracle.params["min_step"] is None
+    for nt in (1, 2):
+        np.testing.assert_array_equal(miem.detect(scan.points, num_threads=nt, **kw).labels,
+                                      oracle.labels)
+    truth = scan.truth == miem.ABNORMAL
+    assert (oracle.labels[truth] == miem.ABNORMAL).all() and truth.sum() > 0
+    before = miem.detect(scan.points, edge_tolerance=None, **kw).labels
+    every = ref.edge_test(scan.points, before, window=15, tolerance=4.0, max_iterations=10)[0]
+    np.testing.assert_array_equal(every, oracle.labels)
+    # and the quiet cells are most of them: the core's stream judges the others only
+    removed = (before == miem.ABNORMAL) & (miem.detect(
+        scan.points, height_tolerance=None, edge_tolerance=None, **kw).labels != miem.ABNORMAL)
+    assert ref._quiet_cells(scan.points, before, 7, 21, 0.0, removed).mean() > 0.5
 
 
 def test_core_judges_what_the_reference_judges() -> None:

@@ -60,7 +60,7 @@ void mark_compact_edges(const std::uint8_t* labels, std::ptrdiff_t H, std::ptrdi
 
 // The height passes' verdict (height_verdict) on a whole row segment of wanted cells wrow[j]
 // from row_solve's fits (RowFits, not compact): kHFresh, kHMark where too far, kHQuiet where
-// the plane is quiet (quiet_plane with `quiet_floor`: the first pass; 0 after it) and the
+// the plane is quiet (quiet_plane with `quiet_floor`: the first pass; -1 after it) and the
 // height when `height` is not null. Straight-line code (vectorised).
 MIEM_CLONES void height_row(std::ptrdiff_t n, const std::uint8_t* __restrict wrow,
                             const double* __restrict S, const double* __restrict F,
@@ -123,9 +123,9 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
   std::vector<std::vector<std::int64_t>> parts;  // per thread: new ABNORMAL cells of a pass
   // the edge test's quiet cells (SPEC "Edge test" step 1) by the first pass's planes (a cell
   // whose window loses a cell later is marked kHStale)
-  const double floor1 = p.edge_test() ? edge_tol(p).floor : 0.0;
+  const double floor1 = p.edge_test() ? edge_tol(p).floor : -1.0;  // (< 0: none quiet)
   for (int hp = 0; hp < p.max_iterations; ++hp) {
-    const double quiet_floor = hp == 0 ? floor1 : 0.0;
+    const double quiet_floor = hp == 0 ? floor1 : -1.0;
     auto visit = [&](std::ptrdiff_t i, const WindowFit& f) {
       if (height) height[i] = f.ok ? f.height : kNaN;
       std::uint8_t b = static_cast<std::uint8_t>(hm[i] | kHFresh);

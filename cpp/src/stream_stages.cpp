@@ -52,7 +52,7 @@ constexpr std::uint8_t pass_class(std::uint8_t b, std::uint8_t hs, int pass, boo
 }
 
 // Height pass 1 on a row span of n cells from row_solve's fits (RowFits, not compact): the
-// height of each wanted cell (w[j] != 0; NaN without a plane), with quiet_floor > 0 kHQuiet
+// height of each wanted cell (w[j] != 0; NaN without a plane), with quiet_floor >= 0 kHQuiet
 // added to quiet[j] where a NORMAL cell's plane is quiet, and, with `test`, w[j] = 1 where
 // the cell is a candidate (NORMAL or compact EDGE, by its bits hm[j]) the verdict
 // (height_verdict) finds too far, else 0. Straight-line code (vectorised), as the batch's
@@ -71,7 +71,7 @@ MIEM_CLONES void pass1_verdicts(std::ptrdiff_t n, const std::uint8_t* __restrict
     const double h = okf[j] != 0 ? fh[j] : detail::kNaN;
     height[j] = w[j] != 0 ? h : height[j];
   }
-  if (quiet_floor > 0.0) {  // the edge test's quiet planes of the NORMAL cells (edge_quiet.hpp)
+  if (quiet_floor >= 0.0) {  // the edge test's quiet planes of the NORMAL cells (edge_quiet.hpp)
     for (std::ptrdiff_t j = 0; j < n; ++j) {
       const bool q = detail::quiet_plane(okf[j] != 0, fh[j], S[j], f0[j], f1[j], f2[j],
                                          quiet_floor);
@@ -334,8 +334,8 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
   const std::uint8_t* hm = hm_.data() + s * W;
   double* height = height_.data() + s * W;
   // the edge test's quiet planes (cleared at push; with the height test only)
-  const double quiet_floor = edge_ && htest_ ? detail::edge_tol(jparams_).floor : 0.0;
-  std::uint8_t* quiet = quiet_floor > 0.0 ? eplane_.data() + s * W : nullptr;
+  const double quiet_floor = edge_ && htest_ ? detail::edge_tol(jparams_).floor : -1.0;
+  std::uint8_t* quiet = quiet_floor >= 0.0 ? eplane_.data() + s * W : nullptr;
   // The strips split among the threads, each with its own scratch; a cell too far goes into
   // far_row_, and the removals (which mark the cells around, in other strips too) follow in
   // column order.
@@ -383,7 +383,7 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
       const std::ptrdiff_t c = tc0 + j;
       height[c] = f.ok ? f.height : detail::kNaN;
       far[j] = htest_ && (hm[c] & (kInPlane | kSCompact)) && detail::height_far(f, jparams_);
-      if (quiet_floor > 0.0 && (hm[c] & kInPlane) &&
+      if (quiet_floor >= 0.0 && (hm[c] & kInPlane) &&
           detail::quiet_plane(f.ok, f.height, f.n, f.l0, f.l1, f.l2, quiet_floor)) {
         quiet[c] |= detail::kHQuiet;  // (kHStale may be there: a removal above)
       }

@@ -1128,12 +1128,13 @@ def _quiet_cells(
     INVALID or ABNORMAL (no sub-window of step 3 is empty or short of support), no
     ``removed`` cell lies within ``window // 2``, and its
     height-window plane (the NORMAL cells of its window, itself included, as the height test
-    fits them) has ``rms = sqrt(max(l0, 0) / n) <= _EDGE_QUIET_ROUGH * floor`` with the cell
-    within ``_EDGE_QUIET_H * rms`` of it, or within the height test's round-off floor
-    ``1e-6 sqrt((l1 + l2) / n)``. None when ``floor`` is 0."""
+    fits them) is smooth, ``rms = sqrt(max(l0, 0) / n) <= _EDGE_QUIET_ROUGH * floor`` or flat
+    to round-off (``l0 <= _EDGE_QUIET_FLAT * l2``: a noise-free plane, whose ``floor`` is often
+    0), with the cell within ``_EDGE_QUIET_H * rms`` of it, or within the height test's
+    round-off floor ``1e-6 sqrt((l1 + l2) / n)``."""
     hh, ww = labels.shape
     normal = labels == NORMAL
-    if floor <= 0.0 or hh <= 2 * r or ww <= 2 * r:
+    if hh <= 2 * r or ww <= 2 * r:
         return np.zeros_like(normal)
     side = 2 * r + 1
     cand = normal & (_box_count(labels == EDGE, side) == 0)
@@ -1148,7 +1149,9 @@ def _quiet_cells(
     h2n = height * height * n
     with np.errstate(invalid="ignore"):
         near = (h2n <= _EDGE_QUIET_H ** 2 * l0) | (h2n <= 1e-12 * (evals[..., 1] + evals[..., 2]))
-        return cand & np.isfinite(height) & (l0 <= (_EDGE_QUIET_ROUGH * floor) ** 2 * n) & near
+        smooth = (l0 <= (_EDGE_QUIET_ROUGH * floor) ** 2 * n) | \
+            (evals[..., 0] <= _EDGE_QUIET_FLAT * evals[..., 2])
+        return cand & np.isfinite(height) & smooth & near
 
 
 def _side_sums(s: NDArray[np.float64], rr: NDArray[np.intp], cc: NDArray[np.intp], r: int,
@@ -1216,6 +1219,9 @@ def _side_fits(
 #: window's plane, whose rms is at most _EDGE_QUIET_ROUGH times the tolerance floor.
 _EDGE_QUIET_H = 4.0
 _EDGE_QUIET_ROUGH = 0.75
+#: ... or flat to round-off: its smallest eigenvalue at most this times its largest (step 3's
+#: rms of 0).
+_EDGE_QUIET_FLAT = 1e-12
 
 #: The edge test's tiles (SPEC "Edge test" step 3): rows x columns, fixed in grid coordinates.
 _EDGE_TILE = (64, 128)
