@@ -111,30 +111,39 @@ MIEM_CLONES void side_lows(std::ptrdiff_t m, std::ptrdiff_t cap, double n_min,
 // scalar redo so that both give the same bits.
 inline __attribute__((always_inline)) void side_plane(
     bool use, bool solved, double l0, double l1, double l2, double nx, double ny, double nz,
-    double nn, double cx, double cy, double cz, double px, double py, double pz, EdgeTol et,
-    double& valid, double& h, double& rms, double& tol, double& ox, double& oy,
+    double nn, double cx, double cy, double cz, double px, double py, double pz, double k,
+    double floor_p, double& valid, double& h, double& rms, double& tol, double& ox, double& oy,
     double& oz) {
   valid = use & solved & (l2 > 0.0) & !(l1 <= kRankTol * l2) ? 1.0 : 0.0;
   const double sg = orient_sign(nx, ny, nz);
   ox = nx * sg, oy = ny * sg, oz = nz * sg;  // orient_normal
   h = ((px - cx) * ox + (py - cy) * oy) + (pz - cz) * oz;  // dot3(pt - centroid, normal)
   rms = edge_side_rms(l0, l2, nn);
-  const double round_off = kRoundOff * std::sqrt((l1 + l2) / nn), kr = et.k * rms;
-  const double floor = round_off < et.floor ? et.floor : round_off;
-  tol = kr < floor ? floor : kr;  // std::max(k rms, round-off floor, et.floor)
+  const double round_off = kRoundOff * std::sqrt((l1 + l2) / nn), kr = k * rms;
+  const double floor = round_off < floor_p ? floor_p : round_off;
+  tol = kr < floor ? floor : kr;  // std::max(k rms, round-off floor, the cell's floor)
 }
 
-// side_plane for m sides (SoA; P: the cell of each side, relative to the origin). Vectorised.
-MIEM_CLONES void side_planes(std::ptrdiff_t m, std::ptrdiff_t cap, EdgeTol et,
+// The floor of cell p's tolerance (p as given, not relative to the origin): et.floor, or its
+// precision floor et.prec x max(|x|, |y|, |z|) when larger (SPEC "Edge test" step 3).
+inline double cell_floor(const Eigen::Vector3d& p, EdgeTol et) {
+  const double pf = et.prec * p.cwiseAbs().maxCoeff();
+  return pf > et.floor ? pf : et.floor;
+}
+
+// side_plane for m sides (SoA; P: the cell of each side, relative to the origin, FL its
+// floor, cell_floor). Vectorised.
+MIEM_CLONES void side_planes(std::ptrdiff_t m, std::ptrdiff_t cap, double k,
                              const double* __restrict useb, const double* __restrict okb,
                              const double* __restrict Eb, const double* __restrict nnb,
                              const double* __restrict ceb, const double* __restrict P,
-                             double* __restrict validb, double* __restrict F) {
+                             const double* __restrict FL, double* __restrict validb,
+                             double* __restrict F) {
 #pragma GCC ivdep
   for (std::ptrdiff_t e = 0; e < m; ++e) {
     side_plane(useb[e] != 0.0, okb[e] != 0.0, Eb[e], Eb[cap + e], Eb[2 * cap + e],
                Eb[3 * cap + e], Eb[4 * cap + e], Eb[5 * cap + e], nnb[e], ceb[e], ceb[cap + e],
-               ceb[2 * cap + e], P[e], P[cap + e], P[2 * cap + e], et, validb[e], F[e],
+               ceb[2 * cap + e], P[e], P[cap + e], P[2 * cap + e], k, FL[e], validb[e], F[e],
                F[cap + e], F[2 * cap + e], F[3 * cap + e], F[4 * cap + e], F[5 * cap + e]);
   }
 }
@@ -841,6 +850,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
   // F: h, rms, tol, oriented normal; P: the cells per side (filled for the full path only),
   // Pc: the cells (relative to the origin, q * kChunk + j)
   double F[6 * kCap], P[3 * kCap], Pc[3 * kChunk];
+  double FL[kCap], FLc[kChunk];  // the cells' tolerance floors (cell_floor): per side, per cell
   // flags as doubles (1 or 0): 8-byte lanes throughout, so the vector loops run 8 (or 4) lanes
   // at a time, not 32 (a byte store per lane made GCC pick 32 and run chunks of 16 scalar)
   double okb[kCap], redob[kCap], useb[kCap], emptyb[kCap], validb[kCap];
@@ -951,8 +961,9 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
     cc = ib < nb ? bcand[ib] : bend;
     if (m == 0) continue;
     for (int j = 0; j < m; ++j) {
-      const Eigen::Vector3d pt = g(grow, cols[j]) - o;
+      const Eigen::Vector3d pa = g(grow, cols[j]), pt = pa - o;
       Pc[j] = pt.x(), Pc[kChunk + j] = pt.y(), Pc[2 * kChunk + j] = pt.z();
+      FLc[j] = cell_floor(pa, et);
     }
     // no clipping: all corners inside the images; then the sums of the span cols[0] ..
     // cols[m - 1] are contiguous (run: the cells are the span; else up to kSpan columns summed
@@ -1049,7 +1060,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       }
       side_moments(m, kChunk, n_min, mm1, nn1, ce1, M1, use1, empty1);
       smallest_eigenpairs_long(m, kChunk, M1, E1, ok1, redo1);
-      side_planes(m, kChunk, et, use1, ok1, E1, nn1, ce1, Pc, valid1, F1);
+      side_planes(m, kChunk, et.k, use1, ok1, E1, nn1, ce1, Pc, FLc, valid1, F1);
       double fits[kChunk];
       fits_clean_side(m, kChunk, redo1, valid1, empty1, low1, F1, fits);
       // a cell that fits may be a lip across a convex feature (crossing_lip) when one of its
@@ -1141,15 +1152,16 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
           }
         }
       }
-      for (int s = 0; s < 8; ++s) {  // the kept cells' points, one per side
+      for (int s = 0; s < 8; ++s) {  // the kept cells' points and floors, one per side
         for (int f = 0; f < m; ++f) {
           for (int q = 0; q < 3; ++q) P[q * kCap + s * m + f] = Pc[q * kChunk + keep[f]];
+          FL[s * m + f] = FLc[keep[f]];
         }
       }
       const int ms = 8 * m;
       side_moments(ms, kCap, n_min, mm, nnb, ceb, Mb, useb, emptyb);
       smallest_eigenpairs_long(ms, kCap, Mb, Eb, okb, redob);
-      side_planes(ms, kCap, et, useb, okb, Eb, nnb, ceb, P, validb, F);
+      side_planes(ms, kCap, et.k, useb, okb, Eb, nnb, ceb, P, FL, validb, F);
       for (int e = 0; e < ms; ++e) {
         if (!redob[e] || !useb[e]) continue;  // Newton needs more steps: the scalar routine
         Eigen::Matrix3d M;
@@ -1163,8 +1175,8 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
         Eigen::Vector3d nv = Eigen::Vector3d::Zero();
         const bool solved = smallest_eigenpair(M, &l0, &l1, &l2, &nv);
         side_plane(true, solved, l0, l1, l2, nv.x(), nv.y(), nv.z(), nnb[e], ceb[e],
-                   ceb[kCap + e], ceb[2 * kCap + e], P[e], P[kCap + e], P[2 * kCap + e], et,
-                   validb[e], F[e], F[kCap + e], F[2 * kCap + e], F[3 * kCap + e],
+                   ceb[kCap + e], ceb[2 * kCap + e], P[e], P[kCap + e], P[2 * kCap + e], et.k,
+                   FL[e], validb[e], F[e], F[kCap + e], F[2 * kCap + e], F[3 * kCap + e],
                    F[4 * kCap + e], F[5 * kCap + e]);
       }
       for (int j = 0; j < m; ++j) {
@@ -1460,7 +1472,8 @@ int edge_stage(const GridView<T>& g, const DetectParams& p, std::uint8_t* labels
     for (std::size_t i = 0; i < N; ++i) ws.cls[i] = labels[i] == kEdge ? kLine : 0;
   }
   // the quiet cells' planes: the height test's first pass (none without it)
-  return edge_passes(g, labels, p.edge_window, edge_tol(p), p.max_iterations, p.num_threads,
+  return edge_passes(g, labels, p.edge_window, edge_tol(p, edge_precision<T>()),
+                     p.max_iterations, p.num_threads,
                      ws.edge_sums, ws.edge_flags, ws.cls.data(),
                      height_test ? ws.hmask.data() : nullptr);
 }

@@ -19,16 +19,29 @@ namespace miem::detail {
 /// round-off floor, `floor`), `floor` the largest of min_step / 2 when a min_step is in use
 /// (given, or "auto" resolved to one: twice the z noise it measured), 2 z_noise and
 /// z_floor(z_resolution).
+/// `prec`: the input's precision, relative (kEdgePrecision x its type's epsilon): a side's t is
+/// also at least prec x the largest absolute coordinate of the cell (as given), so that the
+/// rounding of float32 coordinates (a noise-free face: no other floor) is not read as a burr.
 struct EdgeTol {
   double k;
   double floor;
+  double prec = 0.0;
 };
 
+/// SPEC "Edge test" step 3's precision floor: this many machine epsilons of the input type.
+constexpr double kEdgePrecision = 4.0;
+template <typename T>
+constexpr double edge_precision() noexcept {
+  return kEdgePrecision * static_cast<double>(std::numeric_limits<T>::epsilon());
+}
+
 /// The tolerance of `p` (its edge_k; its min_step, z_resolution and z_noise resolved, not
-/// "auto": the ones in use, < 0 off).
-inline EdgeTol edge_tol(const DetectParams& p) noexcept {
-  return {p.edge_k, std::max({p.min_step > 0.0 ? 0.5 * p.min_step : 0.0,
-                              p.z_noise > 0.0 ? 2.0 * p.z_noise : 0.0, z_floor(p.z_resolution)})};
+/// "auto": the ones in use, < 0 off) for input of precision `prec` (edge_precision).
+inline EdgeTol edge_tol(const DetectParams& p, double prec = 0.0) noexcept {
+  return {p.edge_k,
+          std::max({p.min_step > 0.0 ? 0.5 * p.min_step : 0.0,
+                    p.z_noise > 0.0 ? 2.0 * p.z_noise : 0.0, z_floor(p.z_resolution)}),
+          prec};
 }
 
 /// A sub-window with at least this many INVALID cells has no return there (*empty*), and a

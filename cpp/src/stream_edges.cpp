@@ -247,7 +247,8 @@ void ProfileStream<T>::edge_row(std::int64_t row, int pass) noexcept {
   const std::ptrdiff_t bn = static_cast<std::ptrdiff_t>((band + 1) % ebands_);
   // Work item i on thread `tid`: the verdicts of tile column tiles[i] (i < n_tiles), else the
   // next band's images of tile column i - n_tiles.
-  const detail::EdgeTol et = detail::edge_tol(jparams_);  // min_step etc. as decided
+  // min_step etc. as decided, and the precision of T
+  const detail::EdgeTol et = detail::edge_tol(jparams_, detail::edge_precision<T>());
   const auto tile = [&](std::ptrdiff_t i, int tid) {
     std::uint8_t* labs = elab_img_.data() + tid * W;
     if (i >= n_tiles) {

@@ -1223,6 +1223,11 @@ _EDGE_QUIET_ROUGH = 0.75
 #: rms of 0).
 _EDGE_QUIET_FLAT = 1e-12
 
+#: The edge test's precision floor (SPEC "Edge test" step 3): every tolerance is at least this
+#: many epsilons of the input type times the cell's largest absolute coordinate.
+_EDGE_PRECISION = 4.0
+_EDGE_PRECISION_F64 = _EDGE_PRECISION * float(np.finfo(np.float64).eps)  # (float64 input)
+
 #: The edge test's tiles (SPEC "Edge test" step 3): rows x columns, fixed in grid coordinates.
 _EDGE_TILE = (64, 128)
 
@@ -1823,13 +1828,15 @@ def _edge_pass(
     window: int,
     k: float,
     floor: float = 0.0,
+    precision: float = 0.0,
 ) -> NDArray[np.bool_]:
     """One edge pass (SPEC "Edge test"): the candidate cells that become ABNORMAL, tile by
     tile (each tile's sums over the tile and ``r`` cells around it, from its own origin);
-    ``floor`` the least tolerance (``min_step / 2``, ``1.5 z_resolution``: step 3)."""
+    ``floor`` the least tolerance (``min_step / 2``, ``1.5 z_resolution``: step 3), and
+    ``precision`` times the cell's largest absolute coordinate."""
     cells = candidates & ((labels == NORMAL) | (labels == EDGE))
     return _tiled(grid, labels, cells, window, lambda g, lab, sel, r, origin: _edge_verdicts(
-        g, lab, sel, r, k, origin, floor))
+        g, lab, sel, r, k, origin, floor, precision=precision))
 
 
 def _tiled(
@@ -1887,16 +1894,19 @@ def _edge_verdicts(
     origin: NDArray[np.float64],
     floor: float = 0.0,
     fits_only: bool = False,
+    precision: float = 0.0,
 ) -> NDArray[np.bool_]:
     """Steps 4-7 of the edge test for the cells of ``cells`` (sums relative to ``origin``;
-    ``floor``: the least tolerance, step 3); with ``fits_only``, step 9's verdict instead: the
-    cells that fit a clean sub-window that is not empty."""
+    ``floor``: the least tolerance, step 3, and ``precision`` times the cell's largest absolute
+    coordinate); with ``fits_only``, step 9's verdict instead: the cells that fit a clean
+    sub-window that is not empty."""
     out = np.zeros_like(cells)
     support, invalid = labels == NORMAL, labels == INVALID
     images = _moment_images(grid, support, invalid, origin)  # the pass's, for step 3
     h, rms, spread, valid, nrm, cen, empty = _side_fits(
         grid, support, invalid, cells, r, origin, images)
     level, clean, tol = _clean_sides(rms, spread, valid, nrm, k, floor)
+    tol = np.maximum(tol, precision * np.abs(grid[cells]).max(axis=-1))  # (as given)
     fits = clean & ~(np.abs(h) > tol)
     if fits_only:
         out[cells] = (fits & ~empty).any(axis=0)
@@ -1961,17 +1971,20 @@ def edge_test(
     z_noise: float | None = None,
     height_window: int | None = None,
     height_removed: NDArray[np.bool_] | None = None,
+    precision: float = _EDGE_PRECISION_F64,
 ) -> tuple[NDArray[np.uint8], int]:
     """Edge passes on top of the angle and height passes (SPEC "Edge test").
 
     ``labels`` (H, W) are those after the height passes; ``height_window`` the height test's
     window when it ran and ``height_removed`` the cells its passes made ABNORMAL (pass 1 leaves
-    out the quiet cells, step 1; None: no cell is quiet);
-    ``min_step``, ``z_resolution`` and
+    out the quiet cells, step 1; None: no cell is quiet); ``min_step``, ``z_resolution`` and
     ``z_noise`` the ones in use (None: off; no sub-window's tolerance is below ``min_step / 2``,
-    ``1.5 z_resolution`` or ``2 z_noise``, step 3); ``lines`` the feature-line EDGE cells (step 9: the ABNORMAL
-    cells beside them that fit a clean side with a return become EDGE before pass 1; None:
-    no such step); returns the new labels and the number of edge passes run.
+    ``1.5 z_resolution`` or ``2 z_noise``, step 3); ``lines`` the feature-line EDGE cells
+    (step 9: the ABNORMAL cells beside them that fit a clean side with a return become EDGE
+    before pass 1; None: no such step); ``precision`` the input's (step 3: every tolerance at
+    least ``precision`` times the cell's largest absolute coordinate: ``_EDGE_PRECISION``
+    epsilons of the input type, float64's by default, as :func:`detect` gives them); returns
+    the new labels and the number of edge passes run.
     """
     floor = max(0.5 * min_step if min_step is not None and min_step > 0 else 0.0,
                 _Z_RESOLUTION_FACTOR * z_resolution
@@ -1984,7 +1997,8 @@ def edge_test(
             near = _box_count(lines, 3) > 0
             back = _tiled(grid, labels, near & (labels == ABNORMAL), window,
                           lambda g, lab, sel, r, origin: _edge_verdicts(
-                              g, lab, sel, r, tolerance, origin, floor, fits_only=True))
+                              g, lab, sel, r, tolerance, origin, floor, fits_only=True,
+                              precision=precision))
             labels[back] = EDGE
         todo = (labels == NORMAL) | (labels == EDGE)
         if height_window is not None:
@@ -1993,7 +2007,7 @@ def edge_test(
             todo &= ~_quiet_cells(grid, labels, window // 2, height_window, floor, removed)
         for _ in range(max_iterations):
             passes += 1
-            new = _edge_pass(grid, labels, todo, window, tolerance, floor)
+            new = _edge_pass(grid, labels, todo, window, tolerance, floor, precision)
             labels[new] = ABNORMAL
             if not new.any():
                 break
@@ -2262,6 +2276,10 @@ def detect(
     if arr.ndim != 3 or arr.shape[2] != 3:
         raise ValueError(f"grid: expected shape (H, W, 3), got {arr.shape}")
     g = np.array(arr, dtype=np.float64, copy=True)
+    # the input's precision (SPEC "Edge test" step 3): float32 coordinates are rounded to its
+    # epsilon, anything else is computed (and compared) in float64
+    precision = _EDGE_PRECISION * float(np.finfo(
+        np.float32 if arr.dtype == np.float32 else np.float64).eps)
     finite = np.all(np.isfinite(g), axis=2)
     if int(finite.sum()) < 3:
         raise ValueError(f"grid: need at least 3 finite points, got {int(finite.sum())}")
@@ -2331,7 +2349,7 @@ def detect(
             lines &= ~_compact_edges(lines, extent, bridge, gap)
         labels, edge_passes = edge_test(g, labels, window=edge_win, tolerance=float(edge_k),
                                         max_iterations=iters, min_step=step, z_resolution=zres,
-                                        z_noise=noise, lines=lines,
+                                        z_noise=noise, lines=lines, precision=precision,
                                         height_window=win if tolerance is not None else None,
                                         height_removed=(labels == ABNORMAL) & ~angle_abnormal
                                         if tolerance is not None else None)
