@@ -105,16 +105,16 @@ inline int bisector(int s) { return (s % 8 + 1 + s / 8) % 8; }
 enum class SectorVerdict { kFits, kProud, kOther };
 
 // SPEC step 3's numbers of a sector's plane: h = u . (P - centroid) (the plane's mean is the
-// centroid's offset from P), rms (0 for an exactly flat support), the tolerance's floor and
-// t = max(k rms, floor).
+// centroid's offset from P), rms (0 for an exactly flat support), the tolerance's floor (its
+// round-off floor, or P's precision floor `pfloor` when larger) and t = max(k rms, floor).
 struct SectorFit {
   double h, rms, floor, tol;
 };
-inline SectorFit sector_fit(const LocalPlane& lp, double k) {
+inline SectorFit sector_fit(const LocalPlane& lp, double k, double pfloor) {
   const double n = static_cast<double>(lp.n);
   const Eigen::Vector3d& ev = lp.eigenvalues;
   const double rms = detail::edge_side_rms(ev(0), ev(2), n);
-  const double floor = kRmsFloor * std::sqrt((ev(1) + ev(2)) / n);
+  const double floor = std::max(kRmsFloor * std::sqrt((ev(1) + ev(2)) / n), pfloor);
   return {-lp.normal.dot(lp.mean), rms, floor, std::max(k * rms, floor)};
 }
 
@@ -378,8 +378,8 @@ bool is_lip(const Selection& ball, const std::uint8_t* labels, const Frame& f,
 // every clean sector's plane; `*veto_out` (when given): this scale's level_vetoes; `veto_in`:
 // the narrow scale's, at the wide one (SPEC step 7).
 bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const Frame& f,
-                      const CloudEdgeTest& e, bool* level = nullptr, unsigned veto_in = 0,
-                      unsigned* veto_out = nullptr) {
+                      const CloudEdgeTest& e, double pfloor, bool* level = nullptr,
+                      unsigned veto_in = 0, unsigned* veto_out = nullptr) {
   OffsetSums oct[8];
   double fin[8] = {};
 #ifdef __SSE2__
@@ -445,7 +445,7 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
     valid[s] = sums[s].n >= std::max(3.0, half) &&
                plane_of(sums[s], &lp[s], support(s)) == PlaneStatus::kOk;
     if (!valid[s]) continue;
-    const SectorFit x = sector_fit(lp[s], e.k);
+    const SectorFit x = sector_fit(lp[s], e.k, pfloor);
     h[s] = x.h;
     rms[s] = x.rms;
     floor[s] = x.floor;
@@ -462,7 +462,7 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
     if (!gone[s] || !valid[o] || sums[s].n < 3.0) continue;
     LocalPlane face;
     if (plane_of(sums[s], &face, support(s)) != PlaneStatus::kOk) continue;
-    const SectorFit x = sector_fit(face, e.k);
+    const SectorFit x = sector_fit(face, e.k, pfloor);
     if (x.rms <= kFaceClean * best && !(std::abs(x.h) > x.tol) &&
         std::abs(face.normal.dot(lp[o].normal)) < kFaceCos) {
       gone[s] = false;
@@ -558,8 +558,9 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
         }
       }
       if (framed[c] >> s & 1u) {
-        flag = s == 0 ? cloud_edge_judge(js.sel, labels, f, e, &level, 0, &veto)
-                      : cloud_edge_judge(js.wide, labels, f, wide, nullptr, veto);
+        const double pfloor = e.prec * p.cwiseAbs().maxCoeff();  // (P as given)
+        flag = s == 0 ? cloud_edge_judge(js.sel, labels, f, e, pfloor, &level, 0, &veto)
+                      : cloud_edge_judge(js.wide, labels, f, wide, pfloor, nullptr, veto);
       }
     }
     return flag;

@@ -77,6 +77,9 @@ struct CloudEdgeTest {
   double gap = 0.0;      ///< sector members lie at least this far from the point in the tangent plane
   int max_iterations = 1;
   bool hanging = true;   ///< step 5's hanging rule (the wide scale's sectors do without it)
+  /// the input's precision, relative (detail::edge_precision of its type): every tolerance is
+  /// at least this times P's largest absolute coordinate (SPEC step 3)
+  double prec = 0.0;
   /// Not NaN: the median of the candidates' rms given by the caller (the whole cloud's, when
   /// this run sees part of it: PointsDetectHooks); NaN: the median of `*first_rms`.
   double rms_median = kNaN;

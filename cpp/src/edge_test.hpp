@@ -16,24 +16,17 @@
 namespace miem::detail {
 
 /// The edge test's tolerance (SPEC "Edge test", step 3): a sub-window's t = max(k x rms,
-/// round-off floor, `floor`), `floor` the largest of min_step / 2 when a min_step is in use
-/// (given, or "auto" resolved to one: twice the z noise it measured), 2 z_noise and
-/// z_floor(z_resolution).
-/// `prec`: the input's precision, relative (kEdgePrecision x its type's epsilon): a side's t is
-/// also at least prec x the largest absolute coordinate of the cell (as given), so that the
-/// rounding of float32 coordinates (a noise-free face: no other floor) is not read as a burr.
+/// round-off floor, `floor`, prec x |P|), `floor` the largest of min_step / 2 when a min_step
+/// is in use (given, or "auto" resolved to one: twice the z noise it measured), 2 z_noise and
+/// z_floor(z_resolution); `prec` the input's precision, relative (edge_precision in
+/// edge_verdict.hpp: 4 epsilons of its type) and |P| the cell's largest absolute coordinate as
+/// given, so that the rounding of float32 coordinates (a noise-free face: no other floor) is
+/// not read as a burr.
 struct EdgeTol {
   double k;
   double floor;
   double prec = 0.0;
 };
-
-/// SPEC "Edge test" step 3's precision floor: this many machine epsilons of the input type.
-constexpr double kEdgePrecision = 4.0;
-template <typename T>
-constexpr double edge_precision() noexcept {
-  return kEdgePrecision * static_cast<double>(std::numeric_limits<T>::epsilon());
-}
 
 /// The tolerance of `p` (its edge_k; its min_step, z_resolution and z_noise resolved, not
 /// "auto": the ones in use, < 0 off) for input of precision `prec` (edge_precision).

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <cmath>
+#include <limits>
 
 #include <Eigen/Core>
 
@@ -18,6 +19,15 @@ constexpr double kEdgeCleanRatio = 2.0;
 /// test" step 3, "Unorganized clouds: edge test" step 3): its l0 is round-off (an exactly flat
 /// support: a noise-free plane, 3 points), so `best` and *clean* do not compare specks of it.
 constexpr double kEdgeFlatL0 = 1e-12;
+
+/// The precision floor (SPEC "Edge test" step 3, "Unorganized clouds: edge test" step 3): every
+/// tolerance is at least this many machine epsilons of the input type times P's largest
+/// absolute coordinate, so that float32's rounding of a noise-free face is not read as a burr.
+constexpr double kEdgePrecision = 4.0;
+template <typename T>
+constexpr double edge_precision() noexcept {
+  return kEdgePrecision * static_cast<double>(std::numeric_limits<T>::epsilon());
+}
 
 /// A side's rms from the eigenvalues l0 <= l2 of its n-point support (kEdgeFlatL0).
 inline __attribute__((always_inline)) double edge_side_rms(double l0, double l2, double n) {

@@ -21,6 +21,7 @@
 
 #include "edge_quiet.hpp"
 #include "edge_test.hpp"
+#include "edge_verdict.hpp"
 #include "stages.hpp"
 #include "miem/stream.hpp"
 #include "parallel.hpp"

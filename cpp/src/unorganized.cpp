@@ -17,6 +17,7 @@
 #include "cloud_kernels.hpp"
 #include "cloud_stages.hpp"
 #include "duplicates.hpp"
+#include "edge_verdict.hpp"
 #include "defects.hpp"
 #include "miem/neighbor_grid.hpp"
 #include "parallel.hpp"
@@ -376,6 +377,7 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
     et.gap = min_step;
     et.max_iterations = p.max_iterations;
     et.rms_median = hooks.edge_rms_median;
+    et.prec = detail::edge_precision<T>();
     std::vector<std::uint32_t> unnormal;
     iterations += cloud_edge_passes(grid, points, labels, &first_rms, et, scratch,
                                     p.num_threads, have.empty() ? nullptr : &unnormal);

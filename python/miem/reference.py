@@ -2276,10 +2276,7 @@ def detect(
     if arr.ndim != 3 or arr.shape[2] != 3:
         raise ValueError(f"grid: expected shape (H, W, 3), got {arr.shape}")
     g = np.array(arr, dtype=np.float64, copy=True)
-    # the input's precision (SPEC "Edge test" step 3): float32 coordinates are rounded to its
-    # epsilon, anything else is computed (and compared) in float64
-    precision = _EDGE_PRECISION * float(np.finfo(
-        np.float32 if arr.dtype == np.float32 else np.float64).eps)
+    precision = _precision(arr)  # (SPEC "Edge test" step 3)
     finite = np.all(np.isfinite(g), axis=2)
     if int(finite.sum()) < 3:
         raise ValueError(f"grid: need at least 3 finite points, got {int(finite.sum())}")
@@ -2498,6 +2495,13 @@ def _check_length(name: str, value: Any, allow_zero: bool) -> float:
         rel = ">= 0" if allow_zero else "> 0"
         raise ValueError(f"{name}: expected a finite length {rel}, got {value!r}")
     return float(value)
+
+
+def _precision(arr: NDArray[Any]) -> float:
+    """SPEC "Edge test" step 3's relative precision of an input array: ``_EDGE_PRECISION``
+    epsilons of float32 for a float32 array, of float64 for any other (computed in float64)."""
+    return _EDGE_PRECISION * float(np.finfo(
+        np.float32 if arr.dtype == np.float32 else np.float64).eps)
 
 
 def _cloud_array(points: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
@@ -3037,6 +3041,7 @@ def _cloud_edge_pass(
     k: float,
     veto: NDArray[np.bool_] | None = None,
     hanging: bool = True,
+    precision: float = _EDGE_PRECISION_F64,
 ) -> tuple[NDArray[np.bool_], NDArray[np.bool_], NDArray[np.bool_]]:
     """One cloud edge pass at one scale: which of the points ``cand`` (tangent directions
     ``e1``, ``e2``) become ABNORMAL (SPEC steps 3-6: they stand proud of a clean sector and fit
@@ -3046,7 +3051,7 @@ def _cloud_edge_pass(
     per sector ``(M, 16)`` where the level rule *vetoes* an outline (step 7: the sector valid,
     its opposite empty, a clean neighbour of that at its level). ``veto``: the narrow scale's,
     for the wide one (no outline where it is set); ``hanging`` False: without step 5 (the wide
-    scale)."""
+    scale); ``precision``: step 3's precision floor, times P's largest absolute coordinate."""
     m = cand.size
     out = np.zeros(m, dtype=bool)
     if m == 0:
@@ -3087,7 +3092,10 @@ def _cloud_edge_pass(
     h = -np.einsum("ijk,ijk->ij", nrm, cen)  # u . (P - centroid), centroid = P + cen
     rms = _edge_rms(evals, n)
     spread = np.sqrt((evals[:, :, 1] + evals[:, :, 2]) / n)
-    tol = np.maximum(k * rms, _HEIGHT_RMS_FLOOR * spread)
+    # the floor: round-off, or P's precision floor when larger (step 3)
+    floor = np.maximum(_HEIGHT_RMS_FLOOR * spread,
+                       (precision * np.abs(pts[cand]).max(axis=1))[:, None])
+    tol = np.maximum(k * rms, floor)
     best = np.min(np.where(valid, rms, np.inf), axis=1)
     # a gone sector is in reach after all when its support (a plane: at least 3 points, rms at
     # most _CLOUD_FACE_CLEAN x best) runs through P (within its own tolerance) steeper than 45
@@ -3102,7 +3110,7 @@ def _cloud_edge_pass(
     # P fits a clean sector within the cleanest sector's tolerance (k best, floored as the
     # sector's own): a clean sector of larger rms (e.g. one holding part of the burr run itself)
     # does not lend P its wider tolerance.
-    fits = clean & ~(np.abs(h) > np.maximum(k * best[:, None], _HEIGHT_RMS_FLOOR * spread))
+    fits = clean & ~(np.abs(h) > np.maximum(k * best[:, None], floor))
     proud = np.zeros(m, dtype=bool)
     across = np.zeros(m, dtype=bool)  # stands proud and fits only sectors past the feature
     below = np.zeros((m, _CLOUD_SECTORS), dtype=bool)  # hanging, the first condition
@@ -3317,10 +3325,11 @@ def _cloud_edge_test(
     gap: float,
     k: float,
     iters: int,
+    precision: float = _EDGE_PRECISION_F64,
 ) -> int:
     """Edge passes (SPEC "Unorganized clouds: edge test") on ``labels`` in place, at the two
-    scales ``r_edge`` and ``_CLOUD_EDGE_WIDE * r_edge`` (step 7); returns the number of passes
-    run."""
+    scales ``r_edge`` and ``_CLOUD_EDGE_WIDE * r_edge`` (step 7); ``precision`` the input's
+    (step 3's precision floor); returns the number of passes run."""
     todo = suspect & ((labels == NORMAL) | (labels == EDGE))
     cand_all = np.flatnonzero(todo)
     scales = []  # per scale: its radius, its frames and each point's frame (-1: none)
@@ -3344,7 +3353,8 @@ def _cloud_edge_test(
             c = cand[(frame_of[cand] >= 0) & asked[cand]]
             f = frame_of[c]
             hit, level, vetoes = _cloud_edge_pass(tree, pts, labels, c, e1[f], e2[f], r_s, gap,
-                                                  k, veto[c] if scale else None, not scale)
+                                                  k, veto[c] if scale else None, not scale,
+                                                  precision)
             flag[c[hit]] = True
             asked[c[level]] = False
             veto[c] = vetoes
@@ -3485,6 +3495,7 @@ def detect_points(
         "isolated_tolerance", isolated_tolerance, allow_zero=False)
 
     p, finite = _cloud_array(points)
+    precision = _precision(_as_points_array("points", points))  # (edge test step 3)
     n_all = p.shape[0]
     all_rows = np.flatnonzero(finite).astype(np.int64)
     if all_rows.size < 3:
@@ -3571,7 +3582,7 @@ def detect_points(
             med = float(np.median(first_rms[fin])) if fin.any() else np.inf
             suspect = ~fin | (first_rms > _CLOUD_EDGE_SUSPECT * med)
             passes += _cloud_edge_test(tree, pts, labels, suspect, re_used, step, edge_k,
-                                       iters)
+                                       iters, precision)
             abnormal = labels == ABNORMAL
 
         plane = _eigen_plane(pts[~abnormal])
