@@ -1828,7 +1828,7 @@ def _edge_pass(
     window: int,
     k: float,
     floor: float = 0.0,
-    precision: float = 0.0,
+    precision: float = _EDGE_PRECISION_F64,
 ) -> NDArray[np.bool_]:
     """One edge pass (SPEC "Edge test"): the candidate cells that become ABNORMAL, tile by
     tile (each tile's sums over the tile and ``r`` cells around it, from its own origin);
@@ -1894,7 +1894,7 @@ def _edge_verdicts(
     origin: NDArray[np.float64],
     floor: float = 0.0,
     fits_only: bool = False,
-    precision: float = 0.0,
+    precision: float = _EDGE_PRECISION_F64,
 ) -> NDArray[np.bool_]:
     """Steps 4-7 of the edge test for the cells of ``cells`` (sums relative to ``origin``;
     ``floor``: the least tolerance, step 3, and ``precision`` times the cell's largest absolute
