@@ -545,6 +545,7 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
     Selection* ball[2] = {&js.sel, &js.wide};
     bool flag = false, level = false;
     unsigned veto = 0;
+    const double pfloor = e.prec * p.cwiseAbs().maxCoeff();  // (P as given)
     for (int s = 0; s < 2 && !flag && !level; ++s) {
       select_box(grid, grid.box_around(p, p, reach[s]), p, reach[s] * reach[s], *ball[s]);
       Frame& f = frame[2 * c + s];
@@ -558,7 +559,6 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
         }
       }
       if (framed[c] >> s & 1u) {
-        const double pfloor = e.prec * p.cwiseAbs().maxCoeff();  // (P as given)
         flag = s == 0 ? cloud_edge_judge(js.sel, labels, f, e, pfloor, &level, 0, &veto)
                       : cloud_edge_judge(js.wide, labels, f, wide, pfloor, nullptr, veto);
       }

@@ -18,6 +18,7 @@
 #include "miem/organized.hpp"
 #include "miem/plane.hpp"
 #include "auto_min_step.hpp"
+#include "edge_verdict.hpp"
 #include "miem/views.hpp"
 #include "window_fits.hpp"
 #include "z_resolution.hpp"
@@ -77,17 +78,17 @@ inline __attribute__((always_inline)) bool height_verdict(bool ok, double edges,
 /// SPEC "Edge test" step 1, a quiet cell's plane: its height-window plane (WindowFit's fields,
 /// from the height test's first pass) exists and is *smooth*: its rms = sqrt(max(l0, 0) / n) is
 /// at most kQuietRough x `floor` (the edge test's tolerance floor, >= 0), or it is flat to
-/// round-off (l0 <= 1e-12 l2, the edge test's rms of 0: a noise-free plane, whose floor is
+/// round-off (l0 <= kEdgeFlatL0 l2, the edge test's rms of 0: a noise-free plane, whose floor is
 /// often 0); and the cell lies within kQuietH rms of it, or within the round-off floor
 /// 1e-6 sqrt((l1 + l2) / n) of height_verdict (so that a noise-free surface is not decided by
 /// rounding). `floor` < 0: none is quiet (no edge test, or a later height pass). Branch-free.
-inline constexpr double kQuietH = 4.0, kQuietRough = 0.75, kQuietFlat = 1e-12;
+inline constexpr double kQuietH = 4.0, kQuietRough = 0.75;
 inline __attribute__((always_inline)) bool quiet_plane(bool ok, double height, double n,
                                                        double l0, double l1, double l2,
                                                        double floor) {
   const double h2n = height * height * n, l0p = std::max(l0, 0.0);
   return ok & (floor >= 0.0) &
-         ((l0p <= kQuietRough * kQuietRough * floor * floor * n) | (l0 <= kQuietFlat * l2)) &
+         ((l0p <= kQuietRough * kQuietRough * floor * floor * n) | (l0 <= kEdgeFlatL0 * l2)) &
          ((h2n <= kQuietH * kQuietH * l0p) | (h2n <= 1e-12 * (l1 + l2)));
 }
 

@@ -1129,7 +1129,7 @@ def _quiet_cells(
     ``removed`` cell lies within ``window // 2``, and its
     height-window plane (the NORMAL cells of its window, itself included, as the height test
     fits them) is smooth, ``rms = sqrt(max(l0, 0) / n) <= _EDGE_QUIET_ROUGH * floor`` or flat
-    to round-off (``l0 <= _EDGE_QUIET_FLAT * l2``: a noise-free plane, whose ``floor`` is often
+    to round-off (``l0 <= _FLAT_L0 * l2``, step 3's rms of 0: a noise-free plane, whose ``floor`` is often
     0), with the cell within ``_EDGE_QUIET_H * rms`` of it, or within the height test's
     round-off floor ``1e-6 sqrt((l1 + l2) / n)``."""
     hh, ww = labels.shape
@@ -1150,7 +1150,7 @@ def _quiet_cells(
     with np.errstate(invalid="ignore"):
         near = (h2n <= _EDGE_QUIET_H ** 2 * l0) | (h2n <= 1e-12 * (evals[..., 1] + evals[..., 2]))
         smooth = (l0 <= (_EDGE_QUIET_ROUGH * floor) ** 2 * n) | \
-            (evals[..., 0] <= _EDGE_QUIET_FLAT * evals[..., 2])
+            (evals[..., 0] <= _FLAT_L0 * evals[..., 2])
         return cand & np.isfinite(height) & smooth & near
 
 
@@ -1219,10 +1219,6 @@ def _side_fits(
 #: window's plane, whose rms is at most _EDGE_QUIET_ROUGH times the tolerance floor.
 _EDGE_QUIET_H = 4.0
 _EDGE_QUIET_ROUGH = 0.75
-#: ... or flat to round-off: its smallest eigenvalue at most this times its largest (step 3's
-#: rms of 0).
-_EDGE_QUIET_FLAT = 1e-12
-
 #: The edge test's precision floor (SPEC "Edge test" step 3): every tolerance is at least this
 #: many epsilons of the input type times the cell's largest absolute coordinate.
 _EDGE_PRECISION = 4.0
@@ -1873,12 +1869,13 @@ def _clean_sides(
     valid: NDArray[np.bool_],
     nrm: NDArray[np.float64],
     k: float,
-    floor: float = 0.0,
+    floor: float | NDArray[np.float64] = 0.0,
 ) -> tuple[NDArray[np.bool_], NDArray[np.bool_], NDArray[np.float64]]:
     """SPEC "Edge test" steps 3-4 on :func:`_side_fits`' results: which sub-windows are valid
     and not steep (``level``), which are *clean* (level, rms at most twice the best level
     one's) and each one's tolerance ``t`` (with its round-off floor, as the height test's, and
-    at least ``floor``: :func:`edge_test`'s from the min_step and z resolution in use)."""
+    at least ``floor``, one value or one per cell: :func:`edge_test`'s from the min_step and z
+    resolution in use and the cell's precision floor)."""
     level = valid & (nrm[..., 2] >= _EDGE_STEEP_COS)
     best = np.min(np.where(level, rms, np.inf), axis=0)
     clean = level & (rms <= _EDGE_CLEAN_RATIO * best)
@@ -1905,8 +1902,9 @@ def _edge_verdicts(
     images = _moment_images(grid, support, invalid, origin)  # the pass's, for step 3
     h, rms, spread, valid, nrm, cen, empty = _side_fits(
         grid, support, invalid, cells, r, origin, images)
-    level, clean, tol = _clean_sides(rms, spread, valid, nrm, k, floor)
-    tol = np.maximum(tol, precision * np.abs(grid[cells]).max(axis=-1))  # (as given)
+    # each cell's floor: the least tolerance, or its precision floor when larger (step 3)
+    cell_floor = np.maximum(floor, precision * np.abs(grid[cells]).max(axis=-1))
+    level, clean, tol = _clean_sides(rms, spread, valid, nrm, k, cell_floor)
     fits = clean & ~(np.abs(h) > tol)
     if fits_only:
         out[cells] = (fits & ~empty).any(axis=0)
