@@ -665,3 +665,36 @@ def test_bad_parameters(kwargs: dict, match: str) -> None:
     width = args.pop("width")
     with pytest.raises(ValueError, match=match):
         ProfileStream(width, **args)
+
+
+@pytest.mark.parametrize("num_threads", [1, 2])
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_stream_builds_a_band_late_where_pass_1_had_no_candidate(num_threads: int, dtype) -> None:
+    """Edge pass 1 builds a tile band's integral images ahead (over the 2 r rows before it) only
+    in the tile columns where it had a candidate within the last r rows; the others catch up
+    from the band's first image row when they first have one. Low bumps the height passes flag
+    (each makes the cells within h = 10 rows not quiet: candidates) sit where a tile column's
+    first candidate of a band comes before, inside and after that window, in four tile columns
+    of a smooth sheet: labels, heights and defects equal batch detection's."""
+    rng = np.random.default_rng(12)
+    h, w = 330, 400  # bands of 64 rows, tile columns of 128 (the last one 16 wide)
+    r_, c_ = np.mgrid[0:h, 0:w]
+    z = 0.001 * r_ + rng.normal(0.0, 0.003, (h, w))
+    k = 0
+    for band in (1, 2, 3, 4):
+        for t, off in enumerate((-16, -8, -2, 0, 3, 9)):  # first candidate row - band start
+            row = 64 * band + off + 10  # the bump's candidates reach 10 rows above it
+            col = 128 * (k % 3) + 20 + 17 * t
+            k += 1
+            z += 0.05 * np.exp(-((r_ - row) ** 2 + (c_ - col) ** 2) / 2.0)
+    g = np.stack([c_ * 0.05, r_ * 0.1, z], axis=-1).astype(dtype)
+    p = miem.default_params("stream")
+    want = miem.detect(g, params=p)
+    assert (want.labels == miem.ABNORMAL).sum() >= 20
+    stream = ProfileStream(w, params=p, num_threads=num_threads)
+    defects: list = []
+    got, heights = stream_both(stream, g, defects)
+    np.testing.assert_array_equal(got, want.labels)
+    assert_heights_equal(heights, want.height)
+    assert_same_defects(defects, want.defects, want.labels)
+    assert stream.edge_candidates == _not_quiet(np.asarray(g, dtype=np.float64), p, 0.5)

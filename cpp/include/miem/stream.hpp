@@ -438,6 +438,10 @@ class ProfileStream {
   std::vector<std::uint8_t> elab1_;
   std::int64_t elab1_next_ = 0;
   std::vector<std::ptrdiff_t> etile_list_;  // a pass's tile columns with a candidate
+  // Per tile column: the last row pass 1 had a candidate in it (-1: none), and a list of the
+  // tile columns whose next band pass 1 builds alongside (edge_row)
+  std::vector<std::int64_t> ehot_;
+  std::vector<std::ptrdiff_t> ehot_list_;
   // Defects (stream_defects.cpp): open groups as union-find slots over the cells of the last
   // row handed back; their cells in a pool of singly linked members.
   struct DefectSlot {
