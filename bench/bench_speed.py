@@ -382,6 +382,10 @@ def fmt_surfaces(rows: list[dict]) -> list[str]:
                  f"{r['height_test'] * 1e3:.1f} | {r['edge_test'] * 1e3:.1f} | "
                  f"{r['edge_test'] / r['run'] * 100:.0f} % | "
                  f"{r['run'] / plane[r['noise']]:.1f}x |")
+    import miem
+
+    grid = miem.DetectParams().grid  # the default's edge test: half-size r, tolerance k rms
+    r, k = grid.edge_window // 2, grid.edge_tolerance
     worst = max(rows, key=lambda r: r["run"] / plane[r["noise"]])
     curved = [r for r in rows if r["surface"] in ("curved", "shell")]
     hi = [f"`{r['surface']}` {r['run'] / plane[r['noise']]:.1f}x" for r in curved
@@ -394,11 +398,11 @@ def fmt_surfaces(rows: list[dict]) -> list[str]:
           "floor, and curvature makes that plane's rms exceed it, so every cell is judged. Its "
           "one-sided sub-window planes, fitted to a quadratic surface and extended to the cell "
           "at their border, miss it by a multiple of their rms that depends on the shape, not "
-          "on the radius; the least over the clean sides (15-cell sub-windows, noise-free): "
-          f"{quadric_fit(7, 1.0, 1.0):.2f} on a sphere's cap (z = x^2 + y^2), "
-          f"{quadric_fit(7, 1.0, 0.5):.2f} on the `curved` sheet (x^2 + y^2 / 2), "
-          f"{quadric_fit(7, 1.0, 0.0):.2f} on a cylinder, {quadric_fit(7, 1.0, -1.0):.2f} on "
-          "a saddle, against a tolerance of 4 rms. So on a bowl or a dome no clean side fits "
+          f"on the radius; the least over the clean sides ({2 * r + 1}-cell sub-windows, "
+          f"noise-free): {quadric_fit(r, 1.0, 1.0):.2f} on a sphere's cap (z = x^2 + y^2), "
+          f"{quadric_fit(r, 1.0, 0.5):.2f} on the `curved` sheet (x^2 + y^2 / 2), "
+          f"{quadric_fit(r, 1.0, 0.0):.2f} on a cylinder, {quadric_fit(r, 1.0, -1.0):.2f} on "
+          f"a saddle, against a tolerance of {k:g} rms. So on a bowl or a dome no clean side fits "
           "a cell (the judge's shortcut settles none): each pays the eight sub-window "
           "planes and the rules' walks (fins, "
           "lips, hanging cells). Noise of the order of the curvature's residual lets more "
