@@ -499,6 +499,59 @@ bool is_lip(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
   return false;
 }
 
+// SPEC "Edge test" step 4, smooth curved surface: P fits no clean side, its four quadrants
+// (sides 4-7) are valid, not empty, not steep, and bend as one quadratic surface z = 1/2 v'Av
+// (v = (x, y) - P) would: A from the differences of opposite quadrants' slopes at their
+// centroids (a quadrant's plane has the surface's slope at its centroid m: A (m_a - m_b) =
+// g_a - g_b for the pairs up-left/down-right and up-right/down-left; A symmetrised), each
+// quadrant's rms^2 (vertical) at least kCurvedBend times the residual variance such a surface
+// leaves about its plane (kCurvedLattice (A11^2 Sxx^2 + A22^2 Syy^2) + A12^2 Sxx Syy, S its
+// cells' (x, y) covariance: a lattice of cells, uniform along x and y) and at most kCurvedFit
+// times it plus floor^2 (nothing but the bend and noise: no burr run in the quadrant, whose
+// cells would lift its rms and tilt its slope), and P lies within
+// max(k sigma, floor) of where the surface puts it above every quadrant's plane,
+// 1/2 m'Am - 1/2 tr(AS) (sigma^2: the quadrants' mean rms^2 less that residual variance, the
+// noise; floor: the cell's tolerance floor). Then P lies on a smooth bowl, dome or saddle,
+// where the one-sided planes miss it by several of their rms whatever its curvature, and no
+// rule of steps 5-7 applies. The formulas are miem.reference._curved's.
+constexpr double kCurvedBend = 0.5, kCurvedFit = 1.25, kCurvedLattice = 0.2;
+inline bool on_curved_surface(const Side (&sd)[8], const double* const (&cov)[4],
+                              const Eigen::Vector3d& p, double k, double floor) {
+  double g[4][2], mq[4][2], hv[4], r2[4];
+  for (int q = 0; q < 4; ++q) {
+    const Side& x = sd[4 + q];
+    if (!x.valid || x.empty || x.steep) return false;
+    const double uz = x.normal.z();  // > 0: oriented, not steep
+    g[q][0] = -x.normal.x() / uz, g[q][1] = -x.normal.y() / uz;
+    mq[q][0] = x.centroid.x() - p.x(), mq[q][1] = x.centroid.y() - p.y();
+    hv[q] = x.h / uz;
+    r2[q] = (x.rms / uz) * (x.rms / uz);
+  }
+  const double d11 = mq[3][0] - mq[0][0], d21 = mq[3][1] - mq[0][1];
+  const double d12 = mq[2][0] - mq[1][0], d22 = mq[2][1] - mq[1][1];
+  const double det = d11 * d22 - d12 * d21;
+  if (!(std::abs(det) > kLineTol * (d11 * d11 + d12 * d12 + d21 * d21 + d22 * d22))) return false;
+  const double b11 = g[3][0] - g[0][0], b21 = g[3][1] - g[0][1];
+  const double b12 = g[2][0] - g[1][0], b22 = g[2][1] - g[1][1];
+  const double a11 = (b11 * d22 - b12 * d21) / det, a22 = (b22 * d11 - b21 * d12) / det;
+  const double a12 = 0.5 * ((b12 * d11 - b11 * d12) / det + (b21 * d22 - b22 * d21) / det);
+  double worst = 0.0, noise = 0.0;
+  for (int q = 0; q < 4; ++q) {
+    const double sxx = cov[q][0], syy = cov[q][1], sxy = cov[q][2];
+    const double mx = mq[q][0], my = mq[q][1];
+    const double at = 0.5 * (a11 * mx * mx + 2.0 * a12 * mx * my + a22 * my * my) -
+                      0.5 * (a11 * sxx + 2.0 * a12 * sxy + a22 * syy);
+    const double bend = kCurvedLattice * (a11 * a11 * sxx * sxx + a22 * a22 * syy * syy) +
+                        a12 * a12 * sxx * syy;
+    if (!(r2[q] >= kCurvedBend * bend) || !(r2[q] <= kCurvedFit * bend + floor * floor)) {
+      return false;
+    }
+    worst = std::max(worst, std::abs(hv[q] - at));
+    noise += std::max(r2[q] - bend, 0.0);
+  }
+  return worst <= std::max(k * std::sqrt(0.25 * noise), floor);
+}
+
 // SPEC "Edge test" step 6, valleys: P (candidate (rr, cc), its 8 sides `sd`; the caller has
 // found that P fits no clean side) lies above two opposite level sides x and y (valid, not
 // steep; clean or not: beyond P a side may straddle the crease or hold the burr run's cells)
@@ -854,7 +907,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
   // flags as doubles (1 or 0): 8-byte lanes throughout, so the vector loops run 8 (or 4) lanes
   // at a time, not 32 (a byte store per lane made GCC pick 32 and run chunks of 16 scalar)
   double okb[kCap], redob[kCap], useb[kCap], emptyb[kCap], validb[kCap];
-  double lowb[kCap];
+  double lowb[kCap], covb[3 * kCap];
   std::ptrdiff_t cols[kChunk];
   constexpr std::ptrdiff_t kSpan = 48;  // sums of up to kSpan columns for scattered cells
   double spn[kM * kSpan];
@@ -1160,6 +1213,11 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       }
       const int ms = 8 * m;
       side_moments(ms, kCap, n_min, mm, nnb, ceb, Mb, useb, emptyb);
+      for (int e = 4 * m; e < ms; ++e) {  // the quadrants' (x, y) covariance (step 4)
+        covb[3 * e] = Mb[e] / nnb[e];
+        covb[3 * e + 1] = Mb[kCap + e] / nnb[e];
+        covb[3 * e + 2] = Mb[3 * kCap + e] / nnb[e];
+      }
       smallest_eigenpairs_long(ms, kCap, Mb, Eb, okb, redob);
       side_planes(ms, kCap, et.k, useb, okb, Eb, nnb, ceb, P, FL, validb, F);
       for (int e = 0; e < ms; ++e) {
@@ -1212,6 +1270,15 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
         if (fit_only) {
           mark[i] = fits_ground ? 1 : 0;
           continue;
+        }
+        if (!fits) {  // on a smooth curved surface: no rule applies (step 4)
+          const double* cov[4];
+          for (int q = 0; q < 4; ++q) cov[q] = covb + 3 * ((4 + q) * m + j);
+          const Eigen::Vector3d p(P[4 * m + j], P[kCap + 4 * m + j], P[2 * kCap + 4 * m + j]);
+          if (on_curved_surface(sd, cov, p, et.k, FLc[keep[j]])) {
+            mark[i] = 0;
+            continue;
+          }
         }
         const auto attached_to = [&](int s) {
           return attached(g, lab, grow, cols[j], r, o, sd[s], s);

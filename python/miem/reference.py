@@ -1178,9 +1178,9 @@ def _side_fits(
     each of its 8 sub-windows (SPEC "Edge test"), from integral images of the moments
     (``images``: ``_moment_images`` of these arguments, when the caller has them).
 
-    Returns ``h``, ``rms``, ``spread = sqrt((l1 + l2) / n)``, ``valid``, the normals, centroids
-    and ``empty``, of shape ``(8, N)`` (``(8, N, 3)``) for the ``N`` cells of ``cells`` in
-    row-major order.
+    Returns ``h``, ``rms``, ``spread = sqrt((l1 + l2) / n)``, ``valid``, the normals, centroids,
+    ``empty`` and the support's (x, y) covariance ``(Sxx, Syy, Sxy)``, of shape ``(8, N)``
+    (``(8, N, 3)``) for the ``N`` cells of ``cells`` in row-major order.
     """
     s = _moment_images(grid, support, invalid, origin) if images is None else images
     rr, cc = np.nonzero(cells)
@@ -1193,10 +1193,12 @@ def _side_fits(
     normals = np.full((8, rr.size, 3), np.nan)
     centroids = np.full((8, rr.size, 3), np.nan)
     empty = np.zeros((8, rr.size), dtype=bool)
+    cov2 = np.zeros((8, rr.size, 3))
     for k in range(8):
         m = _side_sums(s, rr, cc, r, k)
         ok = m[:, 0] >= n_min
         nn, cen, cov = _scatter(m)
+        cov2[k] = np.stack([cov[:, 0, 0] / nn, cov[:, 1, 1] / nn, cov[:, 0, 1] / nn], axis=-1)
         # support on a line in (x, y) (one row or column of cells): no plane (its normal would
         # be horizontal and its smallest eigenvalue round-off)
         a, b, d = cov[:, 0, 0], cov[:, 1, 1], cov[:, 0, 1]
@@ -1212,7 +1214,67 @@ def _side_fits(
         normals[k] = nrm
         centroids[k] = cen
         empty[k] = m[:, 10] >= n_min
-    return hs, rms, spread, valid, normals, centroids, empty
+    return hs, rms, spread, valid, normals, centroids, empty, cov2
+
+
+#: A smooth curved surface (SPEC "Edge test" step 4): each quadrant's rms^2 at least
+#: _CURVED_BEND times the residual variance the quadratic surface leaves about its plane, and at
+#: most _CURVED_FIT times it plus the floor^2; that variance's terms in A11^2 Sxx^2 and
+#: A22^2 Syy^2 carry _CURVED_LATTICE (cells uniform along x and y).
+_CURVED_BEND = 0.5
+_CURVED_FIT = 1.25
+_CURVED_LATTICE = 0.2
+
+
+def _curved(
+    h: NDArray[np.float64],
+    rms: NDArray[np.float64],
+    valid: NDArray[np.bool_],
+    nrm: NDArray[np.float64],
+    cen: NDArray[np.float64],
+    empty: NDArray[np.bool_],
+    cov2: NDArray[np.float64],
+    pt: NDArray[np.float64],
+    k: float,
+    floor: NDArray[np.float64],
+) -> NDArray[np.bool_]:
+    """SPEC "Edge test" step 4, smooth curved surface: for each cell (``pt``: P relative to the
+    origin; the rest :func:`_side_fits`' arrays), whether its four quadrants (sides 4-7) are
+    valid, not empty, not steep and bend as one quadratic surface ``z = 1/2 v'Av`` would (A from
+    the differences of opposite quadrants' slopes at their centroids; each quadrant's vertical
+    rms^2 between _CURVED_BEND and _CURVED_FIT times the residual variance such a surface
+    leaves about its plane, plus ``floor^2`` above), and P lies within
+    ``max(k sigma, floor)`` of where that surface puts it above every quadrant's plane,
+    ``1/2 m'Am - 1/2 tr(AS)`` (``sigma^2``: the quadrants' mean vertical rms^2 less the
+    surface's residual variance)."""
+    q = slice(4, 8)
+    uz = nrm[q, :, 2]
+    ok = (valid[q] & ~empty[q] & (uz >= _EDGE_STEEP_COS)).all(axis=0)
+    uz = np.where(ok, uz, 1.0)
+    gx, gy = -nrm[q, :, 0] / uz, -nrm[q, :, 1] / uz
+    mx, my = cen[q, :, 0] - pt[:, 0], cen[q, :, 1] - pt[:, 1]
+    hv = h[q] / uz
+    r2 = (rms[q] / uz) * (rms[q] / uz)
+    d11, d21 = mx[3] - mx[0], my[3] - my[0]
+    d12, d22 = mx[2] - mx[1], my[2] - my[1]
+    det = d11 * d22 - d12 * d21
+    ok &= np.abs(det) > _EDGE_LINE_TOL * (d11 * d11 + d12 * d12 + d21 * d21 + d22 * d22)
+    det = np.where(ok, det, 1.0)
+    b11, b21 = gx[3] - gx[0], gy[3] - gy[0]
+    b12, b22 = gx[2] - gx[1], gy[2] - gy[1]
+    a11 = (b11 * d22 - b12 * d21) / det
+    a22 = (b22 * d11 - b21 * d12) / det
+    a12 = 0.5 * ((b12 * d11 - b11 * d12) / det + (b21 * d22 - b22 * d21) / det)
+    sxx, syy, sxy = cov2[q, :, 0], cov2[q, :, 1], cov2[q, :, 2]
+    at = 0.5 * (a11 * mx * mx + 2.0 * a12 * mx * my + a22 * my * my) - \
+        0.5 * (a11 * sxx + 2.0 * a12 * sxy + a22 * syy)
+    bend = _CURVED_LATTICE * (a11 * a11 * sxx * sxx + a22 * a22 * syy * syy) + \
+        a12 * a12 * sxx * syy
+    with np.errstate(invalid="ignore"):
+        ok &= ((r2 >= _CURVED_BEND * bend) & (r2 <= _CURVED_FIT * bend + floor * floor)).all(axis=0)
+        worst = np.abs(hv - at).max(axis=0)
+        noise = np.maximum(r2 - bend, 0.0).sum(axis=0)
+        return ok & (worst <= np.maximum(k * np.sqrt(0.25 * noise), floor))
 
 
 #: A quiet cell (SPEC "Edge test" step 1), not judged: within this many rms of its height
@@ -1900,7 +1962,7 @@ def _edge_verdicts(
     out = np.zeros_like(cells)
     support, invalid = labels == NORMAL, labels == INVALID
     images = _moment_images(grid, support, invalid, origin)  # the pass's, for step 3
-    h, rms, spread, valid, nrm, cen, empty = _side_fits(
+    h, rms, spread, valid, nrm, cen, empty, cov2 = _side_fits(
         grid, support, invalid, cells, r, origin, images)
     # each cell's floor: the least tolerance, or its precision floor when larger (step 3)
     cell_floor = np.maximum(floor, precision * np.abs(grid[cells]).max(axis=-1))
@@ -1953,6 +2015,10 @@ def _edge_verdicts(
         out[cells] |= hang
     # an isolated spike far off every clean side that no other step flags (step 7)
     out[cells] |= _spikes(grid, labels, cells, origin, h, tol, level, clean, rms, nrm, cen)
+    # on a smooth curved surface (fitting no clean side): no rule applies (step 4)
+    pt = grid[cells] - origin
+    out[cells] &= ~(~fits.any(axis=0) & _curved(h, rms, valid, nrm, cen, empty, cov2, pt, k,
+                                                 cell_floor))
     return out
 
 
