@@ -47,7 +47,7 @@ def standing(points: np.ndarray, labels: np.ndarray, cells: np.ndarray) -> np.nd
     fin = np.isfinite(points[..., 2])
     origin = points[np.unravel_index(np.argmax(fin), fin.shape)]
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        h, rms, spread, valid, nrm, _, _ = ref._side_fits(
+        h, rms, spread, valid, nrm, _, _, _ = ref._side_fits(
             points, labels == miem.NORMAL, labels == miem.INVALID, cells, r, origin)
         _, clean, tol = ref._clean_sides(rms, spread, valid, nrm, k)
         fits = (clean & ~(np.abs(h) > tol)).any(axis=0)
