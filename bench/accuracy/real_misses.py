@@ -64,7 +64,7 @@ def misses(first: int, last: int) -> dict:
     fin = np.isfinite(g[first:last, :, 2])
     origin = g[first:last][np.unravel_index(np.argmax(fin), fin.shape)]
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        h, rms, spread, valid, nrm, cen, empty = ref._side_fits(
+        h, rms, spread, valid, nrm, cen, empty, _ = ref._side_fits(
             g, labels == miem.NORMAL, labels == miem.INVALID, cells, r, origin)
         _, clean, tol = ref._clean_sides(rms, spread, valid, nrm, k)
         fits = clean & ~(np.abs(h) > tol)
