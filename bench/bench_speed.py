@@ -349,10 +349,10 @@ def quadric_fit(r: int, a: float, b: float) -> float:
     steps 2-4, half-size r; clean: rms at most twice the least) on the noise-free quadratic
     surface z = a x^2 + b y^2: the least |h| / rms among them, whatever the curvature's radius
     (P fits a side when it is at most the tolerance's k)."""
-    sides = [((-r, r), (-r, -1)), ((-r, r), (1, r)), ((-r, -1), (-r, r)), ((1, r), (-r, r)),
-             ((-r, -1), (-r, -1)), ((-r, -1), (1, r)), ((1, r), (-r, -1)), ((1, r), (1, r))]
+    from miem.reference import _EDGE_CLEAN_RATIO, _edge_sides
+
     fits = []
-    for (r0, r1), (c0, c1) in sides:
+    for r0, r1, c0, c1 in _edge_sides(r):
         y, x = np.meshgrid(np.arange(r0, r1 + 1.0), np.arange(c0, c1 + 1.0), indexing="ij")
         z = a * x * x + b * y * y
         m = np.c_[x.ravel(), y.ravel(), np.ones(x.size)]
@@ -360,7 +360,7 @@ def quadric_fit(r: int, a: float, b: float) -> float:
         rms = float(np.sqrt(np.mean((m @ coef - z.ravel()) ** 2)))
         fits.append((rms, abs(float(coef[2]))))  # the plane at P: coef[2]; P's z is 0
     best = min(f[0] for f in fits)
-    return min(h / rms for rms, h in fits if rms <= 2.0 * best)
+    return min(h / rms for rms, h in fits if rms <= _EDGE_CLEAN_RATIO * best)
 
 
 def fmt_surfaces(rows: list[dict]) -> list[str]:

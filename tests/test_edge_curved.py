@@ -50,13 +50,16 @@ def test_the_rule_clears_false_alarms_on_a_bowl(monkeypatch: pytest.MonkeyPatch)
 
 
 def _cell_sides(g: np.ndarray, r: int = 7) -> tuple:
-    """_side_fits' arrays of the centre cell of grid g (all cells NORMAL, origin its first)."""
+    """_side_fits' arrays of the centre cell of grid g (all cells NORMAL, origin its first),
+    with ``valid`` replaced by _clean_sides' ``level``."""
     cells = np.zeros(g.shape[:2], dtype=bool)
     cells[g.shape[0] // 2, g.shape[1] // 2] = True
     support = np.isfinite(g).all(axis=-1)
     origin = g[0, 0]
-    fits = ref._side_fits(g, support, ~support, cells, r, origin)
-    return fits, g[cells] - origin
+    h, rms, spread, valid, nrm, cen, empty, cov2 = ref._side_fits(g, support, ~support, cells,
+                                                                  r, origin)
+    level = ref._clean_sides(rms, spread, valid, nrm, 4.0)[0]
+    return (h, rms, spread, level, nrm, cen, empty, cov2), g[cells] - origin
 
 
 def _grid(z: np.ndarray, step: float = 0.2) -> np.ndarray:
@@ -75,12 +78,12 @@ def test_a_quadratic_surface_passes_and_a_crease_or_a_bump_does_not(a: float, b:
     rows = cols = 31
     yy, xx = np.mgrid[0:rows, 0:cols] - 15.0
     z = 0.01 * (a * xx * xx + b * yy * yy)
-    (h, rms, spread, valid, nrm, cen, empty, cov2), pt = _cell_sides(_grid(z))
+    (h, rms, spread, level, nrm, cen, empty, cov2), pt = _cell_sides(_grid(z))
     floor = np.array([0.01])
-    assert ref._curved(h, rms, valid, nrm, cen, empty, cov2, pt, 4.0, floor).all()
+    assert ref._curved(h, rms, level, nrm, cen, empty, cov2, pt, 4.0, floor).all()
     crease = _grid(0.3 * np.abs(xx))
-    (h, rms, spread, valid, nrm, cen, empty, cov2), pt = _cell_sides(crease)
-    assert not ref._curved(h, rms, valid, nrm, cen, empty, cov2, pt, 4.0, floor).any()
+    (h, rms, spread, level, nrm, cen, empty, cov2), pt = _cell_sides(crease)
+    assert not ref._curved(h, rms, level, nrm, cen, empty, cov2, pt, 4.0, floor).any()
     z[15, 15] += 0.05
-    (h, rms, spread, valid, nrm, cen, empty, cov2), pt = _cell_sides(_grid(z))
-    assert not ref._curved(h, rms, valid, nrm, cen, empty, cov2, pt, 4.0, floor).any()
+    (h, rms, spread, level, nrm, cen, empty, cov2), pt = _cell_sides(_grid(z))
+    assert not ref._curved(h, rms, level, nrm, cen, empty, cov2, pt, 4.0, floor).any()

@@ -515,12 +515,15 @@ bool is_lip(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
 // where the one-sided planes miss it by several of their rms whatever its curvature, and no
 // rule of steps 5-7 applies. The formulas are miem.reference._curved's.
 constexpr double kCurvedBend = 0.5, kCurvedFit = 1.25, kCurvedLattice = 0.2;
+// cov[q]: quadrant q's centred (x, y) scatter M(0, 0), M(1, 1), M(0, 1) (side_moment's, at
+// cov[q] + {0, 1, 3} * cap) and its nn at n[q].
 inline bool on_curved_surface(const Side (&sd)[8], const double* const (&cov)[4],
+                              const double* const (&n)[4], std::ptrdiff_t cap,
                               const Eigen::Vector3d& p, double k, double floor) {
   double g[4][2], mq[4][2], hv[4], r2[4];
   for (int q = 0; q < 4; ++q) {
     const Side& x = sd[4 + q];
-    if (!x.valid || x.empty || x.steep) return false;
+    if (!edge_level(x) || x.empty) return false;
     const double uz = x.normal.z();  // > 0: oriented, not steep
     g[q][0] = -x.normal.x() / uz, g[q][1] = -x.normal.y() / uz;
     mq[q][0] = x.centroid.x() - p.x(), mq[q][1] = x.centroid.y() - p.y();
@@ -537,7 +540,7 @@ inline bool on_curved_surface(const Side (&sd)[8], const double* const (&cov)[4]
   const double a12 = 0.5 * ((b12 * d11 - b11 * d12) / det + (b21 * d22 - b22 * d21) / det);
   double worst = 0.0, noise = 0.0;
   for (int q = 0; q < 4; ++q) {
-    const double sxx = cov[q][0], syy = cov[q][1], sxy = cov[q][2];
+    const double sxx = cov[q][0] / *n[q], syy = cov[q][cap] / *n[q], sxy = cov[q][3 * cap] / *n[q];
     const double mx = mq[q][0], my = mq[q][1];
     const double at = 0.5 * (a11 * mx * mx + 2.0 * a12 * mx * my + a22 * my * my) -
                       0.5 * (a11 * sxx + 2.0 * a12 * sxy + a22 * syy);
@@ -907,7 +910,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
   // flags as doubles (1 or 0): 8-byte lanes throughout, so the vector loops run 8 (or 4) lanes
   // at a time, not 32 (a byte store per lane made GCC pick 32 and run chunks of 16 scalar)
   double okb[kCap], redob[kCap], useb[kCap], emptyb[kCap], validb[kCap];
-  double lowb[kCap], covb[3 * kCap];
+  double lowb[kCap];
   std::ptrdiff_t cols[kChunk];
   constexpr std::ptrdiff_t kSpan = 48;  // sums of up to kSpan columns for scattered cells
   double spn[kM * kSpan];
@@ -1213,11 +1216,6 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       }
       const int ms = 8 * m;
       side_moments(ms, kCap, n_min, mm, nnb, ceb, Mb, useb, emptyb);
-      for (int e = 4 * m; e < ms; ++e) {  // the quadrants' (x, y) covariance (step 4)
-        covb[3 * e] = Mb[e] / nnb[e];
-        covb[3 * e + 1] = Mb[kCap + e] / nnb[e];
-        covb[3 * e + 2] = Mb[3 * kCap + e] / nnb[e];
-      }
       smallest_eigenpairs_long(ms, kCap, Mb, Eb, okb, redob);
       side_planes(ms, kCap, et.k, useb, okb, Eb, nnb, ceb, P, FL, validb, F);
       for (int e = 0; e < ms; ++e) {
@@ -1272,10 +1270,11 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
           continue;
         }
         if (!fits) {  // on a smooth curved surface: no rule applies (step 4)
-          const double* cov[4];
-          for (int q = 0; q < 4; ++q) cov[q] = covb + 3 * ((4 + q) * m + j);
+          const double* cov[4];  // (the scatter the eigen solve read, still in Mb)
+          const double* nq[4];
+          for (int q = 0; q < 4; ++q) cov[q] = Mb + (4 + q) * m + j, nq[q] = nnb + (4 + q) * m + j;
           const Eigen::Vector3d p(P[4 * m + j], P[kCap + 4 * m + j], P[2 * kCap + 4 * m + j]);
-          if (on_curved_surface(sd, cov, p, et.k, FLc[keep[j]])) {
+          if (on_curved_surface(sd, cov, nq, kCap, p, et.k, FLc[keep[j]])) {
             mark[i] = 0;
             continue;
           }

@@ -1129,8 +1129,8 @@ def _quiet_cells(
     ``removed`` cell lies within ``window // 2``, and its
     height-window plane (the NORMAL cells of its window, itself included, as the height test
     fits them) is smooth, ``rms = sqrt(max(l0, 0) / n) <= _EDGE_QUIET_ROUGH * floor`` or flat
-    to round-off (``l0 <= _FLAT_L0 * l2``, step 3's rms of 0: a noise-free plane, whose ``floor`` is often
-    0), with the cell within ``_EDGE_QUIET_H * rms`` of it, or within the height test's
+    to round-off (``l0 <= _FLAT_L0 * l2``, step 3's rms of 0: a noise-free plane, whose
+    ``floor`` is often 0), with the cell within ``_EDGE_QUIET_H * rms`` of it, or within the height test's
     round-off floor ``1e-6 sqrt((l1 + l2) / n)``."""
     hh, ww = labels.shape
     normal = labels == NORMAL
@@ -1229,7 +1229,7 @@ _CURVED_LATTICE = 0.2
 def _curved(
     h: NDArray[np.float64],
     rms: NDArray[np.float64],
-    valid: NDArray[np.bool_],
+    level: NDArray[np.bool_],
     nrm: NDArray[np.float64],
     cen: NDArray[np.float64],
     empty: NDArray[np.bool_],
@@ -1239,8 +1239,8 @@ def _curved(
     floor: NDArray[np.float64],
 ) -> NDArray[np.bool_]:
     """SPEC "Edge test" step 4, smooth curved surface: for each cell (``pt``: P relative to the
-    origin; the rest :func:`_side_fits`' arrays), whether its four quadrants (sides 4-7) are
-    valid, not empty, not steep and bend as one quadratic surface ``z = 1/2 v'Av`` would (A from
+    origin; ``level``: :func:`_clean_sides`'; the rest :func:`_side_fits`' arrays), whether its
+    four quadrants (sides 4-7) are level (valid, not steep), not empty and bend as one quadratic surface ``z = 1/2 v'Av`` would (A from
     the differences of opposite quadrants' slopes at their centroids; each quadrant's vertical
     rms^2 between _CURVED_BEND and _CURVED_FIT times the residual variance such a surface
     leaves about its plane, plus ``floor^2`` above), and P lies within
@@ -1248,9 +1248,8 @@ def _curved(
     ``1/2 m'Am - 1/2 tr(AS)`` (``sigma^2``: the quadrants' mean vertical rms^2 less the
     surface's residual variance)."""
     q = slice(4, 8)
-    uz = nrm[q, :, 2]
-    ok = (valid[q] & ~empty[q] & (uz >= _EDGE_STEEP_COS)).all(axis=0)
-    uz = np.where(ok, uz, 1.0)
+    ok = (level[q] & ~empty[q]).all(axis=0)
+    uz = np.where(ok, nrm[q, :, 2], 1.0)
     gx, gy = -nrm[q, :, 0] / uz, -nrm[q, :, 1] / uz
     mx, my = cen[q, :, 0] - pt[:, 0], cen[q, :, 1] - pt[:, 1]
     hv = h[q] / uz
@@ -2017,7 +2016,7 @@ def _edge_verdicts(
     out[cells] |= _spikes(grid, labels, cells, origin, h, tol, level, clean, rms, nrm, cen)
     # on a smooth curved surface (fitting no clean side): no rule applies (step 4)
     pt = grid[cells] - origin
-    out[cells] &= ~(~fits.any(axis=0) & _curved(h, rms, valid, nrm, cen, empty, cov2, pt, k,
+    out[cells] &= ~(~fits.any(axis=0) & _curved(h, rms, level, nrm, cen, empty, cov2, pt, k,
                                                  cell_floor))
     return out
 
