@@ -1,5 +1,5 @@
-"""SPEC "Edge test" step 4, smooth curved surface: a cell that fits no clean sub-window but lies
-on the quadratic surface its four quadrants bend as is not judged by the rules of steps 5-7.
+"""SPEC "Edge test" step 4, smooth curved surface: a cell that lies on the quadratic surface its
+four quadrants bend as is not judged by the rules of steps 5-7.
 On a bowl every one-sided plane misses the cell by several of its rms, whatever the radius."""
 
 from __future__ import annotations
@@ -87,3 +87,27 @@ def test_a_quadratic_surface_passes_and_a_crease_or_a_bump_does_not(a: float, b:
     z[15, 15] += 0.05
     (h, rms, spread, level, nrm, cen, empty, cov2), pt = _cell_sides(_grid(z))
     assert not ref._curved(h, rms, level, nrm, cen, empty, cov2, pt, 4.0, floor).any()
+
+
+def test_the_quadrants_alone_decide() -> None:
+    """The core solves a cell's four halves only when its quadrants do not settle it (SPEC step
+    4): so the rule must read sides 4-7 and nothing of sides 0-3. Scrambling the halves'
+    planes, centroids and flags of a bowl's cell leaves the reference's verdict as it was; so
+    does scrambling a crease's (whose quadrants say no)."""
+    rows = cols = 31
+    yy, xx = np.mgrid[0:rows, 0:cols] - 15.0
+    floor = np.array([0.01])
+    rng = np.random.default_rng(5)
+    for z, want in ((0.01 * (xx * xx + 0.5 * yy * yy), True), (0.3 * np.abs(xx), False)):
+        (h, rms, _, level, nrm, cen, empty, cov2), pt = _cell_sides(_grid(z))
+        arrays = (h, rms, level, nrm, cen, empty, cov2)
+        assert ref._curved(*arrays, pt, 4.0, floor).all() == want
+        scrambled = []
+        for a in arrays:
+            a = a.copy()
+            if a.dtype == bool:
+                a[:4] = ~a[:4]
+            else:
+                a[:4] = rng.normal(size=a[:4].shape) * 1e3
+            scrambled.append(a)
+        assert ref._curved(*scrambled, pt, 4.0, floor).all() == want

@@ -499,60 +499,76 @@ bool is_lip(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
   return false;
 }
 
-// SPEC "Edge test" step 4, smooth curved surface: P fits no clean side, its four quadrants
-// (sides 4-7) are valid, not empty, not steep, and bend as one quadratic surface z = 1/2 v'Av
-// (v = (x, y) - P) would: A from the differences of opposite quadrants' slopes at their
-// centroids (a quadrant's plane has the surface's slope at its centroid m: A (m_a - m_b) =
-// g_a - g_b for the pairs up-left/down-right and up-right/down-left; A symmetrised), each
-// quadrant's rms^2 (vertical) at least kCurvedBend times the residual variance such a surface
-// leaves about its plane (kCurvedLattice (A11^2 Sxx^2 + A22^2 Syy^2) + A12^2 Sxx Syy, S its
-// cells' (x, y) covariance: a lattice of cells, uniform along x and y) and at most kCurvedFit
-// times it plus floor^2 (nothing but the bend and noise: no burr run in the quadrant, whose
-// cells would lift its rms and tilt its slope), and P lies within
-// max(k sigma, floor) of where the surface puts it above every quadrant's plane,
-// 1/2 m'Am - 1/2 tr(AS) (sigma^2: the quadrants' mean rms^2 less that residual variance, the
-// noise; floor: the cell's tolerance floor). Then P lies on a smooth bowl, dome or saddle,
-// where the one-sided planes miss it by several of their rms whatever its curvature, and no
-// rule of steps 5-7 applies. The formulas are miem.reference._curved's.
+// SPEC "Edge test" step 4, smooth curved surface: P's four quadrants (sides 4-7) are valid,
+// not empty, not steep, and bend as one quadratic surface z = 1/2 v'Av (v = (x, y) - P)
+// would: A from the differences of opposite quadrants' slopes at their centroids (a
+// quadrant's plane has the surface's slope at its centroid m: A (m_a - m_b) = g_a - g_b for
+// the pairs up-left/down-right and up-right/down-left; A symmetrised), each quadrant's rms^2
+// (vertical) at least kCurvedBend times the residual variance such a surface leaves about its
+// plane (kCurvedLattice (A11^2 Sxx^2 + A22^2 Syy^2) + A12^2 Sxx Syy, S its cells' (x, y)
+// covariance: a lattice of cells, uniform along x and y) and at most kCurvedFit times it plus
+// floor^2 (nothing but the bend and noise: no burr run in the quadrant, whose cells would lift
+// its rms and tilt its slope), and P lies within max(k sigma, floor) of where the surface puts
+// it above every quadrant's plane, 1/2 m'Am - 1/2 tr(AS) (sigma^2: the quadrants' mean rms^2
+// less that residual variance, the noise; floor: the cell's tolerance floor). Then P lies on
+// a smooth bowl, dome or saddle, where the one-sided planes miss it by several of their rms
+// whatever its curvature, and no rule of steps 5-7 applies. The formulas are
+// miem.reference._curved's.
 constexpr double kCurvedBend = 0.5, kCurvedFit = 1.25, kCurvedLattice = 0.2;
-// cov[q]: quadrant q's centred (x, y) scatter M(0, 0), M(1, 1), M(0, 1) (side_moment's, at
-// cov[q] + {0, 1, 3} * cap) and its nn at n[q].
-inline bool on_curved_surface(const Side (&sd)[8], const double* const (&cov)[4],
-                              const double* const (&n)[4], std::ptrdiff_t cap,
-                              const Eigen::Vector3d& p, double k, double floor) {
-  double g[4][2], mq[4][2], hv[4], r2[4];
-  for (int q = 0; q < 4; ++q) {
-    const Side& x = sd[4 + q];
-    if (!edge_level(x) || x.empty) return false;
-    const double uz = x.normal.z();  // > 0: oriented, not steep
-    g[q][0] = -x.normal.x() / uz, g[q][1] = -x.normal.y() / uz;
-    mq[q][0] = x.centroid.x() - p.x(), mq[q][1] = x.centroid.y() - p.y();
-    hv[q] = x.h / uz;
-    r2[q] = (x.rms / uz) * (x.rms / uz);
-  }
-  const double d11 = mq[3][0] - mq[0][0], d21 = mq[3][1] - mq[0][1];
-  const double d12 = mq[2][0] - mq[1][0], d22 = mq[2][1] - mq[1][1];
-  const double det = d11 * d22 - d12 * d21;
-  if (!(std::abs(det) > kLineTol * (d11 * d11 + d12 * d12 + d21 * d21 + d22 * d22))) return false;
-  const double b11 = g[3][0] - g[0][0], b21 = g[3][1] - g[0][1];
-  const double b12 = g[2][0] - g[1][0], b22 = g[2][1] - g[1][1];
-  const double a11 = (b11 * d22 - b12 * d21) / det, a22 = (b22 * d11 - b21 * d12) / det;
-  const double a12 = 0.5 * ((b12 * d11 - b11 * d12) / det + (b21 * d22 - b22 * d21) / det);
-  double worst = 0.0, noise = 0.0;
-  for (int q = 0; q < 4; ++q) {
-    const double sxx = cov[q][0] / *n[q], syy = cov[q][cap] / *n[q], sxy = cov[q][3 * cap] / *n[q];
-    const double mx = mq[q][0], my = mq[q][1];
-    const double at = 0.5 * (a11 * mx * mx + 2.0 * a12 * mx * my + a22 * my * my) -
-                      0.5 * (a11 * sxx + 2.0 * a12 * sxy + a22 * syy);
-    const double bend = kCurvedLattice * (a11 * a11 * sxx * sxx + a22 * a22 * syy * syy) +
-                        a12 * a12 * sxx * syy;
-    if (!(r2[q] >= kCurvedBend * bend) || !(r2[q] <= kCurvedFit * bend + floor * floor)) {
-      return false;
+// on_curved_surface for m cells, from their quadrants' solved planes only (so a cell it
+// settles needs no half side solved): quadrant q of cell j at entry q * m + j of the SoA
+// arrays (components `cap` apart; F: h, rms, tol, normal as side_planes writes it; Mb, nnb:
+// side_moments' centred scatter and count), the cell at P[j], P[cap + j] and its floor FL[j].
+// curved[j] = 1 or 0. Branch-free and vectorised: every lane computes every expression (a
+// lane that fails an early condition may compute infinities and NaNs, masked at the end) in
+// the order of the scalar formula, so the same bits.
+MIEM_CLONES void curved_cells(int m, std::ptrdiff_t cap, double k,
+                              const double* __restrict validb, const double* __restrict emptyb,
+                              const double* __restrict F, const double* __restrict ceb,
+                              const double* __restrict Mb, const double* __restrict nnb,
+                              const double* __restrict P, const double* __restrict FL,
+                              double* __restrict curved) {
+#pragma GCC ivdep
+  for (int j = 0; j < m; ++j) {
+    double g[4][2], mq[4][2], hv[4], r2[4], cv[4][3];
+    bool ok = true;
+    const double px = P[j], py = P[cap + j], floor = FL[j];
+    for (int q = 0; q < 4; ++q) {
+      const int e = q * m + j;
+      const double uz = F[5 * cap + e];  // > 0 where level: oriented, not steep
+      ok = ok & (validb[e] != 0.0) & !(uz < kEdgeSteepCos) & (emptyb[e] == 0.0);
+      g[q][0] = -F[3 * cap + e] / uz, g[q][1] = -F[4 * cap + e] / uz;
+      mq[q][0] = ceb[e] - px, mq[q][1] = ceb[cap + e] - py;
+      hv[q] = F[e] / uz;
+      const double rv = F[cap + e] / uz;
+      r2[q] = rv * rv;
+      const double n = nnb[e];
+      cv[q][0] = Mb[e] / n, cv[q][1] = Mb[cap + e] / n, cv[q][2] = Mb[3 * cap + e] / n;
     }
-    worst = std::max(worst, std::abs(hv[q] - at));
-    noise += std::max(r2[q] - bend, 0.0);
+    const double d11 = mq[3][0] - mq[0][0], d21 = mq[3][1] - mq[0][1];
+    const double d12 = mq[2][0] - mq[1][0], d22 = mq[2][1] - mq[1][1];
+    const double det = d11 * d22 - d12 * d21;
+    ok = ok & (std::abs(det) > kLineTol * (d11 * d11 + d12 * d12 + d21 * d21 + d22 * d22));
+    const double b11 = g[3][0] - g[0][0], b21 = g[3][1] - g[0][1];
+    const double b12 = g[2][0] - g[1][0], b22 = g[2][1] - g[1][1];
+    const double a11 = (b11 * d22 - b12 * d21) / det, a22 = (b22 * d11 - b21 * d12) / det;
+    const double a12 = 0.5 * ((b12 * d11 - b11 * d12) / det + (b21 * d22 - b22 * d21) / det);
+    double worst = 0.0, noise = 0.0;
+    for (int q = 0; q < 4; ++q) {
+      const double sxx = cv[q][0], syy = cv[q][1], sxy = cv[q][2];
+      const double mx = mq[q][0], my = mq[q][1];
+      const double at = 0.5 * (a11 * mx * mx + 2.0 * a12 * mx * my + a22 * my * my) -
+                        0.5 * (a11 * sxx + 2.0 * a12 * sxy + a22 * syy);
+      const double bend = kCurvedLattice * (a11 * a11 * sxx * sxx + a22 * a22 * syy * syy) +
+                          a12 * a12 * sxx * syy;
+      ok = ok & (r2[q] >= kCurvedBend * bend) & (r2[q] <= kCurvedFit * bend + floor * floor);
+      const double miss = std::abs(hv[q] - at), rest = r2[q] - bend;
+      worst = worst < miss ? miss : worst;  // std::max(worst, miss)
+      noise += rest < 0.0 ? 0.0 : rest;     // std::max(rest, 0.0)
+    }
+    const double kn = k * std::sqrt(0.25 * noise);
+    curved[j] = ok & (worst <= (kn < floor ? floor : kn)) ? 1.0 : 0.0;
   }
-  return worst <= std::max(k * std::sqrt(0.25 * noise), floor);
 }
 
 // SPEC "Edge test" step 6, valleys: P (candidate (rr, cc), its 8 sides `sd`; the caller has
@@ -1030,9 +1046,9 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
     const bool run = inside && span == m, spanned = inside && span <= kSpan;
     // a side's position in its band (banded chunks)
     const auto bpos = [&](int s, std::ptrdiff_t c) { return c - b0 + (kRight[s] ? r + 1 : 0); };
-    // banded: the sides' sums of the n cells cs[0 .. n) into mm (side s of cell f: s * n + f)
-    const auto band_sides = [&](const std::ptrdiff_t* cs, int n) {
-      for (int s = 0; s < 8; ++s) {
+    // banded: sides [s0, s1)' sums of the n cells cs[0 .. n) into mm (side s of cell f: s * n + f)
+    const auto band_sides = [&](const std::ptrdiff_t* cs, int n, int s0 = 0, int s1 = 8) {
+      for (int s = s0; s < s1; ++s) {
         const double* const bs = bandp[kBandOf[s]];
         for (int f = 0; f < n; ++f) {
           const std::ptrdiff_t i = bpos(s, cs[f]);
@@ -1122,7 +1138,11 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       // a cell that fits may be a lip across a convex feature (crossing_lip) when one of its
       // sides reaches (side_reaches): those are judged in full below
       double reach[kChunk];
-      if (!fit_only) {
+      int n_fit = 0;
+      for (int j = 0; j < m; ++j) n_fit += fits[j] != 0.0;
+      if (!fit_only && n_fit == 0) {  // (reach is read for the fitting cells only)
+        std::fill(reach, reach + m, 0.0);
+      } else if (!fit_only) {
         const double lim2 = et.k * et.k * (1.0 - 1e-6);  // h > tol >= k rms
         const double flo2 = kCrossingFloor * et.floor * kCrossingFloor * et.floor * (1.0 - 1e-6);
         const double* const U = F1 + 3 * kChunk;  // the solved side's normal
@@ -1190,36 +1210,20 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
     // loop, m, cols and keep are the sub-chunk's. Their sides' sums to the front of mm: from
     // the bands, or (unbanded: one sub-chunk) entry s * mc + keep[f] moved to s * m + f (in
     // this order no entry is overwritten before it is moved: s * m + f <= s * mc + keep[f]).
+    // The four quadrants (entries 4 m .. 8 m) are solved first: a cell on a smooth curved
+    // surface (curved_cells) is settled by them, and only the others solve the four halves.
     const int mc = m;
     const std::ptrdiff_t* const left = cols;
     const int* const left_keep = keep;
-    for (int fa = 0; fa < nf; fa += kSub) {
-      const int m = std::min(kSub, nf - fa);
-      const std::ptrdiff_t* const cols = left + fa;
-      const int* const keep = left_keep + fa;
-      if (banded) {
-        band_sides(cols, m);
-      } else if (m != mc) {
-        for (int s = 0; s < 8; ++s) {
-          for (int f = 0; f < m; ++f) {
-            const int from = s * mc + keep[f], to = s * m + f;
-            if (from == to) continue;
-            for (int q = 0; q < kM; ++q) mm[q * kCap + to] = mm[q * kCap + from];
-          }
-        }
-      }
-      for (int s = 0; s < 8; ++s) {  // the kept cells' points and floors, one per side
-        for (int f = 0; f < m; ++f) {
-          for (int q = 0; q < 3; ++q) P[q * kCap + s * m + f] = Pc[q * kChunk + keep[f]];
-          FL[s * m + f] = FLc[keep[f]];
-        }
-      }
-      const int ms = 8 * m;
-      side_moments(ms, kCap, n_min, mm, nnb, ceb, Mb, useb, emptyb);
-      smallest_eigenpairs_long(ms, kCap, Mb, Eb, okb, redob);
-      side_planes(ms, kCap, et.k, useb, okb, Eb, nnb, ceb, P, FL, validb, F);
-      for (int e = 0; e < ms; ++e) {
-        if (!redob[e] || !useb[e]) continue;  // Newton needs more steps: the scalar routine
+    // solve entries [e0, e0 + n) (sums in mm, cells in P, floors in FL): moments, eigenpairs,
+    // planes, and the scalar routine where Newton needs more steps
+    const auto solve_sides = [&](int e0, int n) {
+      side_moments(n, kCap, n_min, mm + e0, nnb + e0, ceb + e0, Mb + e0, useb + e0, emptyb + e0);
+      smallest_eigenpairs_long(n, kCap, Mb + e0, Eb + e0, okb + e0, redob + e0);
+      side_planes(n, kCap, et.k, useb + e0, okb + e0, Eb + e0, nnb + e0, ceb + e0, P + e0,
+                  FL + e0, validb + e0, F + e0);
+      for (int e = e0; e < e0 + n; ++e) {
+        if (!redob[e] || !useb[e]) continue;
         Eigen::Matrix3d M;
         M(0, 0) = Mb[e];
         M(1, 1) = Mb[kCap + e];
@@ -1235,12 +1239,72 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
                    FL[e], validb[e], F[e], F[kCap + e], F[2 * kCap + e], F[3 * kCap + e],
                    F[4 * kCap + e], F[5 * kCap + e]);
       }
+    };
+    // the cells' points and floors for sides [s0, s1) of n cells, cell f from chunk cell ck[f]
+    const auto side_cells = [&](const int* ck, int n, int s0, int s1) {
+      for (int s = s0; s < s1; ++s) {
+        for (int f = 0; f < n; ++f) {
+          for (int q = 0; q < 3; ++q) P[q * kCap + s * n + f] = Pc[q * kChunk + ck[f]];
+          FL[s * n + f] = FLc[ck[f]];
+        }
+      }
+    };
+    for (int fa = 0; fa < nf; fa += kSub) {
+      const int m = std::min(kSub, nf - fa);
+      const std::ptrdiff_t* const cols = left + fa;
+      const int* const keep = left_keep + fa;
+      if (banded) {
+        band_sides(cols, m, 4, 8);
+      } else if (m != mc) {
+        for (int s = 0; s < 8; ++s) {
+          for (int f = 0; f < m; ++f) {
+            const int from = s * mc + keep[f], to = s * m + f;
+            if (from == to) continue;
+            for (int q = 0; q < kM; ++q) mm[q * kCap + to] = mm[q * kCap + from];
+          }
+        }
+      }
+      side_cells(keep, m, 4, 8);
+      solve_sides(4 * m, 4 * m);
+      double curved[kSub];
+      if (fit_only) {
+        std::fill(curved, curved + m, 0.0);
+      } else {
+        curved_cells(m, kCap, et.k, validb + 4 * m, emptyb + 4 * m, F + 4 * m, ceb + 4 * m,
+                     Mb + 4 * m, nnb + 4 * m, P + 4 * m, FL + 4 * m, curved);
+      }
+      // the others (cell f of mu: sub-chunk cell jj[f]) solve their halves at s * mu + f
+      // (unbanded: moved down from s * m + jj[f], the same order argument)
+      int jj[kSub], kj[kSub], mu = 0;
       for (int j = 0; j < m; ++j) {
+        mark[cols[j]] = 0;
+        jj[mu] = j;
+        kj[mu] = keep[j];
+        mu += curved[j] == 0.0;
+      }
+      if (mu == 0) continue;
+      std::ptrdiff_t cu[kSub];
+      for (int f = 0; f < mu; ++f) cu[f] = cols[jj[f]];
+      if (banded) {
+        band_sides(cu, mu, 0, 4);
+      } else if (mu != m) {
+        for (int s = 0; s < 4; ++s) {
+          for (int f = 0; f < mu; ++f) {
+            const int from = s * m + jj[f], to = s * mu + f;
+            if (from == to) continue;
+            for (int q = 0; q < kM; ++q) mm[q * kCap + to] = mm[q * kCap + from];
+          }
+        }
+      }
+      side_cells(kj, mu, 0, 4);
+      solve_sides(0, 4 * mu);
+      for (int f = 0; f < mu; ++f) {
+        const int j = jj[f];
         const std::ptrdiff_t i = cols[j];
         Side sd[8];
         double best = std::numeric_limits<double>::infinity();
         for (int s = 0; s < 8; ++s) {
-          const int e = s * m + j;
+          const int e = s < 4 ? s * mu + f : s * m + j;
           Side& x = sd[s];
           x.empty = emptyb[e] != 0;
           x.outline = emptyb[e] >= outline_at[s];
@@ -1268,16 +1332,6 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
         if (fit_only) {
           mark[i] = fits_ground ? 1 : 0;
           continue;
-        }
-        if (!fits) {  // on a smooth curved surface: no rule applies (step 4)
-          const double* cov[4];  // (the scatter the eigen solve read, still in Mb)
-          const double* nq[4];
-          for (int q = 0; q < 4; ++q) cov[q] = Mb + (4 + q) * m + j, nq[q] = nnb + (4 + q) * m + j;
-          const Eigen::Vector3d p(P[4 * m + j], P[kCap + 4 * m + j], P[2 * kCap + 4 * m + j]);
-          if (on_curved_surface(sd, cov, nq, kCap, p, et.k, FLc[keep[j]])) {
-            mark[i] = 0;
-            continue;
-          }
         }
         const auto attached_to = [&](int s) {
           return attached(g, lab, grow, cols[j], r, o, sd[s], s);

@@ -34,9 +34,11 @@ inline constexpr double kOrientTol = 1e-6;
 /// The orientation sign of a unit normal (SPEC "Plane fit"): that of n_z, or when
 /// |n_z| <= kOrientTol of n_x, or when |n_x| <= kOrientTol too of n_y (+1 when all are zero).
 inline double orient_sign(double nx, double ny, double nz) noexcept {
-  return std::abs(nz) > kOrientTol ? (nz > 0.0 ? 1.0 : -1.0)
-         : std::abs(nx) > kOrientTol ? (nx > 0.0 ? 1.0 : -1.0)
-                                     : (ny < 0.0 ? -1.0 : 1.0);
+  // (three signs and two selects, no branch: vector loops inline it)
+  const double sz = nz > 0.0 ? 1.0 : -1.0, sx = nx > 0.0 ? 1.0 : -1.0;
+  const double sy = ny < 0.0 ? -1.0 : 1.0;
+  const double sxy = std::abs(nx) > kOrientTol ? sx : sy;
+  return std::abs(nz) > kOrientTol ? sz : sxy;
 }
 
 /// A unit vector of the null space of M - x I for a symmetric M (an eigenvector of M when x is

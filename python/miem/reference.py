@@ -2014,10 +2014,10 @@ def _edge_verdicts(
         out[cells] |= hang
     # an isolated spike far off every clean side that no other step flags (step 7)
     out[cells] |= _spikes(grid, labels, cells, origin, h, tol, level, clean, rms, nrm, cen)
-    # on a smooth curved surface (fitting no clean side): no rule applies (step 4)
+    # on a smooth curved surface: no rule applies (step 4; its quadrants decide, whether or
+    # not P fits a clean side)
     pt = grid[cells] - origin
-    out[cells] &= ~(~fits.any(axis=0) & _curved(h, rms, level, nrm, cen, empty, cov2, pt, k,
-                                                 cell_floor))
+    out[cells] &= ~_curved(h, rms, level, nrm, cen, empty, cov2, pt, k, cell_floor)
     return out
 
 
