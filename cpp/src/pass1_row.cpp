@@ -77,19 +77,42 @@ struct Side {
 // One (direction, scale) without min_step over columns [0, n). Masks and bits are 64-bit lanes
 // like the doubles, so nothing is packed or unpacked. `near_bit`: set kNearBit where a side has
 // a usable cell (scale 1: the two candidates are the whole isolation reach of max_gap <= 1).
-MIEM_CLONES void kernel_line(std::ptrdiff_t n, const Side& A, const Side& B,
-                             const double* __restrict px, const double* __restrict py,
-                             const double* __restrict pz, double cos0, double c2,
-                             std::int64_t gap2, std::int64_t bit, std::int64_t near_bit,
-                             double* __restrict buv, double* __restrict bprod,
-                             std::int64_t* __restrict bits) {
+// Two loops: kernel_first, vectorised, for the lanes whose first candidates on both sides are
+// usable (nearly all: it does not read the second candidates), and kernel_rest for the others.
+#define MIEM_KERNEL_ARGS                                                                      \
+  std::ptrdiff_t n, const Side &A, const Side &B, const double *__restrict px,              \
+      const double *__restrict py, const double *__restrict pz, double cos0, double c2,     \
+      std::int64_t gap2, std::int64_t bit, std::int64_t near_bit, double *__restrict buv,   \
+      double *__restrict bprod, std::int64_t *__restrict bits
+
+// The lanes whose candidates at s are usable on both sides (then the search ends there: found,
+// not slow, a usable cell near); the other lanes are left as they are. Returns their count.
+MIEM_CLONES std::int64_t kernel_first(MIEM_KERNEL_ARGS) {
+  (void)gap2;
   const double *__restrict ax1 = A.x1, *__restrict ay1 = A.y1, *__restrict az1 = A.z1;
-  const double *__restrict ax2 = A.x2, *__restrict ay2 = A.y2, *__restrict az2 = A.z2;
   const double *__restrict bx1 = B.x1, *__restrict by1 = B.y1, *__restrict bz1 = B.z1;
-  const double *__restrict bx2 = B.x2, *__restrict by2 = B.y2, *__restrict bz2 = B.z2;
-  const std::int64_t *__restrict ao1 = A.ok1, *__restrict ao2 = A.ok2;
-  const std::int64_t *__restrict bo1 = B.ok1, *__restrict bo2 = B.ok2;
+  const std::int64_t *__restrict ao1 = A.ok1, *__restrict bo1 = B.ok1;
+  std::int64_t rest = 0;
   for (std::ptrdiff_t c = 0; c < n; ++c) {
+    const std::int64_t both = ao1[c] & bo1[c];
+    const double ux = ax1[c] - px[c], uy = ay1[c] - py[c], uz = az1[c] - pz[c];
+    const double uu = (ux * ux + uy * uy) + uz * uz;
+    const double vx = bx1[c] - px[c], vy = by1[c] - py[c], vz = bz1[c] - pz[c];
+    const double vv = (vx * vx + vy * vy) + vz * vz;
+    MIEM_FOLD(c, ux, uy, uz, uu, vx, vy, vz, vv, both);
+    bits[c] |= -both & ((-good & bit) | (-flagged & (bit << kFlagShift)) | near_bit);
+    rest += both ^ 1;
+  }
+  return rest;
+}
+
+// The other lanes: the search of either side goes on to its candidate at s + 1.
+void kernel_rest(MIEM_KERNEL_ARGS) {
+  const double *ax1 = A.x1, *ay1 = A.y1, *az1 = A.z1, *ax2 = A.x2, *ay2 = A.y2, *az2 = A.z2;
+  const double *bx1 = B.x1, *by1 = B.y1, *bz1 = B.z1, *bx2 = B.x2, *by2 = B.y2, *bz2 = B.z2;
+  const std::int64_t *ao1 = A.ok1, *ao2 = A.ok2, *bo1 = B.ok1, *bo2 = B.ok2;
+  for (std::ptrdiff_t c = 0; c < n; ++c) {
+    if (ao1[c] & bo1[c]) continue;  // kernel_first's
     double ux, uy, uz, uu, vx, vy, vz, vv;
     std::int64_t sa, aa, sb, ab;
     MIEM_PICK(a, c, ux, uy, uz, uu, sa, aa);
@@ -100,6 +123,13 @@ MIEM_CLONES void kernel_line(std::ptrdiff_t n, const Side& A, const Side& B,
                (-(aa | ab) & near_bit);
   }
 }
+
+inline void kernel_line(MIEM_KERNEL_ARGS) {
+  if (kernel_first(n, A, B, px, py, pz, cos0, c2, gap2, bit, near_bit, buv, bprod, bits) > 0) {
+    kernel_rest(n, A, B, px, py, pz, cos0, c2, gap2, bit, near_bit, buv, bprod, bits);
+  }
+}
+#undef MIEM_KERNEL_ARGS
 #undef MIEM_PICK
 
 // With min_step, the neighbour search of SPEC.md for one side of one (direction, scale), one
