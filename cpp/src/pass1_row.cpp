@@ -86,48 +86,56 @@ struct Side {
       double *__restrict bprod, std::int64_t *__restrict bits
 
 // The lanes whose candidates at s are usable on both sides (then the search ends there: found,
-// not slow, a usable cell near); the other lanes are left as they are. Returns their count.
-MIEM_CLONES std::int64_t kernel_first(MIEM_KERNEL_ARGS) {
+// not slow, a usable cell near); the other lanes are left as they are, and bit c % 64 of
+// rest[c / 64] is set for each of them (n <= 64 kRestWords).
+constexpr std::ptrdiff_t kRestWords = (kBlock + 63) / 64;
+MIEM_CLONES void kernel_first(MIEM_KERNEL_ARGS, std::uint64_t* __restrict rest) {
   (void)gap2;
   const double *__restrict ax1 = A.x1, *__restrict ay1 = A.y1, *__restrict az1 = A.z1;
   const double *__restrict bx1 = B.x1, *__restrict by1 = B.y1, *__restrict bz1 = B.z1;
   const std::int64_t *__restrict ao1 = A.ok1, *__restrict bo1 = B.ok1;
-  std::int64_t rest = 0;
-  for (std::ptrdiff_t c = 0; c < n; ++c) {
-    const std::int64_t both = ao1[c] & bo1[c];
-    const double ux = ax1[c] - px[c], uy = ay1[c] - py[c], uz = az1[c] - pz[c];
-    const double uu = (ux * ux + uy * uy) + uz * uz;
-    const double vx = bx1[c] - px[c], vy = by1[c] - py[c], vz = bz1[c] - pz[c];
-    const double vv = (vx * vx + vy * vy) + vz * vz;
-    MIEM_FOLD(c, ux, uy, uz, uu, vx, vy, vz, vv, both);
-    bits[c] |= -both & ((-good & bit) | (-flagged & (bit << kFlagShift)) | near_bit);
-    rest += both ^ 1;
+  for (std::ptrdiff_t w = 0; w * 64 < n; ++w) {
+    std::uint64_t word = 0;
+    const std::ptrdiff_t c1 = std::min(n, w * 64 + 64);
+    for (std::ptrdiff_t c = w * 64; c < c1; ++c) {
+      const std::int64_t both = ao1[c] & bo1[c];
+      const double ux = ax1[c] - px[c], uy = ay1[c] - py[c], uz = az1[c] - pz[c];
+      const double uu = (ux * ux + uy * uy) + uz * uz;
+      const double vx = bx1[c] - px[c], vy = by1[c] - py[c], vz = bz1[c] - pz[c];
+      const double vv = (vx * vx + vy * vy) + vz * vz;
+      MIEM_FOLD(c, ux, uy, uz, uu, vx, vy, vz, vv, both);
+      bits[c] |= -both & ((-good & bit) | (-flagged & (bit << kFlagShift)) | near_bit);
+      word |= static_cast<std::uint64_t>(both ^ 1) << (c & 63);
+    }
+    rest[w] = word;
   }
-  return rest;
 }
 
-// The other lanes: the search of either side goes on to its candidate at s + 1.
-void kernel_rest(MIEM_KERNEL_ARGS) {
+// The other lanes (kernel_first's `rest` bits): the search of either side goes on to its
+// candidate at s + 1.
+void kernel_rest(MIEM_KERNEL_ARGS, const std::uint64_t* rest) {
   const double *ax1 = A.x1, *ay1 = A.y1, *az1 = A.z1, *ax2 = A.x2, *ay2 = A.y2, *az2 = A.z2;
   const double *bx1 = B.x1, *by1 = B.y1, *bz1 = B.z1, *bx2 = B.x2, *by2 = B.y2, *bz2 = B.z2;
   const std::int64_t *ao1 = A.ok1, *ao2 = A.ok2, *bo1 = B.ok1, *bo2 = B.ok2;
-  for (std::ptrdiff_t c = 0; c < n; ++c) {
-    if (ao1[c] & bo1[c]) continue;  // kernel_first's
-    double ux, uy, uz, uu, vx, vy, vz, vv;
-    std::int64_t sa, aa, sb, ab;
-    MIEM_PICK(a, c, ux, uy, uz, uu, sa, aa);
-    MIEM_PICK(b, c, vx, vy, vz, vv, sb, ab);
-    MIEM_FOLD(c, ux, uy, uz, uu, vx, vy, vz, vv, aa & ab);
-    // 0/1 lanes to masks by negation (an int64 multiply has no AVX2 instruction)
-    bits[c] |= (-good & bit) | (-flagged & (bit << kFlagShift)) | (-(sa | sb) & kSlowBit) |
-               (-(aa | ab) & near_bit);
+  for (std::ptrdiff_t w = 0; w * 64 < n; ++w) {
+    for (std::uint64_t word = rest[w]; word != 0; word &= word - 1) {
+      const std::ptrdiff_t c = w * 64 + __builtin_ctzll(word);
+      double ux, uy, uz, uu, vx, vy, vz, vv;
+      std::int64_t sa, aa, sb, ab;
+      MIEM_PICK(a, c, ux, uy, uz, uu, sa, aa);
+      MIEM_PICK(b, c, vx, vy, vz, vv, sb, ab);
+      MIEM_FOLD(c, ux, uy, uz, uu, vx, vy, vz, vv, aa & ab);
+      // 0/1 lanes to masks by negation (an int64 multiply has no AVX2 instruction)
+      bits[c] |= (-good & bit) | (-flagged & (bit << kFlagShift)) | (-(sa | sb) & kSlowBit) |
+                 (-(aa | ab) & near_bit);
+    }
   }
 }
 
 inline void kernel_line(MIEM_KERNEL_ARGS) {
-  if (kernel_first(n, A, B, px, py, pz, cos0, c2, gap2, bit, near_bit, buv, bprod, bits) > 0) {
-    kernel_rest(n, A, B, px, py, pz, cos0, c2, gap2, bit, near_bit, buv, bprod, bits);
-  }
+  std::uint64_t rest[kRestWords];
+  kernel_first(n, A, B, px, py, pz, cos0, c2, gap2, bit, near_bit, buv, bprod, bits, rest);
+  kernel_rest(n, A, B, px, py, pz, cos0, c2, gap2, bit, near_bit, buv, bprod, bits, rest);
 }
 #undef MIEM_KERNEL_ARGS
 #undef MIEM_PICK
