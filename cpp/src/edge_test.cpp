@@ -515,8 +515,8 @@ bool is_lip(const GridView<T>& g, const std::uint8_t* labels, std::ptrdiff_t rr,
 // whatever its curvature, and no rule of steps 5-7 applies. The formulas are
 // miem.reference._curved's.
 constexpr double kCurvedBend = 0.5, kCurvedFit = 1.25, kCurvedLattice = 0.2;
-// on_curved_surface for m cells, from their quadrants' solved planes only (so a cell it
-// settles needs no half side solved): quadrant q of cell j at entry q * m + j of the SoA
+// That test for m cells, from their quadrants' solved planes only (so a cell it settles needs
+// no half side solved): quadrant q of cell j at entry q * m + j of the SoA
 // arrays (components `cap` apart; F: h, rms, tol, normal as side_planes writes it; Mb, nnb:
 // side_moments' centred scatter and count), the cell at P[j], P[cap + j] and its floor FL[j].
 // curved[j] = 1 or 0. Branch-free and vectorised: every lane computes every expression (a
