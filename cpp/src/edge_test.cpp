@@ -1208,8 +1208,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
     }
     // The cells left (cols[0 .. nf), keep: their index in the chunk), kSub at a time: in the
     // loop, m, cols and keep are the sub-chunk's. Their sides' sums to the front of mm: from
-    // the bands, or (unbanded: one sub-chunk) entry s * mc + keep[f] moved to s * m + f (in
-    // this order no entry is overwritten before it is moved: s * m + f <= s * mc + keep[f]).
+    // the bands, or (unbanded: one sub-chunk) entry s * mc + keep[f] moved to s * m + f.
     // The four quadrants (entries 4 m .. 8 m) are solved first: a cell on a smooth curved
     // surface (curved_cells) is settled by them, and only the others solve the four halves.
     const int mc = m;
@@ -1240,6 +1239,17 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
                    F[4 * kCap + e], F[5 * kCap + e]);
       }
     };
+    // sides [0, ns) of the n cells idx[0 .. n) of a set of `from` cells moved down in mm, from
+    // entry s * from + idx[f] to s * n + f (idx ascending: none is overwritten before it moves)
+    const auto move_sums = [&](int ns, int from, const int* idx, int n) {
+      for (int s = 0; s < ns; ++s) {
+        for (int f = 0; f < n; ++f) {
+          const int a = s * from + idx[f], b = s * n + f;
+          if (a == b) continue;
+          for (int q = 0; q < kM; ++q) mm[q * kCap + b] = mm[q * kCap + a];
+        }
+      }
+    };
     // the cells' points and floors for sides [s0, s1) of n cells, cell f from chunk cell ck[f]
     const auto side_cells = [&](const int* ck, int n, int s0, int s1) {
       for (int s = s0; s < s1; ++s) {
@@ -1256,13 +1266,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       if (banded) {
         band_sides(cols, m, 4, 8);
       } else if (m != mc) {
-        for (int s = 0; s < 8; ++s) {
-          for (int f = 0; f < m; ++f) {
-            const int from = s * mc + keep[f], to = s * m + f;
-            if (from == to) continue;
-            for (int q = 0; q < kM; ++q) mm[q * kCap + to] = mm[q * kCap + from];
-          }
-        }
+        move_sums(8, mc, keep, m);
       }
       side_cells(keep, m, 4, 8);
       solve_sides(4 * m, 4 * m);
@@ -1274,7 +1278,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
                      Mb + 4 * m, nnb + 4 * m, P + 4 * m, FL + 4 * m, curved);
       }
       // the others (cell f of mu: sub-chunk cell jj[f]) solve their halves at s * mu + f
-      // (unbanded: moved down from s * m + jj[f], the same order argument)
+      // (unbanded: moved down from s * m + jj[f])
       int jj[kSub], kj[kSub], mu = 0;
       for (int j = 0; j < m; ++j) {
         mark[cols[j]] = 0;
@@ -1288,13 +1292,7 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       if (banded) {
         band_sides(cu, mu, 0, 4);
       } else if (mu != m) {
-        for (int s = 0; s < 4; ++s) {
-          for (int f = 0; f < mu; ++f) {
-            const int from = s * m + jj[f], to = s * mu + f;
-            if (from == to) continue;
-            for (int q = 0; q < kM; ++q) mm[q * kCap + to] = mm[q * kCap + from];
-          }
-        }
+        move_sums(4, m, jj, mu);
       }
       side_cells(kj, mu, 0, 4);
       solve_sides(0, 4 * mu);
