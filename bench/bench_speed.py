@@ -403,10 +403,11 @@ def fmt_surfaces(rows: list[dict]) -> list[str]:
           f"{quadric_fit(r, 1.0, 0.5):.2f} on the `curved` sheet (x^2 + y^2 / 2), "
           f"{quadric_fit(r, 1.0, 0.0):.2f} on a cylinder, {quadric_fit(r, 1.0, -1.0):.2f} on "
           f"a saddle, against a tolerance of {k:g} rms. So on a bowl or a dome no clean side fits "
-          "a cell (the judge's shortcut settles none): each pays the eight sub-window planes, "
-          "and those that do not lie on the quadratic surface their quadrants bend as (SPEC "
-          "\"Edge test\" step 4) the rules' walks too (fins, "
-          "lips, hanging cells). Noise of the order of the curvature's residual lets more "
+          "a cell (the judge's shortcut settles none): each pays its four quadrant planes and "
+          "the test whether it lies on the quadratic surface they bend as (SPEC \"Edge test\" "
+          "step 4), and those that do not the other four sub-window planes and the rules' "
+          "walks too (fins, lips, hanging cells). Noise of the order of the curvature's "
+          "residual lets more "
           f"cells fit (at {max(SURFACE_NOISES) * 1e3:g} um: " + ", ".join(hi)
           + " the plane's time)."]
     return L
