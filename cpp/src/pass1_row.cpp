@@ -79,18 +79,16 @@ struct Side {
 // a usable cell (scale 1: the two candidates are the whole isolation reach of max_gap <= 1).
 // Two loops: kernel_first, vectorised, for the lanes whose first candidates on both sides are
 // usable (nearly all: it does not read the second candidates), and kernel_rest for the others.
-#define MIEM_KERNEL_ARGS                                                                      \
-  std::ptrdiff_t n, const Side &A, const Side &B, const double *__restrict px,              \
-      const double *__restrict py, const double *__restrict pz, double cos0, double c2,     \
-      std::int64_t gap2, std::int64_t bit, std::int64_t near_bit, double *__restrict buv,   \
-      double *__restrict bprod, std::int64_t *__restrict bits
-
 // The lanes whose candidates at s are usable on both sides (then the search ends there: found,
 // not slow, a usable cell near); the other lanes are left as they are, and bit c % 64 of
 // rest[c / 64] is set for each of them (n <= 64 kRestWords).
 constexpr std::ptrdiff_t kRestWords = (kBlock + 63) / 64;
-MIEM_CLONES void kernel_first(MIEM_KERNEL_ARGS, std::uint64_t* __restrict rest) {
-  (void)gap2;
+MIEM_CLONES void kernel_first(std::ptrdiff_t n, const Side& A, const Side& B,
+                              const double* __restrict px, const double* __restrict py,
+                              const double* __restrict pz, double cos0, double c2,
+                              std::int64_t bit, std::int64_t near_bit, double* __restrict buv,
+                              double* __restrict bprod, std::int64_t* __restrict bits,
+                              std::uint64_t* __restrict rest) {
   const double *__restrict ax1 = A.x1, *__restrict ay1 = A.y1, *__restrict az1 = A.z1;
   const double *__restrict bx1 = B.x1, *__restrict by1 = B.y1, *__restrict bz1 = B.z1;
   const std::int64_t *__restrict ao1 = A.ok1, *__restrict bo1 = B.ok1;
@@ -113,7 +111,10 @@ MIEM_CLONES void kernel_first(MIEM_KERNEL_ARGS, std::uint64_t* __restrict rest) 
 
 // The other lanes (kernel_first's `rest` bits): the search of either side goes on to its
 // candidate at s + 1.
-void kernel_rest(MIEM_KERNEL_ARGS, const std::uint64_t* rest) {
+void kernel_rest(std::ptrdiff_t n, const Side& A, const Side& B, const double* px,
+                 const double* py, const double* pz, double cos0, double c2, std::int64_t gap2,
+                 std::int64_t bit, std::int64_t near_bit, double* buv, double* bprod,
+                 std::int64_t* bits, const std::uint64_t* rest) {
   const double *ax1 = A.x1, *ay1 = A.y1, *az1 = A.z1, *ax2 = A.x2, *ay2 = A.y2, *az2 = A.z2;
   const double *bx1 = B.x1, *by1 = B.y1, *bz1 = B.z1, *bx2 = B.x2, *by2 = B.y2, *bz2 = B.z2;
   const std::int64_t *ao1 = A.ok1, *ao2 = A.ok2, *bo1 = B.ok1, *bo2 = B.ok2;
@@ -132,12 +133,14 @@ void kernel_rest(MIEM_KERNEL_ARGS, const std::uint64_t* rest) {
   }
 }
 
-inline void kernel_line(MIEM_KERNEL_ARGS) {
+inline void kernel_line(std::ptrdiff_t n, const Side& A, const Side& B, const double* px,
+                        const double* py, const double* pz, double cos0, double c2,
+                        std::int64_t gap2, std::int64_t bit, std::int64_t near_bit, double* buv,
+                        double* bprod, std::int64_t* bits) {
   std::uint64_t rest[kRestWords];
-  kernel_first(n, A, B, px, py, pz, cos0, c2, gap2, bit, near_bit, buv, bprod, bits, rest);
+  kernel_first(n, A, B, px, py, pz, cos0, c2, bit, near_bit, buv, bprod, bits, rest);
   kernel_rest(n, A, B, px, py, pz, cos0, c2, gap2, bit, near_bit, buv, bprod, bits, rest);
 }
-#undef MIEM_KERNEL_ARGS
 #undef MIEM_PICK
 
 // With min_step, the neighbour search of SPEC.md for one side of one (direction, scale), one

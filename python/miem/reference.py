@@ -1126,11 +1126,11 @@ def _quiet_cells(
     made ABNORMAL). A NORMAL cell is quiet when every cell within ``r`` rows and columns lies
     inside the grid and is NORMAL, INVALID or ABNORMAL (no EDGE), fewer than ``n_min`` of them
     INVALID or ABNORMAL (no sub-window of step 3 is empty or short of support), no
-    ``removed`` cell lies within ``window // 2``, and its
-    height-window plane (the NORMAL cells of its window, itself included, as the height test
-    fits them) is smooth, ``rms = sqrt(max(l0, 0) / n) <= _EDGE_QUIET_ROUGH * floor`` or flat
-    to round-off (``l0 <= _FLAT_L0 * l2``, step 3's rms of 0: a noise-free plane, whose
-    ``floor`` is often 0), with the cell within ``_EDGE_QUIET_H * rms`` of it, or within the height test's
+    ``removed`` cell lies within ``window // 2``, and its height-window plane (the NORMAL cells
+    of its window, itself included, as the height test fits them) is smooth,
+    ``rms = sqrt(max(l0, 0) / n) <= _EDGE_QUIET_ROUGH * floor`` or flat to round-off
+    (``l0 <= _FLAT_L0 * l2``, step 3's rms of 0: a noise-free plane, whose ``floor`` is often
+    0), with the cell within ``_EDGE_QUIET_H * rms`` of it, or within the height test's
     round-off floor ``1e-6 sqrt((l1 + l2) / n)``."""
     hh, ww = labels.shape
     normal = labels == NORMAL
@@ -1240,10 +1240,11 @@ def _curved(
 ) -> NDArray[np.bool_]:
     """SPEC "Edge test" step 4, smooth curved surface: for each cell (``pt``: P relative to the
     origin; ``level``: :func:`_clean_sides`'; the rest :func:`_side_fits`' arrays), whether its
-    four quadrants (sides 4-7) are level (valid, not steep), not empty and bend as one quadratic surface ``z = 1/2 v'Av`` would (A from
-    the differences of opposite quadrants' slopes at their centroids; each quadrant's vertical
-    rms^2 between _CURVED_BEND and _CURVED_FIT times the residual variance such a surface
-    leaves about its plane, plus ``floor^2`` above), and P lies within
+    four quadrants (sides 4-7) are level (valid, not steep), not empty and bend as one
+    quadratic surface ``z = 1/2 v'Av`` would (A from the differences of opposite quadrants'
+    slopes at their centroids; each quadrant's vertical rms^2 between _CURVED_BEND and
+    _CURVED_FIT times the residual variance such a surface leaves about its plane, plus
+    ``floor^2`` above), and P lies within
     ``max(k sigma, floor)`` of where that surface puts it above every quadrant's plane,
     ``1/2 m'Am - 1/2 tr(AS)`` (``sigma^2``: the quadrants' mean vertical rms^2 less the
     surface's residual variance)."""
