@@ -51,7 +51,9 @@ def _direct(g: np.ndarray, labels: np.ndarray, r: int, window: int, floor: float
             win = labels[a - r:a + r + 1, b - r:b + r + 1]
             if np.any(win == miem.EDGE):
                 continue
-            if ((win == miem.INVALID) | (win == miem.ABNORMAL)).sum() >= n_min:
+            gone = (win == miem.INVALID) | (win == miem.ABNORMAL)
+            halves = (gone[:, :r], gone[:, r + 1:], gone[:r], gone[r + 1:])  # left right up down
+            if max(int(half.sum()) for half in halves) >= n_min:
                 continue
             if removed[max(0, a - hw):a + hw + 1, max(0, b - hw):b + hw + 1].any():
                 continue
@@ -198,6 +200,57 @@ def test_core_judges_what_the_reference_judges() -> None:
     assert not quiet[20, 20] and not quiet[40:46, 55].any()
     every = ref.edge_test(g, before, window=15, tolerance=4.0, max_iterations=10, **lengths)[0]
     some = ref.edge_test(g, before, window=15, tolerance=4.0, max_iterations=10,
+                         height_window=21, height_removed=removed, **lengths)[0]
+    np.testing.assert_array_equal(some, every)
+    np.testing.assert_array_equal(some, oracle.labels)
+
+
+def test_scattered_dropouts_are_counted_per_half() -> None:
+    """The support condition is asked of each half sub-window (SPEC "Edge test" step 1): four
+    dropouts on the diagonals around a cell (n_min of them in its window, two in each half)
+    leave it quiet, four in one half do not. At 12 % scattered dropouts most of a noisy sheet
+    stays quiet (a window of 15 x 15 cells holds n_min = 24 of them for 40 % of its cells, a
+    half of 15 x 7 almost never), and the core, the reference judging every cell and the
+    reference leaving the quiet ones out give the same labels."""
+    g, labels = _scene()
+    for dr, dc in ((-2, -2), (-2, 2), (2, -2), (2, 2)):  # around (20, 18): 2 per half
+        g[20 + dr, 18 + dc] = np.nan
+        labels[20 + dr, 18 + dc] = miem.INVALID
+    g[17:21, 33] = np.nan  # a column of 4: in the right half of (17..20, 30)
+    labels[17:21, 33] = miem.INVALID
+    removed = np.zeros(labels.shape, dtype=bool)
+    got = ref._quiet_cells(g, labels, R, WINDOW, FLOOR, removed)
+    quiet, margin = _direct(g, labels, R, WINDOW, FLOOR, removed)
+    sure = margin > 1e-9
+    np.testing.assert_array_equal(got[sure], quiet[sure])
+    window = ref._box_count(labels == miem.INVALID, 2 * R + 1)
+    assert window[20, 18] == 4 == max(3, R * R // 2) and got[20, 18]  # n_min in the window
+    assert ref._half_counts(labels == miem.INVALID, R)[19, 30] == 4 == window[19, 30]
+    assert not got[17:21, 30].any() and got[17:21, 26].all()  # 3 columns to its left: quiet
+    # a detection among scattered dropouts
+    from miem.simulate import make_scan
+    scan = make_scan((110, 120), step=0.2, surface="tilted", noise=0.003, seed=4,
+                     defects={"spike": 3, "pit": 3, "cluster": 2}, dropout=0.12)
+    oracle = ref.detect(scan.points)
+    for nt in (1, 2):
+        np.testing.assert_array_equal(miem.detect(scan.points, num_threads=nt).labels,
+                                      oracle.labels)
+    truth = scan.truth == miem.ABNORMAL
+    assert (oracle.labels[truth] == miem.ABNORMAL).mean() > 0.9
+    p = oracle.params
+    before = ref.detect(scan.points, edge_tolerance=None).labels
+    lengths = {k: p[k] for k in ("min_step", "z_resolution", "z_noise")}
+    floor = max(0.5 * (p["min_step"] or 0.0), 1.5 * (p["z_resolution"] or 0.0),
+                2.0 * (p["z_noise"] or 0.0))
+    removed = (before == miem.ABNORMAL) & (ref.detect(
+        scan.points, height_tolerance=None, edge_tolerance=None).labels != miem.ABNORMAL)
+    quiet = ref._quiet_cells(scan.points, before, 7, 21, floor, removed)
+    gone = (before == miem.INVALID) | (before == miem.ABNORMAL)
+    crowded = ref._box_count(gone, 15) >= max(3, 7 * 7 // 2)
+    assert crowded.mean() > 0.2 and quiet[crowded].mean() > 0.5
+    every = ref.edge_test(scan.points, before, window=15, tolerance=4.0, max_iterations=10,
+                          **lengths)[0]
+    some = ref.edge_test(scan.points, before, window=15, tolerance=4.0, max_iterations=10,
                          height_window=21, height_removed=removed, **lengths)[0]
     np.testing.assert_array_equal(some, every)
     np.testing.assert_array_equal(some, oracle.labels)

@@ -422,6 +422,24 @@ def test_stream_judges_the_cells_that_are_not_quiet(kw: dict, noise: float) -> N
     assert stream.edge_candidates == _not_quiet(grid, p)
 
 
+def test_stream_quiet_cells_among_scattered_dropouts() -> None:
+    """At 12 % scattered dropouts a 15 x 15 window often holds n_min = 24 of them while no half
+    does (SPEC "Edge test" step 1 counts per half): the stream leaves out the cells the
+    reference finds quiet, and its labels equal batch detection's."""
+    from miem.simulate import make_scan
+    scan = make_scan((260, 90), step=0.2, surface="tilted", noise=0.003, seed=6,
+                     defects={"spike": 4, "pit": 4, "cluster": 2}, dropout=0.12)
+    g = scan.points.copy()
+    r_, c_ = np.mgrid[0:260, 0:90]
+    for r0, c0 in ((40, 20), (130, 60), (200, 30)):  # low bumps: the height passes find them
+        g[..., 2] += 0.04 * np.exp(-((r_ - r0) ** 2 + (c_ - c0) ** 2) / 0.8)
+    p = miem.default_params("stream")
+    stream = ProfileStream(90, params=p)
+    got = stream_all(stream, g)
+    np.testing.assert_array_equal(got, miem.detect(g, params=p).labels)
+    assert stream.edge_candidates == _not_quiet(g, p, quiet_share=0.5)
+
+
 def test_stream_quiet_planes_of_a_sparse_strip() -> None:
     """A strip of columns mostly without return (a 26-column sheet, a lone column of specks at
     the far side): height pass 1 fits those rows cell by cell (few cells in the span), and a

@@ -1508,7 +1508,8 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol e
       for (std::ptrdiff_t a = u0; a < u0 + 2 * r; ++a) qw.add(labels + a * W, 1);
       for (std::ptrdiff_t x = u0 + r; x < u1 + r; ++x) {
         qw.add(labels + (x + r) * W, 1);
-        qw.drop(labels + x * W, planes + x * W, kHQuiet | kHStale, kHQuiet, todo + x * W);
+        qw.drop(labels + x * W, labels + (x + 1) * W, planes + x * W, kHQuiet | kHStale,
+                kHQuiet, todo + x * W);
         qw.add(labels + (x - r) * W, -1);
       }
     });

@@ -384,7 +384,8 @@ void ProfileStream<T>::quiet_candidates(std::int64_t row, const std::uint8_t* wi
     qc.add(labs, -1);
   }
   for (; eq_next_ < row + r + 1; ++eq_next_) qc.add(at(eq_next_), 1);
-  qc.drop(at(row), eplane_.data() + slot(row) * W, detail::kHQuiet | detail::kHStale,
+  // (the rows below the row are not judged yet: their labels are as they came in)
+  qc.drop(at(row), at(row + 1), eplane_.data() + slot(row) * W, detail::kHQuiet | detail::kHStale,
           detail::kHQuiet, etd_.data());
 }
 

@@ -951,6 +951,27 @@ def _box_count(mask: NDArray[np.bool_], window: int) -> NDArray[np.int64]:
     return (s[r1][:, c1] - s[r0][:, c1] - s[r1][:, c0] + s[r0][:, c0]).astype(np.int64)
 
 
+def _half_counts(mask: NDArray[np.bool_], r: int) -> NDArray[np.int64]:
+    """The largest number of True cells in one of the four half sub-windows around each cell
+    (SPEC "Edge test" step 2: rows ``-r..r`` and columns ``-r..-1`` or ``1..r``, columns
+    ``-r..r`` and rows ``-r..-1`` or ``1..r``; clipped)."""
+    h, w = mask.shape
+    s = np.zeros((h + 1, w + 1), dtype=np.int64)
+    s[1:, 1:] = np.cumsum(np.cumsum(mask.astype(np.int64), axis=0), axis=1)
+    rows, cols = np.arange(h)[:, None], np.arange(w)[None, :]
+
+    def rect(a0: Any, a1: Any, b0: Any, b1: Any) -> NDArray[np.int64]:
+        a0, a1 = np.clip(a0, 0, h), np.clip(a1, 0, h)  # rows [a0, a1), columns [b0, b1)
+        b0, b1 = np.clip(b0, 0, w), np.clip(b1, 0, w)
+        return s[a1, b1] - s[a0, b1] - s[a1, b0] + s[a0, b0]
+
+    left = rect(rows - r, rows + r + 1, cols - r, cols)
+    right = rect(rows - r, rows + r + 1, cols + 1, cols + r + 1)
+    up = rect(rows - r, rows, cols - r, cols + r + 1)
+    down = rect(rows + 1, rows + r + 1, cols - r, cols + r + 1)
+    return np.maximum(np.maximum(left, right), np.maximum(up, down))
+
+
 def _compact_edges(
     edge: NDArray[np.bool_], extent: int, invalid: NDArray[np.bool_] | None = None, gap: int = 0
 ) -> NDArray[np.bool_]:
@@ -1124,8 +1145,9 @@ def _quiet_cells(
     """SPEC "Edge test" step 1: the quiet cells, which pass 1 leaves out, on the labels at the
     start of the edge test (``window``: the height test's; ``removed``: the cells its passes
     made ABNORMAL). A NORMAL cell is quiet when every cell within ``r`` rows and columns lies
-    inside the grid and is NORMAL, INVALID or ABNORMAL (no EDGE), fewer than ``n_min`` of them
-    INVALID or ABNORMAL (no sub-window of step 3 is empty or short of support), no
+    inside the grid and is NORMAL, INVALID or ABNORMAL (no EDGE), each of its four half
+    sub-windows (step 2) holds fewer than ``n_min`` INVALID or ABNORMAL cells (no sub-window of
+    step 3 is empty or short of support: a quadrant lies within a half), no
     ``removed`` cell lies within ``window // 2``, and its height-window plane (the NORMAL cells
     of its window, itself included, as the height test fits them) is smooth,
     ``rms = sqrt(max(l0, 0) / n) <= _EDGE_QUIET_ROUGH * floor`` or flat to round-off
@@ -1138,7 +1160,7 @@ def _quiet_cells(
         return np.zeros_like(normal)
     side = 2 * r + 1
     cand = normal & (_box_count(labels == EDGE, side) == 0)
-    cand &= _box_count((labels == INVALID) | (labels == ABNORMAL), side) < max(3, (r * r) // 2)
+    cand &= _half_counts((labels == INVALID) | (labels == ABNORMAL), r) < max(3, (r * r) // 2)
     cand &= _box_count(removed, 2 * (window // 2) + 1) == 0
     inside = np.zeros_like(cand)
     inside[r:hh - r, r:ww - r] = True

@@ -1,0 +1,122 @@
+// The edge test's quiet cells (cpp/src/edge_quiet.hpp, SPEC "Edge test" step 1), as batch and
+// stream detection find them row by row with QuietCounts, against the rule counted cell by cell:
+// a NORMAL cell whose plane bits say quiet, no EDGE cell within r rows and columns, and each of
+// its four half sub-windows holding fewer than n_min INVALID or ABNORMAL cells.
+#include <gtest/gtest.h>
+
+#include <cstdint>
+#include <random>
+#include <vector>
+
+#include "edge_quiet.hpp"
+#include "miem/organized.hpp"
+#include "stages.hpp"
+
+namespace {
+
+using miem::detail::kHQuiet;
+using miem::detail::kHStale;
+using miem::detail::QuietCounts;
+
+struct Cells {
+  std::ptrdiff_t H, W;
+  std::vector<std::uint8_t> labels, planes;
+};
+
+// Labels with scattered dropouts (INVALID) and removed cells (ABNORMAL) at the given rates,
+// patches of dropouts, a few EDGE cells; plane bits mostly quiet.
+Cells make_cells(std::ptrdiff_t H, std::ptrdiff_t W, double invalid, unsigned seed) {
+  Cells s{H, W, std::vector<std::uint8_t>(static_cast<std::size_t>(H * W), miem::kNormal),
+          std::vector<std::uint8_t>(static_cast<std::size_t>(H * W), kHQuiet)};
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  for (std::ptrdiff_t i = 0; i < H * W; ++i) {
+    const double v = u(rng);
+    if (v < invalid) s.labels[i] = miem::kInvalid;
+    else if (v < invalid + 0.02) s.labels[i] = miem::kAbnormal;
+    else if (v > 0.999) s.labels[i] = miem::kEdge;
+    if (u(rng) < 0.05) s.planes[i] = kHQuiet | kHStale;
+    if (u(rng) < 0.05) s.planes[i] = 0;
+  }
+  for (std::ptrdiff_t r = H / 3; r < H / 3 + 5; ++r)  // a patch of 5 x 6 dropouts
+    for (std::ptrdiff_t c = W / 2; c < W / 2 + 6; ++c) s.labels[r * W + c] = miem::kInvalid;
+  return s;
+}
+
+// The rule cell by cell: 1 where pass 1 judges the cell (not quiet), as todo starts at 1.
+std::vector<std::uint8_t> brute(const Cells& s, std::ptrdiff_t r) {
+  const std::ptrdiff_t H = s.H, W = s.W, n_min = miem::detail::edge_n_min(r);
+  std::vector<std::uint8_t> todo(static_cast<std::size_t>(H * W), 1);
+  auto at = [&](std::ptrdiff_t a, std::ptrdiff_t b) { return s.labels[a * W + b]; };
+  auto gone = [&](std::ptrdiff_t a0, std::ptrdiff_t a1, std::ptrdiff_t b0, std::ptrdiff_t b1) {
+    std::ptrdiff_t n = 0;  // INVALID or ABNORMAL cells in rows [a0, a1], columns [b0, b1]
+    for (std::ptrdiff_t a = a0; a <= a1; ++a)
+      for (std::ptrdiff_t b = b0; b <= b1; ++b)
+        n += at(a, b) == miem::kInvalid || at(a, b) == miem::kAbnormal;
+    return n;
+  };
+  for (std::ptrdiff_t x = r; x < H - r; ++x) {
+    for (std::ptrdiff_t c = r; c < W - r; ++c) {
+      if (at(x, c) != miem::kNormal || s.planes[x * W + c] != kHQuiet) continue;
+      bool edge = false;
+      for (std::ptrdiff_t a = x - r; a <= x + r; ++a)
+        for (std::ptrdiff_t b = c - r; b <= c + r; ++b) edge |= at(a, b) == miem::kEdge;
+      if (edge) continue;
+      const std::ptrdiff_t left = gone(x - r, x + r, c - r, c - 1);
+      const std::ptrdiff_t right = gone(x - r, x + r, c + 1, c + r);
+      const std::ptrdiff_t up = gone(x - r, x - 1, c - r, c + r);
+      const std::ptrdiff_t down = gone(x + 1, x + r, c - r, c + r);
+      if (left < n_min && right < n_min && up < n_min && down < n_min) todo[x * W + c] = 0;
+    }
+  }
+  return todo;
+}
+
+// The batch's loop (edge_test.cpp): the window counts slide down the rows.
+std::vector<std::uint8_t> by_rows(const Cells& s, std::ptrdiff_t r) {
+  const std::ptrdiff_t H = s.H, W = s.W;
+  std::vector<std::uint8_t> todo(static_cast<std::size_t>(H * W), 1);
+  std::vector<std::int32_t> buf(static_cast<std::size_t>(QuietCounts::ints(W)));
+  const QuietCounts qw = QuietCounts::over(buf.data(), W, r);
+  const std::uint8_t* labels = s.labels.data();
+  qw.clear();
+  for (std::ptrdiff_t a = 0; a < 2 * r; ++a) qw.add(labels + a * W, 1);
+  for (std::ptrdiff_t x = r; x < H - r; ++x) {
+    qw.add(labels + (x + r) * W, 1);
+    qw.drop(labels + x * W, labels + (x + 1) * W, s.planes.data() + x * W, kHQuiet | kHStale,
+            kHQuiet, todo.data() + x * W);
+    qw.add(labels + (x - r) * W, -1);
+  }
+  return todo;
+}
+
+TEST(EdgeQuiet, HalvesCountedRowByRowAsCellByCell) {
+  for (const std::ptrdiff_t r : {3, 7}) {
+    for (const double invalid : {0.005, 0.06, 0.12, 0.2}) {
+      const Cells s = make_cells(70, 90, invalid, static_cast<unsigned>(r * 100 + invalid * 1000));
+      const std::vector<std::uint8_t> want = brute(s, r);
+      EXPECT_EQ(by_rows(s, r), want) << "r " << r << " invalid " << invalid;
+      std::ptrdiff_t quiet = 0;
+      for (const std::uint8_t t : want) quiet += t == 0;
+      EXPECT_GT(quiet, 0) << "r " << r << " invalid " << invalid;  // the rule decides somewhere
+    }
+  }
+}
+
+// Cells whose window holds n_min INVALID cells but no half does (the whole-window count alone
+// would not make them quiet) and a cell with n_min in one half.
+TEST(EdgeQuiet, TheWindowMayHoldNMinWhereNoHalfDoes) {
+  const std::ptrdiff_t r = 3, H = 20, W = 20;
+  Cells s{H, W, std::vector<std::uint8_t>(H * W, miem::kNormal),
+          std::vector<std::uint8_t>(H * W, kHQuiet)};
+  for (const auto& d : {std::pair{-2, -2}, {-2, 2}, {2, -2}, {2, 2}})  // around (6, 6)
+    s.labels[(6 + d.first) * W + 6 + d.second] = miem::kInvalid;
+  for (std::ptrdiff_t a = 11; a < 15; ++a) s.labels[a * W + 16] = miem::kInvalid;  // (13, 13)
+  ASSERT_EQ(miem::detail::edge_n_min(r), 4);
+  const std::vector<std::uint8_t> got = by_rows(s, r);
+  EXPECT_EQ(got[6 * W + 6], 0);    // 4 in its window, 2 in each half: quiet
+  EXPECT_EQ(got[13 * W + 13], 1);  // 4 in its right half: judged
+  EXPECT_EQ(got, brute(s, r));
+}
+
+}  // namespace
