@@ -106,6 +106,19 @@ def test_detect_matches_reference(seed: int, params: dict) -> None:
     assert_same(core, oracle)
 
 
+@pytest.mark.parametrize("nan_frac", [0.12, 0.3])
+@pytest.mark.parametrize("params", [{}, {"preset": "paper"}, {"max_gap": 2}, {"max_gap": 0}],
+                         ids=lambda p: ",".join(f"{k}={v}" for k, v in p.items()) or "defaults")
+def test_dense_dropouts_match_reference(nan_frac: float, params: dict) -> None:
+    """Scattered dropouts at 12 and 30 %: most 64-cell words of pass 1's row kernel then hold
+    many cells whose neighbour at s is a dropout, which it searches on to s + 1 for the whole
+    word at once (kernel_rest_all); labels, flags and angles as the reference's."""
+    grid = make_grid(7, shape=(60, 150), nan_frac=nan_frac)
+    core, oracle = miem.detect(grid, **params), ref.detect(grid, **params)
+    assert {0, 1, 3} <= set(np.unique(oracle.labels).tolist())
+    assert_same(core, oracle)
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_default_is_the_recommended_preset_and_matches_reference(seed: int) -> None:
     grid = make_grid(seed)

@@ -109,6 +109,44 @@ MIEM_CLONES void kernel_first(std::ptrdiff_t n, const Side& A, const Side& B,
   }
 }
 
+// The search of lane c on to the candidates at s + 1 (kernel_rest's lanes; a lane whose
+// candidates at s are both usable folds the pair kernel_first folded again, which changes
+// nothing: the same pair is not better than itself, and the same bits are set).
+#define MIEM_REST_LANE(c)                                                                   \
+  do {                                                                                      \
+    double ux, uy, uz, uu, vx, vy, vz, vv;                                                  \
+    std::int64_t sa, aa, sb, ab;                                                            \
+    MIEM_PICK(a, c, ux, uy, uz, uu, sa, aa);                                                \
+    MIEM_PICK(b, c, vx, vy, vz, vv, sb, ab);                                                \
+    MIEM_FOLD(c, ux, uy, uz, uu, vx, vy, vz, vv, aa & ab);                                  \
+    /* 0/1 lanes to masks by negation (an int64 multiply has no AVX2 instruction) */       \
+    bits[c] |= (-good & bit) | (-flagged & (bit << kFlagShift)) | (-(sa | sb) & kSlowBit) | \
+               (-(aa | ab) & near_bit);                                                     \
+  } while (0)
+
+// MIEM_REST_LANE for every lane of [c0, c1), vectorised: a word of kernel_first's `rest`
+// with many bits set (scattered dropouts) costs less this way than lane by lane.
+MIEM_CLONES void kernel_rest_all(std::ptrdiff_t c0, std::ptrdiff_t c1, const Side& A,
+                                 const Side& B, const double* __restrict px,
+                                 const double* __restrict py, const double* __restrict pz,
+                                 double cos0, double c2, std::int64_t gap2, std::int64_t bit,
+                                 std::int64_t near_bit, double* __restrict buv,
+                                 double* __restrict bprod, std::int64_t* __restrict bits) {
+  const double *__restrict ax1 = A.x1, *__restrict ay1 = A.y1, *__restrict az1 = A.z1;
+  const double *__restrict ax2 = A.x2, *__restrict ay2 = A.y2, *__restrict az2 = A.z2;
+  const double *__restrict bx1 = B.x1, *__restrict by1 = B.y1, *__restrict bz1 = B.z1;
+  const double *__restrict bx2 = B.x2, *__restrict by2 = B.y2, *__restrict bz2 = B.z2;
+  const std::int64_t *__restrict ao1 = A.ok1, *__restrict ao2 = A.ok2;
+  const std::int64_t *__restrict bo1 = B.ok1, *__restrict bo2 = B.ok2;
+  for (std::ptrdiff_t c = c0; c < c1; ++c) MIEM_REST_LANE(c);
+}
+
+// Set bits of a `rest` word from which kernel_rest_all takes the whole word: about 1.6 ns a
+// lane against 11 ns a lane one at a time (2048^2 scan with random dropouts, one thread). The
+// angle passes at 10 % of dropouts 136 -> 117 ms, at 20 % 208 -> 127 ms, the same at 0.5-5 %
+// (4 and 16 measured slower at 2-5 % and at 10 %).
+constexpr int kRestDense = 10;
+
 // The other lanes (kernel_first's `rest` bits): the search of either side goes on to its
 // candidate at s + 1.
 void kernel_rest(std::ptrdiff_t n, const Side& A, const Side& B, const double* px,
@@ -119,19 +157,18 @@ void kernel_rest(std::ptrdiff_t n, const Side& A, const Side& B, const double* p
   const double *bx1 = B.x1, *by1 = B.y1, *bz1 = B.z1, *bx2 = B.x2, *by2 = B.y2, *bz2 = B.z2;
   const std::int64_t *ao1 = A.ok1, *ao2 = A.ok2, *bo1 = B.ok1, *bo2 = B.ok2;
   for (std::ptrdiff_t w = 0; w * 64 < n; ++w) {
+    if (__builtin_popcountll(rest[w]) >= kRestDense) {
+      kernel_rest_all(w * 64, std::min(n, w * 64 + 64), A, B, px, py, pz, cos0, c2, gap2, bit,
+                      near_bit, buv, bprod, bits);
+      continue;
+    }
     for (std::uint64_t word = rest[w]; word != 0; word &= word - 1) {
       const std::ptrdiff_t c = w * 64 + __builtin_ctzll(word);
-      double ux, uy, uz, uu, vx, vy, vz, vv;
-      std::int64_t sa, aa, sb, ab;
-      MIEM_PICK(a, c, ux, uy, uz, uu, sa, aa);
-      MIEM_PICK(b, c, vx, vy, vz, vv, sb, ab);
-      MIEM_FOLD(c, ux, uy, uz, uu, vx, vy, vz, vv, aa & ab);
-      // 0/1 lanes to masks by negation (an int64 multiply has no AVX2 instruction)
-      bits[c] |= (-good & bit) | (-flagged & (bit << kFlagShift)) | (-(sa | sb) & kSlowBit) |
-                 (-(aa | ab) & near_bit);
+      MIEM_REST_LANE(c);
     }
   }
 }
+#undef MIEM_REST_LANE
 
 inline void kernel_line(std::ptrdiff_t n, const Side& A, const Side& B, const double* px,
                         const double* py, const double* pz, double cos0, double c2,
