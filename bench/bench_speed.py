@@ -17,6 +17,8 @@ Sections, all measured in this one run:
   length; today's ``miem_bench_stages`` against the commit before the vectorised min_step search.
 * Surfaces: the default on 512^2 scans of every ``make_scan`` surface at two noise levels
   (``miem_bench_stages``, one thread): what a part's shape costs, stage by stage.
+* Dropouts: the default on the benchmark scan with 0-20 % random dropouts added, today's build
+  and the one before the quiet rule counted per half sub-window.
 * Where the time goes: each C++ stage timed alone (``miem_bench_stages``, CPU time, one thread),
   and the stage costs by configuration differences through the Python API (comparable across
   versions: angle test only; + heights at every point; + the height test).
@@ -344,6 +346,74 @@ def surface_times(build_dir: Path, side: int, repeats: int) -> list[dict]:
     return rows
 
 
+#: The dropout sweep: random dropouts added to the benchmark scan (which has 0.5 % of its own),
+#: and the build before the changes that sweep measures.
+DROPOUTS = (0.0, 0.02, 0.05, 0.1, 0.2)
+DROPOUT_BASE = ("3be50c2", "2026-12-07, before the quiet rule counted support per half and "
+                "pass 1 searched on to s + 1 a whole word at once")
+
+
+def dropout_times(build_dir: Path, side: int, repeats: int, build_bases: bool = True):
+    """miem_bench_stages (default preset, 1 thread) on the side x side benchmark scan with each
+    of DROPOUTS' shares of its cells made dropouts (seeded), today's build and DROPOUT_BASE's
+    (built first unless build_bases is false; skipped when neither is there)."""
+    binary = build_stages(ROOT, build_dir)
+    if binary is None:
+        return []
+    old = base_binary(DROPOUT_BASE[0], build_bases)
+    grid_file = build_dir / f"dropouts_{side}.f64"
+    rows = []
+    for share in DROPOUTS:
+        g = scan_grid(side, side).astype(np.float64)
+        g[np.random.default_rng(3).random((side, side)) < share] = np.nan
+        g.tofile(grid_file)
+        row = {"share": share, "nan": float(np.isnan(g[..., 2]).mean()),
+               "now": run_stages(binary, grid_file, side, 1, repeats, PRESET)}
+        if old is not None:
+            row["before"] = run_stages(old, grid_file, side, 1, repeats, PRESET)
+        rows.append(row)
+    grid_file.unlink()
+    return rows
+
+
+def fmt_dropouts(rows: list[dict]) -> list[str]:
+    if not rows:
+        return []
+    side = rows[0]["now"]["rows"]
+    has_before = all("before" in r for r in rows)
+    L = ["", f"### Dropouts (default preset, {side}x{side}, 1 thread)", "",
+         "The benchmark scan with random dropouts added (`miem_bench_stages`, CPU time, best of "
+         "the repeats)" + (f"; `before`: {DROPOUT_BASE[0]} ({DROPOUT_BASE[1]}), built from "
+                           "its commit in this run" if has_before else "") + ".", "",
+         "| dropouts | run() ms | ns / point | angle passes ms | height test ms | edge test ms |"
+         + (" before: edge test ms | before: run() ms | speed-up | same labels |"
+            if has_before else ""),
+         "|---:|---:|---:|---:|---:|---:|" + ("---:|---:|---:|---|" if has_before else "")]
+    for r in rows:
+        a = r["now"]
+        n = a["rows"] * a["cols"]
+        line = (f"| {r['nan'] * 100:.1f} % | {a['run'] * 1e3:.0f} | {a['run'] / n * 1e9:.0f} | "
+                f"{a['angle_passes'] * 1e3:.0f} | {a['height_test'] * 1e3:.0f} | "
+                f"{a['edge_test'] * 1e3:.0f} |")
+        if has_before:
+            b = r["before"]
+            same = "yes" if b["checksum"] == a["checksum"] else "NO"
+            line += (f" {b['edge_test'] * 1e3:.0f} | {b['run'] * 1e3:.0f} | "
+                     f"{b['run'] / a['run']:.2f}x | {same} |")
+        L.append(line)
+    first, last = rows[0]["now"], rows[-1]["now"]
+    L += ["", f"From {rows[0]['nan'] * 100:.1f} % to {rows[-1]['nan'] * 100:.1f} % dropouts the "
+          f"angle passes grow {last['angle_passes'] / first['angle_passes']:.1f}x: a cell "
+          "whose neighbour at `s` cells is a dropout searches on to the one at `s + 1` outside "
+          "pass 1's vectorised loop (`kernel_rest`, cpp/src/pass1_row.cpp: one cell at a time, "
+          "or a whole 64-cell word at once where many of its cells need it). The edge test "
+          "skips quiet cells (SPEC \"Edge test\" step 1), which need fewer than `n_min` "
+          "missing returns in each half of their sub-window square (24 of 105 cells at the "
+          "default): up to about 10 % of scattered dropouts most cells stay quiet; at 20 % a "
+          "half often holds 24 of them, and those cells are judged."]
+    return L
+
+
 def quadric_fit(r: int, a: float, b: float) -> float:
     """How well P = (0, 0) fits the edge test's clean one-sided sub-windows (SPEC "Edge test"
     steps 2-4, half-size r; clean: rms at most twice the least) on the noise-free quadratic
@@ -503,7 +573,7 @@ def fmt_min_step(rows: list[dict]) -> list[str]:
 
 
 def fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, meta,
-        min_step_rows=(), surface_rows=()) -> str:
+        min_step_rows=(), surface_rows=(), dropout_rows=()) -> str:
     L = ["## Speed of the default detector (`python bench/bench_speed.py`)", ""]
     L.append(f"Written on {meta['date']}: miem {meta['miem']}, {meta['cpu']}, {os.cpu_count()} "
              f"cores, shared with other jobs (load average {meta['load0']:.1f} at the start, "
@@ -599,6 +669,7 @@ def fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, meta,
                          + f" | {n / s['run'] / 1e6:.1f} | {up} |")
     L += fmt_min_step(list(min_step_rows))
     L += fmt_surfaces(list(surface_rows))
+    L += fmt_dropouts(list(dropout_rows))
     L += ["", "By configuration differences through the Python API (CPU time, 1 thread, "
           f"{meta['bd_side']}x{meta['bd_side']}; the builds before are compared stage by stage "
           "above):", "",
@@ -637,14 +708,16 @@ def main(argv=None) -> int:
     stages, before = stage_times(args.build_dir, meta["stage_side"], reps, build_bases=not q)
     min_step_rows = min_step_times(args.build_dir, meta["stage_side"], reps, build_bases=not q)
     surface_rows = surface_times(args.build_dir, 512, reps)
+    dropout_rows = dropout_times(args.build_dir, meta["stage_side"], reps, build_bases=not q)
     now_bd = breakdown(bd_side, reps)
     meta["load1"] = os.getloadavg()[0]
     RAW.write_text(json.dumps({"lead": rows_lead, "sweep": rows_sweep, "fit": rows_fit,
                                "memory": mem, "stages": stages, "before": before, "breakdown": now_bd,
                                "min_step": min_step_rows, "surfaces": surface_rows,
+                               "dropouts": dropout_rows,
                                "meta": meta}, indent=1) + "\n")
     OUT.write_text(fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, meta,
-                       min_step_rows, surface_rows))
+                       min_step_rows, surface_rows, dropout_rows))
     print(OUT.read_text())
     return 0
 
