@@ -18,7 +18,8 @@ Sections, all measured in this one run:
 * Surfaces: the default on 512^2 scans of every ``make_scan`` surface at two noise levels
   (``miem_bench_stages``, one thread): what a part's shape costs, stage by stage.
 * Dropouts: the default on the benchmark scan with 0-20 % random dropouts added, today's build
-  and the one before the quiet rule counted per half sub-window.
+  and ``DROPOUT_BASE``'s (before the quiet rule counted per half sub-window and pass 1 searched
+  on to s + 1 a whole word at once).
 * Where the time goes: each C++ stage timed alone (``miem_bench_stages``, CPU time, one thread),
   and the stage costs by configuration differences through the Python API (comparable across
   versions: angle test only; + heights at every point; + the height test).
@@ -363,9 +364,10 @@ def dropout_times(build_dir: Path, side: int, repeats: int, build_bases: bool = 
         return []
     old = base_binary(DROPOUT_BASE[0], build_bases)
     grid_file = build_dir / f"dropouts_{side}.f64"
+    scan = scan_grid(side, side).astype(np.float64)
     rows = []
     for share in DROPOUTS:
-        g = scan_grid(side, side).astype(np.float64)
+        g = scan.copy()
         g[np.random.default_rng(3).random((side, side)) < share] = np.nan
         g.tofile(grid_file)
         row = {"share": share, "nan": float(np.isnan(g[..., 2]).mean())}

@@ -1137,12 +1137,10 @@ void edge_judge_row(const GridView<T>& g, std::ptrdiff_t grow, std::ptrdiff_t rr
       fits_clean_side(m, kChunk, redo1, valid1, empty1, low1, F1, fits);
       // a cell that fits may be a lip across a convex feature (crossing_lip) when one of its
       // sides reaches (side_reaches): those are judged in full below
-      double reach[kChunk];
+      double reach[kChunk];  // (read only where fits[j]: not computed when no cell fits)
       int n_fit = 0;
       for (int j = 0; j < m; ++j) n_fit += fits[j] != 0.0;
-      if (!fit_only && n_fit == 0) {  // (reach is read for the fitting cells only)
-        std::fill(reach, reach + m, 0.0);
-      } else if (!fit_only) {
+      if (!fit_only && n_fit > 0) {
         const double lim2 = et.k * et.k * (1.0 - 1e-6);  // h > tol >= k rms
         const double flo2 = kCrossingFloor * et.floor * kCrossingFloor * et.floor * (1.0 - 1e-6);
         const double* const U = F1 + 3 * kChunk;  // the solved side's normal

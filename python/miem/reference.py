@@ -938,12 +938,20 @@ def _auto_theta0(
     return min(max(180.0 - _AUTO_K * sigma, _AUTO_MIN), _AUTO_MAX)
 
 
+def _count_image(mask: NDArray[np.bool_]) -> NDArray[np.int64]:
+    """The integral image of a mask, ``(h + 1, w + 1)``: ``s[a, b]`` counts the True cells of
+    rows ``< a`` and columns ``< b``."""
+    h, w = mask.shape
+    s = np.zeros((h + 1, w + 1), dtype=np.int64)
+    s[1:, 1:] = np.cumsum(np.cumsum(mask.astype(np.int64), axis=0), axis=1)
+    return s
+
+
 def _box_count(mask: NDArray[np.bool_], window: int) -> NDArray[np.int64]:
     """Number of True cells in the ``window x window`` square around each cell (clipped)."""
     h, w = mask.shape
     half = window // 2
-    s = np.zeros((h + 1, w + 1), dtype=np.int64)
-    s[1:, 1:] = np.cumsum(np.cumsum(mask.astype(np.int64), axis=0), axis=1)
+    s = _count_image(mask)
     r0 = np.clip(np.arange(h) - half, 0, h)
     r1 = np.clip(np.arange(h) + half + 1, 0, h)
     c0 = np.clip(np.arange(w) - half, 0, w)
@@ -956,8 +964,7 @@ def _half_counts(mask: NDArray[np.bool_], r: int) -> NDArray[np.int64]:
     (SPEC "Edge test" step 2: rows ``-r..r`` and columns ``-r..-1`` or ``1..r``, columns
     ``-r..r`` and rows ``-r..-1`` or ``1..r``; clipped)."""
     h, w = mask.shape
-    s = np.zeros((h + 1, w + 1), dtype=np.int64)
-    s[1:, 1:] = np.cumsum(np.cumsum(mask.astype(np.int64), axis=0), axis=1)
+    s = _count_image(mask)
     rows, cols = np.arange(h)[:, None], np.arange(w)[None, :]
 
     def rect(a0: Any, a1: Any, b0: Any, b1: Any) -> NDArray[np.int64]:
