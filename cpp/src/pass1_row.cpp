@@ -37,11 +37,21 @@ constexpr std::int64_t kFlagShift = kPass1FlagShift, kSlowBit = kPass1SlowBit,
                        kNearBit = kPass1NearBit;
 
 // The two candidates of one side of one (direction, scale): the cells s and s + 1 steps away
-// (x, y, z rows and usable lanes, already shifted so that index c is the candidate of cell c).
+// (x, y, z rows and usable lanes, already shifted so that index c is the candidate of cell c),
+// and the first candidates' usable lanes packed (bit `off1 + c` of `bits1` for lane c).
 struct Side {
   const double *x1, *y1, *z1, *x2, *y2, *z2;
   const std::int64_t *ok1, *ok2;
+  const std::uint64_t* bits1;
+  std::ptrdiff_t off1;
 };
+
+// 64 bits of a packed row from bit o on (the row has a spare word beyond its last bit).
+inline std::uint64_t bits_at(const std::uint64_t* b, std::ptrdiff_t o) {
+  const std::ptrdiff_t k = o >> 6;
+  const int sh = static_cast<int>(o & 63);
+  return sh == 0 ? b[k] : (b[k] >> sh) | (b[k + 1] << (64 - sh));
+}
 
 // The candidate a search returns when it ends at one of the two cells: the first usable one.
 // Writes the offset u from the centre, `any` (a usable cell among the two, then u is the
@@ -80,32 +90,36 @@ struct Side {
 // Two loops: kernel_first, vectorised, for the lanes whose first candidates on both sides are
 // usable (nearly all: it does not read the second candidates), and kernel_rest for the others.
 // The lanes whose candidates at s are usable on both sides (then the search ends there: found,
-// not slow, a usable cell near); the other lanes are left as they are, and bit c % 64 of
-// rest[c / 64] is set for each of them (n <= 64 kRestWords).
+// not slow, a usable cell near); the other lanes are left as they are. kernel_line finds the
+// others from the packed usable bits (rest_words): gathering them here, a bit per lane, cost
+// more than a quarter of this loop.
 constexpr std::ptrdiff_t kRestWords = (kBlock + 63) / 64;
 MIEM_CLONES void kernel_first(std::ptrdiff_t n, const Side& A, const Side& B,
                               const double* __restrict px, const double* __restrict py,
                               const double* __restrict pz, double cos0, double c2,
                               std::int64_t bit, std::int64_t near_bit, double* __restrict buv,
-                              double* __restrict bprod, std::int64_t* __restrict bits,
-                              std::uint64_t* __restrict rest) {
+                              double* __restrict bprod, std::int64_t* __restrict bits) {
   const double *__restrict ax1 = A.x1, *__restrict ay1 = A.y1, *__restrict az1 = A.z1;
   const double *__restrict bx1 = B.x1, *__restrict by1 = B.y1, *__restrict bz1 = B.z1;
   const std::int64_t *__restrict ao1 = A.ok1, *__restrict bo1 = B.ok1;
+  for (std::ptrdiff_t c = 0; c < n; ++c) {
+    const std::int64_t both = ao1[c] & bo1[c];
+    const double ux = ax1[c] - px[c], uy = ay1[c] - py[c], uz = az1[c] - pz[c];
+    const double uu = (ux * ux + uy * uy) + uz * uz;
+    const double vx = bx1[c] - px[c], vy = by1[c] - py[c], vz = bz1[c] - pz[c];
+    const double vv = (vx * vx + vy * vy) + vz * vz;
+    MIEM_FOLD(c, ux, uy, uz, uu, vx, vy, vz, vv, both);
+    bits[c] |= -both & ((-good & bit) | (-flagged & (bit << kFlagShift)) | near_bit);
+  }
+}
+
+// Bit c % 64 of rest[c / 64] for each lane c < n whose first candidates are not both usable
+// (n <= 64 kRestWords).
+inline void rest_words(std::ptrdiff_t n, const Side& A, const Side& B, std::uint64_t* rest) {
   for (std::ptrdiff_t w = 0; w * 64 < n; ++w) {
-    std::uint64_t word = 0;
-    const std::ptrdiff_t c1 = std::min(n, w * 64 + 64);
-    for (std::ptrdiff_t c = w * 64; c < c1; ++c) {
-      const std::int64_t both = ao1[c] & bo1[c];
-      const double ux = ax1[c] - px[c], uy = ay1[c] - py[c], uz = az1[c] - pz[c];
-      const double uu = (ux * ux + uy * uy) + uz * uz;
-      const double vx = bx1[c] - px[c], vy = by1[c] - py[c], vz = bz1[c] - pz[c];
-      const double vv = (vx * vx + vy * vy) + vz * vz;
-      MIEM_FOLD(c, ux, uy, uz, uu, vx, vy, vz, vv, both);
-      bits[c] |= -both & ((-good & bit) | (-flagged & (bit << kFlagShift)) | near_bit);
-      word |= static_cast<std::uint64_t>(both ^ 1) << (c & 63);
-    }
-    rest[w] = word;
+    const std::ptrdiff_t left = n - w * 64;
+    const std::uint64_t lanes = left >= 64 ? ~std::uint64_t{0} : (std::uint64_t{1} << left) - 1;
+    rest[w] = ~(bits_at(A.bits1, A.off1 + w * 64) & bits_at(B.bits1, B.off1 + w * 64)) & lanes;
   }
 }
 
@@ -157,6 +171,7 @@ void kernel_rest(std::ptrdiff_t n, const Side& A, const Side& B, const double* p
   const double *bx1 = B.x1, *by1 = B.y1, *bz1 = B.z1, *bx2 = B.x2, *by2 = B.y2, *bz2 = B.z2;
   const std::int64_t *ao1 = A.ok1, *ao2 = A.ok2, *bo1 = B.ok1, *bo2 = B.ok2;
   for (std::ptrdiff_t w = 0; w * 64 < n; ++w) {
+    if (rest[w] == 0) continue;
     if (__builtin_popcountll(rest[w]) >= kRestDense) {
       kernel_rest_all(w * 64, std::min(n, w * 64 + 64), A, B, px, py, pz, cos0, c2, gap2, bit,
                       near_bit, buv, bprod, bits);
@@ -175,7 +190,8 @@ inline void kernel_line(std::ptrdiff_t n, const Side& A, const Side& B, const do
                         std::int64_t gap2, std::int64_t bit, std::int64_t near_bit, double* buv,
                         double* bprod, std::int64_t* bits) {
   std::uint64_t rest[kRestWords];
-  kernel_first(n, A, B, px, py, pz, cos0, c2, bit, near_bit, buv, bprod, bits, rest);
+  kernel_first(n, A, B, px, py, pz, cos0, c2, bit, near_bit, buv, bprod, bits);
+  rest_words(n, A, B, rest);
   kernel_rest(n, A, B, px, py, pz, cos0, c2, gap2, bit, near_bit, buv, bprod, bits, rest);
 }
 #undef MIEM_PICK
@@ -313,13 +329,30 @@ MIEM_CLONES void label_line(std::ptrdiff_t n, const std::int64_t* __restrict bit
 }
 
 
+// Packs n lanes of 0/1 into bits (n / 64 words, then the rest in one more word).
+MIEM_CLONES void pack_lanes(std::ptrdiff_t n, const std::int64_t* __restrict ok,
+                            std::uint64_t* __restrict out) {
+  for (std::ptrdiff_t w = 0; w * 64 < n; ++w) {
+    std::uint64_t word = 0;
+    const std::ptrdiff_t c1 = std::min(n, w * 64 + 64);
+    for (std::ptrdiff_t c = w * 64; c < c1; ++c)
+      word |= static_cast<std::uint64_t>(ok[c]) << (c & 63);
+    out[w] = word;
+  }
+}
+
 }  // namespace
+
+void pass1_pack(const Pass1Ring& ring, std::ptrdiff_t rr) {
+  pack_lanes(ring.stride(), ring.ok(rr) - ring.depth, ring.okbits(rr));
+}
 
 void pass1_prepare(RowScratch& sc, std::ptrdiff_t W, std::ptrdiff_t depth, bool min_step) {
   const std::ptrdiff_t S = W + 2 * depth;
   sc.resize(2 * depth + 2, S);
   std::fill(sc.xyz.begin(), sc.xyz.end(), 0.0);
   std::fill(sc.ok.begin(), sc.ok.end(), 0);
+  std::fill(sc.okbits.begin(), sc.okbits.end(), 0);
   if (min_step) {
     // with min_step (min_step_skip.hpp): row_speeds, the unusable cells before each padded
     // column, and per chunk of kChunk columns the largest speed and the unusable cells within
@@ -343,6 +376,7 @@ void pass1_row(const Pass1Ring& ring, std::ptrdiff_t r, const DetectParams& p,
   const bool deep = p.min_step >= 0.0;
   auto slot_x = [&](std::ptrdiff_t rr) { return ring.x(rr); };
   auto slot_ok = [&](std::ptrdiff_t rr) { return ring.ok(rr); };
+  auto slot_bits = [&](std::ptrdiff_t rr) -> const std::uint64_t* { return ring.okbits(rr); };
   const bool has_scale1 = std::find(p.scales.begin(), p.scales.end(), 1) != p.scales.end();
   double *buv = sc.best.data(), *bprod = sc.best.data() + S;
   std::int64_t* bits = sc.bits.data();
@@ -461,9 +495,9 @@ void pass1_row(const Pass1Ring& ring, std::ptrdiff_t r, const DetectParams& p,
         const double *a1 = at_x(-1, s), *a2 = at_x(-1, s2);
         const double *b1 = at_x(+1, s), *b2 = at_x(+1, s2);
         const Side A{a1, a1 + S, a1 + 2 * S, a2, a2 + S, a2 + 2 * S, at_ok(-1, s),
-                     at_ok(-1, s2)};
+                     at_ok(-1, s2), slot_bits(r - s * dr), pad + b0 - s * dc};
         const Side B{b1, b1 + S, b1 + 2 * S, b2, b2 + S, b2 + 2 * S, at_ok(+1, s),
-                     at_ok(+1, s2)};
+                     at_ok(+1, s2), slot_bits(r + s * dr), pad + b0 + s * dc};
         kernel_line(nb, A, B, qx, qy, qz, cos0, c2, gap2, bit, s == 1 ? kNearBit : 0,
                     buv + b0, bprod + b0, bits + b0);
       }

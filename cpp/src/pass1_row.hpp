@@ -27,7 +27,18 @@ struct Pass1Ring {
   double* x(std::ptrdiff_t rr) const { return sc->xyz.data() + slot(rr) * 3 * stride() + depth; }
   /// Row rr's usable lanes (1 or 0).
   std::int64_t* ok(std::ptrdiff_t rr) const { return sc->ok.data() + slot(rr) * stride() + depth; }
+  /// Words of a row's packed usable bits: the padded row and one spare word (a 64-bit window
+  /// read at any padded column stays inside).
+  std::ptrdiff_t bit_words() const { return stride() / 64 + 2; }
+  /// Row rr's usable lanes packed: bit k % 64 of word k / 64 for padded column k (column
+  /// c - depth), written by pass1_load from ok(rr).
+  std::uint64_t* okbits(std::ptrdiff_t rr) const {
+    return sc->okbits.data() + slot(rr) * bit_words();
+  }
 };
+
+/// Packs row rr's usable lanes (ring.ok, padding included) into ring.okbits(rr).
+void pass1_pack(const Pass1Ring& ring, std::ptrdiff_t rr);
 
 /// Sizes `sc` for a ring of W columns and `depth` (min_step: the search's per-row buffers too)
 /// and clears it (every cell unusable). Allocates only when it has held less.
@@ -50,6 +61,7 @@ void pass1_load(const Pass1Ring& ring, std::ptrdiff_t rr, const T* x, const T* y
     oz[c] = u ? static_cast<double>(z[c * cs]) : 0.0;
     ok[c] = u;
   }
+  pass1_pack(ring, rr);
 }
 
 /// Pass 1 on row r (rows r - depth .. r + depth loaded): each usable cell's label (and flags

@@ -25,6 +25,7 @@ namespace detail {
 struct RowScratch {
   std::vector<double> xyz;
   std::vector<std::int64_t> ok;    ///< 64-bit lanes beside the doubles: no packing in the kernel
+  std::vector<std::uint64_t> okbits;  ///< `ok` packed, a bit per padded column (pass1_row.hpp)
   std::vector<double> best;
   std::vector<std::int64_t> bits;  ///< per cell: available / flagged directions, slow, near
   // with min_step (min_step_skip.hpp): a row's speeds, the unusable cells before each padded
@@ -39,6 +40,7 @@ struct RowScratch {
     const auto n = static_cast<std::size_t>(cols);
     xyz.resize(static_cast<std::size_t>(rows) * 3 * n);
     ok.resize(static_cast<std::size_t>(rows) * n);
+    okbits.resize(static_cast<std::size_t>(rows) * (n / 64 + 2));
     best.resize(2 * n);
     bits.resize(n);
     fin.resize(n);
