@@ -231,7 +231,8 @@ BASES = [
      "test's attached condition)", "recommended", "recommended"),
     ("c212da6", "2026-12-06, before quiet cells count removed cells as missing ones",
      "recommended", "recommended"),
-    ("a2bad9d", "2026-12-07, before pass 1 took its rest lanes from packed usable bits",
+    ("a2bad9d", "2026-12-07, before pass 1 took its rest lanes from packed usable bits and "
+     "loaded its rows in vector code",
      "recommended", "recommended"),
 ]
 

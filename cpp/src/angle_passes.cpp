@@ -144,7 +144,7 @@ std::ptrdiff_t pass1_rows(const GridView<T>& g, std::uint8_t* usable, const Dete
     }
     const T* base = g.data + rr * g.row_stride;
     pass1_load(ring, rr, base, base + g.coord_stride, base + 2 * g.coord_stride, g.col_stride,
-               [us](std::ptrdiff_t c) { return us[c] != 0; });
+               us);
   };
   for (std::ptrdiff_t rr = std::max<std::ptrdiff_t>(0, r_begin - pad);
        rr < std::min(H, r_begin + pad); ++rr) {
@@ -155,10 +155,7 @@ std::ptrdiff_t pass1_rows(const GridView<T>& g, std::uint8_t* usable, const Dete
     double* angle_row = angle_out ? angle_out + r * W : nullptr;
     pass1_row(ring, r, p, labels + r * W, flags_out ? flags_out + r * W : nullptr, angle_row,
               reach ? reach + 4 * r * W : nullptr);
-    const std::int64_t* centre_ok = ring.ok(r);
-    for (std::ptrdiff_t c = 0; c < W; ++c) {
-      if (pass1_needs_judge(sc, centre_ok, c)) sc.judge.push_back(r * W + c);
-    }
+    pass1_judge_cells(sc, ring.ok(r), W, r * W, sc.judge);
   }
   return n_finite;
 }

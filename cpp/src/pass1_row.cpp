@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <type_traits>
 #include <vector>
 
 #include "angle_math.hpp"
@@ -343,8 +344,93 @@ MIEM_CLONES void pack_lanes(std::ptrdiff_t n, const std::int64_t* __restrict ok,
 
 }  // namespace
 
-void pass1_pack(const Pass1Ring& ring, std::ptrdiff_t rr) {
-  pack_lanes(ring.stride(), ring.ok(rr) - ring.depth, ring.okbits(rr));
+namespace {
+
+// pass1_load's copy: n cells, column c's coordinates at x[c * cs], y[c * cs], z[c * cs].
+template <typename T, typename CS>
+inline __attribute__((always_inline)) void load_lanes(std::ptrdiff_t n, const T* __restrict x,
+                                                      const T* __restrict y,
+                                                      const T* __restrict z, CS cs,
+                                                      const std::uint8_t* __restrict usable,
+                                                      double* __restrict ox,
+                                                      double* __restrict oy,
+                                                      double* __restrict oz,
+                                                      std::int64_t* __restrict ok) {
+  for (std::ptrdiff_t c = 0; c < n; ++c) {
+    const std::int64_t u = usable[c] != 0 ? 1 : 0;
+    ox[c] = u ? static_cast<double>(x[c * cs]) : 0.0;
+    oy[c] = u ? static_cast<double>(y[c * cs]) : 0.0;
+    oz[c] = u ? static_cast<double>(z[c * cs]) : 0.0;
+    ok[c] = u;
+  }
+}
+
+using K3 = std::integral_constant<std::ptrdiff_t, 3>;
+using K1 = std::integral_constant<std::ptrdiff_t, 1>;
+
+// The constant strides vectorise (a run-time stride ran one cell at a time).
+#define MIEM_LOAD_CLONE(T, CS)                                                               \
+  MIEM_CLONES void load_lanes_##T##_##CS(std::ptrdiff_t n, const T* x, const T* y,          \
+                                         const T* z, const std::uint8_t* usable, double* ox, \
+                                         double* oy, double* oz, std::int64_t* ok) {         \
+    load_lanes(n, x, y, z, CS{}, usable, ox, oy, oz, ok);                                    \
+  }
+MIEM_LOAD_CLONE(double, K3)
+MIEM_LOAD_CLONE(double, K1)
+MIEM_LOAD_CLONE(float, K3)
+MIEM_LOAD_CLONE(float, K1)
+#undef MIEM_LOAD_CLONE
+
+template <typename T, typename Dense, typename Planes>
+void load_row(const Pass1Ring& ring, std::ptrdiff_t rr, const T* x, const T* y, const T* z,
+              std::ptrdiff_t cs, const std::uint8_t* usable, Dense dense, Planes planes) {
+  double* ox = ring.x(rr);
+  double* oy = ox + ring.stride();
+  double* oz = oy + ring.stride();
+  std::int64_t* ok = ring.ok(rr);
+  const std::ptrdiff_t W = ring.W;
+  if (cs == 3 && y == x + 1 && z == x + 2) {
+    dense(W, x, y, z, usable, ox, oy, oz, ok);
+  } else if (cs == 1) {
+    planes(W, x, y, z, usable, ox, oy, oz, ok);
+  } else {
+    load_lanes(W, x, y, z, cs, usable, ox, oy, oz, ok);
+  }
+  pack_lanes(ring.stride(), ok - ring.depth, ring.okbits(rr));
+}
+
+// Whether any of n cells needs the scalar judge (pass1_needs_judge, as integer arithmetic).
+MIEM_CLONES std::int64_t any_needs_judge(std::ptrdiff_t n, const std::int64_t* __restrict bits,
+                                         const std::int64_t* __restrict ok) {
+  std::int64_t any = 0;
+  for (std::ptrdiff_t c = 0; c < n; ++c) {
+    const std::int64_t b = bits[c];
+    any |= (ok[c] != 0) & ((((b & kSlowBit) != 0) | ((b & kNearBit) == 0)));
+  }
+  return any;
+}
+
+}  // namespace
+
+void pass1_judge_cells(const RowScratch& sc, const std::int64_t* ok, std::ptrdiff_t W,
+                       std::int64_t base, std::vector<std::int64_t>& out) {
+  for (std::ptrdiff_t c0 = 0; c0 < W; c0 += 64) {
+    const std::ptrdiff_t c1 = std::min(W, c0 + 64);
+    if (!any_needs_judge(c1 - c0, sc.bits.data() + c0, ok + c0)) continue;
+    for (std::ptrdiff_t c = c0; c < c1; ++c) {
+      if (pass1_needs_judge(sc, ok, c)) out.push_back(base + c);
+    }
+  }
+}
+
+void pass1_load(const Pass1Ring& ring, std::ptrdiff_t rr, const double* x, const double* y,
+                const double* z, std::ptrdiff_t cs, const std::uint8_t* usable) {
+  load_row(ring, rr, x, y, z, cs, usable, load_lanes_double_K3, load_lanes_double_K1);
+}
+
+void pass1_load(const Pass1Ring& ring, std::ptrdiff_t rr, const float* x, const float* y,
+                const float* z, std::ptrdiff_t cs, const std::uint8_t* usable) {
+  load_row(ring, rr, x, y, z, cs, usable, load_lanes_float_K3, load_lanes_float_K1);
 }
 
 void pass1_prepare(RowScratch& sc, std::ptrdiff_t W, std::ptrdiff_t depth, bool min_step) {

@@ -5,6 +5,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <vector>
 
 #include "miem/organized.hpp"
 #include "miem/params.hpp"
@@ -37,32 +38,20 @@ struct Pass1Ring {
   }
 };
 
-/// Packs row rr's usable lanes (ring.ok, padding included) into ring.okbits(rr).
-void pass1_pack(const Pass1Ring& ring, std::ptrdiff_t rr);
 
 /// Sizes `sc` for a ring of W columns and `depth` (min_step: the search's per-row buffers too)
 /// and clears it (every cell unusable). Allocates only when it has held less.
 void pass1_prepare(RowScratch& sc, std::ptrdiff_t W, std::ptrdiff_t depth, bool min_step);
 
 /// Loads row rr into the ring from coordinate planes (column c at x[c * cs], y[c * cs],
-/// z[c * cs]) and a usable predicate: unusable cells read as 0 (finite), so no NaN enters the
-/// kernel's selects.
-template <typename T, typename Usable>
-void pass1_load(const Pass1Ring& ring, std::ptrdiff_t rr, const T* x, const T* y, const T* z,
-                std::ptrdiff_t cs, Usable usable) {
-  double* ox = ring.x(rr);
-  double* oy = ox + ring.stride();
-  double* oz = oy + ring.stride();
-  std::int64_t* ok = ring.ok(rr);
-  for (std::ptrdiff_t c = 0; c < ring.W; ++c) {
-    const std::int64_t u = usable(c) ? 1 : 0;
-    ox[c] = u ? static_cast<double>(x[c * cs]) : 0.0;
-    oy[c] = u ? static_cast<double>(y[c * cs]) : 0.0;
-    oz[c] = u ? static_cast<double>(z[c * cs]) : 0.0;
-    ok[c] = u;
-  }
-  pass1_pack(ring, rr);
-}
+/// z[c * cs]) and its usable bytes (`usable[c]` nonzero: usable): unusable cells read as 0
+/// (finite), so no NaN enters the kernel's selects; and packs them (okbits). The
+/// layouts of a dense grid (x, y, z interleaved: cs 3) and of the stream's ring (planes: cs 1)
+/// run in vector code.
+void pass1_load(const Pass1Ring& ring, std::ptrdiff_t rr, const double* x, const double* y,
+                const double* z, std::ptrdiff_t cs, const std::uint8_t* usable);
+void pass1_load(const Pass1Ring& ring, std::ptrdiff_t rr, const float* x, const float* y,
+                const float* z, std::ptrdiff_t cs, const std::uint8_t* usable);
 
 /// Pass 1 on row r (rows r - depth .. r + depth loaded): each usable cell's label (and flags
 /// and smallest angle, where given) from the kernel, with min_step (p.min_step >= 0) the rays
@@ -85,5 +74,10 @@ inline bool pass1_needs_judge(const RowScratch& sc, const std::int64_t* ok, std:
   const std::int64_t b = sc.bits[static_cast<std::size_t>(c)];
   return ok[c] != 0 && ((b & kPass1SlowBit) != 0 || (b & kPass1NearBit) == 0);
 }
+
+/// Appends `base + c` to `out` for each of the row's W cells that pass1_needs_judge selects (a
+/// vectorised test skips the 64-cell chunks that hold none).
+void pass1_judge_cells(const RowScratch& sc, const std::int64_t* ok, std::ptrdiff_t W,
+                       std::int64_t base, std::vector<std::int64_t>& out);
 
 }  // namespace miem::detail

@@ -986,7 +986,7 @@ const std::int64_t* ProfileStream<T>::pass1_kernel(std::int64_t row) noexcept {
     const T* x = xyz_.data() + s * W;
     const std::uint8_t* st = state_.data() + s * W;
     detail::pass1_load(ring, static_cast<std::ptrdiff_t>(p1_next_), x, x + plane, x + 2 * plane,
-                       1, [st](std::ptrdiff_t c) { return st[c] != 0; });
+                       1, st);
   }
   detail::pass1_row(ring, static_cast<std::ptrdiff_t>(row), jparams_, p1_lab_.data(), nullptr,
                     nullptr, use_ray_ ? ray_.data() + 4 * slot(row) * W : nullptr, threads_);
