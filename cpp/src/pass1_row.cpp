@@ -342,10 +342,6 @@ MIEM_CLONES void pack_lanes(std::ptrdiff_t n, const std::int64_t* __restrict ok,
   }
 }
 
-}  // namespace
-
-namespace {
-
 // pass1_load's copy: n cells, column c's coordinates at x[c * cs], y[c * cs], z[c * cs].
 template <typename T, typename CS>
 inline __attribute__((always_inline)) void load_lanes(std::ptrdiff_t n, const T* __restrict x,
