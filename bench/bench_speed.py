@@ -295,6 +295,18 @@ def run_stages(binary: Path, grid_file: Path, side: int, nt: int, repeats: int,
     return row
 
 
+def faster_alternated(runs: dict, rounds: int = 2) -> dict:
+    """{key: run()} -> {key: the fastest of `rounds` results}, the keys' runs alternated (a
+    shared host's bursts of load otherwise land on one build's turn)."""
+    best: dict = {}
+    for _ in range(rounds):
+        for key, run in runs.items():
+            got = run()
+            if key not in best or got["run"] < best[key]["run"]:
+                best[key] = got
+    return best
+
+
 def stage_times(build_dir: Path, side: int, repeats: int, build_bases: bool = True):
     """The C++ stages, timed alone (miem_bench_stages), 1 and 2 threads; and the same scan on
     the BASES commits' binaries (1 thread; built first unless build_bases is false), all in
@@ -313,13 +325,10 @@ def stage_times(build_dir: Path, side: int, repeats: int, build_bases: bool = Tr
         old = base_binary(commit, build_bases)
         if old is None:
             continue
-        # the two builds alternated twice, the faster run of each kept (as the dropout sweep)
-        b = a = None
-        for _ in range(2):
-            got = run_stages(binary, grid_file, side, 1, repeats, new_preset)
-            a = got if a is None or got["run"] < a["run"] else a
-            got = run_stages(old, grid_file, side, 1, repeats, old_preset)
-            b = got if b is None or got["run"] < b["run"] else b
+        got = faster_alternated({
+            "now": lambda: run_stages(binary, grid_file, side, 1, repeats, new_preset),
+            "before": lambda: run_stages(old, grid_file, side, 1, repeats, old_preset)})
+        a, b = got["now"], got["before"]
         if b["checksum"] != a["checksum"]:
             what += " (labels differ!)"
         before.append({"commit": commit, "what": what, "preset": new_preset, "before": b,
@@ -379,15 +388,9 @@ def dropout_times(build_dir: Path, side: int, repeats: int, build_bases: bool = 
         g[np.random.default_rng(3).random((side, side)) < share] = np.nan
         g.tofile(grid_file)
         row = {"share": share, "nan": float(np.isnan(g[..., 2]).mean())}
-        # the two builds alternated twice, the faster run of each kept (a shared host's
-        # bursts of load otherwise land on one build's turn)
-        for _ in range(2):
-            for key, exe in (("now", binary), ("before", old)):
-                if exe is None:
-                    continue
-                got = run_stages(exe, grid_file, side, 1, repeats, PRESET)
-                if key not in row or got["run"] < row[key]["run"]:
-                    row[key] = got
+        row.update(faster_alternated({
+            key: (lambda exe=exe: run_stages(exe, grid_file, side, 1, repeats, PRESET))
+            for key, exe in (("now", binary), ("before", old)) if exe is not None}))
         rows.append(row)
     grid_file.unlink()
     return rows

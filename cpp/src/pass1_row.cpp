@@ -395,14 +395,11 @@ void load_row(const Pass1Ring& ring, std::ptrdiff_t rr, const T* x, const T* y, 
   pack_lanes(ring.stride(), ok - ring.depth, ring.okbits(rr));
 }
 
-// Whether any of n cells needs the scalar judge (pass1_needs_judge, as integer arithmetic).
+// Whether any of n cells needs the scalar judge (pass1_judge_bits).
 MIEM_CLONES std::int64_t any_needs_judge(std::ptrdiff_t n, const std::int64_t* __restrict bits,
                                          const std::int64_t* __restrict ok) {
   std::int64_t any = 0;
-  for (std::ptrdiff_t c = 0; c < n; ++c) {
-    const std::int64_t b = bits[c];
-    any |= (ok[c] != 0) & ((((b & kSlowBit) != 0) | ((b & kNearBit) == 0)));
-  }
+  for (std::ptrdiff_t c = 0; c < n; ++c) any |= pass1_judge_bits(bits[c], ok[c]);
   return any;
 }
 

@@ -38,7 +38,6 @@ struct Pass1Ring {
   }
 };
 
-
 /// Sizes `sc` for a ring of W columns and `depth` (min_step: the search's per-row buffers too)
 /// and clears it (every cell unusable). Allocates only when it has held less.
 void pass1_prepare(RowScratch& sc, std::ptrdiff_t W, std::ptrdiff_t depth, bool min_step);
@@ -67,12 +66,16 @@ void pass1_row(const Pass1Ring& ring, std::ptrdiff_t r, const DetectParams& p,
 /// the kernel cannot finish (slow), a usable cell within the isolation reach (near).
 constexpr std::int64_t kPass1FlagShift = 4, kPass1SlowBit = 1 << 8, kPass1NearBit = 1 << 9;
 
-/// Whether the scalar judge decides cell c of the row pass1_row judged last (`ok`: that row's
-/// ring.ok(r)): a usable cell whose search the kernel could not finish, or with no usable cell
-/// within the isolation reach.
+/// Whether the scalar judge decides a cell from its kernel bits `b` and its usable lane `ok`: a
+/// usable cell whose search the kernel could not finish, or with no usable cell within the
+/// isolation reach. Branch-free (pass1_judge_cells' vectorised test uses it).
+inline bool pass1_judge_bits(std::int64_t b, std::int64_t ok) {
+  return (ok != 0) & (((b & kPass1SlowBit) != 0) | ((b & kPass1NearBit) == 0));
+}
+
+/// pass1_judge_bits of cell c of the row pass1_row judged last (`ok`: that row's ring.ok(r)).
 inline bool pass1_needs_judge(const RowScratch& sc, const std::int64_t* ok, std::ptrdiff_t c) {
-  const std::int64_t b = sc.bits[static_cast<std::size_t>(c)];
-  return ok[c] != 0 && ((b & kPass1SlowBit) != 0 || (b & kPass1NearBit) == 0);
+  return pass1_judge_bits(sc.bits[static_cast<std::size_t>(c)], ok[c]);
 }
 
 /// Appends `base + c` to `out` for each of the row's W cells that pass1_needs_judge selects (a

@@ -947,6 +947,12 @@ def _count_image(mask: NDArray[np.bool_]) -> NDArray[np.int64]:
     return s
 
 
+def _edge_n_min(r: int) -> int:
+    """The least support of an edge sub-window of half-size ``r`` (SPEC "Edge test" step 3):
+    fewer valid cells make it empty, as many missing ones keep a cell from being quiet."""
+    return max(3, (r * r) // 2)
+
+
 def _box_count(mask: NDArray[np.bool_], window: int) -> NDArray[np.int64]:
     """Number of True cells in the ``window x window`` square around each cell (clipped)."""
     h, w = mask.shape
@@ -1167,7 +1173,7 @@ def _quiet_cells(
         return np.zeros_like(normal)
     side = 2 * r + 1
     cand = normal & (_box_count(labels == EDGE, side) == 0)
-    cand &= _half_counts((labels == INVALID) | (labels == ABNORMAL), r) < max(3, (r * r) // 2)
+    cand &= _half_counts((labels == INVALID) | (labels == ABNORMAL), r) < _edge_n_min(r)
     cand &= _box_count(removed, 2 * (window // 2) + 1) == 0
     inside = np.zeros_like(cand)
     inside[r:hh - r, r:ww - r] = True
@@ -1214,7 +1220,7 @@ def _side_fits(
     s = _moment_images(grid, support, invalid, origin) if images is None else images
     rr, cc = np.nonzero(cells)
     pt = grid[rr, cc] - origin
-    n_min = max(3, (r * r) // 2)
+    n_min = _edge_n_min(r)
     hs = np.full((8, rr.size), np.nan)
     rms = np.full((8, rr.size), np.nan)
     spread = np.full((8, rr.size), np.nan)
