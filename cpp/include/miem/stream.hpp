@@ -365,14 +365,19 @@ class ProfileStream {
   std::vector<double> nan_row_;         // heights of a row handed back while waiting
   double cos0_ = 0.0;
 
-  std::vector<T> xyz_;               // 3 planes (x, y, z) of phys_ rows of width_
-  std::vector<std::uint8_t> state_;  // phys_ rows: 0 dropout, p removed at pass p,
+  // The ring's buffers (rows of ring_ or phys_, tens of MB at the default's lag) in memory from
+  // detail::allocate_cells (cell_memory.cpp): on huge pages where the kernel offers them, so a
+  // push's reads of rows of several ages do not each walk the tables of 4 KiB pages.
+  template <typename U>
+  using Ring = std::vector<U, detail::CellAllocator<U>>;
+  Ring<T> xyz_;                      // 3 planes (x, y, z) of phys_ rows of width_
+  Ring<std::uint8_t> state_;         // phys_ rows: 0 dropout, p removed at pass p,
                                      // 255 alive; "usable at pass p" is state >= p
-  std::vector<std::uint8_t> cand_;   // ring_ rows: bit (p & 1) = re-judge at pass p
+  Ring<std::uint8_t> cand_;          // ring_ rows: bit (p & 1) = re-judge at pass p
   std::vector<std::uint8_t> row_cand_;  // ring_ rows: same bits, "the row has any"
-  std::vector<std::uint8_t> labels_;    // ring_ rows
+  Ring<std::uint8_t> labels_;           // ring_ rows
   std::vector<std::uint8_t> level_;     // ring_ rows: passes done
-  std::vector<std::uint8_t> ray_;  // with min_step (given or "auto"), ring_ rows x 4: per cell
+  Ring<std::uint8_t> ray_;         // with min_step (given or "auto"), ring_ rows x 4: per cell
                                    // and direction the farthest step its last verdict read
                                    // (CellJudge's reach), so that a removal marks only the
                                    // cells whose verdict it can change
@@ -383,10 +388,10 @@ class ProfileStream {
   bool finished_ = false;
 
   // Height test and heights (stream_stages.cpp).
-  std::vector<std::uint8_t> hm_;   // ring_ rows: window classes and stage bits (kS* there)
-  std::vector<std::uint8_t> hs_;   // ring_ rows: height pass that removed the cell, 255 none
+  Ring<std::uint8_t> hm_;          // ring_ rows: window classes and stage bits (kS* there)
+  Ring<std::uint8_t> hs_;          // ring_ rows: height pass that removed the cell, 255 none
   std::vector<std::uint8_t> hrow_; // ring_ rows: want bits of the row (any cell)
-  std::vector<double> height_;     // ring_ rows
+  Ring<double> height_;            // ring_ rows
   std::int64_t next_final_ = 0, next_compact_ = 0, next_out_ = 0;
   std::vector<std::int64_t> next_pass_;  // [p]: next row of height pass p (1..passes_)
   std::vector<std::int64_t> queue_;      // EDGE grouping, (2E + 1) * width cells
@@ -409,14 +414,14 @@ class ProfileStream {
   std::vector<std::uint8_t> region_cls_;  // region_fits: one row's classes
 
   // Edge test (stream_edges.cpp).
-  std::vector<std::uint8_t> eold_;   // ring_ rows: 0, or 1 + the label the edge test changed
-  std::vector<std::uint8_t> epass_;  // ring_ rows: the edge pass that removed the cell, 0 none
-  std::vector<std::uint8_t> etodo_;  // ring_ rows: bit (p & 1) = judge at edge pass p >= 2
+  Ring<std::uint8_t> eold_;          // ring_ rows: 0, or 1 + the label the edge test changed
+  Ring<std::uint8_t> epass_;         // ring_ rows: the edge pass that removed the cell, 0 none
+  Ring<std::uint8_t> etodo_;         // ring_ rows: bit (p & 1) = judge at edge pass p >= 2
   std::vector<std::uint8_t> etodo_row_;  // ring_ rows: same bits, "the row has any"
   // Pass 1's quiet cells (edge_quiet.hpp): ring_ rows of kHQuiet where height pass 1's plane
   // is quiet and kHStale where a height removal lies within h; the window counts
   // (QuietCounts::over) of the rows [eq_first_, eq_next_) at the start of pass 1.
-  std::vector<std::uint8_t> eplane_;
+  Ring<std::uint8_t> eplane_;
   std::vector<std::int32_t> equiet_;
   std::int64_t eq_first_ = 0, eq_next_ = 0;
   std::int64_t ecand_ = 0;  // edge_candidates()
@@ -424,7 +429,7 @@ class ProfileStream {
   // (kEdgeMoments planes of ek_ rows of estride_) and the column sums; the band it was built
   // for and the next grid row to add. Sets: pass 1 even / odd bands, then pass p >= 2 at p.
   std::ptrdiff_t etiles_ = 0, ek_ = 0, estride_ = 0, eper_ = 0, ebands_ = 0;
-  std::vector<double> eimg_;
+  Ring<double> eimg_;
   std::vector<std::int64_t> eimg_band_, eimg_next_;
   std::vector<std::int64_t> enext_;      // [p]: next row of edge pass p (1..passes_; 0: step 9)
   std::vector<double> eorg_;             // per (band mod ebands_, tile column): the origin
