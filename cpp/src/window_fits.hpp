@@ -313,10 +313,22 @@ void load_rel(const GridView<T>& g, std::ptrdiff_t r, std::ptrdiff_t c0, std::pt
   const std::ptrdiff_t ps = g.col_stride, yo = g.coord_stride, zo = 2 * g.coord_stride;
   // The next row's cells are read next: ask for them now (a tile's row segment is about one
   // page, too short for the hardware prefetcher to start on its own).
+  // The segment's lines: one range when the coordinates interleave within it, one per
+  // coordinate when they lie in planes (a range from x to z would span the planes between, a
+  // whole grid); cell by cell when cells lie a line or more apart (column-major grids).
   if (r + 1 < g.rows) {
-    const char* nb = reinterpret_cast<const char*>(base + g.row_stride);
-    const std::ptrdiff_t bytes = ((n - 1) * ps + zo + 1) * static_cast<std::ptrdiff_t>(sizeof(T));
-    for (std::ptrdiff_t off = 0; off < bytes; off += 64) __builtin_prefetch(nb + off);
+    constexpr std::ptrdiff_t kLine = 64, sz = static_cast<std::ptrdiff_t>(sizeof(T));
+    const std::ptrdiff_t span = (n - 1) * ps + 1;  // one coordinate's elements
+    const bool one = zo < span;
+    for (int q = 0; q < (one ? 1 : 3); ++q) {
+      const char* nb = reinterpret_cast<const char*>(base + g.row_stride + q * yo);
+      if (ps * sz <= kLine) {
+        const std::ptrdiff_t bytes = (one ? span + zo : span) * sz;
+        for (std::ptrdiff_t off = 0; off < bytes; off += kLine) __builtin_prefetch(nb + off);
+      } else {
+        for (std::ptrdiff_t j = 0; j < n; ++j) __builtin_prefetch(nb + j * ps * sz);
+      }
+    }
   }
   if constexpr (std::is_same_v<T, double>) {
     if (ps == 3 && yo == 1) {
