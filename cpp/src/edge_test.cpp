@@ -22,6 +22,7 @@
 #include "plane_math.hpp"
 #include "stages.hpp"
 #include "vector_clones.hpp"
+#include "window_fits.hpp"
 
 namespace miem::detail {
 
@@ -773,6 +774,21 @@ MIEM_CLONES void column_add(std::ptrdiff_t n, double* __restrict s, const double
   }
 }
 
+// The terms of n cells loaded by load_rel: a NORMAL cell keeps its coordinates and counts 1 in
+// nm; any other cell counts 0, and an INVALID cell 1 in iv. Branch-free: vectorised.
+MIEM_CLONES void normal_terms(std::ptrdiff_t n, const std::uint8_t* __restrict lb,
+                              double* __restrict px, double* __restrict py, double* __restrict pz,
+                              double* __restrict nm, double* __restrict iv) {
+  for (std::ptrdiff_t j = 0; j < n; ++j) {
+    const bool normal = lb[j] == kNormal;
+    px[j] = normal ? px[j] : 0.0;
+    py[j] = normal ? py[j] : 0.0;
+    pz[j] = normal ? pz[j] : 0.0;
+    nm[j] = normal ? 1.0 : 0.0;
+    iv[j] = lb[j] == kInvalid ? 1.0 : 0.0;
+  }
+}
+
 // The running sums along an image row of NQ moments (moment q: out[q * plane + j + 1] =
 // out[q * plane + j] + col[q * col_plane + j], j < n), NQ chains side by side, each sum kept
 // in a register (the same additions in the same order as one at a time).
@@ -804,23 +820,13 @@ void add_row_moments(const GridView<T>& g, std::ptrdiff_t row, const std::uint8_
   constexpr std::ptrdiff_t kB = 64;
   double px[kB], py[kB], pz[kB], nm[kB], iv[kB];
   const double ox = o.x(), oy = o.y(), oz = o.z();
-  const std::ptrdiff_t cs = g.col_stride, ds = g.coord_stride;
   if (out != nullptr) {
     for (int q = 0; q < kM; ++q) out[q * plane] = 0.0;
   }
   for (std::ptrdiff_t b = f0; b < f1; b += kB) {
     const std::ptrdiff_t n = std::min(kB, f1 - b);
-    const T* const p = g.data + row * g.row_stride + b * cs;
-    const std::uint8_t* const lb = lab + b;
-    for (std::ptrdiff_t j = 0; j < n; ++j) {
-      const bool normal = lb[j] == kNormal;
-      const T* const c = p + j * cs;
-      px[j] = normal ? static_cast<double>(c[0]) - ox : 0.0;
-      py[j] = normal ? static_cast<double>(c[ds]) - oy : 0.0;
-      pz[j] = normal ? static_cast<double>(c[2 * ds]) - oz : 0.0;
-      nm[j] = normal ? 1.0 : 0.0;
-      iv[j] = lb[j] == kInvalid ? 1.0 : 0.0;
-    }
+    load_rel(g, row, b, n, ox, oy, oz, px, py, pz);  // vector clones for the common layouts
+    normal_terms(n, lab + b, px, py, pz, nm, iv);
     double* const cb = col + (b - f0);
     const auto add = [n](double* s, const double* t) { column_add(n, s, t, nullptr); };
     const auto add2 = [n](double* s, const double* u, const double* v) {
