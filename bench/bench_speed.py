@@ -20,6 +20,8 @@ Sections, all measured in this one run:
 * Dropouts: the default on the benchmark scan with 0-20 % random dropouts added, today's build
   and ``DROPOUT_BASE``'s (before the quiet rule counted per half sub-window and pass 1 searched
   on to s + 1 a whole word at once).
+* Memory layouts: the default on one scan in C order, as coordinate planes, in Fortran order
+  and as float32 (the caller's array is read in place).
 * Where the time goes: each C++ stage timed alone (``miem_bench_stages``, CPU time, one thread),
   and the stage costs by configuration differences through the Python API (comparable across
   versions: angle test only; + heights at every point; + the height test).
@@ -114,6 +116,44 @@ def lead(side: int, repeats: int) -> list[dict]:
         flagged = len(pts) - len(out[1]) if isinstance(out, tuple) else None
         rows.append({"who": who, "t": t, "flagged": flagged, "mpts": n / t / 1e6})
     return rows
+
+
+def layout_times(side: int, repeats: int) -> list[dict]:
+    """The default on the same scan in the memory layouts a user hands over (CPU time, 1
+    thread): C order (H, W, 3), a view of (3, H, W) coordinate planes, Fortran order, float32."""
+    import miem
+
+    grid = scan_grid(side, side)
+    planes = np.moveaxis(np.ascontiguousarray(np.moveaxis(grid, -1, 0)), 0, -1)
+    layouts = [("C order (H, W, 3), float64", grid),
+               ("coordinate planes: a (3, H, W) array's view", planes),
+               ("Fortran order (np.asfortranarray)", np.asfortranarray(grid)),
+               ("C order, float32", grid.astype(np.float32))]
+    ref = miem.detect(grid, num_threads=1).labels
+    rows = []
+    for who, g in layouts:
+        t = cpu_time(lambda g=g: miem.detect(g, num_threads=1), repeats)
+        same = bool(np.array_equal(miem.detect(g, num_threads=1).labels, ref))
+        rows.append({"who": who, "strides": list(g.strides), "t": t, "same_labels": same})
+    return rows
+
+
+def fmt_layouts(rows: list[dict], side: int) -> list[str]:
+    if not rows:
+        return []
+    base = rows[0]["t"]
+    L = ["", f"### Memory layouts ({side}x{side}, default preset, 1 thread, CPU time)", "",
+         "`miem.detect` reads the caller's array in place, except a column-major grid "
+         "(Fortran order: its row neighbours lie a column apart), which it copies into C "
+         "order once (the copy is in its time). "
+         "Float32 labels may differ from float64 in a few cells near a threshold (SPEC "
+         "\"Numbers\").", "",
+         "| layout | strides (bytes) | CPU ms | / C order | labels as C order float64 |",
+         "|---|---|---:|---:|---|"]
+    for r in rows:
+        L.append(f"| {r['who']} | {tuple(r['strides'])} | {r['t'] * 1e3:.0f} | "
+                 f"{r['t'] / base:.2f}x | {'same' if r['same_labels'] else 'differ'} |")
+    return L
 
 
 def pcl_rows(build_dir: Path, side: int, repeats: int) -> list[dict]:
@@ -594,7 +634,7 @@ def fmt_min_step(rows: list[dict]) -> list[str]:
 
 
 def fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, meta,
-        min_step_rows=(), surface_rows=(), dropout_rows=()) -> str:
+        min_step_rows=(), surface_rows=(), dropout_rows=(), layout_rows=()) -> str:
     L = ["## Speed of the default detector (`python bench/bench_speed.py`)", ""]
     L.append(f"Written on {meta['date']}: miem {meta['miem']}, {meta['cpu']}, {os.cpu_count()} "
              f"cores, shared with other jobs (load average {meta['load0']:.1f} at the start, "
@@ -692,6 +732,7 @@ def fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, meta,
     L += fmt_min_step(list(min_step_rows))
     L += fmt_surfaces(list(surface_rows))
     L += fmt_dropouts(list(dropout_rows))
+    L += fmt_layouts(list(layout_rows), meta.get("layout_side", 0))
     L += ["", "By configuration differences through the Python API (CPU time, 1 thread, "
           f"{meta['bd_side']}x{meta['bd_side']}; the builds before are compared stage by stage "
           "above):", "",
@@ -731,15 +772,17 @@ def main(argv=None) -> int:
     min_step_rows = min_step_times(args.build_dir, meta["stage_side"], reps, build_bases=not q)
     surface_rows = surface_times(args.build_dir, 512, reps)
     dropout_rows = dropout_times(args.build_dir, meta["stage_side"], reps, build_bases=not q)
+    meta["layout_side"] = 512 if q else 1024
+    layout_rows = layout_times(meta["layout_side"], reps)
     now_bd = breakdown(bd_side, reps)
     meta["load1"] = os.getloadavg()[0]
     RAW.write_text(json.dumps({"lead": rows_lead, "sweep": rows_sweep, "fit": rows_fit,
                                "memory": mem, "stages": stages, "before": before, "breakdown": now_bd,
                                "min_step": min_step_rows, "surfaces": surface_rows,
-                               "dropouts": dropout_rows,
+                               "dropouts": dropout_rows, "layouts": layout_rows,
                                "meta": meta}, indent=1) + "\n")
     OUT.write_text(fmt(rows_lead, rows_sweep, rows_fit, mem, stages, before, now_bd, meta,
-                       min_step_rows, surface_rows, dropout_rows))
+                       min_step_rows, surface_rows, dropout_rows, layout_rows))
     print(OUT.read_text())
     return 0
 

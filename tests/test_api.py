@@ -180,6 +180,12 @@ def test_noncontiguous_readonly_and_float32_inputs_are_read_in_place() -> None:
     ref = miem.detect(g)
     for arr in (view, ro, fortran, g[::-1][::-1], g.astype(np.float32)):
         np.testing.assert_array_equal(miem.detect(arr).labels, ref.labels)
+    # a column-major grid is detected on a C-order copy: the same heights and defects, and
+    # the caller's array keeps its values and its order
+    res = miem.detect(fortran)
+    np.testing.assert_array_equal(res.height, ref.height)
+    assert [d.indices.tolist() for d in res.defects] == [d.indices.tolist() for d in ref.defects]
+    assert fortran.flags.f_contiguous and np.array_equal(fortran, g, equal_nan=True)
     # integer grids are accepted (converted)
     ints = np.dstack(np.mgrid[0:8, 0:8] + [np.zeros((8, 8), int)])
     ints = np.dstack([ints[..., 1], ints[..., 0], np.zeros((8, 8), int)])

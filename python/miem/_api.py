@@ -477,7 +477,9 @@ def detect(
     ----------
     grid : array_like, shape (H, W, 3) or (N, 3)
         Organized scan: row = one laser profile, column = position along it. float32 or
-        float64 are read in place (any strides); NaN (any non-finite coordinate) marks a dropout.
+        float64 are read in place (any strides; a column-major grid, e.g. Fortran order, is
+        copied into C order once, which is faster); NaN (any non-finite coordinate) marks a
+        dropout.
     params : DetectParams or mapping, optional
         The full parameter set (not together with ``preset``).
     preset : {"recommended", "paper"}, optional
@@ -604,6 +606,11 @@ def _detect_grid(arr: np.ndarray, params: Any, preset: Optional[str], overrides:
         raise ValueError(f"grid: expected shape (H, W, 3) or (N, 3), got {arr.shape}")
     if arr.shape[0] * arr.shape[1] < 3:
         raise ValueError(f"grid: need at least 3 points, got {arr.shape[0] * arr.shape[1]}")
+    if arr.shape[0] > 1 and abs(arr.strides[1]) > abs(arr.strides[0]):
+        # column-major (Fortran order, as MATLAB files load): the core runs along rows, where
+        # such a grid's neighbours lie a column apart; one copy into C order costs less
+        # (bench/RESULTS.md "Memory layouts")
+        arr = np.ascontiguousarray(arr)
 
     (labels, flags, angle, height, plane_t, iterations, raw, theta0_used,
      min_step_used, z_resolution_used, z_noise_used) = _core.detect_organized(arr, core_params)
