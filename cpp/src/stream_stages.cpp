@@ -40,6 +40,7 @@ constexpr std::uint8_t kSWantEven = 32;  // re-fit at the next even / odd height
 constexpr std::uint8_t kSWantOdd = 64;
 constexpr std::uint8_t kSStale = 128;  // a cell within h was removed: the pass-1 height is stale
 constexpr std::ptrdiff_t kStrip = 128;
+constexpr std::ptrdiff_t kAhead = 2;  // strips a prefetch runs ahead (prefetch_planes)
 constexpr std::uint8_t kNever = 255;  // hs_: not removed by the height test
 
 constexpr std::uint8_t want_bit(int pass) { return (pass & 1) ? kSWantOdd : kSWantEven; }
@@ -285,6 +286,12 @@ void ProfileStream<T>::sums_add_row(int set, std::int64_t in, double sign,
       }
     }
     double* cs = cs_.data() + k * kMoments * stride_ + pad;
+    if (t + kAhead < strips_) {  // the rows' cells of the strip kAhead on
+      const std::ptrdiff_t a0 = (t + kAhead) * kStrip + half_;
+      const std::ptrdiff_t a1 = std::min(W, a0 + kStrip);
+      detail::prefetch_planes(g.data, plane, a0, a1);
+      if (out >= 0) detail::prefetch_planes(xyz_.data() + slot(out) * W, plane, a0, a1);
+    }
     detail::load_rel(g, 0, C0, nc, o[0], o[1], o[2], x, x + span_, x + 2 * span_);
     if (out < 0) {
       detail::add_row_moments(hm + C0, nc, x, x + span_, x + 2 * span_, sign, cs, stride_);
@@ -360,6 +367,10 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
       wrow[j] = finite;
       m += finite;
       if (!finite) height[tc0 + j] = detail::kNaN;
+    }
+    if (t + kAhead < strips_) {
+      const std::ptrdiff_t a0 = (t + kAhead) * kStrip;
+      detail::prefetch_planes(g.data, plane, a0, std::min(W, a0 + kStrip));
     }
     if (m == 0) return;
     detail::load_rel(g, 0, tc0, n, o[0], o[1], o[2], Q, Q + cap, Q + 2 * cap);
