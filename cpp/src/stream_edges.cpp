@@ -25,6 +25,7 @@
 #include "stages.hpp"
 #include "miem/stream.hpp"
 #include "parallel.hpp"
+#include "window_fits.hpp"
 
 namespace miem {
 
@@ -164,6 +165,8 @@ const double* ProfileStream<T>::edge_images(int pass, std::ptrdiff_t t, std::int
     next = e0;
   }
   for (; next < upto; ++next) {  // add grid row `next`: image row next + 1
+    // a catch-up's next row (a row view of its own: load_rel's next-row prefetch does not see it)
+    if (next + 1 < upto) detail::prefetch_planes(row_view(next + 1).data, phys_ * W, f0, f1);
     edge_labels(next, std::max(pass, 1), f0, f1, labs);  // (step 9 changes no image)
     double* const out = next + 1 < from ? nullptr : img + ((next + 1 - e0) % ek_) * L;
     detail::edge_image_row(row_view(next), 0, labs, f0, f1, o, col, EC, out, plane);
