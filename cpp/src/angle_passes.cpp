@@ -11,6 +11,7 @@
 #include <type_traits>
 #include <vector>
 
+#include "finite_bits.hpp"
 #include "judge.hpp"
 #include "pass1_row.hpp"
 #include "parallel.hpp"
@@ -21,32 +22,13 @@ namespace miem::detail {
 
 namespace {
 
-// SPEC "Numbers" (the coordinate range) in pass 1's finiteness pass, which reads every
-// coordinate anyway: the bit pattern of |v| where v is finite, else 0. Non-negative floats order
-// like their patterns, so an integer maximum of them is the largest finite magnitude (fused
-// into finite_row's loop: 2-3 ms of a 345 ms run at 2048^2, where a second pass over each row
-// with largest_finite_magnitude measured 4-5 ms).
-inline std::uint64_t finite_abs_bits(double v) {
-  std::uint64_t u;
-  std::memcpy(&u, &v, sizeof u);
-  u &= 0x7FFFFFFFFFFFFFFFull;
-  return u < 0x7FF0000000000000ull ? u : 0;
-}
-inline std::uint32_t finite_abs_bits(float v) {
-  std::uint32_t u;
-  std::memcpy(&u, &v, sizeof u);
-  u &= 0x7FFFFFFFu;
-  return u < 0x7F800000u ? u : 0;
-}
-// The pattern type of T.
-template <typename T>
-using AbsBits = decltype(finite_abs_bits(T()));
-
 // GridView::finite of n cells at p (cells cs apart, coordinates ys apart) as straight-line
 // code: us[c] 1 or 0 and, with `lb`, the label NORMAL or INVALID; returns the finite count and
 // raises `top` to the largest finite_abs_bits (SPEC "Numbers": every finite coordinate counts,
-// a dropout's too). The patterns lie below 2^63 (2^31): `top` is signed, as a signed maximum
-// orders them and AVX2 has one for 64-bit lanes (the unsigned one only AVX-512).
+// a dropout's too; finite_bits.hpp: fused here, 2-3 ms of a 345 ms run at 2048^2, where a
+// second pass over each row with largest_finite_magnitude measured 4-5 ms). The patterns lie
+// below 2^63 (2^31): `top` is signed, as a signed maximum orders them and AVX2 has one for
+// 64-bit lanes (the unsigned one only AVX-512).
 template <typename T, typename S, typename CS, typename YS>
 inline __attribute__((always_inline)) std::ptrdiff_t finite_cells(
     const T* __restrict p, std::ptrdiff_t n, CS cs, YS ys, std::uint8_t* __restrict us,
@@ -88,14 +70,6 @@ MIEM_CLONES std::ptrdiff_t finite_xyz(const double* p, std::ptrdiff_t n, std::ui
 MIEM_CLONES std::ptrdiff_t finite_xyz(const float* p, std::ptrdiff_t n, std::uint8_t* us,
                                       std::uint8_t* lb, std::int32_t& top) {
   return finite_cells_lb(p, n, K3{}, K1{}, us, lb, top);
-}
-
-// The value of a pattern finite_abs_bits gave, widened to double.
-template <typename T>
-double magnitude_of(AbsBits<T> u) {
-  T v;
-  std::memcpy(&v, &u, sizeof v);
-  return static_cast<double>(v);
 }
 
 // finite_cells of row r of g: the interleaved layout by finite_xyz, any other strides by the

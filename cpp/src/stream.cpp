@@ -20,6 +20,7 @@
 
 #include "auto_min_step.hpp"
 #include "edge_quiet.hpp"
+#include "finite_bits.hpp"
 #include "z_resolution.hpp"
 #include "judge.hpp"
 #include "parallel.hpp"
@@ -545,23 +546,43 @@ void ProfileStream<T>::reset() noexcept {
 }
 
 namespace {
-// n interleaved points (x, y, z, x, ...) into three planes, in vector clones (AVX2 and AVX-512
-// shuffle the interleaved loads; the baseline build moves them two at a time).
-template <typename T>
-inline __attribute__((always_inline)) void split_xyz_body(const T* __restrict p,
-                                                          std::ptrdiff_t n, T* __restrict x,
-                                                          T* __restrict y, T* __restrict z) {
+// n interleaved points (x, y, z, x, ...) into three planes in one pass (vector clones: AVX2 and
+// AVX-512 shuffle the interleaved loads), with their finite flags (state 255 / label NORMAL,
+// state 0 / label INVALID, as mark_finite) and the largest finite_abs_bits of their coordinates
+// (SPEC "Numbers", finite_bits.hpp): one read of the profile instead of three. Returns the
+// finite count. The patterns lie below 2^63 (2^31): `top` is signed (AVX2's 64-bit maximum).
+template <typename T, typename S>
+inline __attribute__((always_inline)) std::ptrdiff_t split_finite_body(
+    const T* __restrict p, std::ptrdiff_t n, T* __restrict x, T* __restrict y, T* __restrict z,
+    std::uint8_t* __restrict st, std::uint8_t* __restrict lab, S& top) {
+  std::ptrdiff_t nf = 0;
+  S t = top;
   for (std::ptrdiff_t c = 0; c < n; ++c) {
-    x[c] = p[3 * c];
-    y[c] = p[3 * c + 1];
-    z[c] = p[3 * c + 2];
+    const T a = p[3 * c], b = p[3 * c + 1], d = p[3 * c + 2];
+    x[c] = a;
+    y[c] = b;
+    z[c] = d;
+    const bool fin = (a - a) + (b - b) + (d - d) == T(0);
+    st[c] = fin ? kAlive : 0;
+    lab[c] = fin ? kNormal : kInvalid;
+    nf += fin;
+    const S ba = static_cast<S>(detail::finite_abs_bits(a));
+    const S bb = static_cast<S>(detail::finite_abs_bits(b));
+    const S bd = static_cast<S>(detail::finite_abs_bits(d));
+    t = std::max(t, std::max(ba, std::max(bb, bd)));
   }
+  top = t;
+  return nf;
 }
-MIEM_CLONES void split_xyz(const double* p, std::ptrdiff_t n, double* x, double* y, double* z) {
-  split_xyz_body(p, n, x, y, z);
+MIEM_CLONES std::ptrdiff_t split_finite(const double* p, std::ptrdiff_t n, double* x, double* y,
+                                        double* z, std::uint8_t* st, std::uint8_t* lab,
+                                        std::int64_t& top) {
+  return split_finite_body(p, n, x, y, z, st, lab, top);
 }
-MIEM_CLONES void split_xyz(const float* p, std::ptrdiff_t n, float* x, float* y, float* z) {
-  split_xyz_body(p, n, x, y, z);
+MIEM_CLONES std::ptrdiff_t split_finite(const float* p, std::ptrdiff_t n, float* x, float* y,
+                                        float* z, std::uint8_t* st, std::uint8_t* lab,
+                                        std::int32_t& top) {
+  return split_finite_body(p, n, x, y, z, st, lab, top);
 }
 }  // namespace
 
@@ -586,22 +607,29 @@ Status ProfileStream<T>::push(const PointsView<T>& profile, StreamRow* out) noex
   T* z = y + plane;
   std::uint8_t* st = state_.data() + s * W;
   std::uint8_t* lab = labels_.data() + s * W;
-  // SPEC "Numbers": a profile with a finite coordinate beyond the range is rejected before
-  // anything is written (the stream stays exactly as it was).
+  // SPEC "Numbers": a profile with a finite coordinate beyond the range is rejected, the
+  // stream as it was: the dense layout is copied and checked in one pass into the row's slot,
+  // which holds a row older than any stage reads (ring_ = the longest look-back + 2) until the
+  // profile is taken (then the ring's ext_ copy and the rows' state follow); other layouts are
+  // checked first.
   const bool dense = profile.point_stride == 3 && profile.coord_stride == 1;
-  {
-    const double top = dense ? largest_finite_magnitude(profile.data, 1, 3 * W, 0, 1)
-                             : largest_finite_magnitude(profile.data, W, 3, profile.point_stride,
-                                                        profile.coord_stride);
-    if (!coordinate_range_ok(top, false)) {
-      return {StatusCode::kInvalidInput,
-              "profile: finite coordinates reach a magnitude above 1e18, outside the range the "
-              "method computes without overflow; rescale the points (profile rejected)"};
-    }
-  }
+  std::ptrdiff_t n_finite = 0;
+  double top = 0.0;
   if (dense) {
-    split_xyz(profile.data, W, x, y, z);  // the common dense layout
+    using S = std::conditional_t<sizeof(T) == 8, std::int64_t, std::int32_t>;
+    S bits = 0;
+    n_finite = split_finite(profile.data, W, x, y, z, st, lab, bits);
+    top = detail::magnitude_of<T>(static_cast<detail::AbsBits<T>>(bits));
   } else {
+    top = largest_finite_magnitude(profile.data, W, 3, profile.point_stride,
+                                   profile.coord_stride);
+  }
+  if (!coordinate_range_ok(top, false)) {
+    return {StatusCode::kInvalidInput,
+            "profile: finite coordinates reach a magnitude above 1e18, outside the range the "
+            "method computes without overflow; rescale the points (profile rejected)"};
+  }
+  if (!dense) {
     const std::ptrdiff_t ps = profile.point_stride, cs = profile.coord_stride;
     for (std::ptrdiff_t c = 0; c < W; ++c) {
       const T* p = profile.data + c * ps;
@@ -609,8 +637,8 @@ Status ProfileStream<T>::push(const PointsView<T>& profile, StreamRow* out) noex
       y[c] = p[cs];
       z[c] = p[2 * cs];
     }
+    n_finite = mark_finite(x, y, z, W, st, lab);
   }
-  const std::ptrdiff_t n_finite = mark_finite(x, y, z, W, st, lab);
   p1_miss_[static_cast<std::size_t>(s)] = W - n_finite;
   if (s < ext_) {  // the copy after the ring's end (see phys_)
     const std::size_t bytes = static_cast<std::size_t>(W) * sizeof(T);

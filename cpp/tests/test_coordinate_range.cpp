@@ -159,7 +159,8 @@ TEST(CoordinateRange, StreamRejectsAProfileBeyondTheRange) {
     EXPECT_EQ(s.rows_pushed(), before);
   };
   // The bad profile in the middle of the part, or just before the flush (more rows than the
-  // stream's ring holds: the slot the next row would take still holds a row the flush reads).
+  // stream's ring holds: the slot the profile is copied into before its check holds a pushed
+  // row, older than any the stages or the flush read).
   auto rows = [&](bool with_bad, std::ptrdiff_t at = 20) {
     miem::ProfileStream<double> s(W);
     std::vector<std::uint8_t> all;  // labels, then each row's heights' bytes
