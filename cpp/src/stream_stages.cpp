@@ -362,11 +362,18 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
     std::uint8_t* far = far_row + tc0;
     std::fill(far, far + n, std::uint8_t{0});
     std::ptrdiff_t m = 0;
-    for (std::ptrdiff_t j = 0; j < n; ++j) {
-      const bool finite = st[tc0 + j] != 0;
-      wrow[j] = finite;
-      m += finite;
-      if (!finite) height[tc0 + j] = detail::kNaN;
+    {  // branch-free over local restrict pointers: vectorised
+      const std::uint8_t* __restrict s0 = st + tc0;
+      std::uint8_t* __restrict w = wrow;
+      for (std::ptrdiff_t j = 0; j < n; ++j) {
+        const std::uint8_t finite = s0[j] != 0;
+        w[j] = finite;
+        m += finite;
+      }
+    }
+    if (m < n) {  // the dropouts' heights
+      for (std::ptrdiff_t j = 0; j < n; ++j)
+        if (!wrow[j]) height[tc0 + j] = detail::kNaN;
     }
     if (t + kAhead < strips_) {
       const std::ptrdiff_t a0 = (t + kAhead) * kStrip;
