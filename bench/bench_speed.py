@@ -274,6 +274,8 @@ BASES = [
     ("a2bad9d", "2026-12-07, before pass 1 took its rest lanes from packed usable bits and "
      "loaded its rows in vector code",
      "recommended", "recommended"),
+    ("cdeec00", "2026-12-07, before the edge images' row loads in vector code and the "
+     "masked window planes", "recommended", "recommended"),
 ]
 
 
