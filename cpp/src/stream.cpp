@@ -900,6 +900,20 @@ std::ptrdiff_t ProfileStream<T>::step_offset(std::int64_t row, int k, std::ptrdi
   return slot(row + sign * kDirRow[k] * step) * width_ + sign * kDirCol[k] * step;
 }
 
+namespace {
+// bits[c] gets kBadBit where a side has no usable cell at step s nor at s + 1 (states sa, sa2
+// and sb, sb2; the same pointers twice without p1_gap_), c in [c0, c1): vector clones.
+MIEM_CLONES void mark_missing(std::ptrdiff_t c0, std::ptrdiff_t c1,
+                              const std::uint8_t* __restrict sa, const std::uint8_t* __restrict sa2,
+                              const std::uint8_t* __restrict sb, const std::uint8_t* __restrict sb2,
+                              std::uint32_t* __restrict bits) {
+  for (std::ptrdiff_t c = c0; c < c1; ++c) {
+    bits[c] |= static_cast<std::uint32_t>(((sa[c] | sa2[c]) == 0) | ((sb[c] | sb2[c]) == 0))
+               << 31;
+  }
+}
+}  // namespace
+
 // Pass 1 filter of one row where every neighbour cell exists: marks in bits_ the cells that
 // might be flagged in some direction (the kernel) and, with kBadBit, the cells with a missing
 // neighbour (next to a dropout; with p1_gap_, missing at steps s and s + 1), which CellJudge
@@ -941,11 +955,7 @@ void ProfileStream<T>::pass1_fast(std::int64_t row) noexcept {
     const std::ptrdiff_t c0 = S + i0, c1 = S + i1;
     std::fill(bits + c0, bits + c1, cos0_ > 0.0 ? 0u : ~kBadBit);  // theta0 >= 90: all exact
     for (int i = 0; i < args.n; ++i) {  // no neighbour within steps s .. s + 1 (p1_gap_)
-      const std::uint8_t *sA = args.SA[i], *sB = args.SB[i], *sA2 = sa2[i], *sB2 = sb2[i];
-      for (std::ptrdiff_t c = c0; c < c1; ++c) {
-        bits[c] |= static_cast<std::uint32_t>(((sA[c] | sA2[c]) == 0) |
-                                              ((sB[c] | sB2[c]) == 0)) << 31;
-      }
+      mark_missing(c0, c1, args.SA[i], sa2[i], args.SB[i], sb2[i], bits);
     }
     if (cos0_ > 0.0 && c0 < c1) {
       KernelArgs<T> part_args = args;
