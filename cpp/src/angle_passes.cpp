@@ -24,11 +24,9 @@ namespace {
 
 // GridView::finite of n cells at p (cells cs apart, coordinates ys apart) as straight-line
 // code: us[c] 1 or 0 and, with `lb`, the label NORMAL or INVALID; returns the finite count and
-// raises `top` to the largest finite_abs_bits (SPEC "Numbers": every finite coordinate counts,
-// a dropout's too; finite_bits.hpp: fused here, 2-3 ms of a 345 ms run at 2048^2, where a
-// second pass over each row with largest_finite_magnitude measured 4-5 ms). The patterns lie
-// below 2^63 (2^31): `top` is signed, as a signed maximum orders them and AVX2 has one for
-// 64-bit lanes (the unsigned one only AVX-512).
+// raises `top` (signed) to the largest finite_abs_bits (SPEC "Numbers": every finite coordinate
+// counts, a dropout's too; finite_point: fused here, 2-3 ms of a 345 ms run at 2048^2, where a
+// second pass over each row with largest_finite_magnitude measured 4-5 ms).
 template <typename T, typename S, typename CS, typename YS>
 inline __attribute__((always_inline)) std::ptrdiff_t finite_cells(
     const T* __restrict p, std::ptrdiff_t n, CS cs, YS ys, std::uint8_t* __restrict us,
@@ -37,14 +35,10 @@ inline __attribute__((always_inline)) std::ptrdiff_t finite_cells(
   S t = top;
   for (std::ptrdiff_t c = 0; c < n; ++c) {
     const T* q = p + c * cs;
-    const T x = q[0], y = q[ys], z = q[2 * ys];
-    const bool fin = (x - x) + (y - y) + (z - z) == T(0);
+    const bool fin = finite_point(q[0], q[ys], q[2 * ys], t);
     us[c] = fin;
     if (lb != nullptr) lb[c] = fin ? kNormal : kInvalid;
     nf += fin;
-    const S bx = static_cast<S>(finite_abs_bits(x)), by = static_cast<S>(finite_abs_bits(y));
-    const S bz = static_cast<S>(finite_abs_bits(z));
-    t = std::max(t, std::max(bx, std::max(by, bz)));
   }
   top = t;
   return nf;

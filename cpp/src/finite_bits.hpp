@@ -4,6 +4,7 @@
 // the largest finite magnitude. Batch pass 1's finiteness pass and the stream's profile copy.
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 #include <cstring>
 
@@ -25,6 +26,19 @@ inline std::uint32_t finite_abs_bits(float v) {
 // The pattern type of T.
 template <typename T>
 using AbsBits = decltype(finite_abs_bits(T()));
+
+// One point's test, inlined into the loops that read every point (batch pass 1's finiteness
+// pass, the stream's profile copy): whether it is finite (GridView::finite's test) and `t`
+// raised to its coordinates' largest finite_abs_bits. S: a signed type as wide as the patterns
+// (they lie below 2^63, 2^31), whose maximum AVX2 has for 64-bit lanes (the unsigned one only
+// AVX-512).
+template <typename T, typename S>
+inline __attribute__((always_inline)) bool finite_point(T x, T y, T z, S& t) {
+  const S bx = static_cast<S>(finite_abs_bits(x)), by = static_cast<S>(finite_abs_bits(y));
+  const S bz = static_cast<S>(finite_abs_bits(z));
+  t = std::max(t, std::max(bx, std::max(by, bz)));
+  return (x - x) + (y - y) + (z - z) == T(0);
+}
 
 // The value of a pattern finite_abs_bits gave, widened to double.
 template <typename T>

@@ -218,54 +218,6 @@ void run_kernel(const KernelArgs<T>& a) {
 #endif
 }
 
-template <typename T>
-bool finite3(T x, T y, T z) {
-  return (x - x) + (y - y) + (z - z) == T(0);  // as GridView::finite
-}
-
-// state 255 / label NORMAL for finite points, state 0 / label INVALID for the others; returns
-// the number of finite points. Four points per step on x86 (the scalar loop's compare-to-byte
-// does not vectorise).
-template <typename T>
-std::ptrdiff_t mark_finite(const T* x, const T* y, const T* z, std::ptrdiff_t W,
-                           std::uint8_t* st, std::uint8_t* lab) {
-  std::ptrdiff_t c = 0, n = 0;
-#ifdef MIEM_X86_KERNELS
-  static constexpr std::uint32_t kBytes[16] = {
-      0x00000000, 0x000000ff, 0x0000ff00, 0x0000ffff, 0x00ff0000, 0x00ff00ff, 0x00ffff00,
-      0x00ffffff, 0xff000000, 0xff0000ff, 0xff00ff00, 0xff00ffff, 0xffff0000, 0xffff00ff,
-      0xffffff00, 0xffffffff};
-  for (; c + 4 <= W; c += 4) {
-    int m;
-    if constexpr (std::is_same_v<T, double>) {
-      const __m128d z2 = _mm_setzero_pd();
-      auto fin2 = [&](std::ptrdiff_t i) {
-        const __m128d a = _mm_loadu_pd(x + i), b = _mm_loadu_pd(y + i), d = _mm_loadu_pd(z + i);
-        const __m128d s = _mm_add_pd(_mm_add_pd(_mm_sub_pd(a, a), _mm_sub_pd(b, b)), _mm_sub_pd(d, d));
-        return _mm_movemask_pd(_mm_cmpeq_pd(s, z2));
-      };
-      m = fin2(c) | (fin2(c + 2) << 2);
-    } else {
-      const __m128 a = _mm_loadu_ps(x + c), b = _mm_loadu_ps(y + c), d = _mm_loadu_ps(z + c);
-      const __m128 s = _mm_add_ps(_mm_add_ps(_mm_sub_ps(a, a), _mm_sub_ps(b, b)), _mm_sub_ps(d, d));
-      m = _mm_movemask_ps(_mm_cmpeq_ps(s, _mm_setzero_ps()));
-    }
-    const std::uint32_t bytes = kBytes[m];
-    const std::uint32_t labels = ~bytes & 0x03030303u;  // kNormal 0 / kInvalid 3 per byte
-    std::memcpy(st + c, &bytes, 4);
-    std::memcpy(lab + c, &labels, 4);
-    n += (m & 1) + ((m >> 1) & 1) + ((m >> 2) & 1) + ((m >> 3) & 1);
-  }
-#endif
-  for (; c < W; ++c) {
-    const bool fin = finite3(x[c], y[c], z[c]);
-    st[c] = fin ? kAlive : 0;
-    lab[c] = fin ? kNormal : kInvalid;
-    n += fin;
-  }
-  return n;
-}
-
 }  // namespace
 
 DetectParams stream_default_params() { return DetectParams{}; }
@@ -546,43 +498,41 @@ void ProfileStream<T>::reset() noexcept {
 }
 
 namespace {
-// n interleaved points (x, y, z, x, ...) into three planes in one pass (vector clones: AVX2 and
-// AVX-512 shuffle the interleaved loads), with their finite flags (state 255 / label NORMAL,
-// state 0 / label INVALID, as mark_finite) and the largest finite_abs_bits of their coordinates
-// (SPEC "Numbers", finite_bits.hpp): one read of the profile instead of three. Returns the
-// finite count. The patterns lie below 2^63 (2^31): `top` is signed (AVX2's 64-bit maximum).
-template <typename T, typename S>
+// n points (point c's coordinates at p[c * ps], p[c * ps + cs], p[c * ps + 2 cs]) into three
+// planes in one pass, with their finite flags (state 255 / label NORMAL, state 0 / label
+// INVALID) and `top` raised to their largest finite_abs_bits (SPEC "Numbers"; finite_point).
+// Returns the finite count. The dense layout (ps 3, cs 1) in vector clones (AVX2 and AVX-512
+// shuffle the interleaved loads).
+template <typename T, typename S, typename PS, typename CS>
 inline __attribute__((always_inline)) std::ptrdiff_t split_finite_body(
-    const T* __restrict p, std::ptrdiff_t n, T* __restrict x, T* __restrict y, T* __restrict z,
-    std::uint8_t* __restrict st, std::uint8_t* __restrict lab, S& top) {
+    const T* __restrict p, std::ptrdiff_t n, PS ps, CS cs, T* __restrict x, T* __restrict y,
+    T* __restrict z, std::uint8_t* __restrict st, std::uint8_t* __restrict lab, S& top) {
   std::ptrdiff_t nf = 0;
   S t = top;
   for (std::ptrdiff_t c = 0; c < n; ++c) {
-    const T a = p[3 * c], b = p[3 * c + 1], d = p[3 * c + 2];
+    const T a = p[c * ps], b = p[c * ps + cs], d = p[c * ps + 2 * cs];
     x[c] = a;
     y[c] = b;
     z[c] = d;
-    const bool fin = (a - a) + (b - b) + (d - d) == T(0);
+    const bool fin = detail::finite_point(a, b, d, t);
     st[c] = fin ? kAlive : 0;
     lab[c] = fin ? kNormal : kInvalid;
     nf += fin;
-    const S ba = static_cast<S>(detail::finite_abs_bits(a));
-    const S bb = static_cast<S>(detail::finite_abs_bits(b));
-    const S bd = static_cast<S>(detail::finite_abs_bits(d));
-    t = std::max(t, std::max(ba, std::max(bb, bd)));
   }
   top = t;
   return nf;
 }
-MIEM_CLONES std::ptrdiff_t split_finite(const double* p, std::ptrdiff_t n, double* x, double* y,
-                                        double* z, std::uint8_t* st, std::uint8_t* lab,
-                                        std::int64_t& top) {
-  return split_finite_body(p, n, x, y, z, st, lab, top);
+using K3 = std::integral_constant<std::ptrdiff_t, 3>;
+using K1 = std::integral_constant<std::ptrdiff_t, 1>;
+MIEM_CLONES std::ptrdiff_t split_dense(const double* p, std::ptrdiff_t n, double* x, double* y,
+                                       double* z, std::uint8_t* st, std::uint8_t* lab,
+                                       std::int64_t& top) {
+  return split_finite_body(p, n, K3{}, K1{}, x, y, z, st, lab, top);
 }
-MIEM_CLONES std::ptrdiff_t split_finite(const float* p, std::ptrdiff_t n, float* x, float* y,
-                                        float* z, std::uint8_t* st, std::uint8_t* lab,
-                                        std::int32_t& top) {
-  return split_finite_body(p, n, x, y, z, st, lab, top);
+MIEM_CLONES std::ptrdiff_t split_dense(const float* p, std::ptrdiff_t n, float* x, float* y,
+                                       float* z, std::uint8_t* st, std::uint8_t* lab,
+                                       std::int32_t& top) {
+  return split_finite_body(p, n, K3{}, K1{}, x, y, z, st, lab, top);
 }
 }  // namespace
 
@@ -608,36 +558,21 @@ Status ProfileStream<T>::push(const PointsView<T>& profile, StreamRow* out) noex
   std::uint8_t* st = state_.data() + s * W;
   std::uint8_t* lab = labels_.data() + s * W;
   // SPEC "Numbers": a profile with a finite coordinate beyond the range is rejected, the
-  // stream as it was: the dense layout is copied and checked in one pass into the row's slot,
-  // which holds a row older than any stage reads (ring_ = the longest look-back + 2) until the
-  // profile is taken (then the ring's ext_ copy and the rows' state follow); other layouts are
-  // checked first.
-  const bool dense = profile.point_stride == 3 && profile.coord_stride == 1;
-  std::ptrdiff_t n_finite = 0;
-  double top = 0.0;
-  if (dense) {
-    using S = std::conditional_t<sizeof(T) == 8, std::int64_t, std::int32_t>;
-    S bits = 0;
-    n_finite = split_finite(profile.data, W, x, y, z, st, lab, bits);
-    top = detail::magnitude_of<T>(static_cast<detail::AbsBits<T>>(bits));
-  } else {
-    top = largest_finite_magnitude(profile.data, W, 3, profile.point_stride,
-                                   profile.coord_stride);
-  }
-  if (!coordinate_range_ok(top, false)) {
+  // stream as it was. It is copied and checked in one pass into its row's slot, which holds a
+  // row older than any stage reads (ring_ = the longest look-back + 2) until the profile is
+  // taken (then the ring's ext_ copy and the rows' state follow).
+  using S = std::conditional_t<sizeof(T) == 8, std::int64_t, std::int32_t>;
+  S bits = 0;
+  const std::ptrdiff_t n_finite =
+      profile.point_stride == 3 && profile.coord_stride == 1
+          ? split_dense(profile.data, W, x, y, z, st, lab, bits)
+          : split_finite_body(profile.data, W, profile.point_stride, profile.coord_stride, x, y,
+                              z, st, lab, bits);
+  if (!coordinate_range_ok(detail::magnitude_of<T>(static_cast<detail::AbsBits<T>>(bits)),
+                           false)) {
     return {StatusCode::kInvalidInput,
             "profile: finite coordinates reach a magnitude above 1e18, outside the range the "
             "method computes without overflow; rescale the points (profile rejected)"};
-  }
-  if (!dense) {
-    const std::ptrdiff_t ps = profile.point_stride, cs = profile.coord_stride;
-    for (std::ptrdiff_t c = 0; c < W; ++c) {
-      const T* p = profile.data + c * ps;
-      x[c] = p[0];
-      y[c] = p[cs];
-      z[c] = p[2 * cs];
-    }
-    n_finite = mark_finite(x, y, z, W, st, lab);
   }
   p1_miss_[static_cast<std::size_t>(s)] = W - n_finite;
   if (s < ext_) {  // the copy after the ring's end (see phys_)
