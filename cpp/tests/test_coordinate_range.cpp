@@ -150,13 +150,20 @@ TEST(CoordinateRange, StreamRejectsAProfileBeyondTheRange) {
   const std::vector<double> g = bumpy_grid(H, W);
   std::vector<double> bad(g.begin(), g.begin() + 3 * W);
   bad[3 * 10 + 2] = 2e18;
+  // the same profile as coordinate planes (x, then y, then z: another layout's copy)
+  std::vector<double> bad_planes(3 * W);
+  for (std::ptrdiff_t c = 0; c < W; ++c)
+    for (int k = 0; k < 3; ++k) bad_planes[k * W + c] = bad[3 * c + k];
   auto push_bad = [&](miem::ProfileStream<double>& s, miem::StreamRow& row) {
     const std::int64_t before = s.rows_pushed();
-    const miem::Status st = s.push(bad.data(), W, &row);
-    EXPECT_EQ(st.code, miem::StatusCode::kInvalidInput);
-    EXPECT_NE(std::string(st.message).find("rescale"), std::string::npos);
-    EXPECT_FALSE(row.ready());
-    EXPECT_EQ(s.rows_pushed(), before);
+    using View = miem::PointsView<double>;
+    for (const View v : {View{bad.data(), W, 3, 1}, View{bad_planes.data(), W, 1, W}}) {
+      const miem::Status st = s.push(v, &row);
+      EXPECT_EQ(st.code, miem::StatusCode::kInvalidInput);
+      EXPECT_NE(std::string(st.message).find("rescale"), std::string::npos);
+      EXPECT_FALSE(row.ready());
+      EXPECT_EQ(s.rows_pushed(), before);
+    }
   };
   // The bad profile in the middle of the part, or just before the flush (more rows than the
   // stream's ring holds: the slot the profile is copied into before its check holds a pushed
