@@ -304,6 +304,12 @@ MIEM_CLONES inline void load_rel_planes(const double* __restrict p, std::ptrdiff
   }
 }
 
+// Asks for the cache lines of `bytes` bytes from p on.
+inline void prefetch_bytes(const void* p, std::ptrdiff_t bytes) {
+  const char* a = static_cast<const char*>(p);
+  for (std::ptrdiff_t off = 0; off < bytes; off += 64) __builtin_prefetch(a + off);
+}
+
 // Asks for the cells [c0, c1) of a row stored as three planes (x at p, y at p + plane, z at
 // p + 2 plane: the stream's ring), a few strips before they are read: the stream reads each
 // row strip by strip, rows that left the L2 cache pushes ago, in segments too short for the
@@ -312,9 +318,7 @@ template <typename T>
 inline void prefetch_planes(const T* p, std::ptrdiff_t plane, std::ptrdiff_t c0,
                             std::ptrdiff_t c1) {
   for (int q = 0; q < 3; ++q) {
-    const char* a = reinterpret_cast<const char*>(p + q * plane + c0);
-    const char* b = reinterpret_cast<const char*>(p + q * plane + c1);
-    for (; a < b; a += 64) __builtin_prefetch(a);
+    prefetch_bytes(p + q * plane + c0, (c1 - c0) * static_cast<std::ptrdiff_t>(sizeof(T)));
   }
 }
 
@@ -326,21 +330,20 @@ void load_rel(const GridView<T>& g, std::ptrdiff_t r, std::ptrdiff_t c0, std::pt
   const T* base = g.data + r * g.row_stride + c0 * g.col_stride;
   const std::ptrdiff_t ps = g.col_stride, yo = g.coord_stride, zo = 2 * g.coord_stride;
   // The next row's cells are read next: ask for them now (a tile's row segment is about one
-  // page, too short for the hardware prefetcher to start on its own).
-  // The segment's lines: one range when the coordinates interleave within it, one per
-  // coordinate when they lie in planes (a range from x to z would span the planes between, a
-  // whole grid); cell by cell when cells lie a line or more apart (column-major grids).
+  // page, too short for the hardware prefetcher to start on its own). One range when the
+  // coordinates interleave within the segment, one per coordinate when they lie in planes (a
+  // range from x to z would span the planes between, a whole grid); cell by cell when cells
+  // lie a cache line or more apart (column-major grids).
   if (r + 1 < g.rows) {
-    constexpr std::ptrdiff_t kLine = 64, sz = static_cast<std::ptrdiff_t>(sizeof(T));
+    constexpr std::ptrdiff_t sz = static_cast<std::ptrdiff_t>(sizeof(T));
     const std::ptrdiff_t span = (n - 1) * ps + 1;  // one coordinate's elements
     const bool one = zo < span;
     for (int q = 0; q < (one ? 1 : 3); ++q) {
-      const char* nb = reinterpret_cast<const char*>(base + g.row_stride + q * yo);
-      if (ps * sz <= kLine) {
-        const std::ptrdiff_t bytes = (one ? span + zo : span) * sz;
-        for (std::ptrdiff_t off = 0; off < bytes; off += kLine) __builtin_prefetch(nb + off);
+      const T* nb = base + g.row_stride + q * yo;
+      if (ps * sz <= 64) {
+        prefetch_bytes(nb, (one ? span + zo : span) * sz);
       } else {
-        for (std::ptrdiff_t j = 0; j < n; ++j) __builtin_prefetch(nb + j * ps * sz);
+        for (std::ptrdiff_t j = 0; j < n; ++j) __builtin_prefetch(nb + j * ps);
       }
     }
   }
