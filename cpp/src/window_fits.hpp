@@ -400,43 +400,50 @@ MIEM_CLONES inline void box_sums(const double* __restrict col, std::ptrdiff_t st
     for (std::ptrdiff_t d = -half; d <= half; ++d) a += c[d];
     S[k * cap] = a;
   }
-  for (int k0 = 0; k0 < kMoments; k0 += 4) {
-    const int nk = std::min(4, kMoments - k0);
-    const double* c[4];
-    double* s[4];
-    for (int q = 0; q < 4; ++q) {
-      const int k = k0 + std::min(q, nk - 1);
-      c[q] = col + k * stride;
-      s[q] = S + k * cap;
-    }
-    V acc = {s[0][0], s[1][0], s[2][0], s[3][0]};
-    std::ptrdiff_t j = 1;
-    for (; j + 4 <= n; j += 4) {
+  // The three vectors of moments (0-3, 4-7, 8-10) in one loop: three independent chains of
+  // additions side by side (one vector at a time, each step waited for the last addition).
+  const double* c[12];
+  double* s[12];
+  for (int q = 0; q < 12; ++q) {
+    const int k = std::min(q, kMoments - 1);
+    c[q] = col + k * stride;
+    s[q] = S + k * cap;
+  }
+  V acc[3];
+  for (int v = 0; v < 3; ++v) {
+    acc[v] = V{s[4 * v][0], s[4 * v + 1][0], s[4 * v + 2][0], s[4 * v + 3][0]};
+  }
+  std::ptrdiff_t j = 1;
+  for (; j + 4 <= n; j += 4) {
+    for (int v = 0; v < 3; ++v) {
+      const double* const* cv = c + 4 * v;
+      double* const* sv = s + 4 * v;
       V d0, d1, d2, d3;
-      diff(d0, c[0], j);
-      diff(d1, c[1], j);
-      diff(d2, c[2], j);
-      diff(d3, c[3], j);
+      diff(d0, cv[0], j);
+      diff(d1, cv[1], j);
+      diff(d2, cv[2], j);
+      diff(d3, cv[3], j);
       transpose(d0, d1, d2, d3);  // now d_t = the moments' differences at column j + t
-      acc += d0;
-      d0 = acc;
-      acc += d1;
-      d1 = acc;
-      acc += d2;
-      d2 = acc;
-      acc += d3;
-      d3 = acc;
+      acc[v] += d0;
+      d0 = acc[v];
+      acc[v] += d1;
+      d1 = acc[v];
+      acc[v] += d2;
+      d2 = acc[v];
+      acc[v] += d3;
+      d3 = acc[v];
       transpose(d0, d1, d2, d3);  // back to per moment
-      store(s[0] + j, d0);
-      store(s[1] + j, d1);
-      store(s[2] + j, d2);
-      if (nk == 4) store(s[3] + j, d3);
+      store(sv[0] + j, d0);
+      store(sv[1] + j, d1);
+      store(sv[2] + j, d2);
+      if (v < 2) store(sv[3] + j, d3);
     }
-    for (; j < n; ++j) {
-      for (int q = 0; q < nk; ++q) {
-        const double a = s[q][j - 1] + (c[q][j + half] - c[q][j - half - 1]);
-        s[q][j] = a;
-      }
+  }
+  for (; j < n; ++j) {
+    for (int k = 0; k < kMoments; ++k) {
+      const double* ck = col + k * stride;
+      double* sk = S + k * cap;
+      sk[j] = sk[j - 1] + (ck[j + half] - ck[j - half - 1]);
     }
   }
 }
