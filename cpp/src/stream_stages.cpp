@@ -68,28 +68,45 @@ MIEM_CLONES void pass1_verdicts(std::ptrdiff_t n, const std::uint8_t* __restrict
   const double* __restrict f0 = F + cap;
   const double* __restrict f1 = F + 2 * cap;
   const double* __restrict f2 = F + 3 * cap;
-  for (std::ptrdiff_t j = 0; j < n; ++j) {
-    const double h = okf[j] != 0 ? fh[j] : detail::kNaN;
-    height[j] = w[j] != 0 ? h : height[j];
-  }
-  if (quiet_floor >= 0.0) {  // the edge test's quiet planes of the NORMAL cells (edge_quiet.hpp)
-    for (std::ptrdiff_t j = 0; j < n; ++j) {
-      const bool q = detail::quiet_plane(okf[j] != 0, fh[j], S[j], f0[j], f1[j], f2[j],
-                                         quiet_floor);
-      // hm[j] & kInPlane (bit 0) as a number, not tested with != 0: GCC 12 does not vectorise
-      // a loop with that test of bit 0 (no vector type for it), and this one ran scalar
-      const int mark = ((w[j] != 0) & q) & (hm[j] & kInPlane);
-      // (kHStale may be there: a removal above)
-      quiet[j] = static_cast<std::uint8_t>(quiet[j] | (mark ? detail::kHQuiet : 0));
-    }
-  }
-  if (!test) return;
   const double* __restrict sl = S + 10 * cap;
   for (std::ptrdiff_t j = 0; j < n; ++j) {
-    const bool cand = (hm[j] & (kInPlane | kSCompact)) != 0;
-    const bool far = detail::height_verdict(okf[j] != 0, sl[j], fh[j], S[j], f0[j], f1[j],
-                                            f2[j], height_abs, height_k, z_min);
-    w[j] = static_cast<std::uint8_t>((w[j] != 0) & cand & far);
+    // a masked store: reading the old heights first waited for each line of the ring
+    const double h = okf[j] != 0 ? fh[j] : detail::kNaN;
+    if (w[j] != 0) height[j] = h;
+  }
+  // Blocks of kB cells: the verdicts in a loop of doubles only (1 too far, 2 quiet, as a
+  // double; both verdicts are `ok & ...`, ok and-ed in the bytes' loop), then the bytes. (With
+  // the bytes in the same loop GCC takes 64 cells a step and spills the doubles.)
+  constexpr std::ptrdiff_t kB = 256;
+  double code[kB];
+  for (std::ptrdiff_t b0 = 0; b0 < n; b0 += kB) {
+    const std::ptrdiff_t nb = std::min(kB, n - b0);
+    for (std::ptrdiff_t t = 0; t < nb; ++t) {
+      const std::ptrdiff_t j = b0 + t;
+      const bool far = detail::height_verdict(true, sl[j], fh[j], S[j], f0[j], f1[j], f2[j],
+                                              height_abs, height_k, z_min);
+      // the edge test's quiet planes (edge_quiet.hpp); none with quiet_floor < 0
+      const bool q = detail::quiet_plane(true, fh[j], S[j], f0[j], f1[j], f2[j], quiet_floor);
+      code[t] = (far ? 1.0 : 0.0) + (q ? 2.0 : 0.0);
+    }
+    if (quiet_floor >= 0.0) {  // quiet marks of the NORMAL cells, before w changes
+      for (std::ptrdiff_t t = 0; t < nb; ++t) {
+        const std::ptrdiff_t j = b0 + t;
+        const int c = okf[j] != 0 ? static_cast<int>(code[t]) : 0;
+        // hm[j] & kInPlane (bit 0) as a number, not tested with != 0: GCC 12 does not
+        // vectorise a loop with that test of bit 0 (no vector type for it)
+        const int mark = ((w[j] != 0) & (c >> 1)) & (hm[j] & kInPlane);
+        // (kHStale may be there: a removal above)
+        quiet[j] = static_cast<std::uint8_t>(quiet[j] | (mark ? detail::kHQuiet : 0));
+      }
+    }
+    if (!test) continue;
+    for (std::ptrdiff_t t = 0; t < nb; ++t) {
+      const std::ptrdiff_t j = b0 + t;
+      const int c = okf[j] != 0 ? static_cast<int>(code[t]) : 0;
+      const int cand = (hm[j] & (kInPlane | kSCompact)) != 0;
+      w[j] = static_cast<std::uint8_t>((w[j] != 0) & cand & (c & 1));
+    }
   }
 }
 
