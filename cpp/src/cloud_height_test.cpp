@@ -129,39 +129,77 @@ inline bool bead_at(const Gather& g, const Gather& edges, Selection& s, std::siz
   return on_bead(w, lp, spacing);
 }
 
-// The height verdict of point p from the NORMAL candidates `g` and the EDGE candidates `lines`
-// (feature-line and compact, told apart by `role`) gathered around it. With `height`, also the
-// point's height over the plane of the NORMAL points within t.radius: the same selection and
-// sums as the heights stage's (height_plane), so the same value to the bit.
-inline bool too_far(const Gather& g, const Gather& lines, const std::uint8_t* role,
-                    const Eigen::Vector3d& p,
-                    const HeightTest& t, Selection& s, double* height, double* rms_out) {
+// The first part of the height verdict of point p from the NORMAL candidates `g` and the EDGE
+// candidates `lines` (feature-line and compact, told apart by `role`) gathered around it: whether
+// a feature-line point lies within t.radius (the test abstains), the sums of the NORMAL points
+// within t.radius (those beyond t.inner are the surroundings, `around`, not the point's own
+// bump) and their planes' scatter matrices added to `pb`: the surroundings' for the verdict, all
+// of them for the height (`want_height`). None when the test abstains and no height is wanted.
+inline void ball_sums_of(const Gather& g, const Gather& lines, const std::uint8_t* role,
+                         const Eigen::Vector3d& p, const HeightTest& t, bool want_height,
+                         Selection& s, BallSums& b, PlaneBatch& pb) {
   const double r2 = t.radius * t.radius, in2 = t.inner * t.inner;
   const double px = p.x(), py = p.y(), pz = p.z();
-  bool line = false;  // a feature-line point within t.radius: the test abstains
+  bool line = false;
   for (std::size_t k = 0; k < lines.n; ++k) {
     const double dx = lines.x[k] - px, dy = lines.y[k] - py, dz = lines.z[k] - pz;
     line |= role[lines.id[k]] == kRoleLine && dx * dx + dy * dy + dz * dz <= r2;
   }
-  if (line && height == nullptr) return false;
-  // The NORMAL points within t.radius: those beyond t.inner are the surroundings (`around`, not
-  // the point's own bump).
-  OffsetSums around, inner;
-  ball_sums(g, p, r2, in2, s, &around, &inner);
+  b.line = line;
+  b.ball = b.ring = -1;
+  if (line && !want_height) return;
+  ball_sums(g, p, r2, in2, s, &b.around, &b.inner);
+  if (want_height) {
+    const OffsetSums all = b.around.plus(b.inner);
+    if (all.n >= 3.0) b.ball = pb.add(sums_scatter(all));
+  }
+  if (!line && b.around.n >= 3.0) b.ring = pb.add(sums_scatter(b.around));
+}
+
+// The height verdict of point p from its BallSums `b` (ball_sums_of; the batch `pb` solved):
+// with `height`, also the point's height over the plane of the NORMAL points within t.radius
+// (the same selection and sums as the heights stage's, height_plane: the same value to the
+// bit). The selection in `s` is formed again where a rule reads the points themselves (rare:
+// a refit, the bead and isolated-point rules).
+inline bool too_far_from(const Gather& g, const Gather& lines, const Eigen::Vector3d& p,
+                         const HeightTest& t, Selection& s, const BallSums& b,
+                         const PlaneBatch& pb, bool selected, double* height,
+                         double* rms_out) {
+  const double r2 = t.radius * t.radius, in2 = t.inner * t.inner;
+  const double px = p.x(), py = p.y(), pz = p.z();
+  const OffsetSums& around = b.around;
+  const OffsetSums& inner = b.inner;
+  auto select_again = [&] {
+    if (selected) return;
+    OffsetSums x, y;
+    ball_sums(g, p, r2, in2, s, &x, &y);
+    selected = true;
+  };
+  // plane_of with its eigen_sym3 from the batch
+  auto plane = [&](int at, const OffsetSums& sums, bool with_inner, LocalPlane* lp) {
+    if (at < 0) return PlaneStatus::kTooFewPoints;  // fewer than 3 points
+    Eigen::Vector3d ev;
+    Eigen::Matrix3d V;
+    pb.eig(at, ev, V);
+    return plane_from(sums, ev, V, lp, [&](auto&& f) {
+      select_again();
+      ball_offsets(g, p, s, around, inner, with_inner)(f);
+    });
+  };
   const std::size_t n_ring = static_cast<std::size_t>(around.n);
   const std::size_t m_in = static_cast<std::size_t>(inner.n);
   LocalPlane lp;
-  auto flag = [&] { return !bead_at(g, lines, s, n_ring, m_in, p, r2, lp, t.spacing); };
+  auto flag = [&] {
+    select_again();
+    return !bead_at(g, lines, s, n_ring, m_in, p, r2, lp, t.spacing);
+  };
   if (height != nullptr) {
-    *height = plane_of(around.plus(inner), &lp, ball_offsets(g, p, s, around, inner)) ==
-                      PlaneStatus::kOk
+    *height = plane(b.ball, around.plus(inner), true, &lp) == PlaneStatus::kOk
                   ? -lp.normal.dot(lp.mean)
                   : kNaN;
   }
-  if (line) return false;
-  if (plane_of(around, &lp, ball_offsets(g, p, s, around, inner, false)) != PlaneStatus::kOk) {
-    return false;
-  }
+  if (b.line) return false;
+  if (plane(b.ring, around, false, &lp) != PlaneStatus::kOk) return false;
   const double h = std::abs(lp.normal.dot(lp.mean));
   const double n = static_cast<double>(lp.n);
   const Eigen::Vector3d& ev = lp.eigenvalues;
@@ -179,6 +217,7 @@ inline bool too_far(const Gather& g, const Gather& lines, const std::uint8_t* ro
   // The isolated-point rule: the NORMAL points q != p within t.inner (the inner positions
   // ball_sums left in s.id; p itself is the one at distance 0) lie about the surroundings plane
   // as loosely as its rms says: the median of their |heights| is at least kIsolatedMedian rms.
+  select_again();
   const double nx = lp.normal.x(), ny = lp.normal.y(), nz = lp.normal.z();
   const double mx = lp.mean.x(), my = lp.mean.y(), mz = lp.mean.z();
   double* __restrict hv = s.wx.data();  // free here: ball_sums does not use it
@@ -195,6 +234,17 @@ inline bool too_far(const Gather& g, const Gather& lines, const std::uint8_t* ro
   double med = hv[mid];
   if (m % 2 == 0) med = (*std::max_element(hv, hv + mid) + med) / 2.0;
   return med >= kIsolatedMedian * rms && flag();
+}
+
+// The height verdict of one point (ball_sums_of, its planes solved, too_far_from).
+inline bool too_far(const Gather& g, const Gather& lines, const std::uint8_t* role,
+                    const Eigen::Vector3d& p, const HeightTest& t, Selection& s,
+                    PlaneBatch& pb, double* height, double* rms_out) {
+  BallSums b;
+  pb.reserve(2);
+  ball_sums_of(g, lines, role, p, t, height != nullptr, s, b, pb);
+  pb.solve();
+  return too_far_from(g, lines, p, t, s, b, pb, true, height, rms_out);
 }
 
 }  // namespace
@@ -239,6 +289,16 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
         if (!any) return;
         JudgeScratch& js = scratch[tid];
         gather_split(grid, cell_box(grid, cell, t.radius), class_of, js.gather, js.aside);
+        // The cell's points in two loops: their sums and planes' matrices, the planes solved
+        // together (PlaneBatch: vector code), then their verdicts.
+        CellPlanes& cp = js.cell;
+        cp.start(e - b, 2);
+        for (std::uint32_t k = b; k < e; ++k) {
+          if (!tested(rl[order[k]])) continue;
+          ball_sums_of(js.gather, js.aside, rl, grid.sorted_point(k), t, t.height != nullptr,
+                       js.sel, cp.balls[k - b], cp.batch);
+        }
+        cp.batch.solve();
         for (std::uint32_t k = b; k < e; ++k) {
           if (k + kPrefetchAhead < e) {  // a later point's outputs (cloud_stages.hpp)
             const std::uint32_t f = order[k + kPrefetchAhead];
@@ -251,7 +311,8 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
           if (!tested(rl[i])) continue;
           double* h = t.height != nullptr ? t.height + i : nullptr;
           double* rms = t.first_rms != nullptr ? t.first_rms + i : nullptr;
-          if (too_far(js.gather, js.aside, rl, grid.sorted_point(k), t, js.sel, h, rms)) {
+          if (too_far_from(js.gather, js.aside, grid.sorted_point(k), t, js.sel,
+                           cp.balls[k - b], cp.batch, false, h, rms)) {
             mark[i] = 1;
           }
           if (h != nullptr) t.have[i] = 1;
@@ -280,7 +341,9 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
         JudgeScratch& js = scratch[thread_id()];
         const Eigen::Vector3d pi = points[i];
         gather_split(grid, grid.box_around(pi, pi, t.radius), class_of, js.gather, js.aside);
-        if (too_far(js.gather, js.aside, rl, pi, t, js.sel, nullptr, nullptr)) mark[i] = 1;
+        if (too_far(js.gather, js.aside, rl, pi, t, js.sel, js.cell.batch, nullptr, nullptr)) {
+          mark[i] = 1;
+        }
       }
     }
     std::ptrdiff_t added = 0;

@@ -359,11 +359,12 @@ void select_box(const NeighborGrid<T>& grid, const CellBox& box, const Eigen::Ve
 // l2, costs nothing extra). 3-4x faster than Eigen's closed form (computeDirect). Otherwise
 // the QR iteration, as in fit_plane: nearly collinear or 3-point neighbourhoods, where a closed
 // form loses up to ~1e-8 of the norm, which would move normals and the degeneracy test.
-inline void eigen_sym3(const Eigen::Matrix3d& M, Eigen::Vector3d& w, Eigen::Matrix3d& V,
-                       bool all = true) {
-  double l0, l1, l2;
-  Eigen::Vector3d n;
-  if (detail::smallest_eigenpair(M, &l0, &l1, &l2, &n)) {
+// eigen_sym3 from smallest_eigenpair's answer for M (`have`: it succeeded, with l0 <= l1 <= l2
+// and the unit eigenvector n of l0), as one call or from a batch (PlaneBatch).
+inline void eigen_sym3_from(const Eigen::Matrix3d& M, bool have, double l0, double l1, double l2,
+                            const Eigen::Vector3d& n, Eigen::Vector3d& w, Eigen::Matrix3d& V,
+                            bool all) {
+  if (have) {
     const double gap = 1e-2 * std::abs(l2);
     if (std::isfinite(l2) && l1 - l0 > gap && l0 > -gap) {
       V.col(0) = n;
@@ -393,6 +394,61 @@ inline void eigen_sym3(const Eigen::Matrix3d& M, Eigen::Vector3d& w, Eigen::Matr
   V = es.eigenvectors();
 }
 
+inline void eigen_sym3(const Eigen::Matrix3d& M, Eigen::Vector3d& w, Eigen::Matrix3d& V,
+                       bool all = true) {
+  double l0 = 0.0, l1 = 0.0, l2 = 0.0;
+  Eigen::Vector3d n;
+  const bool have = detail::smallest_eigenpair(M, &l0, &l1, &l2, &n);
+  eigen_sym3_from(M, have, l0, l1, l2, n, w, V, all);
+}
+
+// eigen_sym3 of many matrices: their smallest eigenpairs solved
+// together in vector code (detail::smallest_eigenpairs_long, smallest_eigenpair's bits), the
+// rest per matrix (eig). add() the matrices (at most the capacity reserve() gave since the last
+// clear()), solve(), then eig(i) for the i-th added.
+class PlaneBatch {
+ public:
+  void clear() { n_ = 0; }
+  void reserve(std::ptrdiff_t m) {  // (clears)
+    n_ = 0;
+    if (m <= cap_) return;
+    cap_ = std::max<std::ptrdiff_t>(m, 64);
+    M_.resize(static_cast<std::size_t>(6 * cap_));
+    out_.resize(static_cast<std::size_t>(6 * cap_));
+    ok_.resize(static_cast<std::size_t>(cap_));
+    redo_.resize(static_cast<std::size_t>(cap_));
+  }
+  int add(const Eigen::Matrix3d& M) {
+    double* m = M_.data() + n_;
+    m[0] = M(0, 0), m[cap_] = M(1, 1), m[2 * cap_] = M(2, 2);
+    m[3 * cap_] = M(0, 1), m[4 * cap_] = M(1, 2), m[5 * cap_] = M(0, 2);
+    return static_cast<int>(n_++);
+  }
+  void solve() {
+    if (n_ > 0) {
+      detail::smallest_eigenpairs_long(n_, cap_, M_.data(), out_.data(), ok_.data(),
+                                       redo_.data());
+    }
+  }
+  void eig(int i, Eigen::Vector3d& w, Eigen::Matrix3d& V, bool all = false) const {
+    const double* m = M_.data() + i;
+    Eigen::Matrix3d M;
+    M << m[0], m[3 * cap_], m[5 * cap_], m[3 * cap_], m[cap_], m[4 * cap_], m[5 * cap_],
+        m[4 * cap_], m[2 * cap_];
+    if (redo_[static_cast<std::size_t>(i)] != 0.0) {  // Newton not ended in the batch's steps
+      eigen_sym3(M, w, V, all);
+      return;
+    }
+    const double* o = out_.data() + i;
+    eigen_sym3_from(M, ok_[static_cast<std::size_t>(i)] != 0.0, o[0], o[cap_], o[2 * cap_],
+                    Eigen::Vector3d(o[3 * cap_], o[4 * cap_], o[5 * cap_]), w, V, all);
+  }
+
+ private:
+  std::vector<double> M_, out_, ok_, redo_;
+  std::ptrdiff_t n_ = 0, cap_ = 0;
+};
+
 // Eigen plane of a selection (section "Plane fit" of SPEC.md), centred two-pass moments of the
 // offsets. On success: oriented normal, largest-eigenvalue eigenvector, the centroid offset from p.
 struct LocalPlane {
@@ -401,9 +457,9 @@ struct LocalPlane {
   std::size_t n = 0;
 };
 
-inline PlaneStatus fit_selection(const Selection& s, bool want_major, LocalPlane* out) {
+// fit_selection's scatter of the selection's offsets about their mean (two passes; s.n >= 3).
+inline Eigen::Matrix3d selection_scatter(const Selection& s, Eigen::Vector3d* mean) {
   const std::size_t n = s.n;
-  if (n < 3) return PlaneStatus::kTooFewPoints;
   double sx = 0, sy = 0, sz = 0;
   for (std::size_t k = 0; k < n; ++k) {
     sx += s.wx[k];
@@ -424,9 +480,15 @@ inline PlaneStatus fit_selection(const Selection& s, bool want_major, LocalPlane
   }
   Eigen::Matrix3d M;
   M << xx, xy, xz, xy, yy, yz, xz, yz, zz;
-  Eigen::Vector3d ev;
-  Eigen::Matrix3d V;
-  eigen_sym3(M, ev, V, want_major);
+  *mean = Eigen::Vector3d(mx, my, mz);
+  return M;
+}
+
+// fit_selection after the eigen_sym3 (ev, V) of its scatter (with the major direction when
+// want_major): from a PlaneBatch too.
+inline PlaneStatus fit_from(const Eigen::Vector3d& ev, const Eigen::Matrix3d& V,
+                            const Eigen::Vector3d& mean, std::size_t n, bool want_major,
+                            LocalPlane* out) {
   if (!(ev(2) > 0.0) || ev(1) <= 1e-12 * ev(2)) return PlaneStatus::kDegenerate;
   out->normal = orient_normal(V.col(0).normalized());
   if (want_major) {
@@ -451,10 +513,19 @@ inline PlaneStatus fit_selection(const Selection& s, bool want_major, LocalPlane
     if (e1(big) < 0.0) e1 = -e1;
     out->major = e1;
   }
-  out->mean = Eigen::Vector3d(mx, my, mz);
+  out->mean = mean;
   out->eigenvalues = ev;
   out->n = n;
   return PlaneStatus::kOk;
+}
+
+inline PlaneStatus fit_selection(const Selection& s, bool want_major, LocalPlane* out) {
+  if (s.n < 3) return PlaneStatus::kTooFewPoints;
+  Eigen::Vector3d mean, ev;
+  const Eigen::Matrix3d M = selection_scatter(s, &mean);
+  Eigen::Matrix3d V;
+  eigen_sym3(M, ev, V, want_major);
+  return fit_from(ev, V, mean, s.n, want_major, out);
 }
 
 // Raw moments of offsets w = q - p about the query point p (small numbers, so one pass loses
@@ -503,6 +574,49 @@ struct OffsetSums {
     r.zz = zz - part.zz;
     return r;
   }
+};
+
+// Selections (wx, wy, wz, d2, id) of several points kept one after the other, to be restored
+// into a Selection later (the angle pass judges a cell's points after their planes are solved
+// together).
+struct SavedSelections {
+  std::vector<double> wx, wy, wz, d2;
+  std::vector<std::uint32_t> id;
+  std::vector<std::size_t> start{0};
+  void clear() { start.assign(1, 0); }
+  void save(const Selection& s) {
+    const std::size_t b = start.back(), e = b + s.n;
+    if (wx.size() < e) {
+      const std::size_t cap = std::max<std::size_t>(e, 2 * wx.size());
+      wx.resize(cap), wy.resize(cap), wz.resize(cap), d2.resize(cap), id.resize(cap);
+    }
+    std::copy(s.wx.data(), s.wx.data() + s.n, wx.data() + b);
+    std::copy(s.wy.data(), s.wy.data() + s.n, wy.data() + b);
+    std::copy(s.wz.data(), s.wz.data() + s.n, wz.data() + b);
+    std::copy(s.d2.data(), s.d2.data() + s.n, d2.data() + b);
+    std::copy(s.id.data(), s.id.data() + s.n, id.data() + b);
+    start.push_back(e);
+  }
+  // the q-th saved selection into s (q < the number saved)
+  void restore(std::size_t q, Selection& s) const {
+    const std::size_t b = start[q], n = start[q + 1] - b;
+    s.reserve(n + 8);
+    std::copy(wx.data() + b, wx.data() + b + n, s.wx.data());
+    std::copy(wy.data() + b, wy.data() + b + n, s.wy.data());
+    std::copy(wz.data() + b, wz.data() + b + n, s.wz.data());
+    std::copy(d2.data() + b, d2.data() + b + n, s.d2.data());
+    std::copy(id.data() + b, id.data() + b + n, s.id.data());
+    s.n = n;
+  }
+};
+
+// The height test's sums of one point (cloud_height_test.cpp): the NORMAL points within its
+// radius, beyond and within the inner radius; whether a feature-line point is near; its two
+// planes' places in a PlaneBatch (-1: none).
+struct BallSums {
+  OffsetSums around, inner;
+  bool line = false;
+  int ball = -1, ring = -1;
 };
 
 // Moments of the offsets g[pos[q]] - p, q = 0 .. n - 1, in two lanes (the even and the odd q),
@@ -625,22 +739,22 @@ inline void ball_sums(const Gather& g, const Eigen::Vector3d& p, double r2, doub
   *inner = offset_sums(g, in_pos, m_in, p);
 }
 
-// The eigen plane (SPEC "Plane fit") of the offsets summed in `s`: oriented normal, the centroid
-// offset from p, eigenvalues and count (no major direction). Where the sums lost the plane to
-// cancellation (detail::kRefitRatio: a support nearly on a line, away from p), the scatter is
-// formed again about the mean from the offsets themselves (detail::two_pass_moments): `each(f)`
-// calls f(w) for every offset w summed in `s`.
-template <typename Each>
-PlaneStatus plane_of(const OffsetSums& s, LocalPlane* out, Each&& each) {
-  if (s.n < 3.0) return PlaneStatus::kTooFewPoints;
+// plane_of's scatter matrix of the offsets summed in `s` (s.n >= 3), centred on their mean.
+inline Eigen::Matrix3d sums_scatter(const OffsetSums& s) {
   const double inv = 1.0 / s.n;
   const double mx = s.x * inv, my = s.y * inv, mz = s.z * inv;
   Eigen::Matrix3d M;
   const double xy = s.xy - s.x * my, xz = s.xz - s.x * mz, yz = s.yz - s.y * mz;
   M << s.xx - s.x * mx, xy, xz, xy, s.yy - s.y * my, yz, xz, yz, s.zz - s.z * mz;
-  Eigen::Vector3d ev;
-  Eigen::Matrix3d V;
-  eigen_sym3(M, ev, V, false);
+  return M;
+}
+
+// plane_of after the eigen_sym3 (ev, V) of sums_scatter(s): from a PlaneBatch too.
+template <typename Each>
+PlaneStatus plane_from(const OffsetSums& s, Eigen::Vector3d ev, Eigen::Matrix3d V,
+                       LocalPlane* out, Each&& each) {
+  const double inv = 1.0 / s.n;
+  const double mx = s.x * inv, my = s.y * inv, mz = s.z * inv;
   if (ev(1) <= detail::kRefitRatio * (s.xx + s.yy + s.zz)) {  // (rare: two more passes)
     eigen_sym3(detail::two_pass_moments(each).scatter, ev, V, false);
   }
@@ -650,6 +764,20 @@ PlaneStatus plane_of(const OffsetSums& s, LocalPlane* out, Each&& each) {
   out->eigenvalues = ev;
   out->n = static_cast<std::size_t>(s.n);
   return PlaneStatus::kOk;
+}
+
+// The eigen plane (SPEC "Plane fit") of the offsets summed in `s`: oriented normal, the centroid
+// offset from p, eigenvalues and count (no major direction). Where the sums lost the plane to
+// cancellation (detail::kRefitRatio: a support nearly on a line, away from p), the scatter is
+// formed again about the mean from the offsets themselves (detail::two_pass_moments): `each(f)`
+// calls f(w) for every offset w summed in `s`.
+template <typename Each>
+PlaneStatus plane_of(const OffsetSums& s, LocalPlane* out, Each&& each) {
+  if (s.n < 3.0) return PlaneStatus::kTooFewPoints;
+  Eigen::Vector3d ev;
+  Eigen::Matrix3d V;
+  eigen_sym3(sums_scatter(s), ev, V, false);
+  return plane_from(s, ev, V, out, std::forward<Each>(each));
 }
 
 // plane_of's visitor of the offsets ball_sums summed into `ring` and (with `inner`) `inner`:
@@ -713,11 +841,31 @@ MIEM_CLONES inline void cone_hits(int K, std::size_t n, const double* wx, const 
 }
 
 // Per-thread scratch of the judge.
+// The planes of a cell's points, solved together (PlaneBatch: vector code) between a loop that
+// forms them and a loop that uses them, and what each point keeps in between (each stage uses
+// its part: the angle pass `at`, `mean`, `n` and the selections, the height test `balls`).
+struct CellPlanes {
+  PlaneBatch batch;
+  std::vector<int> at;                 // point q's plane in `batch` (-1: none)
+  std::vector<Eigen::Vector3d> mean;   // its neighbours' mean offset (selection_scatter)
+  std::vector<std::size_t> n;          // its neighbours
+  SavedSelections saved;               // its neighbourhood
+  std::vector<BallSums> balls;         // its height-test sums
+  // For `points` points with up to `per_point` planes each.
+  void start(std::ptrdiff_t points, int per_point) {
+    batch.reserve(per_point * points);
+    const auto m = static_cast<std::size_t>(points);
+    at.resize(m), mean.resize(m), n.resize(m), balls.resize(m);
+    saved.clear();
+  }
+};
+
 struct JudgeScratch {
   Gather gather;
   Gather aside;  // a second list of candidates (gather_split)
   Selection sel;
   Selection wide;  // the cloud edge test's wide ball (cloud_edge_test.cpp)
+  CellPlanes cell;  // the planes of a cell's points, solved together
   std::vector<std::uint64_t> best_key;  // per (direction, side, scale) slot: bits of its d2
   std::vector<int> best_m;      // position in `sel` of the slot's neighbour, -1: none
   std::vector<double> tlen;     // per selected neighbour: tangent-plane length
@@ -747,14 +895,36 @@ class PointJudge {
   // its usable neighbourhood, in grid order).
   std::uint8_t judge(std::uint32_t i, const Eigen::Vector3d& p, JudgeScratch& js,
                      std::uint8_t* flags, double* angle, bool* degenerate) const {
+    Eigen::Vector3d mean;
+    js.cell.batch.reserve(1);
+    const int at = select_point(i, p, js, &mean);
+    js.cell.batch.solve();
+    return judge_selected(at, mean, js, flags, angle, degenerate);
+  }
+
+  // judge's first half: point i's neighbourhood selected into js.sel and the scatter of its
+  // plane fit (fit_selection) added to js.cell.batch; returns its place there (-1: fewer than 3
+  // neighbours, no plane), the neighbours' mean offset in `mean`.
+  int select_point(std::uint32_t i, const Eigen::Vector3d& p, JudgeScratch& js,
+                   Eigen::Vector3d* mean) const {
+    select(js.gather, p, r2_, static_cast<std::int64_t>(i), js.sel);
+    if (js.sel.n < 3) return -1;
+    return js.cell.batch.add(selection_scatter(js.sel, mean));
+  }
+
+  // judge's second half, js.sel holding the point's neighbourhood and js.cell.batch solved.
+  std::uint8_t judge_selected(int at, const Eigen::Vector3d& mean, JudgeScratch& js,
+                              std::uint8_t* flags, double* angle, bool* degenerate) const {
     Selection& s = js.sel;
-    select(js.gather, p, r2_, static_cast<std::int64_t>(i), s);
     *flags = 0;
     *angle = kNaN;
     *degenerate = false;
-    if (s.n < 3) return kAbnormal;
+    if (at < 0) return kAbnormal;
     LocalPlane lp;
-    if (fit_selection(s, true, &lp) != PlaneStatus::kOk) {
+    Eigen::Vector3d ev;
+    Eigen::Matrix3d V;
+    js.cell.batch.eig(at, ev, V, true);
+    if (fit_from(ev, V, mean, s.n, true, &lp) != PlaneStatus::kOk) {
       *degenerate = true;
       return kNormal;
     }

@@ -165,13 +165,28 @@ void estimate_normals(const PointsView<T>& points, double radius, const NormalsO
     JudgeScratch& js = scratch[tid];
     auto every = [](std::uint32_t, std::uint32_t) { return true; };
     gather_box(grid, cell_box(grid, cell, radius), every, js.gather);
-    const std::uint32_t e = grid.cell_begin(cell + 1);
-    for (std::uint32_t k = grid.cell_begin(cell); k < e; ++k) {
-      const std::uint32_t i = order[k];
+    // The cell's points in two loops: their neighbourhoods' scatters, solved together
+    // (PlaneBatch: vector code), then their planes (fit_selection's).
+    const std::uint32_t b = grid.cell_begin(cell), e = grid.cell_begin(cell + 1);
+    CellPlanes& cp = js.cell;
+    cp.start(e - b, 1);
+    for (std::uint32_t k = b; k < e; ++k) {
       select(js.gather, grid.sorted_point(k), r2, -1, js.sel);
-      if (out.count) out.count[i] = static_cast<std::int64_t>(js.sel.n);
+      const std::size_t q = k - b;
+      cp.n[q] = js.sel.n;
+      cp.at[q] = js.sel.n < 3 ? -1 : cp.batch.add(selection_scatter(js.sel, &cp.mean[q]));
+    }
+    cp.batch.solve();
+    for (std::uint32_t k = b; k < e; ++k) {
+      const std::uint32_t i = order[k];
+      const std::size_t q = k - b;
+      if (out.count) out.count[i] = static_cast<std::int64_t>(cp.n[q]);
+      if (cp.at[q] < 0) continue;  // fewer than 3 neighbours
+      Eigen::Vector3d ev;
+      Eigen::Matrix3d V;
+      cp.batch.eig(cp.at[q], ev, V);
       LocalPlane lp;
-      if (fit_selection(js.sel, false, &lp) != PlaneStatus::kOk) continue;
+      if (fit_from(ev, V, cp.mean[q], cp.n[q], false, &lp) != PlaneStatus::kOk) continue;
       if (out.normals) {
         out.normals[3 * i] = lp.normal.x();
         out.normals[3 * i + 1] = lp.normal.y();
@@ -247,22 +262,32 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
   auto every = [](std::uint32_t, std::uint32_t) { return true; };
   // Finite neighbours within radius (pass 1), for the floating groups.
   std::vector<std::uint16_t> counts(p.min_group > 0 ? static_cast<std::size_t>(N) : 0);
-  auto judge_point = [&](std::uint32_t i, const Eigen::Vector3d& pi, JudgeScratch& js) {
+  // judge(i, flags, angle, degenerate) gives point i's label and the rest: all stored
+  auto judge_point = [&](std::uint32_t i, auto&& judge) {
     std::uint8_t fl = 0;
     double an = kNaN;
     bool dg = false;
-    labels[i] = judge.judge(i, pi, js, &fl, &an, &dg);
+    labels[i] = judge(&fl, &an, &dg);
     degenerate[i] = dg;
     if (out.flags) out.flags[i] = fl;
     if (out.angle_deg) out.angle_deg[i] = an;
   };
 
-  // Pass 1: every finite point, one gather per cell.
+  // Pass 1: every finite point, one gather per cell. The cell's points in two loops: their
+  // neighbourhoods and plane scatters (the neighbourhoods kept), the planes solved together
+  // (PlaneBatch: vector code), then their judgments.
   parallel_cells(grid, nt, [&](std::ptrdiff_t cell, int tid) {
     JudgeScratch& js = scratch[tid];
     gather_box(grid, cell_box(grid, cell, radius), every, js.gather);  // all usable in pass 1
-    const std::uint32_t e = grid.cell_begin(cell + 1);
-    for (std::uint32_t k = grid.cell_begin(cell); k < e; ++k) {
+    const std::uint32_t b = grid.cell_begin(cell), e = grid.cell_begin(cell + 1);
+    CellPlanes& cp = js.cell;
+    cp.start(e - b, 1);
+    for (std::uint32_t k = b; k < e; ++k) {
+      cp.at[k - b] = judge.select_point(order[k], grid.sorted_point(k), js, &cp.mean[k - b]);
+      cp.saved.save(js.sel);
+    }
+    cp.batch.solve();
+    for (std::uint32_t k = b; k < e; ++k) {
       if (k + kPrefetchAhead < e) {  // a later point's outputs (cloud_stages.hpp)
         const std::uint32_t f = order[k + kPrefetchAhead];
         __builtin_prefetch(labels + f, 1);
@@ -271,7 +296,10 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
         if (out.angle_deg) __builtin_prefetch(out.angle_deg + f, 1);
         if (!counts.empty()) __builtin_prefetch(counts.data() + f, 1);
       }
-      judge_point(order[k], grid.sorted_point(k), js);
+      cp.saved.restore(k - b, js.sel);
+      judge_point(order[k], [&](std::uint8_t* fl, double* an, bool* dg) {
+        return judge.judge_selected(cp.at[k - b], cp.mean[k - b], js, fl, an, dg);
+      });
       if (!counts.empty()) {
         counts[order[k]] = static_cast<std::uint16_t>(
             std::min<std::size_t>(js.sel.n, kCountSaturated));  // select excluded the point
@@ -306,7 +334,9 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
       JudgeScratch& js = scratch[thread_id()];
       const Eigen::Vector3d pi = points[i];
       gather_box(grid, grid.box_around(pi, pi, radius), usable, js.gather);
-      judge_point(i, pi, js);
+      judge_point(i, [&](std::uint8_t* fl, double* an, bool* dg) {
+        return judge.judge(i, pi, js, fl, an, dg);
+      });
     }
     fresh.clear();
     for (std::int64_t j : candidates) {
