@@ -62,32 +62,17 @@ void mark_compact_edges(const std::uint8_t* labels, std::ptrdiff_t H, std::ptrdi
 // from row_solve's fits (RowFits, not compact): kHFresh, kHMark where too far, kHQuiet where
 // the plane is quiet (quiet_plane with `quiet_floor`: the first pass; -1 after it) and the
 // height when `height` is not null. Straight-line code (vectorised), blocks of kB cells: the
-// verdicts in a loop of doubles only (1 too far, 2 quiet, as a double), then the bytes. (With
-// the bytes in the same loop GCC takes 64 cells a step, eight vectors of each double, and
-// spills them.)
+// verdicts (verdict_codes), then the bytes.
 MIEM_CLONES void height_row(std::ptrdiff_t n, const std::uint8_t* __restrict wrow,
-                            const double* __restrict S, const double* __restrict F,
+                            const double* S, const double* F,
                             const std::uint8_t* __restrict okf, std::ptrdiff_t cap,
                             double height_abs, double height_k, double z_min,
-                            double quiet_floor, double* __restrict height,
-                            std::uint8_t* __restrict hm) {
-  const double* __restrict fh = F;
-  const double* __restrict f0 = F + cap;
-  const double* __restrict f1 = F + 2 * cap;
-  const double* __restrict f2 = F + 3 * cap;
-  const double* __restrict sl = S + 10 * cap;
+                            double quiet_floor, double* height, std::uint8_t* __restrict hm) {
   constexpr std::ptrdiff_t kB = 256;
   double code[kB];
   for (std::ptrdiff_t b0 = 0; b0 < n; b0 += kB) {
     const std::ptrdiff_t nb = std::min(kB, n - b0);
-    for (std::ptrdiff_t t = 0; t < nb; ++t) {
-      const std::ptrdiff_t j = b0 + t;
-      // (ok and-ed below: both verdicts are `ok & ...`)
-      const bool far = height_verdict(true, sl[j], fh[j], S[j], f0[j], f1[j], f2[j],
-                                      height_abs, height_k, z_min);
-      const bool quiet = quiet_plane(true, fh[j], S[j], f0[j], f1[j], f2[j], quiet_floor);
-      code[t] = (far ? 1.0 : 0.0) + (quiet ? 2.0 : 0.0);
-    }
+    verdict_codes(nb, S + b0, F + b0, cap, height_abs, height_k, z_min, quiet_floor, code);
     for (std::ptrdiff_t t = 0; t < nb; ++t) {
       const std::ptrdiff_t j = b0 + t;
       const int c = okf[j] != 0 ? static_cast<int>(code[t]) : 0;
@@ -96,13 +81,7 @@ MIEM_CLONES void height_row(std::ptrdiff_t n, const std::uint8_t* __restrict wro
       hm[j] = wrow[j] != 0 ? b : hm[j];
     }
   }
-  if (height != nullptr) {
-    for (std::ptrdiff_t j = 0; j < n; ++j) {
-      // a masked store: reading the old heights first waited for each line of the output
-      const double h = okf[j] != 0 ? fh[j] : kNaN;
-      if (wrow[j] != 0) height[j] = h;
-    }
-  }
+  if (height != nullptr) store_heights(n, wrow, okf, F, height);
 }
 
 }  // namespace

@@ -59,36 +59,19 @@ constexpr std::uint8_t pass_class(std::uint8_t b, std::uint8_t hs, int pass, boo
 // (height_verdict) finds too far, else 0. Straight-line code (vectorised), as the batch's
 // height_row: a cell's verdict and height are those of the one-cell path (RowFits::fit).
 MIEM_CLONES void pass1_verdicts(std::ptrdiff_t n, const std::uint8_t* __restrict hm,
-                                const double* __restrict S, const double* __restrict F,
+                                const double* S, const double* F,
                                 const std::uint8_t* __restrict okf, std::ptrdiff_t cap, bool test,
                                 double height_abs, double height_k, double z_min,
-                                double quiet_floor, double* __restrict height,
+                                double quiet_floor, double* height,
                                 std::uint8_t* __restrict quiet, std::uint8_t* __restrict w) {
-  const double* __restrict fh = F;
-  const double* __restrict f0 = F + cap;
-  const double* __restrict f1 = F + 2 * cap;
-  const double* __restrict f2 = F + 3 * cap;
-  const double* __restrict sl = S + 10 * cap;
-  for (std::ptrdiff_t j = 0; j < n; ++j) {
-    // a masked store: reading the old heights first waited for each line of the ring
-    const double h = okf[j] != 0 ? fh[j] : detail::kNaN;
-    if (w[j] != 0) height[j] = h;
-  }
-  // Blocks of kB cells: the verdicts in a loop of doubles only (1 too far, 2 quiet, as a
-  // double; both verdicts are `ok & ...`, ok and-ed in the bytes' loop), then the bytes. (With
-  // the bytes in the same loop GCC takes 64 cells a step and spills the doubles.)
+  detail::store_heights(n, w, okf, F, height);
+  // Blocks of kB cells: the verdicts (verdict_codes), then the bytes.
   constexpr std::ptrdiff_t kB = 256;
   double code[kB];
   for (std::ptrdiff_t b0 = 0; b0 < n; b0 += kB) {
     const std::ptrdiff_t nb = std::min(kB, n - b0);
-    for (std::ptrdiff_t t = 0; t < nb; ++t) {
-      const std::ptrdiff_t j = b0 + t;
-      const bool far = detail::height_verdict(true, sl[j], fh[j], S[j], f0[j], f1[j], f2[j],
-                                              height_abs, height_k, z_min);
-      // the edge test's quiet planes (edge_quiet.hpp); none with quiet_floor < 0
-      const bool q = detail::quiet_plane(true, fh[j], S[j], f0[j], f1[j], f2[j], quiet_floor);
-      code[t] = (far ? 1.0 : 0.0) + (q ? 2.0 : 0.0);
-    }
+    detail::verdict_codes(nb, S + b0, F + b0, cap, height_abs, height_k, z_min, quiet_floor,
+                          code);
     if (quiet_floor >= 0.0) {  // quiet marks of the NORMAL cells, before w changes
       for (std::ptrdiff_t t = 0; t < nb; ++t) {
         const std::ptrdiff_t j = b0 + t;
