@@ -584,6 +584,7 @@ struct SavedSelections {
   std::vector<std::uint32_t> id;
   std::vector<std::size_t> start{0};
   void clear() { start.assign(1, 0); }
+  std::size_t kept() const { return start.back(); }  // offsets kept so far
   void save(const Selection& s) {
     const std::size_t b = start.back(), e = b + s.n;
     if (wx.size() < e) {

@@ -273,36 +273,41 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
     if (out.angle_deg) out.angle_deg[i] = an;
   };
 
-  // Pass 1: every finite point, one gather per cell. The cell's points in two loops: their
-  // neighbourhoods and plane scatters (the neighbourhoods kept), the planes solved together
-  // (PlaneBatch: vector code), then their judgments.
+  // Pass 1: every finite point, one gather per cell. The cell's points in runs, each in two
+  // loops: their neighbourhoods and plane scatters (the neighbourhoods kept), the planes solved
+  // together (PlaneBatch: vector code), then their judgments. A run ends where its kept
+  // neighbourhoods reach kKeptOffsets (dense clouds: thousands of points per cell and per ball).
+  constexpr std::size_t kKeptOffsets = std::size_t{1} << 16;
   parallel_cells(grid, nt, [&](std::ptrdiff_t cell, int tid) {
     JudgeScratch& js = scratch[tid];
     gather_box(grid, cell_box(grid, cell, radius), every, js.gather);  // all usable in pass 1
-    const std::uint32_t b = grid.cell_begin(cell), e = grid.cell_begin(cell + 1);
+    const std::uint32_t e = grid.cell_begin(cell + 1);
     CellPlanes& cp = js.cell;
-    cp.start(e - b, 1);
-    for (std::uint32_t k = b; k < e; ++k) {
-      cp.at[k - b] = judge.select_point(order[k], grid.sorted_point(k), js, &cp.mean[k - b]);
-      cp.saved.save(js.sel);
-    }
-    cp.batch.solve();
-    for (std::uint32_t k = b; k < e; ++k) {
-      if (k + kPrefetchAhead < e) {  // a later point's outputs (cloud_stages.hpp)
-        const std::uint32_t f = order[k + kPrefetchAhead];
-        __builtin_prefetch(labels + f, 1);
-        __builtin_prefetch(degenerate + f, 1);
-        if (out.flags) __builtin_prefetch(out.flags + f, 1);
-        if (out.angle_deg) __builtin_prefetch(out.angle_deg + f, 1);
-        if (!counts.empty()) __builtin_prefetch(counts.data() + f, 1);
+    for (std::uint32_t b = grid.cell_begin(cell), k1; b < e; b = k1) {
+      cp.start(e - b, 1);
+      for (k1 = b; k1 < e && cp.saved.kept() < kKeptOffsets; ++k1) {
+        const std::size_t q = k1 - b;
+        cp.at[q] = judge.select_point(order[k1], grid.sorted_point(k1), js, &cp.mean[q]);
+        cp.saved.save(js.sel);
       }
-      cp.saved.restore(k - b, js.sel);
-      judge_point(order[k], [&](std::uint8_t* fl, double* an, bool* dg) {
-        return judge.judge_selected(cp.at[k - b], cp.mean[k - b], js, fl, an, dg);
-      });
-      if (!counts.empty()) {
-        counts[order[k]] = static_cast<std::uint16_t>(
-            std::min<std::size_t>(js.sel.n, kCountSaturated));  // select excluded the point
+      cp.batch.solve();
+      for (std::uint32_t k = b; k < k1; ++k) {
+        if (k + kPrefetchAhead < k1) {  // a later point's outputs (cloud_stages.hpp)
+          const std::uint32_t f = order[k + kPrefetchAhead];
+          __builtin_prefetch(labels + f, 1);
+          __builtin_prefetch(degenerate + f, 1);
+          if (out.flags) __builtin_prefetch(out.flags + f, 1);
+          if (out.angle_deg) __builtin_prefetch(out.angle_deg + f, 1);
+          if (!counts.empty()) __builtin_prefetch(counts.data() + f, 1);
+        }
+        cp.saved.restore(k - b, js.sel);
+        judge_point(order[k], [&](std::uint8_t* fl, double* an, bool* dg) {
+          return judge.judge_selected(cp.at[k - b], cp.mean[k - b], js, fl, an, dg);
+        });
+        if (!counts.empty()) {
+          counts[order[k]] = static_cast<std::uint16_t>(
+              std::min<std::size_t>(js.sel.n, kCountSaturated));  // select excluded the point
+        }
       }
     }
   });
