@@ -276,6 +276,8 @@ BASES = [
      "recommended", "recommended"),
     ("cdeec00", "2026-12-07, before the edge images' row loads in vector code and the "
      "masked window planes", "recommended", "recommended"),
+    ("1d3f0ed", "2026-12-07, before box_sums' three chains side by side and the height "
+     "verdicts without masked loads", "recommended", "recommended"),
 ]
 
 
