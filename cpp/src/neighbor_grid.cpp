@@ -113,7 +113,7 @@ NeighborGrid<T>::NeighborGrid(const PointsView<T>& points, double cell_size, int
     std::vector<std::uint64_t> tmp_keys(keys.size());
     std::vector<std::uint32_t> tmp_ids(ids.size());
     if (detail::radix_sort(keys.data(), ids.data(), tmp_keys.data(), tmp_ids.data(),
-                           keys.size(), max_key)) {
+                           keys.size(), max_key, nt)) {
       keys.swap(tmp_keys);
       ids.swap(tmp_ids);
     }

@@ -1,0 +1,105 @@
+// Building blocks of the clouds' batched work (cpp/src/radix_sort.hpp, cloud_kernels.hpp):
+// the neighbour grid's radix sort with threads against std::stable_sort, and PlaneBatch (a
+// cell's plane fits solved together in vector code) against eigen_sym3 one matrix at a time,
+// bit for bit.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cstdint>
+#include <cstring>
+#include <random>
+#include <utility>
+#include <vector>
+
+#include "cloud_kernels.hpp"
+#include "radix_sort.hpp"
+
+namespace {
+
+bool same_bits(double a, double b) { return std::memcmp(&a, &b, sizeof a) == 0; }
+
+// Keys below max_key with many repeats (stability shows), ids 0 .. n - 1.
+std::vector<std::uint64_t> random_keys(std::size_t n, std::uint64_t max_key, std::mt19937_64& rng) {
+  std::uniform_int_distribution<std::uint64_t> u(0, max_key);
+  std::vector<std::uint64_t> keys(n);
+  for (std::size_t i = 0; i < n; ++i) keys[i] = i % 5 == 0 && i > 0 ? keys[i / 2] : u(rng);
+  return keys;
+}
+
+TEST(RadixSort, ThreadsSortAsStableSort) {
+  std::mt19937_64 rng(11);
+  // 200,003 keys (shares of unequal length); keys of 17 bits (2 passes), 40 bits (4 passes),
+  // and 64 bits; and keys whose lowest 11 bits are all equal (a pass that moves nothing).
+  for (const std::uint64_t max_key : {std::uint64_t{(1 << 17) - 1}, (std::uint64_t{1} << 40) - 1,
+                                      ~std::uint64_t{0}, std::uint64_t{0}}) {
+    const std::size_t n = 200003;
+    std::vector<std::uint64_t> keys = max_key == 0 ? std::vector<std::uint64_t>(n)
+                                                   : random_keys(n, max_key, rng);
+    if (max_key == 0) {  // only bits 11 and up vary
+      std::uniform_int_distribution<std::uint64_t> u(0, 999);
+      for (auto& k : keys) k = (u(rng) << 11) | 5;
+    }
+    std::vector<std::pair<std::uint64_t, std::uint32_t>> want(n);
+    for (std::size_t i = 0; i < n; ++i) want[i] = {keys[i], static_cast<std::uint32_t>(i)};
+    std::stable_sort(want.begin(), want.end(),
+                     [](const auto& a, const auto& b) { return a.first < b.first; });
+    const std::uint64_t top = *std::max_element(keys.begin(), keys.end());
+    for (int nt : {1, 2, 3, 8, 64}) {
+      std::vector<std::uint64_t> k = keys, tk(n);
+      std::vector<std::uint32_t> id(n), tid(n);
+      for (std::size_t i = 0; i < n; ++i) id[i] = static_cast<std::uint32_t>(i);
+      const bool in_tmp =
+          miem::detail::radix_sort(k.data(), id.data(), tk.data(), tid.data(), n, top, nt);
+      const std::vector<std::uint64_t>& gk = in_tmp ? tk : k;
+      const std::vector<std::uint32_t>& gi = in_tmp ? tid : id;
+      std::size_t bad = 0;
+      for (std::size_t i = 0; i < n; ++i) bad += gk[i] != want[i].first || gi[i] != want[i].second;
+      EXPECT_EQ(bad, 0u) << "max_key " << max_key << ", " << nt << " threads";
+    }
+  }
+}
+
+// A symmetric matrix from a random cloud of `n` points: flat, a line, one point, or isotropic.
+Eigen::Matrix3d scatter_of(int kind, std::mt19937& rng) {
+  std::normal_distribution<double> g(0.0, 1.0);
+  Eigen::Matrix3d M = Eigen::Matrix3d::Zero();
+  for (int k = 0; k < 40; ++k) {
+    Eigen::Vector3d q(g(rng), g(rng), g(rng));
+    if (kind == 0) q.z() *= 1e-3;                      // a plane with noise
+    if (kind == 1) q = Eigen::Vector3d(q.x(), 0, 0);   // a line
+    if (kind == 2) q.setZero();                        // one point
+    if (kind == 4) q.y() *= 1e-9, q.z() *= 1e-9;       // nearly a line
+    M += q * q.transpose();
+  }
+  if (kind == 5) M = Eigen::Matrix3d::Identity();     // equal eigenvalues
+  return M;
+}
+
+TEST(PlaneBatch, SameBitsAsEigenSym3) {
+  std::mt19937 rng(5);
+  std::vector<Eigen::Matrix3d> ms;
+  for (int k = 0; k < 300; ++k) ms.push_back(scatter_of(k % 6, rng));
+  for (bool all : {false, true}) {
+    miem::cloud::PlaneBatch pb;
+    pb.reserve(static_cast<std::ptrdiff_t>(ms.size()));
+    for (const auto& M : ms) pb.add(M);
+    pb.solve();
+    std::size_t bad = 0;
+    for (std::size_t i = 0; i < ms.size(); ++i) {
+      Eigen::Vector3d w1, w2;
+      Eigen::Matrix3d V1 = Eigen::Matrix3d::Zero(), V2 = Eigen::Matrix3d::Zero();
+      miem::cloud::eigen_sym3(ms[i], w1, V1, all);
+      pb.eig(static_cast<int>(i), w2, V2, all);
+      const int cols = all ? 3 : 1;
+      bool same = true;
+      for (int a = 0; a < 3; ++a) {
+        same &= same_bits(w1(a), w2(a));
+        for (int c = 0; c < cols; ++c) same &= same_bits(V1(a, c), V2(a, c));
+      }
+      bad += !same;
+    }
+    EXPECT_EQ(bad, 0u) << (all ? "with" : "without") << " the other eigenvectors";
+  }
+}
+
+}  // namespace
