@@ -293,6 +293,7 @@ int height_passes(const NeighborGrid<T>& grid, const PointsView<T>& points, std:
         // together (PlaneBatch: vector code), then their verdicts.
         CellPlanes& cp = js.cell;
         cp.start(e - b, 2);
+        if (cp.balls.size() < e - b) cp.balls.resize(e - b);
         for (std::uint32_t k = b; k < e; ++k) {
           if (!tested(rl[order[k]])) continue;
           ball_sums_of(js.gather, js.aside, rl, grid.sorted_point(k), t, t.height != nullptr,

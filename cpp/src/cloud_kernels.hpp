@@ -851,12 +851,13 @@ struct CellPlanes {
   std::vector<Eigen::Vector3d> mean;   // its neighbours' mean offset (selection_scatter)
   std::vector<std::size_t> n;          // its neighbours
   SavedSelections saved;               // its neighbourhood
-  std::vector<BallSums> balls;         // its height-test sums
-  // For `points` points with up to `per_point` planes each.
+  std::vector<BallSums> balls;         // its height-test sums (sized by the height test)
+  // For `points` points with up to `per_point` planes each (the per-point vectors only grow:
+  // each stage writes the entries it reads).
   void start(std::ptrdiff_t points, int per_point) {
     batch.reserve(per_point * points);
     const auto m = static_cast<std::size_t>(points);
-    at.resize(m), mean.resize(m), n.resize(m), balls.resize(m);
+    if (at.size() < m) at.resize(m), mean.resize(m), n.resize(m);
     saved.clear();
   }
 };

@@ -87,6 +87,10 @@ template <typename T>
 double largest_finite_magnitude(const T* data, std::ptrdiff_t rows, std::ptrdiff_t cols,
                                 std::ptrdiff_t row_stride, std::ptrdiff_t col_stride) {
   T top = T(0);
+  if (col_stride == 1 && row_stride == cols && rows > 1) {  // one block (an (N, 3) cloud): one row
+    cols *= rows;
+    rows = 1;
+  }
   for (std::ptrdiff_t r = 0; r < rows; ++r) {
     const T* p = data + r * row_stride;
     if (col_stride == 1) {

@@ -150,6 +150,8 @@ void estimate_normals(const PointsView<T>& points, double radius, const NormalsO
   }
   check_range(points);
   const std::ptrdiff_t n = points.size;
+  const int ni = detail::thread_count(num_threads, n);
+#pragma omp parallel for schedule(static) num_threads(ni) if (ni > 1)
   for (std::ptrdiff_t i = 0; i < n; ++i) {
     if (out.normals) out.normals[3 * i] = out.normals[3 * i + 1] = out.normals[3 * i + 2] = kNaN;
     if (out.rms) out.rms[i] = kNaN;
