@@ -134,8 +134,9 @@ inline bool bead_at(const Gather& g, const Gather& edges, Selection& s, std::siz
 // a feature-line point lies within t.radius (the test abstains), the sums of the NORMAL points
 // within t.radius (those beyond t.inner are the surroundings, `around`, not the point's own
 // bump) and their planes' scatter matrices added to `pb`: the surroundings' for the verdict, all
-// of them for the height (`want_height`). None when the test abstains and no height is wanted.
-inline void ball_sums_of(const Gather& g, const Gather& lines, const std::uint8_t* role,
+// of them for the height (`want_height`). None when the test abstains and no height is wanted:
+// then false (`s` holds no selection of p), else true.
+inline bool ball_sums_of(const Gather& g, const Gather& lines, const std::uint8_t* role,
                          const Eigen::Vector3d& p, const HeightTest& t, bool want_height,
                          Selection& s, BallSums& b, PlaneBatch& pb) {
   const double r2 = t.radius * t.radius, in2 = t.inner * t.inner;
@@ -147,20 +148,21 @@ inline void ball_sums_of(const Gather& g, const Gather& lines, const std::uint8_
   }
   b.line = line;
   b.ball = b.ring = -1;
-  if (line && !want_height) return;
+  if (line && !want_height) return false;
   ball_sums(g, p, r2, in2, s, &b.around, &b.inner);
   if (want_height) {
     const OffsetSums all = b.around.plus(b.inner);
     if (all.n >= 3.0) b.ball = pb.add(sums_scatter(all));
   }
   if (!line && b.around.n >= 3.0) b.ring = pb.add(sums_scatter(b.around));
+  return true;
 }
 
 // The height verdict of point p from its BallSums `b` (ball_sums_of; the batch `pb` solved):
 // with `height`, also the point's height over the plane of the NORMAL points within t.radius
 // (the same selection and sums as the heights stage's, height_plane: the same value to the
-// bit). The selection in `s` is formed again where a rule reads the points themselves (rare:
-// a refit, the bead and isolated-point rules).
+// bit). Unless `selected` (s holds p's selection), the selection is formed again where a rule
+// reads the points themselves (rare: a refit, the bead and isolated-point rules).
 inline bool too_far_from(const Gather& g, const Gather& lines, const Eigen::Vector3d& p,
                          const HeightTest& t, Selection& s, const BallSums& b,
                          const PlaneBatch& pb, bool selected, double* height,
@@ -242,9 +244,9 @@ inline bool too_far(const Gather& g, const Gather& lines, const std::uint8_t* ro
                     PlaneBatch& pb, double* height, double* rms_out) {
   BallSums b;
   pb.reserve(2);
-  ball_sums_of(g, lines, role, p, t, height != nullptr, s, b, pb);
+  const bool selected = ball_sums_of(g, lines, role, p, t, height != nullptr, s, b, pb);
   pb.solve();
-  return too_far_from(g, lines, p, t, s, b, pb, true, height, rms_out);
+  return too_far_from(g, lines, p, t, s, b, pb, selected, height, rms_out);
 }
 
 }  // namespace

@@ -409,7 +409,7 @@ inline void eigen_sym3(const Eigen::Matrix3d& M, Eigen::Vector3d& w, Eigen::Matr
 class PlaneBatch {
  public:
   void clear() { n_ = 0; }
-  void reserve(std::ptrdiff_t m) {  // (clears)
+  void reserve(std::ptrdiff_t m) {  // room for m matrices; clears the batch
     n_ = 0;
     if (m <= cap_) return;
     cap_ = std::max<std::ptrdiff_t>(m, 64);
@@ -841,7 +841,6 @@ MIEM_CLONES inline void cone_hits(int K, std::size_t n, const double* wx, const 
   }
 }
 
-// Per-thread scratch of the judge.
 // The planes of a cell's points, solved together (PlaneBatch: vector code) between a loop that
 // forms them and a loop that uses them, and what each point keeps in between (each stage uses
 // its part: the angle pass `at`, `mean`, `n` and the selections, the height test `balls`).
@@ -862,6 +861,7 @@ struct CellPlanes {
   }
 };
 
+// Per-thread scratch of the judge.
 struct JudgeScratch {
   Gather gather;
   Gather aside;  // a second list of candidates (gather_split)
