@@ -47,15 +47,6 @@ void check_view(const PointsView<T>& points) {
   }
 }
 
-template <typename T>
-std::ptrdiff_t count_finite(const PointsView<T>& points, int num_threads) {
-  std::ptrdiff_t n = 0;
-  const int nt = detail::thread_count(num_threads, points.size);
-#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1) reduction(+ : n)
-  for (std::ptrdiff_t i = 0; i < points.size; ++i) n += points[i].allFinite();
-  return n;
-}
-
 // Candidate points gathered from a box of cells, structure of arrays (absolute coordinates, so
 // q - p is computed exactly as a brute-force search would).
 struct Gather {

@@ -9,6 +9,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "finite_bounds.hpp"
 #include "parallel.hpp"
 #include "radix_sort.hpp"
 
@@ -37,28 +38,10 @@ NeighborGrid<T>::NeighborGrid(const PointsView<T>& points, double cell_size, int
   const std::ptrdiff_t n = points.size;
   const int nt = detail::thread_count(num_threads, n);
 
-  // Bounds of the finite points (min / max are exact, so any reduction order gives the same).
-  Eigen::Vector3d lo = Eigen::Vector3d::Constant(kInf), hi = Eigen::Vector3d::Constant(-kInf);
-  std::ptrdiff_t n_finite = 0;
-#pragma omp parallel num_threads(nt) if (nt > 1)
-  {
-    Eigen::Vector3d tlo = Eigen::Vector3d::Constant(kInf), thi = Eigen::Vector3d::Constant(-kInf);
-    std::ptrdiff_t tn = 0;
-#pragma omp for schedule(static) nowait
-    for (std::ptrdiff_t i = 0; i < n; ++i) {
-      const Eigen::Vector3d p = points[i];
-      if (!p.allFinite()) continue;
-      tlo = tlo.cwiseMin(p);
-      thi = thi.cwiseMax(p);
-      ++tn;
-    }
-#pragma omp critical(miem_grid_bounds)
-    {
-      lo = lo.cwiseMin(tlo);
-      hi = hi.cwiseMax(thi);
-      n_finite += tn;
-    }
-  }
+  // Bounds of the finite points.
+  const detail::FiniteBounds fb = detail::finite_bounds(points, nt);
+  const Eigen::Vector3d lo = fb.lo, hi = fb.hi;
+  const std::ptrdiff_t n_finite = fb.count;
   if (n_finite == 0) {
     origin_.setZero();
     cell_ = cell_size;
@@ -95,13 +78,10 @@ NeighborGrid<T>::NeighborGrid(const PointsView<T>& points, double cell_size, int
   // Keys of the finite points, in index order.
   std::vector<std::uint64_t> keys(static_cast<std::size_t>(n_finite));
   std::vector<std::uint32_t> ids(static_cast<std::size_t>(n_finite));
-  {
-    std::ptrdiff_t k = 0;
-    for (std::ptrdiff_t i = 0; i < n; ++i) {
-      const Eigen::Vector3d p = points[i];
-      if (p.allFinite()) ids[k++] = static_cast<std::uint32_t>(i);
-    }
-  }
+  detail::compact_ranges(
+      nt, n, [&points](std::ptrdiff_t i) { return points[i].allFinite(); },
+      [](std::ptrdiff_t) {},
+      [&ids](std::ptrdiff_t k, std::ptrdiff_t i) { ids[k] = static_cast<std::uint32_t>(i); });
   std::uint64_t max_key = 0;
 #pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1) reduction(max : max_key)
   for (std::ptrdiff_t k = 0; k < n_finite; ++k) {
@@ -119,20 +99,18 @@ NeighborGrid<T>::NeighborGrid(const PointsView<T>& points, double cell_size, int
     }
   }
 
-  // Occupied cells and their point ranges.
-  std::size_t ncells = 0;
-  for (std::ptrdiff_t k = 0; k < n_finite; ++k) ncells += (k == 0 || keys[k] != keys[k - 1]);
-  keys_.resize(ncells);
-  starts_.resize(ncells + 1);
-  std::size_t c = 0;
-  for (std::ptrdiff_t k = 0; k < n_finite; ++k) {
-    if (k == 0 || keys[k] != keys[k - 1]) {
-      keys_[c] = keys[k];
-      starts_[c] = static_cast<std::uint32_t>(k);
-      ++c;
-    }
-  }
-  starts_[ncells] = static_cast<std::uint32_t>(n_finite);
+  // Occupied cells and their point ranges: where the sorted keys change.
+  detail::compact_ranges(
+      nt, n_finite, [&keys](std::ptrdiff_t k) { return k == 0 || keys[k] != keys[k - 1]; },
+      [this](std::ptrdiff_t ncells) {
+        keys_.resize(static_cast<std::size_t>(ncells));
+        starts_.resize(static_cast<std::size_t>(ncells) + 1);
+      },
+      [&](std::ptrdiff_t c, std::ptrdiff_t k) {
+        keys_[c] = keys[k];
+        starts_[c] = static_cast<std::uint32_t>(k);
+      });
+  starts_.back() = static_cast<std::uint32_t>(n_finite);
   std::vector<std::uint64_t>().swap(keys);
   order_ = std::move(ids);
   sorted_.resize(3 * static_cast<std::size_t>(n_finite));

@@ -79,6 +79,33 @@ void parallel_items(int nt, std::ptrdiff_t n, F f) {
   for (std::ptrdiff_t i = 0; i < n; ++i) f(i, 0);
 }
 
+/// A compaction on nt threads: the positions i of [0, n) with keep(i), in increasing order,
+/// each handed to put(c, i) (c: how many kept positions come before i) after size(m) is told
+/// how many there are. Each thread counts one range, then puts its kept positions from its
+/// offset: the result does not depend on nt. keep is called twice per position.
+template <typename Keep, typename Size, typename Put>
+void compact_ranges(int nt, std::ptrdiff_t n, Keep keep, Size size, Put put) {
+  constexpr int kMax = 256;
+  nt = n < (std::ptrdiff_t{1} << 16) ? 1 : std::clamp(nt, 1, kMax);
+  std::ptrdiff_t at[kMax + 1] = {};
+  auto lo = [n, nt](int t) { return n * t / nt; };
+#pragma omp parallel for schedule(static, 1) num_threads(nt) if (nt > 1)
+  for (int t = 0; t < nt; ++t) {
+    std::ptrdiff_t c = 0;
+    for (std::ptrdiff_t i = lo(t), e = lo(t + 1); i < e; ++i) c += keep(i) ? 1 : 0;
+    at[t + 1] = c;
+  }
+  for (int t = 0; t < nt; ++t) at[t + 1] += at[t];
+  size(at[nt]);
+#pragma omp parallel for schedule(static, 1) num_threads(nt) if (nt > 1)
+  for (int t = 0; t < nt; ++t) {
+    std::ptrdiff_t c = at[t];
+    for (std::ptrdiff_t i = lo(t), e = lo(t + 1); i < e; ++i) {
+      if (keep(i)) put(c++, i);
+    }
+  }
+}
+
 /// The indices i of [0, n) with keep(i) (which may also update cell i), in increasing order,
 /// into `out` (cleared first): nt threads scan one range each and their lists are joined in
 /// order, so `out` does not depend on nt. For the stages' scans for new ABNORMAL cells or a

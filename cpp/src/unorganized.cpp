@@ -16,6 +16,7 @@
 
 #include "cloud_kernels.hpp"
 #include "cloud_stages.hpp"
+#include "finite_bounds.hpp"
 #include "duplicates.hpp"
 #include "edge_verdict.hpp"
 #include "defects.hpp"
@@ -47,21 +48,16 @@ template <typename T>
 std::vector<double> nearest_other(const PointsView<T>& points, int num_threads) {
   check_view(points);
   check_range(points);
-  const std::ptrdiff_t n_finite = count_finite(points, num_threads);
+  const detail::FiniteBounds fb =
+      detail::finite_bounds(points, detail::thread_count(num_threads, points.size));
+  const std::ptrdiff_t n_finite = fb.count;
   if (n_finite < 3) {
     throw std::invalid_argument("points: need at least 3 finite points, found " +
                                 std::to_string(n_finite));
   }
   // A first cell size from the bounding box (a scan is a sheet: ~ area / N per point), refined
   // until the occupied cells hold a few points each. Only speed depends on it, never the result.
-  Eigen::Vector3d lo = Eigen::Vector3d::Constant(kInf), hi = Eigen::Vector3d::Constant(-kInf);
-  for (std::ptrdiff_t i = 0; i < points.size; ++i) {
-    const Eigen::Vector3d p = points[i];
-    if (!p.allFinite()) continue;
-    lo = lo.cwiseMin(p);
-    hi = hi.cwiseMax(p);
-  }
-  Eigen::Vector3d ext = hi - lo;
+  Eigen::Vector3d ext = fb.hi - fb.lo;
   std::sort(ext.data(), ext.data() + 3);  // ascending
   if (!(ext(2) > 0.0)) {
     throw std::invalid_argument(

@@ -1,10 +1,12 @@
-// Building blocks of the clouds' batched work (cpp/src/radix_sort.hpp, cloud_kernels.hpp):
-// the neighbour grid's radix sort with threads against std::stable_sort, and PlaneBatch (a
-// cell's plane fits solved together in vector code) against eigen_sym3 one matrix at a time,
-// bit for bit.
+// Building blocks of the clouds' batched and threaded work (cpp/src/radix_sort.hpp,
+// parallel.hpp, cloud_kernels.hpp): the neighbour grid's radix sort with threads against
+// std::stable_sort, the grid itself (threaded compactions) the same for any thread count, and
+// PlaneBatch (a cell's plane fits solved together in vector code) against eigen_sym3 one
+// matrix at a time, bit for bit.
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <cstring>
 #include <random>
@@ -12,6 +14,7 @@
 #include <vector>
 
 #include "cloud_kernels.hpp"
+#include "miem/neighbor_grid.hpp"
 #include "radix_sort.hpp"
 
 namespace {
@@ -57,6 +60,46 @@ TEST(RadixSort, ThreadsSortAsStableSort) {
       EXPECT_EQ(bad, 0u) << "max_key " << max_key << ", " << nt << " threads";
     }
   }
+}
+
+TEST(NeighborGrid, SameCellsForAnyThreadCount) {
+  // 200,003 points (5 % of rows NaN) on a bumpy sheet: the threaded compactions (finite rows,
+  // occupied cells) and sort must give one grid
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(0.0, 40.0);
+  const std::ptrdiff_t n = 200003;
+  std::vector<double> xyz(3 * n);
+  for (std::ptrdiff_t i = 0; i < n; ++i) {
+    const double x = u(rng), y = u(rng);
+    xyz[3 * i] = i % 20 == 7 ? std::nan("") : x;
+    xyz[3 * i + 1] = y;
+    xyz[3 * i + 2] = 0.1 * std::sin(x) * std::cos(y);
+  }
+  const miem::PointsView<double> v{xyz.data(), n, 3, 1};
+  const miem::NeighborGrid<double> one(v, 0.25, 1);
+  ASSERT_EQ(one.num_indexed(), n - n / 20 - (n % 20 > 7 ? 1 : 0));
+  for (int nt : {2, 3, 8}) {
+    const miem::NeighborGrid<double> g(v, 0.25, nt);
+    ASSERT_EQ(g.num_indexed(), one.num_indexed());
+    ASSERT_EQ(g.num_cells(), one.num_cells());
+    EXPECT_TRUE(std::equal(g.order(), g.order() + g.num_indexed(), one.order())) << nt;
+    std::size_t bad = 0;
+    for (std::ptrdiff_t c = 0; c <= g.num_cells(); ++c) bad += g.cell_begin(c) != one.cell_begin(c);
+    EXPECT_EQ(bad, 0u) << nt << " threads";
+  }
+  // every finite row once, ascending within a cell
+  std::vector<std::uint32_t> rows(one.order(), one.order() + one.num_indexed());
+  for (std::ptrdiff_t c = 0; c < one.num_cells(); ++c) {
+    const std::uint32_t* o = one.order();
+    EXPECT_TRUE(std::is_sorted(o + one.cell_begin(c), o + one.cell_begin(c + 1)));
+  }
+  std::sort(rows.begin(), rows.end());
+  std::size_t k = 0, bad = 0;
+  for (std::ptrdiff_t i = 0; i < n; ++i) {
+    if (i % 20 == 7) continue;
+    bad += rows[k++] != static_cast<std::uint32_t>(i);
+  }
+  EXPECT_EQ(bad, 0u);
 }
 
 // A symmetric matrix from a random cloud of `n` points: flat, a line, one point, or isotropic.
