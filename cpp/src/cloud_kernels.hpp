@@ -850,6 +850,19 @@ struct CellPlanes {
     if (at.size() < m) at.resize(m), mean.resize(m), n.resize(m);
     saved.clear();
   }
+  // fit_selection in two halves around batch.solve(): point q's selection `s` (its scatter into
+  // the batch; none below 3 neighbours), then its plane.
+  void add_fit(std::size_t q, const Selection& s) {
+    n[q] = s.n;
+    at[q] = s.n < 3 ? -1 : batch.add(selection_scatter(s, &mean[q]));
+  }
+  PlaneStatus fit(std::size_t q, bool want_major, LocalPlane* out) const {
+    if (at[q] < 0) return PlaneStatus::kTooFewPoints;
+    Eigen::Vector3d ev;
+    Eigen::Matrix3d V;
+    batch.eig(at[q], ev, V, want_major);
+    return fit_from(ev, V, mean[q], n[q], want_major, out);
+  }
 };
 
 // Per-thread scratch of the judge.
@@ -888,36 +901,31 @@ class PointJudge {
   // its usable neighbourhood, in grid order).
   std::uint8_t judge(std::uint32_t i, const Eigen::Vector3d& p, JudgeScratch& js,
                      std::uint8_t* flags, double* angle, bool* degenerate) const {
-    Eigen::Vector3d mean;
-    js.cell.batch.reserve(1);
-    const int at = select_point(i, p, js, &mean);
+    js.cell.start(1, 1);
+    select_point(i, p, js, 0);
     js.cell.batch.solve();
-    return judge_selected(at, mean, js, flags, angle, degenerate);
+    return judge_selected(0, js, flags, angle, degenerate);
   }
 
-  // judge's first half: point i's neighbourhood selected into js.sel and the scatter of its
-  // plane fit (fit_selection) added to js.cell.batch; returns its place there (-1: fewer than 3
-  // neighbours, no plane), the neighbours' mean offset in `mean`.
-  int select_point(std::uint32_t i, const Eigen::Vector3d& p, JudgeScratch& js,
-                   Eigen::Vector3d* mean) const {
+  // judge's first half: point i's neighbourhood selected into js.sel and its plane fit begun
+  // as point q of js.cell (CellPlanes::add_fit).
+  void select_point(std::uint32_t i, const Eigen::Vector3d& p, JudgeScratch& js,
+                    std::size_t q) const {
     select(js.gather, p, r2_, static_cast<std::int64_t>(i), js.sel);
-    if (js.sel.n < 3) return -1;
-    return js.cell.batch.add(selection_scatter(js.sel, mean));
+    js.cell.add_fit(q, js.sel);
   }
 
-  // judge's second half, js.sel holding the point's neighbourhood and js.cell.batch solved.
-  std::uint8_t judge_selected(int at, const Eigen::Vector3d& mean, JudgeScratch& js,
-                              std::uint8_t* flags, double* angle, bool* degenerate) const {
+  // judge's second half, js.sel holding point q's neighbourhood and js.cell.batch solved.
+  std::uint8_t judge_selected(std::size_t q, JudgeScratch& js, std::uint8_t* flags,
+                              double* angle, bool* degenerate) const {
     Selection& s = js.sel;
     *flags = 0;
     *angle = kNaN;
     *degenerate = false;
-    if (at < 0) return kAbnormal;
     LocalPlane lp;
-    Eigen::Vector3d ev;
-    Eigen::Matrix3d V;
-    js.cell.batch.eig(at, ev, V, true);
-    if (fit_from(ev, V, mean, s.n, true, &lp) != PlaneStatus::kOk) {
+    const PlaneStatus st = js.cell.fit(q, true, &lp);
+    if (st == PlaneStatus::kTooFewPoints) return kAbnormal;
+    if (st != PlaneStatus::kOk) {
       *degenerate = true;
       return kNormal;
     }

@@ -170,21 +170,14 @@ void estimate_normals(const PointsView<T>& points, double radius, const NormalsO
     cp.start(e - b, 1);
     for (std::uint32_t k = b; k < e; ++k) {
       select(js.gather, grid.sorted_point(k), r2, -1, js.sel);
-      const std::size_t q = k - b;
-      cp.n[q] = js.sel.n;
-      cp.at[q] = js.sel.n < 3 ? -1 : cp.batch.add(selection_scatter(js.sel, &cp.mean[q]));
+      cp.add_fit(k - b, js.sel);
     }
     cp.batch.solve();
     for (std::uint32_t k = b; k < e; ++k) {
       const std::uint32_t i = order[k];
-      const std::size_t q = k - b;
-      if (out.count) out.count[i] = static_cast<std::int64_t>(cp.n[q]);
-      if (cp.at[q] < 0) continue;  // fewer than 3 neighbours
-      Eigen::Vector3d ev;
-      Eigen::Matrix3d V;
-      cp.batch.eig(cp.at[q], ev, V);
+      if (out.count) out.count[i] = static_cast<std::int64_t>(cp.n[k - b]);
       LocalPlane lp;
-      if (fit_from(ev, V, cp.mean[q], cp.n[q], false, &lp) != PlaneStatus::kOk) continue;
+      if (cp.fit(k - b, false, &lp) != PlaneStatus::kOk) continue;
       if (out.normals) {
         out.normals[3 * i] = lp.normal.x();
         out.normals[3 * i + 1] = lp.normal.y();
@@ -284,8 +277,7 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
     for (std::uint32_t b = grid.cell_begin(cell), k1; b < e; b = k1) {
       cp.start(e - b, 1);
       for (k1 = b; k1 < e && cp.saved.kept() < kKeptOffsets; ++k1) {
-        const std::size_t q = k1 - b;
-        cp.at[q] = judge.select_point(order[k1], grid.sorted_point(k1), js, &cp.mean[q]);
+        judge.select_point(order[k1], grid.sorted_point(k1), js, k1 - b);
         cp.saved.save(js.sel);
       }
       cp.batch.solve();
@@ -300,7 +292,7 @@ PointsDetectSummary detect_distinct(const PointsView<T>& points, const PointsDet
         }
         cp.saved.restore(k - b, js.sel);
         judge_point(order[k], [&](std::uint8_t* fl, double* an, bool* dg) {
-          return judge.judge_selected(cp.at[k - b], cp.mean[k - b], js, fl, an, dg);
+          return judge.judge_selected(k - b, js, fl, an, dg);
         });
         if (!counts.empty()) {
           counts[order[k]] = static_cast<std::uint16_t>(
