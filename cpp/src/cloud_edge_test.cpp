@@ -221,22 +221,13 @@ SectorVerdict cloud_edge_verdict(const detail::EdgeSide (&sd)[kSectors],
 }
 
 // Calls visit(k, o, wx, wy, wz) for each point k of `ball` (the points within r_edge of P,
-// offsets w = q - P: select's) that is a sector member of P: not P, at least `gap` from P in the
-// tangent plane (SPEC step 3); o its octant. In gather order.
+// offsets w = q - P: select's) that is a sector member of P (`oct`: member_octants' octant of
+// each point for P's frame, kNotMember for the others: not P, at least `gap` from P in the
+// tangent plane, SPEC step 3); o its octant. In gather order.
 template <typename Visit>
-void for_each_member(const Selection& ball, const Frame& f, const CloudEdgeTest& e,
-                     Visit&& visit) {
-  constexpr std::size_t kRun = 256;
-  std::uint8_t oc[kRun];
-  for (std::size_t k0 = 0; k0 < ball.n; k0 += kRun) {
-    const std::size_t m = std::min(kRun, ball.n - k0);
-    member_octants(ball.wx.data() + k0, ball.wy.data() + k0, ball.wz.data() + k0, m, f, e.gap,
-                   oc);
-    for (std::size_t q = 0; q < m; ++q) {
-      if (oc[q] == kNotMember) continue;
-      const std::size_t k = k0 + q;
-      visit(k, oc[q], ball.wx[k], ball.wy[k], ball.wz[k]);
-    }
+void for_each_member(const Selection& ball, const std::uint8_t* oct, Visit&& visit) {
+  for (std::size_t k = 0; k < ball.n; ++k) {
+    if (oct[k] != kNotMember) visit(k, oct[k], ball.wx[k], ball.wy[k], ball.wz[k]);
   }
 }
 
@@ -270,16 +261,16 @@ inline double off_plane(const detail::EdgeSide& x, const Eigen::Vector3d& w) {
 // > 0, P extends a ledge already removed: of the sector's ABNORMAL members below its plane
 // (u . (y - m) < -t) the one nearest to P (same order) lies nearer than q (y . y < v . v) and
 // level with P (|u . y| <= 0.5 delta).
-bool hangs(const Selection& ball, const std::uint8_t* labels, const Frame& f,
-           const CloudEdgeTest& e, const detail::EdgeSide (&sd)[kSectors],
-           const bool (&gone)[kSectors], unsigned below) {
+bool hangs(const Selection& ball, const std::uint8_t* oct, const std::uint8_t* labels,
+           const detail::EdgeSide (&sd)[kSectors], const bool (&gone)[kSectors],
+           unsigned below) {
   // Per candidate sector: its nearest support point on its plane and its nearest ABNORMAL
   // member below its plane (distance, index, offset), and the deepest ground point along its
   // normal in the opposite sector.
   Nearest top[kSectors], ledge[kSectors];
   double low[kSectors];
   std::fill(low, low + kSectors, kInf);
-  for_each_member(ball, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
+  for_each_member(ball, oct, [&](std::size_t k, int o, double wx, double wy, double wz) {
     const std::uint8_t c = labels[ball.id[k]];
     if (c != kAbnormal && c != kNormal && c != kEdge) return;
     const Eigen::Vector3d w(wx, wy, wz);
@@ -331,8 +322,9 @@ bool hangs(const Selection& ball, const std::uint8_t* labels, const Frame& f,
 // and the last lies above s's plane (h + u . (x - P) > tol): the surface beyond falls back
 // below P, then rises (a concave crease or a step up), not a fillet (no dip) nor a bead or fin
 // beyond P (the last point on the plane).
-bool is_lip(const Selection& ball, const std::uint8_t* labels, const Frame& f,
-            const CloudEdgeTest& e, const detail::EdgeSide (&sd)[kSectors], unsigned raised) {
+bool is_lip(const Selection& ball, const std::uint8_t* oct, const std::uint8_t* labels,
+            const Frame& f, const CloudEdgeTest& e, const detail::EdgeSide (&sd)[kSectors],
+            unsigned raised) {
   // Per sector of `raised`: the strip's last point (its offset along, index, u . (x - P)) and
   // the lowest u . (x - P) of the points before it.
   double low[kSectors], far[kSectors], last[kSectors];
@@ -341,13 +333,13 @@ bool is_lip(const Selection& ball, const std::uint8_t* labels, const Frame& f,
   std::fill(far, far + kSectors, -kInf);
   std::fill(last, last + kSectors, kInf);
   const double width = kLipStrip * e.r_edge;
-  for_each_member(ball, f, e, [&](std::size_t k, int, double wx, double wy, double wz) {
+  for_each_member(ball, oct, [&](std::size_t k, int, double wx, double wy, double wz) {
     const std::uint8_t c = labels[ball.id[k]];
     if (c != kNormal && c != kEdge) return;
     const Eigen::Vector3d w(wx, wy, wz);
     const double a = detail::dot3(w, f.e1), b = detail::dot3(w, f.e2);
-    for (int s = 0; s < kSectors; ++s) {
-      if (!(raised >> s & 1u)) continue;
+    for (unsigned todo = raised; todo != 0; todo &= todo - 1) {
+      const int s = __builtin_ctz(todo);
       const int t = bisector(turned(s, 4));
       const double along = kTurnCos[t] * a + kTurnSin[t] * b;
       const double across = kTurnCos[t] * b - kTurnSin[t] * a;
@@ -376,11 +368,17 @@ bool is_lip(const Selection& ball, const std::uint8_t* labels, const Frame& f,
 // (`ball`, select's, in gather order): the NORMAL ones (labels: at the start of the pass) are
 // the support, the others count as returns only. `*level` (when given): P lies within t of
 // every clean sector's plane; `*veto_out` (when given): this scale's level_vetoes; `veto_in`:
-// the narrow scale's, at the wide one (SPEC step 7).
+// the narrow scale's, at the wide one (SPEC step 7). `scratch`: the points' octants (grown
+// when a ball needs more); `planes`: the sectors' planes.
 bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const Frame& f,
-                      const CloudEdgeTest& e, double pfloor, bool* level = nullptr,
-                      unsigned veto_in = 0, unsigned* veto_out = nullptr) {
-  OffsetSums oct[8];
+                      const CloudEdgeTest& e, double pfloor, std::vector<std::uint8_t>& scratch,
+                      PlaneBatch& planes, bool* level = nullptr, unsigned veto_in = 0,
+                      unsigned* veto_out = nullptr) {
+  // Each point's octant (kNotMember: no member), once for every rule below.
+  if (scratch.size() < ball.n) scratch.resize(ball.n);
+  std::uint8_t* const oct = scratch.data();
+  member_octants(ball.wx.data(), ball.wy.data(), ball.wz.data(), ball.n, f, e.gap, oct);
+  OffsetSums octs[8];
   double fin[8] = {};
 #ifdef __SSE2__
   // OffsetSums::add in pairs of fields, (n, x) (y, z) (xx, xy) (xz, yy) (yz, zz): the same
@@ -389,7 +387,7 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
   for (auto& a : acc) {
     for (__m128d& r : a) r = _mm_setzero_pd();
   }
-  for_each_member(ball, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
+  for_each_member(ball, oct, [&](std::size_t k, int o, double wx, double wy, double wz) {
     fin[o] += 1.0;
     if (labels[ball.id[k]] != kNormal) return;
     const __m128d xy = _mm_set_pd(wy, wx), yz = _mm_set_pd(wz, wy);
@@ -403,14 +401,14 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
   for (int o = 0; o < 8; ++o) {
     alignas(16) double v[10];
     for (int q = 0; q < 5; ++q) _mm_store_pd(v + 2 * q, acc[o][q]);
-    OffsetSums& t = oct[o];
+    OffsetSums& t = octs[o];
     t.n = v[0], t.x = v[1], t.y = v[2], t.z = v[3], t.xx = v[4], t.xy = v[5];
     t.xz = v[6], t.yy = v[7], t.yz = v[8], t.zz = v[9];
   }
 #else
-  for_each_member(ball, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
+  for_each_member(ball, oct, [&](std::size_t k, int o, double wx, double wy, double wz) {
     fin[o] += 1.0;
-    if (labels[ball.id[k]] == kNormal) oct[o].add(wx, wy, wz);
+    if (labels[ball.id[k]] == kNormal) octs[o].add(wx, wy, wz);
   });
 #endif
   // Sectors 0-7: s holds octants s, s + 1 (mod 8), [45 s, 45 s + 90) degrees from e1 towards
@@ -420,30 +418,46 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
   double full[2] = {0.0, 0.0};
   for (int s = 0; s < 8; ++s) {
     finite[s] = fin[s] + fin[(s + 1) % 8];
-    sums[s] = oct[s].plus(oct[(s + 1) % 8]);
+    sums[s] = octs[s].plus(octs[(s + 1) % 8]);
     finite[8 + s] = finite[s] + fin[(s + 2) % 8] + fin[(s + 3) % 8];
-    sums[8 + s] = sums[s].plus(oct[(s + 2) % 8].plus(oct[(s + 3) % 8]));
+    sums[8 + s] = sums[s].plus(octs[(s + 2) % 8].plus(octs[(s + 3) % 8]));
     full[0] = std::max(full[0], finite[s]);
   }
   for (int s = 8; s < kSectors; ++s) full[1] = std::max(full[1], finite[s]);
   // Sector s's support points again, for plane_of.
   const auto support = [&](int s) {
     return [&, s](auto&& fn) {
-      for_each_member(ball, f, e, [&](std::size_t k, int o, double wx, double wy, double wz) {
+      for_each_member(ball, oct, [&](std::size_t k, int o, double wx, double wy, double wz) {
         if (in_sector(o, s) && labels[ball.id[k]] == kNormal) fn(Eigen::Vector3d(wx, wy, wz));
       });
     };
   };
   bool valid[kSectors], empty[kSectors], gone[kSectors];
   double h[kSectors], rms[kSectors], tol[kSectors], floor[kSectors] = {};
-  LocalPlane lp[kSectors];
-  double best = kInf;
+  // The sectors' planes solved together (PlaneBatch: eigen_sym3's bits in vector code): each
+  // sector with the support a valid one needs, and each gone one with 3 points (its face,
+  // below); plane(s, lp) is then plane_of(sums[s], lp, support(s)).
+  int at[kSectors];
+  planes.reserve(kSectors);
   for (int s = 0; s < kSectors; ++s) {
     const double half = full[s / 8] / 2.0;
     empty[s] = finite[s] < kEmpty * full[s / 8];  // (a steep face keeps about half)
     gone[s] = finite[s] < kHangEmpty * full[s / 8];
-    valid[s] = sums[s].n >= std::max(3.0, half) &&
-               plane_of(sums[s], &lp[s], support(s)) == PlaneStatus::kOk;
+    const bool want = sums[s].n >= std::max(3.0, half) || (gone[s] && sums[s].n >= 3.0);
+    at[s] = want ? planes.add(sums_scatter(sums[s])) : -1;
+  }
+  planes.solve();
+  const auto plane = [&](int s, LocalPlane* out) {
+    Eigen::Vector3d ev;
+    Eigen::Matrix3d V;
+    planes.eig(at[s], ev, V);
+    return plane_from(sums[s], ev, V, out, support(s));
+  };
+  LocalPlane lp[kSectors];
+  double best = kInf;
+  for (int s = 0; s < kSectors; ++s) {
+    const double half = full[s / 8] / 2.0;
+    valid[s] = sums[s].n >= std::max(3.0, half) && plane(s, &lp[s]) == PlaneStatus::kOk;
     if (!valid[s]) continue;
     const SectorFit x = sector_fit(lp[s], e.k, pfloor);
     h[s] = x.h;
@@ -461,7 +475,7 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
     const int o = turned(s, 4);
     if (!gone[s] || !valid[o] || sums[s].n < 3.0) continue;
     LocalPlane face;
-    if (plane_of(sums[s], &face, support(s)) != PlaneStatus::kOk) continue;
+    if (plane(s, &face) != PlaneStatus::kOk) continue;
     const SectorFit x = sector_fit(face, e.k, pfloor);
     if (x.rms <= kFaceClean * best && !(std::abs(x.h) > x.tol) &&
         std::abs(face.normal.dot(lp[o].normal)) < kFaceCos) {
@@ -499,8 +513,8 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
   const SectorVerdict v =
       cloud_edge_verdict(sd, centred, gone, floor, best, e.k, veto | veto_in, &below, &raised);
   if (v != SectorVerdict::kOther) return v == SectorVerdict::kProud;
-  return (below != 0 && e.hanging && hangs(ball, labels, f, e, sd, gone, below)) ||
-         (raised != 0 && is_lip(ball, labels, f, e, sd, raised));
+  return (below != 0 && e.hanging && hangs(ball, oct, labels, sd, gone, below)) ||
+         (raised != 0 && is_lip(ball, oct, labels, f, e, sd, raised));
 }
 
 }  // namespace
@@ -559,8 +573,10 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
         }
       }
       if (framed[c] >> s & 1u) {
-        flag = s == 0 ? cloud_edge_judge(js.sel, labels, f, e, pfloor, &level, 0, &veto)
-                      : cloud_edge_judge(js.wide, labels, f, wide, pfloor, nullptr, veto);
+        flag = s == 0 ? cloud_edge_judge(js.sel, labels, f, e, pfloor, js.members,
+                                         js.cell.batch, &level, 0, &veto)
+                      : cloud_edge_judge(js.wide, labels, f, wide, pfloor, js.members,
+                                         js.cell.batch, nullptr, veto);
       }
     }
     return flag;

@@ -7,6 +7,7 @@
 #include <chrono>
 #include <ctime>
 #include <string>
+#include <type_traits>
 #include <utility>
 #include <cmath>
 #include <cstdint>
@@ -19,10 +20,6 @@
 
 #ifdef __SSE2__
 #include <emmintrin.h>
-#endif
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
-#include <immintrin.h>
-#define MIEM_SELECT_AVX512 1
 #endif
 
 #include "miem/neighbor_grid.hpp"
@@ -150,13 +147,6 @@ inline Four d2_four(const double* gx, const double* gy, const double* gz, std::s
 #endif
 
 #ifdef MIEM_SELECT_AVX512
-// Whether this CPU runs the AVX-512 selection loop below (decided once).
-inline bool select_avx512() {
-  static const bool has =
-      __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl");
-  return has;
-}
-
 // One list of select8's kept candidates: their positions and how many there are.
 struct Kept {
   std::uint32_t* pos;
@@ -200,6 +190,65 @@ __attribute__((target("avx512f,avx512vl"))) inline void select8(
     }
     vk = _mm256_add_epi32(vk, step);
   }
+}
+
+// select_box's loop over positions [b, e) of the grid's cell-ordered copy `xyz` (x, y, z of
+// position k at 3 k), eight points at a time: each point's offset from (px, py, pz) and squared
+// distance (the scalar loop's operations in its order: the same bits), and those within r2
+// appended to s.wx, wy, wz, d2 and (order[k]) s.id from m on, in order, by register compresses
+// and full stores (room for 8 entries past the last kept one). Returns the new count.
+__attribute__((target("avx512f,avx512vl"))) inline std::size_t select_run8(
+    const double* xyz, const std::uint32_t* order, std::uint32_t b, std::uint32_t e, double px,
+    double py, double pz, double r2, Selection& s, std::size_t m) {
+  const __m512d vpx = _mm512_set1_pd(px), vpy = _mm512_set1_pd(py), vpz = _mm512_set1_pd(pz);
+  const __m512d vr2 = _mm512_set1_pd(r2);
+  // de-interleaving x, y, z of 8 points from three vectors of 8 values
+  const __m512i ix0 = _mm512_setr_epi64(0, 3, 6, 9, 12, 15, 0, 0);
+  const __m512i ix1 = _mm512_setr_epi64(0, 1, 2, 3, 4, 5, 10, 13);
+  const __m512i iy0 = _mm512_setr_epi64(1, 4, 7, 10, 13, 0, 0, 0);
+  const __m512i iy1 = _mm512_setr_epi64(0, 1, 2, 3, 4, 8, 11, 14);
+  const __m512i iz0 = _mm512_setr_epi64(2, 5, 8, 11, 14, 0, 0, 0);
+  const __m512i iz1 = _mm512_setr_epi64(0, 1, 2, 3, 4, 9, 12, 15);
+  double* wx = s.wx.data();
+  double* wy = s.wy.data();
+  double* wz = s.wz.data();
+  double* d2o = s.d2.data();
+  std::uint32_t* id = s.id.data();
+  for (std::uint32_t k = b; k < e; k += 8) {
+    const std::uint32_t n = std::min<std::uint32_t>(8, e - k);
+    const double* q = xyz + 3 * static_cast<std::size_t>(k);
+    __m512d v0, v1, v2;
+    if (n == 8) {
+      v0 = _mm512_loadu_pd(q);
+      v1 = _mm512_loadu_pd(q + 8);
+      v2 = _mm512_loadu_pd(q + 16);
+    } else {  // 3 n < 24 values: masked loads (nothing read past them)
+      const unsigned t = 3 * n;
+      const auto lanes = [](unsigned c) {
+        return static_cast<__mmask8>(c >= 8 ? 0xFF : (1u << c) - 1u);
+      };
+      v0 = _mm512_maskz_loadu_pd(lanes(t), q);
+      v1 = _mm512_maskz_loadu_pd(lanes(t > 8 ? t - 8 : 0), q + 8);
+      v2 = _mm512_maskz_loadu_pd(lanes(t > 16 ? t - 16 : 0), q + 16);
+    }
+    const __m512d x = _mm512_permutex2var_pd(_mm512_permutex2var_pd(v0, ix0, v1), ix1, v2);
+    const __m512d y = _mm512_permutex2var_pd(_mm512_permutex2var_pd(v0, iy0, v1), iy1, v2);
+    const __m512d z = _mm512_permutex2var_pd(_mm512_permutex2var_pd(v0, iz0, v1), iz1, v2);
+    const __m512d dx = _mm512_sub_pd(x, vpx), dy = _mm512_sub_pd(y, vpy);
+    const __m512d dz = _mm512_sub_pd(z, vpz);
+    const __m512d d2 = _mm512_add_pd(_mm512_add_pd(_mm512_mul_pd(dx, dx), _mm512_mul_pd(dy, dy)),
+                                     _mm512_mul_pd(dz, dz));
+    const __mmask8 live = static_cast<__mmask8>(n == 8 ? 0xFF : (1u << n) - 1u);
+    const __mmask8 keep = live & _mm512_cmp_pd_mask(d2, vr2, _CMP_LE_OQ);
+    _mm512_storeu_pd(wx + m, _mm512_maskz_compress_pd(keep, dx));
+    _mm512_storeu_pd(wy + m, _mm512_maskz_compress_pd(keep, dy));
+    _mm512_storeu_pd(wz + m, _mm512_maskz_compress_pd(keep, dz));
+    _mm512_storeu_pd(d2o + m, _mm512_maskz_compress_pd(keep, d2));
+    const __m256i ids = _mm256_maskz_loadu_epi32(live, order + k);
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(id + m), _mm256_maskz_compress_epi32(keep, ids));
+    m += static_cast<std::size_t>(__builtin_popcount(keep));
+  }
+  return m;
 }
 #endif
 
@@ -257,7 +306,7 @@ inline void select(const Gather& g, const Eigen::Vector3d& p, double r2, std::in
   const std::size_t n = g.n;
   std::size_t m = 0, k = 0;
 #ifdef MIEM_SELECT_AVX512
-  if (select_avx512()) {
+  if (detail::has_avx512()) {
     Kept kept{pos, 0};
     select8(gx, gy, gz, n, px, py, pz, r2, 0.0, all, kept, nullptr);
     m = kept.m, k = n;
@@ -310,13 +359,27 @@ inline void select(const Gather& g, const Eigen::Vector3d& p, double r2, std::in
 
 // select(gather_box(box, every), p, r2, -1) without the gather: the points of `box` within r of
 // p, straight from the grid's cell-ordered copy, in cell-key order; the same offsets, squared
-// distances (the same operations) and order. Fills wx, wy, wz, d2, id.
+// distances (the same operations) and order. Fills wx, wy, wz, d2, id. A float64 grid's cells
+// eight points at a time where the CPU has AVX-512 (select_run8).
 template <typename T>
 void select_box(const NeighborGrid<T>& grid, const CellBox& box, const Eigen::Vector3d& p,
                 double r2, Selection& s) {
   const std::uint32_t* order = grid.order();
   const double px = p.x(), py = p.y(), pz = p.z();
   std::size_t m = 0;
+#ifdef MIEM_SELECT_AVX512
+  if constexpr (std::is_same_v<T, double>) {
+    if (detail::has_avx512()) {
+      grid.for_each_cell(box, [&](std::ptrdiff_t cell) {
+        const std::uint32_t b = grid.cell_begin(cell), e = grid.cell_begin(cell + 1);
+        s.reserve(m + (e - b) + 8);  // (select_run8 stores 8 entries at a time)
+        m = select_run8(grid.sorted_xyz(), order, b, e, px, py, pz, r2, s, m);
+      });
+      s.n = m;
+      return;
+    }
+  }
+#endif
   grid.for_each_cell(box, [&](std::ptrdiff_t cell) {
     const std::uint32_t b = grid.cell_begin(cell), e = grid.cell_begin(cell + 1);
     s.reserve(m + (e - b));
@@ -695,7 +758,7 @@ inline void ball_sums(const Gather& g, const Eigen::Vector3d& p, double r2, doub
   // AVX-512, else four at a time with SSE2.
   std::size_t m_out = 0, m_in = 0, k = 0;
 #ifdef MIEM_SELECT_AVX512
-  if (select_avx512()) {
+  if (detail::has_avx512()) {
     Kept out{out_pos, 0}, in{in_pos, 0};
     select8(gx, gy, gz, n, px, py, pz, r2, in2, all, out, &in);
     m_out = out.m, m_in = in.m, k = n;
@@ -871,6 +934,7 @@ struct JudgeScratch {
   Gather aside;  // a second list of candidates (gather_split)
   Selection sel;
   Selection wide;  // the cloud edge test's wide ball (cloud_edge_test.cpp)
+  std::vector<std::uint8_t> members;  // the cloud edge test's octant of each point of a ball
   CellPlanes cell;  // the planes of a cell's points, solved together
   std::vector<std::uint64_t> best_key;  // per (direction, side, scale) slot: bits of its d2
   std::vector<int> best_m;      // position in `sel` of the slot's neighbour, -1: none

@@ -11,6 +11,8 @@
 
 #include <Eigen/Core>
 
+#include "vector_clones.hpp"
+
 namespace miem::cloud {
 
 // The octant of a tangent offset (a, b) != 0 (SPEC step 3): the 45-degree wedge [45 o, 45 o + 45)
@@ -55,6 +57,55 @@ struct OctantTable {
 inline const OctantTable kOctants;
 #endif
 
+#ifdef MIEM_SELECT_AVX512
+// member_octants for q in [0, n - n % 8), eight at a time: the same operations in the same
+// order as the scalar tail (the same bits); the octant's bits from the comparisons' masks as
+// OctantTable reads them from its code. Returns the first q not done.
+__attribute__((target("avx512f,avx512vl"))) inline std::size_t member_octants8(
+    const double* __restrict X, const double* __restrict Y, const double* __restrict Z,
+    std::size_t n, const Frame& f, double gap, std::uint8_t* __restrict oc) {
+  const __m512d v1x = _mm512_set1_pd(f.e1.x()), v1y = _mm512_set1_pd(f.e1.y());
+  const __m512d v1z = _mm512_set1_pd(f.e1.z()), v2x = _mm512_set1_pd(f.e2.x());
+  const __m512d v2y = _mm512_set1_pd(f.e2.y()), v2z = _mm512_set1_pd(f.e2.z());
+  const __m512d zero = _mm512_setzero_pd(), vgap = _mm512_set1_pd(gap);
+  const __m512i sign = _mm512_set1_epi64(static_cast<long long>(0x8000000000000000ull));
+  const __m512i one = _mm512_set1_epi64(1), two = _mm512_set1_epi64(2);
+  const __m512i four = _mm512_set1_epi64(4), eight = _mm512_set1_epi64(kNotMember);
+  std::size_t q = 0;
+  for (; q + 8 <= n; q += 8) {
+    const __m512d wx = _mm512_loadu_pd(X + q), wy = _mm512_loadu_pd(Y + q);
+    const __m512d wz = _mm512_loadu_pd(Z + q);
+    const __m512d a = _mm512_add_pd(_mm512_add_pd(_mm512_mul_pd(wx, v1x), _mm512_mul_pd(wy, v1y)),
+                                    _mm512_mul_pd(wz, v1z));
+    const __m512d b = _mm512_add_pd(_mm512_add_pd(_mm512_mul_pd(wx, v2x), _mm512_mul_pd(wy, v2y)),
+                                    _mm512_mul_pd(wz, v2z));
+    const __m512d rho =  // (the maskz forms: GCC 12 warns of the plain ones' undefined source)
+        _mm512_maskz_sqrt_pd(0xFF, _mm512_add_pd(_mm512_mul_pd(a, a), _mm512_mul_pd(b, b)));
+    const __m512d na = _mm512_castsi512_pd(_mm512_xor_si512(_mm512_castpd_si512(a), sign));  // -a
+    const unsigned in = _mm512_cmp_pd_mask(rho, zero, _CMP_GT_OQ) &
+                        _mm512_cmp_pd_mask(rho, vgap, _CMP_GE_OQ);
+    const unsigned ap = _mm512_cmp_pd_mask(a, zero, _CMP_GT_OQ);
+    const unsigned an = _mm512_cmp_pd_mask(a, zero, _CMP_LT_OQ);
+    const unsigned bp = _mm512_cmp_pd_mask(b, zero, _CMP_GT_OQ);
+    const unsigned bz = _mm512_cmp_pd_mask(b, zero, _CMP_EQ_OQ);
+    const unsigned lt = _mm512_cmp_pd_mask(b, a, _CMP_LT_OQ);   // b < a
+    const unsigned pn = _mm512_cmp_pd_mask(b, na, _CMP_GT_OQ);  // b > -a
+    const unsigned gt = _mm512_cmp_pd_mask(a, b, _CMP_LT_OQ);   // a < b
+    const unsigned nn = _mm512_cmp_pd_mask(b, na, _CMP_LT_OQ);  // b < -a
+    // octant(): [0, 180) when b > 0 or (b = 0, a > 0): 0, 1 (a > 0), 2, 3; else 4, 5 (a < 0), 6, 7
+    const unsigned up = bp | (bz & ap);
+    const unsigned bit1 = (up & ~ap) | (~up & ~an);
+    const unsigned bit0 = (up & ((ap & ~lt) | (~ap & ~pn))) | (~up & ((an & ~gt) | (~an & ~nn)));
+    __m512i o = _mm512_maskz_mov_epi64(static_cast<__mmask8>(bit0), one);
+    o = _mm512_mask_add_epi64(o, static_cast<__mmask8>(bit1), o, two);
+    o = _mm512_mask_add_epi64(o, static_cast<__mmask8>(~up), o, four);
+    o = _mm512_mask_mov_epi64(eight, static_cast<__mmask8>(in), o);
+    _mm_storel_epi64(reinterpret_cast<__m128i*>(oc + q), _mm512_maskz_cvtepi64_epi8(0xFF, o));
+  }
+  return q;
+}
+#endif
+
 // The octants of n points of a point P's ball (offsets w = q - P in X, Y, Z): oc[q] =
 // octant(a, b) of the tangent offset (a, b) = (w . e1, w . e2) when rho = |(a, b)| > 0 and
 // rho >= gap (a sector member), else kNotMember. P itself (and any point at P's tangent
@@ -65,6 +116,9 @@ inline void member_octants(const double* __restrict X, const double* __restrict 
   const double e1x = f.e1.x(), e1y = f.e1.y(), e1z = f.e1.z();
   const double e2x = f.e2.x(), e2y = f.e2.y(), e2z = f.e2.z();
   std::size_t q = 0;
+#ifdef MIEM_SELECT_AVX512
+  if (detail::has_avx512()) q = member_octants8(X, Y, Z, n, f, gap, oc);
+#endif
 #ifdef __SSE2__
   {
     // Two at a time: the same operations in the same order as the scalar tail (the same bits);

@@ -2,7 +2,8 @@
 // candidates at a time with AVX-512 where the CPU has it, else four with SSE2) against the rule
 // written out one candidate at a time: squared distance (dx^2 + dy^2) + dz^2, kept when <= r^2,
 // inner when also <= in^2, positions ascending; every length of the last, masked block, and
-// candidates exactly on both radii.
+// candidates exactly on both radii. select_box (eight points at a time from the grid's copy
+// with AVX-512) against the same rule over the box's cells in order.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -120,7 +121,7 @@ TEST(CloudSelect, HeightPlaneOfANearlyCollinearSupportIsFittedFromItsMean) {
 
 #ifdef MIEM_SELECT_AVX512
 TEST(CloudSelect, TheAvx512LoopGivesTheScalarPositionsAndBits) {
-  if (!miem::cloud::select_avx512()) GTEST_SKIP() << "this CPU has no AVX-512";
+  if (!miem::detail::has_avx512()) GTEST_SKIP() << "this CPU has no AVX-512";
   std::mt19937 rng(13);
   const double r = 0.75, in = 0.5;
   const Eigen::Vector3d p(0.25, -0.125, 0.0625);
@@ -149,6 +150,49 @@ TEST(CloudSelect, TheAvx512LoopGivesTheScalarPositionsAndBits) {
     EXPECT_EQ(b.m, mi) << "n " << n;
   }
 }
+
 #endif
+
+TEST(CloudSelect, SelectBoxGivesTheRuleOverTheBoxsCellsInOrder) {
+  // Cells of 0 to 20 points (every length of the last block of eight), a third of the points
+  // exactly r from p along an axis (on the radius), and p on and off the grid's points.
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(0.0, 4.0);
+  std::uniform_int_distribution<int> per(0, 20);
+  std::vector<double> xyz;
+  const double r = 0.5;
+  for (int cx = 0; cx < 8; ++cx) {
+    for (int cy = 0; cy < 8; ++cy) {
+      const int m = per(rng);
+      for (int k = 0; k < m; ++k) {
+        xyz.insert(xyz.end(), {0.5 * cx + u(rng) / 8.0, 0.5 * cy + u(rng) / 8.0, u(rng) / 16.0});
+      }
+    }
+  }
+  const std::ptrdiff_t N = static_cast<std::ptrdiff_t>(xyz.size() / 3);
+  const miem::PointsView<double> view{xyz.data(), N, 3, 1};
+  const miem::NeighborGrid<double> grid(view, r, 1);
+  for (std::ptrdiff_t i = 0; i < N; i += 7) {
+    for (const Eigen::Vector3d& p : {view[i], Eigen::Vector3d(view[i] + Eigen::Vector3d(r, 0, 0))}) {
+      const miem::CellBox box = grid.box_around(p, p, r);
+      Selection s;
+      miem::cloud::select_box(grid, box, p, r * r, s);
+      std::size_t m = 0;
+      grid.for_each_cell(box, [&](std::ptrdiff_t cell) {
+        for (std::uint32_t k = grid.cell_begin(cell); k < grid.cell_begin(cell + 1); ++k) {
+          const Eigen::Vector3d w = grid.sorted_point(k) - p;
+          const double d2 = w.x() * w.x() + w.y() * w.y() + w.z() * w.z();
+          if (!(d2 <= r * r)) continue;
+          ASSERT_LT(m, s.n);
+          EXPECT_EQ(s.id[m], grid.order()[k]);
+          EXPECT_TRUE(same_bits(s.wx[m], w.x()) && same_bits(s.wy[m], w.y()) &&
+                      same_bits(s.wz[m], w.z()) && same_bits(s.d2[m], d2));
+          ++m;
+        }
+      });
+      EXPECT_EQ(s.n, m);
+    }
+  }
+}
 
 }  // namespace

@@ -164,6 +164,9 @@ class NeighborGrid {
   std::uint32_t cell_begin(std::ptrdiff_t cell) const { return starts_[cell]; }
   /// Point indices sorted by cell key, ascending within a cell (num_indexed() values).
   const std::uint32_t* order() const { return order_.data(); }
+  /// The grid's cell-ordered copy of the points: x, y, z of the point at position k of order()
+  /// at 3 k, 3 k + 1, 3 k + 2 (num_indexed() points).
+  const T* sorted_xyz() const { return sorted_.data(); }
   /// The point at position k of order(), from the grid's cell-ordered copy (contiguous reads).
   Eigen::Vector3d sorted_point(std::uint32_t k) const {
     const T* p = sorted_.data() + 3 * static_cast<std::size_t>(k);
