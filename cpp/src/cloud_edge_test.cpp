@@ -553,6 +553,9 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
   // bit s: scale s has a frame; bit 2 + s: scale s's frame was fitted (or found impossible)
   std::vector<std::uint8_t> framed(cand.size(), 0);
   std::vector<std::uint8_t> verdict(cand.size(), 0);
+  // the candidate's last judgment found P level at the narrow scale (and did not ask the wide)
+  std::vector<std::uint8_t> level_at(cand.size(), 0);
+  const double near2 = e.r_edge * e.r_edge * (1.0 + 1e-9);
   // Candidate c's verdict at point p on the labels: ABNORMAL at either scale; the wide one is
   // asked only when the narrow one neither flags P nor finds it level (SPEC step 7).
   auto judge = [&](std::uint32_t c, const Eigen::Vector3d& p, JudgeScratch& js) {
@@ -579,6 +582,7 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
                                          js.cell.batch, nullptr, veto);
       }
     }
+    level_at[c] = level;  // (the narrow scale's: the wide one gives none)
     return flag;
   };
   {
@@ -627,20 +631,28 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
       fresh.push_back(i);
     }
     if (fresh.empty()) break;
-    // Only the candidates with a new ABNORMAL point within the wide radius can change.
+    // Only the candidates with a new ABNORMAL point within the wide radius can change; of
+    // those whose narrow scale found P level (the wide one not asked), only the ones with such
+    // a point within the narrow radius (their narrow ball's labels changed; its frame is kept):
+    // mark bit 1 within r_wide, bit 2 within r_edge (a relative 1e-9 wider than select_box's
+    // test, so that no rounding leaves one out).
     todo.clear();
     for (std::uint32_t u : fresh) {
-      grid.for_each_in_radius(points[u], r_wide, [&](std::ptrdiff_t j, double) {
+      grid.for_each_in_radius(points[u], r_wide, [&](std::ptrdiff_t j, double d2) {
         const auto it = std::lower_bound(cand.begin(), cand.end(), static_cast<std::uint32_t>(j));
         if (it == cand.end() || *it != static_cast<std::uint32_t>(j)) return;
         const std::size_t c = static_cast<std::size_t>(it - cand.begin());
-        if ((framed[c] & 3u) && !mark[c]) {
-          mark[c] = 1;
-          todo.push_back(static_cast<std::uint32_t>(c));
-        }
+        if (!(framed[c] & 3u)) return;
+        if (!mark[c]) todo.push_back(static_cast<std::uint32_t>(c));
+        mark[c] |= d2 <= near2 ? 3 : 1;
       });
     }
-    for (std::uint32_t c : todo) mark[c] = 0;
+    std::size_t kept = 0;
+    for (std::uint32_t c : todo) {
+      if ((mark[c] & 2) || !level_at[c]) todo[kept++] = c;
+      mark[c] = 0;
+    }
+    todo.resize(kept);
     std::sort(todo.begin(), todo.end());
   }
   return passes;
