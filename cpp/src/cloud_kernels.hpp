@@ -192,14 +192,29 @@ __attribute__((target("avx512f,avx512vl"))) inline void select8(
   }
 }
 
+// 8 values from q (the lanes of `live`; 0 in the others, nothing read there) as doubles into
+// v (float: exactly).
+__attribute__((target("avx512f,avx512vl"))) inline void load8(const double* q, __mmask8 live,
+                                                              __m512d& v) {
+  v = live == 0xFF ? _mm512_loadu_pd(q) : _mm512_maskz_loadu_pd(live, q);
+}
+__attribute__((target("avx512f,avx512vl"))) inline void load8(const float* q, __mmask8 live,
+                                                              __m512d& v) {
+  const __m256 f = live == 0xFF ? _mm256_loadu_ps(q) : _mm256_maskz_loadu_ps(live, q);
+  v = _mm512_maskz_cvtps_pd(0xFF, f);  // (maskz: GCC 12 warns of the plain form's undefined source)
+}
+
 // select_box's loop over positions [b, e) of the grid's cell-ordered copy `xyz` (x, y, z of
-// position k at 3 k), eight points at a time: each point's offset from (px, py, pz) and squared
-// distance (the scalar loop's operations in its order: the same bits), and those within r2
+// position k at 3 k; float or double, taken as double), eight points at a time: each point's
+// offset from (px, py, pz) and squared distance (the scalar loop's operations in its order: the
+// same bits), and those within r2
 // appended to s.wx, wy, wz, d2 and (order[k]) s.id from m on, in order, by register compresses
 // and full stores (room for 8 entries past the last kept one). Returns the new count.
+template <typename T>
 __attribute__((target("avx512f,avx512vl"))) inline std::size_t select_run8(
-    const double* xyz, const std::uint32_t* order, std::uint32_t b, std::uint32_t e, double px,
+    const T* xyz, const std::uint32_t* order, std::uint32_t b, std::uint32_t e, double px,
     double py, double pz, double r2, Selection& s, std::size_t m) {
+
   const __m512d vpx = _mm512_set1_pd(px), vpy = _mm512_set1_pd(py), vpz = _mm512_set1_pd(pz);
   const __m512d vr2 = _mm512_set1_pd(r2);
   // de-interleaving x, y, z of 8 points from three vectors of 8 values
@@ -216,21 +231,16 @@ __attribute__((target("avx512f,avx512vl"))) inline std::size_t select_run8(
   std::uint32_t* id = s.id.data();
   for (std::uint32_t k = b; k < e; k += 8) {
     const std::uint32_t n = std::min<std::uint32_t>(8, e - k);
-    const double* q = xyz + 3 * static_cast<std::size_t>(k);
+    const T* q = xyz + 3 * static_cast<std::size_t>(k);
+    // 3 n values (the last block: masked loads, nothing read past them)
+    const unsigned t = 3 * n;
+    const auto lanes = [](unsigned c) {
+      return static_cast<__mmask8>(c >= 8 ? 0xFF : (1u << c) - 1u);
+    };
     __m512d v0, v1, v2;
-    if (n == 8) {
-      v0 = _mm512_loadu_pd(q);
-      v1 = _mm512_loadu_pd(q + 8);
-      v2 = _mm512_loadu_pd(q + 16);
-    } else {  // 3 n < 24 values: masked loads (nothing read past them)
-      const unsigned t = 3 * n;
-      const auto lanes = [](unsigned c) {
-        return static_cast<__mmask8>(c >= 8 ? 0xFF : (1u << c) - 1u);
-      };
-      v0 = _mm512_maskz_loadu_pd(lanes(t), q);
-      v1 = _mm512_maskz_loadu_pd(lanes(t > 8 ? t - 8 : 0), q + 8);
-      v2 = _mm512_maskz_loadu_pd(lanes(t > 16 ? t - 16 : 0), q + 16);
-    }
+    load8(q, lanes(t), v0);
+    load8(q + 8, lanes(t > 8 ? t - 8 : 0), v1);
+    load8(q + 16, lanes(t > 16 ? t - 16 : 0), v2);
     const __m512d x = _mm512_permutex2var_pd(_mm512_permutex2var_pd(v0, ix0, v1), ix1, v2);
     const __m512d y = _mm512_permutex2var_pd(_mm512_permutex2var_pd(v0, iy0, v1), iy1, v2);
     const __m512d z = _mm512_permutex2var_pd(_mm512_permutex2var_pd(v0, iz0, v1), iz1, v2);
@@ -359,8 +369,8 @@ inline void select(const Gather& g, const Eigen::Vector3d& p, double r2, std::in
 
 // select(gather_box(box, every), p, r2, -1) without the gather: the points of `box` within r of
 // p, straight from the grid's cell-ordered copy, in cell-key order; the same offsets, squared
-// distances (the same operations) and order. Fills wx, wy, wz, d2, id. A float64 grid's cells
-// eight points at a time where the CPU has AVX-512 (select_run8).
+// distances (the same operations) and order. Fills wx, wy, wz, d2, id. The cells' points eight
+// at a time where the CPU has AVX-512 (select_run8).
 template <typename T>
 void select_box(const NeighborGrid<T>& grid, const CellBox& box, const Eigen::Vector3d& p,
                 double r2, Selection& s) {
@@ -368,16 +378,14 @@ void select_box(const NeighborGrid<T>& grid, const CellBox& box, const Eigen::Ve
   const double px = p.x(), py = p.y(), pz = p.z();
   std::size_t m = 0;
 #ifdef MIEM_SELECT_AVX512
-  if constexpr (std::is_same_v<T, double>) {
-    if (detail::has_avx512()) {
-      grid.for_each_cell(box, [&](std::ptrdiff_t cell) {
-        const std::uint32_t b = grid.cell_begin(cell), e = grid.cell_begin(cell + 1);
-        s.reserve(m + (e - b) + 8);  // (select_run8 stores 8 entries at a time)
-        m = select_run8(grid.sorted_xyz(), order, b, e, px, py, pz, r2, s, m);
-      });
-      s.n = m;
-      return;
-    }
+  if (detail::has_avx512()) {
+    grid.for_each_cell(box, [&](std::ptrdiff_t cell) {
+      const std::uint32_t b = grid.cell_begin(cell), e = grid.cell_begin(cell + 1);
+      s.reserve(m + (e - b) + 8);  // (select_run8 stores 8 entries at a time)
+      m = select_run8(grid.sorted_xyz(), order, b, e, px, py, pz, r2, s, m);
+    });
+    s.n = m;
+    return;
   }
 #endif
   grid.for_each_cell(box, [&](std::ptrdiff_t cell) {

@@ -153,27 +153,32 @@ TEST(CloudSelect, TheAvx512LoopGivesTheScalarPositionsAndBits) {
 
 #endif
 
-TEST(CloudSelect, SelectBoxGivesTheRuleOverTheBoxsCellsInOrder) {
+// select_box on a grid of T against the rule over the box's cells in order.
+template <typename T>
+void check_select_box() {
   // Cells of 0 to 20 points (every length of the last block of eight), a third of the points
   // exactly r from p along an axis (on the radius), and p on and off the grid's points.
   std::mt19937 rng(5);
   std::uniform_real_distribution<double> u(0.0, 4.0);
   std::uniform_int_distribution<int> per(0, 20);
-  std::vector<double> xyz;
+  std::vector<T> xyz;
   const double r = 0.5;
   for (int cx = 0; cx < 8; ++cx) {
     for (int cy = 0; cy < 8; ++cy) {
       const int m = per(rng);
       for (int k = 0; k < m; ++k) {
-        xyz.insert(xyz.end(), {0.5 * cx + u(rng) / 8.0, 0.5 * cy + u(rng) / 8.0, u(rng) / 16.0});
+        xyz.push_back(static_cast<T>(0.5 * cx + u(rng) / 8.0));
+        xyz.push_back(static_cast<T>(0.5 * cy + u(rng) / 8.0));
+        xyz.push_back(static_cast<T>(u(rng) / 16.0));
       }
     }
   }
   const std::ptrdiff_t N = static_cast<std::ptrdiff_t>(xyz.size() / 3);
-  const miem::PointsView<double> view{xyz.data(), N, 3, 1};
-  const miem::NeighborGrid<double> grid(view, r, 1);
+  const miem::PointsView<T> view{xyz.data(), N, 3, 1};
+  const miem::NeighborGrid<T> grid(view, r, 1);
   for (std::ptrdiff_t i = 0; i < N; i += 7) {
-    for (const Eigen::Vector3d& p : {view[i], Eigen::Vector3d(view[i] + Eigen::Vector3d(r, 0, 0))}) {
+    const Eigen::Vector3d q = view[i];
+    for (const Eigen::Vector3d& p : {q, Eigen::Vector3d(q + Eigen::Vector3d(r, 0, 0))}) {
       const miem::CellBox box = grid.box_around(p, p, r);
       Selection s;
       miem::cloud::select_box(grid, box, p, r * r, s);
@@ -193,6 +198,11 @@ TEST(CloudSelect, SelectBoxGivesTheRuleOverTheBoxsCellsInOrder) {
       EXPECT_EQ(s.n, m);
     }
   }
+}
+
+TEST(CloudSelect, SelectBoxGivesTheRuleOverTheBoxsCellsInOrder) {
+  check_select_box<double>();
+  check_select_box<float>();
 }
 
 }  // namespace
