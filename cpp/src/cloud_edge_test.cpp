@@ -338,8 +338,8 @@ bool is_lip(const Selection& ball, const std::uint8_t* oct, const std::uint8_t* 
     if (c != kNormal && c != kEdge) return;
     const Eigen::Vector3d w(wx, wy, wz);
     const double a = detail::dot3(w, f.e1), b = detail::dot3(w, f.e2);
-    for (unsigned todo = raised; todo != 0; todo &= todo - 1) {
-      const int s = __builtin_ctz(todo);
+    for (unsigned left = raised; left != 0; left &= left - 1) {
+      const int s = __builtin_ctz(left);
       const int t = bisector(turned(s, 4));
       const double along = kTurnCos[t] * a + kTurnSin[t] * b;
       const double across = kTurnCos[t] * b - kTurnSin[t] * a;

@@ -207,14 +207,13 @@ __attribute__((target("avx512f,avx512vl"))) inline void load8(const float* q, __
 // select_box's loop over positions [b, e) of the grid's cell-ordered copy `xyz` (x, y, z of
 // position k at 3 k; float or double, taken as double), eight points at a time: each point's
 // offset from (px, py, pz) and squared distance (the scalar loop's operations in its order: the
-// same bits), and those within r2
-// appended to s.wx, wy, wz, d2 and (order[k]) s.id from m on, in order, by register compresses
-// and full stores (room for 8 entries past the last kept one). Returns the new count.
+// same bits), and those within r2 appended to s.wx, wy, wz, d2 and (order[k]) s.id from m on,
+// in order, by register compresses and full stores (room for 8 entries past the last kept one).
+// Returns the new count.
 template <typename T>
 __attribute__((target("avx512f,avx512vl"))) inline std::size_t select_run8(
     const T* xyz, const std::uint32_t* order, std::uint32_t b, std::uint32_t e, double px,
     double py, double pz, double r2, Selection& s, std::size_t m) {
-
   const __m512d vpx = _mm512_set1_pd(px), vpy = _mm512_set1_pd(py), vpz = _mm512_set1_pd(pz);
   const __m512d vr2 = _mm512_set1_pd(r2);
   // de-interleaving x, y, z of 8 points from three vectors of 8 values

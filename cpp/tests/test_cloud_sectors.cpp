@@ -1,7 +1,7 @@
 // The cloud edge test's sector membership (cpp/src/cloud_sectors.hpp): the octant of a tangent
 // offset by geometry, and member_octants (eight at a time with AVX-512 where the CPU has it,
-// else two with SSE2) equal to the scalar rule on
-// wedge boundaries, signed zeros, subnormals, infinities and NaN.
+// else two with SSE2) equal to the scalar rule on wedge boundaries, signed zeros, subnormals,
+// infinities and NaN.
 #include <gtest/gtest.h>
 
 #include <cmath>

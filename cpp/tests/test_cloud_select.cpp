@@ -150,14 +150,13 @@ TEST(CloudSelect, TheAvx512LoopGivesTheScalarPositionsAndBits) {
     EXPECT_EQ(b.m, mi) << "n " << n;
   }
 }
-
 #endif
 
 // select_box on a grid of T against the rule over the box's cells in order.
 template <typename T>
 void check_select_box() {
-  // Cells of 0 to 20 points (every length of the last block of eight), a third of the points
-  // exactly r from p along an axis (on the radius), and p on and off the grid's points.
+  // Cells of 0 to 20 points (every length of the last block of eight); p on a grid point and
+  // r beyond one, so that boxes hold whole cells, cut cells and empty ones.
   std::mt19937 rng(5);
   std::uniform_real_distribution<double> u(0.0, 4.0);
   std::uniform_int_distribution<int> per(0, 20);
