@@ -553,8 +553,12 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
   // bit s: scale s has a frame; bit 2 + s: scale s's frame was fitted (or found impossible)
   std::vector<std::uint8_t> framed(cand.size(), 0);
   std::vector<std::uint8_t> verdict(cand.size(), 0);
-  // the candidate's last judgment found P level at the narrow scale (and did not ask the wide)
-  std::vector<std::uint8_t> level_at(cand.size(), 0);
+  // The narrow scale's last verdict on the candidate (it did not flag P, or P would not be
+  // judged again): whether P was level (the wide scale not asked) and its level_vetoes; and
+  // whether the next judgment may take them as they are (no label within the narrow radius
+  // changed since).
+  std::vector<std::uint8_t> level_at(cand.size(), 0), narrow_kept(cand.size(), 0);
+  std::vector<std::uint16_t> veto_at(cand.size(), 0);
   const double near2 = e.r_edge * e.r_edge * (1.0 + 1e-9);
   // Candidate c's verdict at point p on the labels: ABNORMAL at either scale; the wide one is
   // asked only when the narrow one neither flags P nor finds it level (SPEC step 7).
@@ -563,7 +567,12 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
     bool flag = false, level = false;
     unsigned veto = 0;
     const double pfloor = e.prec * p.cwiseAbs().maxCoeff();  // (P as given)
-    for (int s = 0; s < 2 && !flag && !level; ++s) {
+    int s = 0;
+    if (narrow_kept[c]) {  // the narrow verdict as before: not level, its vetoes
+      veto = veto_at[c];
+      s = 1;
+    }
+    for (; s < 2 && !flag && !level; ++s) {
       select_box(grid, grid.box_around(p, p, reach[s]), p, reach[s] * reach[s], *ball[s]);
       Frame& f = frame[2 * c + s];
       if (!(framed[c] >> (2 + s) & 1u)) {
@@ -583,6 +592,7 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
       }
     }
     level_at[c] = level;  // (the narrow scale's: the wide one gives none)
+    veto_at[c] = static_cast<std::uint16_t>(veto);
     return flag;
   };
   {
@@ -633,9 +643,10 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
     if (fresh.empty()) break;
     // Only the candidates with a new ABNORMAL point within the wide radius can change; of
     // those whose narrow scale found P level (the wide one not asked), only the ones with such
-    // a point within the narrow radius (their narrow ball's labels changed; its frame is kept):
-    // mark bit 1 within r_wide, bit 2 within r_edge (a relative 1e-9 wider than select_box's
-    // test, so that no rounding leaves one out).
+    // a point within the narrow radius (their narrow ball's labels changed; its frame is kept);
+    // the others without one keep their narrow verdict and ask the wide scale again: mark bit 1
+    // within r_wide, bit 2 within r_edge (a relative 1e-9 wider than select_box's test, so that
+    // no rounding leaves one out).
     todo.clear();
     for (std::uint32_t u : fresh) {
       grid.for_each_in_radius(points[u], r_wide, [&](std::ptrdiff_t j, double d2) {
@@ -650,6 +661,7 @@ int cloud_edge_passes(const NeighborGrid<T>& grid, const PointsView<T>& points,
     std::size_t kept = 0;
     for (std::uint32_t c : todo) {
       if ((mark[c] & 2) || !level_at[c]) todo[kept++] = c;
+      narrow_kept[c] = !(mark[c] & 2);  // (read only for those judged: not level)
       mark[c] = 0;
     }
     todo.resize(kept);
