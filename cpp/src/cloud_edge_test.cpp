@@ -333,13 +333,24 @@ bool is_lip(const Selection& ball, const std::uint8_t* oct, const std::uint8_t* 
   std::fill(far, far + kSectors, -kInf);
   std::fill(last, last + kSectors, kInf);
   const double width = kLipStrip * e.r_edge;
-  for_each_member(ball, oct, [&](std::size_t k, int, double wx, double wy, double wz) {
+  // A point lies in the strip along bisector t only from octant t - 1 or t (along > |across|:
+  // within 45 degrees of it); octants t - 2 .. t + 1 are let through (`window`, bit o), so that
+  // rounding at the wedges' edges cannot leave one out.
+  unsigned window[kSectors] = {}, any = 0;
+  for (unsigned left = raised; left != 0; left &= left - 1) {
+    const int s = __builtin_ctz(left), t = bisector(turned(s, 4));
+    for (int d = -2; d <= 1; ++d) window[s] |= 1u << ((t + d + 8) % 8);
+    any |= window[s];
+  }
+  for_each_member(ball, oct, [&](std::size_t k, int o, double wx, double wy, double wz) {
+    if (!(any >> o & 1u)) return;
     const std::uint8_t c = labels[ball.id[k]];
     if (c != kNormal && c != kEdge) return;
     const Eigen::Vector3d w(wx, wy, wz);
     const double a = detail::dot3(w, f.e1), b = detail::dot3(w, f.e2);
     for (unsigned left = raised; left != 0; left &= left - 1) {
       const int s = __builtin_ctz(left);
+      if (!(window[s] >> o & 1u)) continue;
       const int t = bisector(turned(s, 4));
       const double along = kTurnCos[t] * a + kTurnSin[t] * b;
       const double across = kTurnCos[t] * b - kTurnSin[t] * a;
