@@ -378,11 +378,22 @@ void select_box(const NeighborGrid<T>& grid, const CellBox& box, const Eigen::Ve
   std::size_t m = 0;
 #ifdef MIEM_SELECT_AVX512
   if (detail::has_avx512()) {
-    grid.for_each_cell(box, [&](std::ptrdiff_t cell) {
-      const std::uint32_t b = grid.cell_begin(cell), e = grid.cell_begin(cell + 1);
+    // Cells visited one after the other whose indices follow each other hold consecutive
+    // positions: each such run in one call (fewer partial blocks of eight).
+    std::ptrdiff_t c0 = 0, c1 = 0;  // the run of cells [c0, c1)
+    const auto flush = [&] {
+      const std::uint32_t b = grid.cell_begin(c0), e = grid.cell_begin(c1);
       s.reserve(m + (e - b) + 8);  // (select_run8 stores 8 entries at a time)
       m = select_run8(grid.sorted_xyz(), order, b, e, px, py, pz, r2, s, m);
+    };
+    grid.for_each_cell(box, [&](std::ptrdiff_t cell) {
+      if (cell != c1) {
+        if (c1 > c0) flush();
+        c0 = cell;
+      }
+      c1 = cell + 1;
     });
+    if (c1 > c0) flush();
     s.n = m;
     return;
   }
