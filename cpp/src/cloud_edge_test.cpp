@@ -459,10 +459,7 @@ bool cloud_edge_judge(const Selection& ball, const std::uint8_t* labels, const F
   }
   planes.solve();
   const auto plane = [&](int s, LocalPlane* out) {
-    Eigen::Vector3d ev;
-    Eigen::Matrix3d V;
-    planes.eig(at[s], ev, V);
-    return plane_from(sums[s], ev, V, out, support(s));
+    return plane_of(planes, at[s], sums[s], out, support(s));
   };
   LocalPlane lp[kSectors];
   double best = kInf;

@@ -177,13 +177,8 @@ inline bool too_far_from(const Gather& g, const Gather& lines, const Eigen::Vect
     ball_sums(g, p, r2, in2, s, &x, &y);
     selected = true;
   };
-  // plane_of with its eigen_sym3 from the batch
   auto plane = [&](int at, const OffsetSums& sums, bool with_inner, LocalPlane* lp) {
-    if (at < 0) return PlaneStatus::kTooFewPoints;  // fewer than 3 points
-    Eigen::Vector3d ev;
-    Eigen::Matrix3d V;
-    pb.eig(at, ev, V);
-    return plane_from(sums, ev, V, lp, [&](auto&& f) {
+    return plane_of(pb, at, sums, lp, [&](auto&& f) {
       select_again();
       ball_offsets(g, p, s, around, inner, with_inner)(f);
     });

@@ -368,38 +368,23 @@ inline void select(const Gather& g, const Eigen::Vector3d& p, double r2, std::in
 
 // select(gather_box(box, every), p, r2, -1) without the gather: the points of `box` within r of
 // p, straight from the grid's cell-ordered copy, in cell-key order; the same offsets, squared
-// distances (the same operations) and order. Fills wx, wy, wz, d2, id. The cells' points eight
-// at a time where the CPU has AVX-512 (select_run8).
+// distances (the same operations) and order. Fills wx, wy, wz, d2, id. Eight points at a time
+// where the CPU has AVX-512 (select_run8).
 template <typename T>
 void select_box(const NeighborGrid<T>& grid, const CellBox& box, const Eigen::Vector3d& p,
                 double r2, Selection& s) {
   const std::uint32_t* order = grid.order();
   const double px = p.x(), py = p.y(), pz = p.z();
   std::size_t m = 0;
+  // Positions [b, e) of the grid's copy.
+  const auto select_run = [&](std::uint32_t b, std::uint32_t e) {
 #ifdef MIEM_SELECT_AVX512
-  if (detail::has_avx512()) {
-    // Cells visited one after the other whose indices follow each other hold consecutive
-    // positions: each such run in one call (fewer partial blocks of eight).
-    std::ptrdiff_t c0 = 0, c1 = 0;  // the run of cells [c0, c1)
-    const auto flush = [&] {
-      const std::uint32_t b = grid.cell_begin(c0), e = grid.cell_begin(c1);
+    if (detail::has_avx512()) {
       s.reserve(m + (e - b) + 8);  // (select_run8 stores 8 entries at a time)
       m = select_run8(grid.sorted_xyz(), order, b, e, px, py, pz, r2, s, m);
-    };
-    grid.for_each_cell(box, [&](std::ptrdiff_t cell) {
-      if (cell != c1) {
-        if (c1 > c0) flush();
-        c0 = cell;
-      }
-      c1 = cell + 1;
-    });
-    if (c1 > c0) flush();
-    s.n = m;
-    return;
-  }
+      return;
+    }
 #endif
-  grid.for_each_cell(box, [&](std::ptrdiff_t cell) {
-    const std::uint32_t b = grid.cell_begin(cell), e = grid.cell_begin(cell + 1);
     s.reserve(m + (e - b));
     double* __restrict wx = s.wx.data();
     double* __restrict wy = s.wy.data();
@@ -417,7 +402,18 @@ void select_box(const NeighborGrid<T>& grid, const CellBox& box, const Eigen::Ve
       sid[m] = order[k];
       m += static_cast<std::size_t>(d2 <= r2);
     }
+  };
+  // Cells visited one after the other whose indices follow each other hold consecutive
+  // positions: each such run in one go (fewer partial blocks of eight).
+  std::ptrdiff_t c0 = 0, c1 = 0;  // the run of cells [c0, c1)
+  grid.for_each_cell(box, [&](std::ptrdiff_t cell) {
+    if (cell != c1) {
+      if (c1 > c0) select_run(grid.cell_begin(c0), grid.cell_begin(c1));
+      c0 = cell;
+    }
+    c1 = cell + 1;
   });
+  if (c1 > c0) select_run(grid.cell_begin(c0), grid.cell_begin(c1));
   s.n = m;
 }
 
@@ -850,6 +846,18 @@ PlaneStatus plane_of(const OffsetSums& s, LocalPlane* out, Each&& each) {
   Eigen::Vector3d ev;
   Eigen::Matrix3d V;
   eigen_sym3(sums_scatter(s), ev, V, false);
+  return plane_from(s, ev, V, out, std::forward<Each>(each));
+}
+
+// plane_of with the eigen_sym3 of sums_scatter(s) taken from the solved batch `pb`, where it was
+// added at `at` (-1: not added, fewer than 3 points).
+template <typename Each>
+PlaneStatus plane_of(const PlaneBatch& pb, int at, const OffsetSums& s, LocalPlane* out,
+                     Each&& each) {
+  if (at < 0) return PlaneStatus::kTooFewPoints;
+  Eigen::Vector3d ev;
+  Eigen::Matrix3d V;
+  pb.eig(at, ev, V);
   return plane_from(s, ev, V, out, std::forward<Each>(each));
 }
 

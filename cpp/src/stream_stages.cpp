@@ -65,6 +65,7 @@ MIEM_CLONES void pass1_verdicts(std::ptrdiff_t n, const std::uint8_t* __restrict
                                 double quiet_floor, double* height,
                                 std::uint8_t* __restrict quiet, std::uint8_t* __restrict w) {
   detail::store_heights(n, w, okf, F, height);
+  if (!test && quiet_floor < 0.0) return;  // (neither verdict wanted: heights only)
   // Blocks of kB cells: the verdicts (verdict_codes), then the bytes.
   constexpr std::ptrdiff_t kB = 256;
   double code[kB];
