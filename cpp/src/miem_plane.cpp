@@ -1,10 +1,183 @@
 // The MIEM plane (docs/SPEC.md "MIEM plane"): the eigenvalue fit of the finite points that are
 // not ABNORMAL. Per-row moments, merged in a fixed tree order, so the same for any thread count.
+#include <cstring>
+#include <type_traits>
+
 #include "parallel.hpp"
 #include "plane_math.hpp"
 #include "stages.hpp"
+#include "vector_clones.hpp"
 
 namespace miem::detail {
+
+namespace {
+
+// The moments of a dense grid's rows (x, y, z interleaved, rows `rs` values apart) in kLanes
+// partial sums per moment: cell c of a row adds to lane c % kLanes, and the lanes are added
+// in a fixed order at the end: one running sum per moment is a chain of additions at the
+// latency of one per cell (a 2048^2 scan's MIEM plane: 9 ms of the run; in lanes, 6.7).
+// Two passes like two_pass_moments_masked: the mean, then the scatter about it (a block's
+// rows are in cache for the second).
+constexpr int kLanes = 8;
+
+inline bool kept(std::uint8_t l) { return (l == kNormal) | (l == kEdge); }
+
+// The lanes' total in a fixed tree: (0 + 4, 1 + 5, 2 + 6, 3 + 7), then (0 + 2, 1 + 3), then 0 + 1.
+inline double fold_lanes(double* v) {
+  for (int w = kLanes / 2; w > 0; w /= 2)
+    for (int l = 0; l < w; ++l) v[l] += v[l + w];
+  return v[0];
+}
+
+template <typename T, typename CS, typename YS>
+inline __attribute__((always_inline)) Moments lane_moments(const T* __restrict data,
+                                                          std::ptrdiff_t rs, CS cs, YS ys,
+                                                          std::ptrdiff_t rows,
+                                                          const std::uint8_t* __restrict lab,
+                                                          std::ptrdiff_t W) {
+  // visit(l, keep, x, y, z) for each cell in order, l its lane
+  const auto each = [&](auto&& visit) {
+    for (std::ptrdiff_t r = 0; r < rows; ++r) {
+      const T* row = data + r * rs;
+      const std::uint8_t* lb = lab + r * W;
+      for (std::ptrdiff_t c = 0; c < W; ++c) {
+        const T* q = row + cs * c;
+        visit(static_cast<int>(c % kLanes), kept(lb[c]), static_cast<double>(q[0]),
+              static_cast<double>(q[ys]), static_cast<double>(q[2 * ys]));
+      }
+    }
+  };
+  double n[kLanes] = {}, sx[kLanes] = {}, sy[kLanes] = {}, sz[kLanes] = {};
+  each([&](int l, bool k, double x, double y, double z) {
+    n[l] += k ? 1.0 : 0.0;
+    sx[l] += k ? x : 0.0;
+    sy[l] += k ? y : 0.0;
+    sz[l] += k ? z : 0.0;
+  });
+  Moments m;
+  const double cnt = fold_lanes(n);
+  if (cnt == 0.0) return m;
+  m.n = static_cast<std::int64_t>(cnt);
+  m.mean = Eigen::Vector3d(fold_lanes(sx), fold_lanes(sy), fold_lanes(sz)) / cnt;
+  const double mx = m.mean.x(), my = m.mean.y(), mz = m.mean.z();
+  double v[6][kLanes] = {};
+  each([&](int l, bool k, double x, double y, double z) {
+    const double qx = k ? x - mx : 0.0, qy = k ? y - my : 0.0, qz = k ? z - mz : 0.0;
+    v[0][l] += qx * qx, v[1][l] += qx * qy, v[2][l] += qx * qz;
+    v[3][l] += qy * qy, v[4][l] += qy * qz, v[5][l] += qz * qz;
+  });
+  const double xx = fold_lanes(v[0]), xy = fold_lanes(v[1]), xz = fold_lanes(v[2]);
+  const double yy = fold_lanes(v[3]), yz = fold_lanes(v[4]), zz = fold_lanes(v[5]);
+  m.scatter << xx, xy, xz, xy, yy, yz, xz, yz, zz;
+  return m;
+}
+
+#ifdef MIEM_SELECT_AVX512
+// Cells 0 .. 7 at q (interleaved) into x, y, z; returns which are kept (labels lb).
+__attribute__((target("avx512f,avx512vl"), always_inline)) inline __mmask8 load8(
+    const double* q, const std::uint8_t* lb, __m512d& x, __m512d& y, __m512d& z) {
+  // x: a0 a3 a6 b1 b4 b7 | c2 c5; y: a1 a4 a7 b2 b5 | c0 c3 c6; z: a2 a5 b0 b3 b6 | c1 c4 c7
+  const __m512i ix = _mm512_setr_epi64(0, 3, 6, 9, 12, 15, 0, 0);
+  const __m512i iy = _mm512_setr_epi64(1, 4, 7, 10, 13, 0, 0, 0);
+  const __m512i iz = _mm512_setr_epi64(2, 5, 8, 11, 14, 0, 0, 0);
+  const __m512i jx = _mm512_setr_epi64(0, 1, 2, 3, 4, 5, 10, 13);
+  const __m512i jy = _mm512_setr_epi64(0, 1, 2, 3, 4, 8, 11, 14);
+  const __m512i jz = _mm512_setr_epi64(0, 1, 2, 3, 4, 9, 12, 15);
+  const __m512d a = _mm512_loadu_pd(q), b = _mm512_loadu_pd(q + 8), c = _mm512_loadu_pd(q + 16);
+  x = _mm512_permutex2var_pd(_mm512_permutex2var_pd(a, ix, b), jx, c);
+  y = _mm512_permutex2var_pd(_mm512_permutex2var_pd(a, iy, b), jy, c);
+  z = _mm512_permutex2var_pd(_mm512_permutex2var_pd(a, iz, b), jz, c);
+  const __m512i l =
+      _mm512_maskz_cvtepu8_epi64(0xFF, _mm_loadl_epi64(reinterpret_cast<const __m128i*>(lb)));
+  return static_cast<__mmask8>(_mm512_cmpeq_epi64_mask(l, _mm512_set1_epi64(kNormal)) |
+                               _mm512_cmpeq_epi64_mask(l, _mm512_set1_epi64(kEdge)));
+}
+
+// lane_moments of the interleaved layout (x, y, z, x, ...) of doubles in AVX-512: the lanes in
+// one register per moment, 8 cells a step (GCC does not vectorise lane_moments' lanes over
+// the interleaved loads). The same operations per lane in the same order: a cell not kept
+// leaves its lane's sums as they are (adding 0.0 to a sum that starts at +0.0 changes no bit).
+__attribute__((target("avx512f,avx512vl"))) Moments dense_moments_avx512(
+    const double* data, std::ptrdiff_t rs, std::ptrdiff_t rows, const std::uint8_t* lab,
+    std::ptrdiff_t W) {
+  static_assert(kLanes == 8, "one register of lanes");
+  const std::ptrdiff_t W8 = W / 8 * 8;
+  const __m512d one = _mm512_set1_pd(1.0);
+  __m512d n = _mm512_setzero_pd(), sx = n, sy = n, sz = n;
+  double tn[8] = {}, tx[8] = {}, ty[8] = {}, tz[8] = {};  // the rows' last cells
+  for (std::ptrdiff_t r = 0; r < rows; ++r) {
+    const double* row = data + r * rs;
+    const std::uint8_t* lb = lab + r * W;
+    for (std::ptrdiff_t c0 = 0; c0 < W8; c0 += 8) {
+      __m512d x, y, z;
+      const __mmask8 k = load8(row + 3 * c0, lb + c0, x, y, z);
+      n = _mm512_mask_add_pd(n, k, n, one);
+      sx = _mm512_mask_add_pd(sx, k, sx, x);
+      sy = _mm512_mask_add_pd(sy, k, sy, y);
+      sz = _mm512_mask_add_pd(sz, k, sz, z);
+    }
+    if (W8 == W) continue;
+    // lanes 0 .. W - W8 - 1 take the row's last cells, in order after its earlier ones
+    _mm512_storeu_pd(tn, n), _mm512_storeu_pd(tx, sx), _mm512_storeu_pd(ty, sy);
+    _mm512_storeu_pd(tz, sz);
+    for (std::ptrdiff_t c = W8; c < W; ++c) {
+      const double* q = row + 3 * c;
+      const bool k = kept(lb[c]);
+      const int l = static_cast<int>(c - W8);
+      tn[l] += k ? 1.0 : 0.0, tx[l] += k ? q[0] : 0.0, ty[l] += k ? q[1] : 0.0;
+      tz[l] += k ? q[2] : 0.0;
+    }
+    n = _mm512_loadu_pd(tn), sx = _mm512_loadu_pd(tx), sy = _mm512_loadu_pd(ty);
+    sz = _mm512_loadu_pd(tz);
+  }
+  _mm512_storeu_pd(tn, n), _mm512_storeu_pd(tx, sx), _mm512_storeu_pd(ty, sy);
+  _mm512_storeu_pd(tz, sz);
+  Moments m;
+  const double cnt = fold_lanes(tn);
+  if (cnt == 0.0) return m;
+  m.n = static_cast<std::int64_t>(cnt);
+  m.mean = Eigen::Vector3d(fold_lanes(tx), fold_lanes(ty), fold_lanes(tz)) / cnt;
+  const double mx = m.mean.x(), my = m.mean.y(), mz = m.mean.z();
+  const __m512d vmx = _mm512_set1_pd(mx), vmy = _mm512_set1_pd(my), vmz = _mm512_set1_pd(mz);
+  __m512d v[6];
+  for (__m512d& e : v) e = _mm512_setzero_pd();
+  double t[6][8];
+  for (std::ptrdiff_t r = 0; r < rows; ++r) {
+    const double* row = data + r * rs;
+    const std::uint8_t* lb = lab + r * W;
+    for (std::ptrdiff_t c0 = 0; c0 < W8; c0 += 8) {
+      __m512d x, y, z;
+      const __mmask8 k = load8(row + 3 * c0, lb + c0, x, y, z);
+      const __m512d qx = _mm512_maskz_sub_pd(k, x, vmx), qy = _mm512_maskz_sub_pd(k, y, vmy);
+      const __m512d qz = _mm512_maskz_sub_pd(k, z, vmz);
+      v[0] = _mm512_add_pd(v[0], _mm512_mul_pd(qx, qx));
+      v[1] = _mm512_add_pd(v[1], _mm512_mul_pd(qx, qy));
+      v[2] = _mm512_add_pd(v[2], _mm512_mul_pd(qx, qz));
+      v[3] = _mm512_add_pd(v[3], _mm512_mul_pd(qy, qy));
+      v[4] = _mm512_add_pd(v[4], _mm512_mul_pd(qy, qz));
+      v[5] = _mm512_add_pd(v[5], _mm512_mul_pd(qz, qz));
+    }
+    if (W8 == W) continue;
+    for (int e = 0; e < 6; ++e) _mm512_storeu_pd(t[e], v[e]);
+    for (std::ptrdiff_t c = W8; c < W; ++c) {
+      const double* q = row + 3 * c;
+      const bool k = kept(lb[c]);
+      const int l = static_cast<int>(c - W8);
+      const double qx = k ? q[0] - mx : 0.0, qy = k ? q[1] - my : 0.0, qz = k ? q[2] - mz : 0.0;
+      t[0][l] += qx * qx, t[1][l] += qx * qy, t[2][l] += qx * qz;
+      t[3][l] += qy * qy, t[4][l] += qy * qz, t[5][l] += qz * qz;
+    }
+    for (int e = 0; e < 6; ++e) v[e] = _mm512_loadu_pd(t[e]);
+  }
+  for (int e = 0; e < 6; ++e) _mm512_storeu_pd(t[e], v[e]);
+  const double xx = fold_lanes(t[0]), xy = fold_lanes(t[1]), xz = fold_lanes(t[2]);
+  const double yy = fold_lanes(t[3]), yz = fold_lanes(t[4]), zz = fold_lanes(t[5]);
+  m.scatter << xx, xy, xz, xy, yy, yz, xz, yz, zz;
+  return m;
+}
+#endif
+
+}  // namespace
 
 template <typename T>
 std::optional<Plane> miem_plane(const GridView<T>& g, const std::uint8_t* labels,
@@ -18,23 +191,22 @@ std::optional<Plane> miem_plane(const GridView<T>& g, const std::uint8_t* labels
   const std::ptrdiff_t B = (H + per - 1) / per;
   std::vector<Moments>& rows = ws.plane_rows;
   rows.resize(static_cast<std::size_t>(B));
+  const bool dense = g.col_stride == 3 && g.coord_stride == 1;
 #pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
   for (std::ptrdiff_t b = 0; b < B; ++b) {
     const std::ptrdiff_t r0 = b * per, r1 = std::min(H, r0 + per);
-    // nearly every point is kept: the masked form, without a branch per point
-    const Moments m = two_pass_moments_masked([&](auto&& f) {
-      const std::ptrdiff_t cs = g.col_stride, yo = g.coord_stride, zo = 2 * g.coord_stride;
-      for (std::ptrdiff_t r = r0; r < r1; ++r) {
-        const std::uint8_t* lab = labels + r * W;
-        const T* row = g.data + r * g.row_stride;
-        for (std::ptrdiff_t c = 0; c < W; ++c) {
-          const T* q = row + c * cs;
-          f(static_cast<double>(q[0]), static_cast<double>(q[yo]), static_cast<double>(q[zo]),
-            (lab[c] == kNormal) | (lab[c] == kEdge));
-        }
+    const T* d = g.data + r0 * g.row_stride;
+    const std::uint8_t* lb = labels + r0 * W;
+    Moments& m = rows[static_cast<std::size_t>(b)];
+#ifdef MIEM_SELECT_AVX512
+    if constexpr (std::is_same_v<T, double>) {
+      if (dense && has_avx512()) {
+        m = dense_moments_avx512(d, g.row_stride, r1 - r0, lb, W);
+        continue;
       }
-    });
-    rows[static_cast<std::size_t>(b)] = m;
+    }
+#endif
+    m = lane_moments(d, g.row_stride, g.col_stride, g.coord_stride, r1 - r0, lb, W);
   }
   for (std::ptrdiff_t width = 1; width < B; width *= 2)
     for (std::ptrdiff_t b = 0; b + width < B; b += 2 * width) rows[b].merge(rows[b + width]);
