@@ -15,8 +15,50 @@
 
 #include "edge_test.hpp"
 #include "miem/organized.hpp"
+#include "vector_clones.hpp"
 
 namespace miem::detail {
+
+/// out[0] = 0, out[c + 1] = a[0] + ... + a[c] for c < n (integers: any order of the additions
+/// gives the same sums). The serial loop is a chain of one addition per cell; with AVX-512, 16
+/// cells a step (a scan within the register, then the carry).
+inline void prefix_sums_serial(const std::int32_t* __restrict a, std::ptrdiff_t n,
+                               std::int32_t* __restrict out) noexcept {
+  std::int32_t s = 0;
+  out[0] = 0;
+  for (std::ptrdiff_t c = 0; c < n; ++c) out[c + 1] = s += a[c];
+}
+#ifdef MIEM_SELECT_AVX512
+__attribute__((target("avx512f"))) inline void prefix_sums_avx512(
+    const std::int32_t* __restrict a, std::ptrdiff_t n, std::int32_t* __restrict out) noexcept {
+  const __m512i zero = _mm512_setzero_si512(), last = _mm512_set1_epi32(15);
+  __m512i carry = zero;
+  out[0] = 0;
+  std::ptrdiff_t c = 0;
+  for (; c + 16 <= n; c += 16) {
+    __m512i x = _mm512_loadu_si512(a + c);
+    // lane i += lane i - k for k = 1, 2, 4, 8 (alignr with zeros: the lanes shifted up by k)
+    x = _mm512_add_epi32(x, _mm512_maskz_alignr_epi32(0xFFFF, x, zero, 15));
+    x = _mm512_add_epi32(x, _mm512_maskz_alignr_epi32(0xFFFF, x, zero, 14));
+    x = _mm512_add_epi32(x, _mm512_maskz_alignr_epi32(0xFFFF, x, zero, 12));
+    x = _mm512_add_epi32(x, _mm512_maskz_alignr_epi32(0xFFFF, x, zero, 8));
+    x = _mm512_add_epi32(x, carry);
+    _mm512_storeu_si512(out + c + 1, x);
+    carry = _mm512_maskz_permutexvar_epi32(0xFFFF, last, x);
+  }
+  std::int32_t s = out[c];
+  for (; c < n; ++c) out[c + 1] = s += a[c];
+}
+#endif
+inline void prefix_sums(const std::int32_t* a, std::ptrdiff_t n, std::int32_t* out) noexcept {
+#ifdef MIEM_SELECT_AVX512
+  if (has_avx512()) {
+    prefix_sums_avx512(a, n, out);
+    return;
+  }
+#endif
+  prefix_sums_serial(a, n, out);
+}
 
 /// QuietCounts::drop's verdicts along a row, first by the whole window: clears todo[c] of the
 /// cells whose window holds fewer than n_min INVALID or ABNORMAL cells (then so does each half)
@@ -103,12 +145,8 @@ struct QuietCounts {
     if (W < 2 * r + 1) return;
     std::int32_t* __restrict si = pinv;
     std::int32_t* __restrict sb = pbad;
-    std::int32_t ai = 0, ab = 0;  // (the running sums in registers: no store-to-load chain)
-    si[0] = sb[0] = 0;
-    for (std::ptrdiff_t c = 0; c < W; ++c) {
-      ai += inv[c], ab += bad[c];
-      si[c + 1] = ai, sb[c + 1] = ab;
-    }
+    prefix_sums(inv, W, si);
+    prefix_sums(bad, W, sb);
     // the whole window first: nearly every cell's holds fewer than n_min (then so do its
     // halves); only a row with a cell it leaves needs the halves' sums
     if (!quiet_window(W, r, n_min, si, sb, labels, planes, mask, want, todo)) return;

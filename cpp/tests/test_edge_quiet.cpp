@@ -119,4 +119,25 @@ TEST(EdgeQuiet, TheWindowMayHoldNMinWhereNoHalfDoes) {
   EXPECT_EQ(got, brute(s, r));
 }
 
+// prefix_sums (AVX-512 where the CPU has it, 16 cells a step, and the serial loop) against sums
+// added one by one here: every length up to 70 (whole registers and remainders), values of
+// either sign.
+TEST(EdgeQuiet, PrefixSumsAreTheRunningSums) {
+  std::uint32_t seed = 7;
+  for (std::ptrdiff_t n = 0; n <= 70; ++n) {
+    std::vector<std::int32_t> a(static_cast<std::size_t>(n));
+    for (std::int32_t& v : a) {
+      seed = seed * 1664525u + 1013904223u;
+      v = static_cast<std::int32_t>(seed >> 20) - 2048;
+    }
+    std::vector<std::int32_t> want(static_cast<std::size_t>(n + 1), 0);
+    for (std::ptrdiff_t c = 0; c < n; ++c) want[c + 1] = want[c] + a[c];
+    std::vector<std::int32_t> got(static_cast<std::size_t>(n + 1), -1), serial = got;
+    miem::detail::prefix_sums(a.data(), n, got.data());
+    miem::detail::prefix_sums_serial(a.data(), n, serial.data());
+    EXPECT_EQ(got, want) << "n " << n;
+    EXPECT_EQ(serial, want) << "n " << n;
+  }
+}
+
 }  // namespace
