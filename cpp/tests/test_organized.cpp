@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -178,6 +179,43 @@ TEST(Organized, MiemPlaneOfDenseAndStridedGridsIsTheFitOfTheKeptPoints) {
     EXPECT_NEAR(a.eigenvalues(k), es.eigenvalues()(k), 1e-9 * es.eigenvalues()(2));
   }
   EXPECT_NEAR(std::abs(a.normal.dot(es.eigenvectors().col(0))), 1.0, 1e-12);
+}
+
+// Pass 1's finiteness (AVX-512 on a dense double grid, 8 cells a step; the portable loop on a
+// strided view): a cell is INVALID exactly when one of its coordinates is NaN or infinite, at
+// every position of a block of 8 and in a row's last cells (rows of 21: 2 blocks and 5 more).
+TEST(Organized, InvalidCellsAreThoseWithANonFiniteCoordinate) {
+  const std::ptrdiff_t H = 9, W = 21;
+  std::vector<double> g(static_cast<std::size_t>(3 * H * W));
+  for (std::ptrdiff_t r = 0; r < H; ++r)
+    for (std::ptrdiff_t c = 0; c < W; ++c) {
+      double* q = g.data() + 3 * (r * W + c);
+      q[0] = 0.5 * c, q[1] = 0.5 * r, q[2] = 0.01 * ((r * 5 + c * 3) % 7);
+    }
+  const double bad[3] = {std::nan(""), std::numeric_limits<double>::infinity(),
+                         -std::numeric_limits<double>::infinity()};
+  std::vector<std::uint8_t> want(static_cast<std::size_t>(H * W), 0);
+  for (std::ptrdiff_t i = 0; i < H * W; ++i) {
+    if ((i * 7) % 5 != 0) continue;  // 1 cell in 5, at every position of the blocks
+    g[static_cast<std::size_t>(3 * i + i % 3)] = bad[(i / 3) % 3];
+    want[static_cast<std::size_t>(i)] = 1;
+  }
+  std::vector<double> soa(g.size());  // [k][c][r]
+  for (std::ptrdiff_t r = 0; r < H; ++r)
+    for (std::ptrdiff_t c = 0; c < W; ++c)
+      for (int k = 0; k < 3; ++k)
+        soa[static_cast<std::size_t>(k * H * W + c * H + r)] =
+            g[static_cast<std::size_t>((r * W + c) * 3 + k)];
+  const miem::DetectParams p = miem::paper_params();
+  const miem::DetectResult dense =
+      miem::detect_organized(miem::GridView<double>::dense(g.data(), H, W), p);
+  const miem::DetectResult strided =
+      miem::detect_organized(miem::GridView<double>{soa.data(), H, W, 1, H, H * W}, p);
+  for (std::ptrdiff_t i = 0; i < H * W; ++i) {
+    EXPECT_EQ(dense.labels[static_cast<std::size_t>(i)] == miem::kInvalid,
+              want[static_cast<std::size_t>(i)] == 1) << "cell " << i;
+  }
+  EXPECT_EQ(dense.labels, strided.labels);
 }
 
 TEST(Organized, FloatAndDoubleAgreeOnFloatData) {
