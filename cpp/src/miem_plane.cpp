@@ -76,17 +76,7 @@ inline __attribute__((always_inline)) Moments lane_moments(const T* __restrict d
 // Cells 0 .. 7 at q (interleaved) into x, y, z; returns which are kept (labels lb).
 __attribute__((target("avx512f,avx512vl"), always_inline)) inline __mmask8 load8(
     const double* q, const std::uint8_t* lb, __m512d& x, __m512d& y, __m512d& z) {
-  // x: a0 a3 a6 b1 b4 b7 | c2 c5; y: a1 a4 a7 b2 b5 | c0 c3 c6; z: a2 a5 b0 b3 b6 | c1 c4 c7
-  const __m512i ix = _mm512_setr_epi64(0, 3, 6, 9, 12, 15, 0, 0);
-  const __m512i iy = _mm512_setr_epi64(1, 4, 7, 10, 13, 0, 0, 0);
-  const __m512i iz = _mm512_setr_epi64(2, 5, 8, 11, 14, 0, 0, 0);
-  const __m512i jx = _mm512_setr_epi64(0, 1, 2, 3, 4, 5, 10, 13);
-  const __m512i jy = _mm512_setr_epi64(0, 1, 2, 3, 4, 8, 11, 14);
-  const __m512i jz = _mm512_setr_epi64(0, 1, 2, 3, 4, 9, 12, 15);
-  const __m512d a = _mm512_loadu_pd(q), b = _mm512_loadu_pd(q + 8), c = _mm512_loadu_pd(q + 16);
-  x = _mm512_permutex2var_pd(_mm512_permutex2var_pd(a, ix, b), jx, c);
-  y = _mm512_permutex2var_pd(_mm512_permutex2var_pd(a, iy, b), jy, c);
-  z = _mm512_permutex2var_pd(_mm512_permutex2var_pd(a, iz, b), jz, c);
+  load_xyz8(q, x, y, z);
   const __m512i l =
       _mm512_maskz_cvtepu8_epi64(0xFF, _mm_loadl_epi64(reinterpret_cast<const __m128i*>(lb)));
   return static_cast<__mmask8>(_mm512_cmpeq_epi64_mask(l, _mm512_set1_epi64(kNormal)) |
