@@ -43,8 +43,8 @@ constexpr std::int64_t kFlagShift = kPass1FlagShift, kSlowBit = kPass1SlowBit,
 struct Side {
   const double *x1, *y1, *z1, *x2, *y2, *z2;
   const std::int64_t *ok1, *ok2;
-  const std::uint64_t* bits1;
-  std::ptrdiff_t off1;
+  const std::uint64_t *bits1, *bits2;  // (bits2, off2: the second candidates', the same way)
+  std::ptrdiff_t off1, off2;
 };
 
 // 64 bits of a packed row from bit o on (the row has a spare word beyond its last bit).
@@ -113,6 +113,125 @@ MIEM_CLONES void kernel_first(std::ptrdiff_t n, const Side& A, const Side& B,
     bits[c] |= -both & ((-good & bit) | (-flagged & (bit << kFlagShift)) | near_bit);
   }
 }
+
+// One (direction, scale) of the fused kernel: its sides, its direction's bit and near bit.
+struct Pair {
+  Side A, B;
+  std::int64_t bit, near_bit;
+};
+constexpr std::size_t kFusedScales = 4;  // scales the fused kernel takes (more: kernel_line)
+
+#ifdef MIEM_SELECT_AVX512
+// MIEM_FOLD on 8 lanes (found: the lanes with a candidate on both sides): the running best
+// (b_uv, b_prod) and the masks good and flagged. The same operations in the same order (no
+// contraction), so the same bits.
+struct Fold8 {
+  __mmask8 good, flagged;
+};
+__attribute__((target("avx512f,avx512vl"), always_inline)) inline Fold8 fold8(
+    __mmask8 found, __m512d ux, __m512d uy, __m512d uz, __m512d vx, __m512d vy, __m512d vz,
+    bool acute, __m512d vc2, __m512d& b_uv, __m512d& b_prod) {
+  const __m512d zero = _mm512_setzero_pd();
+  const __m512d uu = _mm512_add_pd(
+      _mm512_add_pd(_mm512_mul_pd(ux, ux), _mm512_mul_pd(uy, uy)), _mm512_mul_pd(uz, uz));
+  const __m512d vv = _mm512_add_pd(
+      _mm512_add_pd(_mm512_mul_pd(vx, vx), _mm512_mul_pd(vy, vy)), _mm512_mul_pd(vz, vz));
+  const __m512d uv = _mm512_add_pd(
+      _mm512_add_pd(_mm512_mul_pd(ux, vx), _mm512_mul_pd(uy, vy)), _mm512_mul_pd(uz, vz));
+  const __m512d prod = _mm512_mul_pd(uu, vv);
+  const __mmask8 good = found & _mm512_cmp_pd_mask(uu, zero, _CMP_NEQ_UQ) &
+                        _mm512_cmp_pd_mask(vv, zero, _CMP_NEQ_UQ);
+  // cos_at_least
+  const __mmask8 ge0 = _mm512_cmp_pd_mask(uv, zero, _CMP_GE_OQ);
+  const __m512d uvuv = _mm512_mul_pd(uv, uv), c2p = _mm512_mul_pd(vc2, prod);
+  const __mmask8 cos_ok =
+      acute ? static_cast<__mmask8>(ge0 & _mm512_cmp_pd_mask(uvuv, c2p, _CMP_GE_OQ))
+            : static_cast<__mmask8>(ge0 | _mm512_cmp_pd_mask(uvuv, c2p, _CMP_LE_OQ));
+  const __m512d lhs = _mm512_mul_pd(_mm512_mul_pd(uv, _mm512_abs_pd(uv)), b_prod);
+  const __m512d rhs = _mm512_mul_pd(_mm512_mul_pd(b_uv, _mm512_abs_pd(b_uv)), prod);
+  const __mmask8 better = good & _mm512_cmp_pd_mask(lhs, rhs, _CMP_GT_OQ);
+  b_uv = _mm512_mask_mov_pd(b_uv, better, uv);
+  b_prod = _mm512_mask_mov_pd(b_prod, better, prod);
+  return Fold8{good, static_cast<__mmask8>(good & cos_ok)};
+}
+
+// MIEM_PICK's offset of one coordinate on 8 lanes (m: those read): the first candidate's where
+// it is usable (o1), else the second's, less the cell's q.
+__attribute__((target("avx512f,avx512vl"), always_inline)) inline __m512d pick8(
+    __mmask8 m, const double* p1, const double* p2, __mmask8 o1, __m512d q) {
+  return _mm512_sub_pd(
+      _mm512_mask_mov_pd(_mm512_maskz_loadu_pd(m, p2), o1, _mm512_maskz_loadu_pd(m, p1)), q);
+}
+
+// kernel_line for every (direction, scale) of a block at once, in AVX-512, 8 lanes a step
+// (pairs[0 .. np) in kernel_line's order): each lane's best pair and bits stay in registers
+// across the pairs, and its own coordinates are loaded once (kernel_line per pair read and
+// wrote them 8 times: a block's rows do not fit in L1, and that traffic set its pace). The
+// usable lanes come from the packed bits. Per lane and pair, as kernel_line: the pair at the
+// first candidates where both are usable (kernel_first), else the search's first usable
+// candidate of each side (MIEM_REST_LANE), so each lane folds the same pairs in the same
+// order: the same bits.
+__attribute__((target("avx512f,avx512vl"))) void kernel_fused_avx512(
+    std::ptrdiff_t n, const Pair* pairs, int np, const double* px, const double* py,
+    const double* pz, double cos0, double c2, std::int64_t gap2, double* buv, double* bprod,
+    std::int64_t* bits) {
+  const bool acute = cos0 >= 0.0;
+  const __m512d vc2 = _mm512_set1_pd(c2);
+  const __m512i slow_bit = _mm512_set1_epi64(kSlowBit);
+  for (std::ptrdiff_t c = 0; c < n; c += 8) {
+    const __mmask8 lanes = n - c >= 8 ? 0xFF : static_cast<__mmask8>((1u << (n - c)) - 1);
+    const __m512d x = _mm512_maskz_loadu_pd(lanes, px + c);
+    const __m512d y = _mm512_maskz_loadu_pd(lanes, py + c);
+    const __m512d z = _mm512_maskz_loadu_pd(lanes, pz + c);
+    __m512d b_uv = _mm512_maskz_loadu_pd(lanes, buv + c);
+    __m512d b_prod = _mm512_maskz_loadu_pd(lanes, bprod + c);
+    __m512i b = _mm512_maskz_loadu_epi64(lanes, bits + c);
+    for (int k = 0; k < np; ++k) {
+      const Side& A = pairs[k].A;
+      const Side& B = pairs[k].B;
+      const __m512i vbit = _mm512_set1_epi64(pairs[k].bit);
+      const __m512i vflag = _mm512_set1_epi64(pairs[k].bit << kFlagShift);
+      const __m512i vnear = _mm512_set1_epi64(pairs[k].near_bit);
+      const __mmask8 oa1 = static_cast<__mmask8>(bits_at(A.bits1, A.off1 + c));
+      const __mmask8 ob1 = static_cast<__mmask8>(bits_at(B.bits1, B.off1 + c));
+      const __mmask8 both = oa1 & ob1 & lanes;
+      if (both) {  // kernel_first
+        const __m512d ux = _mm512_sub_pd(_mm512_maskz_loadu_pd(both, A.x1 + c), x);
+        const __m512d uy = _mm512_sub_pd(_mm512_maskz_loadu_pd(both, A.y1 + c), y);
+        const __m512d uz = _mm512_sub_pd(_mm512_maskz_loadu_pd(both, A.z1 + c), z);
+        const __m512d vx = _mm512_sub_pd(_mm512_maskz_loadu_pd(both, B.x1 + c), x);
+        const __m512d vy = _mm512_sub_pd(_mm512_maskz_loadu_pd(both, B.y1 + c), y);
+        const __m512d vz = _mm512_sub_pd(_mm512_maskz_loadu_pd(both, B.z1 + c), z);
+        const Fold8 f = fold8(both, ux, uy, uz, vx, vy, vz, acute, vc2, b_uv, b_prod);
+        b = _mm512_mask_or_epi64(b, f.good, b, vbit);
+        b = _mm512_mask_or_epi64(b, f.flagged, b, vflag);
+        b = _mm512_mask_or_epi64(b, both, b, vnear);
+      }
+      const __mmask8 rest = lanes & ~both;
+      if (rest) {  // MIEM_REST_LANE: each side's first usable candidate of the two
+        const __mmask8 oa2 = static_cast<__mmask8>(bits_at(A.bits2, A.off2 + c));
+        const __mmask8 ob2 = static_cast<__mmask8>(bits_at(B.bits2, B.off2 + c));
+        const __m512d ux = pick8(rest, A.x1 + c, A.x2 + c, oa1, x);
+        const __m512d uy = pick8(rest, A.y1 + c, A.y2 + c, oa1, y);
+        const __m512d uz = pick8(rest, A.z1 + c, A.z2 + c, oa1, z);
+        const __m512d vx = pick8(rest, B.x1 + c, B.x2 + c, ob1, x);
+        const __m512d vy = pick8(rest, B.y1 + c, B.y2 + c, ob1, y);
+        const __m512d vz = pick8(rest, B.z1 + c, B.z2 + c, ob1, z);
+        const __mmask8 aa = oa1 | oa2, ab = ob1 | ob2;
+        const Fold8 f = fold8(rest & aa & ab, ux, uy, uz, vx, vy, vz, acute, vc2, b_uv, b_prod);
+        const __mmask8 slow = gap2 ? static_cast<__mmask8>(rest & ~(aa & ab)) : 0;
+        b = _mm512_mask_or_epi64(b, f.good, b, vbit);
+        b = _mm512_mask_or_epi64(b, f.flagged, b, vflag);
+        b = _mm512_mask_or_epi64(b, slow, b, slow_bit);
+        b = _mm512_mask_or_epi64(b, rest & (aa | ab), b, vnear);
+      }
+    }
+    _mm512_mask_storeu_pd(buv + c, lanes, b_uv);
+    _mm512_mask_storeu_pd(bprod + c, lanes, b_prod);
+    _mm512_mask_storeu_epi64(bits + c, lanes, b);
+  }
+}
+#endif
 
 // Bit c % 64 of rest[c / 64] for each lane c < n whose first candidates are not both usable
 // (n <= 64 kRestWords).
@@ -514,6 +633,11 @@ void pass1_row(const Pass1Ring& ring, std::ptrdiff_t r, const DetectParams& p,
       chunk_gaps[ch] = gaps_before[b] - gaps_before[a];
     }
   }
+#ifdef MIEM_SELECT_AVX512
+  const bool fused = !deep && has_avx512() && p.scales.size() <= kFusedScales;
+#else
+  constexpr bool fused = false;
+#endif
   // Blocks of columns, every (direction, scale) per block: the block's rows stay in L1. The
   // blocks are independent (each writes its own columns): split among num_threads.
   const std::ptrdiff_t n_blocks = (W + kBlock - 1) / kBlock;
@@ -525,6 +649,10 @@ void pass1_row(const Pass1Ring& ring, std::ptrdiff_t r, const DetectParams& p,
     const double *qx = px + b0, *qy = px + S + b0, *qz = px + 2 * S + b0;
     const std::int64_t* near_ok[16];
     int n_near = 0;
+    // without min_step, every (direction, scale) in one pass over the block (pairs, in the
+    // order of the loops below) where the CPU has AVX-512
+    Pair pairs[4 * kFusedScales];
+    int n_pairs = 0;
     for (int k = 0; k < 4; ++k) {
       const int dr = detail::kDirRow[k], dc = detail::kDirCol[k];
       const std::int64_t bit = std::int64_t{1} << k;
@@ -608,12 +736,19 @@ void pass1_row(const Pass1Ring& ring, std::ptrdiff_t r, const DetectParams& p,
         const std::ptrdiff_t s2 = p.max_gap > 0 ? s + 1 : s;  // max_gap 0: one candidate
         const double *a1 = at_x(-1, s), *a2 = at_x(-1, s2);
         const double *b1 = at_x(+1, s), *b2 = at_x(+1, s2);
-        const Side A{a1, a1 + S, a1 + 2 * S, a2, a2 + S, a2 + 2 * S, at_ok(-1, s),
-                     at_ok(-1, s2), slot_bits(r - s * dr), pad + b0 - s * dc};
-        const Side B{b1, b1 + S, b1 + 2 * S, b2, b2 + S, b2 + 2 * S, at_ok(+1, s),
-                     at_ok(+1, s2), slot_bits(r + s * dr), pad + b0 + s * dc};
-        kernel_line(nb, A, B, qx, qy, qz, cos0, c2, gap2, bit, s == 1 ? kNearBit : 0,
-                    buv + b0, bprod + b0, bits + b0);
+        const Side A{a1, a1 + S, a1 + 2 * S, a2, a2 + S, a2 + 2 * S,
+                     at_ok(-1, s), at_ok(-1, s2), slot_bits(r - s * dr), slot_bits(r - s2 * dr),
+                     pad + b0 - s * dc, pad + b0 - s2 * dc};
+        const Side B{b1, b1 + S, b1 + 2 * S, b2, b2 + S, b2 + 2 * S,
+                     at_ok(+1, s), at_ok(+1, s2), slot_bits(r + s * dr), slot_bits(r + s2 * dr),
+                     pad + b0 + s * dc, pad + b0 + s2 * dc};
+        const std::int64_t near_bit = s == 1 ? kNearBit : 0;
+        if (fused) {
+          pairs[n_pairs++] = Pair{A, B, bit, near_bit};
+        } else {
+          kernel_line(nb, A, B, qx, qy, qz, cos0, c2, gap2, bit, near_bit, buv + b0, bprod + b0,
+                      bits + b0);
+        }
       }
       if (!has_scale1) {
         const std::ptrdiff_t s2 = p.max_gap > 0 ? 2 : 1;
@@ -623,6 +758,12 @@ void pass1_row(const Pass1Ring& ring, std::ptrdiff_t r, const DetectParams& p,
         near_ok[n_near++] = at_ok(+1, s2);
       }
     }
+#ifdef MIEM_SELECT_AVX512
+    if (fused) {
+      kernel_fused_avx512(nb, pairs, n_pairs, qx, qy, qz, cos0, c2, gap2, buv + b0, bprod + b0,
+                          bits + b0);
+    }
+#endif
     if (n_near > 0) near_line(nb, near_ok, n_near, bits + b0);
   });
   const std::int64_t* centre_ok = slot_ok(r);
