@@ -122,15 +122,24 @@ struct Pair {
 constexpr std::size_t kFusedScales = 4;  // scales the fused kernel takes (more: kernel_line)
 
 #ifdef MIEM_SELECT_AVX512
-// MIEM_FOLD on 8 lanes (found: the lanes with a candidate on both sides): the running best
-// (b_uv, b_prod) and the masks good and flagged. The same operations in the same order (no
-// contraction), so the same bits.
+// The running state of 8 lanes in the fused kernel: the cells' coordinates, the best pair
+// (b_uv, b_prod) with its key b_key = b_uv |b_uv| (the product MIEM_FOLD compares, kept
+// instead of recomputed: the same bits), the bits, and which lanes are in the block.
+struct Lanes8 {
+  __m512d x, y, z, b_uv, b_prod, b_key;
+  __m512i b;
+  __mmask8 lanes;
+};
+
+// MIEM_FOLD on 8 lanes (found: the lanes with a candidate on both sides): the running best and
+// the masks good and flagged. The same operations in the same order (no contraction), so the
+// same bits.
 struct Fold8 {
   __mmask8 good, flagged;
 };
 __attribute__((target("avx512f,avx512vl"), always_inline)) inline Fold8 fold8(
     __mmask8 found, __m512d ux, __m512d uy, __m512d uz, __m512d vx, __m512d vy, __m512d vz,
-    bool acute, __m512d vc2, __m512d& b_uv, __m512d& b_prod) {
+    bool acute, __m512d vc2, Lanes8& g) {
   const __m512d zero = _mm512_setzero_pd();
   const __m512d uu = _mm512_add_pd(
       _mm512_add_pd(_mm512_mul_pd(ux, ux), _mm512_mul_pd(uy, uy)), _mm512_mul_pd(uz, uz));
@@ -147,11 +156,13 @@ __attribute__((target("avx512f,avx512vl"), always_inline)) inline Fold8 fold8(
   const __mmask8 cos_ok =
       acute ? static_cast<__mmask8>(ge0 & _mm512_cmp_pd_mask(uvuv, c2p, _CMP_GE_OQ))
             : static_cast<__mmask8>(ge0 | _mm512_cmp_pd_mask(uvuv, c2p, _CMP_LE_OQ));
-  const __m512d lhs = _mm512_mul_pd(_mm512_mul_pd(uv, _mm512_abs_pd(uv)), b_prod);
-  const __m512d rhs = _mm512_mul_pd(_mm512_mul_pd(b_uv, _mm512_abs_pd(b_uv)), prod);
-  const __mmask8 better = good & _mm512_cmp_pd_mask(lhs, rhs, _CMP_GT_OQ);
-  b_uv = _mm512_mask_mov_pd(b_uv, better, uv);
-  b_prod = _mm512_mask_mov_pd(b_prod, better, prod);
+  // better: uv |uv| b_prod > b_uv |b_uv| prod
+  const __m512d key = _mm512_mul_pd(uv, _mm512_abs_pd(uv));
+  const __mmask8 better = good & _mm512_cmp_pd_mask(_mm512_mul_pd(key, g.b_prod),
+                                                    _mm512_mul_pd(g.b_key, prod), _CMP_GT_OQ);
+  g.b_uv = _mm512_mask_mov_pd(g.b_uv, better, uv);
+  g.b_prod = _mm512_mask_mov_pd(g.b_prod, better, prod);
+  g.b_key = _mm512_mask_mov_pd(g.b_key, better, key);
   return Fold8{good, static_cast<__mmask8>(good & cos_ok)};
 }
 
@@ -163,72 +174,89 @@ __attribute__((target("avx512f,avx512vl"), always_inline)) inline __m512d pick8(
       _mm512_mask_mov_pd(_mm512_maskz_loadu_pd(m, p2), o1, _mm512_maskz_loadu_pd(m, p1)), q);
 }
 
-// kernel_line for every (direction, scale) of a block at once, in AVX-512, 8 lanes a step
-// (pairs[0 .. np) in kernel_line's order): each lane's best pair and bits stay in registers
-// across the pairs, and its own coordinates are loaded once (kernel_line per pair read and
-// wrote them 8 times: a block's rows do not fit in L1, and that traffic set its pace). The
-// usable lanes come from the packed bits. Per lane and pair, as kernel_line: the pair at the
-// first candidates where both are usable (kernel_first), else the search's first usable
-// candidate of each side (MIEM_REST_LANE), so each lane folds the same pairs in the same
-// order: the same bits.
+// One pair (direction, scale) on the 8 lanes from column c of the block: kernel_first's fold
+// where both first candidates are usable, MIEM_REST_LANE's elsewhere.
+__attribute__((target("avx512f,avx512vl"), always_inline)) inline void pair8(
+    const Pair& pr, std::ptrdiff_t c, bool acute, __m512d vc2, std::int64_t gap2, Lanes8& g) {
+  const Side& A = pr.A;
+  const Side& B = pr.B;
+  const __m512i vbit = _mm512_set1_epi64(pr.bit);
+  const __m512i vflag = _mm512_set1_epi64(pr.bit << kFlagShift);
+  const __m512i vnear = _mm512_set1_epi64(pr.near_bit);
+  const __mmask8 oa1 = static_cast<__mmask8>(bits_at(A.bits1, A.off1 + c));
+  const __mmask8 ob1 = static_cast<__mmask8>(bits_at(B.bits1, B.off1 + c));
+  const __mmask8 both = oa1 & ob1 & g.lanes;
+  if (both) {  // kernel_first
+    const __m512d ux = _mm512_sub_pd(_mm512_maskz_loadu_pd(both, A.x1 + c), g.x);
+    const __m512d uy = _mm512_sub_pd(_mm512_maskz_loadu_pd(both, A.y1 + c), g.y);
+    const __m512d uz = _mm512_sub_pd(_mm512_maskz_loadu_pd(both, A.z1 + c), g.z);
+    const __m512d vx = _mm512_sub_pd(_mm512_maskz_loadu_pd(both, B.x1 + c), g.x);
+    const __m512d vy = _mm512_sub_pd(_mm512_maskz_loadu_pd(both, B.y1 + c), g.y);
+    const __m512d vz = _mm512_sub_pd(_mm512_maskz_loadu_pd(both, B.z1 + c), g.z);
+    const Fold8 f = fold8(both, ux, uy, uz, vx, vy, vz, acute, vc2, g);
+    g.b = _mm512_mask_or_epi64(g.b, f.good, g.b, vbit);
+    g.b = _mm512_mask_or_epi64(g.b, f.flagged, g.b, vflag);
+    g.b = _mm512_mask_or_epi64(g.b, both, g.b, vnear);
+  }
+  const __mmask8 rest = g.lanes & ~both;
+  if (rest) {  // MIEM_REST_LANE: each side's first usable candidate of the two
+    const __mmask8 oa2 = static_cast<__mmask8>(bits_at(A.bits2, A.off2 + c));
+    const __mmask8 ob2 = static_cast<__mmask8>(bits_at(B.bits2, B.off2 + c));
+    const __m512d ux = pick8(rest, A.x1 + c, A.x2 + c, oa1, g.x);
+    const __m512d uy = pick8(rest, A.y1 + c, A.y2 + c, oa1, g.y);
+    const __m512d uz = pick8(rest, A.z1 + c, A.z2 + c, oa1, g.z);
+    const __m512d vx = pick8(rest, B.x1 + c, B.x2 + c, ob1, g.x);
+    const __m512d vy = pick8(rest, B.y1 + c, B.y2 + c, ob1, g.y);
+    const __m512d vz = pick8(rest, B.z1 + c, B.z2 + c, ob1, g.z);
+    const __mmask8 aa = oa1 | oa2, ab = ob1 | ob2;
+    const Fold8 f = fold8(rest & aa & ab, ux, uy, uz, vx, vy, vz, acute, vc2, g);
+    const __mmask8 slow = gap2 ? static_cast<__mmask8>(rest & ~(aa & ab)) : 0;
+    g.b = _mm512_mask_or_epi64(g.b, f.good, g.b, vbit);
+    g.b = _mm512_mask_or_epi64(g.b, f.flagged, g.b, vflag);
+    g.b = _mm512_mask_or_epi64(g.b, slow, g.b, _mm512_set1_epi64(kSlowBit));
+    g.b = _mm512_mask_or_epi64(g.b, rest & (aa | ab), g.b, vnear);
+  }
+}
+
+__attribute__((target("avx512f,avx512vl"), always_inline)) inline Lanes8 load8(
+    std::ptrdiff_t n, std::ptrdiff_t c, const double* px, const double* py, const double* pz,
+    const double* buv, const double* bprod, const std::int64_t* bits) {
+  Lanes8 g;
+  g.lanes = n - c >= 8 ? 0xFF : (n > c ? static_cast<__mmask8>((1u << (n - c)) - 1) : 0);
+  g.x = _mm512_maskz_loadu_pd(g.lanes, px + c);
+  g.y = _mm512_maskz_loadu_pd(g.lanes, py + c);
+  g.z = _mm512_maskz_loadu_pd(g.lanes, pz + c);
+  g.b_uv = _mm512_maskz_loadu_pd(g.lanes, buv + c);
+  g.b_prod = _mm512_maskz_loadu_pd(g.lanes, bprod + c);
+  g.b_key = _mm512_mul_pd(g.b_uv, _mm512_abs_pd(g.b_uv));
+  g.b = _mm512_maskz_loadu_epi64(g.lanes, bits + c);
+  return g;
+}
+
+__attribute__((target("avx512f,avx512vl"), always_inline)) inline void store8(
+    const Lanes8& g, std::ptrdiff_t c, double* buv, double* bprod, std::int64_t* bits) {
+  _mm512_mask_storeu_pd(buv + c, g.lanes, g.b_uv);
+  _mm512_mask_storeu_pd(bprod + c, g.lanes, g.b_prod);
+  _mm512_mask_storeu_epi64(bits + c, g.lanes, g.b);
+}
+
+// kernel_line for every (direction, scale) of a block at once, in AVX-512 (pairs[0 .. np) in
+// kernel_line's order): each lane's best pair and bits stay in registers across the pairs, and
+// its own coordinates are loaded once (kernel_line per pair read and wrote them 8 times: a
+// block's rows do not fit in L1, and that traffic set its pace). Per lane and pair, as
+// kernel_line: the pair at the first candidates where both are usable (kernel_first), else the
+// search's first usable candidate of each side (MIEM_REST_LANE), so each lane folds the same
+// pairs in the same order: the same bits. The usable lanes come from the packed bits.
 __attribute__((target("avx512f,avx512vl"))) void kernel_fused_avx512(
     std::ptrdiff_t n, const Pair* pairs, int np, const double* px, const double* py,
     const double* pz, double cos0, double c2, std::int64_t gap2, double* buv, double* bprod,
     std::int64_t* bits) {
   const bool acute = cos0 >= 0.0;
   const __m512d vc2 = _mm512_set1_pd(c2);
-  const __m512i slow_bit = _mm512_set1_epi64(kSlowBit);
   for (std::ptrdiff_t c = 0; c < n; c += 8) {
-    const __mmask8 lanes = n - c >= 8 ? 0xFF : static_cast<__mmask8>((1u << (n - c)) - 1);
-    const __m512d x = _mm512_maskz_loadu_pd(lanes, px + c);
-    const __m512d y = _mm512_maskz_loadu_pd(lanes, py + c);
-    const __m512d z = _mm512_maskz_loadu_pd(lanes, pz + c);
-    __m512d b_uv = _mm512_maskz_loadu_pd(lanes, buv + c);
-    __m512d b_prod = _mm512_maskz_loadu_pd(lanes, bprod + c);
-    __m512i b = _mm512_maskz_loadu_epi64(lanes, bits + c);
-    for (int k = 0; k < np; ++k) {
-      const Side& A = pairs[k].A;
-      const Side& B = pairs[k].B;
-      const __m512i vbit = _mm512_set1_epi64(pairs[k].bit);
-      const __m512i vflag = _mm512_set1_epi64(pairs[k].bit << kFlagShift);
-      const __m512i vnear = _mm512_set1_epi64(pairs[k].near_bit);
-      const __mmask8 oa1 = static_cast<__mmask8>(bits_at(A.bits1, A.off1 + c));
-      const __mmask8 ob1 = static_cast<__mmask8>(bits_at(B.bits1, B.off1 + c));
-      const __mmask8 both = oa1 & ob1 & lanes;
-      if (both) {  // kernel_first
-        const __m512d ux = _mm512_sub_pd(_mm512_maskz_loadu_pd(both, A.x1 + c), x);
-        const __m512d uy = _mm512_sub_pd(_mm512_maskz_loadu_pd(both, A.y1 + c), y);
-        const __m512d uz = _mm512_sub_pd(_mm512_maskz_loadu_pd(both, A.z1 + c), z);
-        const __m512d vx = _mm512_sub_pd(_mm512_maskz_loadu_pd(both, B.x1 + c), x);
-        const __m512d vy = _mm512_sub_pd(_mm512_maskz_loadu_pd(both, B.y1 + c), y);
-        const __m512d vz = _mm512_sub_pd(_mm512_maskz_loadu_pd(both, B.z1 + c), z);
-        const Fold8 f = fold8(both, ux, uy, uz, vx, vy, vz, acute, vc2, b_uv, b_prod);
-        b = _mm512_mask_or_epi64(b, f.good, b, vbit);
-        b = _mm512_mask_or_epi64(b, f.flagged, b, vflag);
-        b = _mm512_mask_or_epi64(b, both, b, vnear);
-      }
-      const __mmask8 rest = lanes & ~both;
-      if (rest) {  // MIEM_REST_LANE: each side's first usable candidate of the two
-        const __mmask8 oa2 = static_cast<__mmask8>(bits_at(A.bits2, A.off2 + c));
-        const __mmask8 ob2 = static_cast<__mmask8>(bits_at(B.bits2, B.off2 + c));
-        const __m512d ux = pick8(rest, A.x1 + c, A.x2 + c, oa1, x);
-        const __m512d uy = pick8(rest, A.y1 + c, A.y2 + c, oa1, y);
-        const __m512d uz = pick8(rest, A.z1 + c, A.z2 + c, oa1, z);
-        const __m512d vx = pick8(rest, B.x1 + c, B.x2 + c, ob1, x);
-        const __m512d vy = pick8(rest, B.y1 + c, B.y2 + c, ob1, y);
-        const __m512d vz = pick8(rest, B.z1 + c, B.z2 + c, ob1, z);
-        const __mmask8 aa = oa1 | oa2, ab = ob1 | ob2;
-        const Fold8 f = fold8(rest & aa & ab, ux, uy, uz, vx, vy, vz, acute, vc2, b_uv, b_prod);
-        const __mmask8 slow = gap2 ? static_cast<__mmask8>(rest & ~(aa & ab)) : 0;
-        b = _mm512_mask_or_epi64(b, f.good, b, vbit);
-        b = _mm512_mask_or_epi64(b, f.flagged, b, vflag);
-        b = _mm512_mask_or_epi64(b, slow, b, slow_bit);
-        b = _mm512_mask_or_epi64(b, rest & (aa | ab), b, vnear);
-      }
-    }
-    _mm512_mask_storeu_pd(buv + c, lanes, b_uv);
-    _mm512_mask_storeu_pd(bprod + c, lanes, b_prod);
-    _mm512_mask_storeu_epi64(bits + c, lanes, b);
+    Lanes8 g0 = load8(n, c, px, py, pz, buv, bprod, bits);
+    for (int k = 0; k < np; ++k) pair8(pairs[k], c, acute, vc2, gap2, g0);
+    store8(g0, c, buv, bprod, bits);
   }
 }
 #endif
