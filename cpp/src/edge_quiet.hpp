@@ -19,9 +19,10 @@
 
 namespace miem::detail {
 
-/// out[0] = 0, out[c + 1] = a[0] + ... + a[c] for c < n (integers: any order of the additions
-/// gives the same sums). The serial loop is a chain of one addition per cell; with AVX-512, 16
-/// cells a step (a scan within the register, then the carry).
+/// out[0] = 0, out[c + 1] = a[0] + ... + a[c] for c < n, and the same of b into outb
+/// (integers: any order of the additions gives the same sums). The serial loop is a chain of
+/// one addition per cell; with AVX-512, 16 cells a step (a scan within the register, then the
+/// carry), the two arrays' chains side by side.
 inline void prefix_sums_serial(const std::int32_t* __restrict a, std::ptrdiff_t n,
                                std::int32_t* __restrict out) noexcept {
   std::int32_t s = 0;
@@ -29,35 +30,46 @@ inline void prefix_sums_serial(const std::int32_t* __restrict a, std::ptrdiff_t 
   for (std::ptrdiff_t c = 0; c < n; ++c) out[c + 1] = s += a[c];
 }
 #ifdef MIEM_SELECT_AVX512
-__attribute__((target("avx512f"))) inline void prefix_sums_avx512(
-    const std::int32_t* __restrict a, std::ptrdiff_t n, std::int32_t* __restrict out) noexcept {
-  const __m512i zero = _mm512_setzero_si512(), last = _mm512_set1_epi32(15);
-  __m512i carry = zero;
-  out[0] = 0;
+// One register's scan: lane i += lane i - k for k = 1, 2, 4, 8 (alignr with zeros: the lanes
+// shifted up by k), then the carry (all lanes: the previous register's last sum).
+__attribute__((target("avx512f"), always_inline)) inline __m512i scan16(__m512i x,
+                                                                        __m512i carry) {
+  const __m512i zero = _mm512_setzero_si512();
+  x = _mm512_add_epi32(x, _mm512_maskz_alignr_epi32(0xFFFF, x, zero, 15));
+  x = _mm512_add_epi32(x, _mm512_maskz_alignr_epi32(0xFFFF, x, zero, 14));
+  x = _mm512_add_epi32(x, _mm512_maskz_alignr_epi32(0xFFFF, x, zero, 12));
+  x = _mm512_add_epi32(x, _mm512_maskz_alignr_epi32(0xFFFF, x, zero, 8));
+  return _mm512_add_epi32(x, carry);
+}
+__attribute__((target("avx512f"))) inline void prefix_sums2_avx512(
+    const std::int32_t* __restrict a, const std::int32_t* __restrict b, std::ptrdiff_t n,
+    std::int32_t* __restrict outa, std::int32_t* __restrict outb) noexcept {
+  const __m512i last = _mm512_set1_epi32(15);
+  __m512i ca = _mm512_setzero_si512(), cb = ca;
+  outa[0] = outb[0] = 0;
   std::ptrdiff_t c = 0;
   for (; c + 16 <= n; c += 16) {
-    __m512i x = _mm512_loadu_si512(a + c);
-    // lane i += lane i - k for k = 1, 2, 4, 8 (alignr with zeros: the lanes shifted up by k)
-    x = _mm512_add_epi32(x, _mm512_maskz_alignr_epi32(0xFFFF, x, zero, 15));
-    x = _mm512_add_epi32(x, _mm512_maskz_alignr_epi32(0xFFFF, x, zero, 14));
-    x = _mm512_add_epi32(x, _mm512_maskz_alignr_epi32(0xFFFF, x, zero, 12));
-    x = _mm512_add_epi32(x, _mm512_maskz_alignr_epi32(0xFFFF, x, zero, 8));
-    x = _mm512_add_epi32(x, carry);
-    _mm512_storeu_si512(out + c + 1, x);
-    carry = _mm512_maskz_permutexvar_epi32(0xFFFF, last, x);
+    const __m512i xa = scan16(_mm512_loadu_si512(a + c), ca);
+    const __m512i xb = scan16(_mm512_loadu_si512(b + c), cb);
+    _mm512_storeu_si512(outa + c + 1, xa);
+    _mm512_storeu_si512(outb + c + 1, xb);
+    ca = _mm512_maskz_permutexvar_epi32(0xFFFF, last, xa);
+    cb = _mm512_maskz_permutexvar_epi32(0xFFFF, last, xb);
   }
-  std::int32_t s = out[c];
-  for (; c < n; ++c) out[c + 1] = s += a[c];
+  std::int32_t sa = outa[c], sb = outb[c];
+  for (; c < n; ++c) outa[c + 1] = sa += a[c], outb[c + 1] = sb += b[c];
 }
 #endif
-inline void prefix_sums(const std::int32_t* a, std::ptrdiff_t n, std::int32_t* out) noexcept {
+inline void prefix_sums2(const std::int32_t* a, const std::int32_t* b, std::ptrdiff_t n,
+                         std::int32_t* outa, std::int32_t* outb) noexcept {
 #ifdef MIEM_SELECT_AVX512
   if (has_avx512()) {
-    prefix_sums_avx512(a, n, out);
+    prefix_sums2_avx512(a, b, n, outa, outb);
     return;
   }
 #endif
-  prefix_sums_serial(a, n, out);
+  prefix_sums_serial(a, n, outa);
+  prefix_sums_serial(b, n, outb);
 }
 
 /// QuietCounts::drop's verdicts along a row, first by the whole window: clears todo[c] of the
@@ -145,8 +157,7 @@ struct QuietCounts {
     if (W < 2 * r + 1) return;
     std::int32_t* __restrict si = pinv;
     std::int32_t* __restrict sb = pbad;
-    prefix_sums(inv, W, si);
-    prefix_sums(bad, W, sb);
+    prefix_sums2(inv, bad, W, si, sb);
     // the whole window first: nearly every cell's holds fewer than n_min (then so do its
     // halves); only a row with a cell it leaves needs the halves' sums
     if (!quiet_window(W, r, n_min, si, sb, labels, planes, mask, want, todo)) return;

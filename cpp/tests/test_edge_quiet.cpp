@@ -119,24 +119,26 @@ TEST(EdgeQuiet, TheWindowMayHoldNMinWhereNoHalfDoes) {
   EXPECT_EQ(got, brute(s, r));
 }
 
-// prefix_sums (AVX-512 where the CPU has it, 16 cells a step, and the serial loop) against sums
-// added one by one here: every length up to 70 (whole registers and remainders), values of
-// either sign.
+// prefix_sums2 (AVX-512 where the CPU has it, 16 cells a step, and the serial loop) against
+// sums added one by one here: every length up to 70 (whole registers and remainders), values
+// of either sign, two arrays at once.
 TEST(EdgeQuiet, PrefixSumsAreTheRunningSums) {
   std::uint32_t seed = 7;
   for (std::ptrdiff_t n = 0; n <= 70; ++n) {
-    std::vector<std::int32_t> a(static_cast<std::size_t>(n));
-    for (std::int32_t& v : a) {
+    std::vector<std::int32_t> a(static_cast<std::size_t>(n)), b(a.size());
+    for (std::size_t i = 0; i < a.size(); ++i) {
       seed = seed * 1664525u + 1013904223u;
-      v = static_cast<std::int32_t>(seed >> 20) - 2048;
+      a[i] = static_cast<std::int32_t>(seed >> 20) - 2048;
+      b[i] = static_cast<std::int32_t>(seed & 0xFF) - 100;
     }
-    std::vector<std::int32_t> want(static_cast<std::size_t>(n + 1), 0);
-    for (std::ptrdiff_t c = 0; c < n; ++c) want[c + 1] = want[c] + a[c];
-    std::vector<std::int32_t> got(static_cast<std::size_t>(n + 1), -1), serial = got;
-    miem::detail::prefix_sums(a.data(), n, got.data());
+    std::vector<std::int32_t> wa(static_cast<std::size_t>(n + 1), 0), wb = wa;
+    for (std::ptrdiff_t c = 0; c < n; ++c) wa[c + 1] = wa[c] + a[c], wb[c + 1] = wb[c] + b[c];
+    std::vector<std::int32_t> ga(static_cast<std::size_t>(n + 1), -1), gb = ga, serial = ga;
+    miem::detail::prefix_sums2(a.data(), b.data(), n, ga.data(), gb.data());
     miem::detail::prefix_sums_serial(a.data(), n, serial.data());
-    EXPECT_EQ(got, want) << "n " << n;
-    EXPECT_EQ(serial, want) << "n " << n;
+    EXPECT_EQ(ga, wa) << "n " << n;
+    EXPECT_EQ(gb, wb) << "n " << n;
+    EXPECT_EQ(serial, wa) << "n " << n;
   }
 }
 
