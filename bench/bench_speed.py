@@ -278,6 +278,8 @@ BASES = [
      "masked window planes", "recommended", "recommended"),
     ("1d3f0ed", "2026-12-07, before box_sums' three chains side by side and the height "
      "verdicts without masked loads", "recommended", "recommended"),
+    ("e46544c", "2026-12-07, before the fused AVX-512 pass-1 kernel, the MIEM plane's lane "
+     "sums and pass 1's finiteness and row loads in AVX-512", "recommended", "recommended"),
 ]
 
 
