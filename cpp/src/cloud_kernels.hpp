@@ -216,13 +216,6 @@ __attribute__((target("avx512f,avx512vl"))) inline std::size_t select_run8(
     double py, double pz, double r2, Selection& s, std::size_t m) {
   const __m512d vpx = _mm512_set1_pd(px), vpy = _mm512_set1_pd(py), vpz = _mm512_set1_pd(pz);
   const __m512d vr2 = _mm512_set1_pd(r2);
-  // de-interleaving x, y, z of 8 points from three vectors of 8 values
-  const __m512i ix0 = _mm512_setr_epi64(0, 3, 6, 9, 12, 15, 0, 0);
-  const __m512i ix1 = _mm512_setr_epi64(0, 1, 2, 3, 4, 5, 10, 13);
-  const __m512i iy0 = _mm512_setr_epi64(1, 4, 7, 10, 13, 0, 0, 0);
-  const __m512i iy1 = _mm512_setr_epi64(0, 1, 2, 3, 4, 8, 11, 14);
-  const __m512i iz0 = _mm512_setr_epi64(2, 5, 8, 11, 14, 0, 0, 0);
-  const __m512i iz1 = _mm512_setr_epi64(0, 1, 2, 3, 4, 9, 12, 15);
   double* wx = s.wx.data();
   double* wy = s.wy.data();
   double* wz = s.wz.data();
@@ -240,9 +233,8 @@ __attribute__((target("avx512f,avx512vl"))) inline std::size_t select_run8(
     load8(q, lanes(t), v0);
     load8(q + 8, lanes(t > 8 ? t - 8 : 0), v1);
     load8(q + 16, lanes(t > 16 ? t - 16 : 0), v2);
-    const __m512d x = _mm512_permutex2var_pd(_mm512_permutex2var_pd(v0, ix0, v1), ix1, v2);
-    const __m512d y = _mm512_permutex2var_pd(_mm512_permutex2var_pd(v0, iy0, v1), iy1, v2);
-    const __m512d z = _mm512_permutex2var_pd(_mm512_permutex2var_pd(v0, iz0, v1), iz1, v2);
+    __m512d x, y, z;
+    detail::deinterleave_xyz8(v0, v1, v2, x, y, z);
     const __m512d dx = _mm512_sub_pd(x, vpx), dy = _mm512_sub_pd(y, vpy);
     const __m512d dz = _mm512_sub_pd(z, vpz);
     const __m512d d2 = _mm512_add_pd(_mm512_add_pd(_mm512_mul_pd(dx, dx), _mm512_mul_pd(dy, dy)),

@@ -29,6 +29,22 @@ inline double fold_lanes(double* v) {
   return v[0];
 }
 
+// One cell's terms added to lane l: of the first pass's sums (count, x, y, z), and of the
+// second pass's scatter about the mean m (xx, xy, xz, yy, yz, zz); a cell not kept adds 0.
+inline void add_sums(int l, bool k, double x, double y, double z, double* n, double* sx,
+                     double* sy, double* sz) {
+  n[l] += k ? 1.0 : 0.0;
+  sx[l] += k ? x : 0.0;
+  sy[l] += k ? y : 0.0;
+  sz[l] += k ? z : 0.0;
+}
+inline void add_scatter(int l, bool k, double x, double y, double z, const Eigen::Vector3d& m,
+                        double (*v)[kLanes]) {
+  const double qx = k ? x - m.x() : 0.0, qy = k ? y - m.y() : 0.0, qz = k ? z - m.z() : 0.0;
+  v[0][l] += qx * qx, v[1][l] += qx * qy, v[2][l] += qx * qz;
+  v[3][l] += qy * qy, v[4][l] += qy * qz, v[5][l] += qz * qz;
+}
+
 template <typename T, typename CS, typename YS>
 inline __attribute__((always_inline)) Moments lane_moments(const T* __restrict data,
                                                           std::ptrdiff_t rs, CS cs, YS ys,
@@ -48,24 +64,14 @@ inline __attribute__((always_inline)) Moments lane_moments(const T* __restrict d
     }
   };
   double n[kLanes] = {}, sx[kLanes] = {}, sy[kLanes] = {}, sz[kLanes] = {};
-  each([&](int l, bool k, double x, double y, double z) {
-    n[l] += k ? 1.0 : 0.0;
-    sx[l] += k ? x : 0.0;
-    sy[l] += k ? y : 0.0;
-    sz[l] += k ? z : 0.0;
-  });
+  each([&](int l, bool k, double x, double y, double z) { add_sums(l, k, x, y, z, n, sx, sy, sz); });
   Moments m;
   const double cnt = fold_lanes(n);
   if (cnt == 0.0) return m;
   m.n = static_cast<std::int64_t>(cnt);
   m.mean = Eigen::Vector3d(fold_lanes(sx), fold_lanes(sy), fold_lanes(sz)) / cnt;
-  const double mx = m.mean.x(), my = m.mean.y(), mz = m.mean.z();
   double v[6][kLanes] = {};
-  each([&](int l, bool k, double x, double y, double z) {
-    const double qx = k ? x - mx : 0.0, qy = k ? y - my : 0.0, qz = k ? z - mz : 0.0;
-    v[0][l] += qx * qx, v[1][l] += qx * qy, v[2][l] += qx * qz;
-    v[3][l] += qy * qy, v[4][l] += qy * qz, v[5][l] += qz * qz;
-  });
+  each([&](int l, bool k, double x, double y, double z) { add_scatter(l, k, x, y, z, m.mean, v); });
   const double xx = fold_lanes(v[0]), xy = fold_lanes(v[1]), xz = fold_lanes(v[2]);
   const double yy = fold_lanes(v[3]), yz = fold_lanes(v[4]), zz = fold_lanes(v[5]);
   m.scatter << xx, xy, xz, xy, yy, yz, xz, yz, zz;
@@ -112,10 +118,7 @@ __attribute__((target("avx512f,avx512vl"))) Moments dense_moments_avx512(
     _mm512_storeu_pd(tz, sz);
     for (std::ptrdiff_t c = W8; c < W; ++c) {
       const double* q = row + 3 * c;
-      const bool k = kept(lb[c]);
-      const int l = static_cast<int>(c - W8);
-      tn[l] += k ? 1.0 : 0.0, tx[l] += k ? q[0] : 0.0, ty[l] += k ? q[1] : 0.0;
-      tz[l] += k ? q[2] : 0.0;
+      add_sums(static_cast<int>(c - W8), kept(lb[c]), q[0], q[1], q[2], tn, tx, ty, tz);
     }
     n = _mm512_loadu_pd(tn), sx = _mm512_loadu_pd(tx), sy = _mm512_loadu_pd(ty);
     sz = _mm512_loadu_pd(tz);
@@ -151,11 +154,7 @@ __attribute__((target("avx512f,avx512vl"))) Moments dense_moments_avx512(
     for (int e = 0; e < 6; ++e) _mm512_storeu_pd(t[e], v[e]);
     for (std::ptrdiff_t c = W8; c < W; ++c) {
       const double* q = row + 3 * c;
-      const bool k = kept(lb[c]);
-      const int l = static_cast<int>(c - W8);
-      const double qx = k ? q[0] - mx : 0.0, qy = k ? q[1] - my : 0.0, qz = k ? q[2] - mz : 0.0;
-      t[0][l] += qx * qx, t[1][l] += qx * qy, t[2][l] += qx * qz;
-      t[3][l] += qy * qy, t[4][l] += qy * qz, t[5][l] += qz * qz;
+      add_scatter(static_cast<int>(c - W8), kept(lb[c]), q[0], q[1], q[2], m.mean, t);
     }
     for (int e = 0; e < 6; ++e) v[e] = _mm512_loadu_pd(t[e]);
   }

@@ -26,11 +26,10 @@ inline bool has_avx512() {
   return has;
 }
 
-/// Points 0 .. 7 of an interleaved array (x, y, z, x, ...: 24 doubles at q) as x, y, z
+/// 8 points (x, y, z, x, ...) held in three registers of 8 values each (a, b, c) as x, y, z
 /// registers.
-__attribute__((target("avx512f"), always_inline)) inline void load_xyz8(const double* q,
-                                                                        __m512d& x, __m512d& y,
-                                                                        __m512d& z) {
+__attribute__((target("avx512f"), always_inline)) inline void deinterleave_xyz8(
+    __m512d a, __m512d b, __m512d c, __m512d& x, __m512d& y, __m512d& z) {
   // x: a0 a3 a6 b1 b4 b7 | c2 c5; y: a1 a4 a7 b2 b5 | c0 c3 c6; z: a2 a5 b0 b3 b6 | c1 c4 c7
   const __m512i ix = _mm512_setr_epi64(0, 3, 6, 9, 12, 15, 0, 0);
   const __m512i iy = _mm512_setr_epi64(1, 4, 7, 10, 13, 0, 0, 0);
@@ -38,10 +37,17 @@ __attribute__((target("avx512f"), always_inline)) inline void load_xyz8(const do
   const __m512i jx = _mm512_setr_epi64(0, 1, 2, 3, 4, 5, 10, 13);
   const __m512i jy = _mm512_setr_epi64(0, 1, 2, 3, 4, 8, 11, 14);
   const __m512i jz = _mm512_setr_epi64(0, 1, 2, 3, 4, 9, 12, 15);
-  const __m512d a = _mm512_loadu_pd(q), b = _mm512_loadu_pd(q + 8), c = _mm512_loadu_pd(q + 16);
   x = _mm512_permutex2var_pd(_mm512_permutex2var_pd(a, ix, b), jx, c);
   y = _mm512_permutex2var_pd(_mm512_permutex2var_pd(a, iy, b), jy, c);
   z = _mm512_permutex2var_pd(_mm512_permutex2var_pd(a, iz, b), jz, c);
+}
+
+/// Points 0 .. 7 of an interleaved array of doubles (24 at q) as x, y, z registers.
+__attribute__((target("avx512f"), always_inline)) inline void load_xyz8(const double* q,
+                                                                        __m512d& x, __m512d& y,
+                                                                        __m512d& z) {
+  deinterleave_xyz8(_mm512_loadu_pd(q), _mm512_loadu_pd(q + 8), _mm512_loadu_pd(q + 16), x, y,
+                    z);
 }
 
 /// 8 bytes at p as a mask: bit i set where byte i is not 0.

@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <limits>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Eigenvalues>
@@ -91,17 +92,34 @@ INSTANTIATE_TEST_SUITE_P(Expectations, ReferenceCase,
                          ::testing::Values("spikes", "dropouts", "edges", "min_step", "cascade",
                                            "float32"));
 
+// A dense H x W grid's copy with the coordinates in separate planes, each column-major (cell
+// (r, c)'s coordinate k at k * H * W + c * H + r): a strided view reads it as the same scan.
+std::vector<double> column_major_planes(const std::vector<double>& g, std::ptrdiff_t H,
+                                        std::ptrdiff_t W) {
+  std::vector<double> soa(g.size());
+  for (std::ptrdiff_t r = 0; r < H; ++r)
+    for (std::ptrdiff_t c = 0; c < W; ++c)
+      for (int k = 0; k < 3; ++k)
+        soa[static_cast<std::size_t>(k * H * W + c * H + r)] =
+            g[static_cast<std::size_t>((r * W + c) * 3 + k)];
+  return soa;
+}
+
+// Detection of a dense grid and of the same scan through a strided view of its
+// column_major_planes copy.
+std::pair<miem::DetectResult, miem::DetectResult> dense_and_strided(
+    const std::vector<double>& g, std::ptrdiff_t H, std::ptrdiff_t W, const miem::DetectParams& p) {
+  const std::vector<double> soa = column_major_planes(g, H, W);
+  return {miem::detect_organized(miem::GridView<double>::dense(g.data(), H, W), p),
+          miem::detect_organized(miem::GridView<double>{soa.data(), H, W, 1, H, H * W}, p)};
+}
+
 // The same scan through a strided view (columns-major copy, coordinates in separate planes):
 // the view reads caller memory as it lies, with identical results.
 TEST(Organized, StridedViewEqualsDense) {
   const Expectation e = miem::test::read_expectation(data_path("dropouts"));
   const std::ptrdiff_t H = e.rows, W = e.cols;
-  std::vector<double> soa(static_cast<std::size_t>(3 * H * W));  // [k][c][r]
-  for (std::ptrdiff_t r = 0; r < H; ++r)
-    for (std::ptrdiff_t c = 0; c < W; ++c)
-      for (int k = 0; k < 3; ++k)
-        soa[static_cast<std::size_t>(k * H * W + c * H + r)] =
-            e.grid[static_cast<std::size_t>((r * W + c) * 3 + k)];
+  const std::vector<double> soa = column_major_planes(e.grid, H, W);
   const miem::GridView<double> view{soa.data(), H, W, /*row*/ 1, /*col*/ H, /*coord*/ H * W};
   const miem::DetectResult res = miem::detect_organized(view, e.params);
   check_case(e, res);
@@ -128,17 +146,7 @@ TEST(Organized, MiemPlaneOfDenseAndStridedGridsIsTheFitOfTheKeptPoints) {
       if ((r * 5 + c) % 67 == 0) q[0] = q[1] = q[2] = std::nan("");      // dropouts
     }
   }
-  std::vector<double> soa(g.size());  // [k][c][r]
-  for (std::ptrdiff_t r = 0; r < H; ++r)
-    for (std::ptrdiff_t c = 0; c < W; ++c)
-      for (int k = 0; k < 3; ++k)
-        soa[static_cast<std::size_t>(k * H * W + c * H + r)] =
-            g[static_cast<std::size_t>((r * W + c) * 3 + k)];
-  const miem::DetectParams p = miem::paper_params();
-  const miem::DetectResult dense =
-      miem::detect_organized(miem::GridView<double>::dense(g.data(), H, W), p);
-  const miem::DetectResult strided =
-      miem::detect_organized(miem::GridView<double>{soa.data(), H, W, 1, H, H * W}, p);
+  const auto [dense, strided] = dense_and_strided(g, H, W, miem::paper_params());
   ASSERT_EQ(dense.labels, strided.labels);
   ASSERT_TRUE(dense.summary.plane.has_value() && strided.summary.plane.has_value());
   const miem::Plane &a = *dense.summary.plane, &b = *strided.summary.plane;
@@ -200,17 +208,7 @@ TEST(Organized, InvalidCellsAreThoseWithANonFiniteCoordinate) {
     g[static_cast<std::size_t>(3 * i + i % 3)] = bad[(i / 3) % 3];
     want[static_cast<std::size_t>(i)] = 1;
   }
-  std::vector<double> soa(g.size());  // [k][c][r]
-  for (std::ptrdiff_t r = 0; r < H; ++r)
-    for (std::ptrdiff_t c = 0; c < W; ++c)
-      for (int k = 0; k < 3; ++k)
-        soa[static_cast<std::size_t>(k * H * W + c * H + r)] =
-            g[static_cast<std::size_t>((r * W + c) * 3 + k)];
-  const miem::DetectParams p = miem::paper_params();
-  const miem::DetectResult dense =
-      miem::detect_organized(miem::GridView<double>::dense(g.data(), H, W), p);
-  const miem::DetectResult strided =
-      miem::detect_organized(miem::GridView<double>{soa.data(), H, W, 1, H, H * W}, p);
+  const auto [dense, strided] = dense_and_strided(g, H, W, miem::paper_params());
   for (std::ptrdiff_t i = 0; i < H * W; ++i) {
     EXPECT_EQ(dense.labels[static_cast<std::size_t>(i)] == miem::kInvalid,
               want[static_cast<std::size_t>(i)] == 1) << "cell " << i;
