@@ -1,6 +1,5 @@
 // The MIEM plane (docs/SPEC.md "MIEM plane"): the eigenvalue fit of the finite points that are
 // not ABNORMAL. Per-row moments, merged in a fixed tree order, so the same for any thread count.
-#include <cstring>
 #include <type_traits>
 
 #include "parallel.hpp"
@@ -45,6 +44,22 @@ inline void add_scatter(int l, bool k, double x, double y, double z, const Eigen
   v[3][l] += qy * qy, v[4][l] += qy * qz, v[5][l] += qz * qz;
 }
 
+// The moments' count and mean from the first pass's lanes (n: none kept when their total is 0),
+// and the scatter from the second pass's.
+inline Moments lanes_mean(double* n, double* sx, double* sy, double* sz) {
+  Moments m;
+  const double cnt = fold_lanes(n);
+  if (cnt == 0.0) return m;
+  m.n = static_cast<std::int64_t>(cnt);
+  m.mean = Eigen::Vector3d(fold_lanes(sx), fold_lanes(sy), fold_lanes(sz)) / cnt;
+  return m;
+}
+inline void lanes_scatter(double (*v)[kLanes], Moments& m) {
+  const double xx = fold_lanes(v[0]), xy = fold_lanes(v[1]), xz = fold_lanes(v[2]);
+  const double yy = fold_lanes(v[3]), yz = fold_lanes(v[4]), zz = fold_lanes(v[5]);
+  m.scatter << xx, xy, xz, xy, yy, yz, xz, yz, zz;
+}
+
 template <typename T, typename CS, typename YS>
 inline __attribute__((always_inline)) Moments lane_moments(const T* __restrict data,
                                                           std::ptrdiff_t rs, CS cs, YS ys,
@@ -65,16 +80,11 @@ inline __attribute__((always_inline)) Moments lane_moments(const T* __restrict d
   };
   double n[kLanes] = {}, sx[kLanes] = {}, sy[kLanes] = {}, sz[kLanes] = {};
   each([&](int l, bool k, double x, double y, double z) { add_sums(l, k, x, y, z, n, sx, sy, sz); });
-  Moments m;
-  const double cnt = fold_lanes(n);
-  if (cnt == 0.0) return m;
-  m.n = static_cast<std::int64_t>(cnt);
-  m.mean = Eigen::Vector3d(fold_lanes(sx), fold_lanes(sy), fold_lanes(sz)) / cnt;
+  Moments m = lanes_mean(n, sx, sy, sz);
+  if (m.n == 0) return m;
   double v[6][kLanes] = {};
   each([&](int l, bool k, double x, double y, double z) { add_scatter(l, k, x, y, z, m.mean, v); });
-  const double xx = fold_lanes(v[0]), xy = fold_lanes(v[1]), xz = fold_lanes(v[2]);
-  const double yy = fold_lanes(v[3]), yz = fold_lanes(v[4]), zz = fold_lanes(v[5]);
-  m.scatter << xx, xy, xz, xy, yy, yz, xz, yz, zz;
+  lanes_scatter(v, m);
   return m;
 }
 
@@ -125,11 +135,8 @@ __attribute__((target("avx512f,avx512vl"))) Moments dense_moments_avx512(
   }
   _mm512_storeu_pd(tn, n), _mm512_storeu_pd(tx, sx), _mm512_storeu_pd(ty, sy);
   _mm512_storeu_pd(tz, sz);
-  Moments m;
-  const double cnt = fold_lanes(tn);
-  if (cnt == 0.0) return m;
-  m.n = static_cast<std::int64_t>(cnt);
-  m.mean = Eigen::Vector3d(fold_lanes(tx), fold_lanes(ty), fold_lanes(tz)) / cnt;
+  Moments m = lanes_mean(tn, tx, ty, tz);
+  if (m.n == 0) return m;
   const double mx = m.mean.x(), my = m.mean.y(), mz = m.mean.z();
   const __m512d vmx = _mm512_set1_pd(mx), vmy = _mm512_set1_pd(my), vmz = _mm512_set1_pd(mz);
   __m512d v[6];
@@ -159,9 +166,7 @@ __attribute__((target("avx512f,avx512vl"))) Moments dense_moments_avx512(
     for (int e = 0; e < 6; ++e) v[e] = _mm512_loadu_pd(t[e]);
   }
   for (int e = 0; e < 6; ++e) _mm512_storeu_pd(t[e], v[e]);
-  const double xx = fold_lanes(t[0]), xy = fold_lanes(t[1]), xz = fold_lanes(t[2]);
-  const double yy = fold_lanes(t[3]), yz = fold_lanes(t[4]), zz = fold_lanes(t[5]);
-  m.scatter << xx, xy, xz, xy, yy, yz, xz, yz, zz;
+  lanes_scatter(t, m);
   return m;
 }
 #endif
@@ -180,7 +185,11 @@ std::optional<Plane> miem_plane(const GridView<T>& g, const std::uint8_t* labels
   const std::ptrdiff_t B = (H + per - 1) / per;
   std::vector<Moments>& rows = ws.plane_rows;
   rows.resize(static_cast<std::size_t>(B));
-  const bool dense = g.col_stride == 3 && g.coord_stride == 1;
+#ifdef MIEM_SELECT_AVX512
+  // the interleaved layout of doubles: the AVX-512 loop where the CPU has it
+  const bool avx512 = std::is_same_v<T, double> && g.col_stride == 3 && g.coord_stride == 1 &&
+                      has_avx512();
+#endif
 #pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
   for (std::ptrdiff_t b = 0; b < B; ++b) {
     const std::ptrdiff_t r0 = b * per, r1 = std::min(H, r0 + per);
@@ -189,7 +198,7 @@ std::optional<Plane> miem_plane(const GridView<T>& g, const std::uint8_t* labels
     Moments& m = rows[static_cast<std::size_t>(b)];
 #ifdef MIEM_SELECT_AVX512
     if constexpr (std::is_same_v<T, double>) {
-      if (dense && has_avx512()) {
+      if (avx512) {
         m = dense_moments_avx512(d, g.row_stride, r1 - r0, lb, W);
         continue;
       }

@@ -666,8 +666,9 @@ void pass1_row(const Pass1Ring& ring, std::ptrdiff_t r, const DetectParams& p,
 #else
   constexpr bool fused = false;
 #endif
-  // Blocks of columns, every (direction, scale) per block: the block's rows stay in L1. The
-  // blocks are independent (each writes its own columns): split among num_threads.
+  // Blocks of columns, every (direction, scale) per block (kernel_line one pair at a time over
+  // the block; the fused kernel all pairs for 8 lanes at a time). The blocks are independent
+  // (each writes its own columns): split among num_threads.
   const std::ptrdiff_t n_blocks = (W + kBlock - 1) / kBlock;
   parallel_items(num_threads, n_blocks, [&](std::ptrdiff_t blk, int) {
     const std::ptrdiff_t b0 = blk * kBlock;
