@@ -51,6 +51,7 @@ struct RowScratch {
 struct FitScratch {
   std::vector<double> buf;
   std::vector<std::uint8_t> flags;
+  std::vector<std::ptrdiff_t> tiles;  ///< per tile: wanted cells, last row, end column (thread 0's)
 };
 
 /// Memory for the per-cell buffers below (cpp/src/cell_memory.cpp): blocks of 2 MiB or more are
