@@ -280,6 +280,8 @@ BASES = [
      "verdicts without masked loads", "recommended", "recommended"),
     ("e46544c", "2026-12-07, before the fused AVX-512 pass-1 kernel, the MIEM plane's lane "
      "sums and pass 1's finiteness and row loads in AVX-512", "recommended", "recommended"),
+    ("5c0cd2e", "2026-12-07, before the window fits found each tile's wanted cells band by "
+     "band", "recommended", "recommended"),
 ]
 
 
