@@ -93,80 +93,78 @@ inline __attribute__((always_inline)) Moments lane_moments(const T* __restrict d
 __attribute__((target("avx512f,avx512vl"), always_inline)) inline __mmask8 load8(
     const double* q, const std::uint8_t* lb, __m512d& x, __m512d& y, __m512d& z) {
   load_xyz8(q, x, y, z);
-  const __m512i l =
-      _mm512_maskz_cvtepu8_epi64(0xFF, _mm_loadl_epi64(reinterpret_cast<const __m128i*>(lb)));
+  const __m512i l = bytes8(lb);
   return static_cast<__mmask8>(_mm512_cmpeq_epi64_mask(l, _mm512_set1_epi64(kNormal)) |
                                _mm512_cmpeq_epi64_mask(l, _mm512_set1_epi64(kEdge)));
 }
 
-// lane_moments of the interleaved layout (x, y, z, x, ...) of doubles in AVX-512: the lanes in
-// one register per moment, 8 cells a step (GCC does not vectorise lane_moments' lanes over
-// the interleaved loads). The same operations per lane in the same order: a cell not kept
-// leaves its lane's sums as they are (adding 0.0 to a sum that starts at +0.0 changes no bit).
-__attribute__((target("avx512f,avx512vl"))) Moments dense_moments_avx512(
+// One pass of lane_moments over the interleaved layout (x, y, z, x, ...) of doubles in AVX-512:
+// the lanes in one register per sum, 8 cells a step, a row's last cells (fewer than 8) added
+// to lanes 0 .. in order after its earlier ones. kSums 4: the first pass's (count, x, y, z);
+// 6: the scatter about m. Writes the lanes' sums to t. The same operations per lane in the
+// same order as lane_moments (a cell not kept leaves its lane's sums as they are: adding 0.0
+// to a sum that starts at +0.0 changes no bit).
+template <int kSums>
+__attribute__((target("avx512f,avx512vl"), always_inline)) inline void dense_pass(
     const double* data, std::ptrdiff_t rs, std::ptrdiff_t rows, const std::uint8_t* lab,
-    std::ptrdiff_t W) {
+    std::ptrdiff_t W, const Eigen::Vector3d& m, double (*t)[kLanes]) {
   static_assert(kLanes == 8, "one register of lanes");
   const std::ptrdiff_t W8 = W / 8 * 8;
   const __m512d one = _mm512_set1_pd(1.0);
-  __m512d n = _mm512_setzero_pd(), sx = n, sy = n, sz = n;
-  double tn[8] = {}, tx[8] = {}, ty[8] = {}, tz[8] = {};  // the rows' last cells
-  for (std::ptrdiff_t r = 0; r < rows; ++r) {
-    const double* row = data + r * rs;
-    const std::uint8_t* lb = lab + r * W;
-    for (std::ptrdiff_t c0 = 0; c0 < W8; c0 += 8) {
-      __m512d x, y, z;
-      const __mmask8 k = load8(row + 3 * c0, lb + c0, x, y, z);
-      n = _mm512_mask_add_pd(n, k, n, one);
-      sx = _mm512_mask_add_pd(sx, k, sx, x);
-      sy = _mm512_mask_add_pd(sy, k, sy, y);
-      sz = _mm512_mask_add_pd(sz, k, sz, z);
-    }
-    if (W8 == W) continue;
-    // lanes 0 .. W - W8 - 1 take the row's last cells, in order after its earlier ones
-    _mm512_storeu_pd(tn, n), _mm512_storeu_pd(tx, sx), _mm512_storeu_pd(ty, sy);
-    _mm512_storeu_pd(tz, sz);
-    for (std::ptrdiff_t c = W8; c < W; ++c) {
-      const double* q = row + 3 * c;
-      add_sums(static_cast<int>(c - W8), kept(lb[c]), q[0], q[1], q[2], tn, tx, ty, tz);
-    }
-    n = _mm512_loadu_pd(tn), sx = _mm512_loadu_pd(tx), sy = _mm512_loadu_pd(ty);
-    sz = _mm512_loadu_pd(tz);
-  }
-  _mm512_storeu_pd(tn, n), _mm512_storeu_pd(tx, sx), _mm512_storeu_pd(ty, sy);
-  _mm512_storeu_pd(tz, sz);
-  Moments m = lanes_mean(tn, tx, ty, tz);
-  if (m.n == 0) return m;
-  const double mx = m.mean.x(), my = m.mean.y(), mz = m.mean.z();
-  const __m512d vmx = _mm512_set1_pd(mx), vmy = _mm512_set1_pd(my), vmz = _mm512_set1_pd(mz);
-  __m512d v[6];
+  const __m512d vmx = _mm512_set1_pd(m.x()), vmy = _mm512_set1_pd(m.y());
+  const __m512d vmz = _mm512_set1_pd(m.z());
+  __m512d v[kSums];
   for (__m512d& e : v) e = _mm512_setzero_pd();
-  double t[6][8];
   for (std::ptrdiff_t r = 0; r < rows; ++r) {
     const double* row = data + r * rs;
     const std::uint8_t* lb = lab + r * W;
     for (std::ptrdiff_t c0 = 0; c0 < W8; c0 += 8) {
       __m512d x, y, z;
       const __mmask8 k = load8(row + 3 * c0, lb + c0, x, y, z);
-      const __m512d qx = _mm512_maskz_sub_pd(k, x, vmx), qy = _mm512_maskz_sub_pd(k, y, vmy);
-      const __m512d qz = _mm512_maskz_sub_pd(k, z, vmz);
-      v[0] = _mm512_add_pd(v[0], _mm512_mul_pd(qx, qx));
-      v[1] = _mm512_add_pd(v[1], _mm512_mul_pd(qx, qy));
-      v[2] = _mm512_add_pd(v[2], _mm512_mul_pd(qx, qz));
-      v[3] = _mm512_add_pd(v[3], _mm512_mul_pd(qy, qy));
-      v[4] = _mm512_add_pd(v[4], _mm512_mul_pd(qy, qz));
-      v[5] = _mm512_add_pd(v[5], _mm512_mul_pd(qz, qz));
+      if constexpr (kSums == 4) {
+        v[0] = _mm512_mask_add_pd(v[0], k, v[0], one);
+        v[1] = _mm512_mask_add_pd(v[1], k, v[1], x);
+        v[2] = _mm512_mask_add_pd(v[2], k, v[2], y);
+        v[3] = _mm512_mask_add_pd(v[3], k, v[3], z);
+      } else {
+        const __m512d qx = _mm512_maskz_sub_pd(k, x, vmx), qy = _mm512_maskz_sub_pd(k, y, vmy);
+        const __m512d qz = _mm512_maskz_sub_pd(k, z, vmz);
+        v[0] = _mm512_add_pd(v[0], _mm512_mul_pd(qx, qx));
+        v[1] = _mm512_add_pd(v[1], _mm512_mul_pd(qx, qy));
+        v[2] = _mm512_add_pd(v[2], _mm512_mul_pd(qx, qz));
+        v[3] = _mm512_add_pd(v[3], _mm512_mul_pd(qy, qy));
+        v[4] = _mm512_add_pd(v[4], _mm512_mul_pd(qy, qz));
+        v[5] = _mm512_add_pd(v[5], _mm512_mul_pd(qz, qz));
+      }
     }
     if (W8 == W) continue;
-    for (int e = 0; e < 6; ++e) _mm512_storeu_pd(t[e], v[e]);
+    for (int e = 0; e < kSums; ++e) _mm512_storeu_pd(t[e], v[e]);
     for (std::ptrdiff_t c = W8; c < W; ++c) {
       const double* q = row + 3 * c;
-      add_scatter(static_cast<int>(c - W8), kept(lb[c]), q[0], q[1], q[2], m.mean, t);
+      const int l = static_cast<int>(c - W8);
+      if constexpr (kSums == 4) {
+        add_sums(l, kept(lb[c]), q[0], q[1], q[2], t[0], t[1], t[2], t[3]);
+      } else {
+        add_scatter(l, kept(lb[c]), q[0], q[1], q[2], m, t);
+      }
     }
-    for (int e = 0; e < 6; ++e) v[e] = _mm512_loadu_pd(t[e]);
+    for (int e = 0; e < kSums; ++e) v[e] = _mm512_loadu_pd(t[e]);
   }
-  for (int e = 0; e < 6; ++e) _mm512_storeu_pd(t[e], v[e]);
-  lanes_scatter(t, m);
+  for (int e = 0; e < kSums; ++e) _mm512_storeu_pd(t[e], v[e]);
+}
+
+// lane_moments of the interleaved layout of doubles in AVX-512 (GCC does not vectorise
+// lane_moments' lanes over the interleaved loads): its two passes by dense_pass.
+__attribute__((target("avx512f,avx512vl"))) Moments dense_moments_avx512(
+    const double* data, std::ptrdiff_t rs, std::ptrdiff_t rows, const std::uint8_t* lab,
+    std::ptrdiff_t W) {
+  double s[4][kLanes];
+  dense_pass<4>(data, rs, rows, lab, W, Eigen::Vector3d::Zero(), s);
+  Moments m = lanes_mean(s[0], s[1], s[2], s[3]);
+  if (m.n == 0) return m;
+  double v[6][kLanes];
+  dense_pass<6>(data, rs, rows, lab, W, m.mean, v);
+  lanes_scatter(v, m);
   return m;
 }
 #endif

@@ -50,11 +50,15 @@ __attribute__((target("avx512f"), always_inline)) inline void load_xyz8(const do
                     z);
 }
 
+/// 8 bytes at p, one in each 64-bit lane.
+__attribute__((target("avx512f"), always_inline)) inline __m512i bytes8(const std::uint8_t* p) {
+  return _mm512_maskz_cvtepu8_epi64(0xFF, _mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)));
+}
+
 /// 8 bytes at p as a mask: bit i set where byte i is not 0.
 __attribute__((target("avx512f"), always_inline)) inline __mmask8 nonzero8(
     const std::uint8_t* p) {
-  const __m512i b =
-      _mm512_maskz_cvtepu8_epi64(0xFF, _mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)));
+  const __m512i b = bytes8(p);
   return _mm512_test_epi64_mask(b, b);
 }
 }  // namespace miem::detail
