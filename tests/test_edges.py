@@ -1459,6 +1459,31 @@ def test_auto_min_step_core_equals_reference_on_random_grids() -> None:
         assert miem.detect(g, num_threads=nt).params["min_step"] == want
 
 
+def test_auto_min_step_core_equals_reference_on_a_wide_scan() -> None:
+    """A scan wide enough that the core's sample of every 31st cell of its first 256 rows
+    holds over 8,192 values: the sample's band edges and the middle ranks within the band are
+    both selected through histograms of the values' bit patterns (then among the few values
+    of the ranks' bins). The reference's value to the last bit, with quantised z (runs of
+    equal values at the middle ranks) and without (the two middle values apart: odd and even
+    counts), jittered x, dropouts, float32, 1 and 2 threads."""
+    rng = np.random.default_rng(29)
+    yy, xx = np.mgrid[0:300, 0:1200].astype(np.float64)
+    z = 0.01 * xx + rng.normal(0.0, 0.05, xx.shape) + rng.normal(0, 0.1, (300, 1))
+    g = np.dstack([xx * 0.05 + rng.uniform(-0.01, 0.01, xx.shape), yy * 0.1, z])
+    clean = g.copy()
+    g[rng.random(xx.shape) < 0.03] = np.nan
+    g[98:103, 600] = clean[98:103, 600]
+    other = g.copy()
+    other[100, 600] = np.nan  # three triples across the profiles fewer: the other parity
+    quantised = g.copy()
+    quantised[..., 2] = np.round(quantised[..., 2], 2)
+    for gg in (g, other, quantised, g.astype(np.float32), other.astype(np.float32)):
+        want = ref._auto_min_step(gg.astype(np.float64), np.isfinite(gg).all(axis=-1))
+        assert want is not None
+        for nt in (1, 2):
+            assert miem.detect(gg, num_threads=nt).params["min_step"] == want
+
+
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_auto_min_step_reads_256_rows_from_the_first_with_data(dtype: type) -> None:
     """SPEC "min_step='auto'": the medians are those of the 256 rows from the first row with a

@@ -127,6 +127,32 @@ def test_auto_pools_the_first_65536_cells(at: int, want: float) -> None:
     assert ref._auto_z_resolution(g, fin) == pytest.approx(want, abs=1e-9)
 
 
+@pytest.mark.parametrize("cols", [5, 9, 17, 61, 333])
+def test_auto_steps_equal_the_reference_to_the_bit(cols: int) -> None:
+    """The smallest step along the profiles (the dense float64 layout 8 pairs at a time, with
+    a scalar tail; float32 and a strided view by the plain loop) is the reference's to the
+    last bit: rows of quantised and unquantised z, dropouts (the pairs they break are left
+    out), and the smallest step put in turn at every pair of a row beyond the pooled rows
+    (each lane of the 8, the tail)."""
+    rng = np.random.default_rng(cols)
+    rows = 40
+    z = np.cumsum(rng.normal(0.0, 0.3, (rows, cols)), axis=1)
+    z[::3] = np.round(z[::3], 3)  # quantised rows: many equal neighbours (no step)
+    base = np.dstack(np.broadcast_arrays(np.arange(cols) * 0.05, np.arange(rows)[:, None] * 0.1,
+                                         z)).astype(np.float64)
+    base[rng.random((rows, cols)) < 0.1] = np.nan
+    for at in range(cols - 1):
+        g = base.copy()
+        g[35, at:at + 2] = [[at * 0.05, 3.5, 5.0], [(at + 1) * 0.05, 3.5, 5.0 + 1e-9]]
+        wide = np.full((rows, 2 * cols, 3), np.nan)
+        wide[:, ::2] = g  # a strided view of the same cells
+        for grid in (g, g.astype(np.float32), wide[:, ::2]):
+            want = ref._auto_z_resolution(grid.astype(np.float64),
+                                          np.isfinite(grid).all(axis=-1))
+            assert want is not None and (want < 2e-9 or grid.dtype == np.float32)
+            assert _core.auto_z_resolution(grid) == want, at
+
+
 def test_given_length_none_and_bad_values() -> None:
     assert_given_none_and_bad(_level_sheet(seed=4), "z_resolution")
 

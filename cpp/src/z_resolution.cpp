@@ -4,13 +4,58 @@
 #include "auto_min_step.hpp"
 #include "miem/organized.hpp"
 #include "radix_sort.hpp"
+#include "vector_clones.hpp"
 
+#include <algorithm>
 #include <cstdint>
 #include <vector>
 
 namespace miem {
 
 namespace detail {
+
+#ifdef MIEM_SELECT_AVX512
+namespace {
+// fold_z_steps_xyz's loop: pairs (c .. c + 7, c + 1 .. c + 8) a step, the smallest difference
+// per lane, then over the lanes.
+__attribute__((target("avx512f,avx512vl"))) double fold_z_steps_avx512(
+    const double* row, std::ptrdiff_t n, double q, std::ptrdiff_t* done) {
+  const __m512d zero = _mm512_setzero_pd();
+  const auto finite8 = [zero](__m512d x, __m512d y, __m512d z)
+                           __attribute__((target("avx512f,avx512vl"))) {
+    // x - x is 0 for a finite x, NaN otherwise (finite_cell's test)
+    const __m512d t = _mm512_add_pd(
+        _mm512_add_pd(_mm512_sub_pd(x, x), _mm512_sub_pd(y, y)), _mm512_sub_pd(z, z));
+    return _mm512_cmp_pd_mask(t, zero, _CMP_EQ_OQ);
+  };
+  __m512d vq = _mm512_set1_pd(q);
+  std::ptrdiff_t c = 0;
+  for (; c + 9 <= n; c += 8) {
+    __m512d ax, ay, az, bx, by, bz;
+    load_xyz8(row + 3 * c, ax, ay, az);
+    load_xyz8(row + 3 * (c + 1), bx, by, bz);
+    const __m512d d = _mm512_abs_pd(_mm512_sub_pd(bz, az));
+    const __mmask8 take = finite8(ax, ay, az) & finite8(bx, by, bz) &
+                          _mm512_cmp_pd_mask(d, zero, _CMP_GT_OQ) &
+                          _mm512_cmp_pd_mask(d, vq, _CMP_LT_OQ);
+    vq = _mm512_mask_mov_pd(vq, take, d);
+  }
+  *done = c;
+  alignas(64) double lanes[8];
+  _mm512_store_pd(lanes, vq);
+  return *std::min_element(lanes, lanes + 8);
+}
+}  // namespace
+#endif
+
+double fold_z_steps_xyz(const double* row, std::ptrdiff_t n, double q,
+                        std::ptrdiff_t* done) noexcept {
+  *done = 0;
+#ifdef MIEM_SELECT_AVX512
+  if (has_avx512()) return fold_z_steps_avx512(row, n, q, done);
+#endif
+  return q;
+}
 
 double fold_z_gaps(std::uint64_t* keys, std::ptrdiff_t n, double q) noexcept {
   // (a radix sort: std::sort took 3 of the 4.6 ms a 2048-wide grid's measurement cost)

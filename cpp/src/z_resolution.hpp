@@ -14,6 +14,7 @@
 #include <cstdint>
 #include <cstring>
 #include <limits>
+#include <type_traits>
 #include <vector>
 
 #include "miem/views.hpp"
@@ -50,11 +51,21 @@ bool finite_cell(const T* p, std::ptrdiff_t coord_stride) noexcept {
 /// Folds one row of `n` cells (cell c's x, y, z at row[c * cell_stride + {0, 1, 2} *
 /// coord_stride]) into the running smallest non-zero |z[c + 1] - z[c]| of finite neighbours `q`
 /// (+inf: none yet). The differences are taken in double, so float32 rows give batch's bits.
+/// fold_z_steps of the dense layout of doubles (x, y, z, x, ...): the pairs it does (c, c + 1),
+/// c < *done, with AVX-512 where the CPU has it (the same differences, their smallest in any
+/// order: the same value); *done = 0 elsewhere.
+double fold_z_steps_xyz(const double* row, std::ptrdiff_t n, double q,
+                        std::ptrdiff_t* done) noexcept;
+
 template <typename T>
 double fold_z_steps(const T* row, std::ptrdiff_t n, std::ptrdiff_t cell_stride,
                     std::ptrdiff_t coord_stride, double q) noexcept {
   const auto finite = [&](const T* p) { return finite_cell(p, coord_stride); };
-  for (std::ptrdiff_t c = 0; c + 1 < n; ++c) {
+  std::ptrdiff_t c = 0;
+  if constexpr (std::is_same_v<T, double>) {
+    if (cell_stride == 3 && coord_stride == 1) q = fold_z_steps_xyz(row, n, q, &c);
+  }
+  for (; c + 1 < n; ++c) {
     const T* a = row + c * cell_stride;
     const T* b = a + cell_stride;
     if (!finite(a) || !finite(b)) continue;
