@@ -7,10 +7,11 @@
 // The four medians are exact (NumPy's: the middle value, or the mean of the two middle values)
 // without a sort of all values. band_medians: a sample of the cells gives a narrow band of
 // values around each middle; one pass over the grid counts the values below it and keeps those
-// in it, where the middle ranks are selected. When the sample rows hold fewer than 65,536 cells,
-// the ranks are selected among all their values (direct_medians). When a middle rank falls
-// outside its band, key_medians decides: the values are non-negative, so their float32 roundings
-// order like them (rounding is monotone) and the float32 bit patterns order like the floats.
+// in it, where the middle ranks are selected (select_ranks, as the sample's band edges). When
+// the sample rows hold fewer than 65,536 cells, the ranks are selected among all their values
+// (direct_medians). When a middle rank falls outside its band, key_medians decides: the values
+// are non-negative, so their float32 roundings order like them (rounding is monotone) and the
+// float32 bit patterns order like the floats.
 // Three passes over the grid, each computing the four quantities at once: histograms of the
 // patterns' high 16 bits; in the bin of each middle rank, histograms of the low 16 bits (the
 // float32 value of that rank); the doubles that round to that value (few), in which the rank is
@@ -42,58 +43,45 @@ constexpr int kQ = 4;  // along: distance^2, |second difference|; across: the sa
 // band_medians' smallest sample (fewer cells: direct_medians)
 constexpr std::ptrdiff_t kBandCells = std::ptrdiff_t{1} << 16;
 
-// The values of ranks r and r + 1 (`one`: r only, given twice) among [b, e): nth_element puts
-// rank r in place with nothing smaller after it, so rank r + 1 is the smallest after it.
-std::array<double, 2> rank_pair(std::vector<double>::iterator b, std::vector<double>::iterator e,
-                                std::size_t r, bool one) {
-  const auto at = b + static_cast<std::ptrdiff_t>(r);
-  std::nth_element(b, at, e);
-  return {*at, one ? *at : *std::min_element(at + 1, e)};
-}
-
-// The values of ranks r0 <= r1 among the n >= 1 non-negative values at v (reordered), exactly:
-// their 64-bit patterns order like the values, so a histogram of the patterns' offsets from the
-// smallest (kRankBins bins of equal width) gives the bins of the two ranks and their ranks in
-// them; nth_element then runs on those bins' values only (moved to the front). The same values
-// as nth_element on all of them, in a fraction of its time.
+// The values of ranks r0 <= r1 among the n >= 1 non-negative values at v (reordered), exactly
+// (nth_element's). Beyond a few thousand values, the values of their bins first: the 64-bit
+// patterns of non-negative doubles order like the values, so a histogram of the patterns'
+// offsets from the smallest (kRankBins bins of equal width) gives the bins of the two ranks and
+// their ranks within; those bins' values are moved to the front and nth_element runs on them
+// only (a fraction of its time on all of them).
 constexpr std::size_t kRankBins = 2048;
 std::array<double, 2> select_ranks(double* v, std::size_t n, std::size_t r0, std::size_t r1) {
-  auto bits = [](double x) {
-    std::uint64_t u;
-    std::memcpy(&u, &x, sizeof u);
-    return u;
-  };
-  if (n < 4 * kRankBins) {  // few values: nth_element on all
-    std::nth_element(v, v + r0, v + n);
-    if (r1 == r0) return {v[r0], v[r0]};
-    std::nth_element(v + r0 + 1, v + r1, v + n);
-    return {v[r0], v[r1]};
-  }
-  double lo = v[0], hi = v[0];
-  for (std::size_t i = 1; i < n; ++i) {
-    lo = v[i] < lo ? v[i] : lo;
-    hi = v[i] > hi ? v[i] : hi;
-  }
-  const std::uint64_t base = bits(lo), span = bits(hi) - base;
-  int shift = 0;
-  while ((span >> shift) >= kRankBins) ++shift;
-  std::uint32_t h[kRankBins] = {};
-  for (std::size_t i = 0; i < n; ++i) ++h[(bits(v[i]) - base) >> shift];
-  // the bins b0 <= b1 holding ranks r0 and r1, and the count before b0
-  std::size_t below = 0, b0 = 0;
-  while (below + h[b0] <= r0) below += h[b0++];
-  std::size_t upto = below + h[b0], b1 = b0;
-  while (upto <= r1) upto += h[++b1];
-  // the values of bins b0 .. b1 to the front (in place: a swap per value taken)
-  std::size_t m = 0;
-  for (std::size_t i = 0; i < n; ++i) {
-    const std::uint64_t b = (bits(v[i]) - base) >> shift;
-    if (b >= b0 && b <= b1) std::swap(v[m++], v[i]);
+  std::size_t m = n, below = 0;  // the values selected among, and how many lie below them
+  if (n >= 4 * kRankBins) {
+    auto bits = [](double x) {
+      std::uint64_t u;
+      std::memcpy(&u, &x, sizeof u);
+      return u;
+    };
+    double lo = v[0], hi = v[0];
+    for (std::size_t i = 1; i < n; ++i) {
+      lo = v[i] < lo ? v[i] : lo;
+      hi = v[i] > hi ? v[i] : hi;
+    }
+    const std::uint64_t base = bits(lo), span = bits(hi) - base;
+    int shift = 0;
+    while ((span >> shift) >= kRankBins) ++shift;
+    std::uint32_t h[kRankBins] = {};
+    for (std::size_t i = 0; i < n; ++i) ++h[(bits(v[i]) - base) >> shift];
+    std::size_t b0 = 0;  // the bins b0 <= b1 of ranks r0 and r1
+    while (below + h[b0] <= r0) below += h[b0++];
+    std::size_t upto = below + h[b0], b1 = b0;
+    while (upto <= r1) upto += h[++b1];
+    m = 0;  // their values to the front (a swap per value taken)
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::uint64_t b = (bits(v[i]) - base) >> shift;
+      if (b >= b0 && b <= b1) std::swap(v[m++], v[i]);
+    }
   }
   const std::size_t s0 = r0 - below, s1 = r1 - below;
   std::nth_element(v, v + s0, v + m);
   if (s1 == s0) return {v[s0], v[s0]};
-  std::nth_element(v + s0 + 1, v + s1, v + m);
+  std::nth_element(v + s0 + 1, v + s1, v + m);  // (nothing before s0 + 1 lies above v[s0])
   return {v[s0], v[s1]};
 }
 
@@ -198,7 +186,8 @@ __attribute__((target("avx512f,avx512vl"))) std::ptrdiff_t load_soa_xyz8(
     _mm512_storeu_pd(x + c, vx);
     _mm512_storeu_pd(y + c, vy);
     _mm512_storeu_pd(z + c, vz);
-    _mm512_storeu_pd(f + c, _mm512_mask_blend_pd(_mm512_cmp_pd_mask(t, zero, _CMP_EQ_OQ), zero, one));
+    const __mmask8 fin = _mm512_cmp_pd_mask(t, zero, _CMP_EQ_OQ);
+    _mm512_storeu_pd(f + c, _mm512_mask_blend_pd(fin, zero, one));
   }
   return c;
 }
@@ -231,13 +220,13 @@ void load_soa(const GridView<T>& g, std::ptrdiff_t r, double* __restrict x, doub
 // null beyond the grid), -1 where a quantity has no value (its cells are not all finite): q0
 // (columns 0 .. W-2), q1 (0 .. W-3), q2 and q3 (0 .. W-1). The same expressions as visit().
 MIEM_CLONES void row_quantities(std::ptrdiff_t W, const double* __restrict x0,
-                                   const double* __restrict y0, const double* __restrict z0,
-                                   const double* __restrict f0, const double* __restrict x1,
-                                   const double* __restrict y1, const double* __restrict z1,
-                                   const double* __restrict f1, const double* __restrict z2,
-                                   const double* __restrict f2, double* __restrict q0,
-                                   double* __restrict q1, double* __restrict q2,
-                                   double* __restrict q3) {
+                                const double* __restrict y0, const double* __restrict z0,
+                                const double* __restrict f0, const double* __restrict x1,
+                                const double* __restrict y1, const double* __restrict z1,
+                                const double* __restrict f1, const double* __restrict z2,
+                                const double* __restrict f2, double* __restrict q0,
+                                double* __restrict q1, double* __restrict q2,
+                                double* __restrict q3) {
   for (std::ptrdiff_t c = 0; c + 1 < W; ++c) {
     const double dx = x0[c + 1] - x0[c], dy = y0[c + 1] - y0[c], dz = z0[c + 1] - z0[c];
     const double v = dx * dx + dy * dy + dz * dz;
@@ -262,7 +251,7 @@ MIEM_CLONES void row_quantities(std::ptrdiff_t W, const double* __restrict x0,
 
 // Over n values (-1: none): how many, how many below a, how many in [a, b].
 MIEM_CLONES void tally_band(std::ptrdiff_t n, const double* __restrict v, double a, double b,
-                               std::int64_t* __restrict out3) {
+                            std::int64_t* __restrict out3) {
   std::int64_t total = 0, below = 0, in = 0;
   for (std::ptrdiff_t c = 0; c < n; ++c) {
     const double x = v[c];
@@ -293,14 +282,16 @@ __attribute__((target("avx512f,avx512vl"))) std::ptrdiff_t keep_band_avx512(
   std::ptrdiff_t k = 0, c = 0;
   for (; c + 8 <= n; c += 8) {
     const __m512d x = _mm512_loadu_pd(v + c);
-    const __mmask8 m = _mm512_cmp_pd_mask(x, va, _CMP_GE_OQ) & _mm512_cmp_pd_mask(x, vb, _CMP_LE_OQ);
+    const __mmask8 m =
+        _mm512_cmp_pd_mask(x, va, _CMP_GE_OQ) & _mm512_cmp_pd_mask(x, vb, _CMP_LE_OQ);
     _mm512_storeu_pd(out + k, _mm512_maskz_compress_pd(m, x));
     k += __builtin_popcount(m);
   }
   return k + keep_band_portable(n - c, v + c, a, b, out + k);
 }
 #endif
-inline std::ptrdiff_t keep_band(std::ptrdiff_t n, const double* v, double a, double b, double* out) {
+inline std::ptrdiff_t keep_band(std::ptrdiff_t n, const double* v, double a, double b,
+                                double* out) {
 #ifdef MIEM_SELECT_AVX512
   if (has_avx512()) return keep_band_avx512(n, v, a, b, out);
 #endif
@@ -548,7 +539,7 @@ void direct_medians(const GridView<T>& g, Counts& count, Mids& mids) {
     std::vector<double>& w = v[q];
     count[q] = w.size();
     if (w.empty()) continue;
-    mids[q] = rank_pair(w.begin(), w.end(), (w.size() - 1) / 2, w.size() % 2 == 1);
+    mids[q] = select_ranks(w.data(), w.size(), (w.size() - 1) / 2, w.size() / 2);
   }
 }
 
