@@ -282,6 +282,9 @@ BASES = [
      "sums and pass 1's finiteness and row loads in AVX-512", "recommended", "recommended"),
     ("5c0cd2e", "2026-12-07, before the window fits found each tile's wanted cells band by "
      "band", "recommended", "recommended"),
+    ("4f7d1ea", "2026-12-07, before min_step / z_resolution 'auto' selected their medians "
+     "through bit-pattern histograms and loaded their rows in AVX-512", "recommended",
+     "recommended"),
 ]
 
 
