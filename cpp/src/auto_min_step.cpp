@@ -181,13 +181,10 @@ __attribute__((target("avx512f,avx512vl"))) std::ptrdiff_t load_soa_xyz8(
   for (; c + 8 <= W; c += 8) {
     __m512d vx, vy, vz;
     load_xyz8(p + 3 * c, vx, vy, vz);
-    const __m512d t = _mm512_add_pd(
-        _mm512_add_pd(_mm512_sub_pd(vx, vx), _mm512_sub_pd(vy, vy)), _mm512_sub_pd(vz, vz));
     _mm512_storeu_pd(x + c, vx);
     _mm512_storeu_pd(y + c, vy);
     _mm512_storeu_pd(z + c, vz);
-    const __mmask8 fin = _mm512_cmp_pd_mask(t, zero, _CMP_EQ_OQ);
-    _mm512_storeu_pd(f + c, _mm512_mask_blend_pd(fin, zero, one));
+    _mm512_storeu_pd(f + c, _mm512_mask_blend_pd(finite8(vx, vy, vz), zero, one));
   }
   return c;
 }

@@ -50,6 +50,15 @@ __attribute__((target("avx512f"), always_inline)) inline void load_xyz8(const do
                     z);
 }
 
+/// Which of 8 points (x, y, z registers) are finite: x - x is 0 for a finite x and NaN for an
+/// infinite or NaN one (GridView::finite's test).
+__attribute__((target("avx512f"), always_inline)) inline __mmask8 finite8(
+    __m512d x, __m512d y, __m512d z) {
+  const __m512d t = _mm512_add_pd(_mm512_add_pd(_mm512_sub_pd(x, x), _mm512_sub_pd(y, y)),
+                                  _mm512_sub_pd(z, z));
+  return _mm512_cmp_pd_mask(t, _mm512_setzero_pd(), _CMP_EQ_OQ);
+}
+
 /// 8 bytes at p, one in each 64-bit lane.
 __attribute__((target("avx512f"), always_inline)) inline __m512i bytes8(const std::uint8_t* p) {
   return _mm512_maskz_cvtepu8_epi64(0xFF, _mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)));

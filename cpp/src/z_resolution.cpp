@@ -21,13 +21,6 @@ namespace {
 __attribute__((target("avx512f,avx512vl"))) double fold_z_steps_avx512(
     const double* row, std::ptrdiff_t n, double q, std::ptrdiff_t* done) {
   const __m512d zero = _mm512_setzero_pd();
-  const auto finite8 = [zero](__m512d x, __m512d y, __m512d z)
-                           __attribute__((target("avx512f,avx512vl"))) {
-    // x - x is 0 for a finite x, NaN otherwise (finite_cell's test)
-    const __m512d t = _mm512_add_pd(
-        _mm512_add_pd(_mm512_sub_pd(x, x), _mm512_sub_pd(y, y)), _mm512_sub_pd(z, z));
-    return _mm512_cmp_pd_mask(t, zero, _CMP_EQ_OQ);
-  };
   __m512d vq = _mm512_set1_pd(q);
   std::ptrdiff_t c = 0;
   for (; c + 9 <= n; c += 8) {

@@ -48,15 +48,15 @@ bool finite_cell(const T* p, std::ptrdiff_t coord_stride) noexcept {
          std::isfinite(static_cast<double>(p[2 * coord_stride]));
 }
 
-/// Folds one row of `n` cells (cell c's x, y, z at row[c * cell_stride + {0, 1, 2} *
-/// coord_stride]) into the running smallest non-zero |z[c + 1] - z[c]| of finite neighbours `q`
-/// (+inf: none yet). The differences are taken in double, so float32 rows give batch's bits.
 /// fold_z_steps of the dense layout of doubles (x, y, z, x, ...): the pairs it does (c, c + 1),
 /// c < *done, with AVX-512 where the CPU has it (the same differences, their smallest in any
 /// order: the same value); *done = 0 elsewhere.
 double fold_z_steps_xyz(const double* row, std::ptrdiff_t n, double q,
                         std::ptrdiff_t* done) noexcept;
 
+/// Folds one row of `n` cells (cell c's x, y, z at row[c * cell_stride + {0, 1, 2} *
+/// coord_stride]) into the running smallest non-zero |z[c + 1] - z[c]| of finite neighbours `q`
+/// (+inf: none yet). The differences are taken in double, so float32 rows give batch's bits.
 template <typename T>
 double fold_z_steps(const T* row, std::ptrdiff_t n, std::ptrdiff_t cell_stride,
                     std::ptrdiff_t coord_stride, double q) noexcept {
