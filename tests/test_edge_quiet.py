@@ -44,15 +44,17 @@ def _direct(g: np.ndarray, labels: np.ndarray, r: int, window: int, floor: float
     n_min = max(3, r * r // 2)
     quiet = np.zeros((h, w), dtype=bool)
     margin = np.full((h, w), np.inf)
-    for a in range(r, h - r):
-        for b in range(r, w - r):
+    for a in range(h):
+        for b in range(w):
             if labels[a, b] != miem.NORMAL:
                 continue
-            win = labels[a - r:a + r + 1, b - r:b + r + 1]
+            r0, c0 = max(0, a - r), max(0, b - r)  # the window clipped at the grid border
+            win = labels[r0:a + r + 1, c0:b + r + 1]
             if np.any(win == miem.EDGE):
                 continue
             gone = (win == miem.INVALID) | (win == miem.ABNORMAL)
-            halves = (gone[:, :r], gone[:, r + 1:], gone[:r], gone[r + 1:])  # left right up down
+            i, j = a - r0, b - c0  # the cell in it
+            halves = (gone[:, :j], gone[:, j + 1:], gone[:i], gone[i + 1:])  # left right up down
             if max(int(half.sum()) for half in halves) >= n_min:
                 continue
             if removed[max(0, a - hw):a + hw + 1, max(0, b - hw):b + hw + 1].any():
@@ -112,7 +114,11 @@ def test_quiet_cells_are_a_direct_window_fit() -> None:
     # but dropouts within q and not within r leave a cell quiet (columns 21 and 34: 4 from
     # the patch, which the q = 4 square reaches, the r = 3 one not)
     assert quiet[6:16, 21].mean() > 0.7 and quiet[6:16, 34].mean() > 0.7
-    assert not got[:R].any() and not got[:, -R:].any() and got[R, 5:20].any()
+    # the border too: its windows are clipped (the sheet's top rows and left columns are quiet;
+    # on the bend, the last columns' height windows, clipped to 5 columns, fit it within the
+    # floor as the direct fit does)
+    assert got[:R, 5:22].mean() > 0.7 and quiet[:R, 5:22].mean() > 0.7
+    assert got[5:25, :R].mean() > 0.7 and not got[:, 41:-R].any()
     # no floor: nothing on a noisy sheet is quiet
     assert not ref._quiet_cells(g, labels, R, WINDOW, 0.0, removed).any()
 
@@ -139,7 +145,8 @@ def test_noise_free_planes_are_quiet_without_a_floor() -> None:
     assert got[plain & ~bump].all() and not got[bump].any()
     assert got[3:26, 36].all() and not got[:, 37:].any()  # column 37's window reaches column 41
     assert not got[10:30, 45:56].any() and not got[20, 10]
-    assert not got[31:37, 4:10].any() and not got[:R].any()  # the 2 x 2 block, the border
+    assert not got[31:37, 4:10].any()  # the 2 x 2 block
+    assert got[:R, 5:22].all() and got[5:15, :R].all()  # the border: clipped windows, flat
     # a detection on a noise-free scan: the core and the reference agree on every label, and
     # the quiet cells change nothing (the reference judging every cell gives the same)
     from miem.simulate import make_scan

@@ -1,9 +1,9 @@
 // SPEC "Edge test" step 1: the quiet cells, which the edge passes do not judge. A NORMAL cell
-// is quiet when every cell within r = edge_window / 2 rows and columns lies inside the grid and
-// is NORMAL, INVALID or ABNORMAL (no EDGE), each of its four half sub-windows (left, right, up,
-// down: step 2) holds fewer than n_min INVALID or ABNORMAL cells (no sub-window is empty or
-// short of support: a quadrant lies within a half; a removed cell is a missing one, like a
-// dropout), no cell within h = window / 2 became ABNORMAL in the height passes (so its
+// is quiet when every cell of the grid within r = edge_window / 2 rows and columns is NORMAL,
+// INVALID or ABNORMAL (no EDGE), each of its four half sub-windows (left, right, up, down:
+// step 2; clipped at the grid border, as the sub-windows are) holds fewer than n_min INVALID or
+// ABNORMAL cells (no sub-window is empty: a quadrant lies within a half; a removed cell is a
+// missing one, like a dropout), no cell within h = window / 2 became ABNORMAL in the height passes (so its
 // height-window plane is the one the height test's first pass fitted), and that plane is quiet
 // (kHQuiet, kHStale clear: quiet_plane and the height passes' marks, stages.hpp). Shared by the
 // batch (edge_test.cpp) and the stream (stream_edges.cpp).
@@ -74,15 +74,17 @@ inline void prefix_sums2(const std::int32_t* a, const std::int32_t* b, std::ptrd
 
 /// QuietCounts::drop's verdicts along a row, first by the whole window: clears todo[c] of the
 /// cells whose window holds fewer than n_min INVALID or ABNORMAL cells (then so does each half)
-/// and no EDGE cell, from the prefix sums along the row of those cells of the 2 r + 1 rows (si,
-/// sb). Returns whether a cell is left that only that count keeps from being quiet.
+/// and no EDGE cell, from the prefix sums along the row of those cells of the window's rows
+/// (si, sb; padded: si[-r .. -1] = si[0] = 0 and si[W + 1 .. W + r] = si[W], so that a window
+/// reaching past either end of the row counts its cells inside). Returns whether a cell is left
+/// that only that count keeps from being quiet.
 inline bool quiet_window(std::ptrdiff_t W, std::ptrdiff_t r, std::int32_t n_min,
                          const std::int32_t* __restrict si, const std::int32_t* __restrict sb,
                          const std::uint8_t* __restrict labels,
                          const std::uint8_t* __restrict planes, std::uint8_t mask,
                          std::uint8_t want, std::uint8_t* __restrict todo) noexcept {
   int more = 0;
-  for (std::ptrdiff_t c = r; c < W - r; ++c) {  // (branch-free: vectorised)
+  for (std::ptrdiff_t c = 0; c < W; ++c) {  // (branch-free: vectorised)
     const std::int32_t ni = si[c + r + 1] - si[c - r], nb = sb[c + r + 1] - sb[c - r];
     const bool ok = ((planes[c] & mask) == want) & (labels[c] == kNormal) & (nb == 0);
     todo[c] = static_cast<std::uint8_t>(todo[c] & !(ok & (ni < n_min)));
@@ -92,16 +94,16 @@ inline bool quiet_window(std::ptrdiff_t W, std::ptrdiff_t r, std::int32_t n_min,
 }
 
 /// The same by the halves: clears todo[c] of the cells whose four halves each hold fewer than
-/// n_min INVALID or ABNORMAL cells, with su and sl the prefix sums of those of the r rows above
-/// and below. (Restrict parameters: with more than ten pointers GCC does not version the loop
-/// for aliasing, and it stays scalar.)
+/// n_min INVALID or ABNORMAL cells, with su and sl the prefix sums of those of the rows above
+/// and below within the window (all four padded as in quiet_window). (Restrict parameters: with
+/// more than ten pointers GCC does not version the loop for aliasing, and it stays scalar.)
 inline void quiet_halves(std::ptrdiff_t W, std::ptrdiff_t r, std::int32_t n_min,
                          const std::int32_t* __restrict si, const std::int32_t* __restrict sb,
                          const std::int32_t* __restrict su, const std::int32_t* __restrict sl,
                          const std::uint8_t* __restrict labels,
                          const std::uint8_t* __restrict planes, std::uint8_t mask,
                          std::uint8_t want, std::uint8_t* __restrict todo) noexcept {
-  for (std::ptrdiff_t c = r; c < W - r; ++c) {  // (branch-free: vectorised)
+  for (std::ptrdiff_t c = 0; c < W; ++c) {  // (branch-free: vectorised)
     const std::int32_t nb = sb[c + r + 1] - sb[c - r];
     const std::int32_t left = si[c] - si[c - r], right = si[c + r + 1] - si[c + 1];
     const std::int32_t up = su[c + r + 1] - su[c - r], down = sl[c + r + 1] - sl[c - r];
@@ -111,10 +113,11 @@ inline void quiet_halves(std::ptrdiff_t W, std::ptrdiff_t r, std::int32_t n_min,
   }
 }
 
-/// The window condition over the 2 r + 1 rows around a row: per column, the INVALID or ABNORMAL
-/// cells (inv: no support) and the EDGE cells (bad) of the rows held, kept as rows come in and go
-/// out; low, pinv, pbad, pup and plow are scratch for drop (W, then W + 1 each). The caller owns
-/// the buffer (over(): ints(W) of them).
+/// The window condition over the rows of the grid within r of a row (2 r + 1 away from the
+/// grid's first and last rows): per column, the INVALID or ABNORMAL cells (inv: no support)
+/// and the EDGE cells (bad) of the rows held, kept as rows come in and go out; low, pinv, pbad,
+/// pup and plow are scratch for drop (W, then W + 1 each with r of padding on either side).
+/// The caller owns the buffer (over(): ints(W, r) of them).
 struct QuietCounts {
   std::int32_t* inv;
   std::int32_t* bad;
@@ -126,12 +129,20 @@ struct QuietCounts {
   std::ptrdiff_t W, r;
   std::int32_t n_min;
 
-  /// The ints a buffer for rows of W cells holds.
-  static constexpr std::ptrdiff_t ints(std::ptrdiff_t W) { return 7 * W + 4; }
-  /// The counts in `buf` (ints(W) of them) for rows of W cells and edge half-size r.
+  /// The ints a buffer for rows of W cells and edge half-size r holds.
+  static constexpr std::ptrdiff_t ints(std::ptrdiff_t W, std::ptrdiff_t r) {
+    return 7 * W + 4 + 8 * r;
+  }
+  /// The counts in `buf` (ints(W, r) of them) for rows of W cells and edge half-size r.
   static QuietCounts over(std::int32_t* buf, std::ptrdiff_t W, std::ptrdiff_t r) {
-    return {buf,     buf + W, buf + 2 * W, buf + 3 * W, buf + 4 * W + 1, buf + 5 * W + 2,
-            buf + 6 * W + 3, W, r, static_cast<std::int32_t>(edge_n_min(r))};
+    const std::ptrdiff_t P = W + 1 + 2 * r;  // a padded prefix array
+    std::int32_t* pre = buf + 3 * W + r;
+    return {buf, buf + W, buf + 2 * W, pre, pre + P, pre + 2 * P, pre + 3 * P, W, r,
+            static_cast<std::int32_t>(edge_n_min(r))};
+  }
+  /// Pads prefix sums p[0 .. W] for windows past the row's ends (quiet_window).
+  void pad(std::int32_t* p) const noexcept {
+    for (std::ptrdiff_t k = 1; k <= r; ++k) p[-k] = 0, p[W + k] = p[W];
   }
 
   /// No rows held.
@@ -149,21 +160,23 @@ struct QuietCounts {
       nb[c] += sign * static_cast<std::int32_t>(l == kEdge);
     }
   }
-  /// The rows held are the 2 r + 1 rows around a row inside the grid, `labels` that row's and
-  /// `below` the r rows under it (W apart; as they came in): clears todo[c] of its quiet cells,
-  /// those whose planes[c] & mask == want (the plane's bits).
-  void drop(const std::uint8_t* labels, const std::uint8_t* below, const std::uint8_t* planes,
-            std::uint8_t mask, std::uint8_t want, std::uint8_t* todo) const noexcept {
-    if (W < 2 * r + 1) return;
+  /// The rows held are the rows of the grid within r of a row, `labels` that row's and `below`
+  /// the n_below (<= r) rows of the grid under it (W apart; as they came in): clears todo[c] of
+  /// its quiet cells, those whose planes[c] & mask == want (the plane's bits).
+  void drop(const std::uint8_t* labels, const std::uint8_t* below, std::ptrdiff_t n_below,
+            const std::uint8_t* planes, std::uint8_t mask, std::uint8_t want,
+            std::uint8_t* todo) const noexcept {
     std::int32_t* __restrict si = pinv;
     std::int32_t* __restrict sb = pbad;
     prefix_sums2(inv, bad, W, si, sb);
+    pad(si);
+    pad(sb);
     // the whole window first: nearly every cell's holds fewer than n_min (then so do its
     // halves); only a row with a cell it leaves needs the halves' sums
     if (!quiet_window(W, r, n_min, si, sb, labels, planes, mask, want, todo)) return;
-    std::int32_t* __restrict nl = low;  // the r rows below
+    std::int32_t* __restrict nl = low;  // the rows below
     std::fill(nl, nl + W, 0);
-    for (std::ptrdiff_t k = 0; k < r; ++k) {
+    for (std::ptrdiff_t k = 0; k < n_below; ++k) {
       const std::uint8_t* __restrict lk = below + k * W;
       for (std::ptrdiff_t c = 0; c < W; ++c)  // (branch-free: vectorised)
         nl[c] += static_cast<std::int32_t>((lk[c] == kInvalid) | (lk[c] == kAbnormal));
@@ -178,6 +191,8 @@ struct QuietCounts {
       au += inv[c] - own - nl[c], al += nl[c];
       su[c + 1] = au, sl[c + 1] = al;
     }
+    pad(su);
+    pad(sl);
     quiet_halves(W, r, n_min, si, sb, su, sl, labels, planes, mask, want, todo);
   }
 };

@@ -1502,19 +1502,19 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol e
       td[i] = static_cast<std::uint8_t>((lb[i] == kNormal) | (lb[i] == kEdge));
     }
   });
-  // pass 1 leaves out the quiet cells (step 1): rows r .. H - r - 1, each thread its rows'
-  // window counts
-  if (planes != nullptr && H > 2 * r && W > 2 * r) {
-    parallel_ranges(ntn, H - 2 * r, 16, [&](int, std::ptrdiff_t u0, std::ptrdiff_t u1) {
-      std::vector<std::int32_t> buf(static_cast<std::size_t>(QuietCounts::ints(W)));
+  // pass 1 leaves out the quiet cells (step 1), each thread its rows' window counts
+  if (planes != nullptr) {
+    parallel_ranges(ntn, H, 16, [&](int, std::ptrdiff_t x0, std::ptrdiff_t x1) {
+      std::vector<std::int32_t> buf(static_cast<std::size_t>(QuietCounts::ints(W, r)));
       const QuietCounts qw = QuietCounts::over(buf.data(), W, r);
       qw.clear();
-      for (std::ptrdiff_t a = u0; a < u0 + 2 * r; ++a) qw.add(labels + a * W, 1);
-      for (std::ptrdiff_t x = u0 + r; x < u1 + r; ++x) {
-        qw.add(labels + (x + r) * W, 1);
-        qw.drop(labels + x * W, labels + (x + 1) * W, planes + x * W, kHQuiet | kHStale,
-                kHQuiet, todo + x * W);
-        qw.add(labels + (x - r) * W, -1);
+      for (std::ptrdiff_t a = std::max<std::ptrdiff_t>(0, x0 - r); a < std::min(H, x0 + r); ++a)
+        qw.add(labels + a * W, 1);
+      for (std::ptrdiff_t x = x0; x < x1; ++x) {
+        if (x + r < H) qw.add(labels + (x + r) * W, 1);
+        qw.drop(labels + x * W, labels + (x + 1) * W, std::min(r, H - 1 - x), planes + x * W,
+                kHQuiet | kHStale, kHQuiet, todo + x * W);
+        if (x - r >= 0) qw.add(labels + (x - r) * W, -1);
       }
     });
   }

@@ -50,7 +50,7 @@ void ProfileStream<T>::init_edges() {
   etodo_row_.assign(static_cast<std::size_t>(ring_), 0);
   if (htest_) {
     eplane_.assign(static_cast<std::size_t>(ring_ * W), 0);
-    equiet_.assign(static_cast<std::size_t>(detail::QuietCounts::ints(W)), 0);
+    equiet_.assign(static_cast<std::size_t>(detail::QuietCounts::ints(W, r)), 0);
   }
   // pass 1 has two sets (even and odd bands: the next band's images are built alongside), and
   // step 9 (pass 0 here) one after pass passes_'s
@@ -374,22 +374,25 @@ void ProfileStream<T>::quiet_candidates(std::int64_t row, const std::uint8_t* wi
                                         std::int64_t a0) noexcept {
   const std::ptrdiff_t W = width_, r = params_.edge_window / 2;
   std::fill(etd_.begin(), etd_.end(), std::uint8_t{1});
-  if (row - r < 0 || row + r >= pushed_) return;  // the window leaves the grid: none quiet
+  // the window's rows of the grid, [lo, hi): the rows below are all pushed (called at the end
+  // of the stream for the last rows; the grid ends at its last pushed row then)
+  const std::int64_t lo = std::max<std::int64_t>(0, row - r);
+  const std::int64_t hi = std::min<std::int64_t>(pushed_, row + r + 1);
   const detail::QuietCounts qc = detail::QuietCounts::over(equiet_.data(), W, r);
   const auto at = [&](std::int64_t x) { return win + (x - a0) * W; };  // x in [a0, row + r]
-  if (eq_next_ <= row - r || eq_first_ > row - r) {  // nothing of the window held: afresh
+  if (eq_next_ <= lo || eq_first_ > lo) {  // nothing of the window held: afresh
     qc.clear();
-    eq_first_ = eq_next_ = row - r;
+    eq_first_ = eq_next_ = lo;
   }
   std::uint8_t* labs = elab_img_.data();  // (a row of scratch: the tiles run after this)
-  for (; eq_first_ < row - r; ++eq_first_) {  // (above the window: no longer in win)
+  for (; eq_first_ < lo; ++eq_first_) {  // (above the window: no longer in win)
     edge_labels(eq_first_, 1, 0, W, labs);
     qc.add(labs, -1);
   }
-  for (; eq_next_ < row + r + 1; ++eq_next_) qc.add(at(eq_next_), 1);
+  for (; eq_next_ < hi; ++eq_next_) qc.add(at(eq_next_), 1);
   // (the rows below the row are not judged yet: their labels are as they came in)
-  qc.drop(at(row), at(row + 1), eplane_.data() + slot(row) * W, detail::kHQuiet | detail::kHStale,
-          detail::kHQuiet, etd_.data());
+  qc.drop(at(row), at(row + 1), hi - row - 1, eplane_.data() + slot(row) * W,
+          detail::kHQuiet | detail::kHStale, detail::kHQuiet, etd_.data());
 }
 
 // Runs the edge passes as far as their inputs are final (all rows at the end of the stream).

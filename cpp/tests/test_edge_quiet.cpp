@@ -1,9 +1,11 @@
 // The edge test's quiet cells (cpp/src/edge_quiet.hpp, SPEC "Edge test" step 1), as batch and
 // stream detection find them row by row with QuietCounts, against the rule counted cell by cell:
-// a NORMAL cell whose plane bits say quiet, no EDGE cell within r rows and columns, and each of
-// its four half sub-windows holding fewer than n_min INVALID or ABNORMAL cells.
+// a NORMAL cell whose plane bits say quiet, no EDGE cell of the grid within r rows and columns,
+// and each of its four half sub-windows (clipped at the grid border) holding fewer than n_min
+// INVALID or ABNORMAL cells.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdint>
 #include <random>
 #include <vector>
@@ -38,8 +40,9 @@ Cells make_cells(std::ptrdiff_t H, std::ptrdiff_t W, double invalid, unsigned se
     if (u(rng) < 0.05) s.planes[i] = kHQuiet | kHStale;
     if (u(rng) < 0.05) s.planes[i] = 0;
   }
-  for (std::ptrdiff_t r = H / 3; r < H / 3 + 5; ++r)  // a patch of 5 x 6 dropouts
-    for (std::ptrdiff_t c = W / 2; c < W / 2 + 6; ++c) s.labels[r * W + c] = miem::kInvalid;
+  for (std::ptrdiff_t r = H / 3; r < std::min(H, H / 3 + 5); ++r)  // a patch of 5 x 6 dropouts
+    for (std::ptrdiff_t c = W / 2; c < std::min(W, W / 2 + 6); ++c)
+      s.labels[r * W + c] = miem::kInvalid;
   return s;
 }
 
@@ -48,19 +51,21 @@ std::vector<std::uint8_t> brute(const Cells& s, std::ptrdiff_t r) {
   const std::ptrdiff_t H = s.H, W = s.W, n_min = miem::detail::edge_n_min(r);
   std::vector<std::uint8_t> todo(static_cast<std::size_t>(H * W), 1);
   auto at = [&](std::ptrdiff_t a, std::ptrdiff_t b) { return s.labels[a * W + b]; };
+  auto inside = [&](std::ptrdiff_t a, std::ptrdiff_t b) { return a >= 0 && a < H && b >= 0 && b < W; };
   auto gone = [&](std::ptrdiff_t a0, std::ptrdiff_t a1, std::ptrdiff_t b0, std::ptrdiff_t b1) {
-    std::ptrdiff_t n = 0;  // INVALID or ABNORMAL cells in rows [a0, a1], columns [b0, b1]
+    std::ptrdiff_t n = 0;  // INVALID or ABNORMAL cells of the grid in rows [a0, a1], columns [b0, b1]
     for (std::ptrdiff_t a = a0; a <= a1; ++a)
       for (std::ptrdiff_t b = b0; b <= b1; ++b)
-        n += at(a, b) == miem::kInvalid || at(a, b) == miem::kAbnormal;
+        n += inside(a, b) && (at(a, b) == miem::kInvalid || at(a, b) == miem::kAbnormal);
     return n;
   };
-  for (std::ptrdiff_t x = r; x < H - r; ++x) {
-    for (std::ptrdiff_t c = r; c < W - r; ++c) {
+  for (std::ptrdiff_t x = 0; x < H; ++x) {
+    for (std::ptrdiff_t c = 0; c < W; ++c) {
       if (at(x, c) != miem::kNormal || s.planes[x * W + c] != kHQuiet) continue;
       bool edge = false;
       for (std::ptrdiff_t a = x - r; a <= x + r; ++a)
-        for (std::ptrdiff_t b = c - r; b <= c + r; ++b) edge |= at(a, b) == miem::kEdge;
+        for (std::ptrdiff_t b = c - r; b <= c + r; ++b)
+          edge |= inside(a, b) && at(a, b) == miem::kEdge;
       if (edge) continue;
       const std::ptrdiff_t left = gone(x - r, x + r, c - r, c - 1);
       const std::ptrdiff_t right = gone(x - r, x + r, c + 1, c + r);
@@ -72,20 +77,23 @@ std::vector<std::uint8_t> brute(const Cells& s, std::ptrdiff_t r) {
   return todo;
 }
 
-// The batch's loop (edge_test.cpp): the window counts slide down the rows.
-std::vector<std::uint8_t> by_rows(const Cells& s, std::ptrdiff_t r) {
+// The batch's loop (edge_test.cpp): the window counts slide down the rows, from row x0 on
+// (a thread's first row).
+std::vector<std::uint8_t> by_rows(const Cells& s, std::ptrdiff_t r, std::ptrdiff_t x0 = 0) {
   const std::ptrdiff_t H = s.H, W = s.W;
   std::vector<std::uint8_t> todo(static_cast<std::size_t>(H * W), 1);
-  std::vector<std::int32_t> buf(static_cast<std::size_t>(QuietCounts::ints(W)));
+  // poisoned scratch: every count drop reads is written first
+  std::vector<std::int32_t> buf(static_cast<std::size_t>(QuietCounts::ints(W, r)), 0x3FFFFFFF);
   const QuietCounts qw = QuietCounts::over(buf.data(), W, r);
   const std::uint8_t* labels = s.labels.data();
   qw.clear();
-  for (std::ptrdiff_t a = 0; a < 2 * r; ++a) qw.add(labels + a * W, 1);
-  for (std::ptrdiff_t x = r; x < H - r; ++x) {
-    qw.add(labels + (x + r) * W, 1);
-    qw.drop(labels + x * W, labels + (x + 1) * W, s.planes.data() + x * W, kHQuiet | kHStale,
-            kHQuiet, todo.data() + x * W);
-    qw.add(labels + (x - r) * W, -1);
+  for (std::ptrdiff_t a = std::max<std::ptrdiff_t>(0, x0 - r); a < std::min(H, x0 + r); ++a)
+    qw.add(labels + a * W, 1);
+  for (std::ptrdiff_t x = x0; x < H; ++x) {
+    if (x + r < H) qw.add(labels + (x + r) * W, 1);
+    qw.drop(labels + x * W, labels + (x + 1) * W, std::min(r, H - 1 - x),
+            s.planes.data() + x * W, kHQuiet | kHStale, kHQuiet, todo.data() + x * W);
+    if (x - r >= 0) qw.add(labels + (x - r) * W, -1);
   }
   return todo;
 }
@@ -96,9 +104,29 @@ TEST(EdgeQuiet, HalvesCountedRowByRowAsCellByCell) {
       const Cells s = make_cells(70, 90, invalid, static_cast<unsigned>(r * 100 + invalid * 1000));
       const std::vector<std::uint8_t> want = brute(s, r);
       EXPECT_EQ(by_rows(s, r), want) << "r " << r << " invalid " << invalid;
-      std::ptrdiff_t quiet = 0;
-      for (const std::uint8_t t : want) quiet += t == 0;
+      std::ptrdiff_t quiet = 0, border = 0;
+      for (std::ptrdiff_t i = 0; i < s.H * s.W; ++i) {
+        const std::ptrdiff_t x = i / s.W, c = i % s.W;
+        quiet += want[i] == 0;
+        border += want[i] == 0 && (x < r || x >= s.H - r || c < r || c >= s.W - r);
+      }
       EXPECT_GT(quiet, 0) << "r " << r << " invalid " << invalid;  // the rule decides somewhere
+      if (invalid < 0.1) EXPECT_GT(border, 0) << "r " << r << " invalid " << invalid;
+      // a thread's rows from any row on: the same
+      const std::vector<std::uint8_t> from = by_rows(s, r, 33);
+      EXPECT_TRUE(std::equal(from.begin() + 33 * s.W, from.end(), want.begin() + 33 * s.W));
+    }
+  }
+}
+
+// Grids narrower and shorter than a window (2 r + 1): every cell's window reaches past the
+// border; cell by cell as above.
+TEST(EdgeQuiet, GridsSmallerThanTheWindow) {
+  for (const std::ptrdiff_t r : {3, 7}) {
+    for (const auto& hw : {std::pair<std::ptrdiff_t, std::ptrdiff_t>{5, 40}, {40, 5}, {4, 4},
+                           {1, 30}, {30, 1}}) {
+      const Cells s = make_cells(hw.first, hw.second, 0.01, static_cast<unsigned>(r + hw.first));
+      EXPECT_EQ(by_rows(s, r), brute(s, r)) << "r " << r << " " << hw.first << " x " << hw.second;
     }
   }
 }

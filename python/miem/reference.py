@@ -1157,27 +1157,21 @@ def _quiet_cells(
 ) -> NDArray[np.bool_]:
     """SPEC "Edge test" step 1: the quiet cells, which pass 1 leaves out, on the labels at the
     start of the edge test (``window``: the height test's; ``removed``: the cells its passes
-    made ABNORMAL). A NORMAL cell is quiet when every cell within ``r`` rows and columns lies
-    inside the grid and is NORMAL, INVALID or ABNORMAL (no EDGE), each of its four half
-    sub-windows (step 2) holds fewer than ``n_min`` INVALID or ABNORMAL cells (no sub-window of
-    step 3 is empty or short of support: a quadrant lies within a half), no
+    made ABNORMAL). A NORMAL cell is quiet when every cell of the grid within ``r`` rows and
+    columns is NORMAL, INVALID or ABNORMAL (no EDGE), each of its four half sub-windows (step 2,
+    clipped at the grid border) holds fewer than ``n_min`` INVALID or ABNORMAL cells (no
+    sub-window of step 3 is empty: a quadrant lies within a half), no
     ``removed`` cell lies within ``window // 2``, and its height-window plane (the NORMAL cells
     of its window, itself included, as the height test fits them) is smooth,
     ``rms = sqrt(max(l0, 0) / n) <= _EDGE_QUIET_ROUGH * floor`` or flat to round-off
     (``l0 <= _FLAT_L0 * l2``, step 3's rms of 0: a noise-free plane, whose ``floor`` is often
     0), with the cell within ``_EDGE_QUIET_H * rms`` of it, or within the height test's
     round-off floor ``1e-6 sqrt((l1 + l2) / n)``."""
-    hh, ww = labels.shape
     normal = labels == NORMAL
-    if hh <= 2 * r or ww <= 2 * r:
-        return np.zeros_like(normal)
     side = 2 * r + 1
     cand = normal & (_box_count(labels == EDGE, side) == 0)
     cand &= _half_counts((labels == INVALID) | (labels == ABNORMAL), r) < _edge_n_min(r)
     cand &= _box_count(removed, 2 * (window // 2) + 1) == 0
-    inside = np.zeros_like(cand)
-    inside[r:hh - r, r:ww - r] = True
-    cand &= inside
     height, _, evals, count = _window_planes(grid, normal, cand, window)
     n = count.astype(np.float64)
     l0 = np.maximum(evals[..., 0], 0.0)
