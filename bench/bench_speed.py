@@ -285,6 +285,8 @@ BASES = [
     ("4f7d1ea", "2026-12-07, before min_step / z_resolution 'auto' selected their medians "
      "through bit-pattern histograms and loaded their rows in AVX-512", "recommended",
      "recommended"),
+    ("760e4da", "2026-12-07, before the edge test's quiet cells at the grid border and by "
+     "the height test's last planes", "recommended", "recommended"),
 ]
 
 

@@ -261,3 +261,43 @@ def test_scattered_dropouts_are_counted_per_half() -> None:
                          height_window=21, height_removed=removed, **lengths)[0]
     np.testing.assert_array_equal(some, every)
     np.testing.assert_array_equal(some, oracle.labels)
+
+
+def test_the_last_planes_decide_around_height_removals(monkeypatch) -> None:
+    """SPEC "Edge test" step 1: the cells around a cell the height test removed are judged by
+    their planes over the labels after the height passes (a later pass re-fitted them), so
+    the reference hands the quiet rule no removed cell when the passes ended by themselves, and
+    the last pass's removals when max_iterations ended them (no pass re-fitted those
+    windows). The core, the reference and the reference judging every cell agree either way."""
+    from miem.simulate import make_scan
+    scan = make_scan((90, 100), step=0.2, surface="tilted", noise=0.003, seed=6,
+                     defects={"spike": 3, "pit": 3, "cluster": 2}, dropout=0.002)
+    g = scan.points.copy()
+    r_, c_ = np.mgrid[0:90, 0:100]
+    for r0, c0 in ((25, 20), (60, 70)):  # low bumps: the height passes peel them
+        g[..., 2] += 0.04 * np.exp(-((r_ - r0) ** 2 + (c_ - c0) ** 2) / 0.8)
+    seen = []
+    quiet_cells = ref._quiet_cells
+
+    def spy(grid, labels, r, window, floor, removed):  # noqa: ANN001, ANN202
+        seen.append(removed.copy())
+        return quiet_cells(grid, labels, r, window, floor, removed)
+
+    monkeypatch.setattr(ref, "_quiet_cells", spy)
+    for iters in (10, 1):
+        seen.clear()
+        oracle = ref.detect(g, max_iterations=iters)
+        no_height = ref.detect(g, max_iterations=iters, height_tolerance=None,
+                               edge_tolerance=None).labels
+        before = ref.detect(g, max_iterations=iters, edge_tolerance=None).labels
+        flagged = (before == miem.ABNORMAL) & (no_height != miem.ABNORMAL)
+        assert flagged.sum() >= 3  # the height test removed cells
+        assert len(seen) == 1
+        if iters == 1:  # one pass: its removals' windows were not fitted again
+            np.testing.assert_array_equal(seen[0], flagged)
+        else:
+            assert not seen[0].any()
+        for nt in (1, 2):
+            np.testing.assert_array_equal(
+                miem.detect(g, max_iterations=iters, num_threads=nt).labels,
+                oracle.labels)

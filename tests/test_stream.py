@@ -358,10 +358,32 @@ def test_stream_runs_the_edge_test_as_batch(kw: dict) -> None:
     assert_same_defects(defects, want.defects, want.labels)
 
 
-def _not_quiet(grid: np.ndarray, p: miem.DetectParams, quiet_share: float = 0.2) -> int:
+def _unfitted(grid: np.ndarray, **kw: object) -> np.ndarray:
+    """The cells the reference's last height pass removed when max_iterations ended the passes
+    (none when they ended by themselves), as ``ref.detect(grid, **kw)`` hands them to the quiet
+    rule (SPEC "Edge test" step 1: no later pass re-fitted the windows around them)."""
+    seen = []
+    quiet_cells = ref._quiet_cells
+
+    def spy(*args: object) -> np.ndarray:
+        seen.append(np.array(args[5], dtype=bool))
+        return quiet_cells(*args)
+
+    ref._quiet_cells = spy
+    try:
+        ref.detect(grid, **kw)
+    finally:
+        ref._quiet_cells = quiet_cells
+    assert len(seen) == 1
+    return seen[0]
+
+
+def _not_quiet(grid: np.ndarray, p: miem.DetectParams, quiet_share: float = 0.2,
+               **kw: object) -> int:
     """The NORMAL and EDGE cells after step 9 that the reference finds not quiet (SPEC "Edge
-    test" step 1; every one without the height test): the cells edge pass 1 judges. With the
-    height test, more than `quiet_share` of them are quiet (the scene exercises the rule)."""
+    test" step 1; every one without the height test): the cells edge pass 1 judges (`kw`: the
+    keywords that made `p` from the stream's defaults, for the reference). With the height
+    test, more than `quiet_share` of them are quiet (the scene exercises the rule)."""
     res = miem.detect(grid, params=p, edge_tolerance=None)  # labels after the height passes
     q = res.params
     r, window = p.grid.edge_window // 2, p.grid.window
@@ -379,8 +401,9 @@ def _not_quiet(grid: np.ndarray, p: miem.DetectParams, quiet_share: float = 0.2)
     cand = (after9 == miem.NORMAL) | (after9 == miem.EDGE)
     if q["height_tolerance"] is not None:
         angle = miem.detect(grid, params=p, height_tolerance=None, edge_tolerance=None).labels
-        removed = (res.labels == miem.ABNORMAL) & (angle != miem.ABNORMAL)
-        assert removed.sum() > 0
+        # the height test removed cells: the windows around them were fitted again
+        assert ((res.labels == miem.ABNORMAL) & (angle != miem.ABNORMAL)).sum() > 0
+        removed = _unfitted(g, **kw)
         quiet = ref._quiet_cells(g, after9, r, window, floor, removed)
         assert quiet.sum() > quiet_share * cand.sum()
         cand &= ~quiet
@@ -419,7 +442,7 @@ def test_stream_judges_the_cells_that_are_not_quiet(kw: dict, noise: float) -> N
     p = miem.default_params("stream").replace(**kw)
     stream = ProfileStream(w, params=p)
     stream_all(stream, grid)
-    assert stream.edge_candidates == _not_quiet(grid, p)
+    assert stream.edge_candidates == _not_quiet(grid, p, **kw)
 
 
 def test_stream_quiet_cells_among_scattered_dropouts() -> None:

@@ -3,10 +3,11 @@
 // INVALID or ABNORMAL (no EDGE), each of its four half sub-windows (left, right, up, down:
 // step 2; clipped at the grid border, as the sub-windows are) holds fewer than n_min INVALID or
 // ABNORMAL cells (no sub-window is empty: a quadrant lies within a half; a removed cell is a
-// missing one, like a dropout), no cell within h = window / 2 became ABNORMAL in the height passes (so its
-// height-window plane is the one the height test's first pass fitted), and that plane is quiet
-// (kHQuiet, kHStale clear: quiet_plane and the height passes' marks, stages.hpp). Shared by the
-// batch (edge_test.cpp) and the stream (stream_edges.cpp).
+// missing one, like a dropout), and its height-window plane over the labels after the height
+// passes (each pass re-fits the cells whose window the pass before changed) is quiet (kHQuiet,
+// kHStale clear: quiet_plane and the height passes' marks, stages.hpp; kHStale where the last
+// pass changed the window and no pass re-fitted it). Shared by the batch (edge_test.cpp) and
+// the stream (stream_edges.cpp).
 #pragma once
 
 #include <algorithm>

@@ -50,8 +50,8 @@ inline std::ptrdiff_t edge_n_min(std::ptrdiff_t r) noexcept {
 /// (H x W, or null: no step 9): bit kLine at the feature-line EDGE cells, whose ABNORMAL
 /// neighbours that fit a clean side with a return become EDGE before pass 1 (SPEC step 9).
 /// `planes` (H x W, or null: no cell is quiet): the height test's marks (stages.hpp: kHQuiet
-/// where the cell's first height-window plane is quiet, kHStale where a cell within the height
-/// window became ABNORMAL); pass 1 leaves out the quiet cells (SPEC step 1, edge_quiet.hpp).
+/// where the cell's last height-window plane is quiet, kHStale where that plane is not over the
+/// final labels); pass 1 leaves out the quiet cells (SPEC step 1, edge_quiet.hpp).
 /// Returns the number of passes run. The result does not depend on `num_threads`. `scratch`
 /// and `flags` are reused between calls (grown only when a grid needs more: no allocation for
 /// grids no larger than before).

@@ -76,7 +76,8 @@ MIEM_CLONES void height_row(std::ptrdiff_t n, const std::uint8_t* __restrict wro
     for (std::ptrdiff_t t = 0; t < nb; ++t) {
       const std::ptrdiff_t j = b0 + t;
       const int c = okf[j] != 0 ? static_cast<int>(code[t]) : 0;
-      const std::uint8_t b = static_cast<std::uint8_t>(hm[j] | kHFresh | ((c & 1) ? kHMark : 0) |
+      const std::uint8_t b = static_cast<std::uint8_t>((hm[j] & ~kHQuiet) | kHFresh |
+                                                       ((c & 1) ? kHMark : 0) |
                                                        ((c & 2) ? kHQuiet : 0));
       hm[j] = wrow[j] != 0 ? b : hm[j];
     }
@@ -115,14 +116,14 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
   });
   int passes = 0;
   std::vector<std::vector<std::int64_t>> parts;  // per thread: new ABNORMAL cells of a pass
-  // the edge test's quiet cells (SPEC "Edge test" step 1) by the first pass's planes (a cell
-  // whose window loses a cell later is marked kHStale)
-  const double floor1 = p.edge_test() ? edge_tol(p).floor : -1.0;  // (< 0: none quiet)
+  // the edge test's quiet cells (SPEC "Edge test" step 1) by each cell's last plane (a pass
+  // re-fits every cell whose window the pass before changed; after the last pass, a cell whose
+  // window lost a cell is marked kHStale)
+  const double quiet_floor = p.edge_test() ? edge_tol(p).floor : -1.0;  // (< 0: none quiet)
   for (int hp = 0; hp < p.max_iterations; ++hp) {
-    const double quiet_floor = hp == 0 ? floor1 : -1.0;
     auto visit = [&](std::ptrdiff_t i, const WindowFit& f) {
       if (height) height[i] = f.ok ? f.height : kNaN;
-      std::uint8_t b = static_cast<std::uint8_t>(hm[i] | kHFresh);
+      std::uint8_t b = static_cast<std::uint8_t>((hm[i] & ~kHQuiet) | kHFresh);
       if (height_far(f, p)) b |= kHMark;
       if (quiet_plane(f.ok, f.height, f.n, f.l0, f.l1, f.l2, quiet_floor)) b |= kHQuiet;
       hm[i] = b;
@@ -177,7 +178,9 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
     for (auto& part : parts) part.clear();
     if (ws.fresh.empty()) break;
     // The windows that changed: re-fit their candidates at the next pass; heights there are
-    // stale, and the first pass's planes (kHStale: no quiet cell there, edge_quiet.hpp).
+    // stale until then, and after the last pass their planes too (kHStale: no quiet cell there,
+    // edge_quiet.hpp).
+    const std::uint8_t stale = hp + 1 == p.max_iterations ? kHStale : 0;
     for (std::int64_t i : ws.fresh) {
       const std::ptrdiff_t r = i / W, c = i % W;
       const std::ptrdiff_t ra = std::max<std::ptrdiff_t>(0, r - half);
@@ -188,7 +191,7 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
         std::uint8_t* __restrict h = hm + rr * W;
         const std::uint8_t* __restrict l = labels + rr * W;
         for (std::ptrdiff_t cc = ca; cc <= cb; ++cc) {  // branch-free: vectorised
-          const std::uint8_t b = static_cast<std::uint8_t>((h[cc] & ~kHFresh) | kHStale);
+          const std::uint8_t b = static_cast<std::uint8_t>((h[cc] & ~kHFresh) | stale);
           const bool want = (l[cc] == kNormal) | ((b & kHCompact) != 0);
           h[cc] = static_cast<std::uint8_t>(b | (want ? kHWant : 0));
         }

@@ -139,16 +139,19 @@ inline constexpr std::uint8_t kHWant = 2;     ///< (internal) evaluate at the ne
 inline constexpr std::uint8_t kHFresh = 4;    ///< height[i] holds the final window height
 inline constexpr std::uint8_t kHMark = 8;     ///< (internal) too far at this pass
 inline constexpr std::uint8_t kHSeen = 16;    ///< (internal) visited by the EDGE grouping
-inline constexpr std::uint8_t kHQuiet = 32;   ///< its first pass's plane is quiet (quiet_plane)
-inline constexpr std::uint8_t kHStale = 64;   ///< a cell within window / 2 became ABNORMAL
+inline constexpr std::uint8_t kHQuiet = 32;   ///< its last plane is quiet (quiet_plane)
+/// a cell within window / 2 became ABNORMAL in the last height pass (max_iterations reached
+/// with cells added): its plane was not fitted again
+inline constexpr std::uint8_t kHStale = 64;
 
 /// Height passes (when p.height_abs > 0 or p.height_k > 0): NORMAL cells and EDGE cells of
 /// compact groups too far from their window plane become ABNORMAL, at most p.max_iterations
 /// passes; a pass re-fits only the cells whose window changed. When `height` is not null it
 /// receives the window height of every fitted cell, and ws.hmask marks with kHFresh the cells
-/// whose height is final, with kHQuiet the NORMAL cells whose plane at the first pass is quiet
-/// (quiet_plane, with the edge test's tolerance floor; none without the edge test) and with
-/// kHStale the cells within window / 2 of a cell a pass made ABNORMAL. Leaves ws.cls with the
+/// whose height is final, with kHQuiet the NORMAL cells whose last plane is quiet (quiet_plane,
+/// with the edge test's tolerance floor; none without the edge test) and with kHStale the
+/// cells within window / 2 of a cell the last pass made ABNORMAL when max_iterations ended the
+/// passes (their planes were not fitted again). Leaves ws.cls with the
 /// window classes of the final labels. Returns the number of height passes.
 template <typename T>
 int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* labels,

@@ -480,8 +480,15 @@ void ProfileStream<T>::height_pass_row(std::int64_t row, int pass) noexcept {
     hm[c] = static_cast<std::uint8_t>(b & ~bit);
   }
   // Jacobi: every verdict of the row first (the removals below change later rows' windows only
-  // through hs_, which this pass reads as ">= pass")
+  // through hs_, which this pass reads as ">= pass"); the edge test's quiet marks by the NORMAL
+  // cells' new planes (SPEC "Edge test" step 1: a cell's last plane)
+  const double quiet_floor = edge_ ? detail::edge_tol(jparams_).floor : -1.0;
+  std::uint8_t* ep = eplane_.empty() ? nullptr : eplane_.data() + s * W;
   region_fits(row, pass, [&](std::ptrdiff_t c, const detail::WindowFit& f) {
+    if (ep != nullptr && (hm[c] & kInPlane)) {
+      const bool q = detail::quiet_plane(f.ok, f.height, f.n, f.l0, f.l1, f.l2, quiet_floor);
+      ep[c] = static_cast<std::uint8_t>(q ? ep[c] | detail::kHQuiet : ep[c] & ~detail::kHQuiet);
+    }
     if (detail::height_far(f, jparams_)) remove_height(row, c, pass);
   });
 }
@@ -502,7 +509,7 @@ void ProfileStream<T>::remove_height(std::int64_t row, std::ptrdiff_t col, int p
     std::uint8_t* hm = hm_.data() + slot(rr) * W;
     for (std::ptrdiff_t cc = c0; cc <= c1; ++cc) hm[cc] |= bits;
     hrow_[slot(rr)] |= bits & (kSWantEven | kSWantOdd);
-    if (!eplane_.empty()) {  // the edge test's quiet planes there are not the first pass's
+    if (!eplane_.empty() && pass == passes_) {  // the last pass: no plane there is re-fitted
       std::uint8_t* ep = eplane_.data() + slot(rr) * W;
       for (std::ptrdiff_t cc = c0; cc <= c1; ++cc) ep[cc] |= detail::kHStale;
     }

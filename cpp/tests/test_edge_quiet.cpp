@@ -171,3 +171,66 @@ TEST(EdgeQuiet, PrefixSumsAreTheRunningSums) {
 }
 
 }  // namespace
+
+namespace {
+
+// A noisy level sheet (0.1 mm cells, sigma 0.002 mm, z_noise given: the quiet floor 0.004 mm)
+// with one spike the height test's first pass flags; the height test's marks (ws.hmask) after
+// `iterations` passes.
+std::vector<std::uint8_t> spike_marks(int iterations, std::vector<std::uint8_t>& labels) {
+  constexpr std::ptrdiff_t H = 60, W = 60;
+  std::vector<double> xyz(static_cast<std::size_t>(3 * H * W));
+  std::mt19937 rng(17);
+  std::normal_distribution<double> noise(0.0, 0.002);
+  for (std::ptrdiff_t r = 0; r < H; ++r)
+    for (std::ptrdiff_t c = 0; c < W; ++c) {
+      double* q = xyz.data() + 3 * (r * W + c);
+      q[0] = 0.1 * c, q[1] = 0.1 * r, q[2] = noise(rng);
+    }
+  xyz[3 * (30 * W + 30) + 2] += 0.3;  // the spike
+  miem::DetectParams p = miem::recommended_params();
+  p.max_iterations = iterations;
+  p.min_step = -1.0, p.min_step_auto = false;
+  p.z_resolution = -1.0, p.z_resolution_auto = false;
+  p.z_noise = 0.002, p.z_noise_auto = false;
+  p.num_threads = 1;
+  labels.assign(static_cast<std::size_t>(H * W), miem::kNormal);  // as the angle test left them
+  std::vector<double> height(static_cast<std::size_t>(H * W));
+  miem::detail::Workspace ws;
+  miem::detail::height_test(miem::GridView<double>::dense(xyz.data(), H, W), p, labels.data(),
+                            height.data(), ws);
+  return std::vector<std::uint8_t>(ws.hmask.begin(), ws.hmask.end());
+}
+
+}  // namespace
+
+// SPEC "Edge test" step 1: a cell's quiet mark follows its last height-window plane. The cells
+// around the spike the first pass removed are fitted again at the second pass, without it: a
+// level sheet, their planes quiet (rms about sigma, below 0.75 x the floor of 2 sigma). With one
+// pass nothing fits them again: their planes are stale (kHStale), not quiet.
+TEST(EdgeQuiet, TheLastPlaneDecidesAroundAHeightRemoval) {
+  constexpr std::ptrdiff_t W = 60, h = 10;  // the default window 21
+  std::vector<std::uint8_t> labels;
+  const std::vector<std::uint8_t> ten = spike_marks(10, labels);
+  ASSERT_EQ(labels[30 * W + 30], miem::kAbnormal);
+  std::ptrdiff_t around = 0, quiet = 0, stale = 0;
+  for (std::ptrdiff_t r = 30 - h; r <= 30 + h; ++r)
+    for (std::ptrdiff_t c = 30 - h; c <= 30 + h; ++c) {
+      if (r == 30 && c == 30) continue;
+      const std::uint8_t b = ten[static_cast<std::size_t>(r * W + c)];
+      ++around;
+      quiet += (b & (kHQuiet | kHStale)) == kHQuiet;
+      stale += (b & kHStale) != 0;
+    }
+  EXPECT_EQ(stale, 0);
+  EXPECT_GT(quiet, around * 95 / 100) << quiet << " of " << around;
+  const std::vector<std::uint8_t> one = spike_marks(1, labels);
+  ASSERT_EQ(labels[30 * W + 30], miem::kAbnormal);
+  for (std::ptrdiff_t r = 30 - h; r <= 30 + h; ++r)
+    for (std::ptrdiff_t c = 30 - h; c <= 30 + h; ++c) {
+      if (r == 30 && c == 30) continue;
+      EXPECT_NE(one[static_cast<std::size_t>(r * W + c)] & kHStale, 0) << r << ", " << c;
+    }
+  // beyond the window no plane changed: the same marks either way
+  EXPECT_EQ(one[5 * W + 5] & (kHQuiet | kHStale), ten[5 * W + 5] & (kHQuiet | kHStale));
+}

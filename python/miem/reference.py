@@ -1156,17 +1156,17 @@ def _quiet_cells(
     removed: NDArray[np.bool_],
 ) -> NDArray[np.bool_]:
     """SPEC "Edge test" step 1: the quiet cells, which pass 1 leaves out, on the labels at the
-    start of the edge test (``window``: the height test's; ``removed``: the cells its passes
-    made ABNORMAL). A NORMAL cell is quiet when every cell of the grid within ``r`` rows and
-    columns is NORMAL, INVALID or ABNORMAL (no EDGE), each of its four half sub-windows (step 2,
-    clipped at the grid border) holds fewer than ``n_min`` INVALID or ABNORMAL cells (no
-    sub-window of step 3 is empty: a quadrant lies within a half), no
-    ``removed`` cell lies within ``window // 2``, and its height-window plane (the NORMAL cells
-    of its window, itself included, as the height test fits them) is smooth,
-    ``rms = sqrt(max(l0, 0) / n) <= _EDGE_QUIET_ROUGH * floor`` or flat to round-off
-    (``l0 <= _FLAT_L0 * l2``, step 3's rms of 0: a noise-free plane, whose ``floor`` is often
-    0), with the cell within ``_EDGE_QUIET_H * rms`` of it, or within the height test's
-    round-off floor ``1e-6 sqrt((l1 + l2) / n)``."""
+    start of the edge test (``window``: the height test's; ``removed``: the cells its last pass
+    made ABNORMAL when no pass re-fitted the windows around them). A NORMAL cell is quiet when
+    every cell of the grid within ``r`` rows and columns is NORMAL, INVALID or ABNORMAL (no
+    EDGE), each of its four half sub-windows (step 2, clipped at the grid border) holds fewer
+    than ``n_min`` INVALID or ABNORMAL cells (no sub-window of step 3 is empty: a quadrant lies
+    within a half), no ``removed`` cell lies within ``window // 2``, and its height-window
+    plane (the NORMAL cells of its window, itself included, as the height test fits them on the
+    labels after its passes) is smooth, ``rms = sqrt(max(l0, 0) / n) <= _EDGE_QUIET_ROUGH *
+    floor`` or flat to round-off (``l0 <= _FLAT_L0 * l2``, step 3's rms of 0: a noise-free
+    plane, whose ``floor`` is often 0), with the cell within ``_EDGE_QUIET_H * rms`` of it, or
+    within the height test's round-off floor ``1e-6 sqrt((l1 + l2) / n)``."""
     normal = labels == NORMAL
     side = 2 * r + 1
     cand = normal & (_box_count(labels == EDGE, side) == 0)
@@ -2069,8 +2069,9 @@ def edge_test(
     """Edge passes on top of the angle and height passes (SPEC "Edge test").
 
     ``labels`` (H, W) are those after the height passes; ``height_window`` the height test's
-    window when it ran and ``height_removed`` the cells its passes made ABNORMAL (pass 1 leaves
-    out the quiet cells, step 1; None: no cell is quiet); ``min_step``, ``z_resolution`` and
+    window when it ran and ``height_removed`` the cells its last pass made ABNORMAL when the
+    passes ended with ``max_iterations`` (no pass re-fitted the windows around them; else none)
+    (pass 1 leaves out the quiet cells, step 1; None: no cell is quiet); ``min_step``, ``z_resolution`` and
     ``z_noise`` the ones in use (None: off; no sub-window's tolerance is below ``min_step / 2``,
     ``1.5 z_resolution`` or ``2 z_noise``, step 3); ``lines`` the feature-line EDGE cells
     (step 9: the ABNORMAL cells beside them that fit a clean side with a return become EDGE
@@ -2418,7 +2419,9 @@ def detect(
             # of them, on top of the angle passes. Flags and angles are left as they are.
             # EDGE groups link across dropouts and the angle passes' ABNORMAL cells
             bridge = ~finite | (labels == ABNORMAL)
-            angle_abnormal = labels == ABNORMAL
+            # the cells the last height pass removed when the passes end with iters (a pass
+            # after it would have re-fitted their windows: the edge test's quiet rule)
+            unfitted = np.zeros(labels.shape, dtype=bool)
             for _ in range(iters):
                 passes += 1
                 compact = _compact_edges(labels == EDGE, extent, bridge, gap)
@@ -2428,6 +2431,7 @@ def detect(
                 )
                 labels[new_abn] = ABNORMAL
                 abnormal |= new_abn
+                unfitted = new_abn
                 if not new_abn.any():
                     break
 
@@ -2441,8 +2445,8 @@ def detect(
                                         max_iterations=iters, min_step=step, z_resolution=zres,
                                         z_noise=noise, lines=lines, precision=precision,
                                         height_window=win if tolerance is not None else None,
-                                        height_removed=(labels == ABNORMAL) & ~angle_abnormal
-                                        if tolerance is not None else None)
+                                        height_removed=unfitted if tolerance is not None
+                                        else None)
         passes += edge_passes
         abnormal = labels == ABNORMAL
 
