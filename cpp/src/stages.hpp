@@ -151,8 +151,8 @@ inline constexpr std::uint8_t kHStale = 64;
 /// whose height is final, with kHQuiet the NORMAL cells whose last plane is quiet (quiet_plane,
 /// with the edge test's tolerance floor; none without the edge test) and with kHStale the
 /// cells within window / 2 of a cell the last pass made ABNORMAL when max_iterations ended the
-/// passes (their planes were not fitted again). Leaves ws.cls with the
-/// window classes of the final labels. Returns the number of height passes.
+/// passes (their planes were not fitted again). Leaves ws.cls with the window classes of the
+/// final labels. Returns the number of height passes.
 template <typename T>
 int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* labels,
                 double* height, Workspace& ws);

@@ -51,9 +51,11 @@ std::vector<std::uint8_t> brute(const Cells& s, std::ptrdiff_t r) {
   const std::ptrdiff_t H = s.H, W = s.W, n_min = miem::detail::edge_n_min(r);
   std::vector<std::uint8_t> todo(static_cast<std::size_t>(H * W), 1);
   auto at = [&](std::ptrdiff_t a, std::ptrdiff_t b) { return s.labels[a * W + b]; };
-  auto inside = [&](std::ptrdiff_t a, std::ptrdiff_t b) { return a >= 0 && a < H && b >= 0 && b < W; };
+  auto inside = [&](std::ptrdiff_t a, std::ptrdiff_t b) {
+    return a >= 0 && a < H && b >= 0 && b < W;
+  };
   auto gone = [&](std::ptrdiff_t a0, std::ptrdiff_t a1, std::ptrdiff_t b0, std::ptrdiff_t b1) {
-    std::ptrdiff_t n = 0;  // INVALID or ABNORMAL cells of the grid in rows [a0, a1], columns [b0, b1]
+    std::ptrdiff_t n = 0;  // INVALID or ABNORMAL cells of the grid, rows [a0, a1], cols [b0, b1]
     for (std::ptrdiff_t a = a0; a <= a1; ++a)
       for (std::ptrdiff_t b = b0; b <= b1; ++b)
         n += inside(a, b) && (at(a, b) == miem::kInvalid || at(a, b) == miem::kAbnormal);
