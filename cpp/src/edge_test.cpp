@@ -13,6 +13,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include "byte_scan.hpp"
 #include "edge_quiet.hpp"
 #include "edge_verdict.hpp"
 #include "judge.hpp"
@@ -1515,6 +1516,19 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol e
         qw.drop(labels + x * W, labels + (x + 1) * W, std::min(r, H - 1 - x), planes + x * W,
                 kHQuiet | kHStale, kHQuiet, todo + x * W);
         if (x - r >= 0) qw.add(labels + (x - r) * W, -1);
+      }
+    });
+    // pass 1's tiles: those with a candidate left (the others cost no scan of their cells, in
+    // the judgment nor in the collection of its marks)
+    parallel_ranges(ntn, tiles_r * tiles_c, 1, [&](int, std::ptrdiff_t t0, std::ptrdiff_t t1) {
+      for (std::ptrdiff_t t = t0; t < t1; ++t) {
+        const std::ptrdiff_t R0 = (t / tiles_c) * kTileRows, R1 = std::min(H, R0 + kTileRows);
+        const std::ptrdiff_t C0 = (t % tiles_c) * kTileCols, C1 = std::min(W, C0 + kTileCols);
+        bool any = false;
+        for (std::ptrdiff_t rr = R0; rr < R1 && !any; ++rr) {
+          any = next_nonzero(todo + rr * W + C0, 0, C1 - C0) < C1 - C0;
+        }
+        tile_todo[static_cast<std::size_t>(t)] = any ? 1 : 0;
       }
     });
   }
