@@ -1393,6 +1393,14 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol e
   // the tiles with a todo cell (the others are skipped: no scan of their cells), and a pass's
   // such tiles in order; a tile's marks are read only while it has its flag
   std::vector<std::uint8_t> tile_todo(static_cast<std::size_t>(tiles_r * tiles_c), 1);
+  // tile t's cells: rows [R0, R1), columns [C0, C1) (clipped at the grid's border)
+  struct TileBox {
+    std::ptrdiff_t R0, R1, C0, C1;
+  };
+  const auto tile_box = [&](std::ptrdiff_t t) {
+    const std::ptrdiff_t R0 = (t / tiles_c) * kTileRows, C0 = (t % tiles_c) * kTileCols;
+    return TileBox{R0, std::min(H, R0 + kTileRows), C0, std::min(W, C0 + kTileCols)};
+  };
   // One pass over the tiles with tile_todo: the verdicts (or, for step 9, the fits) of the
   // todo cells into mark.
   const auto judge_tiles = [&](EdgeJudgment judge) {
@@ -1407,8 +1415,7 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol e
 #endif
       double* const col = S + kM * plane;  // moment q of column x at col[q * EC + x]
       const EdgeBandCache cache{col + kM * EC, cache_slots};
-      const std::ptrdiff_t R0 = (tile / tiles_c) * kTileRows, R1 = std::min(H, R0 + kTileRows);
-      const std::ptrdiff_t C0 = (tile % tiles_c) * kTileCols, C1 = std::min(W, C0 + kTileCols);
+      const auto [R0, R1, C0, C1] = tile_box(tile);
       // the last row and column with a candidate (after the first pass candidates are the
       // windows around new ABNORMAL cells, often a corner of the tile)
       std::ptrdiff_t rfirst = -1, rlast = -1, clast = -1;
@@ -1522,8 +1529,7 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol e
     // the judgment nor in the collection of its marks)
     parallel_ranges(ntn, tiles_r * tiles_c, 1, [&](int, std::ptrdiff_t t0, std::ptrdiff_t t1) {
       for (std::ptrdiff_t t = t0; t < t1; ++t) {
-        const std::ptrdiff_t R0 = (t / tiles_c) * kTileRows, R1 = std::min(H, R0 + kTileRows);
-        const std::ptrdiff_t C0 = (t % tiles_c) * kTileCols, C1 = std::min(W, C0 + kTileCols);
+        const auto [R0, R1, C0, C1] = tile_box(t);
         bool any = false;
         for (std::ptrdiff_t rr = R0; rr < R1 && !any; ++rr) {
           any = next_nonzero(todo + rr * W + C0, 0, C1 - C0) < C1 - C0;
@@ -1550,9 +1556,9 @@ int run_passes(const GridView<T>& g, std::uint8_t* labels, int window, EdgeTol e
                    [&](std::ptrdiff_t u0, std::ptrdiff_t u1, std::vector<std::int64_t>& part) {
       for (std::ptrdiff_t u = u0; u < u1; ++u) {
         const std::ptrdiff_t t = active[static_cast<std::size_t>(u / kTileRows)];
-        const std::ptrdiff_t rr = (t / tiles_c) * kTileRows + u % kTileRows;
-        if (rr >= H) continue;
-        const std::ptrdiff_t C0 = (t % tiles_c) * kTileCols, C1 = std::min(W, C0 + kTileCols);
+        const TileBox b = tile_box(t);
+        const std::ptrdiff_t rr = b.R0 + u % kTileRows, C0 = b.C0, C1 = b.C1;
+        if (rr >= b.R1) continue;
         std::fill(todo + rr * W + C0, todo + rr * W + C1, std::uint8_t{0});
         for (std::ptrdiff_t i = rr * W + C0; i < rr * W + C1;) {
           std::uint64_t w8 = 0;  // 8 marks at a time: most are 0
