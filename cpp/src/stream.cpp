@@ -213,7 +213,8 @@ __attribute__((target("avx512f,avx512vl"))) inline __m512d load8(const double* p
   return _mm512_loadu_pd(p);
 }
 __attribute__((target("avx512f,avx512vl"))) inline __m512d load8(const float* p) {
-  return _mm512_maskz_cvtps_pd(0xFF, _mm256_loadu_ps(p));  // (maskz: no undefined register)
+  // (maskz: _mm512_cvtps_pd reads an undefined register, which GCC 12 warns of)
+  return _mm512_maskz_cvtps_pd(0xFF, _mm256_loadu_ps(p));
 }
 __attribute__((target("avx512f,avx512vl"))) inline __m512d load8(__m512d old, __mmask8 k,
                                                                   const double* p) {
