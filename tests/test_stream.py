@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import miem
@@ -9,6 +10,9 @@ import numpy as np
 import pytest
 from miem import reference as ref
 from miem.stream import ProfileStream, StreamRow
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from quiet_removed import detect_seeing_removed  # noqa: E402
 
 
 def make_scan(h: int, w: int, seed: int) -> np.ndarray:
@@ -358,26 +362,6 @@ def test_stream_runs_the_edge_test_as_batch(kw: dict) -> None:
     assert_same_defects(defects, want.defects, want.labels)
 
 
-def _unfitted(grid: np.ndarray, **kw: object) -> np.ndarray:
-    """The cells the reference's last height pass removed when max_iterations ended the passes
-    (none when they ended by themselves), as ``ref.detect(grid, **kw)`` hands them to the quiet
-    rule (SPEC "Edge test" step 1: no later pass re-fitted the windows around them)."""
-    seen = []
-    quiet_cells = ref._quiet_cells
-
-    def spy(*args: object) -> np.ndarray:
-        seen.append(np.array(args[5], dtype=bool))
-        return quiet_cells(*args)
-
-    ref._quiet_cells = spy
-    try:
-        ref.detect(grid, **kw)
-    finally:
-        ref._quiet_cells = quiet_cells
-    assert len(seen) == 1
-    return seen[0]
-
-
 def _not_quiet(grid: np.ndarray, p: miem.DetectParams, quiet_share: float = 0.2,
                **kw: object) -> int:
     """The NORMAL and EDGE cells after step 9 that the reference finds not quiet (SPEC "Edge
@@ -403,7 +387,7 @@ def _not_quiet(grid: np.ndarray, p: miem.DetectParams, quiet_share: float = 0.2,
         angle = miem.detect(grid, params=p, height_tolerance=None, edge_tolerance=None).labels
         # the height test removed cells: the windows around them were fitted again
         assert ((res.labels == miem.ABNORMAL) & (angle != miem.ABNORMAL)).sum() > 0
-        removed = _unfitted(g, **kw)
+        removed = detect_seeing_removed(g, **kw)[1]
         quiet = ref._quiet_cells(g, after9, r, window, floor, removed)
         assert quiet.sum() > quiet_share * cand.sum()
         cand &= ~quiet

@@ -115,10 +115,10 @@ inline void quiet_halves(std::ptrdiff_t W, std::ptrdiff_t r, std::int32_t n_min,
 }
 
 /// The window condition over the rows of the grid within r of a row (2 r + 1 of them but
-/// within r of the grid's first and last rows): per column, the INVALID or ABNORMAL cells (inv: no support)
-/// and the EDGE cells (bad) of the rows held, kept as rows come in and go out; low, pinv, pbad,
-/// pup and plow are scratch for drop (W, then W + 1 each with r of padding on either side).
-/// The caller owns the buffer (over(): ints(W, r) of them).
+/// within r of the grid's first and last rows): per column, the INVALID or ABNORMAL cells (inv:
+/// no support) and the EDGE cells (bad) of the rows held, kept as rows come in and go out; low,
+/// pinv, pbad, pup and plow are scratch for drop (W, then W + 1 each with r of padding on
+/// either side). The caller owns the buffer (over(): ints(W, r) of them).
 struct QuietCounts {
   std::int32_t* inv;
   std::int32_t* bad;

@@ -37,6 +37,12 @@ inline EdgeTol edge_tol(const DetectParams& p, double prec = 0.0) noexcept {
           prec};
 }
 
+/// The floor the height passes' planes are held to for the quiet cells (SPEC "Edge test"
+/// step 1: quiet_plane's `floor`): edge_tol's, with the edge test on; < 0: none is quiet.
+inline double quiet_plane_floor(const DetectParams& p) noexcept {
+  return p.edge_test() ? edge_tol(p).floor : -1.0;
+}
+
 /// A sub-window with at least this many INVALID cells has no return there (*empty*), and a
 /// plane needs this much support: SPEC "Edge test" step 3's n_min = max(3, r^2 / 2) for
 /// sub-window half-size r (also the quiet cells' bound on INVALID cells, step 1).

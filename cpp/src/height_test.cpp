@@ -119,7 +119,7 @@ int height_test(const GridView<T>& g, const DetectParams& p, std::uint8_t* label
   // the edge test's quiet cells (SPEC "Edge test" step 1) by each cell's last plane (a pass
   // re-fits every cell whose window the pass before changed; after the last pass, a cell whose
   // window lost a cell is marked kHStale)
-  const double quiet_floor = p.edge_test() ? edge_tol(p).floor : -1.0;  // (< 0: none quiet)
+  const double quiet_floor = quiet_plane_floor(p);
   for (int hp = 0; hp < p.max_iterations; ++hp) {
     auto visit = [&](std::ptrdiff_t i, const WindowFit& f) {
       if (height) height[i] = f.ok ? f.height : kNaN;

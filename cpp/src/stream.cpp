@@ -70,7 +70,9 @@ struct KernelArgs {
   const T* B2[32];
   const std::uint8_t* SA[32];
   const std::uint8_t* SB[32];
-  const T* rows[33];  // the rows the kernel reads (their x planes), for kernel_avx512's prefetch
+  // the rows the kernel reads (their x planes), for kernel_avx512's prefetch: the row, and a
+  // row above and one below per scale (4 pairs a scale: at most 32 / 4 scales)
+  const T* rows[1 + 2 * (32 / 4)];
   int n_rows;
   bool gap;
   int n;  // (direction, scale) pairs
@@ -614,7 +616,7 @@ inline __attribute__((always_inline)) std::ptrdiff_t split_dense_body(
   std::ptrdiff_t nf = 0;
   for (std::ptrdiff_t c0 = 0; c0 < n; c0 += kChunk) {
     if (c0 + kAhead < n) {
-      for (std::ptrdiff_t c = c0 + kAhead; c < c0 + kAhead + kChunk; c += kLine) {
+      for (std::ptrdiff_t c = c0 + kAhead; c < std::min(n, c0 + kAhead + kChunk); c += kLine) {
         __builtin_prefetch(x + c, 1);
         __builtin_prefetch(y + c, 1);
         __builtin_prefetch(z + c, 1);
@@ -991,7 +993,7 @@ void ProfileStream<T>::pass1_fast(std::int64_t row) noexcept {
   // the kernel's rows: `row` and the rows a scale above and below it (its directions' steps)
   args.rows[0] = xyz_.data() + slot(row) * W;
   args.n_rows = 1;
-  for (std::size_t si = 0; si < n_scales && args.n_rows + 2 <= 33; ++si) {
+  for (std::size_t si = 0; si < n_scales; ++si) {  // (at most 7 scales: fast_ok_)
     args.rows[args.n_rows++] = xyz_.data() + slot(row - params_.scales[si]) * W;
     args.rows[args.n_rows++] = xyz_.data() + slot(row + params_.scales[si]) * W;
   }

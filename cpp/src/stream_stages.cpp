@@ -342,7 +342,7 @@ void ProfileStream<T>::height_pass1_row(std::int64_t row) noexcept {
   const std::uint8_t* hm = hm_.data() + s * W;
   double* height = height_.data() + s * W;
   // the edge test's quiet planes (cleared at push; with the height test only)
-  const double quiet_floor = edge_ && htest_ ? detail::edge_tol(jparams_).floor : -1.0;
+  const double quiet_floor = htest_ ? detail::quiet_plane_floor(jparams_) : -1.0;
   std::uint8_t* quiet = quiet_floor >= 0.0 ? eplane_.data() + s * W : nullptr;
   // The strips split among the threads, each with its own scratch; a cell too far goes into
   // far_row_, and the removals (which mark the cells around, in other strips too) follow in
@@ -482,7 +482,7 @@ void ProfileStream<T>::height_pass_row(std::int64_t row, int pass) noexcept {
   // Jacobi: every verdict of the row first (the removals below change later rows' windows only
   // through hs_, which this pass reads as ">= pass"); the edge test's quiet marks by the NORMAL
   // cells' new planes (SPEC "Edge test" step 1: a cell's last plane)
-  const double quiet_floor = edge_ ? detail::edge_tol(jparams_).floor : -1.0;
+  const double quiet_floor = detail::quiet_plane_floor(jparams_);
   std::uint8_t* ep = eplane_.empty() ? nullptr : eplane_.data() + s * W;
   region_fits(row, pass, [&](std::ptrdiff_t c, const detail::WindowFit& f) {
     if (ep != nullptr && (hm[c] & kInPlane)) {

@@ -2072,10 +2072,10 @@ def edge_test(
     window when it ran and ``height_removed`` the cells its last pass made ABNORMAL when the
     passes ended with ``max_iterations`` (no pass re-fitted the windows around them; else
     none; pass 1 leaves out the quiet cells, step 1; None: no cell is quiet); ``min_step``,
-    ``z_resolution`` and ``z_noise`` the ones in use (None: off; no sub-window's tolerance is below ``min_step / 2``,
-    ``1.5 z_resolution`` or ``2 z_noise``, step 3); ``lines`` the feature-line EDGE cells
-    (step 9: the ABNORMAL cells beside them that fit a clean side with a return become EDGE
-    before pass 1; None: no such step); ``precision`` the input's (step 3: every tolerance at
+    ``z_resolution`` and ``z_noise`` the ones in use (None: off; no sub-window's tolerance is
+    below ``min_step / 2``, ``1.5 z_resolution`` or ``2 z_noise``, step 3); ``lines`` the
+    feature-line EDGE cells (step 9: the ABNORMAL cells beside them that fit a clean side with
+    a return become EDGE before pass 1; None: no such step); ``precision`` the input's (step 3: every tolerance at
     least ``precision`` times the cell's largest absolute coordinate: ``_EDGE_PRECISION``
     epsilons of the input type, float64's by default, as :func:`detect` gives them); returns
     the new labels and the number of edge passes run.
